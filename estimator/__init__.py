@@ -1,1 +1,31 @@
-"""estimator"""
+"""Cooperative gradient estimation and gradient-ascent seeking (pure numpy, no I/O).
+
+Public API
+----------
+gradient, gradient_batch, estimator_weights, GeometryError, METHODS
+    Paper eq. (3) (``"symmetric"``) and Theorem 2 (``"cvt"``) estimators.
+seek_step, ConvergenceMonitor, ConvergenceVerdict, convergence_scan
+    The capped gradient-ascent step and the convergence test.
+"""
+from estimator.gradient import (
+    DEFAULT_MAX_CONDITION,
+    METHODS,
+    GeometryError,
+    estimator_weights,
+    gradient,
+    gradient_batch,
+)
+from estimator.seeking import ConvergenceMonitor, ConvergenceVerdict, convergence_scan, seek_step
+
+__all__ = [
+    "DEFAULT_MAX_CONDITION",
+    "METHODS",
+    "GeometryError",
+    "estimator_weights",
+    "gradient",
+    "gradient_batch",
+    "seek_step",
+    "ConvergenceMonitor",
+    "ConvergenceVerdict",
+    "convergence_scan",
+]

@@ -1,0 +1,145 @@
+"""Live progress display: a table redrawn in place on a terminal, plain lines otherwise.
+
+The display renders the coordinator's state snapshot (the same dict published on
+``swarmseek/<fleet>/mission/state``, see ``docs/mission.md``): phase, per-vehicle mode, armed,
+altitude, link age and setpoint rate; centre, gradient and distance flown.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from typing import IO
+
+__all__ = ["Display", "format_table", "format_line", "format_summary"]
+
+
+def _vec(v, fmt="{:7.2f}") -> str:
+    if v is None:
+        return "-"
+    return "(" + ", ".join(fmt.format(float(x)) for x in v) + ")"
+
+
+def _num(v, fmt="{:.2f}") -> str:
+    return "-" if v is None else fmt.format(float(v))
+
+
+def format_table(state: dict) -> list[str]:
+    """The lines of the live table for one state snapshot."""
+    lines = [
+        f"swarmseek  fleet {state.get('fleet', '?')}  phase {state.get('phase', '?').upper():9s}"
+        f"  t {_num(state.get('elapsed_s'), '{:7.1f}')} s  iteration {state.get('iteration', 0)}",
+        f"centre {_vec(state.get('centre_enu'))} m   gradient {_vec(state.get('gradient'), '{:+.2e}')}",
+        f"estimate {_vec(state.get('estimate_enu'))} m  spread {_num(state.get('spread_m'))} m"
+        f"   flown {_num(state.get('distance_flown_m'), '{:.1f}')} m",
+    ]
+    rd = state.get("readings") or {}
+    rejected = {k: v for k, v in (rd.get("rejected") or {}).items() if v}
+    lines.append(f"readings accepted {rd.get('accepted', 0)}  rejected {rejected or 0}")
+    lines.append(f"{'sysid':>5} {'id':10} {'flavour':9} {'mode':12} {'armed':5} {'alt_m':>7} "
+                 f"{'link_s':>6} {'sp_hz':>6}  status")
+    for v in state.get("vehicles", []):
+        lines.append(
+            f"{v.get('sysid', '?'):>5} {str(v.get('id', ''))[:10]:10} {str(v.get('flavour', ''))[:9]:9} "
+            f"{str(v.get('mode', ''))[:12]:12} {('yes' if v.get('armed') else 'no'):5} "
+            f"{_num(v.get('relative_alt_m'), '{:7.2f}'):>7} {_num(v.get('link_age_s'), '{:6.2f}'):>6} "
+            f"{_num(v.get('setpoint_rate_hz'), '{:6.1f}'):>6}  {v.get('status', '')}")
+    return lines
+
+
+def format_line(state: dict) -> str:
+    """One plain progress line for one state snapshot."""
+    armed = sum(1 for v in state.get("vehicles", []) if v.get("armed"))
+    return (f"[{_num(state.get('elapsed_s'), '{:7.1f}')} s] {state.get('phase', '?'):8s} "
+            f"k={state.get('iteration', 0):<4d} centre={_vec(state.get('centre_enu'), '{:.2f}')} "
+            f"|grad|={_num(state.get('gradient_norm'), '{:.2e}')} "
+            f"flown={_num(state.get('distance_flown_m'), '{:.1f}')} m armed={armed}/"
+            f"{len(state.get('vehicles', []))}")
+
+
+def format_summary(summary: dict) -> list[str]:
+    """Human-readable lines of the end-of-mission summary."""
+    lines = [f"mission {summary.get('outcome', '?')}: {summary.get('message', '')}"]
+    if summary.get("estimate_enu") is not None:
+        lines.append(f"  estimated source {_vec(summary['estimate_enu'], '{:.2f}')} m "
+                     f"(spread {_num(summary.get('spread_m'))} m) after {summary.get('iterations', 0)} iterations")
+    if summary.get("true_source_enu") is not None:
+        lines.append(f"  true source      {_vec(summary['true_source_enu'], '{:.2f}')} m, "
+                     f"error {_num(summary.get('error_m'))} m")
+    lines.append(f"  mission time {_num(summary.get('mission_time_s'), '{:.1f}')} s, seek time "
+                 f"{_num(summary.get('seek_time_s'), '{:.1f}')} s, distance flown (centre) "
+                 f"{_num(summary.get('distance_flown_m'), '{:.1f}')} m")
+    return lines
+
+
+class Display:
+    """Shows the coordinator's progress.
+
+    Parameters
+    ----------
+    stream : file, optional
+        Default ``sys.stdout``.
+    tty : bool, optional
+        Redraw a table in place (default: ``stream.isatty()``).
+    quiet : bool
+        Show nothing (e.g. with ``--json``).
+    min_interval_s : float
+        Plain lines: at most one per this many wall seconds, plus one per phase change.
+    """
+
+    def __init__(self, stream: IO[str] | None = None, tty: bool | None = None, quiet: bool = False,
+                 min_interval_s: float = 1.0):
+        self.stream = stream if stream is not None else sys.stdout
+        if tty is None:
+            try:
+                tty = self.stream.isatty()
+            except (AttributeError, ValueError):
+                tty = False
+        self.tty = bool(tty)
+        self.quiet = quiet
+        self.min_interval_s = float(min_interval_s)
+        self._drawn_lines = 0
+        self._last_phase = None
+        self._last_line_s = -1e9
+
+    def update(self, state: dict) -> None:
+        """Render one snapshot (table in place, or a plain line when due)."""
+        if self.quiet:
+            return
+        if self.tty:
+            lines = format_table(state)
+            out = []
+            if self._drawn_lines:
+                out.append(f"\x1b[{self._drawn_lines}F")
+            out.extend("\x1b[2K" + line + "\n" for line in lines)
+            if self._drawn_lines > len(lines):
+                out.extend("\x1b[2K\n" for _ in range(self._drawn_lines - len(lines)))
+            self.stream.write("".join(out))
+            self.stream.flush()
+            self._drawn_lines = max(self._drawn_lines, len(lines))
+            self._last_phase = state.get("phase")
+            return
+        now = time.monotonic()
+        phase = state.get("phase")
+        if phase != self._last_phase or now - self._last_line_s >= self.min_interval_s:
+            self._last_phase = phase
+            self._last_line_s = now
+            self.stream.write(format_line(state) + "\n")
+            self.stream.flush()
+
+    def message(self, text: str) -> None:
+        """An event line (printed above the table on a terminal)."""
+        if self.quiet:
+            return
+        if self.tty and self._drawn_lines:
+            self.stream.write(f"\x1b[{self._drawn_lines}F\x1b[0J")
+            self._drawn_lines = 0
+        self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def summary(self, summary: dict) -> None:
+        """Print the end-of-mission summary."""
+        if self.quiet:
+            return
+        for line in format_summary(summary):
+            self.stream.write(line + "\n")
+        self.stream.flush()

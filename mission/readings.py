@@ -1,0 +1,381 @@
+"""Sensor readings over zenoh: decode, validate, count rejections, align in time.
+
+Readings arrive on ``swarmseek/<fleet>/vehicle/<sysid>/sensor`` as the JSON payload of
+``docs/interfaces.md`` (schema ``swarmseek.sensor.v1``). :class:`ReadingStore` checks each one
+and either keeps it (a bounded history per vehicle) or rejects it and counts the reason, one of
+:data:`REJECT_REASONS`:
+
+``malformed``        not UTF-8 JSON, not an object, a field missing or of the wrong type
+``wrong_schema``     ``schema`` is not ``swarmseek.sensor.v1``
+``wrong_fleet``      ``fleet`` differs from the mission's fleet
+``bad_key``          the key is not ``swarmseek/<fleet>/vehicle/<sysid>/sensor``
+``unknown_vehicle``  the sysid is not one of the mission's vehicles
+``sysid_mismatch``   the sysid in the key differs from the payload's
+``not_finite``       NaN or infinity in time, position or value
+``duplicate``        same ``seq`` as an accepted reading from that vehicle
+``old_seq``          ``seq`` lower than the last accepted one (a restart, i.e. a lower seq more
+                     than ``seq_reset_after_s`` newer than the last reading, is accepted)
+``late``             taken more than ``max_age_s`` before now (mission clock), or in the future
+                     by more than ``max_age_s``
+``position_far``     taken farther than ``max_position_error_m`` from the vehicle's telemetry
+
+Time alignment: :meth:`ReadingStore.aligned` returns, for an estimation instant ``t``, each
+vehicle's reading nearest ``t`` within ``window_s``, with the position where it was taken in the
+mission ENU frame (converted with :mod:`formation.geodesy`).
+"""
+from __future__ import annotations
+
+import bisect
+import json
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass
+from typing import Callable, Iterable
+
+import numpy as np
+
+from formation.geodesy import geodetic_to_enu
+
+__all__ = [
+    "SCHEMA",
+    "REJECT_REASONS",
+    "Reading",
+    "ReadingRejected",
+    "decode_reading",
+    "sensor_key",
+    "sensor_key_expr",
+    "ReadingStore",
+    "ReadingSubscriber",
+]
+
+SCHEMA = "swarmseek.sensor.v1"
+REJECT_REASONS = ("malformed", "wrong_schema", "wrong_fleet", "bad_key", "unknown_vehicle",
+                  "sysid_mismatch", "not_finite", "duplicate", "old_seq", "late", "position_far")
+_FIELDS = {"schema": str, "fleet": str, "sysid": int, "seq": int, "time_s": float,
+           "lat_deg": float, "lon_deg": float, "alt_m": float, "value": float}
+
+
+class ReadingRejected(ValueError):
+    """A reading that cannot be used; ``reason`` is one of :data:`REJECT_REASONS`."""
+
+    def __init__(self, reason: str, detail: str):
+        self.reason = reason
+        super().__init__(f"{reason}: {detail}")
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One accepted sensor reading.
+
+    Attributes
+    ----------
+    sysid, seq : int
+    time_s : float
+        Sender's clock when the sample was taken.
+    lat_deg, lon_deg, alt_m : float
+        Where it was taken.
+    value : float
+    position_enu_m : numpy.ndarray
+        Where it was taken, mission ENU frame.
+    received_s : float
+        Mission clock when it was accepted.
+    """
+
+    sysid: int
+    seq: int
+    time_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    value: float
+    position_enu_m: np.ndarray
+    received_s: float
+
+    def to_json(self) -> dict:
+        """A JSON-friendly dict (for the mission log)."""
+        return {"sysid": self.sysid, "seq": self.seq, "time_s": self.time_s, "value": self.value,
+                "position_enu_m": [round(float(x), 4) for x in self.position_enu_m]}
+
+
+def sensor_key(fleet: str, sysid: int) -> str:
+    """``swarmseek/<fleet>/vehicle/<sysid>/sensor``."""
+    return f"swarmseek/{fleet}/vehicle/{sysid}/sensor"
+
+
+def sensor_key_expr(fleet: str) -> str:
+    """Key expression matching every vehicle's readings of a fleet."""
+    return f"swarmseek/{fleet}/vehicle/*/sensor"
+
+
+def _sysid_from_key(key: str, fleet: str) -> int:
+    parts = key.split("/")
+    if (len(parts) != 5 or parts[0] != "swarmseek" or parts[1] != fleet or parts[2] != "vehicle"
+            or parts[4] != "sensor"):
+        raise ReadingRejected("bad_key", f"unexpected key {key!r}")
+    try:
+        sysid = int(parts[3])
+    except ValueError:
+        raise ReadingRejected("bad_key", f"sysid {parts[3]!r} in key {key!r} is not an integer") from None
+    if not 1 <= sysid <= 255:
+        raise ReadingRejected("bad_key", f"sysid {sysid} in key {key!r} is out of range")
+    return sysid
+
+
+def decode_reading(payload: bytes | str) -> dict:
+    """Decode and type-check one payload (no fleet or vehicle checks).
+
+    Parameters
+    ----------
+    payload : bytes or str
+        UTF-8 JSON.
+
+    Returns
+    -------
+    dict
+        The fields of the schema, typed (``sysid``, ``seq`` int; the rest float / str).
+
+    Raises
+    ------
+    ReadingRejected
+        ``malformed``, ``wrong_schema`` or ``not_finite``.
+    """
+    try:
+        if isinstance(payload, memoryview):
+            payload = bytes(payload)
+        text = payload.decode("utf-8") if isinstance(payload, (bytes, bytearray)) else payload
+        doc = json.loads(text)
+    except (UnicodeDecodeError, ValueError, TypeError, RecursionError) as exc:
+        raise ReadingRejected("malformed", f"not UTF-8 JSON ({type(exc).__name__})") from None
+    if not isinstance(doc, dict):
+        raise ReadingRejected("malformed", f"expected a JSON object, got {type(doc).__name__}")
+    if doc.get("schema") != SCHEMA:
+        raise ReadingRejected("wrong_schema", f"schema {str(doc.get('schema'))[:40]!r}, expected {SCHEMA!r}")
+    out: dict = {}
+    for name, kind in _FIELDS.items():
+        if name not in doc:
+            raise ReadingRejected("malformed", f"field {name!r} missing")
+        v = doc[name]
+        if kind is str:
+            if not isinstance(v, str):
+                raise ReadingRejected("malformed", f"field {name!r} must be a string")
+        elif isinstance(v, bool) or not isinstance(v, (int, float)):
+            # json.loads turns NaN / Infinity literals into floats; strings are malformed
+            raise ReadingRejected("malformed", f"field {name!r} must be a number")
+        elif kind is int:
+            if not isinstance(v, int):
+                if isinstance(v, float) and math.isfinite(v) and v.is_integer():
+                    v = int(v)
+                else:
+                    raise ReadingRejected("malformed", f"field {name!r} must be an integer")
+        else:
+            v = float(v)
+            if not math.isfinite(v):
+                raise ReadingRejected("not_finite", f"field {name!r} is {v}")
+        out[name] = v
+    if not (-90.0 <= out["lat_deg"] <= 90.0 and -180.0 <= out["lon_deg"] <= 180.0):
+        raise ReadingRejected("malformed", "latitude/longitude out of range")
+    return out
+
+
+class ReadingStore:
+    """Validated readings of one fleet, per vehicle, with rejection counts. Thread safe.
+
+    Parameters
+    ----------
+    fleet : str
+        Fleet name (key chunk and payload field).
+    sysids : iterable of int
+        The mission's vehicles; readings from others are ``unknown_vehicle``.
+    origin : tuple
+        Mission origin ``(lat_deg, lon_deg, alt_m)``.
+    clock
+        Mission clock (``time()``), to judge lateness.
+    telemetry_position : callable, optional
+        ``sysid -> ENU position or None``: the vehicle's latest telemetry position, to reject
+        readings far from it.
+    max_age_s : float
+        Readings older than this are ``late``.
+    max_position_error_m : float
+        Readings farther than this from the telemetry position are ``position_far``.
+    history : int
+        Readings kept per vehicle.
+    seq_reset_after_s : float
+        A lower ``seq`` taken this much later than the last reading is a sender restart.
+    """
+
+    def __init__(self, fleet: str, sysids: Iterable[int], origin, clock, *,
+                 telemetry_position: Callable[[int], np.ndarray | None] | None = None,
+                 max_age_s: float = 5.0, max_position_error_m: float = 10.0, history: int = 200,
+                 seq_reset_after_s: float = 5.0):
+        self.fleet = fleet
+        self.origin = tuple(float(v) for v in origin)
+        self.clock = clock
+        self.telemetry_position = telemetry_position
+        self.max_age_s = float(max_age_s)
+        self.max_position_error_m = float(max_position_error_m)
+        self.seq_reset_after_s = float(seq_reset_after_s)
+        self._lock = threading.Lock()
+        self._history: dict[int, deque[Reading]] = {int(s): deque(maxlen=history) for s in sysids}
+        self._last_seq: dict[int, tuple[int, float]] = {}
+        self.rejected: dict[str, int] = {r: 0 for r in REJECT_REASONS}
+        self.accepted = 0
+        self._last_error: dict[str, str] = {}
+        self._waiters: list[threading.Event] = []
+
+    @property
+    def sysids(self) -> list[int]:
+        """The vehicles whose readings are accepted."""
+        return sorted(self._history)
+
+    def remove_vehicle(self, sysid: int) -> None:
+        """Stop accepting a vehicle's readings (they count as ``unknown_vehicle``)."""
+        with self._lock:
+            self._history.pop(int(sysid), None)
+
+    def last_errors(self) -> dict[str, str]:
+        """The latest rejection message per reason (for diagnostics)."""
+        with self._lock:
+            return dict(self._last_error)
+
+    def offer(self, key: str, payload: bytes | str) -> Reading | None:
+        """Validate one sample; keep it and return the :class:`Reading`, or count and return None."""
+        try:
+            reading = self._validate(key, payload)
+        except ReadingRejected as exc:
+            with self._lock:
+                self.rejected[exc.reason] += 1
+                self._last_error[exc.reason] = str(exc)
+            return None
+        return reading
+
+    def _validate(self, key: str, payload) -> Reading:
+        key_sysid = _sysid_from_key(str(key), self.fleet)
+        doc = decode_reading(payload)
+        if doc["fleet"] != self.fleet:
+            raise ReadingRejected("wrong_fleet", f"fleet {doc['fleet'][:40]!r}, expected {self.fleet!r}")
+        sysid = doc["sysid"]
+        if sysid != key_sysid:
+            raise ReadingRejected("sysid_mismatch", f"key says sysid {key_sysid}, payload says {sysid}")
+        if sysid not in self._history:
+            raise ReadingRejected("unknown_vehicle", f"sysid {sysid} is not in the mission")
+        now = self.clock.time()
+        t = doc["time_s"]
+        if t < now - self.max_age_s or t > now + self.max_age_s:
+            raise ReadingRejected("late", f"taken at {t:.3f}, now {now:.3f} (max age {self.max_age_s} s)")
+        pos = np.asarray(geodetic_to_enu(doc["lat_deg"], doc["lon_deg"], doc["alt_m"], self.origin),
+                         dtype=float)
+        if self.telemetry_position is not None:
+            tel = self.telemetry_position(sysid)
+            if tel is not None:
+                err = float(np.linalg.norm(pos - np.asarray(tel, dtype=float)))
+                if err > self.max_position_error_m:
+                    raise ReadingRejected("position_far", f"sysid {sysid}: reading position {err:.1f} m "
+                                          f"from telemetry (max {self.max_position_error_m} m)")
+        reading = Reading(sysid=sysid, seq=doc["seq"], time_s=t, lat_deg=doc["lat_deg"],
+                          lon_deg=doc["lon_deg"], alt_m=doc["alt_m"], value=doc["value"],
+                          position_enu_m=pos, received_s=now)
+        with self._lock:
+            hist = self._history.get(sysid)
+            if hist is None:
+                raise ReadingRejected("unknown_vehicle", f"sysid {sysid} left the mission")
+            last = self._last_seq.get(sysid)
+            if last is not None:
+                last_seq, last_t = last
+                if reading.seq == last_seq:
+                    raise ReadingRejected("duplicate", f"sysid {sysid}: seq {reading.seq} again")
+                if reading.seq < last_seq and t < last_t + self.seq_reset_after_s:
+                    raise ReadingRejected("old_seq", f"sysid {sysid}: seq {reading.seq} after {last_seq}")
+            self._last_seq[sysid] = (reading.seq, t)
+            if hist and t < hist[-1].time_s:
+                items = list(hist)
+                items.insert(bisect.bisect([r.time_s for r in items], t), reading)
+                hist.clear()
+                hist.extend(items[-hist.maxlen:])
+            else:
+                hist.append(reading)
+            self.accepted += 1
+            waiters, self._waiters = self._waiters, []
+        for ev in waiters:
+            ev.set()
+        return reading
+
+    def latest(self, sysid: int) -> Reading | None:
+        """The newest accepted reading of a vehicle, or None."""
+        with self._lock:
+            hist = self._history.get(int(sysid))
+            return hist[-1] if hist else None
+
+    def history(self, sysid: int) -> list[Reading]:
+        """Accepted readings of a vehicle, oldest first."""
+        with self._lock:
+            return list(self._history.get(int(sysid), ()))
+
+    def aligned(self, t_s: float, window_s: float, sysids: Iterable[int] | None = None) -> dict[int, Reading]:
+        """Each vehicle's reading nearest ``t_s`` within ``window_s`` (vehicles without one are absent).
+
+        Parameters
+        ----------
+        t_s : float
+            Estimation instant, mission clock.
+        window_s : float
+            Largest ``|reading.time_s - t_s|`` accepted.
+        sysids : iterable of int, optional
+            Restrict to these vehicles (default: all).
+        """
+        out: dict[int, Reading] = {}
+        with self._lock:
+            keys = list(self._history) if sysids is None else [int(s) for s in sysids]
+            for sysid in keys:
+                hist = self._history.get(sysid)
+                if not hist:
+                    continue
+                best = min(hist, key=lambda r: abs(r.time_s - t_s))
+                if abs(best.time_s - t_s) <= window_s:
+                    out[sysid] = best
+        return out
+
+    def counts(self) -> dict:
+        """``{"accepted": n, "rejected": {reason: n}}`` (a copy)."""
+        with self._lock:
+            return {"accepted": self.accepted, "rejected": dict(self.rejected)}
+
+    def notify_event(self) -> threading.Event:
+        """An event set at the next accepted reading (for waiting without polling too fast)."""
+        ev = threading.Event()
+        with self._lock:
+            self._waiters.append(ev)
+        return ev
+
+
+class ReadingSubscriber:
+    """Feeds a :class:`ReadingStore` from a zenoh subscription on every vehicle's sensor key.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        An open session (the caller owns it).
+    store : ReadingStore
+    """
+
+    def __init__(self, session, store: ReadingStore):
+        self.store = store
+        self._sub = session.declare_subscriber(sensor_key_expr(store.fleet), self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        try:
+            payload = sample.payload.to_bytes()
+            key = str(sample.key_expr)
+        except Exception as exc:  # noqa: BLE001 - a bad sample must never kill the zenoh callback
+            with self.store._lock:
+                self.store.rejected["malformed"] += 1
+                self.store._last_error["malformed"] = f"unreadable sample: {exc}"
+            return
+        self.store.offer(key, payload)
+
+    def close(self) -> None:
+        """Undeclare the subscription."""
+        try:
+            self._sub.undeclare()
+        except Exception:  # noqa: BLE001 - session may already be closed
+            pass

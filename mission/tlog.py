@@ -1,0 +1,156 @@
+"""Telemetry logs (``.tlog``): every MAVLink frame sent and received, one file per vehicle.
+
+The format is the one MAVProxy writes and MAVExplorer, QGroundControl and
+``pymavlink.mavutil.mavlink_connection(path)`` read: a sequence of records, each an 8-byte
+big-endian count of microseconds since the Unix epoch followed by one raw MAVLink frame.
+
+Writes are buffered; the files are flushed at least every ``flush_interval_s`` (on the next
+write after the interval, and by the endpoint's 1 Hz housekeeping via :meth:`TlogSet.flush`),
+so a crash loses at most about a second of frames.
+"""
+from __future__ import annotations
+
+import os
+import struct
+import time
+from pathlib import Path
+from typing import BinaryIO, Callable
+
+__all__ = ["TlogSet", "tlog_record", "read_tlog_records"]
+
+_STAMP = struct.Struct(">Q")
+
+
+def tlog_record(frame: bytes, t_s: float) -> bytes:
+    """Return one tlog record: the 8-byte big-endian microsecond stamp then the frame.
+
+    Parameters
+    ----------
+    frame : bytes
+        One complete MAVLink frame.
+    t_s : float
+        Unix-epoch seconds.
+    """
+    return _STAMP.pack(int(t_s * 1e6)) + bytes(frame)
+
+
+def read_tlog_records(path: str | os.PathLike) -> list[tuple[float, bytes]]:
+    """Split a tlog into ``(t_s, frame)`` records without decoding (for tests and tools).
+
+    Frames are delimited by their own MAVLink header (v1 ``0xFE`` or v2 ``0xFD``, including
+    the 13-byte signature when the signed flag is set).
+
+    Raises
+    ------
+    ValueError
+        If the file is truncated or a record does not start with a MAVLink magic byte.
+    """
+    data = Path(path).read_bytes()
+    out = []
+    i = 0
+    while i < len(data):
+        if i + 10 > len(data):
+            raise ValueError(f"{path}: truncated record at byte {i}")
+        (stamp_us,) = _STAMP.unpack_from(data, i)
+        magic = data[i + 8]
+        length = data[i + 9]
+        if magic == 0xFD:
+            incompat = data[i + 10] if i + 10 < len(data) else 0
+            size = 12 + length + (13 if incompat & 0x01 else 0)
+        elif magic == 0xFE:
+            size = 8 + length
+        else:
+            raise ValueError(f"{path}: record at byte {i} starts with 0x{magic:02X}, not a MAVLink frame")
+        end = i + 8 + size
+        if end > len(data):
+            raise ValueError(f"{path}: truncated frame at byte {i}")
+        out.append((stamp_us * 1e-6, data[i + 8:end]))
+        i = end
+    return out
+
+
+class TlogSet:
+    """One ``.tlog`` file per vehicle system id, created on that vehicle's first frame.
+
+    Files are named ``vehicle-<sysid>.tlog`` in ``directory``; an existing file is never
+    overwritten: the name gets a suffix ``-2``, ``-3``... instead.
+
+    Parameters
+    ----------
+    directory : str or path-like
+        Where the files go (created if missing).
+    time_fn : callable, optional
+        Returns the stamp in Unix-epoch seconds; default ``time.time`` (pass ``clock.time``
+        to stamp on a simulated timeline).
+    flush_interval_s : float
+        Flush every file at most this long (wall seconds) after its last flush.
+    buffer_bytes : int
+        Size of each file's write buffer.
+    """
+
+    def __init__(self, directory: str | os.PathLike, *, time_fn: Callable[[], float] | None = None,
+                 flush_interval_s: float = 1.0, buffer_bytes: int = 32768) -> None:
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self._time_fn = time_fn or time.time
+        self._flush_interval_s = float(flush_interval_s)
+        self._buffer_bytes = int(buffer_bytes)
+        self._files: dict[int, BinaryIO] = {}
+        self._paths: dict[int, Path] = {}
+        self._last_flush = time.monotonic()
+        self.records_written = 0
+        self.closed = False
+
+    def path(self, sysid: int) -> Path | None:
+        """The file of ``sysid``, or None if nothing was logged for it yet."""
+        return self._paths.get(sysid)
+
+    def paths(self) -> dict[int, Path]:
+        """All files so far, by system id."""
+        return dict(self._paths)
+
+    def _open(self, sysid: int) -> BinaryIO:
+        n = 1
+        while True:
+            suffix = "" if n == 1 else f"-{n}"
+            path = self.directory / f"vehicle-{sysid}{suffix}.tlog"
+            try:
+                fh = open(path, "xb", buffering=self._buffer_bytes)
+            except FileExistsError:
+                n += 1
+                continue
+            self._files[sysid] = fh
+            self._paths[sysid] = path
+            return fh
+
+    def write(self, sysid: int, frame: bytes, t_s: float | None = None) -> None:
+        """Append one frame to ``sysid``'s file, stamped ``t_s`` (default: now).
+
+        Does nothing once closed (frames racing a shutdown are not an error).
+        """
+        if self.closed:
+            return
+        fh = self._files.get(sysid)
+        if fh is None:
+            fh = self._open(sysid)
+        fh.write(_STAMP.pack(int((self._time_fn() if t_s is None else t_s) * 1e6)))
+        fh.write(frame)
+        self.records_written += 1
+        now = time.monotonic()
+        if now - self._last_flush >= self._flush_interval_s:
+            self._last_flush = now
+            self.flush()
+
+    def flush(self) -> None:
+        """Flush every file's buffer to the operating system."""
+        for fh in self._files.values():
+            fh.flush()
+        self._last_flush = time.monotonic()
+
+    def close(self) -> None:
+        """Flush and close every file; later writes are ignored."""
+        if self.closed:
+            return
+        self.closed = True
+        for fh in self._files.values():
+            fh.close()

@@ -1,0 +1,378 @@
+"""One mock autopilot: MAVLink receive path, flight-mode state machine, failsafes, telemetry.
+
+:class:`MockAutopilot` is transport-agnostic: the transports hand it parsed messages
+(:meth:`MockAutopilot.handle_message`) and take the encoded frames it produces
+(:meth:`MockAutopilot.drain_outbox`); the fleet calls :meth:`MockAutopilot.step` before each
+physics step. Everything runs on the fleet's simulated clock. Commands are in
+:mod:`sitl_mock.ap_commands`, setpoints and flight behaviours in :mod:`sitl_mock.ap_flight`.
+"""
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from formation.geodesy import enu_to_geodetic, enu_to_ned, geodetic_to_enu, ned_to_enu
+from sitl_mock import ap_commands, ap_flight, ap_mission_exec
+from sitl_mock.ap_mission import MissionItem, MissionServer
+from sitl_mock.ap_modes import Personality, make_personality
+from sitl_mock.ap_params import ParamError, ParamTable
+from sitl_mock.ap_telemetry import MessageScheduler, build_message
+from sitl_mock.faults import FaultSet
+
+__all__ = ["MockAutopilot", "classify_bad_frame"]
+
+_MAV_TYPE_GCS = mavlink2.MAV_TYPE_GCS
+_TARGETED_AUTOPILOT_COMPONENTS = (0, mavlink2.MAV_COMP_ID_AUTOPILOT1)
+
+
+def classify_bad_frame(reason: str) -> str:
+    """Counter name for a frame pymavlink could not decode (from its error text)."""
+    low = reason.lower()
+    if "crc" in low:
+        return "rx_bad_crc"
+    if "unknown mavlink message id" in low:
+        return "rx_unknown_msg"
+    return "rx_malformed"
+
+
+class MockAutopilot:
+    """A simulated ArduPilot or PX4 multicopter autopilot speaking MAVLink 2.
+
+    Parameters
+    ----------
+    sysid : int
+        MAVLink system id (component id is 1).
+    personality : str or Personality
+        ``"ardupilot"`` or ``"px4"``.
+    multicopter : sitl_mock.dynamics.Multicopter
+        The vehicle it flies (its LOCAL_NED origin is ``home``).
+    home : tuple of float
+        ``(lat_deg, lon_deg, alt_m)`` of the LOCAL_NED origin (on the ground).
+    t_boot_s : float
+        Boot time on the simulated clock.
+    faults : FaultSet, optional
+    param_overrides : dict, optional
+        Parameter values replacing the personality's defaults.
+    uid : int, optional
+        AUTOPILOT_VERSION.uid (unique per vehicle; default derived from sysid).
+
+    Attributes
+    ----------
+    counters : collections.Counter
+        Receive / transmit / protocol counters (``rx_frames``, ``rx_bad_crc``, ``rx_malformed``,
+        ``rx_unknown_msg``, ``rx_not_for_us``, ``tx_frames``, ...).
+    params : ParamTable
+    missions : MissionServer
+    mode_name : str
+    """
+
+    def __init__(self, sysid: int, personality, multicopter, home, t_boot_s: float,
+                 faults: FaultSet | None = None, param_overrides: dict | None = None,
+                 uid: int | None = None):
+        if not 1 <= int(sysid) <= 255:
+            raise ValueError(f"sysid must be 1..255, got {sysid!r}")
+        self.personality: Personality = (make_personality(personality)
+                                         if isinstance(personality, str) else personality)
+        self.sysid = int(sysid)
+        self.mc = multicopter
+        self.faults = faults if faults is not None else FaultSet()
+        self.uid = int(uid) if uid is not None else (0x5357_0000_0000_0000 | self.sysid)
+        self.mav = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+        self.counters: Counter = Counter()
+        self.params = ParamTable(self.personality.param_specs(self.sysid, multicopter.params),
+                                 self.personality.param_bytewise, param_overrides)
+        self._origin = tuple(float(v) for v in home)
+        self._outbox: list[bytes] = []
+        self.missions = MissionServer(self.mav, self.emit, self._home_item,
+                                      self.personality.name == "ardupilot", self.counters)
+        self._boot(t_boot_s)
+        self.apply_params()
+
+    # ------------------------------------------------------------------ state
+    def _boot(self, t_s: float) -> None:
+        self.t_boot_s = float(t_s)
+        self.scheduler = MessageScheduler(t_s)
+        self.mode_name = self.personality.boot_mode
+        self.home_ned = np.zeros(3)
+        self.home: tuple | None = None
+        self.failsafe: str | None = None
+        self.flight = ap_flight.FlightState()
+        self.last_gcs_heartbeat_s: float | None = None
+        self._est_key = None
+        self._est = None
+        self._last_t_s = t_s
+
+    @property
+    def armed(self) -> bool:
+        """True while the motors are armed."""
+        return bool(self.mc.armed)
+
+    @property
+    def behaviour(self) -> str:
+        """The internal behaviour of the current mode (hold, guided, offboard, ...)."""
+        return self.personality.behaviour(self.mode_name)
+
+    def time_boot_ms(self, t_s: float) -> int:
+        """Milliseconds since boot (wraps at 2**32)."""
+        return int((t_s - self.t_boot_s) * 1000.0) & 0xFFFFFFFF
+
+    def position_ready(self, t_s: float) -> bool:
+        """True once the position estimate (GPS + EKF) is usable."""
+        return self.mc.position_estimate_ready(t_s - self.t_boot_s)
+
+    @property
+    def home_origin(self) -> tuple:
+        """``(lat_deg, lon_deg, alt_m)`` of this vehicle's LOCAL_NED origin."""
+        return self._origin
+
+    def home_geodetic(self) -> tuple | None:
+        """Home ``(lat_deg, lon_deg, alt_m)``, None until the position estimate is ready."""
+        return self.home
+
+    def true_position_ned(self) -> np.ndarray:
+        """True position in this vehicle's LOCAL_NED frame (metres from its origin)."""
+        return self.mc.position_ned_m
+
+    def ned_to_geodetic(self, ned) -> tuple[float, float, float]:
+        """Convert a LOCAL_NED point of this vehicle to ``(lat_deg, lon_deg, alt_m)``."""
+        lat, lon, alt = enu_to_geodetic(ned_to_enu(np.asarray(ned, dtype=float)), self._origin)
+        return float(lat), float(lon), float(alt)
+
+    def geodetic_to_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
+        """Convert a geodetic point to this vehicle's LOCAL_NED frame."""
+        return enu_to_ned(geodetic_to_enu(lat_deg, lon_deg, alt_m, self._origin))
+
+    def estimate(self, t_s: float) -> tuple:
+        """Reported state ``(ned_m, vel_ned_m_s, lat_deg, lon_deg, alt_m)`` (one draw per step)."""
+        key = self._last_t_s
+        if self._est_key != key or self._est is None:
+            ned = self.mc.reported_position_ned_m()
+            vel = self.mc.velocity_ned_m_s
+            lat, lon, alt = self.ned_to_geodetic(ned)
+            self._est = (ned, vel, lat, lon, alt)
+            self._est_key = key
+        return self._est
+
+    def health_ok(self, t_s: float) -> bool:
+        """GPS and pre-arm checks healthy (SYS_STATUS health bits)."""
+        return self.position_ready(t_s) and ap_flight.arming_problem(self, t_s, self.mode_name,
+                                                                    check_mode=False) is None
+
+    def landed_state(self) -> int:
+        """EXTENDED_SYS_STATE.landed_state."""
+        mc = self.mc
+        if mc.landed or (not mc.armed and mc.on_ground):
+            return mavlink2.MAV_LANDED_STATE_ON_GROUND
+        if mc.mode == "takeoff":
+            return mavlink2.MAV_LANDED_STATE_TAKEOFF
+        if mc.mode == "land":
+            return mavlink2.MAV_LANDED_STATE_LANDING
+        return mavlink2.MAV_LANDED_STATE_IN_AIR
+
+    def heartbeat_fields(self) -> tuple[int, int, int]:
+        """HEARTBEAT ``(base_mode, custom_mode, system_status)``."""
+        base = mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if self.personality.name == "ardupilot":
+            base |= mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink2.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+            if self.mode_name in self.personality.position_modes:
+                base |= mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED
+        else:
+            base |= mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
+            if self.behaviour in ("offboard", "mission", "rtl", "land", "takeoff", "hold"):
+                base |= mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED
+            if self.behaviour in ("mission", "rtl", "land", "takeoff"):
+                base |= mavlink2.MAV_MODE_FLAG_AUTO_ENABLED
+        if self.mc.armed:
+            base |= mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+        if self.failsafe is not None:
+            status = mavlink2.MAV_STATE_CRITICAL
+        elif self.mc.armed and not self.mc.landed:
+            status = mavlink2.MAV_STATE_ACTIVE
+        elif self.home is None:
+            status = mavlink2.MAV_STATE_BOOT if self.personality.name == "ardupilot" \
+                else mavlink2.MAV_STATE_STANDBY
+        else:
+            status = mavlink2.MAV_STATE_STANDBY
+        return base, self.personality.custom_mode(self.mode_name), status
+
+    def setpoint_echo(self):
+        """Current GCS setpoint for POSITION_TARGET_* (None when none is being followed)."""
+        return ap_flight.setpoint_echo(self)
+
+    # ----------------------------------------------------------------- output
+    def emit(self, msg) -> None:
+        """Encode ``msg`` with this vehicle's identity and queue it for every link."""
+        buf = msg.pack(self.mav)
+        self.mav.seq = (self.mav.seq + 1) % 256
+        self._outbox.append(buf)
+        self.counters["tx_frames"] += 1
+
+    def drain_outbox(self) -> list[bytes]:
+        """Frames produced since the last call (the transports send them)."""
+        out, self._outbox = self._outbox, []
+        return out
+
+    def statustext(self, text: str, severity: int = mavlink2.MAV_SEVERITY_INFO) -> None:
+        """Send a STATUSTEXT (at most 50 characters)."""
+        self.emit(self.mav.statustext_encode(severity, text.encode()[:50]))
+
+    def send_message_now(self, msg_id: int, t_s: float) -> bool:
+        """Send one telemetry message immediately; False if unsupported / not available."""
+        msg = build_message(self, msg_id, t_s)
+        if msg is None:
+            return False
+        self.emit(msg)
+        return True
+
+    # ------------------------------------------------------------ receive path
+    def accept_frame(self, msg) -> str | None:
+        """Gate of the receive path: None to accept ``msg``, else the counter name of the reason.
+
+        The one place where frames are rejected before being acted upon (bad CRC, malformed,
+        unknown message; MAVLink 2 signing checks belong here too).
+        """
+        if msg.get_type() == "BAD_DATA":
+            return classify_bad_frame(str(getattr(msg, "reason", "")))
+        return None
+
+    def handle_message(self, msg, t_s: float) -> None:
+        """Act on one received message (never raises on bad input; rejections are counted)."""
+        reason = self.accept_frame(msg)
+        if reason is not None:
+            self.counters[reason] += 1
+            return
+        self.counters["rx_frames"] += 1
+        target = getattr(msg, "target_system", 0)
+        if target not in (0, self.sysid):
+            self.counters["rx_not_for_us"] += 1
+            return
+        comp = getattr(msg, "target_component", 0)
+        if comp not in _TARGETED_AUTOPILOT_COMPONENTS and msg.get_type() != "TIMESYNC":
+            self.counters["rx_not_for_us"] += 1
+            return
+        if self.faults.crashed:
+            return
+        try:
+            self._dispatch(msg, t_s)
+        except (ValueError, TypeError, OverflowError, ParamError, IndexError) as exc:
+            self.counters["rx_handler_error"] += 1
+            self.counters["rx_handler_error:" + type(exc).__name__] += 1
+
+    def _dispatch(self, msg, t_s: float) -> None:
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            self._on_heartbeat(msg, t_s)
+        elif kind in ("COMMAND_LONG", "COMMAND_INT"):
+            ap_commands.handle_command(self, msg, t_s)
+        elif kind == "SET_MODE":
+            ap_commands.handle_set_mode(self, msg, t_s)
+        elif kind in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
+            ap_flight.handle_setpoint(self, msg, t_s)
+        elif kind.startswith("PARAM_"):
+            self._on_param(msg, kind)
+        elif kind == "TIMESYNC":
+            if msg.tc1 == 0:
+                self.emit(self.mav.timesync_encode(int(t_s * 1e9), msg.ts1))
+        elif kind == "REQUEST_DATA_STREAM":
+            ap_commands.handle_request_data_stream(self, msg, t_s)
+        elif not self.missions.handle(msg, t_s):
+            self.counters["rx_unhandled"] += 1
+
+    def _on_heartbeat(self, msg, t_s: float) -> None:
+        if self.personality.name == "ardupilot":
+            is_gcs = msg.get_srcSystem() == self.params["SYSID_MYGCS"]
+        else:
+            is_gcs = msg.type == _MAV_TYPE_GCS
+        if is_gcs:
+            self.last_gcs_heartbeat_s = t_s
+
+    def _on_param(self, msg, kind: str) -> None:
+        params = self.params
+        if kind == "PARAM_REQUEST_LIST":
+            for name in params.names():
+                self._send_param(name)
+        elif kind == "PARAM_REQUEST_READ":
+            if msg.param_index >= 0:
+                if msg.param_index >= len(params):
+                    self.counters["param_unknown"] += 1
+                    return
+                name = params.name_at(msg.param_index)
+            else:
+                name = msg.param_id
+            if name not in params:
+                self.counters["param_unknown"] += 1
+                return
+            self._send_param(name)
+        elif kind == "PARAM_SET":
+            name = msg.param_id
+            if name not in params:
+                self.counters["param_unknown"] += 1
+                return
+            try:
+                params.set(name, params.decode_wire(name, msg.param_value))
+            except ParamError:
+                self.counters["param_rejected"] += 1
+            else:
+                self.apply_params()
+            self._send_param(name)  # the current value tells the GCS whether it took
+        else:
+            self.counters["rx_unhandled"] += 1
+
+    def _send_param(self, name: str) -> None:
+        p = self.params
+        self.emit(self.mav.param_value_encode(name.encode(), p.encode_wire(name), p.ptype(name),
+                                              len(p), p.index_of(name)))
+
+    def apply_params(self) -> None:
+        """Push the parameters that shape the dynamics into the vehicle model."""
+        ap_flight.apply_params(self)
+
+    # -------------------------------------------------------------- simulation
+    def step(self, t_s: float, dt_s: float) -> None:
+        """Run the autopilot logic at ``t_s`` (before the physics step of ``dt_s``)."""
+        self._last_t_s = t_s
+        mc = self.mc
+        faults = self.faults
+        if faults.crashed and not mc.crashed:
+            mc.crash()
+        glitch = faults.gps_glitch_m
+        if glitch != mc.gps_glitch_ned_m[0]:
+            mc.gps_glitch_ned_m = np.array((glitch, 0.0, 0.0))
+        if faults.battery_low and mc.battery_remaining > 0.06:
+            mc.battery_remaining = 0.06
+        if self.home is None and self.position_ready(t_s):
+            self.home = self._origin
+            self.home_ned = np.zeros(3)
+        ap_flight.update(self, t_s)
+        if self.behaviour == "mission":
+            ap_mission_exec.step_mission(self, t_s)
+        self.missions.poll(t_s)
+
+    def send_telemetry(self, t_s: float) -> None:
+        """Emit the telemetry messages due at ``t_s``."""
+        if self.faults.crashed:
+            return
+        for msg_id in self.scheduler.due(t_s):
+            msg = build_message(self, msg_id, t_s)
+            if msg is not None:
+                self.emit(msg)
+
+    def reboot(self, t_s: float) -> None:
+        """Simulated reboot: boot state again, new system id from the parameter table."""
+        self.sysid = int(self.params[self.personality.sysid_param])
+        self.mav.srcSystem = self.sysid
+        self._boot(t_s)
+
+    def _home_item(self) -> MissionItem | None:
+        if self.home is None:
+            return None
+        lat, lon, alt = self.home
+        return MissionItem(0, mavlink2.MAV_FRAME_GLOBAL, mavlink2.MAV_CMD_NAV_WAYPOINT, 0, 1,
+                           0.0, 0.0, 0.0, 0.0, int(round(lat * 1e7)), int(round(lon * 1e7)), alt)
+
+    def __repr__(self) -> str:
+        return (f"MockAutopilot(sysid={self.sysid}, personality={self.personality.name!r}, "
+                f"mode={self.mode_name!r}, armed={self.armed})")
+

@@ -1,0 +1,168 @@
+"""``swarmseek mock``: run a fleet of mock autopilots until interrupted (or for ``--duration``).
+
+Prints one line per vehicle with its system id and ports. Bad flags are argparse errors
+(exit 2); a port already in use is a one-line error (exit 1).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import threading
+
+__all__ = ["configure", "main"]
+
+
+def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected {what} ({n} comma-separated finite numbers), got {text!r}")
+    return values
+
+
+def _source(text: str):
+    return _floats(text, 3, "E,N,U")
+
+
+def _origin(text: str):
+    lat, lon, alt = _floats(text, 3, "LAT,LON,ALT")
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise argparse.ArgumentTypeError(f"origin latitude must be in [-90, 90] and longitude in [-180, 180], got {text!r}")
+    return lat, lon, alt
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def _nonnegative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def _vehicles(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not 1 <= n <= 255:
+        raise argparse.ArgumentTypeError(f"--vehicles must be 1..255, got {n}")
+    return n
+
+
+def _port(text: str) -> int:
+    try:
+        p = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 0 <= p <= 65535:
+        raise argparse.ArgumentTypeError(f"port must be 0..65535 (0 disables), got {p}")
+    return p
+
+
+def _fault(text: str):
+    from sitl_mock.faults import FaultSet, parse_fault
+    try:
+        sysid, name, value = parse_fault(text)
+        FaultSet().set(name, value)  # check the value now, not in the running fleet
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return sysid, name, value
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the ``mock`` command's arguments to ``parser``."""
+    from sitl_mock.ap_modes import PERSONALITY_NAMES
+    from sitl_mock.fields import FIELD_NAMES
+
+    parser.add_argument("--vehicles", type=_vehicles, default=4, help="number of vehicles (sysid 1..N)")
+    parser.add_argument("--personality", choices=PERSONALITY_NAMES, default="px4")
+    parser.add_argument("--field", choices=FIELD_NAMES, default="sigma1", help="signal field the sensors sample")
+    parser.add_argument("--source", type=_source, default=(0.0, 0.0, 0.0), metavar="E,N,U",
+                        help="field source in the mission frame (ENU m)")
+    parser.add_argument("--origin", type=_origin, default=None, metavar="LAT,LON,ALT",
+                        help="fleet / mission origin")
+    parser.add_argument("--speedup", type=_positive, default=1.0, help="simulated seconds per wall second")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--udp-base-port", type=_port, default=14540,
+                        help="vehicle i streams to 127.0.0.1:BASE+i (0 disables UDP)")
+    parser.add_argument("--udp-bind-base-port", type=_port, default=14580,
+                        help="vehicle i listens on 127.0.0.1:BASE+i")
+    parser.add_argument("--tcp-base-port", type=_port, default=5760,
+                        help="vehicle i serves TCP on 127.0.0.1:BASE+10*i (0 disables TCP)")
+    parser.add_argument("--fleet", default="swarmseek", help="fleet name (zenoh keys)")
+    parser.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
+                        help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    parser.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
+                        help="zenoh connect endpoint (repeatable)")
+    parser.add_argument("--noise", type=_nonnegative, default=0.0, help="sensor noise standard deviation")
+    parser.add_argument("--fault", type=_fault, action="append", default=[], metavar="SYSID:NAME=VALUE",
+                        help="inject a fault, e.g. 2:loss_uplink=0.2 (repeatable)")
+    parser.add_argument("--duration", type=_positive, default=None, metavar="S",
+                        help="stop after S wall seconds (default: until Ctrl-C)")
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run the fleet; returns the exit status."""
+    from sitl_mock.fields import make_field
+    from sitl_mock.fleet import DEFAULT_ORIGIN, MockFleet
+    from sitl_mock.transport import PortInUseError
+
+    for sysid, _name, _value in args.fault:
+        if sysid > args.vehicles:
+            print(f"swarmseek mock: error: --fault for sysid {sysid} but only {args.vehicles} vehicles",
+                  file=sys.stderr)
+            return 2
+    try:
+        fleet = MockFleet(
+            n=args.vehicles, personality=args.personality, field=make_field(args.field, args.source),
+            origin=args.origin or DEFAULT_ORIGIN, speedup=args.speedup, seed=args.seed,
+            udp_base_port=args.udp_base_port, udp_bind_base_port=args.udp_bind_base_port,
+            tcp_base_port=args.tcp_base_port, fleet_name=args.fleet, sensor_noise_std=args.noise,
+            zenoh_listen=args.zenoh_listen or None, zenoh_connect=args.zenoh_connect or None)
+        for sysid, name, value in args.fault:
+            fleet.set_fault(sysid, name, value)
+    except ValueError as exc:
+        print(f"swarmseek mock: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        fleet.start()
+    except PortInUseError as exc:
+        print(f"swarmseek mock: error: {exc.strerror}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"swarmseek mock: error: cannot open the fleet's sockets or zenoh session: {exc}",
+              file=sys.stderr)
+        return 1
+    try:
+        print(f"mock fleet {args.fleet!r}: {args.vehicles} x {args.personality}, "
+              f"speedup {args.speedup:g}, origin {fleet.origin}", flush=True)
+        for v in fleet.vehicles:
+            udp = (f"udp listen 127.0.0.1:{v.udp_bind_port} -> 127.0.0.1:{v.udp_send_port}"
+                   if v.udp_bind_port else "udp off")
+            tcp = f"tcp 127.0.0.1:{v.tcp_port}" if v.tcp_port else "tcp off"
+            print(f"vehicle sysid={v.sysid} {v.autopilot.personality.name} {udp} {tcp}", flush=True)
+        threading.Event().wait(args.duration)  # None: until KeyboardInterrupt
+    except KeyboardInterrupt:
+        pass
+    finally:
+        fleet.stop()
+    if fleet.errors:
+        print(f"swarmseek mock: {len(fleet.errors)} internal error(s); first:\n{fleet.errors[0]}",
+              file=sys.stderr)
+        return 1
+    return 0

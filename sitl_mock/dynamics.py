@@ -1,0 +1,514 @@
+"""Point-mass multicopter dynamics under a cascaded position / velocity controller.
+
+Each vehicle lives in its own LOCAL_NED frame (origin = its home on the ground, x north,
+y east, z down). The ground is ``z = 0``: the vehicle never goes below it (``z <= 0``).
+
+The controller is the usual autopilot cascade, reduced to a point mass:
+
+* position loop: a square-root controller (linear ``kp_pos * error`` near the target,
+  ``sqrt(2 a d)`` far from it, as ArduPilot's ``sqrt_controller``) plus an optional velocity
+  feed-forward, giving a velocity command clamped to the horizontal, climb and descent speed
+  limits;
+* velocity loop: first order, ``dv = (v_cmd - v) * min(kp_vel * dt, a_max * dt / |v_cmd - v|)``
+  (horizontal and vertical separately), so the velocity always moves *towards* the command
+  and never exceeds the speed limits in still air;
+* wind: a drag acceleration ``drag_per_s * (wind - v)``, with wind = constant + Ornstein-
+  Uhlenbeck gusts; the autopilot compensates a low-passed estimate of it (like an integrator),
+  so a constant wind is rejected after a few seconds and gusts push the vehicle around.
+
+The state is kept in plain floats (faster than tiny numpy arrays); the array attributes of the
+API (``position_ned_m``, ``velocity_ned_m_s``) are properties returning fresh copies.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["DynamicsParams", "Multicopter", "GRAVITY_M_S2"]
+
+GRAVITY_M_S2 = 9.80665
+
+_MODE_IDLE = "idle"          # motors off, or armed and sitting on the ground
+_MODE_POSITION = "position"  # fly to / hold a position target
+_MODE_VELOCITY = "velocity"  # follow a velocity target
+_MODE_TAKEOFF = "takeoff"    # climb vertically to the takeoff altitude, then hold
+_MODE_LAND = "land"          # hold horizontally, descend, touch down
+_MODE_FALLING = "falling"    # no thrust (disarmed in the air, crashed, battery empty)
+
+_GROUND_EPS_M = 1e-6
+_LIFTOFF_M = 0.05            # above this height (m) the vehicle is no longer landed
+_LANDED_SPEED_M_S = 0.1      # on the ground and slower than this: landed
+_CRASH_IMPACT_M_S = 3.0      # hitting the ground faster than this: crashed
+_TERMINAL_SPEED_M_S = 20.0
+_LAND_HIGH_ALT_M = 10.0      # above this height LAND descends at max_speed_down (LAND_SPEED_HIGH)
+_MAX_SUBSTEP_S = 0.02
+_NORMAL_BATCH = 3 * 256
+
+
+@dataclass
+class DynamicsParams:
+    """Physical and controller parameters of one simulated multicopter.
+
+    Attributes
+    ----------
+    max_speed_h_m_s, max_speed_up_m_s, max_speed_down_m_s : float
+        Horizontal, climb and descent speed limits.
+    max_accel_m_s2 : float
+        Acceleration limit of the controller (horizontal and vertical each).
+    land_speed_m_s, takeoff_speed_m_s : float
+        Final descent speed when landing, climb speed when taking off.
+    wind_ned_m_s : tuple of float
+        Constant wind, NED m/s.
+    wind_gust_std_m_s : float
+        Standard deviation of the gusts (per axis, Ornstein-Uhlenbeck).
+    gps_noise_std_m : float
+        White noise on the reported position (per axis).
+    battery_flight_time_s : float
+        Hover time from full to empty.
+    kp_pos_per_s, kp_vel_per_s : float
+        Position and velocity loop gains.
+    drag_per_s : float
+        Linear drag coefficient through which the wind acts.
+    wind_comp_tau_s : float
+        Time constant of the autopilot's wind compensation.
+    gust_tau_s : float
+        Correlation time of the gusts.
+    yaw_rate_max_rad_s : float
+        Yaw rate limit.
+    battery_cells : int
+        LiPo cells in series (voltage model: 4.2 V full .. 3.5 V empty per cell, with sag).
+    gps_warmup_s : float
+        Time after boot before the position estimate is ready.
+    """
+
+    max_speed_h_m_s: float = 10.0
+    max_speed_up_m_s: float = 3.0
+    max_speed_down_m_s: float = 1.5
+    max_accel_m_s2: float = 4.0
+    land_speed_m_s: float = 0.7
+    takeoff_speed_m_s: float = 1.5
+    wind_ned_m_s: tuple = (0.0, 0.0, 0.0)
+    wind_gust_std_m_s: float = 0.0
+    gps_noise_std_m: float = 0.0
+    battery_flight_time_s: float = 1500.0
+    kp_pos_per_s: float = 1.0
+    kp_vel_per_s: float = 3.0
+    drag_per_s: float = 0.3
+    wind_comp_tau_s: float = 2.0
+    gust_tau_s: float = 2.0
+    yaw_rate_max_rad_s: float = math.radians(90.0)
+    battery_cells: int = 4
+    gps_warmup_s: float = 2.0
+
+    def __post_init__(self):
+        for name in ("max_speed_h_m_s", "max_speed_up_m_s", "max_speed_down_m_s", "max_accel_m_s2",
+                     "land_speed_m_s", "takeoff_speed_m_s", "battery_flight_time_s", "kp_pos_per_s",
+                     "kp_vel_per_s", "wind_comp_tau_s", "gust_tau_s", "yaw_rate_max_rad_s",
+                     "wind_gust_std_m_s", "gps_noise_std_m", "drag_per_s", "gps_warmup_s"):
+            v = float(getattr(self, name))
+            may_be_zero = name in ("wind_gust_std_m_s", "gps_noise_std_m", "drag_per_s", "gps_warmup_s")
+            if not (math.isfinite(v) and (v >= 0.0 if may_be_zero else v > 0.0)):
+                kind = ">= 0 and finite" if may_be_zero else "a positive finite number"
+                raise ValueError(f"DynamicsParams.{name} must be {kind}, got {v!r}")
+        wind = tuple(float(w) for w in self.wind_ned_m_s)
+        if len(wind) != 3 or not all(math.isfinite(w) for w in wind):
+            raise ValueError(f"DynamicsParams.wind_ned_m_s must be 3 finite numbers, got {self.wind_ned_m_s!r}")
+        self.wind_ned_m_s = wind
+        if int(self.battery_cells) < 1:
+            raise ValueError(f"DynamicsParams.battery_cells must be >= 1, got {self.battery_cells!r}")
+
+
+def _finite3(values, what: str) -> tuple[float, float, float]:
+    try:
+        a, b, c = (float(v) for v in values)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be 3 numbers, got {values!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
+        raise ValueError(f"{what} must be finite, got {values!r}")
+    return a, b, c
+
+
+def _wrap_pi(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _sqrt_speed(err_m: float, kp: float, accel: float) -> float:
+    """Speed (>= 0) commanded for a distance ``err_m`` >= 0 (ArduPilot's sqrt_controller)."""
+    lin = accel / (kp * kp)
+    if err_m <= lin:
+        return kp * err_m
+    return math.sqrt(2.0 * accel * (err_m - 0.5 * lin))
+
+
+class Multicopter:
+    """Point-mass multicopter under a position controller, in its own LOCAL_NED frame (origin
+    = home on the ground, z down). Seeded rng.
+
+    Commands (``command_*``) set what the controller does; they have an effect only while the
+    vehicle is armed and has not crashed (motors off otherwise). :meth:`arm` on the ground
+    leaves the vehicle sitting there (idle) until a takeoff, or a position / velocity command
+    that climbs. Preconditions such as "no takeoff while disarmed" are the autopilot's job.
+
+    Parameters
+    ----------
+    params : DynamicsParams
+    rng : numpy.random.Generator
+        Source of gusts and GPS noise (reproducible with a seed).
+
+    Attributes
+    ----------
+    yaw_rad : float
+        Heading, radians clockwise from north.
+    armed, landed, crashed : bool
+    battery_remaining : float
+        State of charge, 1.0 (full) .. 0.0 (empty); may be set (e.g. a low-battery fault).
+    gps_glitch_ned_m : numpy.ndarray
+        Offset added to the reported (not the true) position, set by the fleet.
+    """
+
+    def __init__(self, params: DynamicsParams, rng: np.random.Generator):
+        self.params = params
+        self.rng = rng
+        self._n = self._e = self._d = 0.0
+        self._vn = self._ve = self._vd = 0.0
+        self.yaw_rad = 0.0
+        self.armed = False
+        self.landed = True
+        self.crashed = False
+        self.battery_remaining = 1.0
+        self.gps_glitch_ned_m = np.zeros(3)
+        self._mode = _MODE_IDLE
+        self._tgt = (0.0, 0.0, 0.0)       # position target (NED m)
+        self._vel_tgt = (0.0, 0.0, 0.0)   # velocity target or feed-forward (NED m/s)
+        self._yaw_tgt: float | None = None
+        self._gust = [0.0, 0.0, 0.0]
+        self._wind_comp = [0.0, 0.0, 0.0]  # autopilot's compensation (m/s^2)
+        self._load = 0.0                   # 0 (motors off) .. ~1.5 (climbing)
+        self._normal_buf: list[float] = []
+        self._normal_i = 0
+
+    # ------------------------------------------------------------------ state
+    @property
+    def position_ned_m(self) -> np.ndarray:
+        """True position, NED metres from home (a copy; assign to teleport)."""
+        return np.array((self._n, self._e, self._d))
+
+    @position_ned_m.setter
+    def position_ned_m(self, ned_m) -> None:
+        n, e, d = _finite3(ned_m, "position")
+        self._n, self._e, self._d = n, e, min(d, 0.0)
+        self.landed = self._d >= -_LIFTOFF_M and self._mode == _MODE_IDLE
+
+    @property
+    def velocity_ned_m_s(self) -> np.ndarray:
+        """True velocity, NED m/s (a copy; assign to set)."""
+        return np.array((self._vn, self._ve, self._vd))
+
+    @velocity_ned_m_s.setter
+    def velocity_ned_m_s(self, ned_m_s) -> None:
+        self._vn, self._ve, self._vd = _finite3(ned_m_s, "velocity")
+
+    @property
+    def mode(self) -> str:
+        """Controller mode: idle, position, velocity, takeoff, land or falling."""
+        return self._mode
+
+    @property
+    def position_target_ned_m(self) -> np.ndarray | None:
+        """Current position target (None in velocity, idle and falling modes)."""
+        if self._mode in (_MODE_POSITION, _MODE_TAKEOFF, _MODE_LAND):
+            return np.array(self._tgt)
+        return None
+
+    @property
+    def velocity_target_ned_m_s(self) -> np.ndarray:
+        """Velocity target (velocity mode) or feed-forward (position mode)."""
+        return np.array(self._vel_tgt)
+
+    @property
+    def yaw_target_rad(self) -> float | None:
+        """Commanded heading, or None to keep the current one."""
+        return self._yaw_tgt
+
+    @property
+    def on_ground(self) -> bool:
+        """True when touching the ground (z at 0)."""
+        return self._d >= -_GROUND_EPS_M
+
+    @property
+    def battery_voltage_v(self) -> float:
+        """Pack voltage: 3.5 .. 4.2 V per cell with the state of charge, minus sag under load."""
+        soc = min(max(self.battery_remaining, 0.0), 1.0)
+        cell = 3.5 + 0.7 * soc - 0.12 * self._load
+        return int(self.params.battery_cells) * cell
+
+    # --------------------------------------------------------------- commands
+    def arm(self) -> None:
+        """Start the motors; on the ground the vehicle stays there until told to climb."""
+        if self.crashed:
+            return
+        self.armed = True
+        if self.on_ground:
+            self._mode = _MODE_IDLE
+            self.landed = True
+
+    def disarm(self) -> None:
+        """Stop the motors; in the air the vehicle falls."""
+        self.armed = False
+        if not self.on_ground or self._mode == _MODE_FALLING:
+            self._mode = _MODE_FALLING
+        else:
+            self._mode = _MODE_IDLE
+
+    def _flying_allowed(self) -> bool:
+        return self.armed and not self.crashed and self._mode != _MODE_FALLING
+
+    def command_position(self, ned_m, yaw_rad=None, velocity_ff_ned_m_s=None) -> None:
+        """Fly to and hold ``ned_m`` (NED m from home), optionally with a heading and a
+        velocity feed-forward (NED m/s). A target at or below the ground while landed keeps the
+        vehicle on the ground. Non-finite values raise ValueError (resolve MAVLink's ignored
+        fields, e.g. via type_mask, before calling)."""
+        if not self._flying_allowed():
+            return
+        n, e, d = _finite3(ned_m, "position target")
+        ff = (0.0, 0.0, 0.0) if velocity_ff_ned_m_s is None else _finite3(
+            velocity_ff_ned_m_s, "velocity feed-forward")
+        self._tgt = (n, e, min(d, 0.0))
+        self._vel_tgt = ff
+        self._set_yaw_target(yaw_rad)
+        self._mode = _MODE_POSITION
+
+    def command_velocity(self, ned_m_s, yaw_rad=None) -> None:
+        """Follow a velocity (NED m/s), clamped to the speed limits (ValueError if not finite)."""
+        if not self._flying_allowed():
+            return
+        self._vel_tgt = _finite3(ned_m_s, "velocity target")
+        self._set_yaw_target(yaw_rad)
+        self._mode = _MODE_VELOCITY
+
+    def command_hold(self) -> None:
+        """Brake and hold at the stopping point (where braking at the limit ends)."""
+        if not self._flying_allowed():
+            return
+        if self.on_ground and self._mode in (_MODE_IDLE, _MODE_LAND):
+            self._mode = _MODE_IDLE
+            return
+        a = 0.5 * self.params.max_accel_m_s2
+        self._tgt = (self._n + self._vn * abs(self._vn) / (2 * a),
+                     self._e + self._ve * abs(self._ve) / (2 * a),
+                     min(self._d + self._vd * abs(self._vd) / (2 * a), 0.0))
+        self._vel_tgt = (0.0, 0.0, 0.0)
+        self._mode = _MODE_POSITION
+
+    def command_takeoff(self, alt_m: float) -> None:
+        """Climb vertically at the takeoff speed to ``alt_m`` above home, then hold there."""
+        if not self._flying_allowed():
+            return
+        alt = float(alt_m)
+        if not (math.isfinite(alt) and alt > 0.0):
+            raise ValueError(f"takeoff altitude must be a positive finite number, got {alt_m!r}")
+        self._tgt = (self._n, self._e, -alt)
+        self._vel_tgt = (0.0, 0.0, 0.0)
+        self._mode = _MODE_TAKEOFF
+
+    def command_land(self) -> None:
+        """Hold horizontally and descend; on touchdown ``landed`` becomes True."""
+        if not self._flying_allowed():
+            return
+        self._tgt = (self._n, self._e, 0.0)
+        self._vel_tgt = (0.0, 0.0, 0.0)
+        self._mode = _MODE_IDLE if self.on_ground else _MODE_LAND
+
+    def crash(self) -> None:
+        """The vehicle fails: motors stop, it falls and stays where it hits the ground."""
+        self.crashed = True
+        self.armed = False
+        self._mode = _MODE_FALLING
+        self.landed = self.on_ground and abs(self._vd) < _LANDED_SPEED_M_S
+
+    def _set_yaw_target(self, yaw_rad) -> None:
+        if yaw_rad is not None:
+            y = float(yaw_rad)
+            if math.isfinite(y):
+                self._yaw_tgt = _wrap_pi(y)
+
+    # ----------------------------------------------------------------- sensors
+    def reported_position_ned_m(self) -> np.ndarray:
+        """Position as the vehicle's GPS reports it: true + glitch offset + white noise."""
+        p = np.array((self._n, self._e, self._d)) + self.gps_glitch_ned_m
+        std = self.params.gps_noise_std_m
+        if std > 0.0:
+            p = p + self.rng.normal(0.0, std, 3)
+        return p
+
+    def position_estimate_ready(self, t_since_boot_s: float) -> bool:
+        """True once the GPS has had ``params.gps_warmup_s`` seconds since boot."""
+        return t_since_boot_s >= self.params.gps_warmup_s
+
+    # -------------------------------------------------------------- simulation
+    def step(self, dt_s: float) -> None:
+        """Advance the simulation by ``dt_s`` seconds (sub-stepped above 20 ms)."""
+        if not (dt_s > 0.0 and dt_s < math.inf):
+            if dt_s == 0.0:
+                return
+            raise ValueError(f"step needs a finite dt_s >= 0, got {dt_s!r}")
+        n = math.ceil(dt_s / _MAX_SUBSTEP_S) if dt_s > _MAX_SUBSTEP_S else 1
+        for _ in range(n):
+            self._step(dt_s / n)
+
+    def _step(self, dt: float) -> None:
+        p = self.params
+        mode = self._mode
+        if mode == _MODE_FALLING:
+            self._fall(dt)
+            return
+        if mode == _MODE_IDLE:
+            if not self.on_ground:  # idle in the air (teleported): hold if armed, else fall
+                if self.armed:
+                    self.command_hold()
+                else:
+                    self._mode = _MODE_FALLING
+                return
+            self._vn = self._ve = self._vd = 0.0
+            self._load = 0.1 if self.armed else 0.0
+            self._drain(dt)
+            self.landed = True
+            return
+
+        # ---- velocity command
+        if mode == _MODE_VELOCITY:
+            cn, ce, cd = self._vel_tgt
+        else:
+            tn, te, td = self._tgt
+            en, ee, ed = tn - self._n, te - self._e, td - self._d
+            acc = 0.5 * p.max_accel_m_s2
+            dist_h = math.hypot(en, ee)
+            if dist_h > 1e-9:
+                s = _sqrt_speed(dist_h, p.kp_pos_per_s, acc) / dist_h
+                cn, ce = en * s, ee * s
+            else:
+                cn = ce = 0.0
+            sd = _sqrt_speed(abs(ed), p.kp_pos_per_s, acc)
+            cd = sd if ed > 0 else -sd
+            fn, fe, fd = self._vel_tgt
+            cn, ce, cd = cn + fn, ce + fe, cd + fd
+        # speed limits (per mode)
+        h_max, up_max, down_max = p.max_speed_h_m_s, p.max_speed_up_m_s, p.max_speed_down_m_s
+        if mode == _MODE_TAKEOFF:
+            up_max = min(up_max, p.takeoff_speed_m_s)
+        elif mode == _MODE_LAND:
+            # descend at a constant rate until touchdown (faster high up: LAND_SPEED_HIGH)
+            cd = p.land_speed_m_s if -self._d <= _LAND_HIGH_ALT_M else max(down_max, p.land_speed_m_s)
+            down_max = max(down_max, p.land_speed_m_s)
+        sh = math.hypot(cn, ce)
+        if sh > h_max:
+            cn, ce = cn * h_max / sh, ce * h_max / sh
+        cd = min(max(cd, -up_max), down_max)
+
+        # on the ground and not asked to climb: stay there
+        if self._d >= -_GROUND_EPS_M and cd >= 0.0:
+            self._d = 0.0
+            self._vn = self._ve = self._vd = 0.0
+            self.landed = True
+            self._load = 0.1
+            if mode in (_MODE_LAND, _MODE_TAKEOFF):
+                self._mode = _MODE_IDLE
+            self._drain(dt)
+            return
+
+        # ---- velocity loop (towards the command, never past it)
+        amax_dt = p.max_accel_m_s2 * dt
+        kdt = min(p.kp_vel_per_s * dt, 1.0)
+        dn, de = cn - self._vn, ce - self._ve
+        dh = math.hypot(dn, de)
+        f = kdt if dh * kdt <= amax_dt else amax_dt / dh
+        self._vn, self._ve = self._vn + dn * f, self._ve + de * f
+        dd = cd - self._vd
+        f = kdt if abs(dd) * kdt <= amax_dt else amax_dt / abs(dd)
+        self._vd += dd * f
+
+        # ---- wind: drag towards the air mass, minus the autopilot's compensation
+        if p.drag_per_s > 0.0:
+            wn, we, wd = p.wind_ned_m_s
+            if p.wind_gust_std_m_s > 0.0:
+                g = self._gust
+                a = dt / p.gust_tau_s
+                r0, r1, r2 = self._normals3()
+                sq = p.wind_gust_std_m_s * math.sqrt(2.0 * a)
+                g[0] += -g[0] * a + sq * r0
+                g[1] += -g[1] * a + sq * r1
+                g[2] += -g[2] * a + sq * r2
+                wn, we, wd = wn + g[0], we + g[1], wd + g[2]
+            c = self._wind_comp
+            if wn or we or wd or c[0] or c[1] or c[2]:
+                b = min(dt / p.wind_comp_tau_s, 1.0)
+                k = p.drag_per_s
+                c[0] += (k * wn - c[0]) * b
+                c[1] += (k * we - c[1]) * b
+                c[2] += (k * wd - c[2]) * b
+                self._vn += (k * wn - c[0]) * dt
+                self._ve += (k * we - c[1]) * dt
+                self._vd += (k * wd - c[2]) * dt
+
+        # ---- integrate position, ground contact
+        self._n += self._vn * dt
+        self._e += self._ve * dt
+        self._d += self._vd * dt
+        if self._d >= 0.0:
+            self._d, self._vd = 0.0, min(self._vd, 0.0)
+        if self.landed and self._d < -_LIFTOFF_M:
+            self.landed = False
+        if mode == _MODE_TAKEOFF and abs(self._tgt[2] - self._d) < 0.05:
+            self._mode = _MODE_POSITION
+        self._yaw_step(dt)
+        self._load = 1.0 + 0.5 * max(-self._vd, 0.0) / p.max_speed_up_m_s
+        self._drain(dt)
+
+    def _normals3(self) -> tuple[float, float, float]:
+        """Three standard normals, drawn from the rng in batches (a draw per step is slow)."""
+        i = self._normal_i
+        if i + 3 > len(self._normal_buf):
+            self._normal_buf = self.rng.standard_normal(_NORMAL_BATCH).tolist()
+            i = 0
+        self._normal_i = i + 3
+        b = self._normal_buf
+        return b[i], b[i + 1], b[i + 2]
+
+    def _yaw_step(self, dt: float) -> None:
+        if self._yaw_tgt is None:
+            return
+        err = _wrap_pi(self._yaw_tgt - self.yaw_rad)
+        lim = self.params.yaw_rate_max_rad_s * dt
+        self.yaw_rad = _wrap_pi(self.yaw_rad + max(-lim, min(lim, err)))
+
+    def _drain(self, dt: float) -> None:
+        if self._load > 0.0 and self.battery_remaining > 0.0:
+            self.battery_remaining = max(
+                0.0, self.battery_remaining - self._load * dt / self.params.battery_flight_time_s)
+            if self.battery_remaining == 0.0 and not self.on_ground:
+                self.armed = False
+                self._mode = _MODE_FALLING
+
+    def _fall(self, dt: float) -> None:
+        self._load = 0.0
+        if self.on_ground and self._vd <= 0.0:
+            self._vn = self._ve = self._vd = 0.0
+            self._d = 0.0
+            self.landed = True
+            return
+        k = GRAVITY_M_S2 / _TERMINAL_SPEED_M_S
+        self._vd += (GRAVITY_M_S2 - k * self._vd) * dt
+        decay = max(0.0, 1.0 - k * dt)
+        self._vn, self._ve = self._vn * decay, self._ve * decay
+        self._n += self._vn * dt
+        self._e += self._ve * dt
+        self._d += self._vd * dt
+        self.landed = False
+        if self._d >= 0.0:
+            if self._vd > _CRASH_IMPACT_M_S:
+                self.crashed = True
+            self._d = 0.0
+            self._vn = self._ve = self._vd = 0.0
+            self.landed = True

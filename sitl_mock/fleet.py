@@ -1,0 +1,383 @@
+"""A fleet of mock vehicles in one process: autopilots, dynamics, sensors, transports.
+
+One background thread runs the whole fleet: physics at 50 Hz of simulated time, autopilot
+logic and telemetry, sensor sampling, and all socket I/O through one ``selectors`` selector
+(non-blocking sockets; the thread sleeps in ``select`` between physics steps, so an asyncio
+ground station in the same process keeps the GIL most of the time).
+
+Vehicle i (0-based) has system id i + 1, binds UDP ``127.0.0.1:udp_bind_base_port + i``, sends
+its stream to ``127.0.0.1:udp_base_port + i`` and serves TCP on ``tcp_base_port + 10 i``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import selectors
+import threading
+import time
+import traceback
+
+import numpy as np
+
+from formation.geodesy import enu_to_geodetic, geodetic_to_enu, ned_to_enu
+from sitl_mock.autopilot import MockAutopilot
+from sitl_mock.clock import SimClock
+from sitl_mock.dynamics import DynamicsParams, Multicopter
+from sitl_mock.faults import FaultSet
+from sitl_mock.transport import VehicleLinks
+
+__all__ = ["MockFleet", "MockVehicle", "PHYSICS_RATE_HZ", "DEFAULT_ORIGIN", "default_home_offsets"]
+
+PHYSICS_RATE_HZ = 50.0
+DEFAULT_ORIGIN = (45.1900, 5.7200, 230.0)
+_HOME_SPACING_M = 5.0
+_MAX_CATCHUP_STEPS = 25
+_LOCKSTEP_POLL_S = 0.002
+_MAX_ERRORS_KEPT = 20
+
+
+def default_home_offsets(n: int, spacing_m: float = _HOME_SPACING_M) -> np.ndarray:
+    """Homes on a square grid ``spacing_m`` apart (ENU metres from the fleet origin), shape (n, 3)."""
+    cols = max(1, math.ceil(math.sqrt(n)))
+    return np.array([((i % cols) * spacing_m, (i // cols) * spacing_m, 0.0) for i in range(n)])
+
+
+class MockVehicle:
+    """One vehicle of a :class:`MockFleet` (read-only view plus its parts).
+
+    Attributes
+    ----------
+    sysid : int
+    autopilot : MockAutopilot
+    dynamics : Multicopter
+    faults : FaultSet
+    home_enu : numpy.ndarray
+        Home (its LOCAL_NED origin) in the mission frame, ENU metres about the fleet origin.
+    home_geodetic : tuple
+        ``(lat_deg, lon_deg, alt_m)`` of home.
+    udp_bind_port, udp_send_port, tcp_port : int
+        Its ports (0 when disabled).
+    sensor : SignalSensor or None
+    """
+
+    def __init__(self, index, autopilot, dynamics, faults, home_enu, home_geodetic, origin, links,
+                 sensor):
+        self.index = index
+        self.autopilot = autopilot
+        self.dynamics = dynamics
+        self.faults = faults
+        self.home_enu = np.asarray(home_enu, dtype=float)
+        self.home_geodetic = tuple(float(v) for v in home_geodetic)
+        self.links = links
+        self.sensor = sensor
+        self.next_sample_s = -math.inf
+        # exact affine map from this vehicle's local ENU (tangent plane at home) to mission ENU
+        b = geodetic_to_enu(*self.home_geodetic, origin)
+        cols = [geodetic_to_enu(*enu_to_geodetic(e, self.home_geodetic), origin) - b
+                for e in np.eye(3)]
+        self._to_mission = np.array(cols).T
+        self._mission_offset = b
+
+    @property
+    def sysid(self) -> int:
+        """MAVLink system id."""
+        return self.autopilot.sysid
+
+    @property
+    def mode_name(self) -> str:
+        """Current flight mode name (e.g. ``GUIDED``, ``OFFBOARD``)."""
+        return self.autopilot.mode_name
+
+    @property
+    def armed(self) -> bool:
+        """True while armed."""
+        return self.autopilot.armed
+
+    @property
+    def params(self):
+        """The autopilot's :class:`~sitl_mock.ap_params.ParamTable`."""
+        return self.autopilot.params
+
+    @property
+    def counters(self) -> dict:
+        """A snapshot of the receive / transmit / protocol counters."""
+        return dict(self.autopilot.counters)
+
+    @property
+    def udp_bind_port(self) -> int:
+        """UDP port the vehicle listens on."""
+        return self.links.udp_bind_port
+
+    @property
+    def udp_send_port(self) -> int:
+        """UDP port the vehicle streams to."""
+        return self.links.udp_send_port
+
+    @property
+    def tcp_port(self) -> int:
+        """TCP port of the vehicle's MAVLink server."""
+        return self.links.tcp_port
+
+    def true_position_ned(self) -> np.ndarray:
+        """True position in the vehicle's own LOCAL_NED frame."""
+        return self.dynamics.position_ned_m
+
+    def true_position_enu(self) -> np.ndarray:
+        """True position in the mission frame (ENU metres about the fleet origin)."""
+        return self._to_mission @ ned_to_enu(self.dynamics.position_ned_m) + self._mission_offset
+
+    def __repr__(self) -> str:
+        return (f"MockVehicle(sysid={self.sysid}, {self.autopilot.personality.name}, "
+                f"mode={self.mode_name}, udp={self.udp_bind_port}->{self.udp_send_port}, "
+                f"tcp={self.tcp_port})")
+
+
+class MockFleet:
+    """N mock autopilots with dynamics, sensors and MAVLink transports, run in one thread.
+
+    Parameters
+    ----------
+    n : int
+        Number of vehicles (system ids 1..n).
+    personality : str or list of str
+        ``"px4"`` or ``"ardupilot"``, for all vehicles or one per vehicle.
+    field : sitl_mock.fields.Field, optional
+        Signal field the sensors sample (no sensors without a field).
+    origin : tuple
+        Fleet origin ``(lat_deg, lon_deg, alt_m)`` (the mission frame's origin).
+    home_offsets_enu : array_like (n, 3), optional
+        Homes in ENU metres from the origin (default: a 5 m grid).
+    speedup : float
+        Simulated seconds per wall second (ignored when ``clock`` is given).
+    clock : clock object, optional
+        A :class:`~sitl_mock.clock.SimClock` or :class:`~sitl_mock.clock.LockstepClock`.
+    seed : int
+        Seeds dynamics, sensor noise and packet loss.
+    udp_base_port, udp_bind_base_port, tcp_base_port : int
+        Port bases (0 disables UDP / TCP).
+    fleet_name : str
+        Name in the zenoh keys and sensor payloads.
+    sensor_noise_std : float or list of float
+        Sensor noise per vehicle.
+    sensor_rate_hz : float
+        Readings per simulated second per vehicle.
+    zenoh_listen, zenoh_connect : list of str, optional
+        Endpoints of the fleet's zenoh session (no session, hence no publishing, without them).
+    zenoh : bool
+        False disables zenoh even if endpoints are given.
+    dynamics : DynamicsParams
+        Dynamics of every vehicle (copied per vehicle: parameters can then differ).
+    params : dict or list of dict, optional
+        Autopilot parameter overrides (for all vehicles or per vehicle).
+    """
+
+    def __init__(self, n: int = 8, personality="px4", field=None, origin=DEFAULT_ORIGIN,
+                 home_offsets_enu=None, speedup: float = 1.0, clock=None, seed: int = 0,
+                 udp_base_port: int = 14540, udp_bind_base_port: int = 14580,
+                 tcp_base_port: int = 5760, fleet_name: str = "swarmseek",
+                 sensor_noise_std=0.0, sensor_rate_hz: float = 10.0, zenoh_listen=None,
+                 zenoh_connect=None, zenoh: bool = True, dynamics: DynamicsParams | None = None,
+                 params=None):
+        n = int(n)
+        if not 1 <= n <= 255:
+            raise ValueError(f"n must be 1..255 vehicles, got {n}")
+        personalities = [personality] * n if isinstance(personality, str) else list(personality)
+        if len(personalities) != n:
+            raise ValueError(f"{len(personalities)} personalities given for {n} vehicles")
+        offsets = default_home_offsets(n) if home_offsets_enu is None \
+            else np.asarray(home_offsets_enu, dtype=float)
+        if offsets.shape != (n, 3) or not np.all(np.isfinite(offsets)):
+            raise ValueError(f"home_offsets_enu must be {n} finite ENU triples, got shape {offsets.shape}")
+        noise = [float(sensor_noise_std)] * n if np.isscalar(sensor_noise_std) \
+            else [float(v) for v in sensor_noise_std]
+        if len(noise) != n:
+            raise ValueError(f"{len(noise)} sensor noise levels given for {n} vehicles")
+        if not (math.isfinite(sensor_rate_hz) and sensor_rate_hz > 0):
+            raise ValueError(f"sensor_rate_hz must be > 0, got {sensor_rate_hz!r}")
+        overrides = [params or {}] * n if not isinstance(params, (list, tuple)) else list(params)
+        if len(overrides) != n:
+            raise ValueError(f"{len(overrides)} parameter override sets given for {n} vehicles")
+        for name, base in (("udp_base_port", udp_base_port), ("udp_bind_base_port", udp_bind_base_port),
+                           ("tcp_base_port", tcp_base_port)):
+            if base and not (1 <= base and base + (10 * (n - 1) if name == "tcp_base_port" else n - 1) <= 65535):
+                raise ValueError(f"{name}={base} does not leave room for {n} vehicles")
+        self.clock = clock if clock is not None else SimClock(speedup)
+        self.origin = tuple(float(v) for v in origin)
+        self.fleet_name = fleet_name
+        self.field = field
+        self.sensor_rate_hz = float(sensor_rate_hz)
+        self._zenoh_listen = zenoh_listen
+        self._zenoh_connect = zenoh_connect
+        self._zenoh_enabled = bool(zenoh) and field is not None and bool(zenoh_listen or zenoh_connect)
+        self._session = None
+        self._publisher = None
+        self._selector = selectors.DefaultSelector()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._started = threading.Event()
+        self.errors: list[str] = []
+        self.stats = {"ticks": 0, "lag_s": 0.0, "busy_wall_s": 0.0, "wall_s": 0.0, "dropped_steps": 0}
+        dyn_base = dynamics if dynamics is not None else DynamicsParams()
+        seeds = np.random.SeedSequence(seed).spawn(n)
+        t0 = self.clock.time()
+        self.vehicles: list[MockVehicle] = []
+        for i in range(n):
+            rng_dyn, rng_sensor, rng_link = (np.random.default_rng(s) for s in seeds[i].spawn(3))
+            faults = FaultSet()
+            mc = Multicopter(dataclasses.replace(dyn_base), rng_dyn)
+            lat, lon, alt = enu_to_geodetic(offsets[i], self.origin)
+            home = (float(lat), float(lon), float(alt))
+            ap = MockAutopilot(i + 1, personalities[i], mc, home, t0, faults, overrides[i],
+                               uid=(seed & 0xFFFF) << 32 | 0x5357_0000 | (i + 1))
+            links = VehicleLinks(ap, self.clock, self._selector, rng_link,
+                                 udp_bind_base_port + i if udp_bind_base_port and udp_base_port else 0,
+                                 udp_base_port + i if udp_base_port and udp_bind_base_port else 0,
+                                 tcp_base_port + 10 * i if tcp_base_port else 0)
+            sensor = None
+            if field is not None:
+                from sitl_mock.sensor import SignalSensor
+                sensor = SignalSensor(field, noise[i], rng_sensor, faults, fleet_name, i + 1)
+            self.vehicles.append(MockVehicle(i, ap, mc, faults, offsets[i], home, self.origin,
+                                             links, sensor))
+
+    # ------------------------------------------------------------- lifecycle
+    def start(self) -> "MockFleet":
+        """Open the sockets (and zenoh session) and start the simulation thread."""
+        if self._thread is not None:
+            raise RuntimeError("fleet already started")
+        try:
+            for v in self.vehicles:
+                v.links.open()
+            if self._zenoh_enabled:
+                import zenoh
+
+                from sitl_mock.sensor import SensorPublisher, zenoh_config
+                self._session = zenoh.open(zenoh_config(self._zenoh_listen, self._zenoh_connect))
+                self._publisher = SensorPublisher(self._session, self.fleet_name,
+                                                  [v.sysid for v in self.vehicles])
+        except BaseException:
+            self._close_io()
+            raise
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="mock-fleet", daemon=True)
+        self._thread.start()
+        self._started.wait(10.0)
+        return self
+
+    def stop(self) -> None:
+        """Stop the thread and close every socket and the zenoh session (idempotent)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10.0)
+            self._thread = None
+        self._close_io()
+
+    def _close_io(self) -> None:
+        for v in self.vehicles:
+            v.links.close()
+        if self._publisher is not None:
+            self._publisher.close()
+            self._publisher = None
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+
+    def __enter__(self) -> "MockFleet":
+        return self.start()
+
+    def __exit__(self, *_exc) -> None:
+        self.stop()
+
+    @property
+    def running(self) -> bool:
+        """True while the simulation thread runs."""
+        return self._thread is not None and self._thread.is_alive()
+
+    # ------------------------------------------------------------------ API
+    def vehicle(self, sysid: int) -> MockVehicle:
+        """The vehicle with system id ``sysid``."""
+        for v in self.vehicles:
+            if v.sysid == sysid:
+                return v
+        raise KeyError(f"no vehicle with sysid {sysid}; fleet has {[v.sysid for v in self.vehicles]}")
+
+    def set_fault(self, sysid: int, name: str, value) -> None:
+        """Set one fault of one vehicle (see :class:`~sitl_mock.faults.FaultSet`)."""
+        self.vehicle(sysid).faults.set(name, value)
+
+    # ------------------------------------------------------------ simulation
+    def _run(self) -> None:
+        clock = self.clock
+        dt = 1.0 / PHYSICS_RATE_HZ
+        lockstep = math.isinf(getattr(clock, "speedup", 1.0))
+        speedup = getattr(clock, "speedup", 1.0)
+        next_tick = clock.time()
+        sample_dt = 1.0 / self.sensor_rate_hz
+        wall0 = time.perf_counter()
+        busy = 0.0
+        self._started.set()
+        while not self._stop.is_set():
+            t0 = time.perf_counter()
+            now = clock.time()
+            steps = 0
+            while next_tick <= now and steps < _MAX_CATCHUP_STEPS:
+                self._tick(next_tick, dt, sample_dt)
+                next_tick += dt
+                steps += 1
+            if not lockstep and next_tick <= now - 1.0:  # hopelessly behind: skip ahead, count it
+                skipped = int((now - next_tick) / dt)
+                self.stats["dropped_steps"] += skipped
+                next_tick += skipped * dt
+            self.stats["lag_s"] = max(0.0, now - next_tick)
+            t_io = clock.time()
+            for v in self.vehicles:
+                self._guard(v.links.pump, t_io)
+            busy += time.perf_counter() - t0
+            if lockstep:
+                timeout = _LOCKSTEP_POLL_S
+            else:
+                timeout = min(max((next_tick - clock.time()) / speedup, 0.0), 0.05)
+            events = self._selector.select(timeout)
+            t2 = time.perf_counter()
+            for key, mask in events:
+                self._guard(key.data, mask)
+            busy += time.perf_counter() - t2
+            self.stats["busy_wall_s"] = busy
+            self.stats["wall_s"] = time.perf_counter() - wall0
+
+    def _tick(self, t_s: float, dt: float, sample_dt: float) -> None:
+        self.stats["ticks"] += 1
+        for v in self.vehicles:
+            try:
+                ap = v.autopilot
+                ap.step(t_s, dt)
+                v.dynamics.step(dt)
+                ap.send_telemetry(t_s)
+                if v.sensor is not None and t_s >= v.next_sample_s:
+                    v.next_sample_s = max(v.next_sample_s + sample_dt, t_s) \
+                        if math.isfinite(v.next_sample_s) else t_s + sample_dt
+                    self._sample(v, t_s)
+            except Exception:  # never let one vehicle stop the fleet; keep the evidence
+                self._record_error()
+
+    def _sample(self, v: MockVehicle, t_s: float) -> None:
+        if v.faults.crashed:
+            return
+        enu = v.true_position_enu()
+        lat, lon, alt = enu_to_geodetic(enu, self.origin)
+        reading = v.sensor.sample(t_s, enu, float(lat), float(lon), float(alt))
+        if self._publisher is not None:
+            self._publisher.publish(reading)
+
+    def _guard(self, fn, arg) -> None:
+        try:
+            fn(arg)
+        except Exception:
+            self._record_error()
+
+    def _record_error(self) -> None:
+        if len(self.errors) < _MAX_ERRORS_KEPT:
+            self.errors.append(traceback.format_exc())
+
+    def __repr__(self) -> str:
+        return f"MockFleet(n={len(self.vehicles)}, clock={self.clock!r}, running={self.running})"

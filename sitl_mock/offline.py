@@ -1,0 +1,173 @@
+"""Vectorised offline source-seeking simulation (perfect tracking, no MAVLink, no zenoh).
+
+Many independent trials run at once as numpy arrays: every iteration, each trial's robots sit
+exactly at ``centre + offset_i`` (perfect tracking), read the field with optional Gaussian noise
+(one standard deviation per robot), the centre estimates the gradient with
+:func:`estimator.gradient_batch` and moves with :func:`estimator.seek_step`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from estimator import DEFAULT_MAX_CONDITION, estimator_weights, gradient_batch, seek_step
+
+__all__ = ["OfflineResult", "simulate", "SIGMA_C_MODES"]
+
+#: How the estimator gets the field at the centre: the mean of the readings (paper's Remark)
+#: or the exact value (as in Theorem 2's statement; a simulation-only oracle).
+SIGMA_C_MODES = ("mean", "exact")
+
+
+@dataclass(frozen=True)
+class OfflineResult:
+    """Everything a batch of offline runs produced.
+
+    Attributes
+    ----------
+    centres : ndarray, shape (T + 1, K, 3)
+        Formation centre of each trial before each iteration and after the last one.
+    grad_est : ndarray, shape (T, K, 3)
+        Gradient estimate used at each iteration.
+    grad_true : ndarray, shape (T, K, 3)
+        Exact field gradient at the centre at each iteration.
+    readings : ndarray, shape (T, K, N)
+        Readings (with noise) of each robot at each iteration.
+    offsets : ndarray, shape (K, N, 3)
+        Each trial's formation offsets (after its rotation).
+    source_enu : ndarray, shape (3,)
+        The field's source.
+    """
+
+    centres: np.ndarray
+    grad_est: np.ndarray
+    grad_true: np.ndarray
+    readings: np.ndarray
+    offsets: np.ndarray
+    source_enu: np.ndarray
+
+    def distance_to_source_m(self) -> np.ndarray:
+        """``||c - r*||`` per iteration and trial, shape (T + 1, K)."""
+        return np.linalg.norm(self.centres - self.source_enu, axis=-1)
+
+    def error_norm(self) -> np.ndarray:
+        """``||g_hat - grad||`` per iteration and trial, shape (T, K)."""
+        return np.linalg.norm(self.grad_est - self.grad_true, axis=-1)
+
+
+def _trial_offsets(offsets: np.ndarray, trials: int, rotate: bool, rng) -> np.ndarray:
+    if not rotate:
+        return np.broadcast_to(offsets, (trials,) + offsets.shape).copy()
+    rot = Rotation.random(trials, random_state=rng).as_matrix()  # (K, 3, 3)
+    return np.einsum("kij,nj->kni", rot, offsets)
+
+
+def _noise_std(noise_std, n: int, trials: int) -> np.ndarray:
+    std = np.asarray(noise_std, dtype=float)
+    if std.ndim == 0:
+        std = np.full(n, float(std))
+    if std.shape not in ((n,), (trials, n)):
+        raise ValueError(
+            f"noise_std must be a scalar or have shape ({n},) or ({trials}, {n}), got {std.shape}"
+        )
+    if not np.all(np.isfinite(std)) or np.any(std < 0):
+        raise ValueError("noise_std must be finite and >= 0")
+    return std
+
+
+def simulate(
+    offsets,
+    field,
+    start,
+    *,
+    eps: float = 1.0,
+    gamma: float = 0.1,
+    iterations: int = 1000,
+    trials: int = 1,
+    noise_std=0.0,
+    method: str = "cvt",
+    sigma_c: str = "mean",
+    rotate: bool = False,
+    seed: int = 0,
+    max_condition: float = DEFAULT_MAX_CONDITION,
+) -> OfflineResult:
+    """Simulate ``trials`` independent source-seeking runs at once.
+
+    Parameters
+    ----------
+    offsets : array_like, shape (N, 3)
+        Formation offsets from the centre, metres (N >= 4), kept rigid during the run.
+    field : Field
+        Object with ``value(points)``, ``gradient(points)`` and ``source_enu()``
+        (see :mod:`sitl_mock.fields`).
+    start : array_like, shape (3,) or (K, 3)
+        Initial centre (common or per trial), ENU metres.
+    eps, gamma : float
+        Seeking step size and largest move per iteration (metres).
+    iterations : int
+        Number of iterations ``T`` (>= 1).
+    trials : int
+        Number of trials ``K`` (>= 1).
+    noise_std : float or array_like, shape (N,) or (K, N)
+        Standard deviation of each robot's Gaussian reading noise (signal units), common to
+        all trials or per trial.
+    method : {"cvt", "symmetric"}
+        Estimator (Theorem 2 or eq. (3)).
+    sigma_c : {"mean", "exact"}
+        Field value at the centre used by ``"cvt"``: mean of the readings or exact.
+    rotate : bool
+        Apply an independent uniformly random rotation to the formation of each trial.
+    seed : int
+        Seed of the noise and rotations (the result is deterministic for a seed).
+    max_condition : float
+        Passed to the estimator's geometry check.
+
+    Returns
+    -------
+    OfflineResult
+
+    Raises
+    ------
+    estimator.GeometryError
+        The formation cannot support the estimator.
+    ValueError
+        Bad shapes or parameters.
+    """
+    off = np.asarray(offsets, dtype=float)
+    if off.ndim != 2 or off.shape[1] != 3:
+        raise ValueError(f"offsets must have shape (N, 3), got {off.shape}")
+    if int(iterations) != iterations or iterations < 1:
+        raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
+    if int(trials) != trials or trials < 1:
+        raise ValueError(f"trials must be an integer >= 1, got {trials!r}")
+    if sigma_c not in SIGMA_C_MODES:
+        raise ValueError(f"sigma_c must be one of {SIGMA_C_MODES}, got {sigma_c!r}")
+    n = off.shape[0]
+    std = _noise_std(noise_std, n, int(trials))
+    c0 = np.asarray(start, dtype=float)
+    if c0.shape not in ((3,), (trials, 3)) or not np.all(np.isfinite(c0)):
+        raise ValueError(f"start must be a finite (3,) or ({trials}, 3) array, got shape {c0.shape}")
+    rng = np.random.default_rng(seed)
+    trial_off = _trial_offsets(off, trials, rotate, rng)
+    weights = estimator_weights(trial_off, method, max_condition)
+    noisy = bool(np.any(std > 0))
+    t_count, k_count = int(iterations), int(trials)
+    centres = np.empty((t_count + 1, k_count, 3))
+    grad_est = np.empty((t_count, k_count, 3))
+    grad_true = np.empty((t_count, k_count, 3))
+    readings = np.empty((t_count, k_count, n))
+    centres[0] = c0
+    for k in range(t_count):
+        c = centres[k]
+        vals = field.value(c[:, None, :] + trial_off)
+        if noisy:
+            vals = vals + rng.standard_normal((k_count, n)) * std
+        readings[k] = vals
+        sc = field.value(c) if sigma_c == "exact" else None
+        g = gradient_batch(None, vals, method, sigma_c=sc, weights=weights)
+        grad_est[k] = g
+        grad_true[k] = field.gradient(c)
+        centres[k + 1] = seek_step(c, g, eps, gamma)
+    return OfflineResult(centres, grad_est, grad_true, readings, trial_off, field.source_enu())

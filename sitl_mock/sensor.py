@@ -1,0 +1,303 @@
+"""Simulated signal sensors and their zenoh publication (``docs/interfaces.md``, zenoh section).
+
+:class:`SignalSensor` samples a field at a vehicle's true position with its own Gaussian noise
+and the sensor faults of a :class:`~sitl_mock.faults.FaultSet` (noise override, stuck, bias,
+spikes), and builds the reading dict of schema ``swarmseek.sensor.v1``. :func:`encode_reading`
+turns it into the UTF-8 JSON payload; :class:`SensorPublisher` puts it on
+``swarmseek/<fleet>/vehicle/<sysid>/sensor`` (``application/json``, reliable, congestion control
+BLOCK). :func:`zenoh_config` builds a session configuration with explicit endpoints and no
+multicast scouting, as every session of the project must.
+"""
+from __future__ import annotations
+
+import json
+import math
+from typing import TYPE_CHECKING, Iterable
+
+import numpy as np
+
+from sitl_mock.faults import FaultSet
+
+if TYPE_CHECKING:  # pragma: no cover
+    import zenoh
+
+__all__ = [
+    "SENSOR_SCHEMA",
+    "SENSOR_ENCODING",
+    "SignalSensor",
+    "encode_reading",
+    "sensor_key",
+    "zenoh_config",
+    "SensorPublisher",
+]
+
+SENSOR_SCHEMA = "swarmseek.sensor.v1"
+SENSOR_ENCODING = "application/json"
+_ZENOH_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream")
+
+
+def _finite(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return v
+
+
+def _check_fleet(fleet: str) -> str:
+    if not isinstance(fleet, str) or not fleet or any(c in fleet for c in "/*$?# "):
+        raise ValueError(f"fleet name must be a non-empty string without / * $ ? # or spaces, got {fleet!r}")
+    return fleet
+
+
+def _check_sysid(sysid: int) -> int:
+    if isinstance(sysid, bool) or not isinstance(sysid, (int, np.integer)) or not 1 <= sysid <= 255:
+        raise ValueError(f"sysid must be an integer in 1..255, got {sysid!r}")
+    return int(sysid)
+
+
+def sensor_key(fleet: str, sysid: int) -> str:
+    """Zenoh key of a vehicle's sensor readings: ``swarmseek/<fleet>/vehicle/<sysid>/sensor``.
+
+    Raises
+    ------
+    ValueError
+        If the fleet name is empty or holds key-expression characters, or sysid is not 1..255.
+    """
+    return f"swarmseek/{_check_fleet(fleet)}/vehicle/{_check_sysid(sysid)}/sensor"
+
+
+class SignalSensor:
+    """One vehicle's sensor: samples the field with noise and faults, builds the payload.
+
+    Parameters
+    ----------
+    field : sitl_mock.fields.Field
+        The signal field (mission frame, ENU m).
+    noise_std : float
+        Standard deviation of the additive Gaussian noise (signal units, >= 0); overridden by
+        ``faults.sensor_noise_std`` when that is set.
+    rng : numpy.random.Generator
+        Source of noise and spikes (reproducible with a seed).
+    faults : FaultSet
+        The vehicle's faults, read at every sample (so they may change at run time).
+    fleet : str
+        Fleet name (goes into the key and the payload).
+    sysid : int
+        MAVLink system id of the vehicle carrying the sensor.
+
+    Attributes
+    ----------
+    seq : int
+        Sequence number of the next reading (starts at 0, +1 per reading).
+    """
+
+    def __init__(self, field, noise_std: float, rng, faults: FaultSet, fleet: str, sysid: int):
+        self.field = field
+        self.noise_std = _finite(noise_std, "noise_std")
+        if self.noise_std < 0.0:
+            raise ValueError(f"noise_std must be >= 0, got {noise_std!r}")
+        self.rng = rng
+        self.faults = faults
+        self.fleet = _check_fleet(fleet)
+        self.sysid = _check_sysid(sysid)
+        self.seq = 0
+        self._last_value: float | None = None
+
+    def true_value(self, position_enu) -> float:
+        """Noise-free field value at ``position_enu`` (mission frame, ENU m)."""
+        return float(self.field.value(np.asarray(position_enu, dtype=float)))
+
+    def sample(self, t_s: float, true_position_enu, lat_deg, lon_deg, alt_m) -> dict:
+        """Take one reading.
+
+        Parameters
+        ----------
+        t_s : float
+            Sender's clock (simulated Unix seconds) when the sample is taken.
+        true_position_enu : array_like, shape (3,)
+            Where the sample is taken, mission frame ENU m (the field is evaluated there).
+        lat_deg, lon_deg, alt_m : float
+            The same position, geodetic (goes into the payload).
+
+        Returns
+        -------
+        dict
+            The reading of schema ``swarmseek.sensor.v1``: schema, fleet, sysid, seq, time_s,
+            lat_deg, lon_deg, alt_m, value. Faults: a stuck sensor repeats its last value;
+            otherwise value = field + noise + bias (+ a spike of random sign).
+
+        Raises
+        ------
+        ValueError
+            If the time or a coordinate is not finite.
+        """
+        t = _finite(t_s, "t_s")
+        pos = np.asarray(true_position_enu, dtype=float)
+        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+            raise ValueError(f"true_position_enu must be 3 finite numbers, got {true_position_enu!r}")
+        lat, lon, alt = _finite(lat_deg, "lat_deg"), _finite(lon_deg, "lon_deg"), _finite(alt_m, "alt_m")
+        f = self.faults
+        if f.sensor_stuck and self._last_value is not None:
+            value = self._last_value
+        else:
+            std = self.noise_std if f.sensor_noise_std is None else float(f.sensor_noise_std)
+            value = self.true_value(pos)
+            if std > 0.0:
+                value += std * float(self.rng.standard_normal())
+            value += float(f.sensor_bias)
+            if f.sensor_spike_prob > 0.0 and float(self.rng.random()) < f.sensor_spike_prob:
+                value += float(f.sensor_spike_size) * (1.0 if self.rng.random() < 0.5 else -1.0)
+        self._last_value = value
+        reading = {
+            "schema": SENSOR_SCHEMA,
+            "fleet": self.fleet,
+            "sysid": self.sysid,
+            "seq": self.seq,
+            "time_s": t,
+            "lat_deg": lat,
+            "lon_deg": lon,
+            "alt_m": alt,
+            "value": value,
+        }
+        self.seq += 1
+        return reading
+
+
+def encode_reading(reading: dict) -> bytes:
+    """UTF-8 JSON payload of a reading (compact; NaN / infinity rejected with ValueError)."""
+    try:
+        return json.dumps(reading, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    except ValueError as exc:
+        raise ValueError(f"reading is not valid JSON (non-finite number?): {exc}") from None
+
+
+def _endpoints(value, what: str) -> list[str]:
+    if value is None:
+        return []
+    items = [value] if isinstance(value, str) else list(value)
+    for ep in items:
+        proto, sep, rest = str(ep).partition("/")
+        if not sep or proto not in _ZENOH_PROTOCOLS or not rest:
+            raise ValueError(
+                f"bad zenoh {what} endpoint {ep!r}: expected PROTO/ADDRESS, e.g. tcp/127.0.0.1:7447")
+    return [str(ep) for ep in items]
+
+
+def zenoh_config(listen: str | Iterable[str] | None = None,
+                 connect: str | Iterable[str] | None = None) -> "zenoh.Config":
+    """A peer-mode zenoh configuration with explicit endpoints and multicast scouting off.
+
+    Parameters
+    ----------
+    listen, connect : str or iterable of str or None
+        Endpoints such as ``tcp/127.0.0.1:7447``. At least one of the two must be given.
+
+    Raises
+    ------
+    ValueError
+        If no endpoint is given or an endpoint is malformed.
+    """
+    import zenoh
+
+    listen_eps = _endpoints(listen, "listen")
+    connect_eps = _endpoints(connect, "connect")
+    if not listen_eps and not connect_eps:
+        raise ValueError("zenoh_config needs at least one listen or connect endpoint")
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps("peer"))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps(listen_eps))
+    conf.insert_json5("connect/endpoints", json.dumps(connect_eps))
+    return conf
+
+
+class SensorPublisher:
+    """The sensor publishers of a fleet's vehicles on one zenoh session.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        An open session (the caller owns it and closes it after :meth:`close`).
+    fleet : str
+        Fleet name.
+    sysids : list of int
+        Vehicles whose readings this object publishes.
+
+    Attributes
+    ----------
+    published : int
+        Readings put so far.
+    """
+
+    def __init__(self, session, fleet: str, sysids: list[int]):
+        import zenoh
+
+        self.fleet = _check_fleet(fleet)
+        self.published = 0
+        self._publishers = {}
+        try:
+            for sysid in sysids:
+                sid = _check_sysid(sysid)
+                if sid in self._publishers:
+                    raise ValueError(f"sysid {sid} listed twice")
+                self._publishers[sid] = session.declare_publisher(
+                    sensor_key(self.fleet, sid),
+                    encoding=zenoh.Encoding.APPLICATION_JSON,
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                    reliability=zenoh.Reliability.RELIABLE,
+                )
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def sysids(self) -> list[int]:
+        """System ids this object publishes for."""
+        return list(self._publishers)
+
+    def has_subscribers(self, sysid: int) -> bool:
+        """True when some subscriber matches the sensor key of ``sysid``."""
+        status = self._publisher(sysid).matching_status
+        # zenoh-python 1.x returns a MatchingStatus object (always truthy), not a bool
+        return bool(getattr(status, "matching", status))
+
+    def _publisher(self, sysid):
+        try:
+            return self._publishers[sysid]
+        except KeyError:
+            raise ValueError(
+                f"no sensor publisher for sysid {sysid!r} in fleet {self.fleet!r}; "
+                f"known: {sorted(self._publishers)}") from None
+
+    def publish(self, reading: dict) -> None:
+        """Put one reading (built by :meth:`SignalSensor.sample`) on its vehicle's key.
+
+        Raises
+        ------
+        ValueError
+            If the reading's fleet or sysid is not one of this publisher's, or it cannot be
+            encoded.
+        """
+        if reading.get("fleet") != self.fleet:
+            raise ValueError(f"reading of fleet {reading.get('fleet')!r} given to the publisher of {self.fleet!r}")
+        pub = self._publisher(reading.get("sysid"))
+        pub.put(encode_reading(reading))
+        self.published += 1
+
+    def close(self) -> None:
+        """Undeclare every publisher (idempotent)."""
+        pubs, self._publishers = self._publishers, {}
+        for pub in pubs.values():
+            try:
+                pub.undeclare()
+            except Exception:  # already undeclared or session closed: nothing left to release
+                pass
+
+    def __enter__(self) -> "SensorPublisher":
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        self.close()

@@ -1,0 +1,315 @@
+"""``swarmseek sensor``: a virtual sensor riding on a real (or SITL) autopilot.
+
+Reads the autopilot's GLOBAL_POSITION_INT over MAVLink (any pymavlink connection string: it asks
+for the rate it needs with MAV_CMD_SET_MESSAGE_INTERVAL), maps each position fix into the field
+frame (ENU about ``--origin``), samples the simulated field there with the requested noise, and
+publishes the reading over zenoh exactly like the mock fleet's sensors (key
+``swarmseek/<fleet>/vehicle/<sysid>/sensor``, schema ``swarmseek.sensor.v1``, ``time_s`` = Unix
+time). Field teams use it to dry-run the whole mission against ArduPilot or PX4 SITL.
+
+Plain blocking pymavlink in the main thread: this command runs no asyncio loop.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+import numpy as np
+
+from formation.geodesy import geodetic_to_enu
+from sitl_mock.faults import FaultSet
+from sitl_mock.fields import FIELD_NAMES, make_field
+from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key, zenoh_config
+
+__all__ = ["VirtualSensorError", "configure", "main", "run"]
+
+_MSG_ID_GLOBAL_POSITION_INT = 33
+_MAV_CMD_SET_MESSAGE_INTERVAL = 511
+_MAV_TYPE_GCS = 6
+_MAV_AUTOPILOT_INVALID = 8
+_GCS_HEARTBEAT_PERIOD_S = 1.0
+_REREQUEST_PERIOD_S = 3.0
+_NET_PREFIXES = ("tcp:", "tcpin:", "udp:", "udpin:", "udpout:", "udpbcast:")
+
+
+class VirtualSensorError(RuntimeError):
+    """The virtual sensor cannot run (no link, no heartbeat, zenoh failure): a clear message."""
+
+
+# ----------------------------------------------------------------------------- argument types
+def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected {what} ({n} comma-separated finite numbers), got {text!r}")
+    return values
+
+
+def _source_arg(text: str) -> tuple[float, ...]:
+    return _floats(text, 3, "E,N,U")
+
+
+def _origin_arg(text: str) -> tuple[float, ...]:
+    lat, lon, alt = _floats(text, 3, "LAT,LON,ALT")
+    if not -90.0 <= lat <= 90.0 or not -180.0 <= lon <= 180.0:
+        raise argparse.ArgumentTypeError(f"origin latitude must be in [-90, 90] and longitude in [-180, 180], got {text!r}")
+    return lat, lon, alt
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0.0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def _nonnegative_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0.0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return v
+
+
+def _sysid_arg(text: str) -> int:
+    v = _positive_int(text)
+    if v > 255:
+        raise argparse.ArgumentTypeError(f"a MAVLink system id is 1..255, got {text!r}")
+    return v
+
+
+def _fleet_arg(text: str) -> str:
+    try:
+        sensor_key(text, 1)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def _connection_arg(text: str) -> str:
+    for prefix in _NET_PREFIXES:
+        if text.startswith(prefix):
+            host, sep, port = text[len(prefix):].rpartition(":")
+            if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+                raise argparse.ArgumentTypeError(
+                    f"bad connection {text!r}: expected {prefix}HOST:PORT, e.g. tcp:127.0.0.1:5762")
+            return text
+    if not text or text.startswith("-"):
+        raise argparse.ArgumentTypeError(f"bad connection {text!r}")
+    return text  # serial device or another pymavlink form: pymavlink judges it
+
+
+def _endpoint_arg(text: str) -> str:
+    try:
+        zenoh_config(listen=text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    except ImportError:  # zenoh missing: reported when the session is opened
+        pass
+    return text
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the ``swarmseek sensor`` arguments to ``parser``."""
+    parser.add_argument("--connect", required=True, type=_connection_arg, metavar="CONN",
+                        help="pymavlink connection to the autopilot, e.g. tcp:127.0.0.1:5762 or udpin:0.0.0.0:14550")
+    parser.add_argument("--field", required=True, choices=FIELD_NAMES, help="simulated signal field")
+    parser.add_argument("--source", type=_source_arg, default=(0.0, 0.0, 0.0), metavar="E,N,U",
+                        help="field source in the field frame, metres (default 0,0,0; "
+                             "write --source=-5,2,10 when it starts with a minus)")
+    parser.add_argument("--origin", required=True, type=_origin_arg, metavar="LAT,LON,ALT",
+                        help="geodetic origin of the field frame (degrees, degrees, metres AMSL)")
+    parser.add_argument("--noise", type=_nonnegative_float, default=0.0, metavar="STD",
+                        help="standard deviation of the sensor noise, signal units (default 0)")
+    parser.add_argument("--rate", type=_positive_float, default=10.0, metavar="HZ",
+                        help="readings per second (default 10)")
+    parser.add_argument("--fleet", type=_fleet_arg, default="swarmseek",
+                        help="fleet name in the zenoh key (default swarmseek, like swarmseek mock)")
+    parser.add_argument("--sysid", type=_sysid_arg, default=None, metavar="N",
+                        help="autopilot system id (default: the first autopilot heartbeat's)")
+    parser.add_argument("--zenoh-listen", type=_endpoint_arg, action="append", default=[], metavar="ENDPOINT",
+                        help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    parser.add_argument("--zenoh-connect", type=_endpoint_arg, action="append", default=[], metavar="ENDPOINT",
+                        help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    parser.add_argument("--count", type=_positive_int, default=None, metavar="N", help="stop after N readings")
+    parser.add_argument("--duration", type=_positive_float, default=None, metavar="S", help="stop after S seconds")
+    parser.add_argument("--timeout", type=_positive_float, default=30.0, metavar="S",
+                        help="how long to wait for the autopilot's heartbeat (default 30)")
+    parser.add_argument("--wait-subscriber", type=_nonnegative_float, default=2.0, metavar="S",
+                        help="before the first reading, wait up to S seconds for a zenoh subscriber (default 2)")
+    parser.add_argument("--retries", type=_positive_int, default=3, metavar="N",
+                        help="TCP connection attempts (default 3)")
+    parser.add_argument("--seed", type=int, default=None, help="noise seed (default: random)")
+    parser.add_argument("--quiet", action="store_true", help="print only errors")
+
+
+# ----------------------------------------------------------------------------- MAVLink side
+def _open_mavlink(connection: str, retries: int):
+    from pymavlink import mavutil
+
+    try:
+        return mavutil.mavlink_connection(connection, source_system=255, source_component=158,
+                                          autoreconnect=True, retries=retries, reconnect_delay=0.5)
+    except (OSError, ValueError, ImportError) as exc:
+        raise VirtualSensorError(f"cannot open MAVLink connection {connection!r}: {exc}") from None
+    except Exception as exc:  # pymavlink raises assorted errors for odd device strings
+        raise VirtualSensorError(f"cannot open MAVLink connection {connection!r}: {type(exc).__name__}: {exc}") from None
+
+
+def _send_gcs_heartbeat(conn) -> None:
+    conn.mav.heartbeat_send(_MAV_TYPE_GCS, _MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
+
+def _recv(conn, types, timeout_s: float):
+    try:
+        return conn.recv_match(type=types, blocking=True, timeout=timeout_s)
+    except OSError as exc:
+        raise VirtualSensorError(f"lost the MAVLink connection: {exc}") from None
+
+
+def _wait_heartbeat(conn, sysid: int | None, timeout_s: float):
+    deadline = time.monotonic() + timeout_s
+    next_hb = 0.0
+    while time.monotonic() < deadline:
+        if time.monotonic() >= next_hb:
+            _send_gcs_heartbeat(conn)  # lets udpout links and PX4 know we are here
+            next_hb = time.monotonic() + _GCS_HEARTBEAT_PERIOD_S
+        msg = _recv(conn, ["HEARTBEAT"], 0.2)
+        if msg is None:
+            continue
+        if msg.type == _MAV_TYPE_GCS or msg.autopilot == _MAV_AUTOPILOT_INVALID:
+            continue  # another ground station, not an autopilot
+        if sysid is None or msg.get_srcSystem() == sysid:
+            return msg
+    who = "an autopilot" if sysid is None else f"autopilot sysid {sysid}"
+    raise VirtualSensorError(f"no heartbeat from {who} within {timeout_s:g} s")
+
+
+def _request_position_rate(conn, sysid: int, compid: int, rate_hz: float) -> None:
+    conn.mav.command_long_send(sysid, compid, _MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                               _MSG_ID_GLOBAL_POSITION_INT, 1e6 / rate_hz, 0, 0, 0, 0, 0)
+
+
+# ----------------------------------------------------------------------------- main loop
+def _open_zenoh(listen, connect):
+    try:
+        import zenoh
+    except ImportError as exc:
+        raise VirtualSensorError(f"zenoh is not installed: {exc}") from None
+    try:
+        return zenoh.open(zenoh_config(listen=listen or None, connect=connect or None))
+    except Exception as exc:  # zenoh.ZError and friends: bad or busy endpoint
+        raise VirtualSensorError(f"cannot open the zenoh session: {exc}") from None
+
+
+def _log(args, text: str) -> None:
+    if not args.quiet:
+        print(f"swarmseek sensor: {text}", file=sys.stderr, flush=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the virtual sensor until ``--count`` / ``--duration`` (or forever); returns readings sent.
+
+    Raises
+    ------
+    VirtualSensorError
+        When the autopilot or zenoh cannot be reached or the link is lost.
+    """
+    field = make_field(args.field, args.source)
+    conn = _open_mavlink(args.connect, args.retries)
+    session = publisher = None
+    try:
+        hb = _wait_heartbeat(conn, args.sysid, args.timeout)
+        sysid, compid = hb.get_srcSystem(), hb.get_srcComponent()
+        session = _open_zenoh(args.zenoh_listen, args.zenoh_connect)
+        publisher = SensorPublisher(session, args.fleet, [sysid])
+        sensor = SignalSensor(field, args.noise, np.random.default_rng(args.seed), FaultSet(), args.fleet, sysid)
+        _log(args, f"autopilot sysid {sysid} on {args.connect}; publishing {sensor_key(args.fleet, sysid)} "
+                   f"at {args.rate:g} Hz")
+        return _loop(args, conn, publisher, sensor, sysid, compid, field)
+    finally:
+        if publisher is not None:
+            publisher.close()
+        if session is not None:
+            session.close()
+        conn.close()
+
+
+def _loop(args, conn, publisher, sensor, sysid, compid, field) -> int:
+    start = time.monotonic()
+    end = None if args.duration is None else start + args.duration
+    period_s = 1.0 / args.rate
+    next_hb = next_request = start
+    got_position = waited = False
+    last_pub = -math.inf
+    no_fix = sent = 0
+    while (args.count is None or sent < args.count) and (end is None or time.monotonic() < end):
+        now = time.monotonic()
+        if now >= next_hb:
+            _send_gcs_heartbeat(conn)
+            next_hb = now + _GCS_HEARTBEAT_PERIOD_S
+        if now >= next_request:  # until positions flow, ask again now and then
+            _request_position_rate(conn, sysid, compid, args.rate)
+            next_request = now + (_REREQUEST_PERIOD_S if not got_position else math.inf)
+        msg = _recv(conn, ["GLOBAL_POSITION_INT"], 0.05)
+        if msg is None or msg.get_srcSystem() != sysid:
+            continue
+        got_position = True
+        if msg.lat == 0 and msg.lon == 0:
+            no_fix += 1  # autopilots send zeros before their first GPS fix
+            if no_fix == 1:
+                _log(args, "autopilot has no position fix yet (lat = lon = 0); waiting")
+            continue
+        if time.monotonic() - last_pub < 0.75 * period_s:
+            continue  # the autopilot streams faster than asked: keep our rate
+        if not waited:
+            waited = True
+            _wait_for_subscriber(publisher, sysid, args.wait_subscriber)
+        lat, lon, alt = msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3
+        enu = geodetic_to_enu(lat, lon, alt, args.origin)
+        publisher.publish(sensor.sample(time.time(), enu, lat, lon, alt))
+        last_pub = time.monotonic()
+        sent += 1
+    _log(args, f"published {sent} readings")
+    return sent
+
+
+def _wait_for_subscriber(publisher, sysid: int, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not publisher.has_subscribers(sysid) and time.monotonic() < deadline:
+        time.sleep(0.02)
+
+
+def main(args: argparse.Namespace) -> int:
+    """Entry point of ``swarmseek sensor``: 0 on success, 1 with a one-line message on failure,
+    2 when no zenoh endpoint was given."""
+    if not args.zenoh_listen and not args.zenoh_connect:
+        print("swarmseek sensor: error: give --zenoh-listen and/or --zenoh-connect "
+              "(zenoh endpoints are always explicit)", file=sys.stderr)
+        return 2
+    try:
+        run(args)
+    except VirtualSensorError as exc:
+        print(f"swarmseek sensor: error: {exc}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,81 @@
+"""``swarmseek paper --quick`` writes every output, and its numbers come from the geometry."""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+import formation
+from mission.cli import main as cli_main
+from mission.paper import SIGMA1_START_ENU, SIGMA2_START_ENU, TABLE_NS
+
+_FILES = [
+    "table1.csv", "table1.json", "table1.md", "footnote.csv", "footnote.json",
+    "fig1_trajectory.png", "fig1_trajectory.csv", "fig1_trajectory.json",
+    "fig2_gradient.png", "fig2_gradient.csv", "fig3_error_radius.png", "fig3_error_radius.csv",
+    "fig4_noise.png", "fig4_noise.csv", "fig4_robustness.csv", "fig4_robustness.json",
+    "fig4_robustness.md", "fig5_cvt30.png", "fig5_cvt30.json", "physics.json", "summary.json",
+]
+
+
+@pytest.fixture(scope="module")
+def paper_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("paper") / "figures"  # not existing yet: must be created
+    assert cli_main(["paper", "--quick", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize("name", _FILES)
+def test_every_output_is_written(paper_dir, name):
+    path = paper_dir / name
+    assert path.is_file() and path.stat().st_size > 0
+    if name.endswith(".png"):
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    if name.endswith(".json"):
+        assert json.loads(path.read_text())
+
+
+def test_table1_equals_the_formation_metrics(paper_dir):
+    rows = json.loads((paper_dir / "table1.json").read_text())
+    assert [r["n"] for r in rows] == list(TABLE_NS)
+    for row in rows:
+        n = row["n"]
+        assert row["symmetric_d_min"] == formation.metrics(formation.symmetric_cylinder(n, 1.0)).d_min
+        assert row["cvt_d_min"] == formation.metrics(formation.cvt_sphere(n, 1.0, seed=0)).d_min
+    with (paper_dir / "table1.csv").open() as fh:
+        csv_rows = list(csv.DictReader(fh))
+    assert [float(r["cvt_d_min"]) for r in csv_rows] == pytest.approx([r["cvt_d_min"] for r in rows])
+    md = (paper_dir / "table1.md").read_text()
+    assert all(f"| {n} |" in md for n in TABLE_NS)
+
+
+def test_footnote_rows_match_metrics(paper_dir):
+    rows = json.loads((paper_dir / "footnote.json").read_text())
+    assert {r["n"] for r in rows} >= {4, 5, 6, 7, 8}
+    assert {r["formation"] for r in rows if r["n"] % 2} == {"cvt"}
+    row = next(r for r in rows if r["n"] == 7)
+    m = formation.metrics(formation.cvt_sphere(7, 1.0, seed=0))
+    assert row["norm_scaled_Minv"] == pytest.approx(m.norm_scaled_Minv)
+    assert row["norm_M_alpha"] == pytest.approx(m.norm_M_alpha)
+    sym = [r for r in rows if r["formation"] == "symmetric"]
+    assert all(r["r_bar_norm"] < 1e-12 and r["norm_scaled_Minv"] == pytest.approx(1.0) for r in sym)
+
+
+def test_outputs_state_the_starting_points_and_data_is_consistent(paper_dir):
+    summary = json.loads((paper_dir / "summary.json").read_text())
+    assert summary["quick"] is True
+    assert summary["sigma1_start_enu"] == list(SIGMA1_START_ENU)
+    assert summary["sigma2_start_enu"] == list(SIGMA2_START_ENU)
+    fig1 = json.loads((paper_dir / "fig1_trajectory.json").read_text())
+    with (paper_dir / "fig1_trajectory.csv").open() as fh:
+        traj = list(csv.DictReader(fh))
+    first = [float(traj[0][k]) for k in ("east_m", "north_m", "up_m")]
+    assert first == list(SIGMA1_START_ENU) == fig1["start_enu"]
+    assert float(traj[-1]["dist_m"]) < float(traj[0]["dist_m"])  # it seeks
+    np.testing.assert_allclose(np.linalg.norm(fig1["offsets"], axis=1), 4.0)
+    with (paper_dir / "fig4_noise.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert float(rows[0]["equal_cvt_mean_m"]) == pytest.approx(np.linalg.norm(SIGMA2_START_ENU))
+    assert float(rows[-1]["faulty_symmetric_mean_m"]) < float(rows[0]["faulty_symmetric_mean_m"])
