@@ -130,6 +130,8 @@ def _sliding_stats(centres: np.ndarray, window: int):
     """Window statistics for every window end ``t >= window - 1``; ``centres`` (T, ..., 3)."""
     w = window
     q = w // 4
+    origin = centres[:1]
+    centres = centres - origin  # keeps the running sums small (no cancellation far away)
     csum = np.concatenate([np.zeros_like(centres[:1]), np.cumsum(centres, axis=0)])
     sq = np.sum(centres**2, axis=-1)
     sqsum = np.concatenate([np.zeros_like(sq[:1]), np.cumsum(sq, axis=0)])
@@ -151,7 +153,7 @@ def _sliding_stats(centres: np.ndarray, window: int):
         rho = np.where(ratio < 1.0, np.power(np.clip(ratio, 0.0, 1.0), 1.0 / (w - 1 - q)), 1.0)
         remaining = np.where(rho < 1.0, last_q * rho / np.where(rho < 1.0, 1.0 - rho, 1.0), np.inf)
     remaining = np.where(path == 0.0, 0.0, remaining)
-    return mean, spread, net, path, walk, remaining
+    return mean + origin, spread, net, path, walk, remaining
 
 
 def _verdict_mask(spread, net, path, walk, remaining, tol_m, drift_factor):

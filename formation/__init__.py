@@ -10,8 +10,11 @@
 * :mod:`formation.geodesy`: WGS-84 <-> ENU/NED conversions.
 """
 from . import geodesy
+from .assignment import Reconfiguration, assign_slots, kabsch_rotation, reconfigure
 from .cvt import cvt_from, cvt_sphere, cvt_sphere_result, random_sphere_points
+from .distributed import DistributedResult, distributed_lloyd, local_centroid
 from .fast_cvt import CVTResult
+from .lloyd_mesh import MeshLloydResult, fibonacci_sphere, lloyd_mesh, lloyd_mesh_result
 from .metrics import FormationMetrics, metrics
 from .spherical_cells import (
     SphericalCells,
@@ -43,4 +46,15 @@ __all__ = [
     "delaunay_neighbours",
     "FormationMetrics",
     "metrics",
+    "lloyd_mesh",
+    "lloyd_mesh_result",
+    "MeshLloydResult",
+    "fibonacci_sphere",
+    "distributed_lloyd",
+    "DistributedResult",
+    "local_centroid",
+    "assign_slots",
+    "reconfigure",
+    "Reconfiguration",
+    "kabsch_rotation",
 ]

@@ -75,9 +75,10 @@ def cvt_from(points, method="lbfgs", tol=1e-10, max_iter=_DEFAULT_MAX_ITER):
     ----------
     points : array_like, shape (n, 3)
         Initial generators, ``n >= 4`` non-zero vectors (projected radially on the sphere).
-    method : {"lbfgs", "lloyd"}, optional
+    method : {"lbfgs", "lbfgs-scipy", "lloyd"}, optional
         ``"lloyd"`` is plain exact Lloyd; ``"lbfgs"`` (default) a quasi-Newton solver on the
-        CVT energy (see :mod:`formation.fast_cvt`).
+        CVT energy; ``"lbfgs-scipy"`` the same with scipy's L-BFGS-B (see
+        :mod:`formation.fast_cvt`).
     tol : float, optional
         Stop when one more Lloyd step would move every generator less than ``tol``.
     max_iter : int, optional
@@ -153,9 +154,9 @@ def cvt_sphere(
         Formation radius ``D`` (positive).
     seed : int, optional
         Seed of the random initial generators; the result is deterministic for a seed.
-    method : {"lbfgs", "lloyd"}, optional
+    method : {"lbfgs", "lbfgs-scipy", "lloyd"}, optional
         Solver: ``"lloyd"`` is plain exact Lloyd; ``"lbfgs"`` (default) minimises the CVT energy
-        with L-BFGS. Both stop on the same rule.
+        with L-BFGS (``"lbfgs-scipy"``: scipy's L-BFGS-B). All stop on the same rule.
     tol : float, optional
         Lloyd move tolerance (on the unit sphere).
     max_iter : int, optional

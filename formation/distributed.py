@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .spherical_cells import _cells_unit, delaunay_neighbours, normalise_points
+from .spherical_cells import _cells_unit, _oriented_hull, normalise_points
 
 __all__ = ["DistributedResult", "distributed_lloyd", "local_centroid"]
 
@@ -78,6 +78,12 @@ def local_centroid(own, neighbours):
     return c / np.linalg.norm(c)
 
 
+def _neighbours_of(p, i):
+    tri = _oriented_hull(p)[0]
+    nbrs = np.unique(tri[np.any(tri == i, axis=1)])
+    return nbrs[nbrs != i]
+
+
 def distributed_lloyd(points, seed=0, max_rounds=5000, tol=1e-10):
     """Run asynchronous distributed Lloyd from ``points`` until a round moves nobody by ``tol``.
 
@@ -118,7 +124,7 @@ def distributed_lloyd(points, seed=0, max_rounds=5000, tol=1e-10):
     while rounds < max_rounds and round_move >= tol:
         round_move = 0.0
         for i in rng.permutation(n):
-            nbrs = delaunay_neighbours(p)[i]  # neighbour discovery (communication layer)
+            nbrs = _neighbours_of(p, i)  # neighbour discovery (the communication layer's job)
             new = local_centroid(p[i], p[nbrs])
             round_move = max(round_move, float(np.linalg.norm(new - p[i])))
             p[i] = new

@@ -2,8 +2,9 @@
 
 Writes three PNGs (matplotlib, Agg backend):
 
-``trajectory_3d.png``   the formation centre and every vehicle (telemetry) in the mission ENU
-                        frame, the estimated (and, for embedded runs, the true) source;
+``trajectory_3d.png``   the formation centre during the seek and every vehicle (telemetry, whole
+                        mission) in the mission ENU frame, the estimated (and, for embedded
+                        runs, the true) source;
 ``distance.png``        distance of the centre to the estimated source (and to the true one)
                         per iteration;
 ``gradient.png``        the gradient estimate's components and norm per iteration.
@@ -40,11 +41,17 @@ def mission_tracks(records: list[dict]) -> dict:
     k = np.array([r["k"] for r in its])
     centre = np.array([r["centre_enu"] for r in its] + [its[-1]["new_centre_enu"]], dtype=float)
     grad = np.array([r["gradient"] for r in its], dtype=float)
+    samples: list[tuple[float, str, list]] = []
+    for r in records:
+        if r.get("type") == "iteration":
+            samples.extend((r.get("t_s", 0.0), str(s), p) for s, p in (r.get("positions_enu") or {}).items())
+        elif r.get("type") == "status":
+            samples.extend((r.get("t_s", 0.0), str(v.get("sysid")), v.get("position_enu"))
+                           for v in r.get("vehicles", []))
     vehicles: dict[str, list] = {}
-    for r in its:
-        for sysid, p in (r.get("positions_enu") or {}).items():
-            if p is not None:
-                vehicles.setdefault(sysid, []).append(p)
+    for _, sysid, p in sorted(samples, key=lambda x: x[0]):
+        if p is not None and len(p) == 3:
+            vehicles.setdefault(sysid, []).append(p)
     summary = next((r for r in reversed(records) if r.get("type") == "summary"), None)
     estimate = summary.get("estimate_enu") if summary else None
     if estimate is None:

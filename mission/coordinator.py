@@ -118,10 +118,12 @@ class Coordinator:
         Where LINKS writes one ``.tlog`` per vehicle.
     state_rate_hz : float
         State publication / display rate (wall clock).
+    status_period_s : float
+        A ``status`` record (every vehicle's state) goes to the mission log this often (mission clock).
     """
 
     def __init__(self, plan: Plan, *, clock, zenoh_session=None, log: MissionLog | None = None,
-                 display=None, tlog_dir=None, state_rate_hz: float = 2.0):
+                 display=None, tlog_dir=None, state_rate_hz: float = 2.0, status_period_s: float = 1.0):
         self.plan = plan
         self.clock = clock
         self.session = zenoh_session
@@ -129,6 +131,7 @@ class Coordinator:
         self.display = display
         self.tlog_dir = tlog_dir
         self.state_rate_hz = state_rate_hz
+        self.status_period_s = float(status_period_s)
         self.phase = "idle"
         self.endpoints: dict[str, object] = {}
         self.vehicles: dict[int, object] = {}
@@ -270,11 +273,16 @@ class Coordinator:
         the stream resumes at once, so re-engaging is safe); each time is logged and counted.
         """
         loop = asyncio.get_running_loop()
+        next_status_s = self.clock.time()
         while True:
             t0 = loop.time()
             await asyncio.sleep(period_s)
             self.max_loop_lag_s = max(self.max_loop_lag_s, loop.time() - t0 - period_s)
             self.update_odometry()
+            if self.log is not None and self.vehicles and self.clock.time() >= next_status_s:
+                next_status_s = self.clock.time() + self.status_period_s
+                self.log.write("status", phase=self.phase, centre_enu=self.centre_enu,
+                               vehicles=self.vehicle_status())
             if self.phase not in ("assemble", "seek", "finish", "return") or self.ramp is None:
                 continue
             for sysid in self.ramp.sysids:
@@ -399,6 +407,12 @@ class Coordinator:
             outcome, message = "aborted", str(exc)
             self.set_phase("aborted", reason=message)
             self.event(message, level="error")
+        except Exception as exc:  # noqa: BLE001 - anything unexpected: still bring the vehicles home
+            import traceback
+
+            outcome, message = "aborted", f"unexpected error in phase {self.phase}: {type(exc).__name__}: {exc}"
+            self.set_phase("aborted", reason=message)
+            self.event(message, level="error", traceback=traceback.format_exc())
         except asyncio.CancelledError:
             outcome, message = "aborted", "interrupted"
             self.event("mission interrupted", level="error")
@@ -437,7 +451,7 @@ class Coordinator:
             seek_time_s=0.0 if self._t_seek_start is None else t_end - self._t_seek_start,
             distance_flown_m=self.distance_flown_m,
             vehicle_distance_m={int(k): round(v, 2) for k, v in self.vehicle_distance_m.items()},
-            readings=self.store.counts(),
+            readings=self.store.counts() | {"last_errors": self.store.last_errors()},
             readiness=[asdict(r) | {"ready": r.ready} for r in self.readiness.values()],
             log_path=None if self.log is None else str(self.log.path),
             reengaged=dict(self.reengaged), max_loop_lag_s=round(self.max_loop_lag_s, 4))

@@ -13,8 +13,6 @@ Outputs (in ``--out DIR``): ``table1.{csv,json,md}``, ``footnote.{csv,json}``,
 from __future__ import annotations
 
 import argparse
-import csv
-import json
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -86,13 +84,13 @@ class PaperConfig:
 
     footnote_ns: tuple = tuple(range(4, 31))
     iterations_sigma1: int = 3000
-    iterations_sigma2: int = 3000
+    iterations_sigma2: int = 5000
     trials: int = 100
     fig4_radius_m: float = 1.0
     robustness_radii_m: tuple = (1.0, 4.0)
-    robustness_trials: int = 100
-    tail: int = 500
-    iterations_checks: int = 4000
+    robustness_trials: int = 50
+    tail: int = 1000
+    iterations_checks: int = 5000
 
     @classmethod
     def quick(cls) -> "PaperConfig":
@@ -331,6 +329,7 @@ def _convergence(s1_runs: dict) -> dict:
 
 
 def _convergence_fig4(cfg: PaperConfig) -> dict:
+    """The convergence test (defaults) on sigma_2 runs: noise-free and noise 0.1, D = 1 and 4."""
     out = {}
     for kind in ("symmetric", "cvt"):
         for label, std, radius_m in (("noise-free", 0.0, cfg.fig4_radius_m),
@@ -351,39 +350,91 @@ def _convergence_fig4(cfg: PaperConfig) -> dict:
     return out
 
 
-# ----------------------------------------------------------------------------- writers
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    with path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0].keys()))
-        writer.writeheader()
-        writer.writerows(rows)
+def _write_tables(out: Path, cfg: PaperConfig, figs) -> list[dict]:
+    """Table I and the footnote table; returns Table I's rows."""
+    t1 = table1()
+    figs.write_csv(out / "table1.csv", t1)
+    figs.write_json(out / "table1.json", t1)
+    (out / "table1.md").write_text(figs.markdown_table(
+        t1, ["n", "symmetric_d_min", "paper_symmetric_d_min", "cvt_d_min", "paper_cvt_d_min"]))
+    fn = footnote(cfg.footnote_ns)
+    figs.write_csv(out / "footnote.csv", fn)
+    figs.write_json(out / "footnote.json", fn)
+    return t1
 
 
-def _write_json(path: Path, obj) -> None:
-    path.write_text(json.dumps(obj, indent=2, default=_json_default) + "\n")
+def _write_sigma1(out: Path, cfg: PaperConfig, figs) -> tuple[dict, dict]:
+    """Figs. 1-3; returns the runs and their summary figures."""
+    s1 = _sigma1_runs(cfg)
+    res, eq3 = s1[4.0]
+    k = np.arange(cfg.iterations_sigma1)
+    c = res.centres[:, 0]
+    figs.write_csv(out / "fig1_trajectory.csv", figs.rows_from_series(
+        {"k": np.arange(len(c)), "east_m": c[:, 0], "north_m": c[:, 1], "up_m": c[:, 2],
+         "dist_m": res.distance_to_source_m()[:, 0]}))
+    k_mid = min(500, cfg.iterations_sigma1)
+    figs.write_json(out / "fig1_trajectory.json", {
+        "field": "sigma1", "n": 7, "radius_m": 4.0, "method": "cvt (Theorem 2)", "eps": EPS,
+        "gamma": GAMMA, "start_enu": SIGMA1_START_ENU, "iterations": cfg.iterations_sigma1,
+        "offsets": res.offsets[0], "k_intermediate": k_mid,
+        "positions_initial": c[0] + res.offsets[0],
+        "positions_intermediate": c[k_mid] + res.offsets[0], "final_centre_enu": c[-1]})
+    figs.fig1_trajectory(out / "fig1_trajectory.png", c, res.offsets[0], k_mid)
+    exact, thm2 = res.grad_true[:, 0], res.grad_est[:, 0]
+    g2 = {"k": k}
+    for i, axis in enumerate("xyz"):
+        g2.update({f"exact_{axis}": exact[:, i], f"eq3_{axis}": eq3[:, i],
+                   f"thm2_{axis}": thm2[:, i]})
+    figs.write_csv(out / "fig2_gradient.csv", figs.rows_from_series(g2))
+    figs.fig2_gradient(out / "fig2_gradient.png", k, exact, eq3, thm2)
+    errs = {f"D{r:g}": s1[r][0].error_norm()[:, 0] for r in s1}
+    figs.write_csv(out / "fig3_error_radius.csv", figs.rows_from_series({"k": k, **errs}))
+    figs.fig3_error(out / "fig3_error_radius.png", k, errs)
+    eq3_err = np.linalg.norm(eq3 - exact, axis=-1)
+    thm2_err = np.linalg.norm(thm2 - exact, axis=-1)
+    summary = {
+        "fig2_error_norm_mean": {"eq3": float(eq3_err.mean()), "thm2": float(thm2_err.mean())},
+        "fig2_error_norm_max": {"eq3": float(eq3_err.max()), "thm2": float(thm2_err.max())},
+        "fig3_final_error": {key: float(v[-cfg.tail:].mean()) for key, v in errs.items()},
+        "fig3_final_distance_m": {f"D{r:g}": float(s1[r][0].distance_to_source_m()[-1, 0])
+                                  for r in s1},
+    }
+    return s1, summary
 
 
-def _json_default(obj):
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+def _write_fig4(out: Path, cfg: PaperConfig, figs) -> dict:
+    """Fig. 4 and the faulty-robot study; returns their summary figures."""
+    f4 = _fig4_runs(cfg)
+    k4 = np.arange(cfg.iterations_sigma2 + 1)
+    cols = {"k": k4}
+    for (case, kind), d in f4.items():
+        cols[f"{case}_{kind}_mean_m"] = d.mean(axis=1)
+        cols[f"{case}_{kind}_std_m"] = d.std(axis=1)
+    figs.write_csv(out / "fig4_noise.csv", figs.rows_from_series(cols))
+    figs.fig4_noise(out / "fig4_noise.png", k4, f4)
+    rob = _robustness(cfg)
+    figs.write_csv(out / "fig4_robustness.csv", rob)
+    figs.write_json(out / "fig4_robustness.json", rob)
+    rob_summary = _robustness_summary(rob)
+    (out / "fig4_robustness.md").write_text(figs.markdown_table(
+        rob_summary, ["radius_m", "formation", "orientation", "no_fault_m", "faulty_mean_m",
+                      "faulty_best_m", "faulty_worst_m"]) + "\n" + figs.markdown_table(
+        rob, ["radius_m", "formation", "orientation", "faulty_robot", "final_dist_mean_m",
+              "final_dist_std_m", "predicted_rms_m", "weight_norm", "weak_axis_gain"]))
+    final = {f"{case}_{kind}": {"final_mean_m": float(d[-cfg.tail:].mean()),
+                                "final_std_m": float(d[-cfg.tail:].std(axis=1).mean())}
+             for (case, kind), d in f4.items()}
+    return {"fig4_final": final, "fig4_robustness": rob_summary}
 
 
-def _markdown(rows: list[dict], columns: list[str], fmt: str = "{:.3f}") -> str:
-    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    for row in rows:
-        cells = [fmt.format(row[c]) if isinstance(row[c], float) else str(row[c]) for c in columns]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def _rows_from_series(columns: dict) -> list[dict]:
-    keys = list(columns)
-    length = len(columns[keys[0]])
-    return [{k: float(columns[k][i]) if k != "k" else int(columns[k][i]) for k in keys}
-            for i in range(length)]
+def _write_fig5(out: Path, figs) -> None:
+    """Fig. 5: the 30-generator CVT and its generators."""
+    p30 = _cvt(30)
+    m30 = formation.metrics(p30)
+    figs.write_json(out / "fig5_cvt30.json", {
+        "n": 30, "seed": _CVT_SEED, "generators": p30, "d_min": m30.d_min,
+        "r_bar_norm": m30.r_bar_norm, "norm_scaled_Minv": m30.norm_scaled_Minv})
+    figs.fig5_cvt(out / "fig5_cvt30.png", p30)
 
 
 def generate(out_dir, quick: bool = False) -> dict:
@@ -407,81 +458,19 @@ def generate(out_dir, quick: bool = False) -> dict:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-
-    t1 = table1()
-    _write_csv(out / "table1.csv", t1)
-    _write_json(out / "table1.json", t1)
-    (out / "table1.md").write_text(_markdown(
-        t1, ["n", "symmetric_d_min", "paper_symmetric_d_min", "cvt_d_min", "paper_cvt_d_min"]))
-    fn = footnote(cfg.footnote_ns)
-    _write_csv(out / "footnote.csv", fn)
-    _write_json(out / "footnote.json", fn)
-
-    s1 = _sigma1_runs(cfg)
-    res4, eq3 = s1[4.0]
-    k = np.arange(cfg.iterations_sigma1)
-    _write_csv(out / "fig1_trajectory.csv", _rows_from_series(
-        {"k": np.arange(len(res4.centres)), "east_m": res4.centres[:, 0, 0],
-         "north_m": res4.centres[:, 0, 1], "up_m": res4.centres[:, 0, 2],
-         "dist_m": res4.distance_to_source_m()[:, 0]}))
-    k_mid = min(500, cfg.iterations_sigma1)
-    _write_json(out / "fig1_trajectory.json", {
-        "field": "sigma1", "n": 7, "radius_m": 4.0, "method": "cvt (Theorem 2)", "eps": EPS,
-        "gamma": GAMMA, "start_enu": SIGMA1_START_ENU, "iterations": cfg.iterations_sigma1,
-        "offsets": res4.offsets[0], "k_intermediate": k_mid,
-        "positions_initial": res4.centres[0, 0] + res4.offsets[0],
-        "positions_intermediate": res4.centres[k_mid, 0] + res4.offsets[0],
-        "final_centre_enu": res4.centres[-1, 0]})
-    figs.fig1_trajectory(out / "fig1_trajectory.png", res4.centres[:, 0], res4.offsets[0], k_mid)
-    g2 = {"k": k}
-    for i, axis in enumerate("xyz"):
-        g2[f"exact_{axis}"] = res4.grad_true[:, 0, i]
-        g2[f"eq3_{axis}"] = eq3[:, i]
-        g2[f"thm2_{axis}"] = res4.grad_est[:, 0, i]
-    _write_csv(out / "fig2_gradient.csv", _rows_from_series(g2))
-    figs.fig2_gradient(out / "fig2_gradient.png", k, res4.grad_true[:, 0], eq3, res4.grad_est[:, 0])
-    errs = {f"D{r:g}": s1[r][0].error_norm()[:, 0] for r in s1}
-    _write_csv(out / "fig3_error_radius.csv", _rows_from_series({"k": k, **errs}))
-    figs.fig3_error(out / "fig3_error_radius.png", k, errs)
-
-    f4 = _fig4_runs(cfg)
-    k4 = np.arange(cfg.iterations_sigma2 + 1)
-    cols = {"k": k4}
-    for (case, kind), d in f4.items():
-        cols[f"{case}_{kind}_mean_m"] = d.mean(axis=1)
-        cols[f"{case}_{kind}_std_m"] = d.std(axis=1)
-    _write_csv(out / "fig4_noise.csv", _rows_from_series(cols))
-    figs.fig4_noise(out / "fig4_noise.png", k4, f4)
-    rob = _robustness(cfg)
-    _write_csv(out / "fig4_robustness.csv", rob)
-    _write_json(out / "fig4_robustness.json", rob)
-    rob_summary = _robustness_summary(rob)
-    (out / "fig4_robustness.md").write_text(_markdown(
-        rob_summary, ["radius_m", "formation", "orientation", "no_fault_m", "faulty_mean_m",
-                      "faulty_best_m", "faulty_worst_m"]) + "\n" + _markdown(
-        rob, ["radius_m", "formation", "orientation", "faulty_robot", "final_dist_mean_m",
-              "final_dist_std_m", "predicted_rms_m", "weight_norm", "weak_axis_gain"]))
-
-    p30 = _cvt(30)
-    m30 = formation.metrics(p30)
-    _write_json(out / "fig5_cvt30.json", {"n": 30, "seed": _CVT_SEED, "generators": p30,
-                                          "d_min": m30.d_min, "r_bar_norm": m30.r_bar_norm})
-    figs.fig5_cvt(out / "fig5_cvt30.png", p30)
-
+    t1 = _write_tables(out, cfg, figs)
+    s1, s1_summary = _write_sigma1(out, cfg, figs)
+    fig4_summary = _write_fig4(out, cfg, figs)
+    _write_fig5(out, figs)
     physics = _physics(cfg, s1)
     physics["convergence_sigma1"] = _convergence(s1)
     physics["convergence_sigma2"] = _convergence_fig4(cfg)
-    _write_json(out / "physics.json", physics)
-
-    fig4_final = {f"{case}_{kind}": {"final_mean_m": float(d[-cfg.tail:].mean()),
-                                     "final_std_m": float(d[-cfg.tail:].std(axis=1).mean())}
-                  for (case, kind), d in f4.items()}
+    figs.write_json(out / "physics.json", physics)
     summary = {"quick": quick, "config": asdict(cfg), "eps": EPS, "gamma": GAMMA,
                "sigma1_start_enu": SIGMA1_START_ENU, "sigma2_start_enu": SIGMA2_START_ENU,
                "cvt_seed": _CVT_SEED, "noise_seed": _NOISE_SEED, "table1": t1,
-               "fig3_final_error": {key: float(v[-cfg.tail:].mean()) for key, v in errs.items()},
-               "fig4_final": fig4_final, "fig4_robustness": rob_summary, "elapsed_s": time.perf_counter() - t0}
-    _write_json(out / "summary.json", summary)
+               **s1_summary, **fig4_summary, "elapsed_s": time.perf_counter() - t0}
+    figs.write_json(out / "summary.json", summary)
     return summary
 
 

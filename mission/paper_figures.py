@@ -1,6 +1,8 @@
-"""Figures of ``swarmseek paper`` (matplotlib, Agg backend; no state kept between calls)."""
+"""Figures and output files of ``swarmseek paper`` (matplotlib Agg backend; no state kept)."""
 from __future__ import annotations
 
+import csv
+import json
 from pathlib import Path
 
 import matplotlib
@@ -11,7 +13,17 @@ import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
 from scipy.spatial import SphericalVoronoi  # noqa: E402
 
-__all__ = ["fig1_trajectory", "fig2_gradient", "fig3_error", "fig4_noise", "fig5_cvt"]
+__all__ = [
+    "fig1_trajectory",
+    "fig2_gradient",
+    "fig3_error",
+    "fig4_noise",
+    "fig5_cvt",
+    "write_csv",
+    "write_json",
+    "markdown_table",
+    "rows_from_series",
+]
 
 _DPI = 120
 
@@ -158,3 +170,42 @@ def fig5_cvt(path, generators) -> None:
         setter(-1, 1)
     ax.set_title(f"Constrained CVT on the sphere, {len(p)} generators")
     _save(fig, Path(path))
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    """CSV with floats at 8 significant digits (JSON files keep full precision)."""
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0].keys()))
+        writer.writeheader()
+        writer.writerows({k: f"{v:.8g}" if isinstance(v, float) else v for k, v in row.items()}
+                         for row in rows)
+
+
+def write_json(path: Path, obj) -> None:
+    """Indented JSON; numpy arrays and scalars become lists and numbers."""
+    path.write_text(json.dumps(obj, indent=2, default=_json_default) + "\n")
+
+
+def _json_default(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def markdown_table(rows: list[dict], columns: list[str], fmt: str = "{:.3f}") -> str:
+    """A markdown table of ``columns`` of ``rows`` (floats formatted with ``fmt``)."""
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    for row in rows:
+        cells = [fmt.format(row[c]) if isinstance(row[c], float) else str(row[c]) for c in columns]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def rows_from_series(columns: dict) -> list[dict]:
+    """Rows from equal-length columns (``"k"`` is kept as an int, the rest as floats)."""
+    keys = list(columns)
+    length = len(columns[keys[0]])
+    return [{k: float(columns[k][i]) if k != "k" else int(columns[k][i]) for k in keys}
+            for i in range(length)]

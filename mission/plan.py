@@ -10,15 +10,14 @@ The file format is documented in ``docs/mission.md`` and illustrated by
 """
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from formation.geodesy import geodetic_to_enu
+from mission.plan_checks import Checker, check_connection, polygon_area, show_value
 
 __all__ = [
     "PLAN_VERSION",
@@ -195,102 +194,6 @@ def replace_plan(plan: Plan, **sections) -> Plan:
     return replace(plan, **sections)
 
 
-class _Checker:
-    """Collects problems while reading typed values out of nested mappings."""
-
-    def __init__(self):
-        self.problems: list[tuple[str, str]] = []
-
-    def bad(self, key: str, why: str) -> None:
-        self.problems.append((key, why))
-
-    def unknown(self, table: dict, allowed: tuple[str, ...], prefix: str) -> None:
-        for key in table:
-            if key not in allowed:
-                self.bad(_join(prefix, key), f"unknown key (allowed: {', '.join(allowed)})")
-
-    def number(self, table, key, prefix, default=None, *, low=None, high=None, low_open=False,
-               required=False, integer=False):
-        path = _join(prefix, key)
-        if key not in table:
-            if required:
-                self.bad(path, "required")
-            return default
-        v = table[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            self.bad(path, f"expected {'an integer' if integer else 'a number'}, got {_show(v)}")
-            return default
-        if integer and not isinstance(v, int):
-            self.bad(path, f"expected an integer, got {_show(v)}")
-            return default
-        if not math.isfinite(v):
-            self.bad(path, f"must be finite, got {v}")
-            return default
-        if low is not None and (v <= low if low_open else v < low):
-            self.bad(path, f"must be {'>' if low_open else '>='} {low}, got {v}")
-            return default
-        if high is not None and v > high:
-            self.bad(path, f"must be <= {high}, got {v}")
-            return default
-        return int(v) if integer else float(v)
-
-    def string(self, table, key, prefix, default=None, *, choices=None, required=False):
-        path = _join(prefix, key)
-        if key not in table:
-            if required:
-                self.bad(path, "required")
-            return default
-        v = table[key]
-        if not isinstance(v, str) or not v.strip():
-            self.bad(path, f"expected a non-empty string, got {_show(v)}")
-            return default
-        if choices is not None and v not in choices:
-            self.bad(path, f"must be one of {', '.join(choices)}, got {v!r}")
-            return default
-        return v
-
-    def table(self, doc, key, prefix="", required=False) -> dict:
-        path = _join(prefix, key)
-        if key not in doc:
-            if required:
-                self.bad(path, "required table missing")
-            return {}
-        v = doc[key]
-        if not isinstance(v, dict):
-            self.bad(path, f"expected a table, got {_show(v)}")
-            return {}
-        return v
-
-    def strings(self, table, key, prefix) -> tuple[str, ...]:
-        path = _join(prefix, key)
-        v = table.get(key, [])
-        if not isinstance(v, list) or not all(isinstance(s, str) and s for s in v):
-            self.bad(path, f"expected a list of non-empty strings, got {_show(v)}")
-            return ()
-        return tuple(v)
-
-    def point(self, table, key, prefix, dims):
-        path = _join(prefix, key)
-        if key not in table:
-            return None
-        v = table[key]
-        if (not isinstance(v, list) or len(v) != dims
-                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-                           for x in v)):
-            self.bad(path, f"expected {dims} finite numbers, got {_show(v)}")
-            return None
-        return tuple(float(x) for x in v)
-
-
-def _join(prefix: str, key: str) -> str:
-    return f"{prefix}.{key}" if prefix else key
-
-
-def _show(v: Any) -> str:
-    text = repr(v)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
 def load_plan(path: str | Path) -> Plan:
     """Read and validate a plan file.
 
@@ -339,7 +242,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     PlanError
         Listing every invalid key with its path and why.
     """
-    c = _Checker()
+    c = Checker()
     if not isinstance(doc, dict):
         raise PlanError([("(document)", "expected a TOML table")], source)
     c.unknown(doc, ("version", "fleet", "origin", "vehicles", "formation", "seeking", "geofence",
@@ -349,7 +252,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     if version is None:
         c.bad("version", f"required (this program reads version = {PLAN_VERSION})")
     elif isinstance(version, bool) or version != PLAN_VERSION:
-        c.bad("version", f"unsupported version {_show(version)}; this program reads version = {PLAN_VERSION}")
+        c.bad("version", f"unsupported version {show_value(version)}; this program reads version = {PLAN_VERSION}")
     fleet = c.string(doc, "fleet", "", required=True)
     if fleet is not None and any(ch in fleet for ch in "/*$?# "):
         c.bad("fleet", f"must not contain '/', '*', '$', '?', '#' or spaces (a zenoh key chunk), got {fleet!r}")
@@ -393,7 +296,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
                 seeking=seeking, geofence=geofence, zenoh=zen, version=PLAN_VERSION, **top)
 
 
-def _parse_origin(c: _Checker, doc: dict):
+def _parse_origin(c: Checker, doc: dict):
     t = c.table(doc, "origin", required=True)
     c.unknown(t, ("lat_deg", "lon_deg", "alt_m"), "origin")
     lat = c.number(t, "lat_deg", "origin", low=-90, high=90, required=True)
@@ -404,7 +307,7 @@ def _parse_origin(c: _Checker, doc: dict):
     return (lat, lon, alt)
 
 
-def _parse_vehicles(c: _Checker, doc: dict) -> list[VehiclePlan]:
+def _parse_vehicles(c: Checker, doc: dict) -> list[VehiclePlan]:
     raw = doc.get("vehicles")
     if raw is None:
         c.bad("vehicles", "required: at least 4 [[vehicles]] entries")
@@ -422,7 +325,7 @@ def _parse_vehicles(c: _Checker, doc: dict) -> list[VehiclePlan]:
         vid = c.string(v, "id", prefix, f"v{sysid}" if sysid is not None else None)
         conn = c.string(v, "connection", prefix, required=True)
         if conn is not None:
-            why = _check_connection(conn)
+            why = check_connection(conn)
             if why:
                 c.bad(f"{prefix}.connection", why)
                 conn = None
@@ -438,25 +341,7 @@ def _parse_vehicles(c: _Checker, doc: dict) -> list[VehiclePlan]:
     return out
 
 
-def _check_connection(uri: str) -> str | None:
-    """A reason the connection string is invalid, or None; uses LINKS' parser when present."""
-    try:
-        from mission.links import parse_connection
-    except ImportError:
-        parse_connection = None
-    if parse_connection is not None:
-        try:
-            parse_connection(uri)
-        except ValueError as exc:
-            return str(exc)
-        return None
-    kinds = ("udpin:", "udpout:", "udp:", "tcp:", "tcpin:", "serial:", "/dev/")
-    if not uri.startswith(kinds):
-        return f"unknown connection {uri!r}; expected udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, serial:/dev/ttyX"
-    return None
-
-
-def _parse_formation(c: _Checker, doc: dict) -> FormationPlan | None:
+def _parse_formation(c: Checker, doc: dict) -> FormationPlan | None:
     t = c.table(doc, "formation")
     c.unknown(t, ("type", "radius_m", "seed"), "formation")
     kind = c.string(t, "type", "formation", "cvt", choices=_FORMATIONS)
@@ -467,7 +352,7 @@ def _parse_formation(c: _Checker, doc: dict) -> FormationPlan | None:
     return FormationPlan(type=kind, radius_m=radius, seed=seed)
 
 
-def _parse_seeking(c: _Checker, doc: dict) -> SeekingPlan | None:
+def _parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
     t = c.table(doc, "seeking")
     p = "seeking"
     c.unknown(t, tuple(SeekingPlan.__dataclass_fields__), p)
@@ -493,7 +378,7 @@ def _parse_seeking(c: _Checker, doc: dict) -> SeekingPlan | None:
     return SeekingPlan(start_enu_m=start, **vals)
 
 
-def _parse_geofence(c: _Checker, doc: dict, origin) -> GeofencePlan | None:
+def _parse_geofence(c: Checker, doc: dict, origin) -> GeofencePlan | None:
     t = c.table(doc, "geofence")
     p = "geofence"
     c.unknown(t, ("polygon_enu_m", "polygon_latlon_deg", "min_alt_m", "max_alt_m"), p)
@@ -512,7 +397,7 @@ def _parse_geofence(c: _Checker, doc: dict, origin) -> GeofencePlan | None:
         raw = t[key]
         path = f"{p}.{key}"
         if not isinstance(raw, list) or len(raw) < 3:
-            c.bad(path, f"expected a list of at least 3 [x, y] vertices, got {_show(raw)}")
+            c.bad(path, f"expected a list of at least 3 [x, y] vertices, got {show_value(raw)}")
             return None
         for j, vertex in enumerate(raw):
             pt = c.point({"v": vertex}, "v", f"{path}[{j}]", 2)
@@ -529,7 +414,7 @@ def _parse_geofence(c: _Checker, doc: dict, origin) -> GeofencePlan | None:
             polygon.append(pt)
         if len(polygon) != len(raw):
             return None
-        if abs(_polygon_area(polygon)) < 1e-6:
+        if abs(polygon_area(polygon)) < 1e-6:
             c.bad(path, "the polygon has zero area")
             return None
     if "polygon_enu_m" not in t and "polygon_latlon_deg" not in t:
@@ -540,13 +425,7 @@ def _parse_geofence(c: _Checker, doc: dict, origin) -> GeofencePlan | None:
     return GeofencePlan(polygon_en_m=tuple(polygon), min_alt_m=lo, max_alt_m=hi)
 
 
-def _polygon_area(points) -> float:
-    a = np.asarray(points, dtype=float)
-    x, y = a[:, 0], a[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
-
-
-def _parse_zenoh(c: _Checker, doc: dict, base_dir: Path | None) -> ZenohPlan:
+def _parse_zenoh(c: Checker, doc: dict, base_dir: Path | None) -> ZenohPlan:
     t = c.table(doc, "zenoh")
     p = "zenoh"
     c.unknown(t, ("mode", "listen", "connect", "tls"), p)

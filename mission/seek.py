@@ -7,8 +7,9 @@ One iteration (design choice: *move, settle, then estimate*):
 2. it waits (at most ``1 / rate_hz`` per iteration overall) for a reading from every vehicle taken
    after the arrival, then takes the estimation instant ``t = now`` and each vehicle's reading
    nearest ``t`` within ``reading_window_s``, with the position where it was taken;
-3. gradient from those actual positions (Theorem 2, ``method="cvt"``; or eq. 3, or the robust
-   estimator), ``seek_step(eps, gamma)``, the safety envelope's ``clamp_centre``;
+3. gradient from those actual positions about their centroid (Theorem 2, ``method="cvt"``; or
+   eq. 3, or the robust estimator), ``seek_step(eps, gamma)`` from the commanded centre, the
+   safety envelope's ``clamp_centre``;
 4. the convergence monitor sees the new centre; the iteration is logged.
 
 Why not estimate on the fly at a fixed rate: the centre moves by at most ``gamma`` per
@@ -38,7 +39,8 @@ def make_estimator(kind: str, n: int):
         def _robust(positions, values, centre):
             return np.asarray(robust.update(np.asarray(positions) - centre, np.asarray(values)), dtype=float)
 
-        _robust.suspects = lambda: getattr(robust, "suspects", None)
+        _robust.suspects = lambda: list(robust.suspects)
+        _robust.needs_all = True
         return _robust
 
     def _plain(positions, values, centre):
@@ -109,11 +111,22 @@ async def seek(co) -> tuple[str, str]:
                                    f"(rejections: {co.store.counts()['rejected']})")
             await co.clock.sleep(1.0)
             continue
+        if getattr(estimate, "needs_all", False) and len(aligned) < len(sysids):
+            # the robust estimator tracks each sensor by its index: estimate only with all of them
+            co.event(f"iteration {k + 1}: {len(aligned)} of {len(sysids)} readings aligned; the robust "
+                     "estimator needs all; waiting", level="warning")
+            await co.clock.sleep(0.5)
+            continue
         used = sorted(aligned)
         positions = np.array([aligned[s].position_enu_m for s in used])
         values = np.array([aligned[s].value for s in used])
+        # the estimate is taken about the centroid of the actual positions, not the commanded
+        # centre: with sigma_c = mean of the readings (Theorem 2) or eq. 3, a common offset of the
+        # vehicles from their slots (tracking lag) would otherwise bias the gradient by about
+        # 3 sigma offset / D^2, enough to make the centre oscillate near the source
+        centroid = positions.mean(axis=0)
         try:
-            grad = np.asarray(estimate(positions, values, centre), dtype=float)
+            grad = np.asarray(estimate(positions, values, centroid), dtype=float)
         except (GeometryError, ValueError) as exc:
             failures += 1
             co.event(f"iteration {k + 1}: gradient not estimated: {exc}", level="warning")
@@ -137,15 +150,22 @@ async def seek(co) -> tuple[str, str]:
         co.estimate_enu = monitor.estimate_enu
         co.spread_m = monitor.spread_m
         if co.log is not None:
-            co.log.write("iteration", k=k + 1, t_estimate_s=t_est, centre_enu=centre, gradient=grad,
+            co.log.write("iteration", k=k + 1, t_estimate_s=t_est, centre_enu=centre, centroid_enu=centroid,
+                         gradient=grad,
                          new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.estimate_enu,
                          spread_m=co.spread_m, distance_flown_m=co.distance_flown_m,
                          readings=[aligned[s] for s in used],
                          positions_enu={s: co._telemetry_position(s) for s in sysids},
                          setpoints_enu={s: co.ramp.setpoint(s) for s in sysids},
+                         suspects=_suspects(estimate, used),
                          status=co.vehicle_status())
         centre = new_centre
         co.centre_enu = centre.copy()
+        if converged and at_fence:
+            co._t_seek_end = co.clock.time()
+            return "stopped_at_fence", (f"stopped at the geofence after {k + 1} iterations, centre held at "
+                                        f"({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}) m: the "
+                                        "source is probably outside the fence (shrunk by the radius)")
         if converged:
             co._t_seek_end = co.clock.time()
             e = co.estimate_enu
@@ -157,3 +177,14 @@ async def seek(co) -> tuple[str, str]:
                                         f"{at_fence} iterations: the source is probably outside the fence")
     co._t_seek_end = co.clock.time()
     return "max_iterations", f"not converged after {sk.max_iterations} iterations"
+
+
+def _suspects(estimate, used: list[int]) -> list[dict] | None:
+    """The robust estimator's suspect sensors as ``{sysid, reason, excluded}`` (None otherwise)."""
+    get = getattr(estimate, "suspects", None)
+    if get is None:
+        return None
+    try:
+        return [{"sysid": used[s.index], "reason": s.reason, "excluded": bool(s.excluded)} for s in get()]
+    except (AttributeError, IndexError, ValueError):
+        return None

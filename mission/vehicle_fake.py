@@ -21,6 +21,13 @@ _M = mavlink
 _SETPOINT_IDS = (_M.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED, _M.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT)
 
 
+def _as_command_long(msg):
+    """COMMAND_INT -> the equivalent COMMAND_LONG (x, y as plain numbers) for uniform handling."""
+    return _M.MAVLink_command_long_message(msg.target_system, msg.target_component, msg.command, 0,
+                                           msg.param1, msg.param2, msg.param3, msg.param4,
+                                           float(msg.x), float(msg.y), msg.z)
+
+
 class FakeAutopilot:
     """Protocol-level fake autopilot (no I/O): feed it messages, send what it returns.
 
@@ -122,7 +129,10 @@ class FakeAutopilot:
             if msg_id == _M.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED:
                 self.position_ned_m = (msg.x, msg.y, msg.z)
             return []
-        if msg_id != _M.MAVLINK_MSG_ID_COMMAND_LONG or msg.target_system != self.sysid:
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if msg_id == _M.MAVLINK_MSG_ID_COMMAND_INT and msg.target_system == self.sysid:
+            msg = _as_command_long(msg)
+        elif msg_id != _M.MAVLINK_MSG_ID_COMMAND_LONG or msg.target_system != self.sysid:
             return []
         command = msg.command
         self.commands.append(msg)
@@ -133,10 +143,10 @@ class FakeAutopilot:
         out = []
         if result == _M.MAV_RESULT_ACCEPTED:
             out += self._apply(msg)
-        ack = _M.MAVLink_command_ack_message(command, result, 0, 0, 255, 190)
+        ack = _M.MAVLink_command_ack_message(command, result, 0, 0, *src)
         if command in self.in_progress:
             self._pending_final.append(ack)
-            return [_M.MAVLink_command_ack_message(command, _M.MAV_RESULT_IN_PROGRESS, 10, 0, 255, 190)]
+            return [_M.MAVLink_command_ack_message(command, _M.MAV_RESULT_IN_PROGRESS, 10, 0, *src)]
         return [ack] + out
 
     def _apply(self, msg) -> list:

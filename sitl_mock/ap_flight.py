@@ -7,9 +7,8 @@ what the vehicle does:
 * GUIDED (ArduPilot): position targets are held forever; velocity targets stop after
   ``GUID_TIMEOUT`` s without a new one; setpoints are ignored on the ground (takeoff first).
 * OFFBOARD (PX4): entered only while setpoints stream (last one younger than ``COM_OF_LOSS_T``);
-  when they stop for ``COM_OF_LOSS_T`` the offboard-loss failsafe switches to Hold / Return /
-  Land per ``COM_OBL_RC_ACT``; offboard setpoints can take off.
-* GCS loss (``FS_GCS_ENABLE`` / ``NAV_DLL_ACT``), low battery, geofence: RTL / Land / Hold.
+  offboard setpoints can take off.
+* failsafes (offboard loss, GCS loss, low battery, geofence) are in :mod:`sitl_mock.ap_failsafe`.
 * RTL climbs to the return altitude, flies home and lands; landing disarms on touchdown.
 """
 from __future__ import annotations
@@ -21,6 +20,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 __all__ = ["FlightState", "Setpoint", "apply_params", "arming_problem", "arm", "disarm",
+           "disarm_now", "airborne", "is_ardupilot", "battery_level",
            "mode_change_problem", "enter_mode", "start_takeoff", "handle_setpoint",
            "setpoint_echo", "update"]
 
@@ -73,18 +73,18 @@ class FlightState:
     extra: dict = field(default_factory=dict)
 
 
-def _is_ardupilot(ap) -> bool:
+def is_ardupilot(ap) -> bool:
     return ap.personality.name == "ardupilot"
 
 
-def _airborne(ap) -> bool:
+def airborne(ap) -> bool:
     return ap.mc.armed and not ap.mc.landed
 
 
 def apply_params(ap) -> None:
     """Copy the speed parameters into the dynamics (each vehicle owns its DynamicsParams)."""
     p, dyn = ap.params, ap.mc.params
-    if _is_ardupilot(ap):
+    if is_ardupilot(ap):
         dyn.max_speed_h_m_s = p["WPNAV_SPEED"] / 100.0
         dyn.max_speed_up_m_s = p["WPNAV_SPEED_UP"] / 100.0
         dyn.max_speed_down_m_s = p["WPNAV_SPEED_DN"] / 100.0
@@ -98,10 +98,10 @@ def apply_params(ap) -> None:
 
 
 # ------------------------------------------------------------------ arming and modes
-def _battery_level(ap) -> int:
+def battery_level(ap) -> int:
     """0 fine, 1 low, 2 critical, 3 emergency (per the personality's parameters)."""
     p, rem = ap.params, ap.mc.battery_remaining
-    if _is_ardupilot(ap):
+    if is_ardupilot(ap):
         mah = rem * p["BATT_CAPACITY"]
         if p["BATT_CRT_MAH"] > 0 and mah <= p["BATT_CRT_MAH"]:
             return 2
@@ -119,11 +119,11 @@ def arming_problem(ap, t_s: float, mode_name: str, check_mode: bool = True) -> s
     """Why arming is refused now (None if it is allowed)."""
     if ap.mc.crashed:
         return "vehicle crashed"
-    if _is_ardupilot(ap) and ap.params["ARMING_CHECK"] == 0:
+    if is_ardupilot(ap) and ap.params["ARMING_CHECK"] == 0:
         return None
     if not ap.position_ready(t_s):
         return "position estimate not ready"
-    if _battery_level(ap) > 0:
+    if battery_level(ap) > 0:
         return "battery low"
     if check_mode and mode_name not in ap.personality.arming_modes:
         return f"mode {mode_name} does not allow arming"
@@ -136,7 +136,7 @@ def arm(ap, t_s: float, forced: bool = False) -> int:
         return mavlink2.MAV_RESULT_ACCEPTED
     problem = None if forced and not ap.mc.crashed else arming_problem(ap, t_s, ap.mode_name)
     if problem is not None:
-        prefix = "PreArm: " if _is_ardupilot(ap) else "Arming denied: "
+        prefix = "PreArm: " if is_ardupilot(ap) else "Arming denied: "
         ap.statustext(prefix + problem, mavlink2.MAV_SEVERITY_CRITICAL)
         return ap.personality.reject_result
     ap.mc.arm()
@@ -159,11 +159,11 @@ def disarm(ap, t_s: float, forced: bool = False) -> int:
     if not ap.mc.landed and not forced:
         ap.statustext("Disarming denied: not landed", mavlink2.MAV_SEVERITY_CRITICAL)
         return ap.personality.reject_result
-    _disarm_now(ap, "command")
+    disarm_now(ap, "command")
     return mavlink2.MAV_RESULT_ACCEPTED
 
 
-def _disarm_now(ap, why: str) -> None:
+def disarm_now(ap, why: str) -> None:
     ap.mc.disarm()
     fs = ap.flight
     fs.idle_since_s = None
@@ -176,7 +176,7 @@ def mode_change_problem(ap, mode_name: str, t_s: float) -> str | None:
     """Why the autopilot refuses to enter ``mode_name`` now (None if it can)."""
     pers = ap.personality
     needs_position = mode_name in pers.position_modes
-    if _is_ardupilot(ap):
+    if is_ardupilot(ap):
         # ArduCopter lets any mode be selected while disarmed
         if ap.mc.armed and needs_position and not ap.position_ready(t_s):
             return f"{mode_name} requires position"
@@ -200,12 +200,12 @@ def enter_mode(ap, mode_name: str, t_s: float) -> None:
     if b != "rtl":
         fs.rtl_phase = ""
     if b == "hold":
-        if _airborne(ap):
+        if airborne(ap):
             mc.command_hold()
     elif b == "guided":
         if previous != mode_name:
             fs.setpoint = None
-        if _airborne(ap) and fs.takeoff_alt_m is None:
+        if airborne(ap) and fs.takeoff_alt_m is None:
             mc.command_hold()
     elif b == "offboard":
         if fs.setpoint is not None:
@@ -322,7 +322,7 @@ def _apply_setpoint(ap, sp: Setpoint) -> None:
     fs = ap.flight
     if not mc.armed:
         return
-    if _is_ardupilot(ap) and mc.landed and fs.takeoff_alt_m is None:
+    if is_ardupilot(ap) and mc.landed and fs.takeoff_alt_m is None:
         ap.counters["setpoint_on_ground"] += 1  # ArduCopter needs a takeoff first
         return
     if sp.ned is not None:
@@ -350,10 +350,6 @@ def update(ap, t_s: float) -> None:
     fs = ap.flight
     if mc.armed and not mc.landed:
         fs.has_flown = True
-    if mc.armed:
-        _check_gcs_loss(ap, t_s)
-        _check_battery(ap, t_s)
-        _check_fence(ap, t_s)
     b = ap.behaviour
     if b == "guided":
         sp = fs.setpoint
@@ -361,10 +357,6 @@ def update(ap, t_s: float) -> None:
                 and t_s - sp.t_s > ap.params["GUID_TIMEOUT"]):
             mc.command_hold()
             fs.velocity_stopped = True
-    elif b == "offboard":
-        if t_s - fs.last_setpoint_s > ap.params["COM_OF_LOSS_T"]:
-            action = {3: "rtl", 4: "land"}.get(int(ap.params["COM_OBL_RC_ACT"]), "hold")
-            _failsafe(ap, t_s, "offboard", action, "Failsafe: offboard control lost")
     elif b == "takeoff":
         if mc.armed and fs.takeoff_alt_m is not None and mc.mode != "takeoff" \
                 and _reached_alt(ap, fs.takeoff_alt_m):
@@ -389,7 +381,7 @@ def _auto_disarm(ap, t_s: float, b: str) -> None:
         return
     if fs.idle_since_s is None:
         fs.idle_since_s = t_s
-    if _is_ardupilot(ap):
+    if is_ardupilot(ap):
         delay = _ARDUPILOT_LAND_DISARM_S if (b in ("land", "rtl") and fs.has_flown) \
             else float(ap.params["DISARM_DELAY"])
         if delay <= 0:
@@ -401,7 +393,7 @@ def _auto_disarm(ap, t_s: float, b: str) -> None:
     if b == "takeoff" or (b == "mission" and not fs.has_flown and ap.missions.nav_items()):
         return
     if t_s - fs.idle_since_s >= delay:
-        _disarm_now(ap, "landing" if fs.has_flown else "auto preflight disarming")
+        disarm_now(ap, "landing" if fs.has_flown else "auto preflight disarming")
 
 
 def _start_rtl(ap) -> None:
@@ -414,7 +406,7 @@ def _start_rtl(ap) -> None:
         fs.rtl_phase = "land"
         mc.command_land()
         return
-    rtl_alt = ap.params["RTL_ALT"] / 100.0 if _is_ardupilot(ap) else ap.params["RTL_RETURN_ALT"]
+    rtl_alt = ap.params["RTL_ALT"] / 100.0 if is_ardupilot(ap) else ap.params["RTL_RETURN_ALT"]
     fs.rtl_alt_m = max(-mc.position_ned_m[2], rtl_alt)
     fs.rtl_phase = "climb"
     n, e, _d = mc.position_ned_m
@@ -432,99 +424,3 @@ def _update_rtl(ap) -> None:
         if math.hypot(n - ap.home_ned[0], e - ap.home_ned[1]) < 1.0 and abs(mc.velocity_ned_m_s[0]) < 0.5:
             fs.rtl_phase = "land"
             mc.command_land()
-
-
-def _failsafe(ap, t_s: float, reason: str, action: str, text: str) -> None:
-    ap.failsafe = reason
-    ap.statustext(text, mavlink2.MAV_SEVERITY_CRITICAL)
-    pers = ap.personality
-    if action == "none":
-        return
-    if action == "terminate":
-        _disarm_now(ap, "failsafe")
-        return
-    if action == "land" and not _airborne(ap):
-        if ap.mc.armed:
-            _disarm_now(ap, "failsafe")
-        return
-    target = {"hold": pers.hold_mode, "rtl": pers.rtl_mode, "land": pers.land_mode}[action]
-    enter_mode(ap, target, t_s)
-
-
-def _check_gcs_loss(ap, t_s: float) -> None:
-    fs = ap.flight
-    last = ap.last_gcs_heartbeat_s
-    if last is None:
-        return
-    if _is_ardupilot(ap):
-        enable, timeout = int(ap.params["FS_GCS_ENABLE"]), ap.params["FS_GCS_TIMEOUT"]
-        action = {0: "none", 2: "rtl", 5: "land", 7: "land"}.get(enable, "rtl")
-        if enable == 2 and ap.behaviour == "mission":
-            action = "none"
-    else:
-        enable, timeout = int(ap.params["NAV_DLL_ACT"]), ap.params["COM_DL_LOSS_T"]
-        action = {1: "hold", 2: "rtl", 3: "land", 5: "terminate", 6: "terminate"}.get(enable, "none")
-    lost = t_s - last > timeout
-    if not lost:
-        if fs.gcs_failsafe_done:
-            fs.gcs_failsafe_done = False
-            if ap.failsafe == "gcs":
-                ap.failsafe = None
-        return
-    if enable == 0 or fs.gcs_failsafe_done:
-        return
-    fs.gcs_failsafe_done = True
-    _failsafe(ap, t_s, "gcs", action, "Failsafe: GCS connection lost")
-
-
-def _check_battery(ap, t_s: float) -> None:
-    fs = ap.flight
-    level = _battery_level(ap)
-    if level <= fs.battery_level_done or not _airborne(ap):
-        return
-    fs.battery_level_done = level
-    p = ap.params
-    if _is_ardupilot(ap):
-        act = int(p["BATT_FS_CRT_ACT"] if level >= 2 else p["BATT_FS_LOW_ACT"])
-        action = {0: "none", 1: "land", 5: "terminate", 7: "land"}.get(act, "rtl")
-    else:
-        act = int(p["COM_LOW_BAT_ACT"])
-        action = "none"
-        if level >= 2 and act in (1, 3):
-            action = "rtl"
-        if (level >= 2 and act == 2) or (level >= 3 and act == 3):
-            action = "land"
-    names = {1: "low", 2: "critical", 3: "emergency"}
-    _failsafe(ap, t_s, "battery", action, f"Failsafe: battery {names[level]}")
-
-
-def _check_fence(ap, t_s: float) -> None:
-    p = ap.params
-    fs = ap.flight
-    ned = ap.mc.position_ned_m
-    dist = math.hypot(ned[0] - ap.home_ned[0], ned[1] - ap.home_ned[1])
-    alt = -ned[2]
-    if _is_ardupilot(ap):
-        if not p["FENCE_ENABLE"]:
-            return
-        radius, alt_max = p["FENCE_RADIUS"], p["FENCE_ALT_MAX"]
-        action = {0: "none", 2: "land", 4: "hold", 6: "hold"}.get(int(p["FENCE_ACTION"]), "rtl")
-    else:
-        radius = p["GF_MAX_HOR_DIST"] or math.inf
-        alt_max = p["GF_MAX_VER_DIST"] or math.inf
-        if math.isinf(radius) and math.isinf(alt_max):
-            return
-        action = {0: "none", 1: "none", 2: "hold", 3: "rtl", 4: "terminate", 5: "land"}[
-            int(p["GF_ACTION"])]
-    breached = dist > radius or alt > alt_max
-    if not breached:
-        if fs.fence_breached and dist < radius - 2.0 and alt < alt_max - 2.0:
-            fs.fence_breached = False
-            if ap.failsafe == "fence":
-                ap.failsafe = None
-        return
-    if fs.fence_breached or ap.behaviour in ("rtl", "land"):
-        return
-    fs.fence_breached = True
-    _failsafe(ap, t_s, "fence", action, "Failsafe: geofence breached")
-

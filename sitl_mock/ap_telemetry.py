@@ -76,11 +76,13 @@ class MessageScheduler:
         for msg_id, hz in DEFAULT_RATES_HZ.items():
             self._interval[msg_id] = 1.0 / hz
             self._due[msg_id] = t0_s
+        self._next_s = t0_s  # earliest due time (fast path: nothing due)
 
     def set_interval(self, msg_id: int, interval_us: float, t_s: float) -> bool:
         """Apply SET_MESSAGE_INTERVAL semantics (-1 off, 0 default); False if unsupported."""
         if msg_id not in BUILDERS or not math.isfinite(interval_us):
             return False
+        self._next_s = min(self._next_s, t_s)
         if interval_us < 0:
             self._interval.pop(msg_id, None)
             self._due.pop(msg_id, None)
@@ -107,6 +109,8 @@ class MessageScheduler:
 
     def due(self, t_s: float) -> list[int]:
         """Message ids due at ``t_s`` (and schedule their next time)."""
+        if t_s < self._next_s:
+            return []
         out = []
         for msg_id, due in self._due.items():
             if t_s >= due:
@@ -114,6 +118,7 @@ class MessageScheduler:
                 iv = self._interval[msg_id]
                 nxt = due + iv
                 self._due[msg_id] = nxt if nxt > t_s else t_s + iv
+        self._next_s = min(self._due.values(), default=float("inf"))
         return out
 
 

@@ -13,8 +13,9 @@ from collections import Counter
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from formation.geodesy import enu_to_geodetic, enu_to_ned, geodetic_to_enu, ned_to_enu
-from sitl_mock import ap_commands, ap_flight, ap_mission_exec
+from formation.geodesy import enu_to_ned, geodetic_to_enu
+from sitl_mock import ap_commands, ap_failsafe, ap_flight, ap_mission_exec
+from sitl_mock.ap_geo import LocalFrame
 from sitl_mock.ap_mission import MissionItem, MissionServer
 from sitl_mock.ap_modes import Personality, make_personality
 from sitl_mock.ap_params import ParamError, ParamTable
@@ -84,6 +85,7 @@ class MockAutopilot:
         self.params = ParamTable(self.personality.param_specs(self.sysid, multicopter.params),
                                  self.personality.param_bytewise, param_overrides)
         self._origin = tuple(float(v) for v in home)
+        self._frame = LocalFrame(self._origin)
         self._outbox: list[bytes] = []
         self.missions = MissionServer(self.mav, self.emit, self._home_item,
                                       self.personality.name == "ardupilot", self.counters)
@@ -137,8 +139,8 @@ class MockAutopilot:
 
     def ned_to_geodetic(self, ned) -> tuple[float, float, float]:
         """Convert a LOCAL_NED point of this vehicle to ``(lat_deg, lon_deg, alt_m)``."""
-        lat, lon, alt = enu_to_geodetic(ned_to_enu(np.asarray(ned, dtype=float)), self._origin)
-        return float(lat), float(lon), float(alt)
+        n, e, d = (float(v) for v in ned)
+        return self._frame.ned_to_geodetic(n, e, d)
 
     def geodetic_to_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
         """Convert a geodetic point to this vehicle's LOCAL_NED frame."""
@@ -233,8 +235,11 @@ class MockAutopilot:
         The one place where frames are rejected before being acted upon (bad CRC, malformed,
         unknown message; MAVLink 2 signing checks belong here too).
         """
-        if msg.get_type() == "BAD_DATA":
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
             return classify_bad_frame(str(getattr(msg, "reason", "")))
+        if kind.startswith("UNKNOWN_"):  # a message id not in the dialect (CRC unverifiable)
+            return "rx_unknown_msg"
         return None
 
     def handle_message(self, msg, t_s: float) -> None:
@@ -345,6 +350,7 @@ class MockAutopilot:
         if self.home is None and self.position_ready(t_s):
             self.home = self._origin
             self.home_ned = np.zeros(3)
+        ap_failsafe.check_failsafes(self, t_s)
         ap_flight.update(self, t_s)
         if self.behaviour == "mission":
             ap_mission_exec.step_mission(self, t_s)

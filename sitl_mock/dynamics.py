@@ -64,7 +64,10 @@ class DynamicsParams:
     wind_gust_std_m_s : float
         Standard deviation of the gusts (per axis, Ornstein-Uhlenbeck).
     gps_noise_std_m : float
-        White noise on the reported position (per axis).
+        Standard deviation of the reported position's error (per axis).
+    gps_noise_tau_s : float
+        Correlation time of that error (first-order Gauss-Markov, updated every step: the
+        reports of one step agree with each other, as a real GPS fix does).
     battery_flight_time_s : float
         Hover time from full to empty.
     kp_pos_per_s, kp_vel_per_s : float
@@ -92,6 +95,7 @@ class DynamicsParams:
     wind_ned_m_s: tuple = (0.0, 0.0, 0.0)
     wind_gust_std_m_s: float = 0.0
     gps_noise_std_m: float = 0.0
+    gps_noise_tau_s: float = 1.0
     battery_flight_time_s: float = 1500.0
     kp_pos_per_s: float = 1.0
     kp_vel_per_s: float = 3.0
@@ -105,7 +109,7 @@ class DynamicsParams:
     def __post_init__(self):
         for name in ("max_speed_h_m_s", "max_speed_up_m_s", "max_speed_down_m_s", "max_accel_m_s2",
                      "land_speed_m_s", "takeoff_speed_m_s", "battery_flight_time_s", "kp_pos_per_s",
-                     "kp_vel_per_s", "wind_comp_tau_s", "gust_tau_s", "yaw_rate_max_rad_s",
+                     "kp_vel_per_s", "wind_comp_tau_s", "gust_tau_s", "gps_noise_tau_s", "yaw_rate_max_rad_s",
                      "wind_gust_std_m_s", "gps_noise_std_m", "drag_per_s", "gps_warmup_s"):
             v = float(getattr(self, name))
             may_be_zero = name in ("wind_gust_std_m_s", "gps_noise_std_m", "drag_per_s", "gps_warmup_s")
@@ -183,7 +187,8 @@ class Multicopter:
         self._tgt = (0.0, 0.0, 0.0)       # position target (NED m)
         self._vel_tgt = (0.0, 0.0, 0.0)   # velocity target or feed-forward (NED m/s)
         self._yaw_tgt: float | None = None
-        self._gust = [0.0, 0.0, 0.0]
+        self._gust = (0.0, 0.0, 0.0)
+        self._gps_err = (0.0, 0.0, 0.0)
         self._wind_comp = [0.0, 0.0, 0.0]  # autopilot's compensation (m/s^2)
         self._load = 0.0                   # 0 (motors off) .. ~1.5 (climbing)
         self._normal_buf: list[float] = []
@@ -221,16 +226,6 @@ class Multicopter:
         if self._mode in (_MODE_POSITION, _MODE_TAKEOFF, _MODE_LAND):
             return np.array(self._tgt)
         return None
-
-    @property
-    def velocity_target_ned_m_s(self) -> np.ndarray:
-        """Velocity target (velocity mode) or feed-forward (position mode)."""
-        return np.array(self._vel_tgt)
-
-    @property
-    def yaw_target_rad(self) -> float | None:
-        """Commanded heading, or None to keep the current one."""
-        return self._yaw_tgt
 
     @property
     def on_ground(self) -> bool:
@@ -336,12 +331,10 @@ class Multicopter:
 
     # ----------------------------------------------------------------- sensors
     def reported_position_ned_m(self) -> np.ndarray:
-        """Position as the vehicle's GPS reports it: true + glitch offset + white noise."""
-        p = np.array((self._n, self._e, self._d)) + self.gps_glitch_ned_m
-        std = self.params.gps_noise_std_m
-        if std > 0.0:
-            p = p + self.rng.normal(0.0, std, 3)
-        return p
+        """Position as the vehicle's GPS reports it: true + glitch offset + correlated noise
+        (the same value until the next :meth:`step`)."""
+        en, ee, ed = self._gps_err
+        return np.array((self._n + en, self._e + ee, self._d + ed)) + self.gps_glitch_ned_m
 
     def position_estimate_ready(self, t_since_boot_s: float) -> bool:
         """True once the GPS has had ``params.gps_warmup_s`` seconds since boot."""
@@ -357,6 +350,11 @@ class Multicopter:
         n = math.ceil(dt_s / _MAX_SUBSTEP_S) if dt_s > _MAX_SUBSTEP_S else 1
         for _ in range(n):
             self._step(dt_s / n)
+        std = self.params.gps_noise_std_m
+        if std > 0.0:
+            self._gps_err = self._gauss_markov(self._gps_err, dt_s, self.params.gps_noise_tau_s, std)
+        elif self._gps_err != (0.0, 0.0, 0.0):
+            self._gps_err = (0.0, 0.0, 0.0)
 
     def _step(self, dt: float) -> None:
         p = self.params
@@ -433,13 +431,7 @@ class Multicopter:
         if p.drag_per_s > 0.0:
             wn, we, wd = p.wind_ned_m_s
             if p.wind_gust_std_m_s > 0.0:
-                g = self._gust
-                a = dt / p.gust_tau_s
-                r0, r1, r2 = self._normals3()
-                sq = p.wind_gust_std_m_s * math.sqrt(2.0 * a)
-                g[0] += -g[0] * a + sq * r0
-                g[1] += -g[1] * a + sq * r1
-                g[2] += -g[2] * a + sq * r2
+                g = self._gust = self._gauss_markov(self._gust, dt, p.gust_tau_s, p.wind_gust_std_m_s)
                 wn, we, wd = wn + g[0], we + g[1], wd + g[2]
             c = self._wind_comp
             if wn or we or wd or c[0] or c[1] or c[2]:
@@ -466,15 +458,18 @@ class Multicopter:
         self._load = 1.0 + 0.5 * max(-self._vd, 0.0) / p.max_speed_up_m_s
         self._drain(dt)
 
-    def _normals3(self) -> tuple[float, float, float]:
-        """Three standard normals, drawn from the rng in batches (a draw per step is slow)."""
+    def _gauss_markov(self, x, dt: float, tau: float, std: float) -> tuple[float, float, float]:
+        """One exact step of a 3-axis first-order Gauss-Markov process of stationary ``std``.
+        Normals come from the rng in batches (a draw per step is slow)."""
+        phi = math.exp(-dt / tau)
+        q = std * math.sqrt(1.0 - phi * phi)
         i = self._normal_i
         if i + 3 > len(self._normal_buf):
             self._normal_buf = self.rng.standard_normal(_NORMAL_BATCH).tolist()
             i = 0
         self._normal_i = i + 3
         b = self._normal_buf
-        return b[i], b[i + 1], b[i + 2]
+        return x[0] * phi + q * b[i], x[1] * phi + q * b[i + 1], x[2] * phi + q * b[i + 2]
 
     def _yaw_step(self, dt: float) -> None:
         if self._yaw_tgt is None:

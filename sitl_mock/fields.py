@@ -97,7 +97,7 @@ class GaussianField:
 @dataclass(frozen=True)
 class SumField:
     """Sum of several fields (several sources); ``source_enu`` is the global maximum's
-    location found by gradient ascent from each component's source."""
+    location, found by quasi-Newton ascent started from each component's source."""
 
     parts: Sequence[GaussianField]
 
@@ -108,19 +108,21 @@ class SumField:
         return sum(p.gradient(points) for p in self.parts)
 
     def source_enu(self):
+        from scipy.optimize import minimize
+
         best, best_v = None, -np.inf
         for p in self.parts:
-            x = p.source_enu()
-            for _ in range(2000):
-                g = self.gradient(x)
-                h = np.linalg.norm(g)
-                if h < 1e-12:
-                    break
-                x = x + 0.5 * g / max(h, 1.0) * min(1.0, h)
-            v = float(self.value(x))
+            res = minimize(
+                lambda x: -float(self.value(x)),
+                p.source_enu(),
+                jac=lambda x: -self.gradient(x),
+                method="BFGS",
+                options={"gtol": 1e-12},
+            )
+            v = float(self.value(res.x))
             if v > best_v:
-                best, best_v = x, v
-        return best
+                best, best_v = res.x, v
+        return np.asarray(best, dtype=float)
 
 
 def sigma1(source=(0.0, 0.0, 0.0)) -> GaussianField:

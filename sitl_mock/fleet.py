@@ -124,7 +124,11 @@ class MockVehicle:
 
     def true_position_enu(self) -> np.ndarray:
         """True position in the mission frame (ENU metres about the fleet origin)."""
-        return self._to_mission @ ned_to_enu(self.dynamics.position_ned_m) + self._mission_offset
+        return self.to_mission_enu(self.dynamics.position_ned_m)
+
+    def to_mission_enu(self, ned) -> np.ndarray:
+        """Convert a point of this vehicle's LOCAL_NED frame to the mission frame (exact)."""
+        return self._to_mission @ ned_to_enu(ned) + self._mission_offset
 
     def __repr__(self) -> str:
         return (f"MockVehicle(sysid={self.sysid}, {self.autopilot.personality.name}, "
@@ -215,6 +219,8 @@ class MockFleet:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._started = threading.Event()
+        self._tick_cond = threading.Condition()
+        self._sim_time_s = -math.inf
         self.errors: list[str] = []
         self.stats = {"ticks": 0, "lag_s": 0.0, "busy_wall_s": 0.0, "wall_s": 0.0, "dropped_steps": 0}
         dyn_base = dynamics if dynamics is not None else DynamicsParams()
@@ -294,6 +300,19 @@ class MockFleet:
         return self._thread is not None and self._thread.is_alive()
 
     # ------------------------------------------------------------------ API
+    @property
+    def sim_time_s(self) -> float:
+        """Simulated time of the last physics step done (-inf before the first)."""
+        return self._sim_time_s
+
+    def wait_for_sim_time(self, t_s: float, timeout_s: float = 30.0) -> bool:
+        """Block until the physics has reached ``t_s`` (simulated); False on wall timeout.
+
+        With a :class:`~sitl_mock.clock.LockstepClock`, call it after ``clock.advance``.
+        """
+        with self._tick_cond:
+            return self._tick_cond.wait_for(lambda: self._sim_time_s >= t_s - 1e-9, timeout_s)
+
     def vehicle(self, sysid: int) -> MockVehicle:
         """The vehicle with system id ``sysid``."""
         for v in self.vehicles:
@@ -311,23 +330,30 @@ class MockFleet:
         dt = 1.0 / PHYSICS_RATE_HZ
         lockstep = math.isinf(getattr(clock, "speedup", 1.0))
         speedup = getattr(clock, "speedup", 1.0)
-        next_tick = clock.time()
+        t_start = clock.time()
+        k = 0  # index of the next physics step (its time is t_start + k * dt, no drift)
         sample_dt = 1.0 / self.sensor_rate_hz
         wall0 = time.perf_counter()
         busy = 0.0
         self._started.set()
         while not self._stop.is_set():
             t0 = time.perf_counter()
-            now = clock.time()
+            now = clock.time() + 1e-9
             steps = 0
-            while next_tick <= now and steps < _MAX_CATCHUP_STEPS:
-                self._tick(next_tick, dt, sample_dt)
-                next_tick += dt
+            while t_start + k * dt <= now and steps < _MAX_CATCHUP_STEPS:
+                self._tick(t_start + k * dt, dt, sample_dt)
+                k += 1
                 steps += 1
+            if steps:
+                with self._tick_cond:
+                    self._sim_time_s = t_start + (k - 1) * dt
+                    self._tick_cond.notify_all()
+            next_tick = t_start + k * dt
             if not lockstep and next_tick <= now - 1.0:  # hopelessly behind: skip ahead, count it
                 skipped = int((now - next_tick) / dt)
                 self.stats["dropped_steps"] += skipped
-                next_tick += skipped * dt
+                k += skipped
+                next_tick = t_start + k * dt
             self.stats["lag_s"] = max(0.0, now - next_tick)
             t_io = clock.time()
             for v in self.vehicles:
@@ -363,9 +389,10 @@ class MockFleet:
     def _sample(self, v: MockVehicle, t_s: float) -> None:
         if v.faults.crashed:
             return
-        enu = v.true_position_enu()
-        lat, lon, alt = enu_to_geodetic(enu, self.origin)
-        reading = v.sensor.sample(t_s, enu, float(lat), float(lon), float(alt))
+        ned = v.dynamics.position_ned_m
+        enu = v.to_mission_enu(ned)
+        lat, lon, alt = v.autopilot.ned_to_geodetic(ned)
+        reading = v.sensor.sample(t_s, enu, lat, lon, alt)
         if self._publisher is not None:
             self._publisher.publish(reading)
 

@@ -19,6 +19,7 @@ __all__ = ["OfflineResult", "simulate", "SIGMA_C_MODES"]
 #: How the estimator gets the field at the centre: the mean of the readings (paper's Remark)
 #: or the exact value (as in Theorem 2's statement; a simulation-only oracle).
 SIGMA_C_MODES = ("mean", "exact")
+_NOISE_BLOCK = 256
 
 
 @dataclass(frozen=True)
@@ -159,15 +160,18 @@ def simulate(
     grad_true = np.empty((t_count, k_count, 3))
     readings = np.empty((t_count, k_count, n))
     centres[0] = c0
+    noise = None
     for k in range(t_count):
+        if noisy and k % _NOISE_BLOCK == 0:  # draw the noise in blocks: fewer calls, bounded memory
+            noise = rng.standard_normal((min(_NOISE_BLOCK, t_count - k), k_count, n)) * std
         c = centres[k]
         vals = field.value(c[:, None, :] + trial_off)
         if noisy:
-            vals = vals + rng.standard_normal((k_count, n)) * std
+            vals = vals + noise[k % _NOISE_BLOCK]
         readings[k] = vals
         sc = field.value(c) if sigma_c == "exact" else None
         g = gradient_batch(None, vals, method, sigma_c=sc, weights=weights)
         grad_est[k] = g
-        grad_true[k] = field.gradient(c)
         centres[k + 1] = seek_step(c, g, eps, gamma)
+    grad_true[:] = field.gradient(centres[:-1])
     return OfflineResult(centres, grad_est, grad_true, readings, trial_off, field.source_enu())

@@ -31,6 +31,7 @@ _MAV_TYPE_GCS = 6
 _MAV_AUTOPILOT_INVALID = 8
 _GCS_HEARTBEAT_PERIOD_S = 1.0
 _REREQUEST_PERIOD_S = 3.0
+_SILENCE_WARN_S = 5.0
 _NET_PREFIXES = ("tcp:", "tcpin:", "udp:", "udpin:", "udpout:", "udpbcast:")
 
 
@@ -57,7 +58,8 @@ def _source_arg(text: str) -> tuple[float, ...]:
 def _origin_arg(text: str) -> tuple[float, ...]:
     lat, lon, alt = _floats(text, 3, "LAT,LON,ALT")
     if not -90.0 <= lat <= 90.0 or not -180.0 <= lon <= 180.0:
-        raise argparse.ArgumentTypeError(f"origin latitude must be in [-90, 90] and longitude in [-180, 180], got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"origin latitude must be in [-90, 90] and longitude in [-180, 180], got {text!r}")
     return lat, lon, alt
 
 
@@ -89,6 +91,12 @@ def _positive_int(text: str) -> int:
     if v < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
     return v
+
+
+def _seed_arg(text: str) -> int:
+    if text.strip() == "0":
+        return 0
+    return _positive_int(text)
 
 
 def _sysid_arg(text: str) -> int:
@@ -132,7 +140,8 @@ def _endpoint_arg(text: str) -> str:
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``swarmseek sensor`` arguments to ``parser``."""
     parser.add_argument("--connect", required=True, type=_connection_arg, metavar="CONN",
-                        help="pymavlink connection to the autopilot, e.g. tcp:127.0.0.1:5762 or udpin:0.0.0.0:14550")
+                        help="pymavlink connection to the autopilot, "
+                             "e.g. tcp:127.0.0.1:5762 or udpin:0.0.0.0:14550")
     parser.add_argument("--field", required=True, choices=FIELD_NAMES, help="simulated signal field")
     parser.add_argument("--source", type=_source_arg, default=(0.0, 0.0, 0.0), metavar="E,N,U",
                         help="field source in the field frame, metres (default 0,0,0; "
@@ -159,7 +168,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="before the first reading, wait up to S seconds for a zenoh subscriber (default 2)")
     parser.add_argument("--retries", type=_positive_int, default=3, metavar="N",
                         help="TCP connection attempts (default 3)")
-    parser.add_argument("--seed", type=int, default=None, help="noise seed (default: random)")
+    parser.add_argument("--seed", type=_seed_arg, default=None, help="noise seed, an integer >= 0 (default: random)")
     parser.add_argument("--quiet", action="store_true", help="print only errors")
 
 
@@ -173,7 +182,17 @@ def _open_mavlink(connection: str, retries: int):
     except (OSError, ValueError, ImportError) as exc:
         raise VirtualSensorError(f"cannot open MAVLink connection {connection!r}: {exc}") from None
     except Exception as exc:  # pymavlink raises assorted errors for odd device strings
-        raise VirtualSensorError(f"cannot open MAVLink connection {connection!r}: {type(exc).__name__}: {exc}") from None
+        raise VirtualSensorError(
+            f"cannot open MAVLink connection {connection!r}: {type(exc).__name__}: {exc}") from None
+
+
+def _close_mavlink(conn) -> None:
+    if getattr(conn, "port", True) is None:
+        return  # pymavlink's mavtcp.close() fails after a failed reconnect left no socket
+    try:
+        conn.close()
+    except OSError:
+        pass
 
 
 def _send_gcs_heartbeat(conn) -> None:
@@ -246,21 +265,22 @@ def run(args: argparse.Namespace) -> int:
         sensor = SignalSensor(field, args.noise, np.random.default_rng(args.seed), FaultSet(), args.fleet, sysid)
         _log(args, f"autopilot sysid {sysid} on {args.connect}; publishing {sensor_key(args.fleet, sysid)} "
                    f"at {args.rate:g} Hz")
-        return _loop(args, conn, publisher, sensor, sysid, compid, field)
+        return _loop(args, conn, publisher, sensor, sysid, compid)
     finally:
         if publisher is not None:
             publisher.close()
         if session is not None:
             session.close()
-        conn.close()
+        _close_mavlink(conn)
 
 
-def _loop(args, conn, publisher, sensor, sysid, compid, field) -> int:
+def _loop(args, conn, publisher, sensor, sysid, compid) -> int:
     start = time.monotonic()
     end = None if args.duration is None else start + args.duration
     period_s = 1.0 / args.rate
     next_hb = next_request = start
-    got_position = waited = False
+    last_position = start  # monotonic time of the last GLOBAL_POSITION_INT from the autopilot
+    got_position = waited = silent = False
     last_pub = -math.inf
     no_fix = sent = 0
     while (args.count is None or sent < args.count) and (end is None or time.monotonic() < end):
@@ -268,19 +288,25 @@ def _loop(args, conn, publisher, sensor, sysid, compid, field) -> int:
         if now >= next_hb:
             _send_gcs_heartbeat(conn)
             next_hb = now + _GCS_HEARTBEAT_PERIOD_S
-        if now >= next_request:  # until positions flow, ask again now and then
+        if now - last_position > _SILENCE_WARN_S and not silent:
+            silent, got_position = True, False  # ask again: the autopilot may have rebooted
+            _log(args, f"no GLOBAL_POSITION_INT from sysid {sysid} for {_SILENCE_WARN_S:g} s; still trying")
+        if now >= next_request and not got_position:  # until positions flow, ask now and then
             _request_position_rate(conn, sysid, compid, args.rate)
-            next_request = now + (_REREQUEST_PERIOD_S if not got_position else math.inf)
+            next_request = now + _REREQUEST_PERIOD_S
         msg = _recv(conn, ["GLOBAL_POSITION_INT"], 0.05)
         if msg is None or msg.get_srcSystem() != sysid:
             continue
-        got_position = True
+        got_position, last_position = True, time.monotonic()
+        if silent:
+            silent = False
+            _log(args, "positions flow again")
         if msg.lat == 0 and msg.lon == 0:
             no_fix += 1  # autopilots send zeros before their first GPS fix
             if no_fix == 1:
                 _log(args, "autopilot has no position fix yet (lat = lon = 0); waiting")
             continue
-        if time.monotonic() - last_pub < 0.75 * period_s:
+        if last_position - last_pub < 0.75 * period_s:
             continue  # the autopilot streams faster than asked: keep our rate
         if not waited:
             waited = True

@@ -101,6 +101,14 @@ def test_lbfgs_reaches_lloyd_energy(n):
     assert fast.iterations < lloyd.iterations
 
 
+@pytest.mark.parametrize("n", [8, 12])
+def test_scipy_lbfgs_reaches_lloyd_energy(n):
+    lloyd = cvt_sphere_result(n, seed=0, method="lloyd")
+    fast = cvt_sphere_result(n, seed=0, method="lbfgs-scipy")
+    assert fast.converged
+    assert fast.energy == pytest.approx(lloyd.energy, rel=1e-7)
+
+
 def test_known_optimal_configurations():
     tetra = cvt_sphere(4)
     assert metrics(tetra).d_min == pytest.approx(math.sqrt(8.0 / 3.0), rel=1e-8)

@@ -209,13 +209,30 @@ def test_reproducible_with_a_seed(wind_gust_std_m_s, gps_noise_std_m):
 
 
 def test_reported_position_has_glitch_and_noise_true_position_does_not():
-    m = _airborne(gps_noise_std_m=0.5)
+    m = _airborne(gps_noise_std_m=0.5, gps_noise_tau_s=0.005)
     truth = m.position_ned_m
     m.gps_glitch_ned_m = np.array([25.0, 0.0, 0.0])
-    reports = np.array([m.reported_position_ned_m() for _ in range(400)])
-    np.testing.assert_allclose(reports.mean(axis=0), truth + (25.0, 0.0, 0.0), atol=0.15)
-    assert reports.std(axis=0) == pytest.approx([0.5] * 3, rel=0.2)
-    np.testing.assert_array_equal(m.position_ned_m, truth)
+    reports = []
+    for _ in range(800):
+        m.step(DT_S)
+        reports.append(m.reported_position_ned_m() - m.position_ned_m)
+    reports = np.array(reports)
+    np.testing.assert_allclose(reports.mean(axis=0), (25.0, 0.0, 0.0), atol=0.1)
+    assert reports.std(axis=0) == pytest.approx([0.5] * 3, rel=0.15)
+    np.testing.assert_allclose(m.position_ned_m, truth, atol=0.01)  # hovering, unaffected
+
+
+def test_gps_error_is_constant_within_a_step_and_correlated_across_steps():
+    m = _airborne(gps_noise_std_m=1.0, gps_noise_tau_s=2.0)
+    np.testing.assert_array_equal(m.reported_position_ned_m(), m.reported_position_ned_m())
+    errs = []
+    for _ in range(3000):
+        m.step(DT_S)
+        errs.append(m.reported_position_ned_m()[0] - m.position_ned_m[0])
+    errs = np.array(errs)
+    lag1 = np.corrcoef(errs[:-1], errs[1:])[0, 1]
+    assert lag1 > 0.95  # exp(-0.02 / 2) = 0.99 in theory
+    assert 0.3 < errs.std() < 2.0
 
 
 def test_large_step_is_substepped_like_small_steps():

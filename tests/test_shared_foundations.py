@@ -94,7 +94,10 @@ def test_unknown_field_name_lists_known_ones():
 
 def test_sum_field_finds_the_stronger_source():
     f = SumField([sigma2((0.0, 0.0, 0.0)), GaussianField(3.0, S2, np.array([40.0, 0.0, 0.0]))])
-    assert np.allclose(f.source_enu(), [40.0, 0.0, 0.0], atol=0.5)
+    x = f.source_enu()
+    assert np.linalg.norm(x - [40.0, 0.0, 0.0]) < 2.0
+    assert np.linalg.norm(f.gradient(x)) < 1e-8
+    assert f.value(x) > 3.0 > f.value(np.zeros(3))
 
 
 def test_fault_set_parses_and_checks_values():
@@ -128,3 +131,12 @@ def test_cli_rejects_unknown_command(capsys):
         main(["warp"])
     assert exc.value.code == 2
     assert "invalid choice" in capsys.readouterr().err
+
+
+def test_sum_field_maximum_is_a_stationary_point_between_overlapping_sources():
+    # two equal wide Gaussians 4 m apart merge into one peak in the middle
+    a = GaussianField(1.0, 0.01 * np.eye(3), np.array([0.0, 0.0, 0.0]))
+    b = GaussianField(1.0, 0.01 * np.eye(3), np.array([4.0, 0.0, 0.0]))
+    x = SumField([a, b]).source_enu()
+    assert np.allclose(x, [2.0, 0.0, 0.0], atol=1e-4)
+    assert np.linalg.norm(SumField([a, b]).gradient(x)) < 1e-8

@@ -224,6 +224,7 @@ def _replace(flag, value):
     (_replace("--rate", "0"), "positive"),
     (_replace("--sysid", "300"), "1..255"),
     (_replace("--count", "0"), "positive integer"),
+    (_replace("--seed", "-3"), "positive integer"),
     (_replace("--connect", "tcp:127.0.0.1"), "HOST:PORT"),
     (_replace("--zenoh-connect", "127.0.0.1:7447"), "PROTO/ADDRESS"),
     (_replace("--fleet", "a/b"), "fleet"),
@@ -253,3 +254,39 @@ def test_command_line_entry_point_runs_without_traceback():
     assert proc.returncode == 1
     assert "cannot open MAVLink connection" in proc.stderr
     assert "Traceback" not in proc.stderr + proc.stdout
+
+
+def test_autopilot_going_away_ends_with_a_clear_error(zenoh_listener, capsys):
+    session, endpoint = zenoh_listener
+    readings: queue.Queue = queue.Queue()
+    sub = session.declare_subscriber("swarmseek/swarmseek/vehicle/*/sensor", lambda s: readings.put(1))
+    result: dict = {}
+    try:
+        with _TinyAutopilot(sysid=4) as ap:
+            runner = threading.Thread(target=lambda: result.setdefault("rc", swarmseek([
+                "sensor", "--connect", ap.connection, "--field", "sigma1", "--origin", "45.19,5.72,200",
+                "--retries", "1", "--zenoh-connect", endpoint, "--wait-subscriber", "20"])), daemon=True)
+            runner.start()
+            readings.get(timeout=TIMEOUT_S)  # it runs; now the autopilot disappears
+        runner.join(TIMEOUT_S)
+    finally:
+        sub.undeclare()
+    err = capsys.readouterr().err
+    assert not runner.is_alive()
+    assert result["rc"] == 1
+    assert "lost the MAVLink connection" in err
+    assert "Traceback" not in err
+
+
+def test_duration_stops_the_sensor_by_itself(zenoh_listener, capsys):
+    _, endpoint = zenoh_listener
+    with _TinyAutopilot(sysid=2) as ap:
+        t0 = time.monotonic()
+        rc = swarmseek(["sensor", "--connect", ap.connection, "--field", "sigma2", "--origin", "45.19,5.72,200",
+                        "--duration", "1.5", "--wait-subscriber", "0", "--zenoh-connect", endpoint])
+        elapsed = time.monotonic() - t0
+    err = capsys.readouterr().err
+    assert rc == 0
+    assert elapsed >= 1.5
+    assert "publishing swarmseek/swarmseek/vehicle/2/sensor" in err
+    assert "published" in err

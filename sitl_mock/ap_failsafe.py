@@ -1,0 +1,133 @@
+"""Failsafes of the mock autopilots: offboard loss, GCS loss, low battery, geofence.
+
+Each check runs every step while armed and, when it trips, announces it (STATUSTEXT), marks
+the autopilot in failsafe (HEARTBEAT system_status CRITICAL) and switches to the action its
+parameters ask for:
+
+* offboard loss (PX4): no setpoint for ``COM_OF_LOSS_T`` s in OFFBOARD -> ``COM_OBL_RC_ACT``
+  (3 Return, 4 Land, otherwise Hold: the mock has no RC for the position-mode fallbacks);
+* GCS loss: no GCS heartbeat for ``FS_GCS_TIMEOUT`` (ArduPilot, heartbeats from
+  ``SYSID_MYGCS``) or ``COM_DL_LOSS_T`` (PX4, any MAV_TYPE_GCS) -> ``FS_GCS_ENABLE`` /
+  ``NAV_DLL_ACT``; only after a GCS has been heard once;
+* low battery: ArduPilot ``BATT_LOW_MAH`` / ``BATT_CRT_MAH`` -> ``BATT_FS_LOW_ACT`` /
+  ``BATT_FS_CRT_ACT``; PX4 ``BAT_CRIT_THR`` / ``BAT_EMERGEN_THR`` -> ``COM_LOW_BAT_ACT``;
+* geofence: ArduPilot ``FENCE_ENABLE`` / ``FENCE_RADIUS`` / ``FENCE_ALT_MAX`` ->
+  ``FENCE_ACTION``; PX4 ``GF_MAX_HOR_DIST`` / ``GF_MAX_VER_DIST`` -> ``GF_ACTION``.
+"""
+from __future__ import annotations
+
+import math
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from sitl_mock import ap_flight
+
+__all__ = ["check_failsafes"]
+
+
+def check_failsafes(ap, t_s: float) -> None:
+    """Run every failsafe check (call each step, before the flight logic)."""
+    if not ap.mc.armed:
+        return
+    if ap.behaviour == "offboard" and t_s - ap.flight.last_setpoint_s > ap.params["COM_OF_LOSS_T"]:
+        action = {3: "rtl", 4: "land"}.get(int(ap.params["COM_OBL_RC_ACT"]), "hold")
+        _failsafe(ap, t_s, "offboard", action, "Failsafe: offboard control lost")
+    _check_gcs_loss(ap, t_s)
+    _check_battery(ap, t_s)
+    _check_fence(ap, t_s)
+
+
+def _failsafe(ap, t_s: float, reason: str, action: str, text: str) -> None:
+    ap.failsafe = reason
+    ap.statustext(text, mavlink2.MAV_SEVERITY_CRITICAL)
+    pers = ap.personality
+    if action == "none":
+        return
+    if action == "terminate":
+        ap_flight.disarm_now(ap, "failsafe")
+        return
+    if action == "land" and not ap_flight.airborne(ap):
+        if ap.mc.armed:
+            ap_flight.disarm_now(ap, "failsafe")
+        return
+    target = {"hold": pers.hold_mode, "rtl": pers.rtl_mode, "land": pers.land_mode}[action]
+    ap_flight.enter_mode(ap, target, t_s)
+
+
+def _check_gcs_loss(ap, t_s: float) -> None:
+    fs = ap.flight
+    last = ap.last_gcs_heartbeat_s
+    if last is None:
+        return
+    if ap_flight.is_ardupilot(ap):
+        enable, timeout = int(ap.params["FS_GCS_ENABLE"]), ap.params["FS_GCS_TIMEOUT"]
+        action = {0: "none", 2: "rtl", 5: "land", 7: "land"}.get(enable, "rtl")
+        if enable == 2 and ap.behaviour == "mission":
+            action = "none"
+    else:
+        enable, timeout = int(ap.params["NAV_DLL_ACT"]), ap.params["COM_DL_LOSS_T"]
+        action = {1: "hold", 2: "rtl", 3: "land", 5: "terminate", 6: "terminate"}.get(enable, "none")
+    lost = t_s - last > timeout
+    if not lost:
+        if fs.gcs_failsafe_done:
+            fs.gcs_failsafe_done = False
+            if ap.failsafe == "gcs":
+                ap.failsafe = None
+        return
+    if enable == 0 or fs.gcs_failsafe_done:
+        return
+    fs.gcs_failsafe_done = True
+    _failsafe(ap, t_s, "gcs", action, "Failsafe: GCS connection lost")
+
+
+def _check_battery(ap, t_s: float) -> None:
+    fs = ap.flight
+    level = ap_flight.battery_level(ap)
+    if level <= fs.battery_level_done or not ap_flight.airborne(ap):
+        return
+    fs.battery_level_done = level
+    p = ap.params
+    if ap_flight.is_ardupilot(ap):
+        act = int(p["BATT_FS_CRT_ACT"] if level >= 2 else p["BATT_FS_LOW_ACT"])
+        action = {0: "none", 1: "land", 5: "terminate", 7: "land"}.get(act, "rtl")
+    else:
+        act = int(p["COM_LOW_BAT_ACT"])
+        action = "none"
+        if level >= 2 and act in (1, 3):
+            action = "rtl"
+        if (level >= 2 and act == 2) or (level >= 3 and act == 3):
+            action = "land"
+    names = {1: "low", 2: "critical", 3: "emergency"}
+    _failsafe(ap, t_s, "battery", action, f"Failsafe: battery {names[level]}")
+
+
+def _check_fence(ap, t_s: float) -> None:
+    p = ap.params
+    fs = ap.flight
+    ned = ap.mc.position_ned_m
+    dist = math.hypot(ned[0] - ap.home_ned[0], ned[1] - ap.home_ned[1])
+    alt = -ned[2]
+    if ap_flight.is_ardupilot(ap):
+        if not p["FENCE_ENABLE"]:
+            return
+        radius, alt_max = p["FENCE_RADIUS"], p["FENCE_ALT_MAX"]
+        action = {0: "none", 2: "land", 4: "hold", 6: "hold"}.get(int(p["FENCE_ACTION"]), "rtl")
+    else:
+        radius = p["GF_MAX_HOR_DIST"] or math.inf
+        alt_max = p["GF_MAX_VER_DIST"] or math.inf
+        if math.isinf(radius) and math.isinf(alt_max):
+            return
+        action = {0: "none", 1: "none", 2: "hold", 3: "rtl", 4: "terminate", 5: "land"}[
+            int(p["GF_ACTION"])]
+    breached = dist > radius or alt > alt_max
+    if not breached:
+        if fs.fence_breached and dist < radius - 2.0 and alt < alt_max - 2.0:
+            fs.fence_breached = False
+            if ap.failsafe == "fence":
+                ap.failsafe = None
+        return
+    if fs.fence_breached or ap.behaviour in ("rtl", "land"):
+        return
+    fs.fence_breached = True
+    _failsafe(ap, t_s, "fence", action, "Failsafe: geofence breached")
+

@@ -1,0 +1,93 @@
+"""Coordinator outcomes other than success, against the mock fleet over real sockets:
+a failed preflight arms nothing; a source outside the geofence stops the mission at the fence."""
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+
+import numpy as np
+import pytest
+
+from mission.coordinator import Coordinator
+from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
+from mission.mission_log import MissionLog, read_mission_log
+from mission.plan import GeofencePlan
+from sitl_mock.fields import sigma2
+from sitl_mock.fleet import MockFleet
+
+
+def _fleet(n, ports, source, **kw):
+    return MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, speedup=10.0,
+                     seed=7, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
+                     tcp_base_port=0, fleet_name="swarmseek", zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"],
+                     **kw)
+
+
+async def _fly(plan, fleet, log_path):
+    import zenoh
+
+    session = zenoh.open(plan.zenoh.to_config())
+    log = MissionLog(log_path, fleet.clock)
+    try:
+        return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, tlog_dir=None).run()
+    finally:
+        log.close()
+        session.close()
+
+
+@pytest.mark.timeout(300)
+def test_failed_preflight_aborts_and_arms_nothing(tmp_path):
+    n = 4
+    ports = fleet_ports(n, "px4")
+    source = np.array([5.0, 5.0, 12.0])
+    fleet = _fleet(n, ports, source)
+    fleet.set_fault(3, "battery_low", True)
+    plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 12.0), eps=50.0)
+    fleet.start()
+    try:
+        result = asyncio.run(_fly(plan, fleet, tmp_path / "m.jsonl"))
+        armed = [v.armed for v in fleet.vehicles]
+    finally:
+        fleet.stop()
+    assert result.outcome == "aborted" and not result.ok
+    assert "preflight failed" in result.message and "vehicle 3" in result.message
+    assert "battery" in result.message
+    assert not any(armed)
+    by_sysid = {r["sysid"]: r for r in result.readiness}
+    assert by_sysid[3]["checks"]["battery"] is False
+    assert all(by_sysid[s]["ready"] for s in (1, 2, 4))
+    phases = [r["phase"] for r in read_mission_log(tmp_path / "m.jsonl") if r["type"] == "phase"]
+    assert "takeoff" not in phases and "aborted" in phases
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_source_outside_the_fence_stops_at_the_boundary(tmp_path):
+    n = 6
+    ports = fleet_ports(n, "px4")
+    source = np.array([25.0, 2.0, 12.0])  # the fence ends at east 15 m; the centre may go to 11 m
+    fleet = _fleet(n, ports, source)
+    plan = embedded_plan(n, ports, start_enu_m=(2.0, 2.0, 12.0), eps=default_eps(sigma2(source)),
+                         max_iterations=80)
+    plan = dataclasses.replace(plan, geofence=GeofencePlan(
+        polygon_en_m=((-15.0, -15.0), (15.0, -15.0), (15.0, 15.0), (-15.0, 15.0)), min_alt_m=2.0, max_alt_m=40.0))
+    fleet.start()
+    try:
+        result = asyncio.run(_fly(plan, fleet, tmp_path / "m.jsonl"))
+    finally:
+        fleet.stop()
+    assert result.outcome == "stopped_at_fence", result.message
+    assert "outside the fence" in result.message
+    records = read_mission_log(tmp_path / "m.jsonl")
+    centres = np.array([r["new_centre_enu"] for r in records if r["type"] == "iteration"])
+    assert centres[:, 0].max() <= 11.0 + 1e-6  # the fence shrunk by the 4 m radius
+    assert centres[-1, 0] == pytest.approx(11.0, abs=0.05)
+    # every vehicle position seen stayed inside the fence
+    for r in records:
+        if r["type"] == "status":
+            for v in r["vehicles"]:
+                p = v.get("position_enu")
+                if p is not None:
+                    assert abs(p[0]) <= 15.0 and abs(p[1]) <= 15.0
+    landed = [r for r in records if r["type"] == "event" and r["message"].endswith("landed")]
+    assert len(landed) == n
