@@ -39,6 +39,7 @@ import argparse
 import asyncio
 import json
 import os
+import queue as queue_mod
 import random
 import socket
 import subprocess
@@ -120,7 +121,7 @@ async def _vehicles_main(n: int, port_base: int, shared: bool) -> None:
             "p99_s": float(np.percentile(intervals, 99)) if intervals.size else None,
             "max_s": float(intervals.max()) if intervals.size else None,
         })
-    print(json.dumps({"window_s": window_s, "vehicles": per_vehicle}), flush=True)
+    print("STATS " + json.dumps({"window_s": window_s, "vehicles": per_vehicle}), flush=True)
     for f in fakes:
         await f.stop()
 
@@ -235,19 +236,30 @@ async def _coordinator_main(stack: str, n: int, port_base: int, rate_hz: float, 
 
 # ----------------------------------------------------------------------------------- driver
 def _spawn(args: list[str]) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, os.path.abspath(__file__)] + args, stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, text=True, bufsize=1)
+    proc = subprocess.Popen([sys.executable, os.path.abspath(__file__)] + args, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, bufsize=1)
+    proc.lines = queue_mod.Queue()
+
+    def pump():
+        for line in proc.stdout:
+            proc.lines.put(line)
+        proc.lines.put(None)
+    threading.Thread(target=pump, daemon=True).start()
+    return proc
 
 
 def _expect(proc, prefix: str, timeout_s: float) -> str:
+    """The rest of the child's next stdout line starting with ``prefix`` (others are skipped)."""
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if not line:
-            raise RuntimeError(f"process exited while waiting for {prefix!r}")
+    while True:
+        try:
+            line = proc.lines.get(timeout=max(0.01, deadline - time.monotonic()))
+        except queue_mod.Empty:
+            raise RuntimeError(f"timed out after {timeout_s:g} s waiting for {prefix.strip()!r}") from None
+        if line is None:
+            raise RuntimeError(f"process exited while waiting for {prefix.strip()!r}")
         if line.startswith(prefix):
             return line[len(prefix):].strip()
-    raise RuntimeError(f"timed out waiting for {prefix!r}")
 
 
 def run_case(stack: str, n: int, rate_hz: float, duration_s: float, warmup_s: float) -> dict:
@@ -269,7 +281,7 @@ def run_case(stack: str, n: int, rate_hz: float, duration_s: float, warmup_s: fl
         vehicles.stdin.write("END\n")
         coord = json.loads(_expect(coordinator, "RESULT", 120))
         vehicles.stdin.write("STOP\n")
-        veh = json.loads(vehicles.stdout.readline())
+        veh = json.loads(_expect(vehicles, "STATS", 60))
     finally:
         for proc in (coordinator, vehicles):
             if proc is not None:

@@ -1,57 +1,35 @@
 """Robust gradient estimation for a formation with faulty sensors (pure numpy, no I/O).
 
-The estimator is Theorem 2 generalised to weighted least squares. For offsets
-``r_i = p_i - c`` and readings ``y_i`` with weights ``w_i``::
-
-    g = (sum_i w_i r~_i r~_i^T)^-1 sum_i w_i (y_i - s_c) r~_i
+Theorem 2 generalised to weighted least squares: for offsets ``r_i = p_i - c``, readings
+``y_i`` and weights ``w_i``, ``g = (sum w_i r~_i r~_i^T)^-1 sum w_i (y_i - s_c) r~_i``.
 
 * ``centre="fit"`` (default): ``s_c`` and ``g`` are the joint weighted least-squares fit of
-  the local linear model ``y_i = s_c + g . r_i``; equivalently ``r~_i = r_i - rbar_w`` with
-  ``rbar_w`` the weighted mean offset and ``s_c`` the weighted mean reading at it. Exact on a
-  linear field for *any* weights and any subset of at least 4 non-coplanar sensors (so dropping
-  a faulty sensor adds no bias).
-* ``centre="weighted_mean"``: ``r~_i = r_i``, ``s_c = sum w_i y_i / sum w_i``. With equal
-  weights this is exactly Theorem 2 with the paper's Remark (``s_c`` = mean reading),
-  :func:`estimator.gradient` with ``method="cvt"``; it is biased by
-  ``M^-1 rbar (rbar . grad) W`` when ``sum w_i r_i != 0`` (e.g. after dropping a sensor).
+  ``y_i = s_c + g . r_i`` (``r~_i = r_i - rbar_w``): exact on a linear field for any weights
+  and any subset of >= 4 non-coplanar sensors, so dropping a faulty sensor adds no bias.
+* ``centre="weighted_mean"``: ``r~_i = r_i``, ``s_c = sum w_i y_i / sum w_i``; with equal
+  weights exactly :func:`estimator.gradient` ``(method="cvt")`` (Theorem 2 with the Remark).
 
-Online, per sensor, over a sliding window of the last ``window`` updates:
+Online, per sensor, over a sliding window of ``window`` updates, from the leave-one-out
+prediction errors ``d_i`` (reading minus the prediction of the fit of the *other* sensors,
+``E[d_i^2] = var_i + p_i``, no feedback from a sensor's weight to its own variance):
 
-* **prediction errors** of the local linear model, leave-one-out: ``d_i`` is sensor i's reading
-  minus the prediction of the weighted fit of the *other* sensors (``d_i = e_i / (1 - h_ii)``
-  with ``e_i = y_i - s_c - g . r_i`` and ``h_ii`` the leverage; a sensor left out of the fit
-  already has its prediction error). ``E[d_i^2] = var_i + p_i`` with ``p_i`` the variance of
-  that prediction, which does not depend on sensor i's own weight: no feedback from a wrong
-  weight to its own variance estimate.
-* **noise variance**: the mean square of the sensor's windowed prediction errors about their
-  median, winsorised at 3 robust standard deviations (``1.4826 MAD``) so that spikes do not
-  inflate it, minus the mean prediction variance. Weights
-  ``w_i = 1 / max(var_i, floor)`` with ``floor = var_floor_rel * median(var)``: a sensor with 5x
-  the noise gets 1/25 of the weight.
-* **spiking**: a reading whose residual is more than ``k_mad`` robust standard deviations
-  (``1.4826 MAD_i``) from the sensor's windowed median residual is left out of this update's fit
-  and counted; the sensor is reported ``spiking`` when more than ``spike_rate`` of its recent
-  readings were rejected.
-* **stuck**: a sensor whose readings stop changing (exponentially weighted mean of squared
-  successive differences, time constant ``window``, below ``stuck_ratio`` times the median of
-  the others) while the others vary.
-* **biased**: persistent prediction errors (windowed medians ``m_j``) that a bias ``b_i`` on
-  one sensor explains: a bias leaks into the others' leave-one-out predictions through the
-  known map ``d = D^-1 (I - H) y``, so ``b_i`` is fitted to all the ``m_j`` by that map's
-  column ``i``; flagged if it explains at least ``bias_explained`` of their weighted energy and
-  ``|b_i|`` exceeds ``k_bias`` standard errors of a windowed median and ``bias_min_std`` times
-  the sensor's prediction-error std. (With a rigid formation a bias and the field's curvature
-  across the formation can look alike; the last condition keeps the curvature of a large
-  formation from being flagged.)
-* **noisy**: ``std_i > k_noisy * median(std)`` (reported; handled by the weights).
+* noise variance: winsorised mean square of ``d_i`` about its median minus the prediction
+  variance, shrunk towards the median sensor; weights ``1 / var_i`` (floored);
+* spiking: a reading more than ``k_mad`` robust std from its sensor's median is left out of
+  that update (worst first) and counted;
+* stuck: readings stop changing while the others' change;
+* biased: the windowed median errors of all sensors are explained by a bias on one sensor
+  leaking through the known leave-one-out map;
+* noisy: ``std_i > k_noisy * median(std)`` (reported; handled by the weights).
 
-Stuck and biased sensors are excluded from the fit, spiking readings are excluded one update
-at a time; an exclusion happens only while at least ``min_sensors`` (>= 4) sensors remain and
-the weighted geometry has ``cond(M) <= max_condition``; otherwise the sensor stays in with
-its (small) weight. Faults are only declared after ``warmup`` updates.
+Stuck and biased sensors are excluded while at least ``min_sensors`` remain with a
+well-conditioned geometry. Unequal weights break the formation's symmetry, and the field's
+curvature across the formation then biases the estimate: ``weighting="auto"`` predicts that
+bias from the persistent residuals and keeps equal weights when it would cost more than the
+noise saved. The details and the measured effects are in ``docs/safety.md``.
 
-The estimator is vectorised over a leading batch of independent formations
-(``batch_shape``), which the offline Monte Carlo uses; a mission uses the default ``()``.
+The estimator is vectorised over a leading batch of independent formations (``batch_shape``),
+which the offline Monte Carlo uses; a mission uses the default ``()``.
 """
 from __future__ import annotations
 
@@ -63,6 +41,7 @@ from estimator.gradient import DEFAULT_MAX_CONDITION, GeometryError
 
 __all__ = [
     "CENTRE_MODES",
+    "WEIGHTINGS",
     "REASONS",
     "Suspect",
     "RobustGradientEstimator",
@@ -71,28 +50,24 @@ __all__ = [
 
 #: ways of choosing the centre value ``s_c`` (see the module docstring)
 CENTRE_MODES = ("fit", "weighted_mean")
+#: how the weights are chosen (see RobustGradientEstimator)
+WEIGHTINGS = ("auto", "inverse_variance", "equal")
+#: exponents ``a`` of the weights ``var^-a`` that ``weighting="auto"`` chooses from
+_AUTO_EXPONENTS = (0.0, 0.5, 1.0)
 #: suspect reasons, in order of precedence (a sensor is reported once, for the first that applies)
 REASONS = ("stuck", "biased", "spiking", "noisy")
 _MAD_TO_STD = 1.4826
+#: strength (in updates) of the shrinkage of each sensor's variance towards the median
+_PRIOR_UPDATES = 25
 #: E[min(X^2, 9)] for a standard normal X (winsorising at 3 standard deviations)
 _WINSOR3 = 0.99734
 
 
 @dataclass(frozen=True)
 class Suspect:
-    """A sensor the estimator distrusts.
-
-    Attributes
-    ----------
-    index : int
-        0-based sensor (vehicle) index in the order of the readings.
-    reason : str
-        One of :data:`REASONS`.
-    excluded : bool
-        Whether the last estimate left this sensor out (stuck/biased, or a spike).
-    noise_std : float
-        Current noise standard deviation estimate of the sensor.
-    """
+    """A sensor the estimator distrusts: 0-based ``index`` in the order of the readings,
+    ``reason`` (one of :data:`REASONS`), whether the last estimate ``excluded`` it, and its
+    current ``noise_std`` estimate."""
 
     index: int
     reason: str
@@ -119,6 +94,12 @@ def _solve_weighted(r, y, w, centre):
     g = np.linalg.solve(m, b[..., None])[..., 0]
     s_c = ybar - np.einsum("...i,...i->...", g, rbar)  # value of the fitted plane at the centre
     return g, s_c, m, rbar
+
+
+def _argmax_mask(score):
+    mask = np.zeros(score.shape, dtype=bool)
+    np.put_along_axis(mask, np.argmax(score, axis=-1)[..., None], True, axis=-1)
+    return mask
 
 
 def _condition(m):
@@ -212,6 +193,19 @@ class RobustGradientEstimator:
         from looking like a bias).
     k_noisy : float
         A sensor whose noise std exceeds ``k_noisy`` times the median is reported ``noisy``.
+    weighting : {"auto", "inverse_variance", "equal"}
+        ``inverse_variance``: ``w_i = 1 / var_i``, best when the field is nearly linear across
+        the formation. ``equal``: only outliers (stuck, biased, spikes) are removed; noisy
+        sensors are reported but keep their weight. ``auto``: per update, the weights
+        ``var_i^-a`` for ``a`` in 0, 0.5, 1 with the smallest predicted error (see
+        :attr:`weighting_exponent`): unequal weights break the formation's symmetry, and the
+        field's curvature across the formation then biases the estimate, which hurts a seeking
+        loop far more than noise does.
+    bias_gain : float
+        How much more a persistent gradient bias costs than white noise of the same variance
+        (for the ``auto`` weighting). For gradient ascent with step ``eps`` near a source
+        whose slowest curvature is ``lambda`` (``A * S`` eigenvalue), about ``1 / (eps lambda)``:
+        670 for the paper's sigma_2 and ``eps = 1``.
     stuck_ratio : float
         A sensor is stuck when its reading-change energy is below this fraction of the others'.
     spike_rate : float
@@ -223,22 +217,27 @@ class RobustGradientEstimator:
     def __init__(self, n: int, window: int = 100, batch_shape: tuple[int, ...] = (), centre: str = "fit",
                  min_sensors: int = 4, warmup: int | None = None, var_floor_rel: float = 0.25,
                  k_mad: float = 5.0, k_bias: float = 6.0, bias_explained: float = 0.6, bias_min_std: float = 1.5,
-                 k_noisy: float = 2.0,
-                 stuck_ratio: float = 1e-6, spike_rate: float = 0.05,
-                 max_condition: float = DEFAULT_MAX_CONDITION):
+                 k_noisy: float = 2.0, stuck_ratio: float = 1e-6, spike_rate: float = 0.05,
+                 max_condition: float = DEFAULT_MAX_CONDITION, weighting: str = "auto",
+                 bias_gain: float = 500.0):
         if not isinstance(n, (int, np.integer)) or n < 4:
             raise ValueError(f"n must be an integer >= 4 (a 3D gradient needs 4 sensors), got {n!r}")
         if not (isinstance(window, (int, np.integer)) and window >= 5):
             raise ValueError(f"window must be an integer >= 5 updates, got {window!r}")
-        if centre not in CENTRE_MODES:
-            raise ValueError(f"unknown centre mode {centre!r}; expected one of {', '.join(CENTRE_MODES)}")
         if not (isinstance(min_sensors, (int, np.integer)) and 4 <= min_sensors <= n):
             raise ValueError(f"min_sensors must be an integer in [4, n={n}], got {min_sensors!r}")
+        for name, val, choices in (("centre", centre, CENTRE_MODES), ("weighting", weighting, WEIGHTINGS)):
+            if val not in choices:
+                raise ValueError(f"unknown {name} mode {val!r}; expected one of {', '.join(choices)}")
         for name, val in (("var_floor_rel", var_floor_rel), ("k_mad", k_mad), ("k_bias", k_bias),
                           ("bias_min_std", bias_min_std), ("k_noisy", k_noisy), ("stuck_ratio", stuck_ratio),
                           ("spike_rate", spike_rate), ("max_condition", max_condition)):
             if not (np.isfinite(val) and val > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {val!r}")
+        if not 0.0 < bias_explained < 1.0:
+            raise ValueError(f"bias_explained must be in (0, 1), got {bias_explained!r}")
+        if not (np.isfinite(bias_gain) and bias_gain >= 0):
+            raise ValueError(f"bias_gain must be a finite number >= 0, got {bias_gain!r}")
         self.n = int(n)
         self.batch_shape = tuple(int(b) for b in batch_shape)
         self.window = int(window)
@@ -250,14 +249,14 @@ class RobustGradientEstimator:
         self.var_floor_rel = float(var_floor_rel)
         self.k_mad = float(k_mad)
         self.k_bias = float(k_bias)
-        if not 0.0 < bias_explained < 1.0:
-            raise ValueError(f"bias_explained must be in (0, 1), got {bias_explained!r}")
         self.bias_explained = float(bias_explained)
         self.bias_min_std = float(bias_min_std)
         self.k_noisy = float(k_noisy)
         self.stuck_ratio = float(stuck_ratio)
         self.spike_rate = float(spike_rate)
         self.max_condition = float(max_condition)
+        self.weighting = weighting
+        self.bias_gain = float(bias_gain)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -277,6 +276,8 @@ class RobustGradientEstimator:
         self._excluded = np.zeros(shape, dtype=bool)
         self._weights = np.full(shape, 1.0 / self.n)
         self._hat = np.zeros(shape + (self.n,))
+        self._kappa = np.zeros(shape)
+        self._alpha_used = np.zeros(self.batch_shape)
 
     @property
     def noise_std_estimates(self) -> np.ndarray:
@@ -347,7 +348,7 @@ class RobustGradientEstimator:
         alpha = 1.0 / self.window
         warm = self.updates >= self.warmup
         base_w = self._base_weights(warm)
-        persistent = self._excluded_persistent() if warm else np.zeros(base_w.shape, dtype=bool)
+        persistent = warm & np.isin(self._code, (REASONS.index("stuck") + 1, REASONS.index("biased") + 1))
         w = self._admissible(r, base_w, persistent, self.min_sensors)
         spikes = np.zeros(w.shape, dtype=bool)
         for _ in range(self.n):
@@ -364,6 +365,8 @@ class RobustGradientEstimator:
                 break
             spikes |= worst & (w2 == 0)
             w = w2
+        if self.weighting != "inverse_variance" and warm:
+            w, g = self._choose_weights(r, y, w)
         # commit the new state only now that the update cannot fail any more
         if self.updates > 0:
             self._diff2 += alpha * ((y - self._last_y) ** 2 - self._diff2)
@@ -377,6 +380,59 @@ class RobustGradientEstimator:
         self._weights = w / w.sum(axis=-1, keepdims=True)
         return g
 
+    def _operator(self, r, w):
+        """Gradient rows of the weighted fit: ``g = G y``, shape (..., 3, N)."""
+        m, rbar, _ = _moments(r, w, self.centre)
+        rbar_w = np.einsum("...n,...ni->...i", w, r) / w.sum(axis=-1)[..., None]
+        return np.einsum("...ij,...nj->...in", np.linalg.inv(m), w[..., None] * (r - rbar_w[..., None, :]))
+
+    def _choose_weights(self, r, y, w):
+        """Equal weights on the sensors in the fit, or ``var^-a``: the smallest predicted error.
+
+        ``kappa`` is the persistent residual of the equal-weight fit (the part of the field the
+        linear model misses: curvature). Weights ``w`` move the estimate by ``b = G_w kappa``
+        (a bias) and change its noise variance ``v_w = sum_i |G_w[:, i]|^2 var_i``. Predicted
+        error: ``v_w + bias_gain * max(0, |b|^2 - 3 var(b))`` where ``var(b)`` is the part of
+        ``|b|^2`` due to the noise in ``kappa`` itself.
+        """
+        active = w > 0
+        w_eq = active.astype(float)
+        g_eq_op = self._operator(r, w_eq)
+        # residual of the equal-weight fit (intercept included)
+        g_eq, s_eq, _, _ = _solve_weighted(r, y, w_eq, self.centre)
+        e_eq = y - s_eq[..., None] - np.einsum("...ni,...i->...n", r, g_eq)
+        alpha_k = 1.0 / self.window
+        self._kappa = np.where(active, self._kappa + alpha_k * (e_eq - self._kappa), self._kappa)
+        if self.weighting == "equal":
+            self._alpha_used = np.zeros(self.batch_shape)
+            return w_eq, g_eq
+        var = self._var
+        n_eff = (2.0 - alpha_k) / alpha_k
+        best_w, best_g = w_eq, g_eq
+        best_cost = np.einsum("...in,...n->...", g_eq_op**2, var)
+        best_a = np.zeros(self.batch_shape)
+        for a in _AUTO_EXPONENTS[1:]:
+            w_a = np.where(active, w ** a, 0.0)
+            op = self._operator(r, w_a)
+            b = np.einsum("...in,...n->...i", op, np.where(active, self._kappa, 0.0))
+            var_b = np.einsum("...in,...n->...", (op - g_eq_op) ** 2, var) / n_eff
+            cost = np.einsum("...in,...n->...", op**2, var) + self.bias_gain * np.maximum(
+                0.0, np.einsum("...i,...i->...", b, b) - 3.0 * var_b)
+            better = cost < best_cost
+            if np.any(better):
+                g_a = np.einsum("...in,...n->...i", op, y)
+                best_w = np.where(better[..., None], w_a, best_w)
+                best_g = np.where(better[..., None], g_a, best_g)
+                best_cost = np.where(better, cost, best_cost)
+                best_a = np.where(better, a, best_a)
+        self._alpha_used = best_a
+        return best_w, best_g
+
+    @property
+    def weighting_exponent(self) -> np.ndarray:
+        """Exponent ``a`` of the weights ``var^-a`` used by the last update (0 = equal)."""
+        return self._alpha_used.copy()
+
     def _base_weights(self, warm):
         """Relative inverse-variance weights (typical sensor = 1), equal before warm-up."""
         if not warm:
@@ -385,11 +441,6 @@ class RobustGradientEstimator:
         with np.errstate(divide="ignore", invalid="ignore"):
             w = ref / np.clip(self._var, self.var_floor_rel * ref, 1e6 * ref)
         return np.where(ref > 0, w, 1.0)
-
-    def _excluded_persistent(self):
-        stuck = REASONS.index("stuck") + 1
-        biased = REASONS.index("biased") + 1
-        return (self._code == stuck) | (self._code == biased)
 
     def _admissible(self, r, base_w, drop, min_active, fallback=None):
         """Weights with ``drop`` sensors removed where that keeps ``min_active`` sensors and a
@@ -415,17 +466,10 @@ class RobustGradientEstimator:
         return w
 
     def _deleted(self, r, y, w, g, s_c, m, rbar):
-        """Leave-one-out prediction error of each sensor, its variance, and the map from
-        readings to these errors.
-
-        ``d_i = y_i - (prediction of sensor i by the fit without it)``; for a sensor in the fit
-        ``d_i = e_i / (1 - h_ii)``, for one left out ``d_i = e_i``. The prediction variance
-        ``p_i = s^2 q_i / (1 - h_ii)`` (Sherman-Morrison) with ``s^2`` the median noise variance
-        (the weights are relative to it). ``E[d_i^2] = var_i + p_i`` does not depend on sensor
-        i's own weight: no feedback. ``d = D^-1 (I - H) y`` with ``H`` the hat matrix and
-        ``D = diag(1 - h)``; that matrix is returned for the bias test. A sensor whose
-        prediction is undetermined (``h_ii = 1``) gets ``d = nan``.
-        """
+        """Leave-one-out errors ``d = D^-1 (I - H) y`` (``H`` hat matrix, ``D = diag(1 - h)``; a
+        sensor out of the fit has ``d_i = e_i``; ``nan`` if undetermined), their prediction
+        variances ``p_i = s^2 q_i / (1 - h_ii)`` (Sherman-Morrison, ``s^2`` the median
+        variance) and the map ``D^-1 (I - H)`` (for the bias test)."""
         e = y - s_c[..., None] - np.einsum("...ni,...i->...n", r, g)
         wsum = w.sum(axis=-1, keepdims=True)
         rt = r - rbar[..., None, :]
@@ -442,9 +486,6 @@ class RobustGradientEstimator:
         loo = (np.eye(self.n) - hat) / omh[..., :, None]
         return d, np.where(free, s2 * q / omh, 0.0), loo
 
-    def _filled(self):
-        return min(self.updates, self.window)
-
     def _worst_spike(self, d, p, active, abs_tol):
         """Per formation, the active sensor farthest beyond ``k_mad`` robust deviations (if any)."""
         valid = active & np.isfinite(d)
@@ -459,10 +500,7 @@ class RobustGradientEstimator:
             scale = np.sqrt(self._var + p)
         dev = np.abs(np.where(valid, d, 0.0) - med)
         score = np.where(valid & (dev > abs_tol), dev / np.maximum(scale, np.finfo(float).tiny), 0.0)
-        worst = np.argmax(score, axis=-1)
-        mask = np.zeros(d.shape, dtype=bool)
-        np.put_along_axis(mask, worst[..., None], True, axis=-1)
-        return mask & (score > self.k_mad)
+        return _argmax_mask(score) & (score > self.k_mad)
 
     def _learn(self, d, p, spikes, alpha):
         slot = self.updates % self.window
@@ -483,14 +521,18 @@ class RobustGradientEstimator:
             scale = _MAD_TO_STD * np.median(dev, axis=-1, keepdims=True)
             # winsorised at 3 robust std: efficient like a mean square, robust like the MAD
             total = np.mean(np.minimum(dev, 3.0 * scale) ** 2, axis=-1) / _WINSOR3
-        self._var = np.maximum(total - pbar, 0.05 * total)
+        raw = np.maximum(total - pbar, 0.05 * total)
+        # shrink towards the median sensor (as if it had _PRIOR_UPDATES extra readings): a 5x
+        # sensor stays ~5x, while chance differences between healthy sensors shrink
+        med = np.median(raw, axis=-1, keepdims=True)
+        self._var = (k * raw + _PRIOR_UPDATES * med) / (k + _PRIOR_UPDATES)
         self._spike_ewma += alpha * (spikes - self._spike_ewma)
         self._spike_counts += spikes
 
     def _classify(self):
         code = np.zeros(self._code.shape, dtype=np.int8)
         n = self.n
-        k = self._filled()
+        k = min(self.updates, self.window)
         # stuck: readings stop changing while the others' change
         d2 = self._diff2
         others = np.stack([np.median(np.delete(d2, i, axis=-1), axis=-1) for i in range(n)], axis=-1)
@@ -504,16 +546,10 @@ class RobustGradientEstimator:
         self._code = code
 
     def _biased(self, k):
-        """One sensor whose bias explains the persistent prediction errors of all of them.
-
-        A bias ``b`` on sensor i shifts the prediction errors by ``b * c_i`` with ``c_i`` the
-        i-th column of the leave-one-out map (it leaks into the other sensors' predictions).
-        For each candidate, ``b_i`` is the weighted least-squares fit of the windowed median
-        errors by ``c_i``; the best candidate is biased if it explains at least
-        ``bias_explained`` of their weighted energy and ``|b_i|`` exceeds ``k_bias``
-        standard errors and ``bias_min_std`` standard deviations. A sensor already excluded as
-        biased stays so while its own median error stays significant.
-        """
+        """A bias ``b_i`` on sensor i moves the median errors by ``b_i c_i`` (``c_i``: column i
+        of the leave-one-out map). Best candidate: the largest explained fraction of their
+        weighted energy (>= ``bias_explained``) with ``|b_i|`` significant; a sensor already
+        excluded as biased stays so while its own median error stays significant."""
         std_d = np.sqrt(self._var + self._p_buf[..., :k].mean(axis=-1))
         se = 1.2533 * std_d / np.sqrt(k)
         med = self._med_d
@@ -526,10 +562,7 @@ class RobustGradientEstimator:
         explained = b**2 * den / np.maximum(energy, np.finfo(float).tiny)
         significant = (np.abs(b) > self.k_bias * se) & (np.abs(b) > self.bias_min_std * std_d)
         score = np.where(significant, explained, 0.0)
-        best = np.argmax(score, axis=-1)
-        mask = np.zeros(med.shape, dtype=bool)
-        np.put_along_axis(mask, best[..., None], True, axis=-1)
-        new = mask & (score >= self.bias_explained)
+        new = _argmax_mask(score) & (score >= self.bias_explained)
         stay = (self._code == REASONS.index("biased") + 1) & (np.abs(med) > self.k_bias * se) \
             & (np.abs(med) > self.bias_min_std * std_d)
         return new | stay

@@ -17,6 +17,7 @@ from .fast_cvt import CVTResult
 from .lloyd_mesh import MeshLloydResult, fibonacci_sphere, lloyd_mesh, lloyd_mesh_result
 from .metrics import FormationMetrics, metrics
 from .spherical_cells import (
+    GeneratorError,
     SphericalCells,
     cell_areas,
     constrained_centroids,
@@ -37,6 +38,7 @@ __all__ = [
     "cvt_from",
     "random_sphere_points",
     "CVTResult",
+    "GeneratorError",
     "SphericalCells",
     "spherical_cells",
     "cell_areas",

@@ -32,6 +32,7 @@ from scipy.spatial import ConvexHull, QhullError
 from .metrics import as_offsets
 
 __all__ = [
+    "GeneratorError",
     "SphericalCells",
     "spherical_cells",
     "cell_areas",
@@ -103,7 +104,12 @@ def normalise_points(points, *, min_count=4):
 
 
 def _oriented_hull(p):
-    """Delaunay facets (CCW from outside), their twin facets and Voronoi vertices."""
+    """Delaunay facets, twin facets, Voronoi vertices and orientation flags of unit points.
+
+    Returns ``tri`` (qhull's vertex order), ``nbr`` (``nbr[f, k]`` is the facet across the edge
+    opposite ``tri[f, k]``), ``w`` (unit outward normals = Voronoi vertices) and ``flip`` (true
+    where ``tri[f]`` is clockwise seen from outside).
+    """
     try:
         hull = ConvexHull(p)
     except QhullError as exc:
@@ -111,21 +117,19 @@ def _oriented_hull(p):
             "spherical Voronoi undefined: the generators are degenerate (e.g. all on one great "
             f"circle): {str(exc).splitlines()[0]}"
         ) from None
-    if len(hull.vertices) != p.shape[0]:
+    tri = hull.simplices
+    n = p.shape[0]
+    if tri.shape[0] != 2 * n - 4:  # Euler: a triangulated sphere with v vertices has 2v - 4 faces
+        used = np.count_nonzero(np.bincount(tri.ravel(), minlength=n))
         raise GeneratorError(
-            f"spherical Voronoi undefined: only {len(hull.vertices)} of {p.shape[0]} generators "
-            "are hull vertices (coincident or nearly coincident generators)"
+            f"spherical Voronoi undefined: only {used} of {n} generators are hull vertices "
+            "(coincident or nearly coincident generators)"
         )
-    tri = hull.simplices.copy()
-    nbr = hull.neighbors.copy()
-    a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
-    w = _cross(b - a, c - a)
+    a = p[tri[:, 0]]
+    w = _cross(p[tri[:, 1]] - a, p[tri[:, 2]] - a)
     flip = _dot(w, hull.equations[:, :3]) < 0.0
-    tri[flip, 1], tri[flip, 2] = tri[flip, 2], tri[flip, 1].copy()
-    nbr[flip, 1], nbr[flip, 2] = nbr[flip, 2], nbr[flip, 1].copy()
-    w[flip] = -w[flip]
-    w /= np.linalg.norm(w, axis=1)[:, None]
-    return tri, nbr, w
+    w *= (np.where(flip, -1.0, 1.0) / np.sqrt(_dot(w, w)))[:, None]
+    return tri, hull.neighbors, w, flip
 
 
 def _cross(a, b):
@@ -143,20 +147,27 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
-def _cells_unit(p):
-    """Exact cell integrals of unit generators ``p``: facets, areas, centroid integrals, energy."""
+def _cells_unit(p, with_energy=True):
+    """Exact cell integrals of unit generators ``p``: facets, areas, centroid integrals, energy.
+
+    With ``with_energy=False`` only the centroid integrals are computed (areas and energy are
+    returned as ``None``): that is all a Lloyd step needs.
+    """
     n = p.shape[0]
-    tri, nbr, w = _oriented_hull(p)
-    # Delaunay half-edge opposite corner k of facet f runs tri[f, k+1] -> tri[f, k+2]; its
-    # Voronoi edge w_f -> w_nbr[f, k] is CCW around tri[f, k+2] and CW around tri[f, k+1].
-    # Each undirected edge is visited from both facets: keep the visit with f < g.
+    tri, nbr, w, flip = _oriented_hull(p)
+    # In a counter-clockwise facet f the Delaunay half-edge opposite corner k runs
+    # tri[f, k+1] -> tri[f, k+2]; its Voronoi edge w_f -> w_nbr[f, k] is CCW around tri[f, k+2]
+    # and CW around tri[f, k+1] (roles swapped in a clockwise facet). Each undirected edge is
+    # visited from both facets: keep the visit with f < g.
     f_idx = np.repeat(np.arange(tri.shape[0]), 3)
     k_idx = np.tile(np.arange(3), tri.shape[0])
     g_idx = nbr.ravel()
     keep = f_idx < g_idx
     f_idx, k_idx, g_idx = f_idx[keep], k_idx[keep], g_idx[keep]
-    ccw_cell = tri[f_idx, (k_idx + 2) % 3]
-    cw_cell = tri[f_idx, (k_idx + 1) % 3]
+    after = tri[f_idx, (k_idx + 2) % 3]
+    before = tri[f_idx, (k_idx + 1) % 3]
+    ccw_cell = np.where(flip[f_idx], before, after)
+    cw_cell = np.where(flip[f_idx], after, before)
     a, b = w[f_idx], w[g_idx]
     cross = _cross(a, b)
     sin_ab = np.sqrt(_dot(cross, cross))
@@ -168,6 +179,8 @@ def _cells_unit(p):
     term = (0.5 * ratio)[:, None] * cross
     owner = np.concatenate([ccw_cell, cw_cell])
     cint = _accumulate(owner, np.concatenate([term, -term]), n)
+    if not with_energy:
+        return tri, None, cint, None
     # signed spherical triangles (p_v, a, b) for the CCW cell and (p_u, b, a) for the CW one
     pv, pu = p[ccw_cell], p[cw_cell]
     tri_ccw = 2.0 * np.arctan2(_dot(pv, cross), 1.0 + _dot(pv, a) + cos_ab + _dot(b, pv))
@@ -207,7 +220,10 @@ def spherical_cells(points):
     p = normalise_points(points)
     tri, areas, cint, energy = _cells_unit(p)
     cent = cint / np.linalg.norm(cint, axis=1)[:, None]
-    return SphericalCells(p, areas, cint, cent, energy, tri)
+    a = p[tri[:, 0]]
+    ccw = _dot(_cross(p[tri[:, 1]] - a, p[tri[:, 2]] - a), a) > 0.0
+    facets = np.where(ccw[:, None], tri, tri[:, [0, 2, 1]])
+    return SphericalCells(p, areas, cint, cent, energy, facets)
 
 
 def cell_areas(points):
@@ -292,7 +308,7 @@ def delaunay_neighbours(points):
         (possibly of zero length for co-circular configurations) with cell ``i``.
     """
     p = normalise_points(points)
-    tri, _, _ = _oriented_hull(p)
+    tri = _oriented_hull(p)[0]
     n = p.shape[0]
     edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     edges = np.concatenate([edges, edges[:, ::-1]])

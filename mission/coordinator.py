@@ -11,7 +11,6 @@ display). Every phase change, event and seeking iteration goes to the mission lo
 from __future__ import annotations
 
 import asyncio
-import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -163,7 +162,6 @@ class Coordinator:
         self._t_start = clock.time()
         self._t_seek_start: float | None = None
         self._t_seek_end: float | None = None
-        self._wall_start = time.monotonic()
         self._watchdog_task: asyncio.Task | None = None
         self._reengaging: set[int] = set()
         self.released: set[int] = set()
@@ -186,7 +184,8 @@ class Coordinator:
 
     def set_phase(self, name: str, **fields) -> None:
         """Enter a phase: log it, show it."""
-        assert name in PHASES, name
+        if name not in PHASES:
+            raise ValueError(f"unknown phase {name!r}; phases: {', '.join(PHASES)}")
         self.phase = name
         if self.log is not None:
             self.log.phase(name, **fields)

@@ -20,9 +20,11 @@ AUTOPILOT_VERSION uids for one id, or one id heard on two endpoints sharing a
 from __future__ import annotations
 
 import asyncio
+import struct
 from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from pymavlink.generator import mavcrc
 
 from mission.clock import wait_on_clock
 from mission.links_transport import open_transport
@@ -38,8 +40,19 @@ __all__ = [
     "DEFAULT_SERIAL_BAUD",
 ]
 
+_V2_HEADER = struct.Struct("<BBBBBBBHB")
 #: an address heard from within this many clock seconds is still "active" (duplicate detection)
 _ACTIVE_WINDOW_S = 3.0
+
+
+def _crc16(frame: bytes, crc_extra: int) -> int:
+    """MAVLink CRC of a frame without its magic byte, then ``crc_extra`` (fastcrc when available)."""
+    fast = mavcrc.mcrf4xx
+    if fast is not None:
+        return fast(bytes((crc_extra,)), fast(memoryview(frame)[1:], 0xFFFF))
+    crc = mavcrc.x25crc(frame[1:])
+    crc.accumulate(bytes((crc_extra,)))
+    return crc.crc
 
 
 class LinkError(ConnectionError):
@@ -394,6 +407,29 @@ class MavEndpoint:
         frame = msg.pack(enc)
         enc.seq = (enc.seq + 1) & 0xFF
         return self._send_frame(peer, frame, (sysid,))
+
+    def send_payload(self, sysid: int, msg_id: int, crc_extra: int, payload: bytes) -> bool:
+        """Send an already packed MAVLink 2 payload to ``sysid`` (the fast path for setpoints).
+
+        The endpoint adds the header (our system and component ids, the peer's sequence number),
+        truncates trailing zero bytes as MAVLink 2 requires and appends the CRC; the frame is
+        byte-identical to pymavlink's ``msg.pack``. ``payload`` is the message's fields in wire
+        order, e.g. ``MAVLink_set_position_target_local_ned_message.unpacker.pack(...)``.
+        Same routing, counting and logging as :meth:`send`.
+        """
+        peer = self._peer_of.get(sysid)
+        if peer is None:
+            peer = self._transport.default_peer()
+            if peer is None:
+                self.counters["unroutable"] += 1
+                return False
+        enc = self._encoder(peer)
+        seq = enc.seq
+        enc.seq = (seq + 1) & 0xFF
+        body = payload.rstrip(b"\x00") or b"\x00"
+        frame = _V2_HEADER.pack(0xFD, len(body), 0, 0, seq, self.gcs_sysid, self.gcs_compid,
+                                msg_id & 0xFFFF, msg_id >> 16) + body
+        return self._send_frame(peer, frame + _crc16(frame, crc_extra).to_bytes(2, "little"), (sysid,))
 
     def _send_frame(self, peer, frame: bytes, sysids) -> bool:
         if not self._transport.send(peer, frame):

@@ -146,9 +146,14 @@ async def preflight(co, timeout_s: float = 30.0) -> None:
             home = None
             r.checks["home"] = False
             r.problems.append(f"no home position ({exc or 'timeout'})")
+        batt_deadline = co.clock.time() + 5.0
+        while v.state.battery_remaining_pct is None and co.clock.time() < batt_deadline:
+            await co.clock.sleep(0.2)
         batt = v.state.battery_remaining_pct
-        r.checks["battery"] = batt is None or batt < 0 or batt >= plan.min_battery_pct
-        if not r.checks["battery"]:
+        r.checks["battery"] = batt is None or batt >= plan.min_battery_pct
+        if batt is None:
+            co.event(f"vehicle {sysid}: battery level not reported; not checked", level="warning")
+        elif not r.checks["battery"]:
             r.problems.append(f"battery {batt:.0f} % below {plan.min_battery_pct:.0f} %")
         st = v.state.system_status
         r.checks["armable"] = (not v.state.armed) and st in (None, _MAV_STATE_STANDBY)

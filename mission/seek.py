@@ -91,7 +91,7 @@ async def seek(co) -> tuple[str, str]:
             return all((r := co.store.latest(s)) is not None and r.time_s >= t_arrive for s in sysids)
 
         try:
-            await co.wait_until(_fresh, max(2.0, 4 * sk.reading_window_s), "fresh readings", poll_s=0.02)
+            await co.wait_until(_fresh, max(5.0, 10 * sk.reading_window_s), "fresh readings", poll_s=0.02)
         except MissionError:
             missing = [s for s in sysids if (r := co.store.latest(s)) is None or r.time_s < t_arrive]
             co.event(f"iteration {k + 1}: no fresh reading from vehicles {missing}", level="warning")

@@ -28,10 +28,11 @@ from mission.vehicle_state import result_name as _result_name
 
 __all__ = ["CommandError", "VehicleState", "VehicleLink", "DEFAULT_RATES_HZ", "command_name"]
 
-#: telemetry a mission needs, and at what rate (Hz); 0 stops what it does not need (CPU at N = 100+).
-#: See :meth:`VehicleLink.set_message_rates`.
+#: Telemetry a mission needs, and at what rate (Hz); 0 stops what it does not need (CPU at N = 100+).
+#: The position comes from LOCAL_POSITION_NED (5 Hz, which also updates ``relative_alt_m``);
+#: GLOBAL_POSITION_INT (lat, lon, alt) at 1 Hz. See :meth:`VehicleLink.set_message_rates`.
 DEFAULT_RATES_HZ: dict[str, float] = {
-    "GLOBAL_POSITION_INT": 5.0, "LOCAL_POSITION_NED": 5.0, "SYS_STATUS": 1.0,
+    "LOCAL_POSITION_NED": 5.0, "GLOBAL_POSITION_INT": 1.0, "SYS_STATUS": 1.0,
     "EXTENDED_SYS_STATE": 1.0, "HOME_POSITION": 0.5, "GPS_RAW_INT": 1.0,
     "ATTITUDE": 0.0, "BATTERY_STATUS": 0.0, "POSITION_TARGET_LOCAL_NED": 0.0,
     "POSITION_TARGET_GLOBAL_INT": 0.0,
@@ -43,6 +44,7 @@ _IN_PROGRESS = _M.MAV_RESULT_IN_PROGRESS
 _MASK_POSITION = 0x1F8 | 0x800          # ignore velocity, acceleration, yaw rate
 _MASK_NO_YAW = _MASK_POSITION | 0x400
 _HOLD_RATE_HZ = 10.0
+_SP_LOCAL = _M.MAVLink_set_position_target_local_ned_message
 
 
 class VehicleLink(VehicleTelemetry):
@@ -418,16 +420,17 @@ class VehicleLink(VehicleTelemetry):
                 raise CommandError(f"{self._who()}: no home yet, cannot place a LOCAL_NED setpoint "
                                    f"(call wait_home first)", sysid=self.sysid)
             n, e, d = fmap.mission_enu_to_local_ned(float(east_m), float(north_m), float(up_m))
-            msg = _M.MAVLink_set_position_target_local_ned_message(
-                t_ms, self.sysid, self.compid, _M.MAV_FRAME_LOCAL_NED, mask, n, e, d,
-                0, 0, 0, 0, 0, 0, yaw, 0)
+            payload = _SP_LOCAL.unpacker.pack(t_ms, n, e, d, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, yaw, 0.0, mask,
+                                              self.sysid, self.compid, _M.MAV_FRAME_LOCAL_NED)
+            sent = self.endpoint.send_payload(self.sysid, _SP_LOCAL.id, _SP_LOCAL.crc_extra, payload)
         else:
             lat, lon, alt = enu_to_geodetic([float(east_m), float(north_m), float(up_m)], self.mission_origin)
             msg = _M.MAVLink_set_position_target_global_int_message(
                 t_ms, self.sysid, self.compid, _M.MAV_FRAME_GLOBAL_INT, mask,
                 int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)), float(alt),
                 0, 0, 0, 0, 0, 0, yaw, 0)
-        if self.endpoint.send(self.sysid, msg):
+            sent = self.endpoint.send(self.sysid, msg)
+        if sent:
             self.setpoints_sent += 1
 
     async def close(self) -> None:

@@ -47,12 +47,17 @@ class FakeAutopilot:
     in_progress : set of int, optional
         Commands first answered IN_PROGRESS, then (on the next telemetry tick) the final result.
     record_setpoints : bool
-        Keep ``(perf_counter_s, msg)`` of every setpoint in :attr:`setpoints`.
+        Keep every setpoint in :attr:`setpoints` and its arrival ``time.perf_counter()`` in
+        :attr:`setpoint_times`.
+    compid : int
+        Autopilot component id.
+    position_rate_hz : float
+        Initial rate of GLOBAL_POSITION_INT and LOCAL_POSITION_NED (SET_MESSAGE_INTERVAL changes it).
     """
 
     def __init__(self, sysid: int, *, flavour: str = "ardupilot", uid: int | None = None,
                  home=(45.0, 5.0, 200.0), drop_first=None, results=None, in_progress=None,
-                 record_setpoints: bool = True, compid: int = 1) -> None:
+                 record_setpoints: bool = True, compid: int = 1, position_rate_hz: float = 5.0) -> None:
         self.sysid = int(sysid)
         self.flavour = flavour
         self.uid = int(uid) if uid is not None else 0xFA4E0000 + self.sysid
@@ -70,6 +75,9 @@ class FakeAutopilot:
         self.setpoint_count = 0
         self.setpoint_times: list[float] = []
         self.gcs_heartbeats = 0
+        self.rates_hz = {_M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: float(position_rate_hz),
+                         _M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: float(position_rate_hz)}
+        self._global_cache = (None, None)
         self._pending_final: list = []
 
     def encode(self, msg) -> bytes:
@@ -85,16 +93,25 @@ class FakeAutopilot:
         return _M.MAVLink_heartbeat_message(_M.MAV_TYPE_QUADROTOR, autopilot, base, self.custom_mode,
                                             _M.MAV_STATE_ACTIVE if self.armed else _M.MAV_STATE_STANDBY, 3)
 
-    def telemetry(self) -> list:
-        """Position messages (and any deferred final ACKs)."""
-        n, e, d = self.position_ned_m
-        lat, lon, alt = enu_to_geodetic(ned_to_enu([n, e, d]), self.home)
+    def telemetry(self, tick: int = 0, tick_hz: float = 5.0) -> list:
+        """Messages due at ``tick`` of a ``tick_hz`` clock: position messages at their rates
+        (:attr:`rates_hz`, changed by SET_MESSAGE_INTERVAL) and any deferred final ACKs."""
         out = self._pending_final
         self._pending_final = []
-        out.append(_M.MAVLink_global_position_int_message(
-            0, int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)), int(round(float(alt) * 1e3)),
-            int(round(-d * 1e3)), 0, 0, 0, 0))
-        out.append(_M.MAVLink_local_position_ned_message(0, n, e, d, 0.0, 0.0, 0.0))
+        n, e, d = self.position_ned_m
+        for msg_id, rate_hz in self.rates_hz.items():
+            if rate_hz <= 0 or (tick + self.sysid) % max(1, round(tick_hz / rate_hz)):
+                continue
+            if msg_id == _M.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+                out.append(_M.MAVLink_local_position_ned_message(0, n, e, d, 0.0, 0.0, 0.0))
+            else:
+                if self._global_cache[0] != self.position_ned_m:
+                    lat, lon, alt = enu_to_geodetic(ned_to_enu([n, e, d]), self.home)
+                    self._global_cache = (self.position_ned_m, (
+                        int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)), int(round(float(alt) * 1e3))))
+                lat_e7, lon_e7, alt_mm = self._global_cache[1]
+                out.append(_M.MAVLink_global_position_int_message(0, lat_e7, lon_e7, alt_mm, int(round(-d * 1e3)),
+                                                                  0, 0, 0, 0))
         return out
 
     def slow_telemetry(self) -> list:
@@ -161,6 +178,8 @@ class FakeAutopilot:
         elif command == _M.MAV_CMD_NAV_TAKEOFF:
             n, e, _ = self.position_ned_m
             self.position_ned_m = (n, e, -float(msg.param7))
+        elif command == _M.MAV_CMD_SET_MESSAGE_INTERVAL and int(msg.param1) in self.rates_hz:
+            self.rates_hz[int(msg.param1)] = 1e6 / msg.param2 if msg.param2 > 0 else 0.0
         elif command == _M.MAV_CMD_REQUEST_MESSAGE:
             if int(msg.param1) == _M.MAVLINK_MSG_ID_HOME_POSITION:
                 return [self.home_position()]
@@ -181,7 +200,8 @@ class FakeUdpVehicle(asyncio.DatagramProtocol):
     gcs_address : tuple
         ``(host, port)`` of the ground station's ``udpin`` socket.
     telemetry_hz : float
-        Position telemetry rate; HEARTBEAT/SYS_STATUS/EXTENDED_SYS_STATE go at 1 Hz.
+        Telemetry tick rate (the highest position rate possible); HEARTBEAT, SYS_STATUS and
+        EXTENDED_SYS_STATE go at 1 Hz.
     """
 
     def __init__(self, autopilots, gcs_address, telemetry_hz: float = 5.0) -> None:
@@ -238,13 +258,18 @@ class FakeUdpVehicle(asyncio.DatagramProtocol):
     async def _telemetry_loop(self) -> None:
         tick = 0
         per_second = max(1, int(round(self.telemetry_hz)))
+        # spread the vehicles' telemetry over the tick so N fakes in one process do not burst together
+        await asyncio.sleep((self.autopilots[0].sysid * 0.0173) % (1.0 / self.telemetry_hz))
+        loop = asyncio.get_running_loop()
+        next_t = loop.time()
         while True:
             for ap in self.autopilots:
-                if tick % per_second == 0:
+                if (tick + ap.sysid) % per_second == 0:
                     self.send_all(ap, ap.slow_telemetry())
-                self.send_all(ap, ap.telemetry())
+                self.send_all(ap, ap.telemetry(tick, self.telemetry_hz))
             tick += 1
-            await asyncio.sleep(1.0 / self.telemetry_hz)
+            next_t += 1.0 / self.telemetry_hz
+            await asyncio.sleep(max(0.0, next_t - loop.time()))
 
     async def stop(self) -> None:
         """Stop telemetry and close the socket."""

@@ -159,6 +159,8 @@ class VehicleTelemetry:
         st = self.state
         st.position_ned_m = np.array([msg.x, msg.y, msg.z])
         st.velocity_ned_m_s = np.array([msg.vx, msg.vy, msg.vz])
+        if st.home is not None:   # kept current between (slower) GLOBAL_POSITION_INT messages
+            st.relative_alt_m = self._home_local[2] - msg.z
         self._local_s = self.clock.time()
         self._position_update()
 

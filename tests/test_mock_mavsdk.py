@@ -75,3 +75,35 @@ def test_mavsdk_px4_connect_telemetry_arm_takeoff_offboard():
         finally:
             sdk.destroy()
     assert fleet.errors == []
+
+
+@pytest.mark.slow
+def test_mavsdk_ardupilot_connect_arm_takeoff_goto_land():
+    send_port, bind_port = _free_udp_port(), _free_udp_port()
+    fleet = MockFleet(1, personality="ardupilot", speedup=2.0, udp_base_port=send_port,
+                      udp_bind_base_port=bind_port, tcp_base_port=0)
+    with fleet:
+        vehicle = fleet.vehicles[0]
+        sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        try:
+            assert sdk.add_any_connection(f"udpin://127.0.0.1:{send_port}") == ConnectionResult.SUCCESS
+            system = sdk.first_autopilot(15.0)
+            assert system is not None
+            telemetry, action = Telemetry(system), Action(system)
+            _wait(lambda: telemetry.health().is_global_position_ok
+                  and telemetry.health().is_home_position_ok, 20.0, "health ok")
+            action.set_takeoff_altitude(6.0)
+            action.arm()
+            _wait(telemetry.armed, 10.0, "armed")
+            action.takeoff()  # MAVSDK switches ArduCopter to GUIDED, then NAV_TAKEOFF
+            _wait(lambda: telemetry.position().relative_altitude_m > 5.5, 20.0, "takeoff to 6 m")
+            assert vehicle.mode_name == "GUIDED"
+            p = telemetry.position()
+            action.goto_location(p.latitude_deg + 5e-5, p.longitude_deg, p.absolute_altitude_m, 0.0)
+            _wait(lambda: vehicle.true_position_ned()[0] > 5.0, 20.0, "goto to move north")
+            action.land()
+            _wait(lambda: not telemetry.armed(), 40.0, "landing and disarm")
+            assert vehicle.mode_name == "LAND" and vehicle.dynamics.landed
+        finally:
+            sdk.destroy()
+    assert fleet.errors == []

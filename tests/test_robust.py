@@ -48,6 +48,11 @@ def test_fit_is_exact_on_linear_fields_for_any_weights_and_subset(seed, drop):
     values = 3.0 + off @ grad
     w = rng.uniform(0.01, 10, N)
     w[rng.choice(N, drop, replace=False)] = 0.0
+    kept = off[w > 0] - off[w > 0].mean(axis=0)
+    if np.linalg.cond(kept.T @ kept) > 1e3:  # e.g. 4 coplanar sensors left: refused, not guessed
+        with pytest.raises(GeometryError, match="degenerate"):
+            weighted_gradient(off, values, w)
+        return
     assert np.allclose(weighted_gradient(off, values, w), grad, atol=1e-9)
 
 
@@ -182,7 +187,8 @@ def test_batch_matches_independent_estimators():
 
 @pytest.mark.parametrize(
     "kwargs, match",
-    [({"n": 3}, "n must be an integer >= 4"), ({"window": 2}, "window"), ({"centre": "x"}, "centre mode"),
+    [({"n": 3}, "n must be an integer >= 4"), ({"window": 2}, "window"), ({"centre": "x"}, "unknown centre mode"), ({"weighting": "x"}, "unknown weighting mode"),
+     ({"bias_gain": -1.0}, "bias_gain"),
      ({"min_sensors": 3}, "min_sensors"), ({"k_mad": 0.0}, "k_mad")],
 )
 def test_estimator_rejects_bad_parameters(kwargs, match):
