@@ -12,7 +12,8 @@ Prints:
    n = 200 under 0.3 s, n = 1000 under 3 s);
 2. the paper's mesh Lloyd vs the exact CVT (energy gap);
 3. asynchronous distributed Lloyd vs central Lloyd (energy);
-4. Table I (d_min) and the footnote figures (r_bar, ||M_alpha||, ||(N D^2/3) M^-1||), N = 4..30.
+4. Table I (d_min) and the footnote figures (r_bar, ||M_alpha||, ||(N D^2/3) M^-1||), N = 4..30;
+5. reconfiguration after a loss: travel with/without warm start and rotation.
 
 Wall times depend on the machine's load (other jobs): the CPU (process) time is printed beside
 them; for the fast solver the best of ``--repeat`` runs is shown.
@@ -28,6 +29,7 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 from formation import (  # noqa: E402
+    assign_slots,
     cvt_energy,
     cvt_from,
     cvt_sphere_result,
@@ -35,6 +37,7 @@ from formation import (  # noqa: E402
     lloyd_mesh_result,
     metrics,
     random_sphere_points,
+    reconfigure,
     symmetric_cylinder,
     symmetric_cylinder_dmin,
 )
@@ -91,13 +94,38 @@ def bench_mesh(cases):
 def bench_distributed(sizes):
     print("== 3. asynchronous distributed Lloyd vs central Lloyd (same start, tol 1e-10) ==")
     print(f"{'n':>4} {'rounds':>7} {'updates':>8} {'wall_s':>7} {'E_distributed':>20} "
-          f"{'E_central':>20} {'rel_dE':>10}")
+          f"{'E_central':>20} {'rel_dE':>10} {'central_move':>13}")
     for n in sizes:
         start = random_sphere_points(n, 0)
         dist, wall, _ = _timed(distributed_lloyd, start, seed=1, tol=1e-10)
         central = cvt_from(start, method="lloyd")
+        move = cvt_from(dist.points, method="lloyd", max_iter=1).max_move
         print(f"{n:>4} {dist.rounds:>7} {dist.updates:>8} {wall:7.2f} {dist.energy:20.15f} "
-              f"{central.energy:20.15f} {dist.energy / central.energy - 1:10.2e}")
+              f"{central.energy:20.15f} {dist.energy / central.energy - 1:10.2e} {move:13.2e}")
+    print("(central_move: how far one central exact Lloyd step moves the distributed result,\n"
+          " i.e. it is a CVT of the whole sphere; rel_dE != 0: another local minimum.)\n")
+
+
+def bench_reconfigure(sizes, radius_m=4.0):
+    print(f"== 5. reconfiguration after losing vehicle 0 (CVT formation, D = {radius_m} m) ==")
+    print(f"{'n':>4} {'variant':>28} {'wall_s':>7} {'max_travel_m':>13} {'rms_travel_m':>13} "
+          f"{'sum_sq_m2':>10}")
+    for n in sizes:
+        current = cvt_sphere_result(n, seed=0).points * radius_m
+        rec, wall, _ = _timed(reconfigure, current, 0, radius_m)
+        xs = current[rec.survivors]
+        fresh = cvt_sphere_result(n - 1, seed=0).points * radius_m
+        rows = [("warm start + rotation", wall, rec.slots[rec.assignment] - xs)]
+        perm, _ = assign_slots(xs, rec.cvt.points * radius_m)
+        rows.append(("warm start, no rotation", wall, rec.cvt.points[perm] * radius_m - xs))
+        perm, _ = assign_slots(xs, fresh)
+        rows.append(("fresh CVT seed 0, no rotation", float("nan"), fresh[perm] - xs))
+        perm, rot = assign_slots(xs, fresh, allow_rotation=True)
+        rows.append(("fresh CVT seed 0 + rotation", float("nan"), rot[perm] - xs))
+        for name, w, d in rows:
+            t = (d**2).sum(1) ** 0.5
+            print(f"{n:>4} {name:>28} {w:7.3f} {t.max():13.3f} {(t**2).mean() ** 0.5:13.3f} "
+                  f"{(t**2).sum():10.3f}")
     print()
 
 
@@ -131,7 +159,7 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="skip plain Lloyd for n > 500")
     parser.add_argument("--repeat", type=int, default=3, help="runs of the fast solver (best)")
     parser.add_argument("--starts", type=int, default=10, help="seeds tried for section 4")
-    parser.add_argument("--sections", default="1234", help="which sections to run, e.g. 14")
+    parser.add_argument("--sections", default="12345", help="which sections to run, e.g. 14")
     args = parser.parse_args(argv)
     if "1" in args.sections:
         bench_solvers((50, 200, 500, 1000), args.repeat, 500 if args.quick else 10**9)
@@ -142,6 +170,8 @@ def main(argv=None):
         bench_distributed((8, 12, 20, 30))
     if "4" in args.sections:
         paper_figures(args.starts)
+    if "5" in args.sections:
+        bench_reconfigure((6, 8, 12, 30, 100))
     return 0
 
 

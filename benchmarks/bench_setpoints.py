@@ -15,9 +15,14 @@ For every N and every stack, three processes:
 
 Stacks:
 
+* ``bare-pymavlink``: the floor: one non-blocking socket, pymavlink ``pack`` + ``sendto`` for
+  every vehicle at 20 Hz, nothing received or parsed (the issue's "bare pymavlink sending alone");
 * ``swarmseek``: ``mission.links`` + ``mission.vehicle`` + ``mission.streamer``, one ``udpin``
   endpoint per vehicle (PX4 SITL style ports);
-* ``swarmseek-shared``: the same with every vehicle on one shared UDP port (demultiplexed by sysid);
+* ``swarmseek-polled``: the same with a shared ``UdpPoller`` (sockets drained every 10 ms by one
+  task instead of one event-loop wake-up per datagram);
+* ``swarmseek-shared`` (``-shared-polled``): every vehicle on one shared UDP port (demultiplexed
+  by sysid), without (with) the poller;
 * ``mavsdk``: MAVSDK 4.x (``mavsdk.asyncio``), one Mavsdk instance with one connection per vehicle,
   ``Offboard.set_position_ned`` once per vehicle then ``Offboard.start`` (MAVSDK then streams it
   at its fixed 20 Hz from its own threads, MAVSDK's cheapest way to stream; ``--rate`` does not
@@ -51,7 +56,8 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-STACKS = ("swarmseek", "swarmseek-shared", "mavsdk", "mavsdk-shared")
+STACKS = ("bare-pymavlink", "swarmseek", "swarmseek-polled", "swarmseek-shared", "swarmseek-shared-polled",
+          "mavsdk", "mavsdk-shared")
 ORIGIN = (45.19, 5.72, 230.0)
 
 
@@ -127,7 +133,8 @@ async def _vehicles_main(n: int, port_base: int, shared: bool) -> None:
 
 
 # ------------------------------------------------------------------------------ coordinator
-async def run_swarmseek(n: int, port_base: int, shared: bool, rate_hz: float, window_cb, extra_load=None) -> dict:
+async def run_swarmseek(n: int, port_base: int, shared: bool, rate_hz: float, window_cb, extra_load=None,
+                        polled: bool = False) -> dict:
     """Connect ``n`` vehicles with mission.links/vehicle and stream setpoints at ``rate_hz``.
 
     ``window_cb`` is an async callable run while streaming (it opens and closes the measurement
@@ -135,19 +142,23 @@ async def run_swarmseek(n: int, port_base: int, shared: bool, rate_hz: float, wi
     """
     from mission.clock import WallClock
     from mission.links import MavEndpoint
+    from mission.links_poller import UdpPoller
     from mission.streamer import SetpointStreamer
-    from mission.vehicle import VehicleLink
+    from mission.vehicle import DEFAULT_RATES_HZ, VehicleLink
 
     clock = WallClock()
+    poller = UdpPoller() if polled else None
     if shared:
-        endpoints = [await MavEndpoint.open(f"udpin:127.0.0.1:{port_base}", clock=clock)]
+        endpoints = [await MavEndpoint.open(f"udpin:127.0.0.1:{port_base}", clock=clock, poller=poller)]
         ep_of = [endpoints[0]] * n
     else:
-        endpoints = [await MavEndpoint.open(f"udpin:127.0.0.1:{port_base + i}", clock=clock) for i in range(n)]
+        endpoints = [await MavEndpoint.open(f"udpin:127.0.0.1:{port_base + i}", clock=clock, poller=poller)
+                     for i in range(n)]
         ep_of = endpoints
     vehicles = list(await asyncio.gather(*(
         VehicleLink.create(ep_of[i], i + 1, clock=clock, mission_origin=ORIGIN, heartbeat_timeout_s=60.0)
         for i in range(n))))
+    await asyncio.gather(*(v.set_message_rates(DEFAULT_RATES_HZ, strict=False) for v in vehicles))
     await asyncio.gather(*(v.wait_home(60.0) for v in vehicles))
     streamer = SetpointStreamer(vehicles, rate_hz=rate_hz, clock=clock)
     rng = np.random.default_rng(0)
@@ -175,7 +186,48 @@ async def run_swarmseek(n: int, port_base: int, shared: bool, rate_hz: float, wi
     result["bad_frames"] = sum(ep.counters["bad_crc"] + ep.counters["malformed"] for ep in endpoints)
     for ep in endpoints:
         await ep.close()
+    if poller is not None:
+        await poller.close()
     return result
+
+
+async def run_bare(n: int, port_base: int, shared: bool, rate_hz: float, window_cb) -> dict:
+    """Pack and send setpoints with pymavlink from one socket; vehicle addresses learnt first."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    loop = asyncio.get_running_loop()
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", port_base))
+    sock.setblocking(False)
+    addresses: dict = {}
+    parser = mavlink.MAVLink(None)
+    deadline = time.monotonic() + 60.0
+    while len(addresses) < n and time.monotonic() < deadline:     # learn who is where, then stop reading
+        data, addr = await loop.sock_recvfrom(sock, 4096)
+        for msg in parser.parse_buffer(data) or ():
+            addresses[msg.get_srcSystem()] = addr
+    encoder = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+
+    async def stream():
+        period_s = 1.0 / rate_hz
+        next_s = time.perf_counter()
+        while True:
+            for sysid, addr in addresses.items():
+                msg = mavlink.MAVLink_set_position_target_local_ned_message(
+                    0, sysid, 1, mavlink.MAV_FRAME_LOCAL_NED, 0xDF8, 1.0, 2.0, -10.0, 0, 0, 0, 0, 0, 0, 0, 0)
+                try:
+                    sock.sendto(msg.pack(encoder), addr)
+                except BlockingIOError:
+                    pass
+            next_s += period_s
+            await asyncio.sleep(max(0.0, next_s - time.perf_counter()))
+
+    task = asyncio.ensure_future(stream())
+    try:
+        return await window_cb()
+    finally:
+        task.cancel()
+        sock.close()
 
 
 async def run_mavsdk(n: int, port_base: int, shared: bool, rate_hz: float, window_cb) -> dict:
@@ -220,15 +272,19 @@ async def _coordinator_main(stack: str, n: int, port_base: int, rate_hz: float, 
         await asyncio.sleep(warmup_s)
         print("MARK", flush=True)          # the driver forwards it to the vehicles
         assert await queue.get() == "GO"
-        wall0, cpu0 = time.perf_counter(), time.process_time()
+        wall0, cpu0, t0 = time.perf_counter(), time.process_time(), os.times()
         await asyncio.sleep(duration_s)
-        wall1, cpu1 = time.perf_counter(), time.process_time()
+        wall1, cpu1, t1 = time.perf_counter(), time.process_time(), os.times()
         print("END", flush=True)
-        return {"cpu_cores": (cpu1 - cpu0) / (wall1 - wall0), "rss_mb": _rss_mb(), "rss0_mb": rss0}
+        return {"cpu_cores": (cpu1 - cpu0) / (wall1 - wall0), "rss_mb": _rss_mb(), "rss0_mb": rss0,
+                "sys_cores": (t1.system - t0.system) / (wall1 - wall0)}
 
     shared = stack.endswith("-shared")
-    if stack.startswith("swarmseek"):
-        result = await run_swarmseek(n, port_base, shared, rate_hz, window)
+    if stack == "bare-pymavlink":
+        result = await run_bare(n, port_base, True, rate_hz, window)
+    elif stack.startswith("swarmseek"):
+        result = await run_swarmseek(n, port_base, "-shared" in stack, rate_hz, window,
+                                     polled=stack.endswith("-polled"))
     else:
         result = await run_mavsdk(n, port_base, shared, rate_hz, window)
     print("RESULT " + json.dumps(result), flush=True)
@@ -265,7 +321,7 @@ def _expect(proc, prefix: str, timeout_s: float) -> str:
 def run_case(stack: str, n: int, rate_hz: float, duration_s: float, warmup_s: float) -> dict:
     """One benchmark case in fresh processes; returns the combined measurements."""
     port_base = _free_port_base(n + 1)
-    shared = stack.endswith("-shared")
+    shared = "-shared" in stack or stack == "bare-pymavlink"
     vehicles = _spawn(["--role", "vehicles", "--n", str(n), "--port-base", str(port_base)]
                       + (["--shared"] if shared else []))
     coordinator = None
@@ -305,21 +361,21 @@ def run_case(stack: str, n: int, rate_hz: float, duration_s: float, warmup_s: fl
         "p99_ms_median": 1e3 * float(np.median(p99)) if p99 else float("nan"),
         "p99_ms_worst": 1e3 * float(np.max(p99)) if p99 else float("nan"),
         "starved": sum(1 for v in per if v["count"] == 0),
-        "cpu_cores": coord["cpu_cores"], "rss_mb": coord["rss_mb"],
+        "cpu_cores": coord["cpu_cores"], "sys_cores": coord["sys_cores"], "rss_mb": coord["rss_mb"],
     }
 
 
 def _table(rows: list[dict]) -> str:
-    head = (f"{'stack':<17}{'N':>5}{'rate Hz':>9}{'min Hz':>8}{'p50 ms':>8}{'p99 ms':>8}{'worst p99':>10}"
-            f"{'starved':>8}{'CPU cores':>10}{'RSS MB':>8}")
+    head = (f"{'stack':<24}{'N':>5}{'rate Hz':>9}{'min Hz':>8}{'p50 ms':>8}{'p99 ms':>8}{'worst p99':>10}"
+            f"{'starved':>8}{'CPU cores':>10}{'(kernel)':>9}{'RSS MB':>8}")
     lines = [head, "-" * len(head)]
     for r in rows:
         if "error" in r:
-            lines.append(f"{r['stack']:<17}{r['n']:>5}  FAILED: {r['error']}")
+            lines.append(f"{r['stack']:<24}{r['n']:>5}  FAILED: {r['error']}")
             continue
-        lines.append(f"{r['stack']:<17}{r['n']:>5}{r['rate_hz_mean']:>9.2f}{r['rate_hz_min']:>8.2f}"
+        lines.append(f"{r['stack']:<24}{r['n']:>5}{r['rate_hz_mean']:>9.2f}{r['rate_hz_min']:>8.2f}"
                      f"{r['p50_ms_median']:>8.1f}{r['p99_ms_median']:>8.1f}{r['p99_ms_worst']:>10.1f}"
-                     f"{r['starved']:>8d}{r['cpu_cores']:>10.3f}{r['rss_mb']:>8.0f}")
+                     f"{r['starved']:>8d}{r['cpu_cores']:>10.3f}{r['sys_cores']:>9.3f}{r['rss_mb']:>8.0f}")
     return "\n".join(lines)
 
 

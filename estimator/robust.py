@@ -57,6 +57,10 @@ _AUTO_EXPONENTS = (0.0, 0.5, 1.0)
 #: suspect reasons, in order of precedence (a sensor is reported once, for the first that applies)
 REASONS = ("stuck", "biased", "spiking", "noisy")
 _MAD_TO_STD = 1.4826
+#: the curvature residual kappa is averaged over this many windows
+_KAPPA_WINDOWS = 4
+#: |b|^2 must exceed this many times its noise-only expectation to count as a curvature bias
+_BIAS_SIGNIFICANCE = 9.0
 #: strength (in updates) of the shrinkage of each sensor's variance towards the median
 _PRIOR_UPDATES = 25
 #: E[min(X^2, 9)] for a standard normal X (winsorising at 3 standard deviations)
@@ -217,7 +221,7 @@ class RobustGradientEstimator:
     def __init__(self, n: int, window: int = 100, batch_shape: tuple[int, ...] = (), centre: str = "fit",
                  min_sensors: int = 4, warmup: int | None = None, var_floor_rel: float = 0.25,
                  k_mad: float = 5.0, k_bias: float = 6.0, bias_explained: float = 0.6, bias_min_std: float = 1.5,
-                 k_noisy: float = 2.0, stuck_ratio: float = 1e-6, spike_rate: float = 0.05,
+                 k_noisy: float = 2.0, stuck_ratio: float = 1e-6, spike_rate: float = 0.02,
                  max_condition: float = DEFAULT_MAX_CONDITION, weighting: str = "auto",
                  bias_gain: float = 500.0):
         if not isinstance(n, (int, np.integer)) or n < 4:
@@ -246,17 +250,12 @@ class RobustGradientEstimator:
         self.warmup = int(max(10, self.window // 5) if warmup is None else warmup)
         if not 2 <= self.warmup <= self.window:
             raise ValueError(f"warmup must be in [2, window={self.window}], got {warmup!r}")
-        self.var_floor_rel = float(var_floor_rel)
-        self.k_mad = float(k_mad)
-        self.k_bias = float(k_bias)
-        self.bias_explained = float(bias_explained)
-        self.bias_min_std = float(bias_min_std)
-        self.k_noisy = float(k_noisy)
-        self.stuck_ratio = float(stuck_ratio)
-        self.spike_rate = float(spike_rate)
-        self.max_condition = float(max_condition)
+        thresholds = dict(var_floor_rel=var_floor_rel, k_mad=k_mad, k_bias=k_bias, bias_explained=bias_explained,
+                          bias_min_std=bias_min_std, k_noisy=k_noisy, stuck_ratio=stuck_ratio,
+                          spike_rate=spike_rate, max_condition=max_condition, bias_gain=bias_gain)
+        for name, val in thresholds.items():
+            setattr(self, name, float(val))
         self.weighting = weighting
-        self.bias_gain = float(bias_gain)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -367,6 +366,8 @@ class RobustGradientEstimator:
             w = w2
         if self.weighting != "inverse_variance" and warm:
             w, g = self._choose_weights(r, y, w)
+        else:
+            self._alpha_used = np.full(self.batch_shape, 1.0 if warm else 0.0)
         # commit the new state only now that the update cannot fail any more
         if self.updates > 0:
             self._diff2 += alpha * ((y - self._last_y) ** 2 - self._diff2)
@@ -392,8 +393,9 @@ class RobustGradientEstimator:
         ``kappa`` is the persistent residual of the equal-weight fit (the part of the field the
         linear model misses: curvature). Weights ``w`` move the estimate by ``b = G_w kappa``
         (a bias) and change its noise variance ``v_w = sum_i |G_w[:, i]|^2 var_i``. Predicted
-        error: ``v_w + bias_gain * max(0, |b|^2 - 3 var(b))`` where ``var(b)`` is the part of
-        ``|b|^2`` due to the noise in ``kappa`` itself.
+        error: ``v_w + bias_gain * max(0, |b|^2 - 9 var(b))`` where ``var(b)`` is the part of
+        ``|b|^2`` due to the noise in ``kappa`` itself (an exponential mean over
+        ``4 * window`` updates).
         """
         active = w > 0
         w_eq = active.astype(float)
@@ -401,7 +403,7 @@ class RobustGradientEstimator:
         # residual of the equal-weight fit (intercept included)
         g_eq, s_eq, _, _ = _solve_weighted(r, y, w_eq, self.centre)
         e_eq = y - s_eq[..., None] - np.einsum("...ni,...i->...n", r, g_eq)
-        alpha_k = 1.0 / self.window
+        alpha_k = 1.0 / (_KAPPA_WINDOWS * self.window)
         self._kappa = np.where(active, self._kappa + alpha_k * (e_eq - self._kappa), self._kappa)
         if self.weighting == "equal":
             self._alpha_used = np.zeros(self.batch_shape)
@@ -417,7 +419,7 @@ class RobustGradientEstimator:
             b = np.einsum("...in,...n->...i", op, np.where(active, self._kappa, 0.0))
             var_b = np.einsum("...in,...n->...", (op - g_eq_op) ** 2, var) / n_eff
             cost = np.einsum("...in,...n->...", op**2, var) + self.bias_gain * np.maximum(
-                0.0, np.einsum("...i,...i->...", b, b) - 3.0 * var_b)
+                0.0, np.einsum("...i,...i->...", b, b) - _BIAS_SIGNIFICANCE * var_b)
             better = cost < best_cost
             if np.any(better):
                 g_a = np.einsum("...in,...n->...i", op, y)

@@ -116,8 +116,14 @@ def assign_slots(current_positions, slots, allow_rotation=False, centre=None, ma
     if x.shape[0] > s.shape[0]:
         raise ValueError(f"more vehicles ({x.shape[0]}) than slots ({s.shape[0]})")
     c = np.zeros(3) if centre is None else as_offsets(np.reshape(centre, (1, 3)), name="centre")[0]
-    if isinstance(max_alternations, bool) or not isinstance(max_alternations, numbers.Integral):
-        raise ValueError(f"max_alternations must be a non-negative integer, got {max_alternations!r}")
+    if (
+        isinstance(max_alternations, bool)
+        or not isinstance(max_alternations, numbers.Integral)
+        or max_alternations < 0
+    ):
+        raise ValueError(
+            f"max_alternations must be a non-negative integer, got {max_alternations!r}"
+        )
     if not allow_rotation:
         perm, _ = _assign(x, s)
         return perm, s

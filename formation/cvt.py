@@ -11,7 +11,7 @@ import numbers
 
 import numpy as np
 
-from .fast_cvt import METHODS, CVTResult, solve_cvt
+from .fast_cvt import METHODS, solve_cvt
 from .spherical_cells import normalise_points
 
 __all__ = ["cvt_sphere", "cvt_sphere_result", "cvt_from", "random_sphere_points"]
@@ -23,7 +23,9 @@ def _check_n(n):
     if isinstance(n, bool) or not isinstance(n, numbers.Integral):
         raise ValueError(f"n must be an integer number of robots, got {n!r}")
     if n < 4:
-        raise ValueError(f"a CVT formation needs n >= 4 robots (a non-degenerate 3D spread), got n={n}")
+        raise ValueError(
+            f"a CVT formation needs n >= 4 robots (a non-degenerate 3D spread), got n={n}"
+        )
     return int(n)
 
 

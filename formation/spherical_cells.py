@@ -8,8 +8,11 @@ which runs counter-clockwise (seen from outside) around cell ``v``. Two closed f
 edges give everything exactly (to rounding):
 
 * the vector area integral of a spherical polygon with counter-clockwise geodesic edges
-  ``(a_k, b_k)``: ``int_P u dA = 1/2 sum_k angle(a_k, b_k) * unit(a_k x b_k)`` (Stokes: the
-  surface divergence of the tangential field gives ``2 u``; checked numerically in the tests);
+  ``(a_k, b_k)``: ``int_P u dA = 1/2 sum_k angle(a_k, b_k) * unit(a_k x b_k)``. Proof: for any
+  constant ``e``, Stokes with ``curl(e x x) = 2 e`` and normal ``u`` gives
+  ``e . int_P u dA = 1/2 oint (e x u) . du = e . 1/2 oint u x du``, and along a geodesic arc
+  ``u x du/ds`` is the arc's constant unit pole ``unit(a x b)``. Checked in the tests against a
+  400 000-point quadrature and ``SphericalVoronoi`` areas;
 * the area of the cell as the sum of the signed spherical triangles ``(p_v, w_f, w_g)``
   (Van Oosterom-Strackee: ``tan(A/2) = det[p a b] / (1 + p.a + a.b + b.p)``).
 
@@ -191,12 +194,11 @@ def _cells_unit(p, with_energy=True):
 
 
 def _accumulate(owner, values, n):
+    """Sum rows of ``values`` (``(m,)`` or ``(m, 3)``) per owner index into ``n`` bins."""
     if values.ndim == 1:
         return np.bincount(owner, weights=values, minlength=n)
-    return np.stack(
-        [np.bincount(owner, weights=values[:, k], minlength=n) for k in range(values.shape[1])],
-        axis=1,
-    )
+    flat = (3 * owner[:, None] + np.arange(3)).ravel()
+    return np.bincount(flat, weights=values.ravel(), minlength=3 * n).reshape(n, 3)
 
 
 def spherical_cells(points):

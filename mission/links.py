@@ -115,8 +115,9 @@ class MavEndpoint:
 
     def __init__(self, spec: ConnectionSpec, *, clock, tlog_dir=None, gcs_sysid: int = 255,
                  gcs_compid: int = 190, heartbeat_hz: float = 1.0,
-                 registry: SysidRegistry | None = None) -> None:
+                 registry: SysidRegistry | None = None, poller=None) -> None:
         self.spec = spec
+        self.poller = poller
         self.uri = spec.uri
         self.clock = clock
         self.gcs_sysid = int(gcs_sysid)
@@ -145,7 +146,7 @@ class MavEndpoint:
     @classmethod
     async def open(cls, uri: str, *, clock, tlog_dir=None, gcs_sysid: int = 255,
                    gcs_compid: int = 190, heartbeat_hz: float = 1.0,
-                   registry: SysidRegistry | None = None) -> "MavEndpoint":
+                   registry: SysidRegistry | None = None, poller=None) -> "MavEndpoint":
         """Open the transport named by ``uri`` and start the 1 Hz GCS heartbeat.
 
         Parameters
@@ -162,6 +163,10 @@ class MavEndpoint:
             GCS HEARTBEAT rate (0 disables it).
         registry : SysidRegistry, optional
             Shared between the endpoints of one mission to catch a system id on two endpoints.
+        poller : mission.links_poller.UdpPoller, optional
+            Shared between the UDP endpoints of one mission: their sockets are drained every
+            few milliseconds by one task instead of waking the loop per datagram (much cheaper
+            with many vehicles). Ignored by TCP and serial endpoints.
 
         Raises
         ------
@@ -172,9 +177,9 @@ class MavEndpoint:
         """
         spec = parse_connection(uri)
         self = cls(spec, clock=clock, tlog_dir=tlog_dir, gcs_sysid=gcs_sysid, gcs_compid=gcs_compid,
-                   heartbeat_hz=heartbeat_hz, registry=registry)
+                   heartbeat_hz=heartbeat_hz, registry=registry, poller=poller)
         try:
-            self._transport = await open_transport(spec, self)
+            self._transport = await open_transport(spec, self, poller)
         except OSError as exc:
             if self.tlogs is not None:
                 self.tlogs.close()

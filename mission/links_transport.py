@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import socket
 import termios
 import tty
 
@@ -77,6 +78,69 @@ class _UdpTransport(asyncio.DatagramProtocol):
     async def close(self) -> None:
         if self._transport is not None:
             self._transport.close()
+
+
+class _PolledUdpTransport:
+    """``udpin``/``udpout`` on a raw non-blocking socket drained by a shared ``UdpPoller``."""
+
+    def __init__(self, spec, endpoint, poller) -> None:
+        self._spec = spec
+        self._endpoint = endpoint
+        self._poller = poller
+        self._heard: set = set()
+        self._remote = (spec.host, spec.port) if spec.kind == "udpout" else None
+        self._sock = None
+
+    async def start(self) -> "_PolledUdpTransport":
+        loop = asyncio.get_running_loop()
+        family = socket.AF_INET
+        if self._remote is not None:
+            infos = await loop.getaddrinfo(*self._remote, type=socket.SOCK_DGRAM, family=family)
+            self._remote = infos[0][4][:2]
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            sock.setblocking(False)
+            if self._remote is None:
+                sock.bind((self._spec.host, self._spec.port))
+            else:
+                sock.bind(("0.0.0.0", 0))
+        except OSError:
+            sock.close()
+            raise
+        self._sock = sock
+        self._poller.register(sock, self._datagram)
+        return self
+
+    def _datagram(self, data: bytes, addr) -> None:
+        if self._remote is not None:
+            addr = self._remote
+        elif addr not in self._heard:
+            self._heard.add(addr)
+        self._endpoint._on_datagram(data, addr)
+
+    def send(self, peer, frame: bytes) -> bool:
+        if self._sock is None:
+            return False
+        try:
+            self._sock.sendto(frame, self._remote if self._remote is not None else peer)
+        except OSError:   # full buffer (BlockingIOError) or an ICMP error: counted by the caller
+            return False
+        return True
+
+    def peers(self):
+        return [self._remote] if self._remote is not None else list(self._heard)
+
+    def default_peer(self):
+        return self._remote
+
+    def local_address(self):
+        return self._sock.getsockname()[:2]
+
+    async def close(self) -> None:
+        if self._sock is not None:
+            self._poller.unregister(self._sock)
+            self._sock.close()
+            self._sock = None
 
 
 class _StreamProtocol(asyncio.Protocol):
@@ -308,9 +372,14 @@ class _SerialTransport:
             self._fd = None
 
 
-async def open_transport(spec, endpoint):
-    """Open the transport of ``spec`` for ``endpoint``; raises OSError when it cannot."""
+async def open_transport(spec, endpoint, poller=None):
+    """Open the transport of ``spec`` for ``endpoint``; raises OSError when it cannot.
+
+    UDP kinds use ``poller`` (a :class:`mission.links_poller.UdpPoller`) when given.
+    """
     if spec.kind in ("udpin", "udpout"):
+        if poller is not None:
+            return await _PolledUdpTransport(spec, endpoint, poller).start()
         return await _UdpTransport(spec, endpoint).start()
     if spec.kind == "tcp":
         return await _TcpClientTransport(spec, endpoint).start()

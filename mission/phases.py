@@ -227,7 +227,9 @@ async def takeoff(co) -> None:
     plan = co.plan
     _plan_slots(co)
     co.streamer = SetpointStreamer(list(co.vehicles.values()), rate_hz=plan.setpoint_rate_hz, clock=co.clock)
-    co.ramp = TargetRamp(co.streamer, co.clock, plan.max_speed_m_s, rate_hz=plan.setpoint_rate_hz,
+    # the ramp (new setpoints, each batch safety-checked) runs at most at 10 Hz; the streamer
+    # repeats the latest setpoint at setpoint_rate_hz in between (identical, hence as safe)
+    co.ramp = TargetRamp(co.streamer, co.clock, plan.max_speed_m_s, rate_hz=min(plan.setpoint_rate_hz, 10.0),
                          envelope=co.envelope, on_violation=lambda m: co.event(m, level="warning"))
     await co.streamer.start()
     co.ramp.start()

@@ -249,7 +249,6 @@ class ReadingStore:
         self.rejected: dict[str, int] = {r: 0 for r in REJECT_REASONS}
         self.accepted = 0
         self._last_error: dict[str, str] = {}
-        self._waiters: list[threading.Event] = []
 
     @property
     def sysids(self) -> list[int]:
@@ -322,9 +321,6 @@ class ReadingStore:
             else:
                 hist.append(reading)
             self.accepted += 1
-            waiters, self._waiters = self._waiters, []
-        for ev in waiters:
-            ev.set()
         return reading
 
     def latest(self, sysid: int) -> Reading | None:
@@ -357,8 +353,16 @@ class ReadingStore:
                 hist = self._history.get(sysid)
                 if not hist:
                     continue
-                best = min(hist, key=lambda r: abs(r.time_s - t_s))
-                if abs(best.time_s - t_s) <= window_s:
+                # newest first; stop once readings are older than the window (history is in
+                # time order), so the cost does not grow with the history length
+                best, best_dt = None, window_s
+                for r in reversed(hist):
+                    dt = abs(r.time_s - t_s)
+                    if dt < best_dt or (best is None and dt <= window_s):
+                        best, best_dt = r, dt
+                    if r.time_s < t_s - window_s:
+                        break
+                if best is not None:
                     out[sysid] = best
         return out
 
@@ -366,13 +370,6 @@ class ReadingStore:
         """``{"accepted": n, "rejected": {reason: n}}`` (a copy)."""
         with self._lock:
             return {"accepted": self.accepted, "rejected": dict(self.rejected)}
-
-    def notify_event(self) -> threading.Event:
-        """An event set at the next accepted reading (for waiting without polling too fast)."""
-        ev = threading.Event()
-        with self._lock:
-            self._waiters.append(ev)
-        return ev
 
 
 class ReadingSubscriber:

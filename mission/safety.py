@@ -16,20 +16,28 @@ return moves that keep separation.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
+from mission.safety_report import (
+    CentreClamp,
+    ClampedSetpoints,
+    EmptyFenceError,
+    SafetyError,
+    SafetyViolation,
+    SetpointReport,
+    Violation,
+)
 from mission.safety_geometry import (
     nearest_boundary_point,
     offset_polygon_inward,
     point_in_polygon,
     boundary_distance,
     polygon_is_simple,
-    segment_polygon_crossings,
+    inside_fraction,
     signed_area,
     synchronous_distance,
 )
+from mission.safety_transfer import TransferError, TransferPlan, plan_transfer
 
 __all__ = [
     "SafetyError",
@@ -49,18 +57,6 @@ __all__ = [
 
 #: numerical slack (m) when checking a point against a boundary it was projected onto
 _TOL_M = 1e-7
-
-
-class SafetyError(ValueError):
-    """An invalid safety configuration (fence, band, limits)."""
-
-
-class EmptyFenceError(SafetyError):
-    """A fence shrunk by a margin (e.g. the formation radius) leaves no room at all."""
-
-
-class SafetyViolation(RuntimeError):
-    """A setpoint would break the envelope even after clamping; never send it."""
 
 
 def _as_points(p, name):
@@ -127,6 +123,9 @@ class Geofence:
             raise SafetyError(f"altitude band is empty: min_alt_m={lo} must be < max_alt_m={hi}")
         self._poly = poly if area > 0 else poly[::-1].copy()
         self._poly.setflags(write=False)
+        turn = np.cross(np.roll(self._poly, -1, axis=0) - self._poly, np.roll(self._poly, -2, axis=0)
+                        - np.roll(self._poly, -1, axis=0))
+        self._convex = bool(np.all(turn >= -1e-12 * scale * scale))
         self.min_alt_m = lo
         self.max_alt_m = hi
 
@@ -138,6 +137,11 @@ class Geofence:
     def polygon_en_m(self) -> np.ndarray:
         """Counter-clockwise vertices ``(K, 2)`` (read-only)."""
         return self._poly
+
+    @property
+    def convex(self) -> bool:
+        """Whether the polygon is convex (then a segment between inside points is inside)."""
+        return self._convex
 
     @property
     def area_m2(self) -> float:
@@ -212,123 +216,67 @@ class Geofence:
             )
         return Geofence(poly, lo, hi)
 
-    def segment_inside(self, p0, p1, tol_m: float = _TOL_M) -> bool:
-        """Whether the whole straight segment ``p0 -> p1`` (3D) stays inside the prism."""
-        p0 = _as_points(p0, "p0").reshape(3)
-        p1 = _as_points(p1, "p1").reshape(3)
-        if not (self.contains(p0, tol_m) and self.contains(p1, tol_m)):
-            return False
-        ts = segment_polygon_crossings(p0[:2], p1[:2], self._poly)
-        ts = np.unique(np.concatenate([[0.0, 1.0], ts]))
-        mids = 0.5 * (ts[1:] + ts[:-1])
-        pts = p0[:2] + mids[:, None] * (p1[:2] - p0[:2])
-        return bool(np.all(point_in_polygon(pts, self._poly, tol_m)))
+    def reachable_fraction(self, p0, p1):
+        """How far along each straight segment ``p0 -> p1`` (``(..., 3)``) a vehicle starting
+        inside can fly without leaving the prism: 1.0 when the whole segment is inside,
+        0.0 when it leaves at once (e.g. a chord between two boundary points across a notch).
+
+        The polygon part is exact up to ``1e-7`` m (touching the boundary does not count as
+        leaving); the altitude band is convex, so only its end points matter.
+        """
+        p0 = _as_points(p0, "p0")
+        p1 = _as_points(p1, "p1")
+        if self._convex and np.all(point_in_polygon(p1[..., :2], self._poly, _TOL_M)):
+            t = np.ones(p0.shape[:-1])  # convex: a segment between inside points is inside
+        else:
+            t = inside_fraction(p0[..., :2], p1[..., :2], self._poly, _TOL_M)
+        dz = p1[..., 2] - p0[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_hi = np.where(dz > 0, (self.max_alt_m + _TOL_M - p0[..., 2]) / dz, np.inf)
+            t_lo = np.where(dz < 0, (self.min_alt_m - _TOL_M - p0[..., 2]) / dz, np.inf)
+        t = np.clip(np.minimum(t, np.minimum(t_hi, t_lo)), 0.0, 1.0)
+        t = np.where(np.atleast_1d(self.contains(p0)).reshape(t.shape), t, 0.0)
+        return float(t) if t.ndim == 0 else t
+
+    def segment_inside(self, p0, p1):
+        """Whether each whole straight segment ``p0 -> p1`` (``(..., 3)``) stays inside."""
+        inside = np.asarray(self.reachable_fraction(p0, p1)) >= 1.0
+        inside &= np.atleast_1d(self.contains(p1)).reshape(inside.shape)
+        return bool(inside) if inside.ndim == 0 else inside
 
     def last_inside_point(self, p0, p1) -> np.ndarray:
-        """The farthest point along ``p0 -> p1`` reachable without leaving the prism
-        (``p0`` must be inside; returns ``p1`` if the whole segment is inside)."""
-        p0 = _as_points(p0, "p0").reshape(3)
-        p1 = _as_points(p1, "p1").reshape(3)
-        if self.segment_inside(p0, p1):
-            return p1.copy()
-        ts = segment_polygon_crossings(p0[:2], p1[:2], self._poly)
-        ts = np.unique(np.concatenate([[0.0, 1.0], ts]))
-        t_ok = 0.0
-        for t0, t1 in zip(ts[:-1], ts[1:]):
-            mid = p0 + 0.5 * (t0 + t1) * (p1 - p0)
-            if not self.contains(mid, 0.0):
-                break
-            t_ok = t1
-        # the altitude band is convex: limit t so z stays in the band
-        dz = p1[2] - p0[2]
-        if dz > 0:
-            t_ok = min(t_ok, (self.max_alt_m - p0[2]) / dz)
-        elif dz < 0:
-            t_ok = min(t_ok, (self.min_alt_m - p0[2]) / dz)
-        return p0 + max(0.0, t_ok) * (p1 - p0)
+        """The farthest point along each ``p0 -> p1`` reachable without leaving the prism
+        (``p0`` must be inside; returns ``p1`` where the whole segment is inside)."""
+        p0 = _as_points(p0, "p0")
+        p1 = _as_points(p1, "p1")
+        t = np.asarray(self.reachable_fraction(p0, p1))
+        return p0 + t[..., None] * (p1 - p0)
 
 
-@dataclass(frozen=True)
-class CentreClamp:
-    """Result of :meth:`SafetyEnvelope.clamp_centre`.
+def _pair_distances(p):
+    sq = np.einsum("ni,ni->n", p, p)
+    return np.sqrt(np.maximum(sq[:, None] + sq[None, :] - 2.0 * p @ p.T, 0.0))
 
-    Attributes
-    ----------
-    centre_enu : numpy.ndarray, shape (3,)
-        The centre to use (inside the fence shrunk by the formation radius).
-    at_boundary : bool
-        True if the requested centre was outside and was stopped at the boundary.
-    requested_enu : numpy.ndarray, shape (3,)
-        The centre that was asked for.
-    message : str
-        Human-readable explanation ("" when not clamped).
+
+def _close_pairs(p0, p1, sep_m):
+    """Pairs ``i < j`` that may come closer than ``sep_m`` or be the closest pair, with their
+    path and end-point distances.
+
+    Two vehicles flying ``p0 -> p1`` are never closer than their start distance minus both
+    steps: only pairs whose lower bound is below ``sep_m`` or below the smallest end-point
+    distance (an upper bound of the minimum) need the exact path distance. The overall minimum
+    over all pairs is exact.
     """
-
-    centre_enu: np.ndarray
-    at_boundary: bool
-    requested_enu: np.ndarray
-    message: str = ""
-
-    @property
-    def shortfall_m(self) -> float:
-        """Distance between the requested and the allowed centre."""
-        return float(np.linalg.norm(self.requested_enu - self.centre_enu))
-
-
-@dataclass(frozen=True)
-class Violation:
-    """One broken rule: ``kind`` in ``fence``, ``fence_path``, ``altitude``, ``speed``,
-    ``separation`` (end points) or ``separation_path``; ``vehicles`` are 0-based indices."""
-
-    kind: str
-    vehicles: tuple[int, ...]
-    value: float
-    limit: float
-    message: str
-
-
-@dataclass(frozen=True)
-class SetpointReport:
-    """Every violation found by :meth:`SafetyEnvelope.check_setpoints`."""
-
-    violations: tuple[Violation, ...] = ()
-    min_separation_m: float = float("inf")
-    max_speed_m_s: float = 0.0
-
-    @property
-    def ok(self) -> bool:
-        """True when nothing is violated."""
-        return not self.violations
-
-    def kinds(self) -> set[str]:
-        """The set of violated rule kinds."""
-        return {v.kind for v in self.violations}
-
-    def __str__(self):
-        if self.ok:
-            return "setpoints safe"
-        return "; ".join(v.message for v in self.violations)
-
-
-@dataclass(frozen=True)
-class ClampedSetpoints:
-    """Result of :meth:`SafetyEnvelope.clamp_setpoints`.
-
-    Attributes
-    ----------
-    positions_enu : numpy.ndarray, shape (N, 3)
-        Safe setpoints: inside the fence and band, speed-limited where the previous position
-        was inside the fence.
-    fence_clamped, speed_limited : numpy.ndarray of bool, shape (N,)
-        Which vehicles' setpoints were moved by the fence/band or shortened by the speed limit.
-    report : SetpointReport
-        The check of the returned setpoints (separation problems are reported, not fixed).
-    """
-
-    positions_enu: np.ndarray
-    fence_clamped: np.ndarray
-    speed_limited: np.ndarray
-    report: SetpointReport = field(default_factory=SetpointReport)
+    step = np.linalg.norm(p1 - p0, axis=1)
+    d_start = _pair_distances(p0)
+    d_end = _pair_distances(p1)
+    iu, ju = np.triu_indices(len(p0), 1)
+    lower = d_start[iu, ju] - step[iu] - step[ju]
+    ends = d_end[iu, ju]
+    keep = (lower < sep_m) | (lower <= ends.min())
+    ii, jj = iu[keep], ju[keep]
+    d_path = synchronous_distance(p0[ii], p1[ii], p0[jj], p1[jj])
+    return ii, jj, np.minimum(d_path, ends[keep]), ends[keep]
 
 
 def pairwise_path_separation(prev_positions, new_positions) -> np.ndarray:
@@ -393,13 +341,13 @@ class SafetyEnvelope:
         new = _as_points(centre_new, "centre_new").reshape(3)
         inner = self.centre_fence
         target = inner.clamp(new)
-        clamped = not inner.contains(new, 0.0)
+        clamped = not inner.contains(new)
         if inner.contains(prev) and not inner.segment_inside(prev, target):
             target = inner.last_inside_point(prev, target)
             clamped = True
         msg = ""
         if clamped:
-            why = ("is outside" if not inner.contains(new, 0.0)
+            why = ("is outside" if not inner.contains(new)
                    else "cannot be reached in a straight line inside")
             msg = (f"requested centre ({new[0]:.2f}, {new[1]:.2f}, {new[2]:.2f}) {why} the fence "
                    f"shrunk by the formation radius {self.formation_radius_m:g} m: stopped at the "
@@ -417,42 +365,44 @@ class SafetyEnvelope:
         p0, p1 = self._check_shapes(prev_positions, new_positions, dt_s)
         out = []
         n = len(p0)
-        horiz_in = point_in_polygon(p1[:, :2], self.fence.polygon_en_m, _TOL_M)
-        for i in range(n):
-            if not horiz_in[i]:
-                d = float(boundary_distance(p1[i, :2], self.fence.polygon_en_m))
-                out.append(Violation("fence", (i,), d, 0.0,
-                                     f"vehicle {i} setpoint is {d:.2f} m outside the geofence"))
-            elif self.fence.contains(p0[i]) and not self.fence.segment_inside(
-                    np.r_[p0[i, :2], self.fence.min_alt_m], np.r_[p1[i, :2], self.fence.min_alt_m]):
-                out.append(Violation("fence_path", (i,), 0.0, 0.0,
-                                     f"vehicle {i} path leaves the geofence between its setpoints"))
-            z = p1[i, 2]
-            if z < self.fence.min_alt_m - _TOL_M or z > self.fence.max_alt_m + _TOL_M:
-                out.append(Violation("altitude", (i,), float(z), self.fence.min_alt_m if z < self.fence.min_alt_m
-                                     else self.fence.max_alt_m,
-                                     f"vehicle {i} setpoint altitude {z:.2f} m is outside the band "
-                                     f"{self.fence.min_alt_m:g}..{self.fence.max_alt_m:g} m"))
+        fence = self.fence
+        poly = fence.polygon_en_m
+        horiz_in = point_in_polygon(p1[:, :2], poly, _TOL_M)
+        # paths: horizontal part only (the band is convex), for vehicles that start inside
+        flat0 = np.c_[p0[:, :2], np.full(n, fence.min_alt_m)]
+        flat1 = np.c_[p1[:, :2], np.full(n, fence.min_alt_m)]
+        path_out = horiz_in & np.atleast_1d(fence.contains(flat0)) & ~np.atleast_1d(fence.segment_inside(flat0, flat1))
+        z = p1[:, 2]
+        low, high = z < fence.min_alt_m - _TOL_M, z > fence.max_alt_m + _TOL_M
+        for i in np.flatnonzero(~horiz_in):
+            d = float(boundary_distance(p1[i, :2], poly))
+            out.append(Violation("fence", (int(i),), d, 0.0, f"vehicle {i} setpoint is {d:.2f} m outside the geofence"))
+        for i in np.flatnonzero(path_out):
+            out.append(Violation("fence_path", (int(i),), 0.0, 0.0,
+                                 f"vehicle {i} path leaves the geofence between its setpoints"))
+        for i in np.flatnonzero(low | high):
+            out.append(Violation("altitude", (int(i),), float(z[i]), fence.min_alt_m if low[i] else fence.max_alt_m,
+                                 f"vehicle {i} setpoint altitude {z[i]:.2f} m is outside the band "
+                                 f"{fence.min_alt_m:g}..{fence.max_alt_m:g} m"))
         speed = np.linalg.norm(p1 - p0, axis=1) / dt_s
         for i in np.nonzero(speed > self.max_speed_m_s * (1 + 1e-9) + 1e-12)[0]:
             out.append(Violation("speed", (int(i),), float(speed[i]), self.max_speed_m_s,
                                  f"vehicle {i} would fly {speed[i]:.2f} m/s > limit {self.max_speed_m_s:g} m/s"))
         sep_min = float("inf")
         if n >= 2:
-            d_end = np.linalg.norm(p1[:, None] - p1[None, :], axis=-1)
-            np.fill_diagonal(d_end, np.inf)
-            d_path = pairwise_path_separation(p0, p1)
-            sep_min = float(d_path.min())
+            ii, jj, d_path, d_end = _close_pairs(p0, p1, self.min_separation_m)
+            sep_min = float(d_path.min()) if len(d_path) else float("inf")
             lim = self.min_separation_m * (1 - 1e-9)
-            for i, j in zip(*np.nonzero(np.triu(d_end < lim, 1))):
-                out.append(Violation("separation", (int(i), int(j)), float(d_end[i, j]), self.min_separation_m,
-                                     f"vehicles {i} and {j} setpoints {d_end[i, j]:.2f} m apart "
-                                     f"< {self.min_separation_m:g} m"))
-            for i, j in zip(*np.nonzero(np.triu((d_path < lim) & (d_end >= lim), 1))):
-                out.append(Violation("separation_path", (int(i), int(j)), float(d_path[i, j]),
-                                     self.min_separation_m,
-                                     f"vehicles {i} and {j} come {d_path[i, j]:.2f} m close on their "
-                                     f"paths < {self.min_separation_m:g} m"))
+            for i, j, de in zip(ii, jj, d_end):
+                if de < lim:
+                    out.append(Violation("separation", (int(i), int(j)), float(de), self.min_separation_m,
+                                         f"vehicles {i} and {j} setpoints {de:.2f} m apart "
+                                         f"< {self.min_separation_m:g} m"))
+            for i, j, dp, de in zip(ii, jj, d_path, d_end):
+                if dp < lim <= de:
+                    out.append(Violation("separation_path", (int(i), int(j)), float(dp), self.min_separation_m,
+                                         f"vehicles {i} and {j} come {dp:.2f} m close on their "
+                                         f"paths < {self.min_separation_m:g} m"))
         return SetpointReport(tuple(out), sep_min, float(speed.max()) if n else 0.0)
 
     def clamp_setpoints(self, prev_positions, new_positions, dt_s: float) -> ClampedSetpoints:
@@ -474,19 +424,22 @@ class SafetyEnvelope:
         fence = self.fence
         out = fence.clamp(p1)
         fence_clamped = np.any(out != p1, axis=1)
-        speed_limited = np.zeros(len(p0), dtype=bool)
+        inside0 = np.atleast_1d(fence.contains(p0))
+        # non-convex fences: stop where the straight (horizontal) path would leave the polygon
+        poly = fence.polygon_en_m
+        inside0_h = point_in_polygon(p0[:, :2], poly, _TOL_M)
+        if not fence.convex:
+            frac = np.where(inside0_h, inside_fraction(p0[:, :2], out[:, :2], poly, _TOL_M), 1.0)
+            cut = frac < 1.0
+            out = np.where(cut[:, None], p0 + frac[:, None] * (out - p0), out)
+            out[:, 2] = np.clip(out[:, 2], fence.min_alt_m, fence.max_alt_m)
+            fence_clamped |= cut
+        # speed: scale each step (the shortened step stays on the inside part of the path)
+        step = np.linalg.norm(out - p0, axis=1)
         step_max = self.max_speed_m_s * dt_s
-        for i in range(len(p0)):
-            if not fence.contains(p0[i]):
-                continue
-            if not fence.segment_inside(p0[i], out[i]):
-                out[i] = fence.last_inside_point(p0[i], out[i])
-                fence_clamped[i] = True
-            step = out[i] - p0[i]
-            norm = float(np.linalg.norm(step))
-            if norm > step_max:
-                out[i] = p0[i] + step * (step_max / norm)
-                speed_limited[i] = True
+        speed_limited = inside0 & (step > step_max)
+        scale = np.where(speed_limited, step_max / np.maximum(step, 1e-300), 1.0)
+        out = p0 + scale[:, None] * (out - p0)
         self.assert_safe(p0, out, dt_s)
         return ClampedSetpoints(out, fence_clamped, speed_limited, self.check_setpoints(p0, out, dt_s))
 
@@ -514,6 +467,3 @@ class SafetyEnvelope:
         if not (np.isfinite(dt_s) and dt_s > 0):
             raise ValueError(f"dt_s must be a finite number > 0, got {dt_s!r}")
         return p0, p1
-
-
-from mission.safety_transfer import TransferError, TransferPlan, plan_transfer  # noqa: E402

@@ -25,11 +25,11 @@ __all__ = [
     "boundary_distance",
     "nearest_boundary_point",
     "polygon_is_simple",
-    "segment_polygon_crossings",
+    "first_boundary_crossing",
+    "inside_fraction",
     "offset_polygon_inward",
 ]
 
-_EPS = 1e-12
 
 
 def segment_distance(a0, a1, b0, b1) -> np.ndarray:
@@ -52,30 +52,22 @@ def segment_distance(a0, a1, b0, b1) -> np.ndarray:
     r = a0 - b0
     a = np.einsum("...i,...i->...", d1, d1)
     e = np.einsum("...i,...i->...", d2, d2)
-    f = np.einsum("...i,...i->...", d2, r)
-    c = np.einsum("...i,...i->...", d1, r)
     b = np.einsum("...i,...i->...", d1, d2)
-    a_ok = a > _EPS
-    e_ok = e > _EPS
-    safe_a = np.where(a_ok, a, 1.0)
-    safe_e = np.where(e_ok, e, 1.0)
+    c = np.einsum("...i,...i->...", d1, r)
+    f = np.einsum("...i,...i->...", d2, r)
+    # interior critical point (non-parallel segments) ...
     denom = a * e - b * b
-    dn_ok = denom > _EPS * np.maximum(a * e, _EPS)
-    s_gen = np.where(dn_ok, np.clip((b * f - c * e) / np.where(dn_ok, denom, 1.0), 0.0, 1.0), 0.0)
-    t_gen = (b * s_gen + f) / safe_e
-    s_lo = np.clip(-c / safe_a, 0.0, 1.0)
-    s_hi = np.clip((b - c) / safe_a, 0.0, 1.0)
-    s = np.where(t_gen < 0.0, s_lo, np.where(t_gen > 1.0, s_hi, s_gen))
-    t = np.clip(t_gen, 0.0, 1.0)
-    # one or both segments degenerate
-    s = np.where(~e_ok, s_lo, s)
-    t = np.where(~e_ok, 0.0, t)
-    s = np.where(~a_ok, 0.0, s)
-    t = np.where(~a_ok, np.clip(f / safe_e, 0.0, 1.0), t)
-    t = np.where(~a_ok & ~e_ok, 0.0, t)
-    pa = a0 + s[..., None] * d1
-    pb = b0 + t[..., None] * d2
-    return np.linalg.norm(pa - pb, axis=-1)
+    ok = denom > 1e-12 * np.maximum(a * e, 1e-300)
+    safe = np.where(ok, denom, 1.0)
+    s = np.clip((b * f - c * e) / safe, 0.0, 1.0)
+    t = np.clip((a * f - b * c) / safe, 0.0, 1.0)
+    inner = np.linalg.norm(a0 + s[..., None] * d1 - b0 - t[..., None] * d2, axis=-1)
+    best = np.where(ok, inner, np.inf)
+    # ... or an end point of one segment against the other segment (always a candidate)
+    for p, q0, dq, qq in ((a0, b0, d2, e), (a1, b0, d2, e), (b0, a0, d1, a), (b1, a0, d1, a)):
+        u = np.clip(np.einsum("...i,...i->...", p - q0, dq) / np.where(qq > 0, qq, 1.0), 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(p - q0 - u[..., None] * dq, axis=-1))
+    return best
 
 
 def synchronous_distance(p0, p1, q0, q1) -> np.ndarray:
@@ -99,8 +91,12 @@ def synchronous_distance(p0, p1, q0, q1) -> np.ndarray:
     dv = (p1 - p0) - (q1 - q0)
     vv = np.einsum("...i,...i->...", dv, dv)
     dvd = np.einsum("...i,...i->...", d0, dv)
-    t = np.where(vv > _EPS, np.clip(-dvd / np.where(vv > _EPS, vv, 1.0), 0.0, 1.0), 0.0)
-    return np.linalg.norm(d0 + t[..., None] * dv, axis=-1)
+    dd = np.einsum("...i,...i->...", d0, d0)
+    t = np.clip(-dvd / np.where(vv > 0, vv, 1.0), 0.0, 1.0)
+    t = np.where(vv > 0, t, 0.0)
+    # |d0 + t dv|^2 expanded (no (..., 3) temporaries); never above either end point's distance
+    best = np.minimum(dd + t * (2.0 * dvd + t * vv), np.minimum(dd, dd + 2.0 * dvd + vv))
+    return np.sqrt(np.maximum(best, 0.0))
 
 
 def signed_area(poly) -> float:
@@ -143,7 +139,12 @@ def point_in_polygon(points, poly, tol_m: float = 1e-9) -> np.ndarray:
     dy = np.where(b[:, 1] - a[:, 1] == 0, 1.0, b[:, 1] - a[:, 1])
     x_cross = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / dy
     inside = (np.count_nonzero(cond & (x < x_cross), axis=-1) % 2) == 1
-    return inside | (boundary_distance(pts, poly) <= tol_m)
+    if tol_m <= 0 or np.all(inside):
+        return inside
+    inside = np.array(inside)  # writable, also for a single point
+    out = ~inside  # only points outside by the crossing rule need the (costlier) distance
+    inside[out] = boundary_distance(pts[out], poly) <= tol_m
+    return inside
 
 
 def _cross2(u, v):
@@ -180,32 +181,72 @@ def polygon_is_simple(poly) -> tuple[bool, tuple[int, int] | None]:
     return True, None
 
 
-def segment_polygon_crossings(p0, p1, poly) -> np.ndarray:
-    """Sorted parameters ``t`` in [0, 1] where segment ``p0 -> p1`` (2D) meets the polygon's
-    boundary (crossings and touches; collinear overlaps give their end parameters)."""
+def first_boundary_crossing(p0, p1, poly, tol_m: float = 1e-7) -> np.ndarray:
+    """Parameter ``t`` in (0, 1) where each segment ``p0 -> p1`` (2D) first crosses or touches
+    the polygon's boundary strictly between its end points (within ``tol_m`` of them does not
+    count); ``inf`` where it does not. Collinear overlaps with an edge do not count.
+
+    Parameters
+    ----------
+    p0, p1 : array_like, shape (..., 2)
+    poly : array_like, shape (K, 2)
+
+    Returns
+    -------
+    numpy.ndarray, shape (...)
+    """
     p0 = np.asarray(p0, dtype=float)
     p1 = np.asarray(p1, dtype=float)
     a, b = _edges(poly)
-    d = p1 - p0
+    d = (p1 - p0)[..., None, :]  # (..., 1, 2)
+    e = b - a  # (K, 2)
+    w = a - p0[..., None, :]  # (..., K, 2)
+    den = _cross2(d, e)
+    length = np.linalg.norm(d, axis=-1)
+    ok = np.abs(den) > 1e-12 * length * np.linalg.norm(e, axis=-1)
+    safe = np.where(ok, den, 1.0)
+    t = _cross2(w, e) / safe
+    u = _cross2(w, d) / safe
+    t_tol = tol_m / np.maximum(length, 1e-300)
+    hit = ok & (t > t_tol) & (t < 1.0 - t_tol) & (u >= -1e-12) & (u <= 1.0 + 1e-12)
+    return np.min(np.where(hit, t, np.inf), axis=-1)
+
+
+def inside_fraction(p0, p1, poly, tol_m: float = 1e-7) -> np.ndarray:
+    """How far along each segment ``p0 -> p1`` (2D) one stays inside the polygon (boundary
+    included): the start of the first piece between boundary contacts that lies outside, or
+    1.0 when none does. Grazing a vertex or running along an edge is not leaving.
+
+    Parameters
+    ----------
+    p0, p1 : array_like, shape (..., 2)
+    poly : array_like, shape (K, 2)
+
+    Returns
+    -------
+    numpy.ndarray, shape (...)
+    """
+    p0 = np.asarray(p0, dtype=float)
+    p1 = np.asarray(p1, dtype=float)
+    a, b = _edges(poly)
+    d = (p1 - p0)[..., None, :]
     e = b - a
-    den = _cross2(np.broadcast_to(d, e.shape), e)
-    w = a - p0
-    ts = []
-    par = np.abs(den) <= 1e-15 * max(float(np.dot(d, d)), 1e-30) ** 0.5 * np.linalg.norm(e, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = _cross2(w, e) / den
-        u = _cross2(w, np.broadcast_to(d, e.shape)) / den
-    hit = ~par & (t >= -1e-12) & (t <= 1 + 1e-12) & (u >= -1e-12) & (u <= 1 + 1e-12)
-    ts.extend(np.clip(t[hit], 0.0, 1.0).tolist())
-    dd = float(np.dot(d, d))
-    if dd > 0:
-        for k in np.nonzero(par)[0]:
-            if abs(_cross2(w[k], d)) <= 1e-9 * np.sqrt(dd):  # collinear
-                for q in (a[k], b[k]):
-                    tq = float(np.dot(q - p0, d) / dd)
-                    if 0.0 <= tq <= 1.0:
-                        ts.append(tq)
-    return np.unique(np.asarray(ts, dtype=float))
+    w = a - p0[..., None, :]
+    den = _cross2(d, e)
+    length = np.linalg.norm(d, axis=-1)
+    ok = np.abs(den) > 1e-12 * length * np.linalg.norm(e, axis=-1)
+    safe = np.where(ok, den, 1.0)
+    t = _cross2(w, e) / safe
+    u = _cross2(w, d) / safe
+    hit = ok & (t > 0.0) & (t < 1.0) & (u >= -1e-12) & (u <= 1.0 + 1e-12)
+    ts = np.sort(np.where(hit, t, 1.0), axis=-1)
+    ts = np.concatenate([np.zeros(ts.shape[:-1] + (1,)), ts, np.ones(ts.shape[:-1] + (1,))], axis=-1)
+    mid = 0.5 * (ts[..., :-1] + ts[..., 1:])
+    pts = p0[..., None, :] + mid[..., None] * (p1 - p0)[..., None, :]
+    bad = ~point_in_polygon(pts, poly, tol_m) & (ts[..., 1:] - ts[..., :-1] > 0)
+    first = np.argmax(bad, axis=-1)
+    start = np.take_along_axis(ts[..., :-1], first[..., None], axis=-1)[..., 0]
+    return np.where(np.any(bad, axis=-1), start, 1.0)
 
 
 def _clean(poly, scale):

@@ -18,19 +18,29 @@ Strategies, tried in this order by ``strategy="auto"``:
     different layers (greedy graph colouring, layers ``min_separation_m`` apart above
     everything); climb to the layer, fly horizontally, descend to the goal; each of the three
     legs sequenced if needed.
+``relayered``
+    For vehicles stacked at both ends in opposite vertical orders (which ``layered`` cannot
+    untangle: the vertical order must flip somewhere): climb to layers in the start's order,
+    fly to a grid where nobody is stacked, exchange layers there, fly to the goal in layers in
+    the goal's order and descend.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
-from mission.safety import Geofence, SafetyError
 from mission.safety_geometry import synchronous_distance
+from mission.safety_report import SafetyError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mission.safety import Geofence
 
 __all__ = ["TransferError", "TransferPlan", "plan_transfer", "leg_separation"]
 
-_STRATEGIES = ("auto", "direct", "sequenced", "layered")
+_STRATEGIES = ("auto", "direct", "sequenced", "layered", "relayered")
 
 
 class TransferError(SafetyError):
@@ -49,7 +59,7 @@ class TransferPlan:
         Positions of every vehicle at each waypoint; between waypoints each vehicle flies a
         straight line at constant speed.
     strategy : str
-        ``direct``, ``sequenced`` or ``layered``.
+        ``direct``, ``sequenced``, ``layered`` or ``relayered``.
     min_separation_m : float
         Smallest distance between two vehicles over the whole plan (paths included).
     """
@@ -184,11 +194,7 @@ def _colour(start, goal, sep):
 def _layered(start, goal, sep, fence, layer_base_alt_m):
     colours = _colour(start, goal, sep)
     step = sep * (1 + 1e-6)
-    top = max(start[:, 2].max(), goal[:, 2].max())
-    bases = [layer_base_alt_m] if layer_base_alt_m is not None else [top + step]
-    if fence is not None and layer_base_alt_m is None:
-        bases.append(min(start[:, 2].min(), goal[:, 2].min()) - step * (colours.max() + 1))
-    for base in bases:
+    for base in _layer_bases(start, goal, sep, fence, layer_base_alt_m, int(colours.max()) + 1):
         layer = base + colours * step
         if fence is not None and (layer.min() < fence.min_alt_m or layer.max() > fence.max_alt_m):
             continue
@@ -202,8 +208,59 @@ def _layered(start, goal, sep, fence, layer_base_alt_m):
     return None
 
 
+def _layer_bases(start, goal, sep, fence, layer_base_alt_m, n_layers):
+    step = sep * (1 + 1e-6)
+    if layer_base_alt_m is not None:
+        return [layer_base_alt_m]
+    bases = [max(start[:, 2].max(), goal[:, 2].max()) + step]
+    if fence is not None:
+        bases.append(min(start[:, 2].min(), goal[:, 2].min()) - step * n_layers)
+    return bases
+
+
+def _mid_grid(goal, sep):
+    """Horizontal positions 2 * sep apart on a grid about the goal's centre, one per vehicle
+    (minimum-travel assignment): nobody is stacked there, so altitudes can be exchanged."""
+    n = len(goal)
+    k = int(np.ceil(np.sqrt(n)))
+    ij = np.stack(np.meshgrid(np.arange(k), np.arange(k), indexing="ij"), axis=-1).reshape(-1, 2)
+    grid = (ij - (k - 1) / 2.0) * 2.0 * sep + goal[:, :2].mean(axis=0)
+    rows, cols = linear_sum_assignment(np.linalg.norm(goal[:, None, :2] - grid[None], axis=-1))
+    mid = np.empty((n, 2))
+    mid[rows] = grid[cols]
+    return mid
+
+
+def _relayered(start, goal, sep, fence, layer_base_alt_m):
+    """Layers in the start's vertical order to a grid where nobody is stacked, exchange
+    layers there, then layers in the goal's order down to the goal (for vehicles stacked at
+    both ends in opposite orders, which ``layered`` cannot untangle)."""
+    mid_h = _mid_grid(goal, sep)
+    a_end = start.copy()
+    a_end[:, :2] = mid_h
+    b_start = goal.copy()
+    b_start[:, :2] = mid_h
+    col_a = _colour(start, a_end, sep)
+    col_b = _colour(b_start, goal, sep)
+    step = sep * (1 + 1e-6)
+    n_layers = int(max(col_a.max(), col_b.max())) + 1
+    for base in _layer_bases(start, goal, sep, fence, layer_base_alt_m, n_layers):
+        la, lb = base + col_a * step, base + col_b * step
+        if fence is not None and (min(la.min(), lb.min()) < fence.min_alt_m
+                                  or max(la.max(), lb.max()) > fence.max_alt_m):
+            continue
+        wps = [start]
+        for h, z in ((start[:, :2], la), (mid_h, la), (mid_h, lb), (goal[:, :2], lb)):
+            wps.append(np.c_[h, z])
+        wps.append(goal)
+        legs = _legs_or_sequence(wps, sep, fence)
+        if legs is not None:
+            return legs
+    return None
+
+
 def plan_transfer(start, goal, min_separation_m: float, max_speed_m_s: float = 2.0,
-                  fence: Geofence | None = None, strategy: str = "auto",
+                  fence: "Geofence | None" = None, strategy: str = "auto",
                   layer_base_alt_m: float | None = None) -> TransferPlan:
     """Plan a separation-keeping transfer of N vehicles from ``start`` to ``goal``.
 
@@ -217,7 +274,7 @@ def plan_transfer(start, goal, min_separation_m: float, max_speed_m_s: float = 2
         Speed of the fastest vehicle on each leg (sets the leg durations).
     fence : Geofence, optional
         If given, every straight path must stay inside it (and the layers inside its band).
-    strategy : {"auto", "direct", "sequenced", "layered"}
+    strategy : {"auto", "direct", "sequenced", "layered", "relayered"}
         ``auto`` tries them in that order and returns the first that works.
     layer_base_alt_m : float, optional
         Altitude of the lowest layer for ``layered`` (default: ``min_separation_m`` above the
@@ -253,14 +310,16 @@ def plan_transfer(start, goal, min_separation_m: float, max_speed_m_s: float = 2
             raise TransferError(f"{name} positions are only {s:.2f} m apart < min separation {sep:g} m")
         if fence is not None and not np.all(fence.contains(cfg)):
             raise TransferError(f"{name} positions are not all inside the geofence")
-    tried = ("direct", "sequenced", "layered") if strategy == "auto" else (strategy,)
+    tried = _STRATEGIES[1:] if strategy == "auto" else (strategy,)
     for strat in tried:
         if strat == "direct":
             legs = [a, b] if _leg_ok(a, b, sep, fence) else None
         elif strat == "sequenced":
             legs = _legs_or_sequence([a, b], sep, fence)
-        else:
+        elif strat == "layered":
             legs = _layered(a, b, sep, fence, layer_base_alt_m)
+        else:
+            legs = _relayered(a, b, sep, fence, layer_base_alt_m)
         if legs is not None:
             return _timed(legs, strat, max_speed_m_s)
     raise TransferError(f"no transfer keeping {sep:g} m separation found (tried {', '.join(tried)})")

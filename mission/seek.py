@@ -130,6 +130,8 @@ async def seek(co) -> tuple[str, str]:
         except (GeometryError, ValueError) as exc:
             failures += 1
             co.event(f"iteration {k + 1}: gradient not estimated: {exc}", level="warning")
+            if failures >= 20:
+                raise MissionError(f"no gradient estimate for {failures} iterations (last: {exc})") from None
             continue
         failures = 0
         new_centre = seek_step(centre, grad, sk.eps, sk.gamma_m)

@@ -45,7 +45,8 @@ class FakeAutopilot:
     results : dict of int to int, optional
         ``{command: MAV_RESULT}`` to answer instead of ACCEPTED.
     in_progress : set of int, optional
-        Commands first answered IN_PROGRESS, then (on the next telemetry tick) the final result.
+        Commands first answered IN_PROGRESS, then with the final result on the first telemetry
+        tick at least ``in_progress_delay_s`` later.
     record_setpoints : bool
         Keep every setpoint in :attr:`setpoints` and its arrival ``time.perf_counter()`` in
         :attr:`setpoint_times`.
@@ -57,7 +58,8 @@ class FakeAutopilot:
 
     def __init__(self, sysid: int, *, flavour: str = "ardupilot", uid: int | None = None,
                  home=(45.0, 5.0, 200.0), drop_first=None, results=None, in_progress=None,
-                 record_setpoints: bool = True, compid: int = 1, position_rate_hz: float = 5.0) -> None:
+                 record_setpoints: bool = True, compid: int = 1, position_rate_hz: float = 5.0,
+                 in_progress_delay_s: float = 0.5) -> None:
         self.sysid = int(sysid)
         self.flavour = flavour
         self.uid = int(uid) if uid is not None else 0xFA4E0000 + self.sysid
@@ -66,6 +68,7 @@ class FakeAutopilot:
         self.drop_first = dict(drop_first or {})
         self.results = dict(results or {})
         self.in_progress = set(in_progress or ())
+        self.in_progress_delay_s = float(in_progress_delay_s)
         self.record_setpoints = record_setpoints
         self.armed = False
         self.custom_mode = 0
@@ -96,8 +99,9 @@ class FakeAutopilot:
     def telemetry(self, tick: int = 0, tick_hz: float = 5.0) -> list:
         """Messages due at ``tick`` of a ``tick_hz`` clock: position messages at their rates
         (:attr:`rates_hz`, changed by SET_MESSAGE_INTERVAL) and any deferred final ACKs."""
-        out = self._pending_final
-        self._pending_final = []
+        now = time.monotonic()
+        out = [ack for t, ack in self._pending_final if t <= now]
+        self._pending_final = [(t, ack) for t, ack in self._pending_final if t > now]
         n, e, d = self.position_ned_m
         for msg_id, rate_hz in self.rates_hz.items():
             if rate_hz <= 0 or (tick + self.sysid) % max(1, round(tick_hz / rate_hz)):
@@ -162,7 +166,7 @@ class FakeAutopilot:
             out += self._apply(msg)
         ack = _M.MAVLink_command_ack_message(command, result, 0, 0, *src)
         if command in self.in_progress:
-            self._pending_final.append(ack)
+            self._pending_final.append((time.monotonic() + self.in_progress_delay_s, ack))
             return [_M.MAVLink_command_ack_message(command, _M.MAV_RESULT_IN_PROGRESS, 10, 0, *src)]
         return [ack] + out
 

@@ -3,8 +3,10 @@
 Results follow the real autopilots: ACCEPTED; UNSUPPORTED for commands the mock does not know;
 the personality's rejection (ArduPilot ``FAILED``, PX4 ``TEMPORARILY_REJECTED``) when a
 precondition fails (arming checks, takeoff while disarmed or not in GUIDED, mode change refused,
-disarm in the air); ``DENIED`` for invalid arguments (bad arm/disarm value, non-finite home,
-unknown message id, mission start without a mission).
+disarm in the air); ``DENIED`` for invalid arguments (non-finite home, unknown message id,
+mission start without a mission). A mode the autopilot does not have: ArduPilot ``FAILED``; PX4
+ACKs ``ACCEPTED`` and changes nothing for an unknown main mode (as its commander does) but
+rejects an unknown AUTO sub mode. An arm/disarm param1 other than 0 or 1: ``UNSUPPORTED``.
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ import math
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from sitl_mock import ap_flight
-from sitl_mock.ap_telemetry import BUILDERS
+from sitl_mock.ap_telemetry import BUILDERS, build_message
 
 __all__ = ["handle_command", "handle_set_mode", "handle_request_data_stream", "COMMANDS"]
 
@@ -62,9 +64,9 @@ def _set_mode(ap, base_mode, p2, p3, t_s: float) -> int:
     if not all(math.isfinite(v) for v in (base_mode, p2, p3)):
         return _DENIED
     name = ap.personality.mode_from_command(base_mode, p2, p3)
-    if name is None:
+    if not name:
         ap.statustext("Unsupported mode", _M.MAV_SEVERITY_WARNING)
-        return ap.personality.reject_result
+        return ap.personality.unknown_mode_result if name is None else ap.personality.reject_result
     problem = ap_flight.mode_change_problem(ap, name, t_s)
     if problem is not None:
         ap.statustext(f"Mode change failed: {problem}", _M.MAV_SEVERITY_WARNING)
@@ -85,7 +87,7 @@ def _cmd_arm_disarm(ap, p, t_s, msg):
         return ap_flight.arm(ap, t_s, forced)
     if action == 0.0:
         return ap_flight.disarm(ap, t_s, forced)
-    return _DENIED
+    return _UNSUPPORTED  # as both autopilots answer a param1 other than 0 / 1
 
 
 def _cmd_takeoff(ap, p, t_s, msg):
@@ -99,7 +101,7 @@ def _cmd_takeoff(ap, p, t_s, msg):
             ap.statustext(f"Takeoff refused: {why}", _M.MAV_SEVERITY_WARNING)
             return ap.personality.reject_result
         if not (math.isfinite(alt_param) and alt_param > 0):
-            return _DENIED
+            return ap.personality.reject_result  # ArduCopter cannot take off downwards
         ap_flight.start_takeoff(ap, alt_param)
         return _ACCEPTED
     # PX4: switch to AUTO.TAKEOFF; param7 is AMSL (NaN: MIS_TAKEOFF_ALT above home)
@@ -142,13 +144,14 @@ def _msg_id(value: float) -> int | None:
 
 def _cmd_request_message(ap, p, t_s, msg):
     msg_id = _msg_id(p[0])
-    if msg_id is None:
+    if msg_id is None or msg_id not in BUILDERS:
         return _DENIED
-    if msg_id not in BUILDERS:
-        return _DENIED
-    _ack(ap, msg, msg.command, _ACCEPTED)
-    if not ap.send_message_now(msg_id, t_s):
+    reply = build_message(ap, msg_id, t_s)
+    if reply is None:  # known message, nothing to say yet (e.g. HOME_POSITION before a fix)
         ap.counters["request_unavailable"] += 1
+        return ap.personality.reject_result
+    _ack(ap, msg, msg.command, _ACCEPTED)
+    ap.emit(reply)
     return None
 
 

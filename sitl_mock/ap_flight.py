@@ -14,7 +14,7 @@ what the vehicle does:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -70,14 +70,17 @@ class FlightState:
     battery_level_done: int = 0
     gcs_failsafe_done: bool = False
     fence_breached: bool = False
-    extra: dict = field(default_factory=dict)
+    mission_target_ned: np.ndarray | None = None
+    mission_alt_m: float = 0.0
 
 
 def is_ardupilot(ap) -> bool:
+    """True for the ArduPilot personality."""
     return ap.personality.name == "ardupilot"
 
 
 def airborne(ap) -> bool:
+    """True when armed and off the ground."""
     return ap.mc.armed and not ap.mc.landed
 
 
@@ -127,6 +130,9 @@ def arming_problem(ap, t_s: float, mode_name: str, check_mode: bool = True) -> s
         return "battery low"
     if check_mode and mode_name not in ap.personality.arming_modes:
         return f"mode {mode_name} does not allow arming"
+    if check_mode and mode_name == "OFFBOARD" and \
+            t_s - ap.flight.last_setpoint_s > ap.params["COM_OF_LOSS_T"]:
+        return "offboard setpoints not streaming"
     return None
 
 
@@ -164,6 +170,7 @@ def disarm(ap, t_s: float, forced: bool = False) -> int:
 
 
 def disarm_now(ap, why: str) -> None:
+    """Disarm without checks (landing detected, failsafe, command) and announce why."""
     ap.mc.disarm()
     fs = ap.flight
     fs.idle_since_s = None

@@ -81,6 +81,17 @@ class MissionServer:
         self.current_seq = 0
         #: incremented every time a mission list changes (the autopilot restarts its mission)
         self.generation = 0
+        self._handlers = {
+            "MISSION_COUNT": self._on_mission_count,
+            "MISSION_ITEM_INT": self._on_mission_item_int,
+            "MISSION_ITEM": self._on_mission_item,
+            "MISSION_REQUEST_LIST": self._on_mission_request_list,
+            "MISSION_REQUEST_INT": self._on_mission_request_int,
+            "MISSION_REQUEST": self._on_mission_request,
+            "MISSION_ACK": self._on_mission_ack,
+            "MISSION_CLEAR_ALL": self._on_mission_clear_all,
+            "MISSION_SET_CURRENT": self._on_mission_set_current,
+        }
 
     # ---------------------------------------------------------------- queries
     def items(self, mission_type: int = _MISSION) -> list[MissionItem]:
@@ -107,8 +118,7 @@ class MissionServer:
     # --------------------------------------------------------------- handlers
     def handle(self, msg, t_s: float) -> bool:
         """Process a mission-protocol message; returns False if ``msg`` is not one."""
-        kind = msg.get_type()
-        handler = getattr(self, "_on_" + kind.lower(), None)
+        handler = self._handlers.get(msg.get_type())
         if handler is None:
             return False
         handler(msg, t_s)

@@ -55,10 +55,10 @@ def _start_item(ap, item) -> None:
         else:
             n, e, _d = mc.position_ned_m
             mc.command_position((n, e, -alt))
-        ap.flight.extra["mission_alt"] = alt
+        ap.flight.mission_alt_m = alt
     elif cmd in _NAV_WAYPOINTS:
-        ap.flight.extra["mission_target"] = item_target_ned(ap, item)
-        mc.command_position(ap.flight.extra["mission_target"])
+        ap.flight.mission_target_ned = item_target_ned(ap, item)
+        mc.command_position(ap.flight.mission_target_ned)
     elif cmd == mavlink2.MAV_CMD_NAV_LAND:
         mc.command_land()
 
@@ -68,11 +68,11 @@ def _item_done(ap, item, t_s: float) -> bool:
     fs = ap.flight
     cmd = item.command
     if cmd == mavlink2.MAV_CMD_NAV_TAKEOFF:
-        return -mc.position_ned_m[2] >= fs.extra["mission_alt"] - 0.5
+        return -mc.position_ned_m[2] >= fs.mission_alt_m - 0.5
     if cmd in _NAV_WAYPOINTS:
         if fs.mission_wait_until_s is not None:
             return t_s >= fs.mission_wait_until_s
-        target = fs.extra["mission_target"]
+        target = fs.mission_target_ned
         if np.linalg.norm(mc.position_ned_m - target) > _acceptance_m(ap, item):
             return False
         hold_s = item.param1 if cmd in (mavlink2.MAV_CMD_NAV_WAYPOINT,

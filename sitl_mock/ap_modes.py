@@ -57,6 +57,8 @@ class Personality:
         mode name -> internal behaviour (see the module docstring).
     reject_result : int
         COMMAND_ACK result when a precondition fails (arming checks, takeoff, mode change).
+    unknown_mode_result : int
+        COMMAND_ACK result of a mode change to a mode the autopilot does not have.
     capabilities : int
         AUTOPILOT_VERSION.capabilities bits.
     param_bytewise : bool
@@ -72,6 +74,7 @@ class Personality:
     position_modes: frozenset = frozenset()
     arming_modes: frozenset = frozenset()
     reject_result = mavlink2.MAV_RESULT_FAILED
+    unknown_mode_result = mavlink2.MAV_RESULT_FAILED
     capabilities = _CAPS_COMMON
     param_bytewise = False
     sysid_param = ""
@@ -93,7 +96,8 @@ class Personality:
         return self.behaviours[mode_name]
 
     def mode_from_command(self, base_mode: float, p2: float, p3: float) -> str | None:
-        """Mode named by MAV_CMD_DO_SET_MODE's params 1..3, or None."""
+        """Mode named by MAV_CMD_DO_SET_MODE's params 1..3; None (no such mode: the
+        personality's ``unknown_mode_result``) or ``""`` (a rejected request)."""
         raise NotImplementedError
 
     def param_specs(self, sysid: int, dyn) -> list[ParamSpec]:
@@ -124,11 +128,13 @@ class ArduPilotPersonality(Personality):
     takeoff_mode, mission_mode = "GUIDED", "AUTO"
 
     def mode_from_command(self, base_mode, p2, p3):
+        """Param 2 is the Copter mode number (custom mode flag required)."""
         if not int(base_mode) & mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
             return None
         return self.mode_name(int(p2))
 
     def param_specs(self, sysid, dyn):
+        """ArduCopter's table (see :func:`~sitl_mock.ap_params.ardupilot_param_specs`)."""
         return ardupilot_param_specs(sysid, dyn)
 
 
@@ -159,6 +165,7 @@ class Px4Personality(Personality):
     arming_modes = frozenset({"MANUAL", "ALTCTL", "POSCTL", "AUTO.TAKEOFF", "AUTO.LOITER",
                               "AUTO.MISSION", "ACRO", "OFFBOARD", "STABILIZED"})
     reject_result = mavlink2.MAV_RESULT_TEMPORARILY_REJECTED
+    unknown_mode_result = mavlink2.MAV_RESULT_ACCEPTED  # PX4 ACKs and ignores an unknown main mode
     capabilities = _CAPS_COMMON | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE | \
         mavlink2.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
     param_bytewise = True
@@ -167,6 +174,12 @@ class Px4Personality(Personality):
     takeoff_mode, mission_mode = "AUTO.TAKEOFF", "AUTO.MISSION"
 
     def mode_from_command(self, base_mode, p2, p3):
+        """Params 2 and 3 are PX4's main and sub mode (custom mode flag required).
+
+        As PX4's commander: an unknown AUTO sub mode is an error (``""``), an unknown main
+        mode or a request without the custom flag changes nothing (None; PX4 still ACKs it
+        ACCEPTED).
+        """
         if not int(base_mode) & mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
             return None
         main, sub = int(p2), int(p3)
@@ -174,15 +187,20 @@ class Px4Personality(Personality):
             sub = 4  # AUTO without a sub mode is MISSION
         if main != 4:
             sub = 0
-        return self.mode_name(px4_custom_mode(main, sub))
+        name = self.mode_name(px4_custom_mode(main, sub))
+        if name is None and main == 4:
+            return ""
+        return name
 
     def mode_name(self, custom_mode):
+        """Mode name of a PX4 custom_mode (the sub mode only counts in AUTO)."""
         cm = int(custom_mode)
         if (cm >> 16) & 0xFF != 4:
             cm &= 0x00FF0000  # sub mode only meaningful in AUTO
         return self.modes.get(cm)
 
     def param_specs(self, sysid, dyn):
+        """PX4's table (see :func:`~sitl_mock.ap_params.px4_param_specs`)."""
         return px4_param_specs(sysid, dyn)
 
 

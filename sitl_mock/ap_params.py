@@ -24,11 +24,8 @@ _INT_TYPES = {mavlink2.MAV_PARAM_TYPE_UINT8, _INT8, mavlink2.MAV_PARAM_TYPE_UINT
               mavlink2.MAV_PARAM_TYPE_UINT32, _INT32}
 
 
-class ParamError(KeyError):
+class ParamError(ValueError):
     """Unknown parameter name, or a value of the wrong type / out of range."""
-
-    def __str__(self) -> str:  # KeyError quotes its message; keep it readable
-        return str(self.args[0]) if self.args else ""
 
 
 @dataclass(frozen=True)

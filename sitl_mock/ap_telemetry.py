@@ -51,20 +51,35 @@ class TelemetrySource(Protocol):
     mav: object
     personality: object
     mc: object
+    uid: int
+    missions: object
 
-    def time_boot_ms(self, t_s: float) -> int: ...
+    def position_ready(self, t_s: float) -> bool:
+        """True once the position estimate is usable."""
 
-    def estimate(self, t_s: float) -> tuple: ...  # (ned_m, vel_ned_m_s, lat_deg, lon_deg, alt_m)
+    def ned_to_geodetic(self, ned) -> tuple:
+        """``(lat_deg, lon_deg, alt_m)`` of a LOCAL_NED point."""
 
-    def home_geodetic(self) -> tuple | None: ...
+    def time_boot_ms(self, t_s: float) -> int:
+        """Milliseconds since boot."""
 
-    def heartbeat_fields(self) -> tuple: ...  # (base_mode, custom_mode, system_status)
+    def estimate(self, t_s: float) -> tuple:
+        """``(ned_m, vel_ned_m_s, lat_deg, lon_deg, alt_m)`` as the autopilot estimates it."""
 
-    def health_ok(self, t_s: float) -> bool: ...
+    def home_geodetic(self) -> tuple | None:
+        """Home ``(lat_deg, lon_deg, alt_m)`` or None before the position fix."""
 
-    def landed_state(self) -> int: ...
+    def heartbeat_fields(self) -> tuple:
+        """``(base_mode, custom_mode, system_status)``."""
 
-    def setpoint_echo(self) -> tuple | None: ...  # (frame, type_mask, ned, vel, yaw, yaw_rate)
+    def health_ok(self, t_s: float) -> bool:
+        """GPS and pre-arm checks healthy."""
+
+    def landed_state(self) -> int:
+        """MAV_LANDED_STATE value."""
+
+    def setpoint_echo(self) -> tuple | None:
+        """``(frame, type_mask, ned, vel, yaw, yaw_rate)`` of the followed setpoint, or None."""
 
 
 class MessageScheduler:

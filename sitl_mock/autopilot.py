@@ -261,7 +261,7 @@ class MockAutopilot:
             return
         try:
             self._dispatch(msg, t_s)
-        except (ValueError, TypeError, OverflowError, ParamError, IndexError) as exc:
+        except (ValueError, TypeError, OverflowError, IndexError) as exc:
             self.counters["rx_handler_error"] += 1
             self.counters["rx_handler_error:" + type(exc).__name__] += 1
 

@@ -74,6 +74,13 @@ def _port(text: str) -> int:
     return p
 
 
+def _endpoint(text: str) -> str:
+    proto, sep, address = text.partition("/")
+    if not sep or not proto or not address:
+        raise argparse.ArgumentTypeError(f"expected a zenoh endpoint PROTO/ADDRESS, e.g. tcp/127.0.0.1:7447, got {text!r}")
+    return text
+
+
 def _fault(text: str):
     from sitl_mock.faults import FaultSet, parse_fault
     try:
@@ -105,9 +112,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tcp-base-port", type=_port, default=5760,
                         help="vehicle i serves TCP on 127.0.0.1:BASE+10*i (0 disables TCP)")
     parser.add_argument("--fleet", default="swarmseek", help="fleet name (zenoh keys)")
-    parser.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
+    parser.add_argument("--zenoh-listen", type=_endpoint, action="append", default=[], metavar="ENDPOINT",
                         help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    parser.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
+    parser.add_argument("--zenoh-connect", type=_endpoint, action="append", default=[], metavar="ENDPOINT",
                         help="zenoh connect endpoint (repeatable)")
     parser.add_argument("--noise", type=_nonnegative, default=0.0, help="sensor noise standard deviation")
     parser.add_argument("--fault", type=_fault, action="append", default=[], metavar="SYSID:NAME=VALUE",
@@ -144,7 +151,7 @@ def main(args: argparse.Namespace) -> int:
     except PortInUseError as exc:
         print(f"swarmseek mock: error: {exc.strerror}", file=sys.stderr)
         return 1
-    except OSError as exc:
+    except Exception as exc:  # OSError from sockets, zenoh.ZError from the zenoh session
         print(f"swarmseek mock: error: cannot open the fleet's sockets or zenoh session: {exc}",
               file=sys.stderr)
         return 1

@@ -42,6 +42,12 @@ def default_home_offsets(n: int, spacing_m: float = _HOME_SPACING_M) -> np.ndarr
     return np.array([((i % cols) * spacing_m, (i // cols) * spacing_m, 0.0) for i in range(n)])
 
 
+def _check_port_base(name: str, base: int, n: int, step: int) -> None:
+    """Port ``base + step * i`` must be valid for every vehicle i (0 disables the transport)."""
+    if base and not (1 <= base and base + step * (n - 1) <= 65535):
+        raise ValueError(f"{name}={base} does not leave room for {n} vehicles (step {step})")
+
+
 class MockVehicle:
     """One vehicle of a :class:`MockFleet` (read-only view plus its parts).
 
@@ -166,7 +172,8 @@ class MockFleet:
     sensor_rate_hz : float
         Readings per simulated second per vehicle.
     zenoh_listen, zenoh_connect : list of str, optional
-        Endpoints of the fleet's zenoh session (no session, hence no publishing, without them).
+        Endpoints of the fleet's zenoh session (no session, hence no publishing, without them;
+        they need a ``field``).
     zenoh : bool
         False disables zenoh even if endpoints are given.
     dynamics : DynamicsParams
@@ -201,10 +208,9 @@ class MockFleet:
         overrides = [params or {}] * n if not isinstance(params, (list, tuple)) else list(params)
         if len(overrides) != n:
             raise ValueError(f"{len(overrides)} parameter override sets given for {n} vehicles")
-        for name, base in (("udp_base_port", udp_base_port), ("udp_bind_base_port", udp_bind_base_port),
-                           ("tcp_base_port", tcp_base_port)):
-            if base and not (1 <= base and base + (10 * (n - 1) if name == "tcp_base_port" else n - 1) <= 65535):
-                raise ValueError(f"{name}={base} does not leave room for {n} vehicles")
+        _check_port_base("udp_base_port", udp_base_port, n, 1)
+        _check_port_base("udp_bind_base_port", udp_bind_base_port, n, 1)
+        _check_port_base("tcp_base_port", tcp_base_port, n, 10)
         self.clock = clock if clock is not None else SimClock(speedup)
         self.origin = tuple(float(v) for v in origin)
         self.fleet_name = fleet_name
@@ -212,7 +218,10 @@ class MockFleet:
         self.sensor_rate_hz = float(sensor_rate_hz)
         self._zenoh_listen = zenoh_listen
         self._zenoh_connect = zenoh_connect
-        self._zenoh_enabled = bool(zenoh) and field is not None and bool(zenoh_listen or zenoh_connect)
+        self._zenoh_enabled = bool(zenoh) and bool(zenoh_listen or zenoh_connect)
+        if self._zenoh_enabled and field is None:
+            raise ValueError("zenoh endpoints given but no field: the sensors would have nothing "
+                             "to publish (pass field=..., or zenoh=False)")
         self._session = None
         self._publisher = None
         self._selector = selectors.DefaultSelector()
@@ -349,7 +358,8 @@ class MockFleet:
                     self._sim_time_s = t_start + (k - 1) * dt
                     self._tick_cond.notify_all()
             next_tick = t_start + k * dt
-            if not lockstep and next_tick <= now - 1.0:  # hopelessly behind: skip ahead, count it
+            if not lockstep and next_tick <= now - max(1.0, 0.2 * speedup):
+                # hopelessly behind (over 0.2 s of wall time): skip ahead, count it
                 skipped = int((now - next_tick) / dt)
                 self.stats["dropped_steps"] += skipped
                 k += skipped

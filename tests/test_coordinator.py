@@ -249,3 +249,34 @@ def test_state_publisher_puts_json_snapshots_on_the_documented_key():
     finally:
         b.close()
         a.close()
+
+
+def test_seek_load_runs_the_seek_work_until_cancelled():
+    """The benchmark load: readings validated, setpoints ramped through the envelope, estimates."""
+    from mission.clock import WallClock
+    from mission.seek_load import seek_load
+
+    class _V:
+        def __init__(self, i):
+            self.sysid = i
+            self.mission_origin = (45.19, 5.72, 230.0)
+
+        def position_enu_m(self):
+            return np.array([2.0 * self.sysid, 0.0, 20.0])
+
+    st = _Streamer()
+    st.rate_hz = 20.0
+
+    async def main():
+        task = asyncio.ensure_future(seek_load([_V(i + 1) for i in range(8)], st, WallClock(),
+                                               estimate_rate_hz=10.0))
+        deadline = time.monotonic() + 30
+        while len(st.history) < 8 * 5 and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+
+    asyncio.run(main())
+    assert set(st.targets) == set(range(1, 9))
+    assert len(st.history) >= 40

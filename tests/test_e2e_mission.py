@@ -206,10 +206,10 @@ class _Rogue:
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
-    def _reading(self, sysid, **over):
+    def _reading(self, sysid, enu=(200.0, 200.0, 10.0), **over):
         from formation.geodesy import enu_to_geodetic
 
-        lat, lon, alt = enu_to_geodetic(np.array([0.0, 0.0, 10.0]), self._origin)
+        lat, lon, alt = enu_to_geodetic(np.array(enu), self._origin)
         d = {"schema": "swarmseek.sensor.v1", "fleet": self._fleet, "sysid": sysid, "seq": 1,
              "time_s": self._clock.time(), "lat_deg": float(lat), "lon_deg": float(lon), "alt_m": float(alt),
              "value": 0.5}
@@ -236,7 +236,7 @@ class _Rogue:
                 b'{"schema": "swarmseek.sensor.v1", "fleet": "%s", "sysid": 4, "seq": 1, "time_s": %f, '
                 b'"lat_deg": 45.0, "lon_deg": 5.0, "alt_m": 1.0, "value": NaN}' % (self._fleet.encode(), now),
                 self._reading(5, seq=10**9, time_s=now - 3600.0),    # late
-                self._reading(1, seq=10**9),                          # 10 m+ from vehicle 1 in flight
+                self._reading(1, seq=10**9),                          # 200 m from vehicle 1
             ]
             for (k, _), p in zip(bad, payloads):
                 self._session.put(k, p)

@@ -61,6 +61,13 @@ def test_areas_sum_to_4pi_even_in_one_hemisphere(n):
     assert areas.sum() == pytest.approx(4 * math.pi, abs=1e-12)
 
 
+def test_facets_are_counter_clockwise_from_outside():
+    cells = spherical_cells(random_sphere_points(50, 8))
+    a, b, c = (cells.points[cells.facets[:, k]] for k in range(3))
+    assert cells.facets.shape == (2 * 50 - 4, 3)
+    assert np.all(np.einsum("ij,ij->i", np.cross(b - a, c - a), a + b + c) > 0)
+
+
 def test_cocircular_generators_are_handled():
     # the symmetric cylinder has 4 co-circular points per circle: zero-length Voronoi edges
     cells = spherical_cells(symmetric_cylinder(8))

@@ -25,6 +25,9 @@ def test_distributed_reaches_the_central_energy(n):
     assert dist.energy == pytest.approx(central.energy, rel=1e-6)
     assert dist.updates == dist.rounds * n
     np.testing.assert_allclose(np.linalg.norm(dist.points, axis=1), 1.0)
+    # the distributed limit is a CVT of the whole sphere: a central Lloyd step barely moves it
+    step = spherical_cells(dist.points).centroids - dist.points
+    assert np.max(np.linalg.norm(step, axis=1)) < 1e-6
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -9,6 +9,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.clock import WallClock
 from mission.links import ConnectionSpec, LinkError, MavEndpoint, SysidRegistry, parse_connection
+from mission.links_poller import UdpPoller
 from mission.vehicle import VehicleLink
 from mission.vehicle_fake import FakeAutopilot, FakeUdpVehicle
 
@@ -94,11 +95,13 @@ async def _stop(*things):
         await thing.stop() if hasattr(thing, "stop") else await thing.close()
 
 
+@pytest.mark.parametrize("polled", [False, True], ids=["asyncio", "poller"])
 @pytest.mark.parametrize("n_vehicles", [1, 4])
-def test_one_udp_socket_demultiplexes_vehicles_and_addresses_each(n_vehicles):
+def test_one_udp_socket_demultiplexes_vehicles_and_addresses_each(n_vehicles, polled):
     async def scenario():
         clock = WallClock()
-        ep = await MavEndpoint.open("udpin:127.0.0.1:0", clock=clock)
+        poller = UdpPoller(0.005) if polled else None
+        ep = await MavEndpoint.open("udpin:127.0.0.1:0", clock=clock, poller=poller)
         sysids = list(range(11, 11 + n_vehicles))
         fakes = await _fleet(ep, sysids)
         try:
@@ -116,8 +119,12 @@ def test_one_udp_socket_demultiplexes_vehicles_and_addresses_each(n_vehicles):
                 assert all(m.target_system == ap.sysid for m in ap.setpoints + ap.commands)
                 assert fake.frames_in == len(ap.setpoints) + len(ap.commands) + ap.gcs_heartbeats
                 assert ap.setpoints[-1].y == pytest.approx(float(v.sysid), abs=1e-3)  # east -> y
+            if polled:
+                assert poller.datagrams == ep.counters["frames_in"] > 0
         finally:
             await _stop(*fakes, ep)
+            if poller is not None:
+                await poller.close()
     _run(scenario())
 
 
@@ -134,10 +141,12 @@ def test_gcs_heartbeat_reaches_every_vehicle():
     _run(scenario())
 
 
-def test_duplicate_sysid_from_two_addresses_is_an_error_naming_both():
+@pytest.mark.parametrize("polled", [False, True], ids=["asyncio", "poller"])
+def test_duplicate_sysid_from_two_addresses_is_an_error_naming_both(polled):
     async def scenario():
         clock = WallClock()
-        ep = await MavEndpoint.open("udpin:127.0.0.1:0", clock=clock)
+        poller = UdpPoller(0.005) if polled else None
+        ep = await MavEndpoint.open("udpin:127.0.0.1:0", clock=clock, poller=poller)
         fakes = await _fleet(ep, [7, 7])
         try:
             await _until(lambda: ep.errors, what="duplicate detection")
@@ -149,6 +158,8 @@ def test_duplicate_sysid_from_two_addresses_is_an_error_naming_both():
             assert ep.counters["duplicate_sysid"] == 1
         finally:
             await _stop(*fakes, ep)
+            if poller is not None:
+                await poller.close()
     _run(scenario())
 
 
@@ -353,3 +364,27 @@ def test_send_payload_frames_are_identical_to_pymavlink(fields):
     assert frame == cls(**{name: wire[name] for name in cls.fieldnames}).pack(reference)
     decoded = mavlink.MAVLink(None).decode(bytearray(frame))
     assert decoded.get_type() == "SET_POSITION_TARGET_LOCAL_NED" and decoded.type_mask == fields[12]
+
+
+def test_udpout_with_poller_talks_to_a_vehicle_that_waits_to_be_spoken_to():
+    async def scenario():
+        clock = WallClock()
+        poller = UdpPoller(0.005)
+        ap = FakeAutopilot(12)
+        fake = await FakeUdpVehicle([ap], ("127.0.0.1", 9), telemetry_hz=5.0).start()  # streams nowhere useful
+        ep = await MavEndpoint.open(f"udpout:127.0.0.1:{fake.address[1]}", clock=clock, poller=poller,
+                                    heartbeat_hz=5.0)
+        try:
+            # our heartbeat makes the fake add us as a peer; then its telemetry reaches us
+            vehicle = await VehicleLink.create(ep, 12, clock=clock, mission_origin=ORIGIN)
+            await vehicle.arm()
+            assert ap.armed and ap.gcs_heartbeats >= 1
+        finally:
+            await _stop(fake, ep)
+            await poller.close()
+    _run(scenario())
+
+
+def test_poller_rejects_bad_interval():
+    with pytest.raises(ValueError, match="interval_s must be > 0"):
+        UdpPoller(0)

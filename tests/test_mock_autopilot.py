@@ -117,18 +117,21 @@ def test_flies_mode_arm_takeoff_setpoints_land(personality):
     ("px4", "offboard_without_setpoints", mav.MAV_RESULT_TEMPORARILY_REJECTED),
     ("px4", "mission_mode_without_mission", mav.MAV_RESULT_TEMPORARILY_REJECTED),
     ("ardupilot", "unknown_mode", mav.MAV_RESULT_FAILED),
-    ("px4", "unknown_mode", mav.MAV_RESULT_TEMPORARILY_REJECTED),
+    ("px4", "unknown_mode", mav.MAV_RESULT_ACCEPTED),  # PX4 ACKs an unknown main mode, changes nothing
+    ("px4", "unknown_auto_sub_mode", mav.MAV_RESULT_TEMPORARILY_REJECTED),
     ("ardupilot", "unknown_command", mav.MAV_RESULT_UNSUPPORTED),
     ("px4", "unknown_command", mav.MAV_RESULT_UNSUPPORTED),
-    ("ardupilot", "bad_arm_value", mav.MAV_RESULT_DENIED),
+    ("ardupilot", "bad_arm_value", mav.MAV_RESULT_UNSUPPORTED),
+    ("px4", "bad_arm_value", mav.MAV_RESULT_UNSUPPORTED),
     ("px4", "mission_start_without_mission", mav.MAV_RESULT_DENIED),
     ("ardupilot", "request_unknown_message", mav.MAV_RESULT_DENIED),
+    ("px4", "request_home_before_fix", mav.MAV_RESULT_TEMPORARILY_REJECTED),
     ("ardupilot", "disarm_in_air", mav.MAV_RESULT_FAILED),
     ("px4", "disarm_in_air", mav.MAV_RESULT_TEMPORARILY_REJECTED),
 ])
 def test_denials_get_the_autopilots_ack(personality, scenario, expected):
     h = Harness(personality)
-    if scenario not in ("arm_not_ready", "takeoff_not_ready"):
+    if scenario not in ("arm_not_ready", "takeoff_not_ready", "request_home_before_fix"):
         h.run(2.5)
     armed_before = None
     if scenario == "arm_not_ready":
@@ -146,13 +149,23 @@ def test_denials_get_the_autopilots_ack(personality, scenario, expected):
     elif scenario == "mission_mode_without_mission":
         result = h.set_mode("AUTO.MISSION")
     elif scenario == "unknown_mode":
+        mode_before = h.ap.mode_name
         result = h.command(mav.MAV_CMD_DO_SET_MODE, 1, 99, 0)
+        assert h.ap.mode_name == mode_before
+    elif scenario == "unknown_auto_sub_mode":
+        result = h.command(mav.MAV_CMD_DO_SET_MODE, 1, 4, 42)
     elif scenario == "unknown_command":
         result = h.command(31337)
     elif scenario == "bad_arm_value":
         result = h.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0.5)
     elif scenario == "mission_start_without_mission":
         result = h.command(mav.MAV_CMD_MISSION_START)
+    elif scenario == "request_home_before_fix":
+        result = h.command(mav.MAV_CMD_REQUEST_MESSAGE, mav.MAVLINK_MSG_ID_HOME_POSITION)
+        h.run(2.5)
+        assert h.command(mav.MAV_CMD_REQUEST_MESSAGE, mav.MAVLINK_MSG_ID_HOME_POSITION) == \
+            mav.MAV_RESULT_ACCEPTED
+        assert h.received[-1].get_type() == "HOME_POSITION"
     elif scenario == "request_unknown_message":
         result = h.command(mav.MAV_CMD_REQUEST_MESSAGE, 9999)
     else:  # disarm_in_air
@@ -363,3 +376,138 @@ def test_global_setpoint_relative_alt_is_followed():
         int(round(lon * 1e7)), 12.0, 0, 0, 0, 0, 0, 0, 0, 0))
     h.run(20.0)
     assert h.mc.position_ned_m == pytest.approx((-15.0, 25.0, -12.0), abs=0.1)
+
+
+def test_sysid_param_takes_effect_after_reboot():
+    h = Harness("ardupilot")
+    h.send(h.gcs.param_set_encode(1, 1, b"SYSID_THISMAV", 7.0, mav.MAV_PARAM_TYPE_INT16))
+    h.run(1.0)
+    assert {m.get_srcSystem() for m in h.received if m.get_type() == "HEARTBEAT"} == {1}
+    assert h.command(mav.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1) == mav.MAV_RESULT_ACCEPTED
+    start = len(h.received)
+    h.run(2.0)
+    assert {m.get_srcSystem() for m in h.received[start:] if m.get_type() == "HEARTBEAT"} == {7}
+    assert h.ap.sysid == 7
+    assert h.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, target=7) is not None
+
+
+@pytest.mark.parametrize("glitch_m", [0.0, 25.0])
+def test_gps_glitch_moves_the_reported_not_the_true_position(glitch_m):
+    h = Harness("px4")
+    h.ap.faults.set("gps_glitch_m", glitch_m)
+    h.run(3.0)
+    lpn = [m for m in h.received if m.get_type() == "LOCAL_POSITION_NED"][-1]
+    assert lpn.x == pytest.approx(glitch_m)
+    assert h.mc.position_ned_m[0] == 0.0
+
+
+@pytest.mark.parametrize("personality,params,expected_mode", [
+    ("ardupilot", {"FENCE_ENABLE": 1, "FENCE_RADIUS": 30.0}, "RTL"),
+    ("px4", {"GF_MAX_HOR_DIST": 30.0, "GF_ACTION": 5}, "AUTO.LAND"),
+])
+def test_geofence_breach_triggers_the_fence_action(personality, params, expected_mode):
+    h = Harness(personality, **params)
+    h.airborne(10.0)
+    if personality == "px4":
+        h.setpoint(50.0, 0.0, -10.0)
+        assert h.set_mode("OFFBOARD") == mav.MAV_RESULT_ACCEPTED
+        for _ in range(100):
+            h.setpoint(50.0, 0.0, -10.0)
+            h.run(0.1)
+            if h.ap.mode_name != "OFFBOARD":
+                break
+    else:
+        h.setpoint(50.0, 0.0, -10.0)
+        h.run(10.0)
+    assert h.ap.mode_name == expected_mode
+    texts = [m.text for m in h.received if m.get_type() == "STATUSTEXT"]
+    assert "Failsafe: geofence breached" in texts
+    assert h.mc.position_ned_m[0] < 40.0
+
+
+@pytest.mark.parametrize("frame,xyz,expected_ned", [
+    (mav.MAV_FRAME_LOCAL_NED, (10.0, 5.0, -12.0), (10.0, 5.0, -12.0)),
+    (mav.MAV_FRAME_LOCAL_OFFSET_NED, (10.0, 5.0, -2.0), (10.0, 5.0, -12.0)),  # from (0, 0, -10)
+])
+def test_local_setpoint_frames_and_yaw_are_honoured(frame, xyz, expected_ned):
+    h = Harness("ardupilot")
+    h.airborne(10.0)
+    mask_with_yaw = POS_ONLY & ~1024  # use the yaw field
+    h.send(h.gcs.set_position_target_local_ned_encode(0, 1, 1, frame, mask_with_yaw, *xyz,
+                                                      0, 0, 0, 0, 0, 0, math.radians(90), 0))
+    h.run(15.0)
+    assert h.mc.position_ned_m == pytest.approx(expected_ned, abs=0.1)
+    assert h.mc.yaw_rad == pytest.approx(math.radians(90), abs=1e-3)
+    echo = [m for m in h.received if m.get_type() == "POSITION_TARGET_GLOBAL_INT"][-1]
+    lat, lon, alt = h.ap.ned_to_geodetic(expected_ned)
+    assert echo.lat_int == pytest.approx(lat * 1e7, abs=2) and echo.lon_int == pytest.approx(lon * 1e7, abs=2)
+    assert echo.alt == pytest.approx(alt, abs=0.02)  # offsets start from the current position
+
+
+def test_setpoints_outside_guided_are_not_followed_and_bad_frames_counted():
+    h = Harness("ardupilot")
+    h.airborne(10.0)
+    assert h.set_mode("LOITER") == mav.MAV_RESULT_ACCEPTED
+    h.setpoint(30.0, 0.0, -10.0)
+    h.setpoint(30.0, 0.0, -10.0, frame=mav.MAV_FRAME_GLOBAL_INT)  # not a local frame
+    h.setpoint(30.0, 0.0, -10.0, mask=0b110111111111)  # neither position nor velocity
+    h.run(5.0)
+    assert h.mc.position_ned_m[0] == pytest.approx(0.0, abs=0.1)
+    assert h.ap.counters["setpoint_not_in_guided"] == 1
+    assert h.ap.counters["setpoint_bad_frame"] == 1
+    assert h.ap.counters["setpoint_unsupported_mask"] == 1
+
+
+def test_px4_takeoff_while_disarmed_selects_takeoff_mode_and_climbs_on_arming():
+    h = Harness("px4", MIS_TAKEOFF_ALT=4.0)
+    h.run(2.5)
+    assert h.command(mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan,
+                     math.nan) == mav.MAV_RESULT_ACCEPTED  # NaN altitude: MIS_TAKEOFF_ALT
+    assert h.ap.mode_name == "AUTO.TAKEOFF" and not h.ap.armed
+    h.run(1.0)
+    assert h.mc.landed
+    assert h.arm() == mav.MAV_RESULT_ACCEPTED
+    h.run(6.0)
+    assert -h.mc.position_ned_m[2] == pytest.approx(4.0, abs=0.2)
+    assert h.ap.mode_name == "AUTO.LOITER"
+
+
+@pytest.mark.parametrize("name,value,match", [
+    ("NO_SUCH", 1, "unknown parameter 'NO_SUCH'"),
+    ("FS_GCS_ENABLE", 1.5, "expected an integer"),
+    ("FS_GCS_TIMEOUT", 1e9, r"outside \[2.0, 120.0\]"),
+    ("RTL_ALT", math.nan, "must be finite"),
+])
+def test_param_table_rejects_bad_values(name, value, match):
+    from sitl_mock.ap_params import ParamError
+    table = Harness("ardupilot").ap.params
+    with pytest.raises(ParamError, match=match):
+        table.set(name, value)
+
+
+def test_param_overrides_are_checked_at_construction():
+    from sitl_mock.ap_params import ParamError
+    with pytest.raises(ParamError, match="MPC_XY_VEL_MAX"):
+        Harness("px4", MPC_XY_VEL_MAX=-1.0)
+
+
+def test_ardupilot_auto_flies_the_mission_after_its_home_item():
+    h = Harness("ardupilot")
+    h.run(2.5)
+    wp = h.ap.ned_to_geodetic((-10.0, 15.0, 0.0))
+    items = [(mav.MAV_CMD_NAV_WAYPOINT, 0, 0, 0.0),  # item 0: home, overwritten by ArduPilot
+             (mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 6.0),
+             (mav.MAV_CMD_NAV_WAYPOINT, int(round(wp[0] * 1e7)), int(round(wp[1] * 1e7)), 6.0),
+             (mav.MAV_CMD_NAV_LAND, 0, 0, 0.0)]
+    h.send(h.gcs.mission_count_encode(1, 1, len(items), 0))
+    for seq, (cmd, x, y, z) in enumerate(items):
+        h.send(h.gcs.mission_item_int_encode(1, 1, seq, mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                                             cmd, 0, 1, 0, 0, 0, 0, x, y, z, 0))
+    assert h.set_mode("LOITER") == mav.MAV_RESULT_ACCEPTED
+    assert h.arm() == mav.MAV_RESULT_ACCEPTED
+    assert h.set_mode("AUTO") == mav.MAV_RESULT_ACCEPTED
+    h.run(40.0)
+    assert [m.seq for m in h.received if m.get_type() == "MISSION_ITEM_REACHED"] == [1, 2, 3]
+    # the waypoint is reached within WPNAV_RADIUS (2 m); NAV_LAND at lat/lon 0 lands right there
+    assert h.mc.position_ned_m == pytest.approx((-10.0, 15.0, 0.0), abs=2.5)
+    assert h.mc.landed and not h.ap.armed

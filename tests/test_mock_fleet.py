@@ -181,6 +181,7 @@ def test_port_in_use_is_a_clear_error():
     ({"n": 2, "personality": "inav"}, "unknown personality"),
     ({"n": 2, "home_offsets_enu": [(0, 0, 0)]}, "home_offsets_enu"),
     ({"n": 2, "sensor_rate_hz": 0}, "sensor_rate_hz"),
+    ({"n": 2, "zenoh_listen": ["tcp/127.0.0.1:7447"]}, "no field"),
 ])
 def test_bad_fleet_arguments(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -202,6 +203,9 @@ def test_set_fault_checks_names_and_sysids():
     (["--personality", "inav"], 2, "invalid choice"),
     (["--fault", "1:loss_uplink=2"], 2, "probability"),
     (["--origin", "95,0,0"], 2, "latitude"),
+    (["--zenoh-listen", "garbage"], 2, "PROTO/ADDRESS"),
+    (["--speedup", "-3"], 2, "positive"),
+    (["--fault", "9:link_cut=1", "--vehicles", "2"], 2, "only 2 vehicles"),
 ])
 def test_cli_rejects_bad_flags(argv, code, text):
     r = subprocess.run([sys.executable, "-m", "mission", "mock", *argv], capture_output=True,
@@ -229,3 +233,20 @@ def test_cli_runs_prints_ports_and_reports_port_in_use():
         blocker.close()
     assert r.returncode == 1
     assert f"UDP port 127.0.0.1:{bind}" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_cli_stops_cleanly_on_ctrl_c():
+    import signal
+    args = [sys.executable, "-m", "mission", "mock", "--vehicles", "1", "--tcp-base-port", "0",
+            "--udp-base-port", str(_free_base(1)), "--udp-bind-base-port", str(_free_base(1))]
+    p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout.readline().startswith("mock fleet")
+        assert p.stdout.readline().startswith("vehicle sysid=1")
+        p.send_signal(signal.SIGINT)
+        _out, err = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, err
+    assert "Traceback" not in err

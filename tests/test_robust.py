@@ -48,8 +48,8 @@ def test_fit_is_exact_on_linear_fields_for_any_weights_and_subset(seed, drop):
     values = 3.0 + off @ grad
     w = rng.uniform(0.01, 10, N)
     w[rng.choice(N, drop, replace=False)] = 0.0
-    kept = off[w > 0] - off[w > 0].mean(axis=0)
-    if np.linalg.cond(kept.T @ kept) > 1e3:  # e.g. 4 coplanar sensors left: refused, not guessed
+    rt = off - (w @ off) / w.sum()
+    if np.linalg.cond((w[:, None] * rt).T @ rt) > 1e3:  # e.g. 4 coplanar sensors left: refused, not guessed
         with pytest.raises(GeometryError, match="degenerate"):
             weighted_gradient(off, values, w)
         return
@@ -212,3 +212,41 @@ def test_update_rejects_bad_readings():
 
 def test_reasons_are_documented():
     assert REASONS == ("stuck", "biased", "spiking", "noisy")
+
+
+@pytest.mark.parametrize("weighting", ["inverse_variance", "equal", "auto"])
+def test_weighting_modes_on_a_nearly_linear_field(weighting):
+    rng = np.random.default_rng(11)
+    off = _formation()
+    est = RobustGradientEstimator(N, weighting=weighting)
+    std = np.full(N, 0.1)
+    std[6] = 0.5
+    for _ in range(200):
+        est.update(off, 0.3 + off @ [0.02, -0.01, 0.03] + rng.normal(0, 1, N) * std)
+    w = est.weights
+    assert [(s.index, s.reason) for s in est.suspects] == [(6, "noisy")]
+    if weighting == "equal":
+        assert np.allclose(w, 1 / N) and est.weighting_exponent == 0.0
+    else:  # no curvature: nothing to lose by down-weighting the noisy sensor
+        assert w[6] < 0.1 / N and est.weighting_exponent == 1.0
+
+
+def test_auto_weighting_keeps_equal_weights_when_curvature_would_bias():
+    """Strong curvature across the formation: down-weighting one sensor would bias the
+    estimate by far more than the noise it saves, so auto keeps equal weights (bias flags are
+    switched off here: curvature this strong can also look like a bias)."""
+    rng = np.random.default_rng(12)
+    off = _formation()
+    hess = np.diag([0.4, 0.1, -0.3])
+    clean = 0.3 + off @ [0.02, -0.01, 0.03] + 0.5 * np.einsum("ni,ij,nj->n", off, hess, off)
+    std = np.full(N, 0.01)
+    std[6] = 0.05
+    auto = RobustGradientEstimator(N, bias_min_std=1e9)
+    inv = RobustGradientEstimator(N, bias_min_std=1e9, weighting="inverse_variance")
+    g_eq = weighted_gradient(off, clean)
+    for _ in range(200):
+        y = clean + rng.normal(0, 1, N) * std
+        ga, gi = auto.update(off, y), inv.update(off, y)
+    assert auto.weighting_exponent == 0.0
+    # the persistent error of the down-weighted estimate is the curvature bias auto avoided
+    assert np.linalg.norm(gi - g_eq) > 3 * np.linalg.norm(ga - g_eq)

@@ -78,11 +78,12 @@ def test_synchronous_distance_matches_brute_force(data):
     t = np.linspace(0, 1, 4001)[:, None]
     brute = np.linalg.norm((p0 + t * (p1 - p0)) - (q0 + t * (q1 - q0)), axis=1).min()
     exact = float(synchronous_distance(p0, p1, q0, q1))
-    assert exact <= brute + 1e-9
-    assert brute - exact <= np.linalg.norm((p1 - p0) - (q1 - q0)) / 4000 + 1e-9
+    tol = 1e-6  # expanded quadratic: ~sqrt(machine eps) * scale, far below any separation
+    assert exact <= brute + tol
+    assert brute - exact <= np.linalg.norm((p1 - p0) - (q1 - q0)) / 4000 + tol
     # never more than the end-point distances, never less than the plain segment distance
-    assert exact <= min(np.linalg.norm(p0 - q0), np.linalg.norm(p1 - q1)) + 1e-9
-    assert exact >= float(segment_distance(p0, p1, q0, q1)) - 1e-9
+    assert exact <= min(np.linalg.norm(p0 - q0), np.linalg.norm(p1 - q1)) + tol
+    assert exact >= float(segment_distance(p0, p1, q0, q1)) - tol
 
 
 def test_crossing_paths_collide_although_segments_differ_in_time():
@@ -352,3 +353,20 @@ def test_setpoint_functions_reject_bad_input(prev, new, dt, match):
 def test_point_in_polygon_is_boundary_inclusive():
     assert point_in_polygon(np.array([[0.0, 50.0], [100.0, 100.0], [-1e-3, 50.0]]), SQUARE).tolist() == [
         True, True, False]
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 12), step=st.floats(0.0, 30.0))
+def test_pair_pruning_matches_the_dense_check(seed, n, step):
+    from mission.safety import pairwise_path_separation
+
+    rng = np.random.default_rng(seed)
+    prev = np.c_[rng.uniform(10, 40, (n, 2)), rng.uniform(10, 40, n)]
+    new = prev + rng.normal(0, step, (n, 3))
+    env = SafetyEnvelope(Geofence(SQUARE, 0, 100), 1e6, 3.0, 0.0)
+    rep = env.check_setpoints(prev, new, 1.0)
+    dense = pairwise_path_separation(prev, new)
+    assert rep.min_separation_m == pytest.approx(dense.min(), abs=1e-6)
+    flagged = {v.vehicles for v in rep.violations if v.kind.startswith("separation")}
+    expected = {(i, j) for i in range(n) for j in range(i + 1, n) if dense[i, j] < 3.0 * (1 - 1e-9)}
+    assert flagged == expected

@@ -53,7 +53,7 @@ async def _with_vehicles(aps, body, *, telemetry_hz: float = 5.0, **link_kwargs)
 @pytest.mark.parametrize("drops", [0, 1, 2])
 def test_command_retries_increment_confirmation_until_acked(drops):
     async def body(vehicles, aps):
-        result = await vehicles[0].command_long(ARM, 1, timeout_s=0.3, retries=3)
+        result = await vehicles[0].command_long(ARM, 1, timeout_s=1.0, retries=3)
         assert result == mavlink.MAV_RESULT_ACCEPTED
         assert [c.confirmation for c in aps[0].commands] == list(range(drops + 1))
         assert aps[0].armed
@@ -87,12 +87,13 @@ def test_command_refusal_is_reported_once_without_retry(result, name):
 
 def test_in_progress_extends_the_wait_without_resending():
     async def body(vehicles, aps):
-        # the final ACK comes with the next telemetry tick (0.5 s), well after timeout_s
+        # the final ACK comes 1.5 s after IN_PROGRESS, well after timeout_s
         result = await vehicles[0].command_long(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 5,
-                                                timeout_s=0.1, retries=3)
+                                                timeout_s=0.5, retries=3)
         assert result == mavlink.MAV_RESULT_ACCEPTED
         assert len(aps[0].commands) == 1
-    _run(_with_vehicles([FakeAutopilot(3, in_progress={mavlink.MAV_CMD_NAV_TAKEOFF})], body, telemetry_hz=2.0))
+    ap = FakeAutopilot(3, in_progress={mavlink.MAV_CMD_NAV_TAKEOFF}, in_progress_delay_s=1.5)
+    _run(_with_vehicles([ap], body))
 
 
 def test_too_many_params_is_a_value_error():
