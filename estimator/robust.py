@@ -220,7 +220,7 @@ class RobustGradientEstimator:
 
     def __init__(self, n: int, window: int = 100, batch_shape: tuple[int, ...] = (), centre: str = "fit",
                  min_sensors: int = 4, warmup: int | None = None, var_floor_rel: float = 0.25,
-                 k_mad: float = 5.0, k_bias: float = 6.0, bias_explained: float = 0.6, bias_min_std: float = 1.5,
+                 k_mad: float = 5.0, k_bias: float = 6.0, bias_explained: float = 0.85, bias_min_std: float = 1.5,
                  k_noisy: float = 2.0, stuck_ratio: float = 1e-6, spike_rate: float = 0.02,
                  max_condition: float = DEFAULT_MAX_CONDITION, weighting: str = "auto",
                  bias_gain: float = 500.0):
@@ -563,8 +563,13 @@ class RobustGradientEstimator:
         energy = np.einsum("...j,...j->...", inv_var, med**2)[..., None]
         explained = b**2 * den / np.maximum(energy, np.finfo(float).tiny)
         significant = (np.abs(b) > self.k_bias * se) & (np.abs(b) > self.bias_min_std * std_d)
-        score = np.where(significant, explained, 0.0)
+        # what one bias leaves unexplained must be noise, not structure (e.g. strong curvature)
+        remainder = med[..., :, None] - cols * b[..., None, :]  # [..., j, i]: after removing bias i
+        clean = np.max(np.abs(remainder) / np.maximum(se, 1e-300)[..., :, None], axis=-2) <= self.k_bias
+        score = np.where(significant & clean, explained, 0.0)
         new = _argmax_mask(score) & (score >= self.bias_explained)
         stay = (self._code == REASONS.index("biased") + 1) & (np.abs(med) > self.k_bias * se) \
             & (np.abs(med) > self.bias_min_std * std_d)
-        return new | stay
+        # one biased sensor at a time: the one already excluded, else the new best candidate
+        return np.where(np.any(stay, axis=-1, keepdims=True), stay & _argmax_mask(np.where(stay, np.abs(med), -1.0)),
+                        new)
