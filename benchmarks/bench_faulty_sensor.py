@@ -43,6 +43,8 @@ EPS, GAMMA = 1.0, 0.1
 START_ENU = (20.0, -20.0, 5.0)
 NOISE = 0.1
 FAULTS = ("none", "noisy 5x", "noisy 10x", "stuck", "biased", "spiking")
+#: the suspect reason each injected fault should be reported with
+_WANT = {"noisy 5x": "noisy", "noisy 10x": "noisy", "stuck": "stuck", "biased": "biased", "spiking": "spiking"}
 ESTIMATORS = ("symmetric eq.3", "CVT Thm 2", "CVT robust", "symmetric robust")
 #: not in the default table: weighted least squares with the TRUE noise variances (a bound on
 #: what any weighting can achieve; it cannot see stuck/biased/spiking sensors)
@@ -83,6 +85,9 @@ def run(fault, estimator, trials, iterations, tail, radius_m, seed):
     weights = None if (robust or oracle) else estimator_weights(off, method)
     c = np.broadcast_to(np.asarray(START_ENU), (trials, 3)).copy()
     dist = np.empty((iterations, trials))
+    want = _WANT.get(fault)
+    want_code = REASONS.index(want) + 1 if want else -1
+    first_named = np.full(trials, -1)
     first = None
     t0 = time.perf_counter()
     for t in range(iterations):
@@ -93,6 +98,8 @@ def run(fault, estimator, trials, iterations, tail, radius_m, seed):
         y = _faulty_readings(fault, clean, noise, faulty, first, rng_spike)
         if robust is not None:
             g = robust.update(off, y)
+            named_now = robust.suspect_codes[np.arange(trials), faulty] == want_code
+            first_named = np.where(named_now & (first_named < 0), t + 1, first_named)
         elif oracle:
             g = weighted_gradient(off, y, 1.0 / std**2)
         else:
@@ -107,12 +114,12 @@ def run(fault, estimator, trials, iterations, tail, radius_m, seed):
         right = codes[np.arange(trials), faulty]
         others = codes.copy()
         others[np.arange(trials), faulty] = 0
-        want = {"noisy 5x": "noisy", "noisy 10x": "noisy", "stuck": "stuck", "biased": "biased",
-                "spiking": "spiking"}.get(fault)
-        named = np.mean(right == (REASONS.index(want) + 1)) if want else float("nan")
+        named = np.mean(right == want_code) if want else float("nan")
         false = np.mean(np.any(others > 0, axis=1))
         false_excl = np.mean(np.any((others == 1) | (others == 2), axis=1))
-        flags = (named, false, false_excl)
+        when = first_named[first_named > 0]
+        detect = (float(np.median(when)), float(np.percentile(when, 90))) if len(when) else (np.nan, np.nan)
+        flags = (named, false, false_excl, detect)
     return final, flags, per_iter
 
 
@@ -160,14 +167,15 @@ def main(argv=None) -> int:
     print("\n(+x% / +y%): change of the mean / std against the same estimator with no fault.")
     robust_ests = [e for e in ests if "robust" in e]
     if robust_ests:
-        print("\n| fault | estimator | faulty robot named (right reason) | trials with a healthy robot named "
-              "| ... named stuck/biased (excluded) |")
-        print("|---|---|---|---|---|")
+        print("\n| fault | estimator | faulty robot named at the end (right reason) | first named: median / "
+              "90th pct iteration | trials with a healthy robot named | ... named stuck/biased (excluded) |")
+        print("|---|---|---|---|---|---|")
         for fault in faults:
             for est in robust_ests:
-                named, false, false_excl = results[fault, est][1]
+                named, false, false_excl, (med, p90) = results[fault, est][1]
                 named_s = "-" if np.isnan(named) else f"{named:.0%}"
-                print(f"| {fault} | {est} | {named_s} | {false:.0%} | {false_excl:.0%} |")
+                when_s = "-" if np.isnan(med) else f"{med:.0f} / {p90:.0f}"
+                print(f"| {fault} | {est} | {named_s} | {when_s} | {false:.0%} | {false_excl:.0%} |")
     if ("none", "CVT Thm 2") in results and ("noisy 5x", "CVT robust") in results:
         base = results["none", "CVT Thm 2"][0]
         rob = results["noisy 5x", "CVT robust"][0]

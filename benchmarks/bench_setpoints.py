@@ -31,7 +31,8 @@ Stacks:
 
 Extending (e.g. to add estimation to the load): :func:`run_swarmseek` takes ``extra_load``, an
 async callable ``extra_load(vehicles, streamer, clock)`` started with the streamer and cancelled
-at the end of the window; its cost is then part of the coordinator CPU figure.
+at the end of the window; its cost is then part of the coordinator CPU figure. From the command
+line: ``--extra-load package.module:function`` (swarmseek stacks only).
 
 Run::
 
@@ -42,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import collections
 import json
 import os
 import queue as queue_mod
@@ -262,7 +264,17 @@ async def run_mavsdk(n: int, port_base: int, shared: bool, rate_hz: float, windo
         mavsdk.destroy()
 
 
-async def _coordinator_main(stack: str, n: int, port_base: int, rate_hz: float, duration_s: float, warmup_s: float):
+def _load_callable(spec: str | None):
+    if not spec:
+        return None
+    import importlib
+
+    module_name, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module_name), name)
+
+
+async def _coordinator_main(stack: str, n: int, port_base: int, rate_hz: float, duration_s: float, warmup_s: float,
+                            extra_load: str | None = None):
     loop = asyncio.get_running_loop()
     queue: asyncio.Queue = asyncio.Queue()
     threading.Thread(target=_stdin_commands, args=(loop, queue), daemon=True).start()
@@ -284,7 +296,7 @@ async def _coordinator_main(stack: str, n: int, port_base: int, rate_hz: float, 
         result = await run_bare(n, port_base, True, rate_hz, window)
     elif stack.startswith("swarmseek"):
         result = await run_swarmseek(n, port_base, "-shared" in stack, rate_hz, window,
-                                     polled=stack.endswith("-polled"))
+                                     extra_load=_load_callable(extra_load), polled=stack.endswith("-polled"))
     else:
         result = await run_mavsdk(n, port_base, shared, rate_hz, window)
     print("RESULT " + json.dumps(result), flush=True)
@@ -293,14 +305,21 @@ async def _coordinator_main(stack: str, n: int, port_base: int, rate_hz: float, 
 # ----------------------------------------------------------------------------------- driver
 def _spawn(args: list[str]) -> subprocess.Popen:
     proc = subprocess.Popen([sys.executable, os.path.abspath(__file__)] + args, stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, bufsize=1)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
     proc.lines = queue_mod.Queue()
+    proc.err_tail = collections.deque(maxlen=3)   # the end of a traceback, for the FAILED row
 
-    def pump():
+    def pump_out():
         for line in proc.stdout:
             proc.lines.put(line)
         proc.lines.put(None)
-    threading.Thread(target=pump, daemon=True).start()
+
+    def pump_err():
+        for line in proc.stderr:
+            if line.strip():
+                proc.err_tail.append(line.strip())
+    threading.Thread(target=pump_out, daemon=True).start()
+    threading.Thread(target=pump_err, daemon=True).start()
     return proc
 
 
@@ -313,12 +332,15 @@ def _expect(proc, prefix: str, timeout_s: float) -> str:
         except queue_mod.Empty:
             raise RuntimeError(f"timed out after {timeout_s:g} s waiting for {prefix.strip()!r}") from None
         if line is None:
-            raise RuntimeError(f"process exited while waiting for {prefix.strip()!r}")
+            time.sleep(0.2)   # let the stderr pump catch the end of the traceback
+            tail = proc.err_tail[-1] if proc.err_tail else "no message"
+            raise RuntimeError(f"process exited while waiting for {prefix.strip()!r}: {tail}")
         if line.startswith(prefix):
             return line[len(prefix):].strip()
 
 
-def run_case(stack: str, n: int, rate_hz: float, duration_s: float, warmup_s: float) -> dict:
+def run_case(stack: str, n: int, rate_hz: float, duration_s: float, warmup_s: float,
+             extra_load: str | None = None) -> dict:
     """One benchmark case in fresh processes; returns the combined measurements."""
     port_base = _free_port_base(n + 1)
     shared = "-shared" in stack or stack == "bare-pymavlink"
@@ -329,7 +351,7 @@ def run_case(stack: str, n: int, rate_hz: float, duration_s: float, warmup_s: fl
         _expect(vehicles, "READY", 60)
         coordinator = _spawn(["--role", "coordinator", "--stack", stack, "--n", str(n), "--port-base",
                               str(port_base), "--rate", str(rate_hz), "--duration", str(duration_s),
-                              "--warmup", str(warmup_s)])
+                              "--warmup", str(warmup_s)] + (["--extra-load", extra_load] if extra_load else []))
         _expect(coordinator, "MARK", 180)
         vehicles.stdin.write("MARK\n")
         coordinator.stdin.write("GO\n")
@@ -391,20 +413,23 @@ def main(argv=None) -> int:
     parser.add_argument("--port-base", type=int)
     parser.add_argument("--shared", action="store_true")
     parser.add_argument("--json", action="store_true", help="also print the rows as JSON")
+    parser.add_argument("--extra-load", metavar="MODULE:FUNCTION",
+                        help="async extra_load(vehicles, streamer, clock) run during the window (swarmseek stacks)")
     args = parser.parse_args(argv)
     if args.role == "vehicles":
         asyncio.run(_vehicles_main(args.n[0], args.port_base, args.shared))
         return 0
     if args.role == "coordinator":
-        asyncio.run(_coordinator_main(args.stack, args.n[0], args.port_base, args.rate, args.duration, args.warmup))
+        asyncio.run(_coordinator_main(args.stack, args.n[0], args.port_base, args.rate, args.duration, args.warmup,
+                                      args.extra_load))
         return 0
     rows = []
     for n in args.n:
         for stack in args.stacks:
             try:
-                row = run_case(stack, n, args.rate, args.duration, args.warmup)
+                row = run_case(stack, n, args.rate, args.duration, args.warmup, args.extra_load)
             except Exception as exc:  # one failed case (e.g. MAVSDK collapsing) still prints the others
-                row = {"stack": stack, "n": n, "error": str(exc)[:80]}
+                row = {"stack": stack, "n": n, "error": str(exc)[:200]}
             rows.append(row)
             print(_table(rows[-1:]).splitlines()[-1], file=sys.stderr, flush=True)
     print(f"setpoints at {args.rate:g} Hz per vehicle, {args.duration:g} s window; intervals measured at the "

@@ -19,7 +19,8 @@ prediction errors ``d_i`` (reading minus the prediction of the fit of the *other
   that update (worst first) and counted;
 * stuck: readings stop changing while the others' change;
 * biased: the windowed median errors of all sensors are explained by a bias on one sensor
-  leaking through the known leave-one-out map;
+  leaking through the known leave-one-out map, and what it leaves unexplained is noise (or small
+  next to it), not structure such as the field's curvature across the formation;
 * noisy: ``std_i > k_noisy * median(std)`` (reported; handled by the weights).
 
 Stuck and biased sensors are excluded while at least ``min_sensors`` remain with a
@@ -61,6 +62,8 @@ _MAD_TO_STD = 1.4826
 _KAPPA_WINDOWS = 4
 #: |b|^2 must exceed this many times its noise-only expectation to count as a curvature bias
 _BIAS_SIGNIFICANCE = 9.0
+#: a bias is also accepted when what it leaves unexplained is below this fraction of it
+_BIAS_DOMINANCE = 0.15
 #: strength (in updates) of the shrinkage of each sensor's variance towards the median
 _PRIOR_UPDATES = 25
 #: E[min(X^2, 9)] for a standard normal X (winsorising at 3 standard deviations)
@@ -563,9 +566,11 @@ class RobustGradientEstimator:
         energy = np.einsum("...j,...j->...", inv_var, med**2)[..., None]
         explained = b**2 * den / np.maximum(energy, np.finfo(float).tiny)
         significant = (np.abs(b) > self.k_bias * se) & (np.abs(b) > self.bias_min_std * std_d)
-        # what one bias leaves unexplained must be noise, not structure (e.g. strong curvature)
-        remainder = med[..., :, None] - cols * b[..., None, :]  # [..., j, i]: after removing bias i
-        clean = np.max(np.abs(remainder) / np.maximum(se, 1e-300)[..., :, None], axis=-2) <= self.k_bias
+        # what one bias leaves unexplained must be noise, or small next to the bias: not
+        # structure of its own size (strong curvature across the formation looks like that)
+        remainder = np.abs(med[..., :, None] - cols * b[..., None, :])  # [..., j, i]: without bias i
+        clean = (np.max(remainder / np.maximum(se, 1e-300)[..., :, None], axis=-2) <= self.k_bias) \
+            | (np.max(remainder, axis=-2) <= _BIAS_DOMINANCE * np.abs(b))
         score = np.where(significant & clean, explained, 0.0)
         new = _argmax_mask(score) & (score >= self.bias_explained)
         stay = (self._code == REASONS.index("biased") + 1) & (np.abs(med) > self.k_bias * se) \

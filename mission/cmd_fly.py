@@ -62,8 +62,14 @@ def main(args) -> int:
               "no reading could arrive (multicast scouting is off)", file=sys.stderr)
         return 2
     log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("fly-%Y%m%d-%H%M%S")
+    import zenoh
+
     display = Display(quiet=args.json)
-    result = asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog))
+    try:
+        result = asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog))
+    except (OSError, zenoh.ZError) as exc:
+        print(f"swarmseek fly: cannot open the zenoh session or the log: {exc}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(result.to_json(), indent=2))
     else:

@@ -157,8 +157,14 @@ def main(args) -> int:
     if problem:
         print(f"swarmseek run: error: {problem}", file=sys.stderr)
         return 2
+    import zenoh
+
     display = Display(quiet=args.json)
-    result = asyncio.run(run_embedded(args, display=display))
+    try:
+        result = asyncio.run(run_embedded(args, display=display))
+    except (OSError, zenoh.ZError) as exc:
+        print(f"swarmseek run: cannot start the embedded fleet or zenoh: {exc}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(result.to_json(), indent=2))
     else:

@@ -4,8 +4,9 @@ With one ``udpin`` endpoint per vehicle (PX4 SITL style ports) and telemetry arr
 from every vehicle, a selector-driven loop wakes up once per datagram: about 900 wake-ups a second
 at N = 100, and on a small (virtual) machine each wake-up costs more than parsing the datagram.
 A :class:`UdpPoller` instead owns a private ``epoll`` set of every endpoint's socket and, every
-``interval_s`` (default 10 ms), asks it which sockets have data and reads them dry: the loop wakes
-up 100 times a second whatever N is, and telemetry and ACKs wait at most ``interval_s`` longer.
+``interval_s`` (default 20 ms), asks it which sockets have data and reads them dry: the loop wakes
+up 50 times a second whatever N is, and telemetry and ACKs wait at most ``interval_s`` longer.
+Worth it from a few tens of vehicles on; below that the fixed 50 Hz cost is more than it saves.
 
 Pass one poller to every :meth:`mission.links.MavEndpoint.open` of a mission (``poller=``);
 endpoints opened without one use ordinary asyncio datagram transports.
@@ -39,7 +40,7 @@ class UdpPoller:
         Datagrams read so far.
     """
 
-    def __init__(self, interval_s: float = 0.01) -> None:
+    def __init__(self, interval_s: float = 0.02) -> None:
         if not interval_s > 0:
             raise ValueError(f"interval_s must be > 0, got {interval_s}")
         self.interval_s = float(interval_s)

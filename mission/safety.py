@@ -18,6 +18,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from mission.safety_geometry import (
+    boundary_distance,
+    inside_fraction,
+    nearest_boundary_point,
+    offset_polygon_inward,
+    point_in_polygon,
+    polygon_is_simple,
+    signed_area,
+    synchronous_distance,
+)
 from mission.safety_report import (
     CentreClamp,
     ClampedSetpoints,
@@ -26,16 +36,6 @@ from mission.safety_report import (
     SafetyViolation,
     SetpointReport,
     Violation,
-)
-from mission.safety_geometry import (
-    nearest_boundary_point,
-    offset_polygon_inward,
-    point_in_polygon,
-    boundary_distance,
-    polygon_is_simple,
-    inside_fraction,
-    signed_area,
-    synchronous_distance,
 )
 from mission.safety_transfer import TransferError, TransferPlan, plan_transfer
 

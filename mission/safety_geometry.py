@@ -10,6 +10,8 @@ Public functions
 ``synchronous_distance``
     Minimum distance between two points moving simultaneously at constant velocity along two
     segments over the same time interval (what two vehicles flying straight lines do).
+``inside_fraction``
+    How far along a segment one stays inside a (possibly non-convex) polygon.
 ``offset_polygon_inward``
     Conservative inward offset (erosion by a disc) of a simple polygon, convex or not.
 """
@@ -25,7 +27,6 @@ __all__ = [
     "boundary_distance",
     "nearest_boundary_point",
     "polygon_is_simple",
-    "first_boundary_crossing",
     "inside_fraction",
     "offset_polygon_inward",
 ]
@@ -179,37 +180,6 @@ def polygon_is_simple(poly) -> tuple[bool, tuple[int, int] | None]:
             if dist[i, j] <= 1e-9 * scale:
                 return False, (i, j)
     return True, None
-
-
-def first_boundary_crossing(p0, p1, poly, tol_m: float = 1e-7) -> np.ndarray:
-    """Parameter ``t`` in (0, 1) where each segment ``p0 -> p1`` (2D) first crosses or touches
-    the polygon's boundary strictly between its end points (within ``tol_m`` of them does not
-    count); ``inf`` where it does not. Collinear overlaps with an edge do not count.
-
-    Parameters
-    ----------
-    p0, p1 : array_like, shape (..., 2)
-    poly : array_like, shape (K, 2)
-
-    Returns
-    -------
-    numpy.ndarray, shape (...)
-    """
-    p0 = np.asarray(p0, dtype=float)
-    p1 = np.asarray(p1, dtype=float)
-    a, b = _edges(poly)
-    d = (p1 - p0)[..., None, :]  # (..., 1, 2)
-    e = b - a  # (K, 2)
-    w = a - p0[..., None, :]  # (..., K, 2)
-    den = _cross2(d, e)
-    length = np.linalg.norm(d, axis=-1)
-    ok = np.abs(den) > 1e-12 * length * np.linalg.norm(e, axis=-1)
-    safe = np.where(ok, den, 1.0)
-    t = _cross2(w, e) / safe
-    u = _cross2(w, d) / safe
-    t_tol = tol_m / np.maximum(length, 1e-300)
-    hit = ok & (t > t_tol) & (t < 1.0 - t_tol) & (u >= -1e-12) & (u <= 1.0 + 1e-12)
-    return np.min(np.where(hit, t, np.inf), axis=-1)
 
 
 def inside_fraction(p0, p1, poly, tol_m: float = 1e-7) -> np.ndarray:

@@ -363,6 +363,11 @@ class VehicleLink(VehicleTelemetry):
         await self.set_mode("OFFBOARD")
         await self.arm()
 
+    @property
+    def hold_streaming(self) -> bool:
+        """True while the PX4 takeoff hold stream runs (until someone else sends setpoints)."""
+        return self._hold_task is not None and not self._hold_task.done()
+
     def _start_hold(self) -> None:
         self._external_send_s = -1e18
         if self._hold_task is None or self._hold_task.done():

@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from formation.geodesy import enu_to_ned, geodetic_to_enu
 from sitl_mock import ap_commands, ap_failsafe, ap_flight, ap_mission_exec
 from sitl_mock.ap_geo import LocalFrame
+from sitl_mock.ap_signing import VehicleSigning, signing_timestamp
 from sitl_mock.ap_mission import MissionItem, MissionServer
 from sitl_mock.ap_modes import Personality, make_personality
 from sitl_mock.ap_params import ParamError, ParamTable
@@ -58,12 +59,18 @@ class MockAutopilot:
         Parameter values replacing the personality's defaults.
     uid : int, optional
         AUTOPILOT_VERSION.uid (unique per vehicle; default derived from sysid).
+    signing_key : bytes, optional
+        32-byte MAVLink 2 signing key: signing on from boot (see :mod:`sitl_mock.ap_signing`).
 
     Attributes
     ----------
     counters : collections.Counter
         Receive / transmit / protocol counters (``rx_frames``, ``rx_bad_crc``, ``rx_malformed``,
-        ``rx_unknown_msg``, ``rx_not_for_us``, ``tx_frames``, ...).
+        ``rx_unknown_msg``, ``rx_not_for_us``, ``tx_frames``, ...; with signing on
+        ``rx_unsigned``, ``rx_bad_signature``, ``rx_replayed``, ``rx_unsigned_accepted``,
+        ``signing_setup_accepted``, ``signing_setup_refused_armed``, ``signing_disabled``).
+    signing : VehicleSigning
+        MAVLink 2 signing state (key set by SETUP_SIGNING or :meth:`set_signing_key`).
     params : ParamTable
     missions : MissionServer
     mode_name : str
@@ -71,7 +78,7 @@ class MockAutopilot:
 
     def __init__(self, sysid: int, personality, multicopter, home, t_boot_s: float,
                  faults: FaultSet | None = None, param_overrides: dict | None = None,
-                 uid: int | None = None):
+                 uid: int | None = None, signing_key: bytes | None = None):
         if not 1 <= int(sysid) <= 255:
             raise ValueError(f"sysid must be 1..255, got {sysid!r}")
         self.personality: Personality = (make_personality(personality)
@@ -82,6 +89,7 @@ class MockAutopilot:
         self.uid = int(uid) if uid is not None else (0x5357_0000_0000_0000 | self.sysid)
         self.mav = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
         self.counters: Counter = Counter()
+        self.signing = VehicleSigning(self.mav, self.counters)
         self.params = ParamTable(self.personality.param_specs(self.sysid, multicopter.params),
                                  self.personality.param_bytewise, param_overrides)
         self._origin = tuple(float(v) for v in home)
@@ -91,6 +99,8 @@ class MockAutopilot:
                                       self.personality.name == "ardupilot", self.counters)
         self._boot(t_boot_s)
         self.apply_params()
+        if signing_key is not None:
+            self.set_signing_key(signing_key, t_boot_s)
 
     # ------------------------------------------------------------------ state
     def _boot(self, t_s: float) -> None:
@@ -228,19 +238,30 @@ class MockAutopilot:
         self.emit(msg)
         return True
 
+    # ------------------------------------------------------------------ signing
+    def set_signing_key(self, key: bytes | None, t_s: float | None = None) -> None:
+        """Set the 32-byte signing key (None or all zeros: signing off), as SETUP_SIGNING does.
+
+        ``t_s`` (simulated Unix seconds, default the last step's time) gives the initial
+        timestamp. Prefer calling it before the fleet starts.
+        """
+        t = self._last_t_s if t_s is None else float(t_s)
+        self.signing.set_key(key, signing_timestamp(t))
+
     # ------------------------------------------------------------ receive path
     def accept_frame(self, msg) -> str | None:
         """Gate of the receive path: None to accept ``msg``, else the counter name of the reason.
 
-        The one place where frames are rejected before being acted upon (bad CRC, malformed,
-        unknown message; MAVLink 2 signing checks belong here too).
+        The one place where frames are rejected before being acted upon: bad CRC, malformed,
+        unknown message, and with signing on unsigned, badly signed and replayed frames (see
+        :mod:`sitl_mock.ap_signing`).
         """
         kind = msg.get_type()
         if kind == "BAD_DATA":
             return classify_bad_frame(str(getattr(msg, "reason", "")))
         if kind.startswith("UNKNOWN_"):  # a message id not in the dialect (CRC unverifiable)
             return "rx_unknown_msg"
-        return None
+        return self.signing.check(msg)
 
     def handle_message(self, msg, t_s: float) -> None:
         """Act on one received message (never raises on bad input; rejections are counted)."""
@@ -282,6 +303,10 @@ class MockAutopilot:
                 self.emit(self.mav.timesync_encode(int(t_s * 1e9), msg.ts1))
         elif kind == "REQUEST_DATA_STREAM":
             ap_commands.handle_request_data_stream(self, msg, t_s)
+        elif kind == "SETUP_SIGNING":
+            if self.signing.handle_setup(msg, self.armed) == "signing_setup_refused_armed":
+                self.statustext("ERROR: Won't setup signing when armed",
+                                mavlink2.MAV_SEVERITY_WARNING)
         elif not self.missions.handle(msg, t_s):
             self.counters["rx_unhandled"] += 1
 
@@ -338,6 +363,7 @@ class MockAutopilot:
     def step(self, t_s: float, dt_s: float) -> None:
         """Run the autopilot logic at ``t_s`` (before the physics step of ``dt_s``)."""
         self._last_t_s = t_s
+        self.signing.advance_clock(t_s)
         mc = self.mc
         faults = self.faults
         if faults.crashed and not mc.crashed:

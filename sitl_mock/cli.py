@@ -119,12 +119,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", type=_nonnegative, default=0.0, help="sensor noise standard deviation")
     parser.add_argument("--fault", type=_fault, action="append", default=[], metavar="SYSID:NAME=VALUE",
                         help="inject a fault, e.g. 2:loss_uplink=0.2 (repeatable)")
+    parser.add_argument("--signing-key-file", default=None, metavar="PATH",
+                        help="MAVLink 2 signing key file (64 hex characters, 32 raw bytes or a "
+                             "one-line passphrase, not world-readable): every vehicle signs and "
+                             "rejects unsigned or replayed commands")
     parser.add_argument("--duration", type=_positive, default=None, metavar="S",
                         help="stop after S wall seconds (default: until Ctrl-C)")
 
 
 def main(args: argparse.Namespace) -> int:
     """Run the fleet; returns the exit status."""
+    from sitl_mock.ap_signing import SigningKeyError, read_key_file
     from sitl_mock.fields import make_field
     from sitl_mock.fleet import DEFAULT_ORIGIN, MockFleet
     from sitl_mock.transport import PortInUseError
@@ -134,13 +139,21 @@ def main(args: argparse.Namespace) -> int:
             print(f"swarmseek mock: error: --fault for sysid {sysid} but only {args.vehicles} vehicles",
                   file=sys.stderr)
             return 2
+    signing_key = None
+    if args.signing_key_file is not None:
+        try:
+            signing_key = read_key_file(args.signing_key_file)
+        except SigningKeyError as exc:
+            print(f"swarmseek mock: error: {exc}", file=sys.stderr)
+            return 2
     try:
         fleet = MockFleet(
             n=args.vehicles, personality=args.personality, field=make_field(args.field, args.source),
             origin=args.origin or DEFAULT_ORIGIN, speedup=args.speedup, seed=args.seed,
             udp_base_port=args.udp_base_port, udp_bind_base_port=args.udp_bind_base_port,
             tcp_base_port=args.tcp_base_port, fleet_name=args.fleet, sensor_noise_std=args.noise,
-            zenoh_listen=args.zenoh_listen or None, zenoh_connect=args.zenoh_connect or None)
+            zenoh_listen=args.zenoh_listen or None, zenoh_connect=args.zenoh_connect or None,
+            signing_key=signing_key)
         for sysid, name, value in args.fault:
             fleet.set_fault(sysid, name, value)
     except ValueError as exc:
@@ -157,7 +170,8 @@ def main(args: argparse.Namespace) -> int:
         return 1
     try:
         print(f"mock fleet {args.fleet!r}: {args.vehicles} x {args.personality}, "
-              f"speedup {args.speedup:g}, origin {fleet.origin}", flush=True)
+              f"speedup {args.speedup:g}, origin {fleet.origin}, "
+              f"signing {'on' if signing_key is not None else 'off'}", flush=True)
         for v in fleet.vehicles:
             udp = (f"udp listen 127.0.0.1:{v.udp_bind_port} -> 127.0.0.1:{v.udp_send_port}"
                    if v.udp_bind_port else "udp off")

@@ -180,6 +180,10 @@ class MockFleet:
         Dynamics of every vehicle (copied per vehicle: parameters can then differ).
     params : dict or list of dict, optional
         Autopilot parameter overrides (for all vehicles or per vehicle).
+    signing_key : bytes, optional
+        32-byte MAVLink 2 signing key of every vehicle (signing on from boot: unsigned, badly
+        signed and replayed commands are rejected and counted, everything sent is signed).
+        Without it a vehicle gets a key only from SETUP_SIGNING.
     """
 
     def __init__(self, n: int = 8, personality="px4", field=None, origin=DEFAULT_ORIGIN,
@@ -188,7 +192,7 @@ class MockFleet:
                  tcp_base_port: int = 5760, fleet_name: str = "swarmseek",
                  sensor_noise_std=0.0, sensor_rate_hz: float = 10.0, zenoh_listen=None,
                  zenoh_connect=None, zenoh: bool = True, dynamics: DynamicsParams | None = None,
-                 params=None):
+                 params=None, signing_key: bytes | None = None):
         n = int(n)
         if not 1 <= n <= 255:
             raise ValueError(f"n must be 1..255 vehicles, got {n}")
@@ -243,7 +247,8 @@ class MockFleet:
             lat, lon, alt = enu_to_geodetic(offsets[i], self.origin)
             home = (float(lat), float(lon), float(alt))
             ap = MockAutopilot(i + 1, personalities[i], mc, home, t0, faults, overrides[i],
-                               uid=(seed & 0xFFFF) << 32 | 0x5357_0000 | (i + 1))
+                               uid=(seed & 0xFFFF) << 32 | 0x5357_0000 | (i + 1),
+                               signing_key=signing_key)
             links = VehicleLinks(ap, self.clock, self._selector, rng_link,
                                  udp_bind_base_port + i if udp_bind_base_port and udp_base_port else 0,
                                  udp_base_port + i if udp_base_port and udp_bind_base_port else 0,

@@ -164,3 +164,16 @@ def test_run_argparse_errors_exit_2(argv, capsys):
         cli_main(["run", *argv])
     assert info.value.code == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_fly_with_a_busy_zenoh_port_fails_clearly(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        plan = _write_plan(tmp_path / "p.toml", zenoh__listen=[f"tcp/127.0.0.1:{port}"])
+        assert cli_main(["fly", "--plan", str(plan), "--log-dir", str(tmp_path / "log")]) == 1
+    err = capsys.readouterr().err
+    assert "cannot open the zenoh session" in err and str(port) in err

@@ -102,3 +102,55 @@ def test_source_outside_the_fence_stops_at_the_boundary(tmp_path):
                     assert abs(p[0]) <= 15.0 and abs(p[1]) <= 15.0
     landed = [r for r in records if r["type"] == "event" and r["message"].endswith("landed")]
     assert len(landed) == n
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_offboard_loss_is_reengaged_and_the_mission_goes_on(tmp_path):
+    """Vehicle 1's uplink is cut during the seek until PX4 leaves OFFBOARD (offboard-loss
+    failsafe after 1 s); the coordinator switches it back once the link returns and converges."""
+    import json
+    import threading
+
+    n = 6
+    ports = fleet_ports(n, "px4")
+    source = np.array([4.0, 6.0, 12.0])
+    fleet = _fleet(n, ports, source)
+    plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 11.0), eps=default_eps(sigma2(source)))
+    log_path = tmp_path / "m.jsonl"
+    left_offboard = threading.Event()
+    done = threading.Event()
+
+    def saboteur():
+        # wait (polling the mission log, generous timeout) for the seek phase, then cut the uplink
+        deadline = fleet.clock.time() + 600
+        while not done.is_set() and fleet.clock.time() < deadline:
+            if log_path.exists() and '"phase":"seek"' in log_path.read_text():
+                break
+            fleet.clock.sleep_blocking(0.5)
+        fleet.set_fault(1, "loss_uplink", 1.0)
+        # keep the uplink cut until the failsafe has acted (at most 30 s of simulated time), then
+        # one more second, so that the outcome does not depend on the machine's load
+        t_end = fleet.clock.time() + 30.0
+        while fleet.clock.time() < t_end and not left_offboard.is_set():
+            if fleet.vehicle(1).mode_name != "OFFBOARD":
+                left_offboard.set()
+            fleet.clock.sleep_blocking(0.1)
+        fleet.clock.sleep_blocking(1.0)
+        fleet.set_fault(1, "loss_uplink", 0.0)
+
+    thread = threading.Thread(target=saboteur, daemon=True)
+    fleet.start()
+    thread.start()
+    try:
+        result = asyncio.run(_fly(plan, fleet, log_path))
+    finally:
+        done.set()
+        thread.join(timeout=30)
+        fleet.stop()
+    assert left_offboard.is_set(), "the fault did not trigger the offboard-loss failsafe"
+    events = [json.loads(line) for line in log_path.read_text().splitlines() if '"type":"event"' in line]
+    warnings = [e["message"] for e in events if e["level"] != "info"]
+    assert result.outcome == "converged", (result.message, warnings)
+    assert result.reengaged.get(1, 0) >= 1, warnings
+    assert any("vehicle 1 left OFFBOARD" in e["message"] for e in events)

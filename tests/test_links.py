@@ -274,9 +274,13 @@ def test_tcp_client_and_server(server_side):
         async def serve(reader, writer):
             fake = _StreamVehicle(2, writer.write)
             holder["fake"] = fake
+            holder.setdefault("writers", []).append(writer)
             fake.announce()
-            while data := await reader.read(4096):
-                fake.feed(data)
+            try:
+                while data := await reader.read(4096):
+                    fake.feed(data)
+            finally:
+                writer.close()
 
         if server_side == "vehicle":
             server = await asyncio.start_server(serve, "127.0.0.1", 0)
@@ -293,10 +297,13 @@ def test_tcp_client_and_server(server_side):
             await _exercise_stream_endpoint(ep, holder["fake"])
         finally:
             await ep.close()
+            for writer in holder.get("writers", []):
+                writer.close()
             if announce is not None:
                 announce.cancel()
             if server is not None:
                 server.close()
+                await server.wait_closed()
     _run(scenario())
 
 

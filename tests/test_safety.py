@@ -370,3 +370,22 @@ def test_pair_pruning_matches_the_dense_check(seed, n, step):
     flagged = {v.vehicles for v in rep.violations if v.kind.startswith("separation")}
     expected = {(i, j) for i in range(n) for j in range(i + 1, n) if dense[i, j] < 3.0 * (1 - 1e-9)}
     assert flagged == expected
+
+
+@settings(max_examples=60, deadline=None)
+@given(poly=star_polygons, a=st.tuples(st.floats(0, 1), st.floats(0, 1)),
+       b=st.tuples(st.floats(-60, 160), st.floats(-60, 160)))
+def test_inside_fraction_matches_sampling(poly, a, b):
+    from mission.safety_geometry import inside_fraction
+
+    # a start point inside: somewhere between the centre (50, 50) and a vertex
+    k = int(a[0] * (len(poly) - 1))
+    p0 = np.array([50.0, 50.0]) + 0.9 * a[1] * (poly[k] - [50.0, 50.0])
+    p1 = np.asarray(b, dtype=float)
+    f = float(inside_fraction(p0, p1, poly))
+    t = np.linspace(0, 1, 4001)
+    pts = p0 + t[:, None] * (p1 - p0)
+    inside = point_in_polygon(pts, poly, 1e-7)
+    assert np.all(inside[t < f - 1e-6])  # sound: everything before f is inside
+    if not np.all(inside):
+        assert f <= t[np.argmax(~inside)] + 1e-9  # complete: stops before the first outside sample

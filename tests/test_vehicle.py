@@ -123,6 +123,14 @@ def test_takeoff_sequence_per_flavour(flavour, expected):
             assert v.state.mode == "OFFBOARD"
             n_before = ap.setpoint_count
             await _until(lambda: ap.setpoint_count >= n_before + 3, what="hold stream")
+            assert v.hold_streaming
+            # a streamer taking over ends the hold stream
+            for _ in range(100):
+                v.send_position_enu([0.0, 0.0, 12.0])
+                await asyncio.sleep(0.05)
+                if not v.hold_streaming:
+                    break
+            assert not v.hold_streaming
             await v.land()
             assert ap.custom_mode == (4 << 16) | (6 << 24)
         else:

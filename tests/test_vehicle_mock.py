@@ -1,5 +1,6 @@
 """Full takeoff / setpoints / land against the real mock fleet (sitl_mock.fleet.MockFleet), both
-personalities, over UDP (PX4 SITL style) and TCP (ArduPilot SITL style), with different homes."""
+personalities, over UDP with the shared poller (PX4 SITL style ports) and TCP (ArduPilot SITL
+style), with homes several metres apart."""
 from __future__ import annotations
 
 import asyncio
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from mission.links import MavEndpoint, SysidRegistry
+from mission.links_poller import UdpPoller
 from mission.streamer import SetpointStreamer
 from mission.vehicle import DEFAULT_RATES_HZ, CommandError, VehicleLink
 
@@ -37,12 +39,13 @@ def _free_port_base(span: int) -> int:
 
 async def _fly(fleet, clock, transport: str, tmp_path) -> dict:
     registry = SysidRegistry()
+    poller = UdpPoller() if transport == "udp-polled" else None
     endpoints, vehicles = [], []
     try:
         for i, mv in enumerate(fleet.vehicles):
-            uri = (f"udpin:127.0.0.1:{mv.udp_send_port}" if transport == "udp"
+            uri = (f"udpin:127.0.0.1:{mv.udp_send_port}" if transport.startswith("udp")
                    else f"tcp:127.0.0.1:{mv.tcp_port}")
-            ep = await MavEndpoint.open(uri, clock=clock, registry=registry, tlog_dir=tmp_path)
+            ep = await MavEndpoint.open(uri, clock=clock, registry=registry, tlog_dir=tmp_path, poller=poller)
             endpoints.append(ep)
             vehicles.append(await VehicleLink.create(ep, mv.sysid, clock=clock, mission_origin=fleet.origin))
         for v in vehicles:
@@ -86,10 +89,12 @@ async def _fly(fleet, clock, transport: str, tmp_path) -> dict:
             await v.close()
         for ep in endpoints:
             await ep.close()
+        if poller is not None:
+            await poller.close()
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("personality, transport", [("ardupilot", "tcp"), ("px4", "udp")])
+@pytest.mark.parametrize("personality, transport", [("ardupilot", "tcp"), ("px4", "udp-polled")])
 def test_takeoff_setpoints_land_against_mock_fleet(personality, transport, tmp_path):
     base = _free_port_base(60)
     clock = clock_mod.SimClock(SPEEDUP)

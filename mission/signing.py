@@ -1,0 +1,507 @@
+"""MAVLink 2 message signing for the ground station: key file, signing state, checks, SETUP_SIGNING.
+
+The key is read from a key file named in the plan (``[security] signing_key_file = "path"``),
+never from the command line. Key-file format (:func:`load_key_file`), tried in this order:
+
+1. **64 hexadecimal characters** (surrounding whitespace and a final newline ignored): the key.
+2. **exactly 32 bytes** that are not all printable ASCII: the raw key. 32 printable bytes are
+   refused as ambiguous (write the key in hex, or end a passphrase with a newline).
+3. otherwise **one line of UTF-8 text**, a passphrase (final ``\\n`` / ``\\r\\n`` removed):
+   the key is ``SHA-256(passphrase)``, exactly what MAVProxy's ``signing setup PASSPHRASE`` and
+   ``signing key PASSPHRASE`` do, so a vehicle set up with MAVProxy flies with the same words.
+
+The file must not be world-readable (``chmod 600``): :class:`SigningError` otherwise (unless
+``allow_world_readable=True``, which only warns); a group-readable file gives a
+:class:`SigningWarning`. The all-zero key is refused (it means "signing off" in SETUP_SIGNING).
+
+Sending: :meth:`SigningConfig.new_state` makes one pymavlink ``MAVLinkSigning`` per link;
+:func:`apply_signing` gives it to every pymavlink encoder of that link (they then share one
+timestamp, so timestamps are monotonic per link whatever the peer), and :func:`sign_frame` signs
+frames built by hand with the same state. Timestamps are 10 us units since 2015-01-01 00:00 UTC
+(:func:`signing_timestamp`); pymavlink adds one per frame and :func:`refresh_timestamp` keeps
+them up with the clock.
+
+Receiving: parse with a pymavlink parser that has *no* key (it then decodes signed frames without
+checking them) and pass every decoded message to :meth:`SignatureVerifier.check`, which returns
+``None`` or the reason of rejection, counted: ``unsigned``, ``bad_signature`` or ``replayed``
+(timestamp not above the last one of its stream ``(link id, system id, component id)``, or a
+new stream more than one minute behind our timestamp). The signature is checked before the
+timestamp, unlike pymavlink's ``MAVLink.check_signature``, which records a frame's timestamp for
+its stream before checking the signature, so that one forged frame with a huge timestamp makes
+pymavlink reject every genuine frame of that stream afterwards.
+
+Provisioning: :func:`setup_signing_message` builds the SETUP_SIGNING that gives a vehicle the key
+(ArduPilot accepts it only while disarmed; once a vehicle signs, it must be signed with the
+current key). SETUP_SIGNING carries the key in clear: send it only over a trusted link (USB,
+wire, 127.0.0.1 for simulators) and never write it to a ``.tlog``.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import stat
+import warnings
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from pymavlink.generator import mavcrc
+
+__all__ = [
+    "SIGNING_EPOCH_UNIX_S",
+    "DEFAULT_ALLOW_UNSIGNED",
+    "SigningError",
+    "SigningWarning",
+    "SigningConfig",
+    "SignatureVerifier",
+    "load_key_file",
+    "passphrase_to_key",
+    "signing_timestamp",
+    "apply_signing",
+    "refresh_timestamp",
+    "sign_frame",
+    "setup_signing_message",
+    "disable_signing_message",
+    "signing_config_from_table",
+]
+
+#: 2015-01-01 00:00:00 UTC, the origin of MAVLink signing timestamps (Unix seconds).
+SIGNING_EPOCH_UNIX_S = 1_420_070_400
+#: messages accepted unsigned by default: what radio modems inject (ArduPilot's accept list).
+DEFAULT_ALLOW_UNSIGNED = frozenset({"RADIO_STATUS", "RADIO"})
+_KEY_LEN = 32
+_KEY_FILE_MAX_BYTES = 4096
+_TIMESTAMP_MAX = (1 << 48) - 1
+_NEW_STREAM_MAX_LAG = 6_000_000  # one minute in 10 us units (MAVLink spec)
+_SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
+_SIG_LEN = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN
+_V2 = mavlink.PROTOCOL_MARKER_V2
+_V2_OVERHEAD = 10 + 2
+_SECURITY_KEYS = ("signing_key_file", "signing_link_id", "allow_unsigned", "setup_signing")
+_MSG_IDS: dict[str, int] = {cls.msgname: msg_id for msg_id, cls in mavlink.mavlink_map.items()}
+
+
+class SigningError(ValueError):
+    """A signing key, key file or ``[security]`` setting that cannot be used.
+
+    Attributes
+    ----------
+    problems : list of (str, str)
+        ``(key_path, why)`` pairs (one ``("(key file)", why)`` for key-file errors), the shape
+        :class:`mission.plan.PlanError` takes.
+    """
+
+    def __init__(self, message: str, problems: list[tuple[str, str]] | None = None):
+        super().__init__(message)
+        self.problems = list(problems) if problems else [("(key file)", message)]
+
+
+class SigningWarning(UserWarning):
+    """A usable but weakly protected key file (group-readable, or world-readable if allowed)."""
+
+
+# ---------------------------------------------------------------------------- keys and time
+def passphrase_to_key(passphrase: str) -> bytes:
+    """The 32-byte key of a passphrase: ``SHA-256(UTF-8 bytes)``, as MAVProxy computes it."""
+    if not isinstance(passphrase, str) or not passphrase:
+        raise SigningError("a signing passphrase must be a non-empty string")
+    return hashlib.sha256(passphrase.encode("utf-8")).digest()
+
+
+def signing_timestamp(unix_s: float) -> int:
+    """Signing timestamp of a Unix time: 10 us units since 2015-01-01 UTC, clipped to 48 bits."""
+    return max(0, min(int((float(unix_s) - SIGNING_EPOCH_UNIX_S) * 100_000), _TIMESTAMP_MAX))
+
+
+def load_key_file(path, *, allow_world_readable: bool = False) -> bytes:
+    """Read a signing key file (format in the module docstring).
+
+    Parameters
+    ----------
+    path : str or path-like
+    allow_world_readable : bool
+        Accept a world-readable file with a :class:`SigningWarning` instead of refusing it.
+
+    Returns
+    -------
+    bytes
+        The 32-byte key.
+
+    Raises
+    ------
+    SigningError
+        Missing, unreadable, not a regular file, world-readable, too large, empty, several
+        lines, ambiguous 32 printable bytes, not UTF-8, or the all-zero key. The message names
+        the file and says what to do.
+    """
+    p = Path(path)
+    where = str(p)
+    try:
+        st = p.stat()
+    except OSError as exc:
+        raise SigningError(f"signing key file {where!r}: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise SigningError(f"signing key file {where!r} is not a regular file")
+    if os.name == "posix":
+        mode = stat.S_IMODE(st.st_mode)
+        if mode & stat.S_IROTH:
+            text = (f"signing key file {where!r} is world-readable (mode {mode:o}); "
+                    f"run: chmod 600 {p}")
+            if not allow_world_readable:
+                raise SigningError(text)
+            warnings.warn(text, SigningWarning, stacklevel=2)
+        elif mode & stat.S_IRGRP:
+            warnings.warn(f"signing key file {where!r} is group-readable (mode {mode:o}); "
+                          f"consider: chmod 600 {p}", SigningWarning, stacklevel=2)
+    if st.st_size > _KEY_FILE_MAX_BYTES:
+        raise SigningError(f"signing key file {where!r} is {st.st_size} bytes; a key file holds "
+                           f"64 hex characters, 32 raw bytes or a one-line passphrase")
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise SigningError(f"signing key file {where!r}: {exc.strerror or exc}") from None
+    key = _decode_key(data, where)
+    if not any(key):
+        raise SigningError(f"signing key file {where!r} holds the all-zero key, which means "
+                           f"'signing off' in SETUP_SIGNING")
+    return key
+
+
+def _decode_key(data: bytes, where: str) -> bytes:
+    stripped = data.strip()
+    if len(stripped) == 2 * _KEY_LEN:
+        try:
+            return bytes.fromhex(stripped.decode("ascii"))
+        except (UnicodeDecodeError, ValueError):
+            pass
+    if len(data) == _KEY_LEN:
+        if all(32 <= b < 127 for b in data):
+            raise SigningError(
+                f"signing key file {where!r} is ambiguous: 32 printable bytes could be a raw key "
+                f"or a passphrase; write the key as 64 hex characters or end the passphrase with "
+                f"a newline")
+        return bytes(data)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise SigningError(f"signing key file {where!r} is neither 64 hex characters, 32 raw "
+                           f"bytes nor a UTF-8 passphrase ({len(data)} bytes)") from None
+    line = text.rstrip("\r\n")
+    if not line.strip():
+        raise SigningError(f"signing key file {where!r} is empty (no passphrase)")
+    if "\n" in line or "\r" in line:
+        raise SigningError(f"signing key file {where!r} has several lines; a passphrase is one line")
+    return passphrase_to_key(line)
+
+
+# ---------------------------------------------------------------------------- configuration
+@dataclass(frozen=True)
+class SigningConfig:
+    """What signing the ground station does (the key never appears in ``repr``).
+
+    Parameters
+    ----------
+    key : bytes
+        The 32-byte secret key (not all zeros).
+    link_id : int
+        Link id (0..255) written in our signatures; give each link of a mission its own
+        through :meth:`new_state` if several links reach one vehicle.
+    allow_unsigned : frozenset of str
+        Names of messages accepted unsigned (still counted as ``unsigned_allowed``);
+        ``"*"`` accepts every unsigned frame (a migration mode: nothing is protected).
+    send_setup : bool
+        Send SETUP_SIGNING to vehicles heard unsigned (provisioning over a trusted link).
+    key_file : str or None
+        Where the key came from (for messages).
+    """
+
+    key: bytes = field(repr=False)
+    link_id: int = 0
+    allow_unsigned: frozenset = DEFAULT_ALLOW_UNSIGNED
+    send_setup: bool = True
+    key_file: str | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.key, (bytes, bytearray)) or len(self.key) != _KEY_LEN:
+            raise SigningError(f"a signing key is {_KEY_LEN} bytes")
+        if not any(self.key):
+            raise SigningError("the all-zero signing key means 'signing off'; use another key")
+        object.__setattr__(self, "key", bytes(self.key))
+        if isinstance(self.link_id, bool) or not isinstance(self.link_id, int) \
+                or not 0 <= self.link_id <= 255:
+            raise SigningError(f"link_id must be an integer 0..255, got {self.link_id!r}")
+        names = frozenset(self.allow_unsigned)
+        unknown = sorted(n for n in names if n != "*" and n not in _MSG_IDS)
+        if unknown:
+            raise SigningError(f"allow_unsigned: unknown MAVLink message name(s) {unknown}")
+        object.__setattr__(self, "allow_unsigned", names)
+        object.__setattr__(self, "_allowed_ids",
+                           frozenset(_MSG_IDS[n] for n in names if n != "*"))
+
+    @classmethod
+    def from_key_file(cls, path, *, allow_world_readable: bool = False, **kwargs) -> "SigningConfig":
+        """Read ``path`` with :func:`load_key_file`; ``kwargs`` are the other fields."""
+        return cls(key=load_key_file(path, allow_world_readable=allow_world_readable),
+                   key_file=str(path), **kwargs)
+
+    @property
+    def fingerprint(self) -> str:
+        """First 8 hex digits of ``SHA-256(SHA-256(key))``: safe to log, tells keys apart."""
+        return hashlib.sha256(hashlib.sha256(self.key).digest()).hexdigest()[:8]
+
+    def __repr__(self) -> str:
+        return (f"SigningConfig(fingerprint={self.fingerprint!r}, link_id={self.link_id}, "
+                f"allow_unsigned={sorted(self.allow_unsigned)}, send_setup={self.send_setup}, "
+                f"key_file={self.key_file!r})")
+
+    def allows_unsigned(self, msg_id: int) -> bool:
+        """True if an unsigned message with this id is accepted."""
+        return "*" in self.allow_unsigned or msg_id in self._allowed_ids
+
+    def new_state(self, unix_s: float, link_id: int | None = None) -> mavlink.MAVLinkSigning:
+        """A pymavlink signing state for one link, its timestamp at ``unix_s``.
+
+        Share it between every encoder of the link (:func:`apply_signing`) and the link's
+        :class:`SignatureVerifier`.
+        """
+        state = mavlink.MAVLinkSigning()
+        state.secret_key = self.key
+        state.link_id = self.link_id if link_id is None else int(link_id) & 0xFF
+        state.timestamp = signing_timestamp(unix_s)
+        state.sign_outgoing = True
+        return state
+
+
+def apply_signing(mav: mavlink.MAVLink, state: mavlink.MAVLinkSigning) -> mavlink.MAVLink:
+    """Make the pymavlink encoder ``mav`` sign with ``state`` (shared, not copied); returns it.
+
+    Only for encoders: a pymavlink object with a key also checks signatures when it *parses*
+    (with the flaw described in the module docstring); parse with a keyless parser and
+    :class:`SignatureVerifier`.
+    """
+    mav.signing = state
+    return mav
+
+
+def refresh_timestamp(state: mavlink.MAVLinkSigning, unix_s: float) -> int:
+    """Bring ``state.timestamp`` up to the clock (never backwards); returns it."""
+    now = signing_timestamp(unix_s)
+    if now > state.timestamp:
+        state.timestamp = now
+    return state.timestamp
+
+
+def _crc(frame_no_magic: bytes, crc_extra: int) -> int:
+    fast = mavcrc.mcrf4xx
+    if fast is not None:
+        return fast(bytes((crc_extra,)), fast(bytes(frame_no_magic), 0xFFFF))
+    crc = mavcrc.x25crc(frame_no_magic)
+    crc.accumulate(bytes((crc_extra,)))
+    return crc.crc
+
+
+def _signature(key: bytes, signed_part) -> bytes:
+    return hashlib.sha256(key + bytes(signed_part)).digest()[:6]
+
+
+def sign_frame(frame: bytes, crc_extra: int, state: mavlink.MAVLinkSigning) -> bytes:
+    """Sign a complete unsigned MAVLink 2 frame (header, payload, CRC) built by hand.
+
+    Sets the signed incompatibility flag, recomputes the CRC with ``crc_extra`` and appends
+    link id, timestamp and signature; ``state.timestamp`` then increases by one. Byte-identical
+    to what pymavlink's ``msg.pack`` produces with the same state.
+
+    Raises
+    ------
+    SigningError
+        ``frame`` is not an unsigned MAVLink 2 frame.
+    """
+    if len(frame) < _V2_OVERHEAD or frame[0] != _V2 or frame[2] & _SIGNED \
+            or len(frame) != _V2_OVERHEAD + frame[1]:
+        raise SigningError("sign_frame needs one complete unsigned MAVLink 2 frame")
+    body = bytearray(frame[:-2])
+    body[2] |= _SIGNED
+    body += _crc(memoryview(body)[1:], crc_extra).to_bytes(2, "little")
+    body.append(state.link_id & 0xFF)
+    body += int(state.timestamp).to_bytes(6, "little")
+    body += _signature(state.secret_key, body)
+    state.timestamp += 1
+    return bytes(body)
+
+
+# ---------------------------------------------------------------------------- SETUP_SIGNING
+def setup_signing_message(target_system: int, key: bytes, initial_timestamp: int,
+                          target_component: int = mavlink.MAV_COMP_ID_AUTOPILOT1):
+    """SETUP_SIGNING giving ``key`` to a vehicle (send it over a trusted link only).
+
+    ``initial_timestamp`` is in 10 us units since 2015-01-01 (use the link state's
+    ``timestamp``, or :func:`signing_timestamp` of the clock).
+    """
+    if len(key) != _KEY_LEN or not any(key):
+        raise SigningError(f"SETUP_SIGNING needs a non-zero {_KEY_LEN}-byte key "
+                           f"(use disable_signing_message to turn signing off)")
+    return mavlink.MAVLink_setup_signing_message(int(target_system), int(target_component),
+                                                 list(bytes(key)), int(initial_timestamp))
+
+
+def disable_signing_message(target_system: int,
+                            target_component: int = mavlink.MAV_COMP_ID_AUTOPILOT1):
+    """SETUP_SIGNING with the all-zero key and timestamp: the vehicle stops signing."""
+    return mavlink.MAVLink_setup_signing_message(int(target_system), int(target_component),
+                                                 [0] * _KEY_LEN, 0)
+
+
+# ---------------------------------------------------------------------------- checking
+class SignatureVerifier:
+    """Checks the signature of every received frame of one link; counts every outcome.
+
+    Parameters
+    ----------
+    config : SigningConfig
+    state : pymavlink MAVLinkSigning
+        The link's signing state (:meth:`SigningConfig.new_state`): new streams are compared
+        with its timestamp, which follows the highest good timestamp received (MAVLink spec).
+
+    Attributes
+    ----------
+    counters : collections.Counter
+        ``accepted`` (good signature), ``unsigned_allowed``, and the rejections ``unsigned``,
+        ``bad_signature``, ``replayed``.
+    unsigned_sysids : set of int
+        System ids heard sending unsigned frames.
+    signed_sysids : set of int
+        System ids heard sending frames with a good signature.
+    badly_signed_sysids : set of int
+        System ids heard sending frames with a bad signature (another key, or forged).
+    """
+
+    def __init__(self, config: SigningConfig, state: mavlink.MAVLinkSigning) -> None:
+        self.config = config
+        self.state = state
+        self.counters: Counter = Counter()
+        self.unsigned_sysids: set[int] = set()
+        self.signed_sysids: set[int] = set()
+        self.badly_signed_sysids: set[int] = set()
+        self._streams: dict[tuple[int, int, int], int] = {}
+
+    def needs_setup(self, sysid: int) -> bool:
+        """True if ``sysid`` was heard unsigned and never with a good signature.
+
+        Only such a system may be sent SETUP_SIGNING: anyone can forge an unsigned frame from
+        a system that already signs, and would receive the key.
+        """
+        return sysid in self.unsigned_sysids and sysid not in self.signed_sysids
+
+    def diagnose(self, sysid: int) -> str:
+        """Why nothing from ``sysid`` may have been accepted (for error messages; "" if unknown)."""
+        if sysid in self.signed_sysids:
+            return ""
+        if sysid in self.badly_signed_sysids:
+            return (f"system id {sysid} sends frames signed with another key (or forged): check "
+                    f"the plan's [security] signing_key_file")
+        if sysid in self.unsigned_sysids:
+            return (f"system id {sysid} sends unsigned frames, rejected because signing is on: it "
+                    f"refused SETUP_SIGNING (armed?) or [security] setup_signing is false")
+        return ""
+
+    def check(self, msg) -> str | None:
+        """None to accept a decoded pymavlink message, else ``unsigned``, ``bad_signature``
+        or ``replayed`` (counted). Never raises."""
+        return self.check_frame(msg.get_msgbuf())
+
+    def check_frame(self, frame) -> str | None:
+        """Same as :meth:`check` for the raw bytes of one frame."""
+        reason = self._check(frame)
+        self.counters[reason or "accepted"] += 1
+        return None if reason == "unsigned_allowed" else reason
+
+    def _check(self, buf) -> str | None:
+        n = len(buf)
+        if n >= _V2_OVERHEAD and buf[0] == _V2:
+            src = (buf[5], buf[6])
+            msg_id = buf[7] | buf[8] << 8 | buf[9] << 16
+            signed = bool(buf[2] & _SIGNED) and n >= _V2_OVERHEAD + _SIG_LEN
+        elif n >= 8:  # MAVLink 1: never signed
+            src, msg_id, signed = (buf[3], buf[4]), buf[5], False
+        else:
+            return "unsigned"
+        if not signed:
+            self.unsigned_sysids.add(src[0])
+            return "unsigned_allowed" if self.config.allows_unsigned(msg_id) else "unsigned"
+        if _signature(self.state.secret_key, buf[:-6]) != bytes(buf[-6:]):
+            self.badly_signed_sysids.add(src[0])
+            return "bad_signature"
+        stamp = int.from_bytes(bytes(buf[-12:-6]), "little")
+        stream = (buf[-13], src[0], src[1])
+        last = self._streams.get(stream)
+        if last is not None:
+            if stamp <= last:
+                return "replayed"
+        elif stamp + _NEW_STREAM_MAX_LAG < self.state.timestamp:
+            return "replayed"
+        self._streams[stream] = stamp
+        self.signed_sysids.add(src[0])
+        if stamp > self.state.timestamp:
+            self.state.timestamp = stamp
+        return None
+
+
+# ---------------------------------------------------------------------------- plan section
+def signing_config_from_table(table: Mapping, base_dir=None) -> SigningConfig | None:
+    """Build the signing configuration from a plan's ``[security]`` table.
+
+    Keys: ``signing_key_file`` (path, relative to ``base_dir``; no key file: no signing, None
+    is returned), ``signing_link_id`` (0..255, default 0), ``allow_unsigned`` (message names,
+    default ``["RADIO_STATUS", "RADIO"]``, ``["*"]`` for all), ``setup_signing`` (bool, default
+    true: send SETUP_SIGNING to vehicles heard unsigned).
+
+    Raises
+    ------
+    SigningError
+        With ``problems`` listing every bad key as ``("security.<key>", why)``.
+    """
+    problems: list[tuple[str, str]] = []
+    if not isinstance(table, Mapping):
+        raise SigningError("[security] must be a table", [("security", "expected a table")])
+    for key in table:
+        if key not in _SECURITY_KEYS:
+            problems.append((f"security.{key}", f"unknown key (allowed: {', '.join(_SECURITY_KEYS)})"))
+    link_id = table.get("signing_link_id", 0)
+    if isinstance(link_id, bool) or not isinstance(link_id, int) or not 0 <= link_id <= 255:
+        problems.append(("security.signing_link_id", f"expected an integer 0..255, got {link_id!r}"))
+        link_id = 0
+    allow = table.get("allow_unsigned", sorted(DEFAULT_ALLOW_UNSIGNED))
+    if not isinstance(allow, (list, tuple)) or not all(isinstance(a, str) for a in allow):
+        problems.append(("security.allow_unsigned", f"expected a list of message names, got {allow!r}"))
+        allow = DEFAULT_ALLOW_UNSIGNED
+    else:
+        unknown = [a for a in allow if a != "*" and a not in _MSG_IDS]
+        if unknown:
+            problems.append(("security.allow_unsigned", f"unknown MAVLink message name(s) {unknown}"))
+            allow = DEFAULT_ALLOW_UNSIGNED
+    setup = table.get("setup_signing", True)
+    if not isinstance(setup, bool):
+        problems.append(("security.setup_signing", f"expected true or false, got {setup!r}"))
+        setup = True
+    config = None
+    path = table.get("signing_key_file")
+    if path is not None:
+        if not isinstance(path, str) or not path.strip():
+            problems.append(("security.signing_key_file", f"expected a file path, got {path!r}"))
+        else:
+            fp = Path(path).expanduser()
+            if not fp.is_absolute() and base_dir is not None:
+                fp = Path(base_dir) / fp
+            try:
+                config = SigningConfig.from_key_file(fp, link_id=link_id, allow_unsigned=frozenset(allow),
+                                                     send_setup=setup)
+            except SigningError as exc:
+                problems.append(("security.signing_key_file", str(exc)))
+    elif any(k in table for k in _SECURITY_KEYS[1:]):
+        problems.append(("security.signing_key_file", "required by the other signing settings"))
+    if problems:
+        raise SigningError("invalid [security] section:\n" +
+                           "\n".join(f"  {k}: {why}" for k, why in problems), problems)
+    return config
