@@ -43,7 +43,7 @@ def test_table1_equals_the_formation_metrics(paper_dir):
     for row in rows:
         n = row["n"]
         assert row["symmetric_d_min"] == formation.metrics(formation.symmetric_cylinder(n, 1.0)).d_min
-        assert row["cvt_d_min"] == formation.metrics(formation.cvt_sphere(n, 1.0, seed=0)).d_min
+        assert row["cvt_d_min"] == formation.metrics(formation.cvt_sphere(n, 1.0, seed=0, n_starts=10)).d_min
     with (paper_dir / "table1.csv").open() as fh:
         csv_rows = list(csv.DictReader(fh))
     assert [float(r["cvt_d_min"]) for r in csv_rows] == pytest.approx([r["cvt_d_min"] for r in rows])
