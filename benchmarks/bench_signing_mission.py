@@ -82,20 +82,31 @@ class _Intruder(threading.Thread):
         while not self.stop_event.wait(self.period_s):
             self._capture()
             for v in self.fleet.vehicles:
-                s, f = v.sysid, forger[v.sysid]
-                up = ("127.0.0.1", v.udp_bind_port)
-                down = ("127.0.0.1", v.udp_send_port)
-                self._send(up, f.command_long_encode(s, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, 4, 6, 0, 0, 0, 0).pack(f), "up_bad_signature")
-                self._send(up, plain.command_long_encode(s, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196, 0, 0, 0, 0, 0).pack(plain), "up_unsigned")
-                self._send(up, f.set_position_target_local_ned_encode(0, s, 1, 1, 0xDF8, 500, 500, -50, 0, 0, 0, 0, 0, 0, 0, 0).pack(f), "up_bad_signature")
-                veh = apply_signing(mav.MAVLink(None, s, 1), f.signing)
-                self._send(down, veh.local_position_ned_encode(0, 100.0, 100.0, -50.0, 0, 0, 0).pack(veh), "down_bad_signature")
-                fake = mav.MAVLink(None, s, 1)
-                self._send(down, fake.heartbeat_encode(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, 0, _PX4_LAND, mav.MAV_STATE_STANDBY, 3).pack(fake), "down_unsigned")
+                self._attack(v, forger[v.sysid], plain)
             old = self._replayable()
             if old is not None and old[5] in ports:
                 self._send(("127.0.0.1", ports[old[5]]), old, "down_replayed")
         self.sock.close()
+
+    def _attack(self, v, f, plain) -> None:
+        s = v.sysid
+        up = ("127.0.0.1", v.udp_bind_port)
+        down = ("127.0.0.1", v.udp_send_port)
+        land = f.command_long_encode(s, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, 4, 6, 0, 0, 0, 0)
+        self._send(up, land.pack(f), "up_bad_signature")
+        disarm = plain.command_long_encode(s, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0,
+                                           0, 21196, 0, 0, 0, 0, 0)
+        self._send(up, disarm.pack(plain), "up_unsigned")
+        away = f.set_position_target_local_ned_encode(0, s, 1, 1, 0xDF8, 500, 500, -50,
+                                                      0, 0, 0, 0, 0, 0, 0, 0)
+        self._send(up, away.pack(f), "up_bad_signature")
+        veh = apply_signing(mav.MAVLink(None, s, 1), f.signing)
+        self._send(down, veh.local_position_ned_encode(0, 100.0, 100.0, -50.0, 0, 0, 0).pack(veh),
+                   "down_bad_signature")
+        fake = mav.MAVLink(None, s, 1)
+        hb = fake.heartbeat_encode(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, 0, _PX4_LAND,
+                                   mav.MAV_STATE_STANDBY, 3)
+        self._send(down, hb.pack(fake), "down_unsigned")
 
     def _send(self, addr, frame: bytes, kind: str) -> None:
         try:

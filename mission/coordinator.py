@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from mission.loss import LEFT_MODES, watch_losses
 from mission.mission_log import MissionLog, to_jsonable
 from mission.plan import Plan
 from mission.readings import ReadingStore, ReadingSubscriber
@@ -71,6 +72,9 @@ class MissionResult:
         Accepted readings and rejections per reason.
     readiness : list
         Preflight result per vehicle.
+    lost : list
+        Vehicles lost during the mission: ``sysid``, ``reason`` (``link`` / ``left``),
+        ``detail``, ``phase``, ``latency_s`` (see :mod:`mission.loss`).
     """
 
     outcome: str
@@ -89,6 +93,7 @@ class MissionResult:
     log_path: str | None = None
     reengaged: dict = field(default_factory=dict)
     max_loop_lag_s: float | None = None
+    lost: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -167,6 +172,10 @@ class Coordinator:
         self.released: set[int] = set()
         self.reengaged: dict[int, int] = {}
         self.max_loop_lag_s = 0.0
+        self.lost: dict = {}
+        self.return_on_interrupt = True
+        self.formation_kind = plan.formation.type
+        self._loss_task: asyncio.Task | None = None
 
     # ----------------------------------------------------------------- helpers used by phases
     def plan_vehicle(self, sysid: int):
@@ -288,8 +297,10 @@ class Coordinator:
                 v = self.vehicles.get(sysid)
                 want = self._GUIDED_MODES.get(getattr(v, "flavour", None))
                 if (v is None or want is None or sysid in self._reengaging or sysid in self.released
-                        or v.state.mode == want):
+                        or sysid in self.lost or v.state.mode == want):
                     continue
+                if v.state.mode in LEFT_MODES.get(v.flavour, ()) or v.link_age_s() > self.plan.faults.link_timeout_s:
+                    continue  # left the mission or silent: mission.loss decides, never re-engaged
                 if not v.state.armed:
                     continue
                 self._reengaging.add(sysid)
@@ -312,6 +323,8 @@ class Coordinator:
 
         if self._watchdog_task is None:
             self._watchdog_task = asyncio.get_running_loop().create_task(self._watchdog())
+        if self._loss_task is None:
+            self._loss_task = asyncio.get_running_loop().create_task(watch_losses(self))
 
         if self.session is not None and self._subscriber is None:
             self._subscriber = ReadingSubscriber(self.session, self.store)
@@ -322,13 +335,15 @@ class Coordinator:
             self._state_pub.start()
 
     async def _stop_background(self) -> None:
-        if self._watchdog_task is not None:
-            self._watchdog_task.cancel()
-            try:
-                await self._watchdog_task
-            except asyncio.CancelledError:
-                pass
-            self._watchdog_task = None
+        for name in ("_watchdog_task", "_loss_task"):
+            task = getattr(self, name)
+            if task is not None:
+                task.cancel()
+                try:
+                    await task
+                except asyncio.CancelledError:
+                    pass
+                setattr(self, name, None)
         if self.ramp is not None:
             await self.ramp.stop()
         if self.streamer is not None:
@@ -382,24 +397,41 @@ class Coordinator:
             self.log.write("summary", sync=True, **result.to_json())
         return result
 
-    async def run(self) -> MissionResult:
-        """Fly the whole mission and return its result (never raises for mission failures)."""
+    async def run(self, resume_state=None) -> MissionResult:
+        """Fly the whole mission and return its result (never raises for mission failures).
+
+        Parameters
+        ----------
+        resume_state : mission.resume.ResumeState, optional
+            Go on with a stopped mission: reconnect, re-engage the vehicles still flying (no
+            preflight, no takeoff), seek from the state's centre and iteration.
+
+        Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
+        False (a ground station that just stops: the vehicles do what their autopilot does).
+        """
         from mission import phases, seek
 
         if self.log is not None:
-            self.log.write("plan", plan=_plan_json(self.plan))
+            self.log.write("plan", plan=_plan_json(self.plan), resumed=resume_state is not None)
         self._start_background()
         outcome, message = "aborted", ""
         try:
-            await phases.connect(self, required=True)
-            await phases.preflight(self)
-            not_ready = [r for r in self.readiness.values() if not r.ready]
-            if not_ready:
-                raise MissionError("preflight failed: " + "; ".join(
-                    f"vehicle {r.sysid}: {', '.join(r.problems)}" for r in not_ready))
-            await phases.takeoff(self)
-            await phases.assemble(self)
-            outcome, message = await seek.seek(self)
+            if resume_state is None:
+                await phases.connect(self, required=True)
+                await phases.preflight(self)
+                not_ready = [r for r in self.readiness.values() if not r.ready]
+                if not_ready:
+                    raise MissionError("preflight failed: " + "; ".join(
+                        f"vehicle {r.sysid}: {', '.join(r.problems)}" for r in not_ready))
+                await phases.takeoff(self)
+                await phases.assemble(self)
+                outcome, message = await seek.seek(self)
+            else:
+                from mission.resume import rejoin
+
+                await rejoin(self, resume_state)
+                outcome, message = await seek.seek(self, start_iteration=resume_state.iteration,
+                                                   history=resume_state.centres)
             self.set_phase("finish", outcome=outcome)
             self.event(message)
         except MissionError as exc:
@@ -415,7 +447,8 @@ class Coordinator:
         except asyncio.CancelledError:
             outcome, message = "aborted", "interrupted"
             self.event("mission interrupted", level="error")
-            await self._return_safely()
+            if self.return_on_interrupt:
+                await self._return_safely()
             await self._stop_background()
             raise
         try:
@@ -453,7 +486,10 @@ class Coordinator:
             readings=self.store.counts() | {"last_errors": self.store.last_errors()},
             readiness=[asdict(r) | {"ready": r.ready} for r in self.readiness.values()],
             log_path=None if self.log is None else str(self.log.path),
-            reengaged=dict(self.reengaged), max_loop_lag_s=round(self.max_loop_lag_s, 4))
+            reengaged=dict(self.reengaged), max_loop_lag_s=round(self.max_loop_lag_s, 4),
+            lost=[{"sysid": x.sysid, "reason": x.reason, "detail": x.detail, "phase": x.phase,
+                   "latency_s": round(x.latency_s, 3), "came_back_s": x.came_back_s}
+                  for x in self.lost.values()])
 
 
 def _plan_json(plan: Plan) -> dict:

@@ -107,7 +107,8 @@ class MavEndpoint:
         ``frames_in``, ``frames_out``, ``bytes_in``, ``bytes_out``, ``bad_crc``, ``malformed``
         (bad prefix, length, payload), ``unknown_msgid``, ``truncated`` (partial frame at the end
         of a datagram), ``unroutable`` (frame for a system id never heard), ``send_errors``,
-        ``duplicate_sysid``.
+        ``duplicate_sysid``, ``handler_errors`` (a vehicle handler raised; the message is in
+        :attr:`last_handler_error`, the link goes on).
     errors : list of LinkError
         Duplicate-sysid problems found so far (also delivered to the attached vehicles).
     tlogs : TlogSet or None
@@ -127,7 +128,9 @@ class MavEndpoint:
         self.tlogs = TlogSet(tlog_dir, time_fn=clock.time) if tlog_dir is not None else None
         self.counters = dict.fromkeys(
             ("frames_in", "frames_out", "bytes_in", "bytes_out", "bad_crc", "malformed",
-             "unknown_msgid", "truncated", "unroutable", "send_errors", "duplicate_sysid"), 0)
+             "unknown_msgid", "truncated", "unroutable", "send_errors", "duplicate_sysid",
+             "handler_errors"), 0)
+        self.last_handler_error: str | None = None
         self.errors: list[LinkError] = []
         self._transport = None
         self._datagram_parser = self._new_parser()
@@ -350,7 +353,11 @@ class MavEndpoint:
                 peer_of[sysid] = peer
             handler = handlers.get(sysid)
             if handler is not None:
-                handler[0](msg)
+                try:
+                    handler[0](msg)
+                except Exception as exc:  # a vehicle's bug must not stop the link (or the poller)
+                    counters["handler_errors"] += 1
+                    self.last_handler_error = f"{msg.get_type()} from {sysid}: {type(exc).__name__}: {exc}"
 
     def _on_autopilot_heartbeat(self, sysid: int, msg, peer) -> None:
         now = self.clock.time()

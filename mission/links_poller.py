@@ -38,6 +38,8 @@ class UdpPoller:
         Polls so far.
     datagrams : int
         Datagrams read so far.
+    errors : int
+        Datagrams whose consumer raised (counted, polling goes on).
     """
 
     def __init__(self, interval_s: float = 0.02) -> None:
@@ -49,6 +51,7 @@ class UdpPoller:
         self._task: asyncio.Task | None = None
         self.polls = 0
         self.datagrams = 0
+        self.errors = 0
 
     def register(self, sock: socket.socket, on_datagram: Callable[[bytes, tuple], None]) -> None:
         """Watch ``sock`` (made non-blocking); ``on_datagram(data, addr)`` for every datagram."""
@@ -83,7 +86,10 @@ class UdpPoller:
                 except OSError:      # e.g. ICMP port unreachable reported on a later recv
                     continue
                 handled += 1
-                on_datagram(data, addr)
+                try:
+                    on_datagram(data, addr)
+                except Exception:  # never let one socket's consumer stop every endpoint's polling
+                    self.errors += 1
         self.polls += 1
         self.datagrams += handled
         return handled

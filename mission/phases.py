@@ -241,10 +241,7 @@ async def takeoff(co) -> None:
         v = co.vehicles[sysid]
         home = co.home_enu[sysid]
         rel_alt = co.layer_alt_m[sysid] - home[2]
-        try:
-            await v.takeoff(rel_alt)
-        except Exception as exc:  # noqa: BLE001 - CommandError or link error
-            raise MissionError(f"takeoff of vehicle {sysid} failed: {exc}") from None
+        await _retried(co, lambda v=v: v.takeoff(rel_alt), f"takeoff of vehicle {sysid}")
         co.airborne.add(sysid)
         co.status[sysid] = "taking off"
         co.event(f"vehicle {sysid} taking off to {rel_alt:.1f} m above home", sysid=sysid)
@@ -260,27 +257,51 @@ async def _hold_after_climb(co, sysid, home, layer_alt):
         co.ramp.add(sysid, target)  # PX4 offboard: setpoints must keep streaming from now on
 
     def _near():
+        if sysid in co.lost:
+            return True
         p = co._telemetry_position(sysid)
         return p is not None and abs(float(p[2]) - layer_alt) < 0.6
 
     await co.wait_until(_near, 60.0 + 2.0 * layer_alt, f"vehicle {sysid} to climb to {layer_alt:.1f} m")
+    if sysid in co.lost:
+        return
     if sysid not in co.ramp.sysids:
         co.ramp.add(sysid, target)
     co.status[sysid] = "holding"
 
 
+async def _retried(co, action, what: str, attempts: int = 3):
+    """Run ``action()`` (a command coroutine, itself retried by ``command_long``) up to ``attempts``
+    times: on a lossy link (20 % each way) one command with its 4 sends fails 1.7 % of the
+    time; three rounds make it 5e-6. The commands used (mode, arm, takeoff, land) are idempotent."""
+    for i in range(attempts):
+        try:
+            return await action()
+        except Exception as exc:  # noqa: BLE001 - CommandError or link error
+            if i + 1 == attempts:
+                raise MissionError(f"{what} failed after {attempts} rounds of retries: {exc}") from None
+            co.event(f"{what}: {exc}; trying again", level="warning")
+            await co.clock.sleep(0.5)
+
+
 # ----------------------------------------------------------------------------------- assemble
 async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_s: float | None = None,
                         what: str = "vehicles to reach their goals") -> None:
-    """Set ramp goals and wait until every setpoint is there and every vehicle within ``tol_m``."""
+    """Set ramp goals and wait until every setpoint is there and every vehicle within ``tol_m``.
+
+    Lost vehicles (``co.lost``, also those lost while waiting) are not waited for.
+    """
+    goals = {s: g for s, g in goals.items() if s not in co.lost and s in co.ramp.sysids}
     co.ramp.set_goals(goals)
     if timeout_s is None:
-        far = max(float(np.linalg.norm(co.ramp.setpoint(s) - g)) for s, g in goals.items())
+        far = max((float(np.linalg.norm(co.ramp.setpoint(s) - g)) for s, g in goals.items()), default=0.0)
         timeout_s = 20.0 + 3.0 * far / min(co.ramp.max_speed_m_s, co.ramp.max_vertical_speed_m_s)
 
     def _arrived():
         co.update_odometry()
         for s, g in goals.items():
+            if s in co.lost or s not in co.ramp.sysids:
+                continue
             if not co.ramp.at_goal(s):
                 return False
             p = co._telemetry_position(s)
@@ -295,7 +316,10 @@ async def assemble(co) -> None:
     """Fly from the takeoff layers into the formation at the start point (layered transfer)."""
     co.set_phase("assemble")
     plan = co.plan
-    sysids = sorted(co.vehicles)
+    sysids = sorted(s for s in co.vehicles if s not in co.lost and s in co.ramp.sysids)
+    if len(sysids) < 4:
+        raise MissionError(f"vehicles {sorted(co.lost)} lost before the formation was assembled: "
+                           f"{len(sysids)} left, a formation needs 4")
     start = np.array([co.ramp.setpoint(s) for s in sysids])
     centre = plan.seeking.start_point()
     goal = np.array([centre + co.slot_offsets[s] for s in sysids])
@@ -344,9 +368,10 @@ async def _land_staggered(co, order, rtl: bool) -> None:
         v = co.vehicles[sysid]
         co.released.add(sysid)
         try:
-            await (v.rtl() if rtl else v.land())
-        except Exception as exc:  # noqa: BLE001
-            co.event(f"vehicle {sysid}: {'RTL' if rtl else 'land'} command failed: {exc}", level="error")
+            await _retried(co, (lambda v=v: v.rtl()) if rtl else (lambda v=v: v.land()),
+                           f"{'RTL' if rtl else 'land'} of vehicle {sysid}")
+        except MissionError as exc:
+            co.event(str(exc), level="error")
             continue
         if co.ramp is not None and sysid in co.ramp.sysids:
             co.ramp.remove(sysid)

@@ -23,6 +23,7 @@ __all__ = [
     "PLAN_VERSION",
     "PlanError",
     "VehiclePlan",
+    "FaultsPlan",
     "FormationPlan",
     "SeekingPlan",
     "GeofencePlan",
@@ -168,6 +169,24 @@ class ZenohPlan:
 
 
 @dataclass(frozen=True)
+class FaultsPlan:
+    """Vehicle-loss handling (``[faults]``): see ``docs/faults.md``.
+
+    Attributes
+    ----------
+    readmit : bool
+        A lost vehicle whose link comes back rejoins the formation (True) or is kept out and
+        commanded to land / RTL per ``return`` (False, default).
+    link_timeout_s : float
+        A vehicle silent for this long (mission clock) is lost (default 1.0; detection within
+        ``link_timeout_s`` + 0.1 s).
+    """
+
+    readmit: bool = False
+    link_timeout_s: float = 1.0
+
+
+@dataclass(frozen=True)
 class Plan:
     """A validated mission plan (see the module docstring)."""
 
@@ -187,6 +206,7 @@ class Plan:
     heartbeat_timeout_s: float = 10.0
     min_battery_pct: float = 30.0
     version: int = PLAN_VERSION
+    faults: FaultsPlan = FaultsPlan()
 
 
 def replace_plan(plan: Plan, **sections) -> Plan:
@@ -247,7 +267,8 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
         raise PlanError([("(document)", "expected a TOML table")], source)
     c.unknown(doc, ("version", "fleet", "origin", "vehicles", "formation", "seeking", "geofence",
                     "zenoh", "max_speed_m_s", "min_separation_m", "takeoff_alt_m", "return",
-                    "stagger_s", "setpoint_rate_hz", "heartbeat_timeout_s", "min_battery_pct"), "")
+                    "stagger_s", "setpoint_rate_hz", "heartbeat_timeout_s", "min_battery_pct",
+                    "faults"), "")
     version = doc.get("version")
     if version is None:
         c.bad("version", f"required (this program reads version = {PLAN_VERSION})")
@@ -271,6 +292,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
         min_battery_pct=c.number(doc, "min_battery_pct", "", 30.0, low=0, high=100),
     )
     geofence = _parse_geofence(c, doc, origin)
+    faults = _parse_faults(c, doc)
     zen = _parse_zenoh(c, doc, Path(base_dir) if base_dir is not None else None)
     if formation is not None and vehicles:
         n = len(vehicles)
@@ -293,7 +315,19 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     if c.problems:
         raise PlanError(c.problems, source)
     return Plan(fleet=fleet, origin=origin, vehicles=tuple(vehicles), formation=formation,
-                seeking=seeking, geofence=geofence, zenoh=zen, version=PLAN_VERSION, **top)
+                seeking=seeking, geofence=geofence, zenoh=zen, version=PLAN_VERSION, faults=faults,
+                **top)
+
+
+def _parse_faults(c: Checker, doc: dict) -> FaultsPlan:
+    t = c.table(doc, "faults")
+    c.unknown(t, ("readmit", "link_timeout_s"), "faults")
+    readmit = t.get("readmit", False)
+    if not isinstance(readmit, bool):
+        c.bad("faults.readmit", f"must be true or false, got {show_value(readmit)}")
+        readmit = False
+    timeout = c.number(t, "link_timeout_s", "faults", 1.0, low=0.2, high=1.4)
+    return FaultsPlan(readmit=readmit, link_timeout_s=1.0 if timeout is None else timeout)
 
 
 def _parse_origin(c: Checker, doc: dict):

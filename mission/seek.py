@@ -49,32 +49,54 @@ def make_estimator(kind: str, n: int):
     return _plain
 
 
-async def seek(co) -> tuple[str, str]:
+async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     """Run the seek loop; returns ``(outcome, message)``.
 
+    ``start_iteration`` and ``history`` (the last centres, oldest first) resume a stopped seek
+    (:mod:`mission.resume`): iterations are numbered on, the convergence monitor is prefilled.
+
     Outcomes: ``converged``, ``max_iterations``, ``stopped_at_fence`` (the centre has been held
-    at the geofence for a whole convergence window: the source is probably outside).
+    at the geofence for a whole convergence window: the source is probably outside),
+    ``too_few_vehicles`` (vehicles were lost and fewer than 4 are left: the caller brings the
+    others home). After a loss the formation is re-formed for the survivors
+    (:func:`mission.loss.reform`) before the next iteration.
     """
     from estimator import ConvergenceMonitor, GeometryError, seek_step
 
+    from mission.loss import reform
     from mission.phases import move_and_wait
 
     co.set_phase("seek")
     plan = co.plan
     sk = plan.seeking
-    sysids = sorted(s for s in co.ramp.sysids if s in co.slot_offsets)
-    if len(sysids) < 4:
-        raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(sysids)}")
-    estimate = make_estimator(sk.estimator, len(sysids))
+    # the formation's vehicles: those under setpoints, and those lost since their slot was given
+    # (the loop re-forms without them first)
+    sysids = sorted(s for s in co.slot_offsets if s in co.ramp.sysids or s in co.lost)
+    if len([s for s in sysids if s not in co.lost]) < 4:
+        raise MissionError(f"seek needs at least 4 vehicles in formation, have {len([s for s in sysids if s not in co.lost])}")
+    est_kind = sk.estimator
+    estimate = make_estimator(est_kind, len(sysids))
     monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m)
     centre = np.asarray(co.centre_enu, dtype=float).copy()
-    monitor.update(centre)
+    for c in history:
+        monitor.update(np.asarray(c, dtype=float))
+    if not len(history):
+        monitor.update(centre)
     co._t_seek_start = co.clock.time()
     period_s = 1.0 / sk.rate_hz
     last_estimate_t = -np.inf
     failures = 0
     at_fence = 0
-    for k in range(sk.max_iterations):
+    for k in range(int(start_iteration), sk.max_iterations):
+        if any(s in co.lost for s in sysids):
+            sysids = await reform(co, centre, sysids)
+            if len(sysids) < 4:
+                co._t_seek_end = co.clock.time()
+                return "too_few_vehicles", (f"vehicles {sorted(co.lost)} lost: {len(sysids)} left, a formation "
+                                            "needs 4; ending the mission, the others come home")
+            if co.formation_kind == "cvt" and est_kind == "symmetric":
+                est_kind = "cvt"
+            estimate = make_estimator(est_kind, len(sysids))
         goals = {s: centre + co.slot_offsets[s] for s in sysids}
         try:
             await move_and_wait(co, goals, sk.arrival_tol_m,
@@ -88,7 +110,8 @@ async def seek(co) -> tuple[str, str]:
             await co.clock.sleep(wait_s)
 
         def _fresh():
-            return all((r := co.store.latest(s)) is not None and r.time_s >= t_arrive for s in sysids)
+            return all((r := co.store.latest(s)) is not None and r.time_s >= t_arrive
+                       for s in sysids if s not in co.lost)
 
         try:
             await co.wait_until(_fresh, max(5.0, 10 * sk.reading_window_s), "fresh readings", poll_s=0.02)
@@ -97,6 +120,8 @@ async def seek(co) -> tuple[str, str]:
             co.event(f"iteration {k + 1}: no fresh reading from vehicles {missing}", level="warning")
         # estimation instant: the oldest of the vehicles' newest readings, so that every vehicle
         # has a reading at or after it (robust to delivery latency, e.g. at a high speed-up)
+        if any(s in co.lost for s in sysids):
+            continue  # lost during this iteration: re-form first
         latest = [co.store.latest(s) for s in sysids]
         fresh = [r.time_s for r in latest if r is not None and r.time_s >= t_arrive]
         t_est = min(fresh) if len(fresh) == len(sysids) else co.clock.time()

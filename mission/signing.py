@@ -38,9 +38,6 @@ wire, 127.0.0.1 for simulators) and never write it to a ``.tlog``.
 from __future__ import annotations
 
 import hashlib
-import os
-import stat
-import warnings
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +45,8 @@ from typing import Mapping
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from pymavlink.generator import mavcrc
+
+from mission.signing_keys import SigningError, SigningWarning, load_key_file, passphrase_to_key
 
 __all__ = [
     "SIGNING_EPOCH_UNIX_S",
@@ -72,7 +71,6 @@ SIGNING_EPOCH_UNIX_S = 1_420_070_400
 #: messages accepted unsigned by default: what radio modems inject (ArduPilot's accept list).
 DEFAULT_ALLOW_UNSIGNED = frozenset({"RADIO_STATUS", "RADIO"})
 _KEY_LEN = 32
-_KEY_FILE_MAX_BYTES = 4096
 _TIMESTAMP_MAX = (1 << 48) - 1
 _NEW_STREAM_MAX_LAG = 6_000_000  # one minute in 10 us units (MAVLink spec)
 _SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
@@ -83,117 +81,10 @@ _SECURITY_KEYS = ("signing_key_file", "signing_link_id", "allow_unsigned", "setu
 _MSG_IDS: dict[str, int] = {cls.msgname: msg_id for msg_id, cls in mavlink.mavlink_map.items()}
 
 
-class SigningError(ValueError):
-    """A signing key, key file or ``[security]`` setting that cannot be used.
-
-    Attributes
-    ----------
-    problems : list of (str, str)
-        ``(key_path, why)`` pairs (one ``("(key file)", why)`` for key-file errors), the shape
-        :class:`mission.plan.PlanError` takes.
-    """
-
-    def __init__(self, message: str, problems: list[tuple[str, str]] | None = None):
-        super().__init__(message)
-        self.problems = list(problems) if problems else [("(key file)", message)]
-
-
-class SigningWarning(UserWarning):
-    """A usable but weakly protected key file (group-readable, or world-readable if allowed)."""
-
-
-# ---------------------------------------------------------------------------- keys and time
-def passphrase_to_key(passphrase: str) -> bytes:
-    """The 32-byte key of a passphrase: ``SHA-256(UTF-8 bytes)``, as MAVProxy computes it."""
-    if not isinstance(passphrase, str) or not passphrase:
-        raise SigningError("a signing passphrase must be a non-empty string")
-    return hashlib.sha256(passphrase.encode("utf-8")).digest()
-
-
+# ---------------------------------------------------------------------------- time
 def signing_timestamp(unix_s: float) -> int:
     """Signing timestamp of a Unix time: 10 us units since 2015-01-01 UTC, clipped to 48 bits."""
     return max(0, min(int((float(unix_s) - SIGNING_EPOCH_UNIX_S) * 100_000), _TIMESTAMP_MAX))
-
-
-def load_key_file(path, *, allow_world_readable: bool = False) -> bytes:
-    """Read a signing key file (format in the module docstring).
-
-    Parameters
-    ----------
-    path : str or path-like
-    allow_world_readable : bool
-        Accept a world-readable file with a :class:`SigningWarning` instead of refusing it.
-
-    Returns
-    -------
-    bytes
-        The 32-byte key.
-
-    Raises
-    ------
-    SigningError
-        Missing, unreadable, not a regular file, world-readable, too large, empty, several
-        lines, ambiguous 32 printable bytes, not UTF-8, or the all-zero key. The message names
-        the file and says what to do.
-    """
-    p = Path(path)
-    where = str(p)
-    try:
-        st = p.stat()
-    except OSError as exc:
-        raise SigningError(f"signing key file {where!r}: {exc.strerror or exc}") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise SigningError(f"signing key file {where!r} is not a regular file")
-    if os.name == "posix":
-        mode = stat.S_IMODE(st.st_mode)
-        if mode & stat.S_IROTH:
-            text = (f"signing key file {where!r} is world-readable (mode {mode:o}); "
-                    f"run: chmod 600 {p}")
-            if not allow_world_readable:
-                raise SigningError(text)
-            warnings.warn(text, SigningWarning, stacklevel=2)
-        elif mode & stat.S_IRGRP:
-            warnings.warn(f"signing key file {where!r} is group-readable (mode {mode:o}); "
-                          f"consider: chmod 600 {p}", SigningWarning, stacklevel=2)
-    if st.st_size > _KEY_FILE_MAX_BYTES:
-        raise SigningError(f"signing key file {where!r} is {st.st_size} bytes; a key file holds "
-                           f"64 hex characters, 32 raw bytes or a one-line passphrase")
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise SigningError(f"signing key file {where!r}: {exc.strerror or exc}") from None
-    key = _decode_key(data, where)
-    if not any(key):
-        raise SigningError(f"signing key file {where!r} holds the all-zero key, which means "
-                           f"'signing off' in SETUP_SIGNING")
-    return key
-
-
-def _decode_key(data: bytes, where: str) -> bytes:
-    stripped = data.strip()
-    if len(stripped) == 2 * _KEY_LEN:
-        try:
-            return bytes.fromhex(stripped.decode("ascii"))
-        except (UnicodeDecodeError, ValueError):
-            pass
-    if len(data) == _KEY_LEN:
-        if all(32 <= b < 127 for b in data):
-            raise SigningError(
-                f"signing key file {where!r} is ambiguous: 32 printable bytes could be a raw key "
-                f"or a passphrase; write the key as 64 hex characters or end the passphrase with "
-                f"a newline")
-        return bytes(data)
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise SigningError(f"signing key file {where!r} is neither 64 hex characters, 32 raw "
-                           f"bytes nor a UTF-8 passphrase ({len(data)} bytes)") from None
-    line = text.rstrip("\r\n")
-    if not line.strip():
-        raise SigningError(f"signing key file {where!r} is empty (no passphrase)")
-    if "\n" in line or "\r" in line:
-        raise SigningError(f"signing key file {where!r} has several lines; a passphrase is one line")
-    return passphrase_to_key(line)
 
 
 # ---------------------------------------------------------------------------- configuration

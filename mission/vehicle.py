@@ -66,6 +66,9 @@ class VehicleLink(VehicleTelemetry):
         The last STATUSTEXT messages as ``(clock_s, severity, text)``.
     errors : list of LinkError
         Link problems reported by the endpoint (e.g. duplicate system id).
+    rejected : dict of str to int
+        Telemetry messages rejected because their values cannot be true (NaN positions, a
+        home out of range...), by message name; :attr:`last_rejection` says why.
     """
 
     def __init__(self, endpoint: MavEndpoint, sysid: int, heartbeat, *, clock, mission_origin,
@@ -85,6 +88,8 @@ class VehicleLink(VehicleTelemetry):
         self.state = VehicleState(sysid=self.sysid, flavour=self.flavour)
         self.statustexts: collections.deque = collections.deque(maxlen=20)
         self.errors: list[LinkError] = []
+        self.rejected: dict[str, int] = {}
+        self.last_rejection: str | None = None
         self.frame_map: MissionToLocal | None = None
         self.setpoints_sent = 0
         self._home_local = (0.0, 0.0, 0.0)

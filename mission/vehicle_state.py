@@ -7,6 +7,7 @@ raises. Import both from :mod:`mission.vehicle`.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -24,6 +25,8 @@ _M = mavlink
 _LANDED = {_M.MAV_LANDED_STATE_ON_GROUND: True, _M.MAV_LANDED_STATE_IN_AIR: False,
            _M.MAV_LANDED_STATE_TAKEOFF: False, _M.MAV_LANDED_STATE_LANDING: False}
 _POSITION_FRESH_S = 3.0
+#: local coordinates beyond this (100 km) cannot belong to a multicopter's local frame
+_MAX_LOCAL_M = 1e5
 
 def command_name(command: int) -> str:
     """``MAV_CMD_*`` name of a command number (``"MAV_CMD(n)"`` when unknown)."""
@@ -140,9 +143,18 @@ class VehicleTelemetry:
         st.last_heartbeat_s = self.clock.time()
         self._events["update"].set()
 
+    def _reject(self, msg, why: str) -> None:
+        """Count a telemetry message whose values cannot be true (state unchanged)."""
+        name = msg.get_type()
+        self.rejected[name] = self.rejected.get(name, 0) + 1
+        self.last_rejection = f"{name}: {why}"
+
     def _on_global_position(self, msg) -> None:
         st = self.state
         if msg.lat == 0 and msg.lon == 0:
+            return
+        if not (-900_000_000 <= msg.lat <= 900_000_000 and -1_800_000_000 <= msg.lon <= 1_800_000_000):
+            self._reject(msg, f"lat/lon {msg.lat}, {msg.lon} (1e-7 deg) out of range")
             return
         st.lat_deg = msg.lat * 1e-7
         st.lon_deg = msg.lon * 1e-7
@@ -157,6 +169,10 @@ class VehicleTelemetry:
 
     def _on_local_position(self, msg) -> None:
         st = self.state
+        if not all(math.isfinite(v) and abs(v) < _MAX_LOCAL_M for v in (msg.x, msg.y, msg.z)) \
+                or not all(math.isfinite(v) for v in (msg.vx, msg.vy, msg.vz)):
+            self._reject(msg, f"non-finite or absurd position/velocity {msg.x}, {msg.y}, {msg.z}")
+            return
         st.position_ned_m = np.array([msg.x, msg.y, msg.z])
         st.velocity_ned_m_s = np.array([msg.vx, msg.vy, msg.vz])
         if st.home is not None:   # kept current between (slower) GLOBAL_POSITION_INT messages
@@ -193,10 +209,21 @@ class VehicleTelemetry:
     def _on_home(self, msg) -> None:
         home = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
         local = (float(msg.x), float(msg.y), float(msg.z))
+        if not (abs(home[0]) <= 90.0 and abs(home[1]) <= 180.0 and abs(home[2]) < _MAX_LOCAL_M):
+            self._reject(msg, f"home {home} out of range")
+            return
+        if not all(math.isfinite(v) and abs(v) < _MAX_LOCAL_M for v in local):
+            self._reject(msg, f"home local position {local} non-finite or absurd")
+            return
         if home != self.state.home or local != self._home_local or self.frame_map is None:
+            try:
+                frame_map = MissionToLocal.from_home(self.mission_origin, home, local)
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+                self._reject(msg, f"no frame from home {home}, local {local}: {exc}")
+                return
             self.state.home = home
             self._home_local = local
-            self.frame_map = MissionToLocal.from_home(self.mission_origin, home, local)
+            self.frame_map = frame_map
         self._events["home"].set()
 
     def _on_ack(self, msg) -> None:

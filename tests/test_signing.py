@@ -37,7 +37,8 @@ def _gcs(config, state=None, sysid=255, compid=190):
 
 
 def _arm(enc, target=1):
-    return enc.command_long_encode(target, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(enc)
+    msg = enc.command_long_encode(target, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    return msg.pack(enc)
 
 
 # ------------------------------------------------------------------ key files
@@ -252,7 +253,8 @@ def test_forged_frame_does_not_poison_the_stream():
     genuine = _gcs(cfg, cfg.new_state(NOW_S), sysid=1, compid=1)
     assert v.check_frame(_arm(genuine)) is None
     forger = sg.SigningConfig(OTHER_KEY).new_state(NOW_S + 10_000.0)  # far-future timestamp
-    assert v.check_frame(_arm(_gcs(sg.SigningConfig(OTHER_KEY), forger, sysid=1, compid=1))) == "bad_signature"
+    forged = _arm(_gcs(sg.SigningConfig(OTHER_KEY), forger, sysid=1, compid=1))
+    assert v.check_frame(forged) == "bad_signature"
     assert v.check_frame(_arm(genuine)) is None
 
 

@@ -180,7 +180,8 @@ def test_setup_signing_from_the_ground_station_turns_signing_on(setup_signed):
     assert b.ap.signing.timestamp >= state.timestamp
     b.raw_downlink.clear()
     b.run(1.0)
-    assert b.raw_downlink and [b.verifier.check_frame(f) for f in b.raw_downlink] == [None] * len(b.raw_downlink)
+    assert b.raw_downlink
+    assert [b.verifier.check_frame(f) for f in b.raw_downlink] == [None] * len(b.raw_downlink)
     assert b.inject(b.command_frame(Bench.encoder(None), ARM, 1)) == []
     assert not b.ap.armed and b.rejections() == {"rx_unsigned": 1}
     assert b.acks(b.inject(b.command_frame(b.gcs, ARM, 1))) == [(ARM, mav.MAV_RESULT_ACCEPTED)]
@@ -192,7 +193,8 @@ def test_setup_signing_refused_while_armed():
     b.inject(b.mode_frame(b.gcs, "GUIDED"))
     assert b.acks(b.inject(b.command_frame(b.gcs, ARM, 1))) == [(ARM, mav.MAV_RESULT_ACCEPTED)]
     replies = b.inject(setup_signing_message(1, KEY, signing_timestamp(b.t_s)).pack(b.gcs))
-    assert [m.text for m in replies if m.get_type() == "STATUSTEXT"] == ["ERROR: Won't setup signing when armed"]
+    texts = [m.text for m in replies if m.get_type() == "STATUSTEXT"]
+    assert texts == ["ERROR: Won't setup signing when armed"]
     assert not b.ap.signing.enabled and b.ap.counters["signing_setup_refused_armed"] == 1
 
 

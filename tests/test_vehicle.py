@@ -285,3 +285,54 @@ def test_wait_on_clock_returns_result_or_times_out():
         with pytest.raises(TimeoutError, match="timed out after 0.05 s"):
             await wait_on_clock(asyncio.Event().wait(), 0.05, WallClock())
     _run(scenario())
+
+
+def _attached(clock=None):
+    """An endpoint (transport not opened) with an ArduPilot vehicle 3 heard and attached."""
+    from mission.links import parse_connection
+
+    clock = clock or WallClock()
+    ep = MavEndpoint(parse_connection("udpin:127.0.0.1:0"), clock=clock, heartbeat_hz=0)
+    ap = FakeAutopilot(3)
+    ep._on_datagram(ap.encode(ap.heartbeat()), ("127.0.0.1", 9))
+    v = VehicleLink(ep, 3, ep.last_heartbeat(3), clock=clock, mission_origin=ORIGIN)
+    ep.attach(3, v._on_message, v._on_link_error)
+    return ep, v, ap
+
+
+@pytest.mark.parametrize("bad, name", [
+    (mavlink.MAVLink_local_position_ned_message(0, math.nan, 0, -10, 0, 0, 0), "LOCAL_POSITION_NED"),
+    (mavlink.MAVLink_local_position_ned_message(0, 1e9, 0, -10, 0, 0, 0), "LOCAL_POSITION_NED"),
+    (mavlink.MAVLink_local_position_ned_message(0, 1, 0, -10, math.inf, 0, 0), "LOCAL_POSITION_NED"),
+    (mavlink.MAVLink_home_position_message(451900000, 57200000, 230000, 1e30, 0, 0, [1, 0, 0, 0], 0, 0, 0),
+     "HOME_POSITION"),
+    (mavlink.MAVLink_home_position_message(451900000, 57200000, 230000, math.nan, 0, 0, [1, 0, 0, 0], 0, 0, 0),
+     "HOME_POSITION"),
+    (mavlink.MAVLink_home_position_message(951900000, 57200000, 230000, 0, 0, 0, [1, 0, 0, 0], 0, 0, 0),
+     "HOME_POSITION"),
+    (mavlink.MAVLink_global_position_int_message(0, 951900000, 57200000, 230000, 0, 0, 0, 0, 0),
+     "GLOBAL_POSITION_INT"),
+])
+def test_impossible_telemetry_is_rejected_and_counted(bad, name):
+    ep, v, ap = _attached()
+    good_home = ap.home_position()
+    ep._on_datagram(ap.encode(good_home) + ap.encode(mavlink.MAVLink_local_position_ned_message(0, 1, 2, -10, 0, 0, 0)),
+                    ("127.0.0.1", 9))
+    before = (v.position_enu_m().copy(), v.state.home, v.frame_map)
+    ep._on_datagram(ap.encode(bad), ("127.0.0.1", 9))
+    assert v.rejected == {name: 1} and name in v.last_rejection
+    assert np.array_equal(v.position_enu_m(), before[0]) and np.all(np.isfinite(v.position_enu_m()))
+    assert (v.state.home, v.frame_map) == before[1:]
+    assert ep.counters["frames_in"] == 4 and ep.counters["handler_errors"] == 0
+
+
+def test_a_raising_handler_is_counted_and_the_link_goes_on():
+    ep, v, ap = _attached()
+
+    def broken(msg):
+        raise RuntimeError("boom")
+
+    v._handlers[mavlink.MAVLINK_MSG_ID_SYS_STATUS] = broken
+    ep._on_datagram(b"".join(ap.encode(m) for m in ap.slow_telemetry()), ("127.0.0.1", 9))
+    assert ep.counters["handler_errors"] == 1 and "SYS_STATUS from 3: RuntimeError: boom" in ep.last_handler_error
+    assert v.state.landed is True          # EXTENDED_SYS_STATE after the broken one still arrived
