@@ -6,6 +6,8 @@ gradient, gradient_batch, estimator_weights, GeometryError, METHODS
     Paper eq. (3) (``"symmetric"``) and Theorem 2 (``"cvt"``) estimators.
 seek_step, ConvergenceMonitor, ConvergenceVerdict, convergence_scan
     The capped gradient-ascent step and the convergence test.
+RobustGradientEstimator, weighted_gradient
+    Weighted Theorem 2 and the online estimator that finds and sidelines faulty sensors.
 """
 from estimator.gradient import (
     DEFAULT_MAX_CONDITION,
@@ -15,6 +17,7 @@ from estimator.gradient import (
     gradient,
     gradient_batch,
 )
+from estimator.robust import RobustGradientEstimator, weighted_gradient
 from estimator.seeking import ConvergenceMonitor, ConvergenceVerdict, convergence_scan, seek_step
 
 __all__ = [
@@ -28,4 +31,6 @@ __all__ = [
     "ConvergenceMonitor",
     "ConvergenceVerdict",
     "convergence_scan",
+    "RobustGradientEstimator",
+    "weighted_gradient",
 ]

@@ -123,8 +123,9 @@ class Geofence:
             raise SafetyError(f"altitude band is empty: min_alt_m={lo} must be < max_alt_m={hi}")
         self._poly = poly if area > 0 else poly[::-1].copy()
         self._poly.setflags(write=False)
-        turn = np.cross(np.roll(self._poly, -1, axis=0) - self._poly, np.roll(self._poly, -2, axis=0)
-                        - np.roll(self._poly, -1, axis=0))
+        edge = np.roll(self._poly, -1, axis=0) - self._poly
+        nxt = np.roll(edge, -1, axis=0)
+        turn = edge[:, 0] * nxt[:, 1] - edge[:, 1] * nxt[:, 0]
         self._convex = bool(np.all(turn >= -1e-12 * scale * scale))
         self.min_alt_m = lo
         self.max_alt_m = hi

@@ -194,7 +194,9 @@ class TargetRamp:
             self.safety_errors += 1
             if self.on_violation is not None and self.safety_errors in (1, 10, 100, 1000):
                 self.on_violation(f"safety envelope refused a setpoint batch ({exc}); holding")
-            return prev
+            # hold, but never at a point outside the fence prism (e.g. below min_alt_m
+            # just after takeoff): the nearest inside point
+            return self.envelope.fence.clamp(prev)
         safe = np.asarray(getattr(res, "positions_enu", res), dtype=float)
         if safe.shape != new.shape:
             return prev
