@@ -21,6 +21,7 @@ Rules (see ``docs/faults.md``):
 from __future__ import annotations
 
 import asyncio
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -219,9 +220,10 @@ async def _maybe_came_back(co, v, loss: VehicleLoss, now: float) -> None:
         return
     loss.came_back_s = now
     rtl = co.plan.return_behaviour == "rtl"
+    why = ("faults.readmit = false" if not co.plan.faults.readmit
+           else "faults.readmit = true, but re-admission mid-seek is not implemented")
     co.event(f"vehicle {loss.sysid} is heard again after its link loss; kept out of the formation "
-             f"(faults.readmit = false) and commanded to {'RTL' if rtl else 'land'}", level="warning",
-             sysid=loss.sysid)
+             f"({why}) and commanded to {'RTL' if rtl else 'land'}", level="warning", sysid=loss.sysid)
     if not v.state.armed:
         co.status[loss.sysid] = "lost (back, on the ground)"
         return
@@ -250,8 +252,13 @@ async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
         return survivors
     plan = co.plan
     lost_here = [s for s in sysids if s not in survivors]
-    new, kind = reformed_offsets(co.formation_kind, {s: co.slot_offsets[s] for s in sysids}, lost_here,
-                                 plan.formation.radius_m, plan.formation.seed)
+    # the CVT solve and the transfer planning take 0.1-0.3 s of CPU: in a worker thread, so that
+    # the event loop keeps streaming setpoints (at 10x, 0.1 s of wall time is PX4's 1 s
+    # offboard-loss timeout)
+    loop = asyncio.get_running_loop()
+    new, kind = await loop.run_in_executor(None, functools.partial(
+        reformed_offsets, co.formation_kind, {s: co.slot_offsets[s] for s in sysids}, lost_here,
+        plan.formation.radius_m, plan.formation.seed))
     if kind != co.formation_kind:
         co.event(f"{len(survivors)} vehicles left: the symmetric formation needs an even number; "
                  "switching to the CVT formation (and the Theorem 2 estimator)", level="warning")
@@ -262,7 +269,8 @@ async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
     fence = None if co.envelope is None else co.envelope.fence
     t0 = co.clock.time()
     try:
-        tp = plan_transfer(start, goal, plan.min_separation_m, 0.8 * plan.max_speed_m_s, fence=fence)
+        tp = await loop.run_in_executor(None, functools.partial(
+            plan_transfer, start, goal, plan.min_separation_m, 0.8 * plan.max_speed_m_s, fence=fence))
     except (TransferError, ValueError) as exc:
         tp = None
         co.event(f"re-formation: no separation-keeping transfer ({exc}); flying straight to the new "

@@ -72,8 +72,9 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     # the formation's vehicles: those under setpoints, and those lost since their slot was given
     # (the loop re-forms without them first)
     sysids = sorted(s for s in co.slot_offsets if s in co.ramp.sysids or s in co.lost)
-    if len([s for s in sysids if s not in co.lost]) < 4:
-        raise MissionError(f"seek needs at least 4 vehicles in formation, have {len([s for s in sysids if s not in co.lost])}")
+    flying = [s for s in sysids if s not in co.lost]
+    if len(flying) < 4:
+        raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
     est_kind = sk.estimator
     estimate = make_estimator(est_kind, len(sysids))
     monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m)

@@ -90,14 +90,14 @@ def messages(classes=ALL_MESSAGE_CLASSES, **fixed):
     ----------
     classes : sequence of pymavlink message classes
     **fixed : strategy or value
-        Field name -> value or strategy, applied when the class has that field (e.g.
-        ``target_system=st.just(1)``).
+        Field name -> value or strategy, applied when the class has that field as a scalar
+        (e.g. ``target_system=st.just(1)``).
     """
     def build(cls):
         lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths))
         kwargs = {}
         for name, ftype in zip(cls.fieldnames, cls.fieldtypes):
-            if name in fixed:
+            if name in fixed and not lengths[name] and ftype != "char":
                 value = fixed[name]
                 kwargs[name] = value if isinstance(value, st.SearchStrategy) else st.just(value)
             else:
@@ -111,7 +111,7 @@ def encode(msg, sysid: int = 255, compid: int = 190, seq: int = 0, mavlink1: boo
     """Encode ``msg`` as a MAVLink 2 (or 1) frame from ``sysid``/``compid``."""
     enc = _M.MAVLink(None, srcSystem=sysid, srcComponent=compid)
     enc.seq = seq & 0xFF
-    return bytes(msg.pack(enc, force_mavlink1=mavlink1 and msg.id < 256))
+    return bytes(msg.pack(enc, force_mavlink1=mavlink1 and msg.get_msgId() < 256))
 
 
 def frames(classes=ALL_MESSAGE_CLASSES, sysid=st.just(255), compid=st.just(190), **fixed):

@@ -223,3 +223,21 @@ def test_symmetric_loss_switches_to_cvt_and_converges(tmp_path):
     # N = 5 CVT is biased (docs/mission.md: 2.4 m mean at D = 4 m; about half at D = 2.5 m)
     error_m = float(np.linalg.norm(np.asarray(result.estimate_enu) - source))
     assert error_m < 3.0, error_m
+
+
+@pytest.mark.parametrize("faults, problem", [
+    ({"readmit": "yes"}, "faults.readmit: must be true or false"),
+    ({"link_timeout_s": 3.0}, "faults.link_timeout_s: must be <= 1.4"),
+    ({"retries": 2}, "faults.retries"),
+])
+def test_plan_faults_section_is_checked(faults, problem):
+    import tomllib
+    from pathlib import Path
+
+    from mission.plan import PlanError, parse_plan
+
+    doc = tomllib.loads((Path(__file__).parents[1] / "mission/examples/sitl_plan.toml").read_text())
+    assert parse_plan(doc).faults.readmit is False          # default: kept out
+    doc["faults"] = faults
+    with pytest.raises(PlanError, match=problem):
+        parse_plan(doc)
