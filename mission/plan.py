@@ -175,8 +175,9 @@ class FaultsPlan:
     Attributes
     ----------
     readmit : bool
-        A lost vehicle whose link comes back rejoins the formation (True) or is kept out and
-        commanded to land / RTL per ``return`` (False, default).
+        A lost vehicle whose link comes back is kept out and commanded to land / RTL per
+        ``return`` (False, the default and the only value the parser accepts for now; True,
+        rejoining the formation, is reserved).
     link_timeout_s : float
         A vehicle silent for this long (mission clock) is lost (default 1.0; detection within
         ``link_timeout_s`` + 0.1 s).
@@ -326,6 +327,9 @@ def _parse_faults(c: Checker, doc: dict) -> FaultsPlan:
     if not isinstance(readmit, bool):
         c.bad("faults.readmit", f"must be true or false, got {show_value(readmit)}")
         readmit = False
+    elif readmit:
+        c.bad("faults.readmit", "true is not supported yet: a vehicle that comes back is kept out of "
+              "the formation and landed (or RTL); use false (docs/faults.md)")
     timeout = c.number(t, "link_timeout_s", "faults", 1.0, low=0.2, high=1.4)
     return FaultsPlan(readmit=readmit, link_timeout_s=1.0 if timeout is None else timeout)
 

@@ -47,11 +47,24 @@ _ACTED_UPON = tuple(message_class(n) for n in (
     "MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_CLEAR_ALL", "MISSION_SET_CURRENT",
     "MISSION_REQUEST_LIST", "MISSION_REQUEST_INT", "MISSION_ACK", "REQUEST_DATA_STREAM", "TIMESYNC",
     "HEARTBEAT"))
-#: commands whose handlers let an exception escape (see the xfail tests below); kept out of the
-#: random commands so that the properties test everything else. Remove once fixed.
-_KNOWN_CRASH_CMDS = (_M.MAV_CMD_REQUEST_PROTOCOL_VERSION, _M.MAV_CMD_GET_MESSAGE_INTERVAL)
-_COMMAND_IDS = st.one_of(st.sampled_from(sorted(set(COMMANDS) - set(_KNOWN_CRASH_CMDS))),
-                         st.integers(0, 0xFFFF)).filter(lambda c: c not in _KNOWN_CRASH_CMDS)
+_COMMAND_IDS = st.one_of(st.sampled_from(sorted(COMMANDS)), st.integers(0, 0xFFFF))
+#: largest |altitude| (m) whose HOME_POSITION.altitude (int32 mm) can be encoded
+_INT32_ALT_M = (2 ** 31 - 1) / 1000.0
+
+
+def _no_known_crash(frame: bytes) -> bool:
+    """False for the commands that let an exception escape (one xfail test each, below): kept
+    out of the random input so that the properties test everything else. Remove once fixed."""
+    for msg in reference_parse(frame)[0]:
+        command = getattr(msg, "command", None)
+        if msg.get_type() not in ("COMMAND_LONG", "COMMAND_INT"):
+            continue
+        if command in (_M.MAV_CMD_REQUEST_PROTOCOL_VERSION, _M.MAV_CMD_GET_MESSAGE_INTERVAL):
+            return False
+        alt_m = msg.param7 if msg.get_type() == "COMMAND_LONG" else msg.z
+        if command == _M.MAV_CMD_DO_SET_HOME and abs(alt_m) >= _INT32_ALT_M:
+            return False
+    return True
 
 
 def _run(ap, t_s: float, duration_s: float) -> float:
@@ -123,7 +136,7 @@ _junk = st.lists(st.one_of(st.binary(max_size=40),
                            st.sampled_from([b"\xfd", b"\xfe", b"\xfd\x09\x00\x00", b"\xfe\x21"])),
                  min_size=1, max_size=12).map(b"".join)
 _acted_frames = frames(_ACTED_UPON, target_system=SYSID, target_component=st.sampled_from([0, 1]),
-                       command=_COMMAND_IDS)
+                       command=_COMMAND_IDS).filter(_no_known_crash)
 
 
 @_SETTINGS
@@ -184,7 +197,7 @@ _any_frames = st.one_of(
     frames(ALL_MESSAGE_CLASSES, target_system=st.sampled_from([0, SYSID, 2]),
            target_component=st.sampled_from([0, 1, 190]), command=_COMMAND_IDS),
     frames(_ACTED_UPON, sysid=st.integers(1, 255), compid=st.integers(0, 255),
-           target_system=st.sampled_from([0, SYSID]), command=_COMMAND_IDS))
+           target_system=st.sampled_from([0, SYSID]), command=_COMMAND_IDS)).filter(_no_known_crash)
 
 
 @_SETTINGS
@@ -247,6 +260,18 @@ def test_a_partial_frame_ending_a_datagram_does_not_swallow_the_next_datagram():
     links._receive(parser, _command(_M.MAV_CMD_REQUEST_MESSAGE, _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION))
     acks = [m for m in reference_parse(b"".join(ap.drain_outbox()))[0] if m.get_type() == "COMMAND_ACK"]
     assert len(acks) == 1
+
+
+@pytest.mark.xfail(strict=True, raises=struct.error, reason=(
+    "sitl_mock/ap_commands.py _cmd_set_home checks lat/lon but not the altitude: above 2147 km "
+    "HOME_POSITION.altitude (int32 mm) cannot be packed and struct.error escapes, after the home "
+    "was already changed and without a COMMAND_ACK"))
+def test_set_home_to_an_absurd_altitude_is_denied_not_raised():
+    ap, links, _ = _vehicle("ardupilot")
+    home = ap.home
+    _feed(links, [_command(_M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, HOME[0], HOME[1], 2_147_484.0)])
+    acks = [m for m in reference_parse(b"".join(ap.drain_outbox()))[0] if m.get_type() == "COMMAND_ACK"]
+    assert [a.result for a in acks] == [_M.MAV_RESULT_DENIED] and ap.home == home
 
 
 # ------------------------------------------------------------------------- over a real socket

@@ -227,6 +227,7 @@ def test_symmetric_loss_switches_to_cvt_and_converges(tmp_path):
 
 @pytest.mark.parametrize("faults, problem", [
     ({"readmit": "yes"}, "faults.readmit: must be true or false"),
+    ({"readmit": True}, "faults.readmit: true is not supported yet"),
     ({"link_timeout_s": 3.0}, "faults.link_timeout_s: must be <= 1.4"),
     ({"retries": 2}, "faults.retries"),
 ])
