@@ -68,6 +68,11 @@ def format_summary(summary: dict) -> list[str]:
     lines.append(f"  mission time {_num(summary.get('mission_time_s'), '{:.1f}')} s, seek time "
                  f"{_num(summary.get('seek_time_s'), '{:.1f}')} s, distance flown (centre) "
                  f"{_num(summary.get('distance_flown_m'), '{:.1f}')} m")
+    for loss in summary.get("lost") or ():
+        latency = loss.get("latency_s")
+        detected = f", detected after {latency:.2f} s" if isinstance(latency, (int, float)) else ""
+        lines.append(f"  lost vehicle {loss.get('sysid')} in {loss.get('phase', '?')}: "
+                     f"{loss.get('reason', '?')} ({loss.get('detail', '')}){detected}")
     return lines
 
 

@@ -177,3 +177,15 @@ def test_fly_with_a_busy_zenoh_port_fails_clearly(tmp_path, capsys):
         assert cli_main(["fly", "--plan", str(plan), "--log-dir", str(tmp_path / "log")]) == 1
     err = capsys.readouterr().err
     assert "cannot open the zenoh session" in err and str(port) in err
+
+
+def test_summary_lists_lost_vehicles_with_detection_latency():
+    from mission.display import format_summary
+
+    lines = format_summary({
+        "outcome": "converged", "message": "ok", "mission_time_s": 10.0, "seek_time_s": 5.0,
+        "distance_flown_m": 3.0,
+        "lost": [{"sysid": 3, "reason": "silent", "detail": "no frame for 1.0 s", "phase": "seek",
+                  "latency_s": 1.08}],
+    })
+    assert any("lost vehicle 3 in seek: silent" in ln and "1.08 s" in ln for ln in lines)
