@@ -138,6 +138,7 @@ class Coordinator:
         self.status_period_s = float(status_period_s)
         self.phase = "idle"
         self.endpoints: dict[str, object] = {}
+        self.poller = None  # mission.links_poller.UdpPoller when many UDP endpoints (phases.connect)
         self.vehicles: dict[int, object] = {}
         self.ids = {v.sysid: v.id for v in plan.vehicles}
         self.streamer = None
@@ -357,16 +358,14 @@ class Coordinator:
         if self._subscriber is not None:
             self._subscriber.close()
             self._subscriber = None
-        for v in list(self.vehicles.values()):
+        for what, closable in ([(f"vehicle {s}", v) for s, v in self.vehicles.items()]
+                               + [(f"link {u}", ep) for u, ep in self.endpoints.items()]
+                               + ([("UDP poller", self.poller)] if self.poller is not None else [])):
             try:
-                await v.close()
-            except Exception:  # noqa: BLE001
-                pass
-        for ep in list(self.endpoints.values()):
-            try:
-                await ep.close()
-            except Exception:  # noqa: BLE001
-                pass
+                await closable.close()
+            except Exception as exc:  # noqa: BLE001 - closing must go on; say what failed
+                self.event(f"closing {what} failed: {exc!r}", level="warning")
+        self.poller = None
 
     async def dry_run(self) -> MissionResult:
         """Connect and run the preflight checks; arms nothing. Outcome ``ready`` or ``not_ready``."""

@@ -29,6 +29,8 @@ from pymavlink.generator import mavcrc
 from mission.clock import wait_on_clock
 from mission.links_transport import open_transport
 from mission.links_uri import DEFAULT_SERIAL_BAUD, ConnectionSpec, parse_connection
+from mission.signing import (SignatureVerifier, SigningConfig, apply_signing, refresh_timestamp,
+                             setup_signing_message, sign_frame)
 from mission.tlog import TlogSet
 
 __all__ = [
@@ -116,7 +118,8 @@ class MavEndpoint:
 
     def __init__(self, spec: ConnectionSpec, *, clock, tlog_dir=None, gcs_sysid: int = 255,
                  gcs_compid: int = 190, heartbeat_hz: float = 1.0,
-                 registry: SysidRegistry | None = None, poller=None) -> None:
+                 registry: SysidRegistry | None = None, poller=None,
+                 signing: SigningConfig | None = None) -> None:
         self.spec = spec
         self.poller = poller
         self.uri = spec.uri
@@ -131,6 +134,11 @@ class MavEndpoint:
              "unknown_msgid", "truncated", "unroutable", "send_errors", "duplicate_sysid",
              "handler_errors"), 0)
         self.last_handler_error: str | None = None
+        self.counters.update(unsigned=0, bad_signature=0, replayed=0, setup_signing_sent=0)
+        self.signing = signing
+        self.signing_state = signing.new_state(clock.time()) if signing is not None else None
+        self.verifier = SignatureVerifier(signing, self.signing_state) if signing is not None else None
+        self._setup_sent_s: dict[int, float] = {}
         self.errors: list[LinkError] = []
         self._transport = None
         self._datagram_parser = self._new_parser()
@@ -149,7 +157,8 @@ class MavEndpoint:
     @classmethod
     async def open(cls, uri: str, *, clock, tlog_dir=None, gcs_sysid: int = 255,
                    gcs_compid: int = 190, heartbeat_hz: float = 1.0,
-                   registry: SysidRegistry | None = None, poller=None) -> "MavEndpoint":
+                   registry: SysidRegistry | None = None, poller=None,
+                   signing: SigningConfig | None = None) -> "MavEndpoint":
         """Open the transport named by ``uri`` and start the 1 Hz GCS heartbeat.
 
         Parameters
@@ -170,6 +179,12 @@ class MavEndpoint:
             Shared between the UDP endpoints of one mission: their sockets are drained every
             few milliseconds by one task instead of waking the loop per datagram (much cheaper
             with many vehicles). Ignored by TCP and serial endpoints.
+        signing : mission.signing.SigningConfig, optional
+            MAVLink 2 signing: every frame sent is signed (one timestamp per endpoint), every
+            frame received is checked (:class:`mission.signing.SignatureVerifier`; rejections
+            counted as ``unsigned``, ``bad_signature``, ``replayed``, never delivered nor
+            logged); an autopilot heard unsigned that never signed gets SETUP_SIGNING (at most
+            once a second, counted ``setup_signing_sent``) if ``signing.send_setup``.
 
         Raises
         ------
@@ -180,7 +195,7 @@ class MavEndpoint:
         """
         spec = parse_connection(uri)
         self = cls(spec, clock=clock, tlog_dir=tlog_dir, gcs_sysid=gcs_sysid, gcs_compid=gcs_compid,
-                   heartbeat_hz=heartbeat_hz, registry=registry, poller=poller)
+                   heartbeat_hz=heartbeat_hz, registry=registry, poller=poller, signing=signing)
         try:
             self._transport = await open_transport(spec, self, poller)
         except OSError as exc:
@@ -281,7 +296,9 @@ class MavEndpoint:
             return await wait_on_clock(fut, timeout_s, self.clock)
         except TimeoutError:
             who = "any vehicle" if sysid is None else f"system id {sysid}"
-            raise LinkError(f"no autopilot HEARTBEAT from {who} on {self.uri!r} within {timeout_s:g} s") from None
+            why = self.verifier.diagnose(sysid) if self.verifier is not None and sysid is not None else ""
+            raise LinkError(f"no autopilot HEARTBEAT from {who} on {self.uri!r} within {timeout_s:g} s"
+                            + (f" ({why})" if why else "")) from None
         finally:
             if entry in self._hb_waiters:
                 self._hb_waiters.remove(entry)
@@ -340,6 +357,15 @@ class MavEndpoint:
             if msg_id == _MSG_BAD:
                 counters["bad_crc" if "CRC" in msg.reason else "malformed"] += 1
                 continue
+            if self.verifier is not None:
+                reason = self.verifier.check(msg)
+                if reason is not None:
+                    counters[reason] += 1
+                    sysid = msg._header.srcSystem
+                    if (reason == "unsigned" and msg_id == _MSG_HEARTBEAT and self.signing.send_setup
+                            and _is_autopilot_heartbeat(msg) and self.verifier.needs_setup(sysid)):
+                        self._send_setup_signing(sysid, msg._header.srcComponent, peer)
+                    continue
             counters["frames_in"] += 1
             sysid = msg._header.srcSystem
             if tlogs is not None:
@@ -401,7 +427,22 @@ class MavEndpoint:
         if enc is None:
             enc = self._encoders[peer] = mavlink.MAVLink(None, srcSystem=self.gcs_sysid,
                                                          srcComponent=self.gcs_compid)
+            if self.signing_state is not None:
+                apply_signing(enc, self.signing_state)
         return enc
+
+    def _send_setup_signing(self, sysid: int, compid: int, peer) -> None:
+        """Give our key to a vehicle heard unsigned (at most once per clock second)."""
+        now = self.clock.time()
+        if now - self._setup_sent_s.get(sysid, -1e18) < 1.0:
+            return
+        self._setup_sent_s[sysid] = now
+        enc = self._encoder(peer)
+        msg = setup_signing_message(sysid, self.signing.key, self.signing_state.timestamp, compid)
+        frame = msg.pack(enc)
+        enc.seq = (enc.seq + 1) & 0xFF
+        if self._transport.send(peer, frame):  # not _send_frame: the key must not go to the tlog
+            self.counters["setup_signing_sent"] += 1
 
     def send(self, sysid: int, msg) -> bool:
         """Encode ``msg`` and send it to the address ``sysid`` was last heard from.
@@ -441,7 +482,10 @@ class MavEndpoint:
         body = payload.rstrip(b"\x00") or b"\x00"
         frame = _V2_HEADER.pack(0xFD, len(body), 0, 0, seq, self.gcs_sysid, self.gcs_compid,
                                 msg_id & 0xFFFF, msg_id >> 16) + body
-        return self._send_frame(peer, frame + _crc16(frame, crc_extra).to_bytes(2, "little"), (sysid,))
+        frame += _crc16(frame, crc_extra).to_bytes(2, "little")
+        if self.signing_state is not None:
+            frame = sign_frame(frame, crc_extra, self.signing_state)
+        return self._send_frame(peer, frame, (sysid,))
 
     def _send_frame(self, peer, frame: bytes, sysids) -> bool:
         if not self._transport.send(peer, frame):
@@ -475,6 +519,8 @@ class MavEndpoint:
     async def _housekeeping_loop(self) -> None:
         period_s = 1.0 / self.heartbeat_hz
         while True:
+            if self.signing_state is not None:
+                refresh_timestamp(self.signing_state, self.clock.time())
             self.send_heartbeat()
             if self.tlogs is not None:
                 self.tlogs.flush()

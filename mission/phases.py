@@ -46,8 +46,10 @@ def build_envelope(plan):
 # ------------------------------------------------------------------------------------ connect
 async def connect(co, required: bool = True) -> None:
     """Open each distinct connection once and attach every vehicle of the plan to it."""
-    from mission.links import MavEndpoint
-    from mission.vehicle import VehicleLink
+    from mission.links import MavEndpoint, SysidRegistry
+    from mission.links_poller import UdpPoller
+    from mission.links_uri import parse_connection
+    from mission.vehicle import DEFAULT_RATES_HZ, VehicleLink
 
     co.set_phase("connect")
     plan = co.plan
@@ -55,10 +57,18 @@ async def connect(co, required: bool = True) -> None:
     for vp in plan.vehicles:
         by_uri.setdefault(vp.connection, []).append(vp)
     problems: list[str] = []
+    # one registry: a system id heard on two endpoints is an error naming both; one poller for
+    # many UDP sockets (cheaper than one loop wake-up per datagram from a few tens of vehicles on)
+    registry = SysidRegistry()
+    n_udp = sum(1 for uri in by_uri if _is_udp(parse_connection, uri))
+    if n_udp >= _POLLER_MIN_UDP_ENDPOINTS and co.poller is None:
+        co.poller = UdpPoller()
 
     async def _open(uri):
         try:
-            co.endpoints[uri] = await MavEndpoint.open(uri, clock=co.clock, tlog_dir=co.tlog_dir)
+            co.endpoints[uri] = await MavEndpoint.open(uri, clock=co.clock, tlog_dir=co.tlog_dir,
+                                                       signing=plan.security, registry=registry,
+                                                       poller=co.poller)
         except (OSError, ValueError) as exc:
             problems.append(f"{uri}: {exc}")
             for vp in by_uri[uri]:
@@ -87,6 +97,12 @@ async def connect(co, required: bool = True) -> None:
             await v.request_autopilot_version()
         except Exception as exc:  # noqa: BLE001 - optional information
             co.event(f"vehicle {vp.sysid}: no AUTOPILOT_VERSION ({exc})", level="warning")
+        try:  # only the telemetry the mission needs (CPU at N = 100+); refusals are not fatal
+            refused = await v.set_message_rates(DEFAULT_RATES_HZ, strict=False)
+        except Exception as exc:  # noqa: BLE001 - the autopilot's default rates still work
+            refused = {"*": str(exc)}
+        if refused:
+            co.event(f"vehicle {vp.sysid}: telemetry rates not all set ({refused})", level="warning")
 
     await asyncio.gather(*(_attach(vp) for vp in plan.vehicles))
     dup = _duplicate_uids(co)
@@ -99,6 +115,17 @@ async def connect(co, required: bool = True) -> None:
         raise MissionError("connect failed: " + "; ".join(problems))
     for p in problems:
         co.event(p, level="error")
+
+
+#: from this many UDP endpoints on, one poller task reads them all
+_POLLER_MIN_UDP_ENDPOINTS = 16
+
+
+def _is_udp(parse_connection, uri: str) -> bool:
+    try:
+        return parse_connection(uri).kind.startswith("udp")
+    except (ValueError, AttributeError):
+        return False
 
 
 def _duplicate_uids(co) -> str | None:

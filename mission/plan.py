@@ -18,6 +18,7 @@ import numpy as np
 
 from formation.geodesy import geodetic_to_enu
 from mission.plan_checks import Checker, check_connection, polygon_area, show_value
+from mission.signing import SigningConfig, SigningError, signing_config_from_table
 
 __all__ = [
     "PLAN_VERSION",
@@ -198,6 +199,7 @@ class Plan:
     seeking: SeekingPlan = SeekingPlan()
     geofence: GeofencePlan = GeofencePlan()
     zenoh: ZenohPlan = ZenohPlan()
+    security: SigningConfig | None = None
     max_speed_m_s: float = 3.0
     min_separation_m: float = 1.5
     takeoff_alt_m: float = 10.0
@@ -267,7 +269,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     if not isinstance(doc, dict):
         raise PlanError([("(document)", "expected a TOML table")], source)
     c.unknown(doc, ("version", "fleet", "origin", "vehicles", "formation", "seeking", "geofence",
-                    "zenoh", "max_speed_m_s", "min_separation_m", "takeoff_alt_m", "return",
+                    "zenoh", "security", "max_speed_m_s", "min_separation_m", "takeoff_alt_m", "return",
                     "stagger_s", "setpoint_rate_hz", "heartbeat_timeout_s", "min_battery_pct",
                     "faults"), "")
     version = doc.get("version")
@@ -295,6 +297,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     geofence = _parse_geofence(c, doc, origin)
     faults = _parse_faults(c, doc)
     zen = _parse_zenoh(c, doc, Path(base_dir) if base_dir is not None else None)
+    security = _parse_security(c, doc, Path(base_dir) if base_dir is not None else None)
     if formation is not None and vehicles:
         n = len(vehicles)
         if n < 4:
@@ -316,7 +319,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     if c.problems:
         raise PlanError(c.problems, source)
     return Plan(fleet=fleet, origin=origin, vehicles=tuple(vehicles), formation=formation,
-                seeking=seeking, geofence=geofence, zenoh=zen, version=PLAN_VERSION, faults=faults,
+                seeking=seeking, geofence=geofence, zenoh=zen, security=security, version=PLAN_VERSION, faults=faults,
                 **top)
 
 
@@ -494,3 +497,14 @@ def _parse_zenoh(c: Checker, doc: dict, base_dir: Path | None) -> ZenohPlan:
             continue
         tls[key] = str(fp)
     return ZenohPlan(mode=mode or "peer", listen=listen, connect=connect, tls=tls)
+
+
+def _parse_security(c: Checker, doc: dict, base_dir: Path | None) -> SigningConfig | None:
+    """``[security]``: MAVLink 2 signing (see :func:`mission.signing.signing_config_from_table`)."""
+    t = c.table(doc, "security")
+    try:
+        return signing_config_from_table(t, base_dir)
+    except SigningError as exc:
+        for key, why in exc.problems:
+            c.bad(key, why)
+        return None
