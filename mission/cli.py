@@ -19,6 +19,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dry-run": ("mission.cmd_dryrun", "validate a plan, connect and run preflight checks; arms nothing"),
     "resume": ("mission.cmd_resume", "restart a stopped mission from its mission log"),
     "plot": ("mission.cmd_plot", "figures of a flown mission from its mission log"),
+    "audit": ("mission.cmd_audit", "check from the .tlog files that no setpoint broke the fence, speed or separation"),
     "paper": ("mission.paper", "regenerate the paper's table and figures from our own geometry"),
     "simulate": ("mission.cmd_simulate", "offline source-seeking simulation (perfect tracking, no MAVLink)"),
     "mock": ("sitl_mock.cli", "run a fleet of mock autopilots until interrupted"),
