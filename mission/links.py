@@ -91,6 +91,12 @@ _AUTOPILOT_INVALID = mavlink.MAV_AUTOPILOT_INVALID
 _TYPE_GCS = mavlink.MAV_TYPE_GCS
 
 
+def _raw_sender(frame) -> int:
+    """Sender system id read from a raw MAVLink frame (v2: byte 5, v1: byte 3)."""
+    index = 5 if frame[0] == mavlink.PROTOCOL_MARKER_V2 else 3
+    return frame[index] if len(frame) > index else 0
+
+
 def _is_autopilot_heartbeat(msg) -> bool:
     return msg.autopilot != _AUTOPILOT_INVALID and msg.type != _TYPE_GCS
 
@@ -107,7 +113,8 @@ class MavEndpoint:
     spec : ConnectionSpec
     counters : dict of str to int
         ``frames_in``, ``frames_out``, ``bytes_in``, ``bytes_out``, ``bad_crc``, ``malformed``
-        (bad prefix, length, payload), ``unknown_msgid``, ``truncated`` (partial frame at the end
+        (bad prefix, length, payload), ``unknown_msgid`` (logged in its sender's tlog, sysid
+        read from the raw frame), ``truncated`` (partial frame at the end
         of a datagram), ``unroutable`` (frame for a system id never heard), ``send_errors``,
         ``duplicate_sysid``, ``handler_errors`` (a vehicle handler raised; the message is in
         :attr:`last_handler_error`, the link goes on).
@@ -367,7 +374,8 @@ class MavEndpoint:
                         self._send_setup_signing(sysid, msg._header.srcComponent, peer)
                     continue
             counters["frames_in"] += 1
-            sysid = msg._header.srcSystem
+            # MAVLink_unknown has no real header (srcSystem 0): its sender is in the raw frame
+            sysid = msg._header.srcSystem if msg_id != _MSG_UNKNOWN else _raw_sender(msg.get_msgbuf())
             if tlogs is not None:
                 tlogs.write(sysid, msg._msgbuf)
             if msg_id == _MSG_UNKNOWN:

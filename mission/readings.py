@@ -8,10 +8,11 @@ and either keeps it (a bounded history per vehicle) or rejects it and counts the
 ``malformed``        not UTF-8 JSON, not an object, a field missing or of the wrong type
 ``wrong_schema``     ``schema`` is not ``swarmseek.sensor.v1``
 ``wrong_fleet``      ``fleet`` differs from the mission's fleet
-``bad_key``          the key is not ``swarmseek/<fleet>/vehicle/<sysid>/sensor``
+``bad_key``          the key is not ``swarmseek/<fleet>/vehicle/<sysid>/sensor`` with the sysid
+                     in canonical decimal form (no sign, leading zero or non-ASCII digit)
 ``unknown_vehicle``  the sysid is not one of the mission's vehicles
 ``sysid_mismatch``   the sysid in the key differs from the payload's
-``not_finite``       NaN or infinity in time, position or value
+``not_finite``       NaN or infinity in time, position or value (or an integer beyond floats)
 ``duplicate``        same ``seq`` as an accepted reading from that vehicle
 ``old_seq``          ``seq`` lower than the last accepted one (a restart, i.e. a lower seq more
                      than ``seq_reset_after_s`` newer than the last reading, is accepted)
@@ -112,10 +113,13 @@ def _sysid_from_key(key: str, fleet: str) -> int:
     if (len(parts) != 5 or parts[0] != "swarmseek" or parts[1] != fleet or parts[2] != "vehicle"
             or parts[4] != "sensor"):
         raise ReadingRejected("bad_key", f"unexpected key {key!r}")
-    try:
-        sysid = int(parts[3])
-    except ValueError:
-        raise ReadingRejected("bad_key", f"sysid {parts[3]!r} in key {key!r} is not an integer") from None
+    chunk = parts[3]
+    # the canonical decimal form only (as sensor_key writes it): no sign, leading zero,
+    # whitespace, underscore or non-ASCII digit, which int() would all accept
+    if not (len(chunk) <= 3 and chunk.isascii() and chunk.isdigit() and chunk == str(int(chunk))):
+        raise ReadingRejected("bad_key", f"sysid {chunk[:12]!r} in key {key[:80]!r} is not a canonical "
+                              "integer")
+    sysid = int(chunk)
     if not 1 <= sysid <= 255:
         raise ReadingRejected("bad_key", f"sysid {sysid} in key {key!r} is out of range")
     return sysid
@@ -168,7 +172,10 @@ def decode_reading(payload: bytes | str) -> dict:
                 else:
                     raise ReadingRejected("malformed", f"field {name!r} must be an integer")
         else:
-            v = float(v)
+            try:
+                v = float(v)
+            except OverflowError:  # a JSON integer beyond the float range (> ~1.8e308)
+                raise ReadingRejected("not_finite", f"field {name!r} is too large for a float") from None
             if not math.isfinite(v):
                 raise ReadingRejected("not_finite", f"field {name!r} is {v}")
         out[name] = v

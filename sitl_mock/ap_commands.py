@@ -3,10 +3,12 @@
 Results follow the real autopilots: ACCEPTED; UNSUPPORTED for commands the mock does not know;
 the personality's rejection (ArduPilot ``FAILED``, PX4 ``TEMPORARILY_REJECTED``) when a
 precondition fails (arming checks, takeoff while disarmed or not in GUIDED, mode change refused,
-disarm in the air); ``DENIED`` for invalid arguments (non-finite home, unknown message id,
-mission start without a mission). A mode the autopilot does not have: ArduPilot ``FAILED``; PX4
-ACKs ``ACCEPTED`` and changes nothing for an unknown main mode (as its commander does) but
-rejects an unknown AUTO sub mode. An arm/disarm param1 other than 0 or 1: ``UNSUPPORTED``.
+disarm in the air); ``DENIED`` for invalid arguments (non-finite or out-of-range home, unknown
+message id, a message interval beyond the int32 range, mission start without a mission). A
+mode the autopilot does not have: ArduPilot ``FAILED``; PX4 ACKs ``ACCEPTED`` and changes
+nothing for an unknown main mode (as its commander does) but rejects an unknown AUTO sub mode.
+An arm/disarm param1 other than 0 or 1: ``UNSUPPORTED``. MAV_CMD_REQUEST_PROTOCOL_VERSION:
+``UNSUPPORTED`` (pymavlink 2.4.50's ardupilotmega dialect has no PROTOCOL_VERSION message).
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ import math
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from sitl_mock import ap_flight
-from sitl_mock.ap_telemetry import BUILDERS, build_message
+from sitl_mock.ap_telemetry import BUILDERS, MAX_INTERVAL_US, build_message
 
 __all__ = ["handle_command", "handle_set_mode", "handle_request_data_stream", "COMMANDS"]
 
@@ -24,6 +26,8 @@ _ACCEPTED = _M.MAV_RESULT_ACCEPTED
 _DENIED = _M.MAV_RESULT_DENIED
 _UNSUPPORTED = _M.MAV_RESULT_UNSUPPORTED
 _FORCE_MAGIC = 21196
+#: altitudes (m AMSL) accepted for a new home: HOME_POSITION.altitude is an int32 in mm
+_HOME_ALT_RANGE_M = (-1.0e4, 1.0e5)
 
 
 def _params(msg) -> list[float]:
@@ -163,8 +167,8 @@ def _cmd_request_capabilities(ap, p, t_s, msg):
 
 def _cmd_set_message_interval(ap, p, t_s, msg):
     msg_id = _msg_id(p[0])
-    if msg_id is None or not math.isfinite(p[1]):
-        return _DENIED
+    if msg_id is None or not math.isfinite(p[1]) or p[1] > MAX_INTERVAL_US:
+        return _DENIED  # MESSAGE_INTERVAL.interval_us is an int32: larger cannot be reported
     if not ap.scheduler.set_interval(msg_id, p[1], t_s):
         return _M.MAV_RESULT_FAILED if ap.personality.name == "ardupilot" else _DENIED
     return _ACCEPTED
@@ -179,18 +183,20 @@ def _cmd_get_message_interval(ap, p, t_s, msg):
     return None
 
 
+def _valid_home(lat_deg: float, lon_deg: float, alt_m: float) -> bool:
+    """True for a home HOME_POSITION can carry (finite, on Earth, alt within _HOME_ALT_RANGE_M)."""
+    return (all(math.isfinite(v) for v in (lat_deg, lon_deg, alt_m)) and -90 <= lat_deg <= 90
+            and -180 <= lon_deg <= 180 and _HOME_ALT_RANGE_M[0] <= alt_m <= _HOME_ALT_RANGE_M[1])
+
+
 def _cmd_set_home(ap, p, t_s, msg):
     if ap.home is None:
         return ap.personality.reject_result
-    if p[0] > 0.5:
-        ned = ap.mc.position_ned_m
-        lat, lon, alt = ap.ned_to_geodetic(ned)
-    else:
-        lat, lon, alt = p[4], p[5], p[6]
-        if not all(math.isfinite(v) for v in (lat, lon, alt)) or not (-90 <= lat <= 90
-                                                                      and -180 <= lon <= 180):
-            return _DENIED
-        ned = ap.geodetic_to_ned(lat, lon, alt)
+    use_current = p[0] > 0.5
+    lat, lon, alt = ap.ned_to_geodetic(ap.mc.position_ned_m) if use_current else (p[4], p[5], p[6])
+    if not _valid_home(lat, lon, alt):  # checked before anything changes: HOME_POSITION must pack
+        return _DENIED
+    ned = ap.mc.position_ned_m if use_current else ap.geodetic_to_ned(lat, lon, alt)
     ap.home = (float(lat), float(lon), float(alt))
     ap.home_ned = ned
     ap.send_message_now(_M.MAVLINK_MSG_ID_HOME_POSITION, t_s)
@@ -257,12 +263,6 @@ def _cmd_reboot(ap, p, t_s, msg):
     return None
 
 
-def _cmd_protocol_version(ap, p, t_s, msg):
-    _ack(ap, msg, msg.command, _ACCEPTED)
-    ap.emit(ap.mav.protocol_version_encode(200, 100, 200, b"\0" * 8, b"\0" * 8))
-    return None
-
-
 #: MAV_CMD -> handler(ap, params[7], t_s, msg) -> MAV_RESULT (None: ACK already sent)
 COMMANDS = {
     _M.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm_disarm,
@@ -280,7 +280,6 @@ COMMANDS = {
     _M.MAV_CMD_DO_CHANGE_SPEED: _cmd_change_speed,
     _M.MAV_CMD_CONDITION_YAW: _cmd_condition_yaw,
     _M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: _cmd_reboot,
-    _M.MAV_CMD_REQUEST_PROTOCOL_VERSION: _cmd_protocol_version,
 }
 
 _STREAM_GROUPS = {

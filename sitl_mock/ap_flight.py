@@ -35,6 +35,9 @@ _AMSL_FRAMES = {mavlink2.MAV_FRAME_GLOBAL, mavlink2.MAV_FRAME_GLOBAL_INT}
 _REL_FRAMES = {mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
                mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT, mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT}
 _ARDUPILOT_LAND_DISARM_S = 1.0
+#: farthest setpoint (m from the LOCAL_NED origin, per axis; m AMSL for GLOBAL_INT altitudes)
+#: followed: beyond, it is absurd and its POSITION_TARGET_* echo could not be encoded
+_SETPOINT_LIMIT_M = 1.0e6
 _REACHED_ALT_M = 0.5
 
 
@@ -273,6 +276,14 @@ def _resolve_local(ap, msg, ignore: int):
     return pos, vel
 
 
+def _global_out_of_range(msg, ignore: int) -> bool:
+    """True when a GLOBAL_INT position is off the Earth or its (finite) altitude is absurd."""
+    if ignore & _POS_IGNORE == _POS_IGNORE:
+        return False
+    return (abs(msg.lat_int) > 900_000_000 or abs(msg.lon_int) > 1_800_000_000
+            or (math.isfinite(msg.alt) and abs(msg.alt) > _SETPOINT_LIMIT_M))
+
+
 def _resolve_global(ap, msg, ignore: int):
     frame = msg.coordinate_frame
     pos = vel = None
@@ -295,12 +306,20 @@ def _resolve_global(ap, msg, ignore: int):
 
 
 def handle_setpoint(ap, msg, t_s: float) -> None:
-    """SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT: store, and follow in GUIDED / OFFBOARD."""
+    """SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT: store, and follow in GUIDED / OFFBOARD.
+
+    Rejected and counted: an unsupported frame or mask, non-finite values
+    (``setpoint_not_finite``), a position off the Earth or farther than 1e6 m on an axis
+    (``setpoint_out_of_range``).
+    """
     ignore = msg.type_mask
     is_local = msg.get_type() == "SET_POSITION_TARGET_LOCAL_NED"
     frames = _LOCAL_FRAMES if is_local else (_AMSL_FRAMES | _REL_FRAMES)
     if msg.coordinate_frame not in frames:
         ap.counters["setpoint_bad_frame"] += 1
+        return
+    if not is_local and _global_out_of_range(msg, ignore):
+        ap.counters["setpoint_out_of_range"] += 1
         return
     pos, vel = (_resolve_local if is_local else _resolve_global)(ap, msg, ignore)
     if pos is None and vel is None:
@@ -309,6 +328,9 @@ def handle_setpoint(ap, msg, t_s: float) -> None:
     if (pos is not None and not np.all(np.isfinite(pos))) or \
             (vel is not None and not np.all(np.isfinite(vel))):
         ap.counters["setpoint_not_finite"] += 1
+        return
+    if pos is not None and np.any(np.abs(pos) > _SETPOINT_LIMIT_M):
+        ap.counters["setpoint_out_of_range"] += 1
         return
     yaw = None if ignore & _YAW_IGNORE or not math.isfinite(msg.yaw) else float(msg.yaw)
     yaw_rate = 0.0 if ignore & _YAW_RATE_IGNORE or not math.isfinite(msg.yaw_rate) else msg.yaw_rate

@@ -12,8 +12,8 @@ from typing import Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-__all__ = ["DEFAULT_RATES_HZ", "MAX_RATE_HZ", "MessageScheduler", "TelemetrySource", "BUILDERS",
-           "build_message", "SENSORS_PRESENT"]
+__all__ = ["DEFAULT_RATES_HZ", "MAX_RATE_HZ", "MAX_INTERVAL_US", "MessageScheduler", "TelemetrySource",
+           "BUILDERS", "build_message", "SENSORS_PRESENT"]
 
 #: Streamed by default (Hz); anything in BUILDERS can be enabled by SET_MESSAGE_INTERVAL.
 DEFAULT_RATES_HZ = {
@@ -31,6 +31,8 @@ DEFAULT_RATES_HZ = {
 }
 #: Fastest stream: one message per physics step.
 MAX_RATE_HZ = 50.0
+#: Longest interval (us) SET_MESSAGE_INTERVAL accepts: MESSAGE_INTERVAL.interval_us is an int32.
+MAX_INTERVAL_US = 2 ** 31 - 1
 
 _S = mavlink2
 SENSORS_PRESENT = (
@@ -94,8 +96,12 @@ class MessageScheduler:
         self._next_s = t0_s  # earliest due time (fast path: nothing due)
 
     def set_interval(self, msg_id: int, interval_us: float, t_s: float) -> bool:
-        """Apply SET_MESSAGE_INTERVAL semantics (-1 off, 0 default); False if unsupported."""
-        if msg_id not in BUILDERS or not math.isfinite(interval_us):
+        """Apply SET_MESSAGE_INTERVAL semantics (-1 off, 0 default); False if unsupported.
+
+        An interval above :data:`MAX_INTERVAL_US` is refused (False): GET_MESSAGE_INTERVAL
+        could not report it.
+        """
+        if msg_id not in BUILDERS or not math.isfinite(interval_us) or interval_us > MAX_INTERVAL_US:
             return False
         self._next_s = min(self._next_s, t_s)
         if interval_us < 0:

@@ -69,6 +69,11 @@ class MockAutopilot:
         ``rx_unknown_msg``, ``rx_not_for_us``, ``tx_frames``, ...; with signing on
         ``rx_unsigned``, ``rx_bad_signature``, ``rx_replayed``, ``rx_unsigned_accepted``,
         ``signing_setup_accepted``, ``signing_setup_refused_armed``, ``signing_disabled``).
+        A message handler that raised is counted in ``rx_handler_error`` (and
+        ``rx_handler_error:<type>``), a telemetry message that could not be built or encoded in
+        ``tx_error`` (and ``tx_error:<type>``).
+    last_error : str or None
+        Description of the last such error (message type, exception), for diagnosis.
     signing : VehicleSigning
         MAVLink 2 signing state (key set by SETUP_SIGNING or :meth:`set_signing_key`).
     params : ParamTable
@@ -89,6 +94,7 @@ class MockAutopilot:
         self.uid = int(uid) if uid is not None else (0x5357_0000_0000_0000 | self.sysid)
         self.mav = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
         self.counters: Counter = Counter()
+        self.last_error: str | None = None
         self.signing = VehicleSigning(self.mav, self.counters)
         self.params = ParamTable(self.personality.param_specs(self.sysid, multicopter.params),
                                  self.personality.param_bytewise, param_overrides)
@@ -282,9 +288,10 @@ class MockAutopilot:
             return
         try:
             self._dispatch(msg, t_s)
-        except (ValueError, TypeError, OverflowError, IndexError) as exc:
+        except Exception as exc:  # a handler bug must not stop the link: counted and kept
             self.counters["rx_handler_error"] += 1
             self.counters["rx_handler_error:" + type(exc).__name__] += 1
+            self.last_error = f"{msg.get_type()}: {type(exc).__name__}: {exc}"
 
     def _dispatch(self, msg, t_s: float) -> None:
         kind = msg.get_type()
@@ -387,9 +394,14 @@ class MockAutopilot:
         if self.faults.crashed:
             return
         for msg_id in self.scheduler.due(t_s):
-            msg = build_message(self, msg_id, t_s)
-            if msg is not None:
-                self.emit(msg)
+            try:  # per message: one value that cannot be encoded must not silence the vehicle
+                msg = build_message(self, msg_id, t_s)
+                if msg is not None:
+                    self.emit(msg)
+            except Exception as exc:
+                self.counters["tx_error"] += 1
+                self.counters["tx_error:" + type(exc).__name__] += 1
+                self.last_error = f"telemetry {msg_id}: {type(exc).__name__}: {exc}"
 
     def reboot(self, t_s: float) -> None:
         """Simulated reboot: boot state again, new system id from the parameter table."""

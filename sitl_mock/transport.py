@@ -2,8 +2,10 @@
 
 One :class:`VehicleLinks` per vehicle owns its sockets (non-blocking, registered on the fleet's
 ``selectors`` selector), parses incoming bytes with one pymavlink parser per peer
-(robust parsing: garbage and bad CRCs come out as counted BAD_DATA, never an exception) and
-injects the link faults of the vehicle's :class:`~sitl_mock.faults.FaultSet`:
+(robust parsing: garbage and bad CRCs come out as counted BAD_DATA, never an exception; a UDP
+datagram is a whole unit: a partial frame ending it is counted in ``rx_truncated`` and dropped,
+never joined to the next datagram) and injects the link faults of the vehicle's
+:class:`~sitl_mock.faults.FaultSet`:
 
 * ``loss_uplink`` / ``loss_downlink``: each frame dropped with that probability;
 * ``latency_uplink_s`` / ``latency_downlink_s``: each frame delayed (simulated seconds);
@@ -184,9 +186,11 @@ class VehicleLinks:
         if not data:
             self._drop_client(client)
             return
-        self._receive(client.parser, data)
+        self._receive(client.parser, data, stream=True)
 
-    def _receive(self, parser, data: bytes) -> None:
+    def _receive(self, parser, data: bytes, stream: bool = False) -> None:
+        """Parse ``data`` (one datagram, or with ``stream`` a chunk of a TCP stream) and hand
+        its messages to the autopilot, through the link faults."""
         ap = self.ap
         faults = ap.faults
         try:
@@ -194,7 +198,11 @@ class VehicleLinks:
         except Exception as exc:  # pymavlink should not raise with robust parsing; never crash
             ap.counters["rx_parser_error"] += 1
             ap.counters["rx_parser_error:" + type(exc).__name__] += 1
+            _reset_parser(parser)
             return
+        if not stream and parser.buf_len():
+            ap.counters["rx_truncated"] += 1  # a datagram holds whole frames: drop its partial tail
+            _reset_parser(parser)
         t_s = self.clock.time()
         for msg in msgs:
             if faults.link_cut or faults.crashed:
@@ -290,6 +298,13 @@ class VehicleLinks:
         except (KeyError, ValueError):
             pass
         client.sock.close()
+
+
+def _reset_parser(parser) -> None:
+    """Forget the bytes a pymavlink parser holds (as a fresh parser: no partial frame)."""
+    parser.buf = bytearray()
+    parser.buf_index = 0
+    parser.expected_length = mavlink2.HEADER_LEN_V1 + 2
 
 
 def _batches(frames: list[bytes]):

@@ -25,6 +25,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.embedded import free_port_block
 from sitl_mock.ap_commands import COMMANDS
+from sitl_mock.ap_telemetry import BUILDERS
 from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.dynamics import DynamicsParams, Multicopter
 from sitl_mock.fleet import MockFleet
@@ -38,9 +39,10 @@ HOME = (45.19, 5.72, 230.0)
 _DT_S = 0.02
 _SETTINGS = settings(max_examples=60, deadline=2000,
                      suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-#: every counter of a frame the receive path took in: accepted, rejected or dropped by a link fault
-_COUNTED = ("rx_frames", "rx_bad_crc", "rx_malformed", "rx_unknown_msg", "rx_dropped_link",
-            "rx_dropped_loss")
+#: every counter of a frame the receive path took in: accepted, rejected (a random SETUP_SIGNING
+#: can turn signing on: then unsigned frames are rejected) or dropped by a link fault
+_COUNTED = ("rx_frames", "rx_bad_crc", "rx_malformed", "rx_unknown_msg", "rx_unsigned",
+            "rx_bad_signature", "rx_replayed", "rx_dropped_link", "rx_dropped_loss")
 #: messages the mock acts upon (commands, setpoints, parameters, missions)
 _ACTED_UPON = tuple(message_class(n) for n in (
     "COMMAND_LONG", "COMMAND_INT", "SET_MODE", "SET_POSITION_TARGET_LOCAL_NED",
@@ -49,30 +51,8 @@ _ACTED_UPON = tuple(message_class(n) for n in (
     "MISSION_REQUEST_LIST", "MISSION_REQUEST_INT", "MISSION_ACK", "REQUEST_DATA_STREAM", "TIMESYNC",
     "HEARTBEAT"))
 _COMMAND_IDS = st.one_of(st.sampled_from(sorted(COMMANDS)), st.integers(0, 0xFFFF))
-#: largest |altitude| (m) whose HOME_POSITION.altitude (int32 mm) can be encoded
-_INT32_ALT_M = (2 ** 31 - 1) / 1000.0
-#: setpoints farther than this (m) are absurd; the mock accepts them and its telemetry then fails
+#: setpoints farther than this (m) are absurd: the mock rejects them (setpoint_out_of_range)
 _ABSURD_SETPOINT_M = 1e6
-
-
-def _no_known_crash(frame: bytes) -> bool:
-    """False for the commands that let an exception escape (one xfail test each, below): kept
-    out of the random input so that the properties test everything else. Remove once fixed."""
-    for msg in reference_parse(frame)[0]:
-        kind = msg.get_type()
-        if kind.startswith("SET_POSITION_TARGET_"):
-            coords = (msg.x, msg.y, msg.z) if kind.endswith("LOCAL_NED") else (msg.alt,)
-            if any(math.isfinite(v) and abs(v) > _ABSURD_SETPOINT_M for v in coords):
-                return False
-        command = getattr(msg, "command", None)
-        if kind not in ("COMMAND_LONG", "COMMAND_INT"):
-            continue
-        if command in (_M.MAV_CMD_REQUEST_PROTOCOL_VERSION, _M.MAV_CMD_GET_MESSAGE_INTERVAL):
-            return False
-        alt_m = msg.param7 if msg.get_type() == "COMMAND_LONG" else msg.z
-        if command == _M.MAV_CMD_DO_SET_HOME and abs(alt_m) >= _INT32_ALT_M:
-            return False
-    return True
 
 
 def _run(ap, t_s: float, duration_s: float) -> float:
@@ -118,6 +98,13 @@ def _counted(ap) -> int:
     return sum(ap.counters[name] for name in _COUNTED)
 
 
+def _parse_datagrams(datagrams) -> tuple[list, int]:
+    """What the mock must account for: ``(messages, datagrams ending in a partial frame)``, each
+    datagram parsed afresh (a datagram is a whole unit, its partial tail is dropped)."""
+    parsed = [reference_parse(d) for d in datagrams]
+    return [m for msgs, _ in parsed for m in msgs], sum(left > 0 for _, left in parsed)
+
+
 def _feed(links, datagrams) -> None:
     parser = make_parser()  # one peer: one parser for all its datagrams, as the transport does
     for data in datagrams:
@@ -144,19 +131,20 @@ _junk = st.lists(st.one_of(st.binary(max_size=40),
                            st.sampled_from([b"\xfd", b"\xfe", b"\xfd\x09\x00\x00", b"\xfe\x21"])),
                  min_size=1, max_size=12).map(b"".join)
 _acted_frames = frames(_ACTED_UPON, target_system=SYSID, target_component=st.sampled_from([0, 1]),
-                       command=_COMMAND_IDS).filter(_no_known_crash)
+                       command=_COMMAND_IDS)
 
 
 @_SETTINGS
 @given(st.sampled_from(["ardupilot", "px4"]), st.booleans(), st.lists(_junk, min_size=1, max_size=6))
 def test_random_bytes_are_counted_and_change_nothing(personality, flying, datagrams):
     ap, links, _ = _vehicle(personality, flying)
-    msgs, _ = reference_parse(datagrams)
+    msgs, truncated = _parse_datagrams(datagrams)
     assume(not any(is_valid_for(m, SYSID) for m in msgs))
-    before, counted = _state(ap), _counted(ap)
+    before, counted, truncated0 = _state(ap), _counted(ap), ap.counters["rx_truncated"]
     _feed(links, datagrams)
     assert _state(ap) == before
     assert _counted(ap) - counted == len(msgs)
+    assert ap.counters["rx_truncated"] - truncated0 == truncated
     assert ap.drain_outbox() == []          # no answer to garbage
     assert ap.counters["rx_parser_error"] == 0
 
@@ -166,12 +154,14 @@ def test_random_bytes_are_counted_and_change_nothing(personality, flying, datagr
        st.lists(mutated(_acted_frames), min_size=1, max_size=4))
 def test_broken_frames_of_real_commands_are_counted_and_change_nothing(personality, flying, datagrams):
     ap, links, _ = _vehicle(personality, flying)
-    msgs, _ = reference_parse(datagrams)
+    msgs, truncated = _parse_datagrams(datagrams)
     assume(not any(is_valid_for(m, SYSID) for m in msgs))
     before, counted, accepted = _state(ap), _counted(ap), ap.counters["rx_frames"]
+    truncated0 = ap.counters["rx_truncated"]
     _feed(links, datagrams)
     assert _state(ap) == before
     assert _counted(ap) - counted == len(msgs)
+    assert ap.counters["rx_truncated"] - truncated0 == truncated
     assert ap.counters["rx_frames"] - accepted == sum(not is_bad(m) for m in msgs)
     assert ap.drain_outbox() == []
 
@@ -205,7 +195,7 @@ _any_frames = st.one_of(
     frames(ALL_MESSAGE_CLASSES, target_system=st.sampled_from([0, SYSID, 2]),
            target_component=st.sampled_from([0, 1, 190]), command=_COMMAND_IDS),
     frames(_ACTED_UPON, sysid=st.integers(1, 255), compid=st.integers(0, 255),
-           target_system=st.sampled_from([0, SYSID]), command=_COMMAND_IDS)).filter(_no_known_crash)
+           target_system=st.sampled_from([0, SYSID]), command=_COMMAND_IDS))
 
 
 @_SETTINGS
@@ -230,71 +220,160 @@ def test_a_valid_command_after_garbage_from_another_peer_still_works(personality
     assert [(a.command, a.result) for a in acks] == [(_M.MAV_CMD_REQUEST_MESSAGE, _M.MAV_RESULT_ACCEPTED)]
 
 
-@pytest.mark.xfail(strict=True, raises=AttributeError, reason=(
-    "sitl_mock/ap_commands.py _cmd_protocol_version calls mav.protocol_version_encode, which the "
-    "pymavlink ardupilotmega dialect does not have: AttributeError escapes handle_message"))
+def _acks(ap) -> list[tuple[int, int]]:
+    """``(command, result)`` of the COMMAND_ACKs the vehicle sent since the last drain."""
+    return [(m.command, m.result) for m in reference_parse(b"".join(ap.drain_outbox()))[0]
+            if m.get_type() == "COMMAND_ACK"]
+
+
+_AUTOPILOT_VERSION_REQUEST = _command(_M.MAV_CMD_REQUEST_MESSAGE, _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+
+
 @pytest.mark.parametrize("kind", ["COMMAND_LONG", "COMMAND_INT"])
 def test_request_protocol_version_is_answered_without_escaping(kind):
+    """pymavlink's ardupilotmega dialect has no PROTOCOL_VERSION (300): UNSUPPORTED, and the
+    rest of the datagram is still acted upon."""
     ap, links, _ = _vehicle("ardupilot")
     if kind == "COMMAND_LONG":
         frame = _command(_M.MAV_CMD_REQUEST_PROTOCOL_VERSION, 1)
     else:
         frame = encode(_M.MAVLink_command_int_message(SYSID, 1, 0, _M.MAV_CMD_REQUEST_PROTOCOL_VERSION, 0, 0,
                                                       1, 0, 0, 0, 0, 0, 0))
-    _feed(links, [frame + _command(_M.MAV_CMD_REQUEST_MESSAGE, _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)])
-    acks = [m.command for m in reference_parse(b"".join(ap.drain_outbox()))[0] if m.get_type() == "COMMAND_ACK"]
-    assert acks == [_M.MAV_CMD_REQUEST_PROTOCOL_VERSION, _M.MAV_CMD_REQUEST_MESSAGE]  # 2nd not lost
+    _feed(links, [frame + _AUTOPILOT_VERSION_REQUEST])
+    assert _acks(ap) == [(_M.MAV_CMD_REQUEST_PROTOCOL_VERSION, _M.MAV_RESULT_UNSUPPORTED),
+                         (_M.MAV_CMD_REQUEST_MESSAGE, _M.MAV_RESULT_ACCEPTED)]   # 2nd not lost
+    assert ap.counters["rx_handler_error"] == 0
 
 
-@pytest.mark.xfail(strict=True, raises=struct.error, reason=(
-    "sitl_mock/ap_telemetry.py MessageScheduler.set_interval accepts intervals above the int32 "
-    "range of MESSAGE_INTERVAL.interval_us; GET_MESSAGE_INTERVAL then raises struct.error"))
-def test_get_message_interval_after_a_huge_interval_does_not_escape():
+@pytest.mark.parametrize("interval_us", [2.0 ** 31, 3.0e9, 3.4e38])
+def test_an_interval_beyond_int32_is_denied_and_get_message_interval_still_answers(interval_us):
     ap, links, _ = _vehicle("ardupilot")
     msg_id = _M.MAVLINK_MSG_ID_ATTITUDE
-    _feed(links, [_command(_M.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 3.0e9),
+    before = ap.scheduler.interval_us(msg_id)
+    _feed(links, [_command(_M.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, interval_us),
                   _command(_M.MAV_CMD_GET_MESSAGE_INTERVAL, msg_id)])
     msgs = reference_parse(b"".join(ap.drain_outbox()))[0]
-    assert [m.get_type() for m in msgs if m.get_type() != "COMMAND_ACK"] == ["MESSAGE_INTERVAL"]
+    acks = [(m.command, m.result) for m in msgs if m.get_type() == "COMMAND_ACK"]
+    assert acks == [(_M.MAV_CMD_SET_MESSAGE_INTERVAL, _M.MAV_RESULT_DENIED),
+                    (_M.MAV_CMD_GET_MESSAGE_INTERVAL, _M.MAV_RESULT_ACCEPTED)]
+    assert [(m.message_id, m.interval_us) for m in msgs if m.get_type() == "MESSAGE_INTERVAL"] == [(msg_id, before)]
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "sitl_mock/transport.py VehicleLinks keeps one stream parser per UDP peer: a partial frame at "
-    "the end of a datagram stays buffered and swallows the next datagram's frames"))
-def test_a_partial_frame_ending_a_datagram_does_not_swallow_the_next_datagram():
+def test_the_longest_int32_interval_is_accepted_and_reported():
+    ap, links, _ = _vehicle("px4")
+    msg_id = _M.MAVLINK_MSG_ID_ATTITUDE
+    _feed(links, [_command(_M.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 2 ** 31 - 128),   # a float32 value
+                  _command(_M.MAV_CMD_GET_MESSAGE_INTERVAL, msg_id)])
+    msgs = reference_parse(b"".join(ap.drain_outbox()))[0]
+    assert [m.interval_us for m in msgs if m.get_type() == "MESSAGE_INTERVAL"] == [2 ** 31 - 128]
+
+
+@pytest.mark.parametrize("tail", [b"\xfd\xff", b"\xfe", _AUTOPILOT_VERSION_REQUEST[:-1]])
+def test_a_partial_frame_ending_a_datagram_does_not_swallow_the_next_datagram(tail):
+    ap, links, _ = _vehicle("ardupilot")
+    parser = make_parser()                   # one parser per UDP peer, as the transport keeps
+    links._receive(parser, _AUTOPILOT_VERSION_REQUEST + tail)
+    links._receive(parser, _AUTOPILOT_VERSION_REQUEST)
+    assert _acks(ap) == [(_M.MAV_CMD_REQUEST_MESSAGE, _M.MAV_RESULT_ACCEPTED)] * 2
+    assert ap.counters["rx_truncated"] == 1
+
+
+def test_a_frame_split_across_tcp_reads_is_reassembled():
+    """A stream is not a datagram: a partial frame waits for the next read."""
     ap, links, _ = _vehicle("ardupilot")
     parser = make_parser()
-    links._receive(parser, b"\xfd\xff")      # 2 bytes announcing a 255-byte payload, then nothing
-    links._receive(parser, _command(_M.MAV_CMD_REQUEST_MESSAGE, _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION))
-    acks = [m for m in reference_parse(b"".join(ap.drain_outbox()))[0] if m.get_type() == "COMMAND_ACK"]
-    assert len(acks) == 1
+    for cut in (3, 17, len(_AUTOPILOT_VERSION_REQUEST) - 1):
+        links._receive(parser, _AUTOPILOT_VERSION_REQUEST[:cut], stream=True)
+        links._receive(parser, _AUTOPILOT_VERSION_REQUEST[cut:], stream=True)
+    assert _acks(ap) == [(_M.MAV_CMD_REQUEST_MESSAGE, _M.MAV_RESULT_ACCEPTED)] * 3
+    assert ap.counters["rx_truncated"] == 0
 
 
-@pytest.mark.xfail(strict=True, raises=struct.error, reason=(
-    "sitl_mock/ap_commands.py _cmd_set_home checks lat/lon but not the altitude: above 2147 km "
-    "HOME_POSITION.altitude (int32 mm) cannot be packed and struct.error escapes, after the home "
-    "was already changed and without a COMMAND_ACK"))
-def test_set_home_to_an_absurd_altitude_is_denied_not_raised():
+@pytest.mark.parametrize("lat_deg, lon_deg, alt_m", [
+    (HOME[0], HOME[1], 2_147_484.0),          # HOME_POSITION.altitude (int32 mm) overflows
+    (HOME[0], HOME[1], 1.0e5 + 1.0),
+    (HOME[0], HOME[1], -1.0e4 - 1.0),
+    (HOME[0], HOME[1], -3.4e38),
+    (90.5, HOME[1], 230.0),
+    (HOME[0], -180.5, 230.0),
+    (HOME[0], HOME[1], math.nan),
+])
+def test_set_home_out_of_range_is_denied_and_changes_nothing(lat_deg, lon_deg, alt_m):
     ap, links, _ = _vehicle("ardupilot")
-    home = ap.home
-    _feed(links, [_command(_M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, HOME[0], HOME[1], 2_147_484.0)])
-    acks = [m for m in reference_parse(b"".join(ap.drain_outbox()))[0] if m.get_type() == "COMMAND_ACK"]
-    assert [a.result for a in acks] == [_M.MAV_RESULT_DENIED] and ap.home == home
+    home, home_ned = ap.home, ap.home_ned.copy()
+    _feed(links, [_command(_M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, lat_deg, lon_deg, alt_m)])
+    assert _acks(ap) == [(_M.MAV_CMD_DO_SET_HOME, _M.MAV_RESULT_DENIED)]
+    assert ap.home == home and np.array_equal(ap.home_ned, home_ned)
 
 
-@pytest.mark.xfail(strict=True, raises=OverflowError, reason=(
-    "sitl_mock/ap_flight.py handle_setpoint only checks that a setpoint is finite: one 3.4e38 m "
-    "away is followed, and packing its POSITION_TARGET_* echo then raises OverflowError in "
-    "send_telemetry on every step (the fleet records the error; the vehicle's telemetry stops)"))
-def test_an_absurd_setpoint_is_rejected_and_telemetry_goes_on():
+def test_set_home_within_range_is_accepted():
+    """The DENIED above can fail: a reasonable new home is taken."""
+    ap, links, _ = _vehicle("ardupilot")
+    _feed(links, [_command(_M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, HOME[0] + 0.001, HOME[1], 9.0e4)])
+    assert _acks(ap) == [(_M.MAV_CMD_DO_SET_HOME, _M.MAV_RESULT_ACCEPTED)]
+    assert ap.home == pytest.approx((HOME[0] + 0.001, HOME[1], 9.0e4))
+
+
+_LOCAL = _M.MAVLink_set_position_target_local_ned_message
+_GLOBAL = _M.MAVLink_set_position_target_global_int_message
+
+
+@pytest.mark.parametrize("setpoint", [
+    _LOCAL(0, SYSID, 1, _M.MAV_FRAME_LOCAL_NED, 0x0DF8, 0, 3.4e38, 1.4e37, 0, 0, 0, 0, 0, 0, 0, 0),
+    _LOCAL(0, SYSID, 1, _M.MAV_FRAME_LOCAL_NED, 0x0DF8, 1.0e6 + 1.0, 0, -10, 0, 0, 0, 0, 0, 0, 0, 0),
+    _LOCAL(0, SYSID, 1, _M.MAV_FRAME_LOCAL_OFFSET_NED, 0x0DF8, 0, 0, -3.4e38, 0, 0, 0, 0, 0, 0, 0, 0),
+    _GLOBAL(0, SYSID, 1, _M.MAV_FRAME_GLOBAL_INT, 0x0DF8, 451900000, 57200000, 3.4e38, 0, 0, 0, 0, 0, 0, 0, 0),
+    _GLOBAL(0, SYSID, 1, _M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0x0DF8, 451900000, 57200000, -2.0e6,
+            0, 0, 0, 0, 0, 0, 0, 0),
+    _GLOBAL(0, SYSID, 1, _M.MAV_FRAME_GLOBAL_INT, 0x0DF8, 2_000_000_000, 57200000, 250, 0, 0, 0, 0, 0, 0, 0, 0),
+])
+def test_an_absurd_setpoint_is_rejected_and_telemetry_goes_on(setpoint):
     ap, links, clock = _vehicle("ardupilot", flying=True)
-    setpoint = _M.MAVLink_set_position_target_local_ned_message(
-        0, SYSID, 1, _M.MAV_FRAME_LOCAL_NED, 0x0DF8, 0, 3.4e38, 1.4e37, 0, 0, 0, 0, 0, 0, 0, 0)
+    target = ap.mc.position_target_ned_m.copy()
     _feed(links, [encode(setpoint)])
+    assert ap.counters["setpoint_out_of_range"] == 1
     ap.drain_outbox()
     _run(ap, clock.t_s, 1.0)
-    assert reference_parse(b"".join(ap.drain_outbox()))[0]     # telemetry still flows
-    assert ap.flight.setpoint is None or np.all(np.abs(ap.flight.setpoint.ned) < _ABSURD_SETPOINT_M)
+    kinds = {m.get_type() for m in reference_parse(b"".join(ap.drain_outbox()))[0]}
+    assert {"HEARTBEAT", "GLOBAL_POSITION_INT"} <= kinds          # telemetry still flows
+    assert np.array_equal(ap.mc.position_target_ned_m, target)
+    assert ap.counters["tx_error"] == 0
+
+
+def test_a_far_but_sane_setpoint_is_followed():
+    """The rejections above can fail: a setpoint 100 km away is taken."""
+    ap, links, _ = _vehicle("ardupilot", flying=True)
+    _feed(links, [encode(_LOCAL(0, SYSID, 1, _M.MAV_FRAME_LOCAL_NED, 0x0DF8, 1.0e5, 0, -10,
+                                0, 0, 0, 0, 0, 0, 0, 0))])
+    assert ap.counters["setpoint_out_of_range"] == 0
+    assert ap.mc.position_target_ned_m.tolist() == [1.0e5, 0.0, -10.0]
+
+
+def test_a_handler_that_raises_anything_is_counted_and_the_datagram_goes_on(monkeypatch):
+    ap, links, _ = _vehicle("ardupilot")
+
+    def broken(ap_, params, t_s, msg):
+        raise KeyError("boom")
+
+    monkeypatch.setitem(COMMANDS, _M.MAV_CMD_NAV_LAND, broken)
+    _feed(links, [_command(_M.MAV_CMD_NAV_LAND) + _AUTOPILOT_VERSION_REQUEST])
+    assert _acks(ap) == [(_M.MAV_CMD_REQUEST_MESSAGE, _M.MAV_RESULT_ACCEPTED)]
+    assert ap.counters["rx_handler_error"] == ap.counters["rx_handler_error:KeyError"] == 1
+    assert ap.last_error is not None and "COMMAND_LONG" in ap.last_error and "boom" in ap.last_error
+
+
+def test_a_telemetry_message_that_cannot_be_built_does_not_silence_the_vehicle(monkeypatch):
+    ap, _, clock = _vehicle("ardupilot")
+
+    def broken(ap_, t_s):
+        raise RuntimeError("cannot encode")
+
+    monkeypatch.setitem(BUILDERS, _M.MAVLINK_MSG_ID_ATTITUDE, broken)
+    _run(ap, clock.t_s, 1.0)
+    kinds = {m.get_type() for m in reference_parse(b"".join(ap.drain_outbox()))[0]}
+    assert "ATTITUDE" not in kinds and {"HEARTBEAT", "GLOBAL_POSITION_INT"} <= kinds
+    assert ap.counters["tx_error"] == ap.counters["tx_error:RuntimeError"] > 0
+    assert "RuntimeError" in ap.last_error
 
 
 # ------------------------------------------------------------------------- over a real socket
@@ -343,12 +422,12 @@ def _wait_for(predicate, timeout_s: float, what: str) -> None:
 
 def test_garbage_datagrams_to_a_running_vehicle_are_counted_and_it_still_answers():
     garbage = _garbage_datagrams(400, seed=5)
-    parser = make_parser()
-    expected = []                               # frames the vehicle must account for, cumulative
+    expected = []             # (frames, truncated datagrams) the vehicle must account for, cumulative
     for data in garbage:
-        msgs = parser.parse_buffer(data) or []
+        msgs, truncated = _parse_datagrams([data])
         assert not any(is_valid_for(m, SYSID) for m in msgs)   # the garbage holds no valid command
-        expected.append((expected[-1] if expected else 0) + len(msgs))
+        total = expected[-1] if expected else (0, 0)
+        expected.append((total[0] + len(msgs), total[1] + truncated))
     base = free_port_block(2)
     fleet = MockFleet(1, personality="ardupilot", speedup=5.0, udp_base_port=base,
                       udp_bind_base_port=base + 1, tcp_base_port=0, zenoh=False)
@@ -362,14 +441,17 @@ def test_garbage_datagrams_to_a_running_vehicle_are_counted_and_it_still_answers
         peer = ("127.0.0.1", vehicle.udp_bind_port)
         before = (vehicle.mode_name, vehicle.armed)
         counted0 = sum(vehicle.counters.get(name, 0) for name in _COUNTED)
+        truncated0 = vehicle.counters.get("rx_truncated", 0)
         for start in range(0, len(garbage), 25):       # in batches: never overflow the socket buffer
             for data in garbage[start:start + 25]:
                 attacker.sendto(data, peer)
-            want = expected[min(start + 25, len(garbage)) - 1]
-            _wait_for(lambda: sum(vehicle.counters.get(n, 0) for n in _COUNTED) - counted0 >= want,
-                      30.0, f"{want} garbage frames counted")
+            want, want_truncated = expected[min(start + 25, len(garbage)) - 1]
+            _wait_for(lambda: (sum(vehicle.counters.get(n, 0) for n in _COUNTED) - counted0 >= want
+                               and vehicle.counters.get("rx_truncated", 0) - truncated0 >= want_truncated),
+                      30.0, f"{want} garbage frames and {want_truncated} truncated datagrams counted")
         counters = vehicle.counters
-        assert sum(counters.get(n, 0) for n in _COUNTED) - counted0 == expected[-1]
+        assert sum(counters.get(n, 0) for n in _COUNTED) - counted0 == expected[-1][0]
+        assert counters.get("rx_truncated", 0) - truncated0 == expected[-1][1] > 0
         assert counters["rx_bad_crc"] + counters["rx_malformed"] > 300
         assert (vehicle.mode_name, vehicle.armed) == before
         ack = _await_ack(gcs, peer, _command(_M.MAV_CMD_REQUEST_MESSAGE, _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION),

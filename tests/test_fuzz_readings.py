@@ -52,9 +52,9 @@ _json = st.recursive(
     st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=20),
     lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
     max_leaves=12)
-#: numbers a float field may hold in JSON; integers above ~1.8e308 are left to the xfail test below
+#: numbers a float field may hold in JSON (integers beyond the float range included)
 _numbers = st.one_of(st.floats(), st.sampled_from([math.nan, math.inf, -math.inf, 1e308, -1e308, 5e-324]),
-                     st.integers(-(10 ** 300), 10 ** 300), st.integers(-(1 << 64), 1 << 64))
+                     st.integers(-(10 ** 400), 10 ** 400), st.integers(-(1 << 64), 1 << 64))
 _wrong_types = st.one_of(st.none(), st.booleans(), st.text(max_size=30), st.lists(st.integers(), max_size=3),
                          st.dictionaries(st.text(max_size=4), st.integers(), max_size=3),
                          st.text(min_size=5000, max_size=20000, alphabet="aé\u202e\U0001F600\x00"))
@@ -77,7 +77,7 @@ def _near_valid_doc(draw) -> dict:
             doc[name] = draw(_wrong_types)
         elif action == "json":
             doc[name] = draw(_json)
-        elif name in _INT_FIELDS or name not in _FLOAT_FIELDS:
+        else:
             doc[name] = draw(st.integers(-(10 ** 1000), 10 ** 1000))
     return doc
 
@@ -102,7 +102,8 @@ _payloads = st.one_of(_encoded(_near_valid_doc()), _encoded(_near_valid_doc()), 
 _keys = st.one_of(
     st.sampled_from([sensor_key(FLEET, 3), sensor_key(FLEET, 4)]),
     st.sampled_from([sensor_key(FLEET, 9), sensor_key("other", 3), "swarmseek/demo/vehicle/\u0663/sensor",
-                     "swarmseek/demo/vehicle/03/sensor", "swarmseek/demo/vehicle/3", "", "/" * 9,
+                     "swarmseek/demo/vehicle/03/sensor", "swarmseek/demo/vehicle/+3/sensor",
+                     "swarmseek/demo/vehicle/ 4/sensor", "swarmseek/demo/vehicle/3", "", "/" * 9,
                      "swarmseek/demo/vehicle/99999999999999999999/sensor"]),
     st.text(max_size=60))
 
@@ -179,9 +180,6 @@ def test_each_broken_field_is_counted_under_its_reason(name, value, reason):
     assert store.counts()["accepted"] == 0
 
 
-@pytest.mark.xfail(strict=True, raises=OverflowError, reason=(
-    "mission/readings.py decode_reading: float(v) of a JSON integer above ~1.8e308 raises "
-    "OverflowError, which escapes ReadingStore.offer (and the zenoh callback) uncounted"))
 @pytest.mark.parametrize("name", ["value", "time_s", "alt_m"])
 def test_an_integer_too_large_for_a_float_is_counted_not_raised(name):
     store = _store()
@@ -191,10 +189,7 @@ def test_an_integer_too_large_for_a_float_is_counted_not_raised(name):
     assert store.counts()["rejected"]["not_finite"] + store.counts()["rejected"]["malformed"] == 1
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "mission/readings.py _sysid_from_key parses the sysid chunk with int(), so keys that are not "
-    "the vehicle's own key (leading zero, non-ASCII digits) are accepted as that vehicle's"))
-@pytest.mark.parametrize("chunk", ["03", "\u0663", "+3"])
+@pytest.mark.parametrize("chunk", ["03", "\u0663", "+3", " 3", "3\n", "\uff13", "0", "003"])
 def test_only_the_canonical_key_of_a_vehicle_is_accepted(chunk):
     store = _store()
     assert store.offer(f"swarmseek/{FLEET}/vehicle/{chunk}/sensor", json.dumps(_doc()).encode()) is None

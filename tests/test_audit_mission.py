@@ -1,0 +1,183 @@
+"""Whole missions against the mock fleet, then :func:`mission.audit.audit_mission` on their
+``.tlog`` files: no setpoint broke the fence or the separation, thousands were checked.
+
+Four missions (N = 5 or 6, CVT, 10x), each flown once per module: a plain ``swarmseek run``
+(PX4 personality, UDP) and the same with the ArduPilot personality (TCP, NAV_TAKEOFF);
+one where vehicle 3 crashes at the second iteration (loss, re-formation for five); one with the
+source outside the geofence (the centre is held at the fence: ``stopped_at_fence``).
+
+The speed check fails on every mission: the setpoints sent are a resampling, by the
+``SetpointStreamer`` (10 Hz on an absolute schedule), of the ``TargetRamp`` (its own 10 Hz loop,
+``dt`` = the measured sleep, about 0.12 s at 10x): a streamer tick often carries a full ramp step
+(up to ``3 m/s * 0.125 s = 0.37 m``) in 0.07 to 0.1 s, i.e. 3.6 to 5.4 m/s for a 3 m/s limit
+(over 1 s windows the speed is within one ramp period of the limit, 3.3 m/s). That test is a
+strict xfail until the ramp steps inside the streamer's tick (see docs/audit.md).
+"""
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+import threading
+
+import numpy as np
+import pytest
+
+from mission.audit import audit_mission
+from mission.cli import main as cli_main
+from mission.coordinator import Coordinator
+from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
+from mission.mission_log import MissionLog, read_mission_log
+from mission.plan import GeofencePlan
+from sitl_mock.fields import sigma2
+from sitl_mock.fleet import MockFleet
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
+_MISSIONS = ["plain", "ardupilot", "crash", "source_outside_fence"]
+
+
+class _CrashAt(threading.Thread):
+    """Crashes ``sysid`` once the mission log shows ``k`` iterations (polled, generous timeout)."""
+
+    def __init__(self, fleet, log_path, k, sysid):
+        super().__init__(daemon=True)
+        self.fleet, self.log_path, self.k, self.sysid = fleet, log_path, k, sysid
+        self.done = threading.Event()
+        self.injected = threading.Event()
+
+    def run(self):
+        deadline = self.fleet.clock.time() + 900.0
+        while not self.done.is_set() and self.fleet.clock.time() < deadline:
+            if self.log_path.exists() and self.log_path.read_text().count('"type":"iteration"') >= self.k:
+                self.fleet.set_fault(self.sysid, "crashed", True)
+                self.injected.set()
+                return
+            self.done.wait(0.05)
+
+
+async def _fly(plan, fleet, log_dir):
+    import zenoh
+
+    session = zenoh.open(plan.zenoh.to_config())
+    log = MissionLog(log_dir / "mission.jsonl", fleet.clock)
+    try:
+        return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log,
+                                 tlog_dir=log_dir / "tlogs").run()
+    finally:
+        log.close()
+        session.close()
+
+
+def _fly_against_mock(log_dir, n, source, start_enu_m=(0.0, 0.0, 11.0), plan_changes=None, crash=None):
+    ports = fleet_ports(n, "px4")
+    fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, speedup=10.0,
+                      seed=11, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
+                      tcp_base_port=0, fleet_name="swarmseek", zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"],
+                      sensor_noise_std=0.005)
+    plan = embedded_plan(n, ports, start_enu_m=start_enu_m, eps=default_eps(sigma2(source)), max_iterations=50)
+    if plan_changes:
+        plan = dataclasses.replace(plan, **plan_changes)
+    saboteur = _CrashAt(fleet, log_dir / "mission.jsonl", *crash) if crash else None
+    fleet.start()
+    if saboteur:
+        saboteur.start()
+    try:
+        result = asyncio.run(_fly(plan, fleet, log_dir))
+    finally:
+        if saboteur:
+            saboteur.done.set()
+            saboteur.join(timeout=30)
+        fleet.stop()
+    return result, saboteur
+
+
+def _fly_mission(name, log_dir):
+    """Fly one of the missions into ``log_dir``; returns its outcome."""
+    if name in ("plain", "ardupilot"):
+        personality = "px4" if name == "plain" else "ardupilot"
+        code = cli_main(["run", "--n", "5", "--formation", "cvt", "--speedup", "10", "--seed", "3", "--json",
+                         "--personality", personality,
+                         "--noise", "0.005", "--source=6,-4,13", "--start=-2,1,11", "--max-iterations", "50",
+                         "--log-dir", str(log_dir)])
+        records = read_mission_log(log_dir / "mission.jsonl")
+        outcome = next(r for r in records if r["type"] == "summary")["outcome"]
+        assert code in (0, 1)
+    elif name == "crash":
+        result, saboteur = _fly_against_mock(log_dir, 6, np.array([14.0, 10.0, 13.0]), crash=(2, 3))
+        assert saboteur.injected.is_set(), "the crash was never injected"
+        assert [x["sysid"] for x in result.lost] == [3], result.message
+        messages = [r.get("message", "") for r in read_mission_log(log_dir / "mission.jsonl")]
+        assert any(m.startswith("re-forming for 5 vehicles") for m in messages), messages[-10:]
+        outcome = result.outcome
+    else:
+        # the source is 24 m east; the fence stops at 16 m east (homes up to 10 m east), so the
+        # centre may go to 16 - D = 12 m; the formation starts at 8 m east
+        fence = GeofencePlan(polygon_en_m=((-40.0, -40.0), (16.0, -40.0), (16.0, 40.0), (-40.0, 40.0)),
+                             min_alt_m=2.0, max_alt_m=40.0)
+        result, _ = _fly_against_mock(log_dir, 5, np.array([24.0, 2.0, 13.0]), start_enu_m=(8.0, 2.0, 11.0),
+                                      plan_changes={"geofence": fence})
+        outcome = result.outcome
+        assert outcome == "stopped_at_fence", result.message
+    return outcome
+
+
+@pytest.fixture(scope="module")
+def missions(tmp_path_factory):
+    """``get(name) -> (name, log_dir, outcome, report)``, each mission flown at most once."""
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            log_dir = tmp_path_factory.mktemp(name)
+            outcome = _fly_mission(name, log_dir)
+            cache[name] = (name, log_dir, outcome, audit_mission(log_dir))
+        return cache[name]
+
+    return get
+
+
+@pytest.fixture(params=_MISSIONS)
+def flown(request, missions):
+    """``(name, log_dir, outcome, report)`` of each mission in turn."""
+    return missions(request.param)
+
+
+def test_no_setpoint_broke_the_fence_or_the_separation(flown):
+    name, _, outcome, report = flown
+    counts = {k: v for k, v in report.violation_counts.items() if k != "speed"}
+    assert counts == {}, report.format_text()
+    assert report.setpoints_checked >= 1500, report.format_text()
+    assert report.setpoints_skipped == 0
+    assert report.separation_segments_checked >= 5000
+    assert report.min_separation_seen_m >= report.limits["min_separation_m"] - report.limits["separation_tol_m"]
+    assert report.min_fence_margin_m >= -report.limits["fence_tol_m"]
+    assert all(v["homes"] > 0 for v in report.per_vehicle.values())
+
+
+def test_source_outside_fence_pushes_setpoints_to_the_fence(missions):
+    _, _, outcome, report = missions("source_outside_fence")
+    assert outcome == "stopped_at_fence"
+    # the centre was held at the fence shrunk by the radius: a slot lies within 1 m of the edge
+    assert report.min_fence_margin_m < 1.0, report.format_text()
+
+
+def test_speed_over_one_second_windows_is_within_one_ramp_period(flown):
+    _, _, _, report = flown
+    limit = report.limits["max_speed_m_s"]
+    assert report.max_speed_seen_m_s <= limit * 1.15, report.format_text()
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason="TargetRamp and SetpointStreamer run on separate 10 Hz schedules: "
+                   "sent setpoints step up to 0.37 m in 0.07-0.1 s (3.6-5.4 m/s for 3 m/s); docs/audit.md")
+def test_no_setpoint_step_exceeds_the_speed_limit(flown):
+    _, _, _, report = flown
+    assert report.violation_counts.get("speed", 0) == 0, report.format_text()
+
+
+def test_cli_audit_of_a_flown_mission(missions, capsys):
+    _, log_dir, _, report = missions("plain")
+    code = cli_main(["audit", str(log_dir), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == (0 if report.ok else 1)
+    assert out["setpoints_checked"] == report.setpoints_checked
