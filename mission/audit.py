@@ -73,7 +73,8 @@ class AuditReport:
     setpoints_skipped : int
         Velocity-only setpoints (no position to check).
     per_vehicle : dict
-        sysid -> ``{"setpoints", "skipped", "homes", "max_speed_m_s", "tracks"}``.
+        sysid -> ``{"setpoints", "skipped", "homes", "max_step_speed_m_s", "max_window_speed_m_s",
+        "tracks"}`` (tracks: runs of setpoints without a gap longer than ``stale_after_s``).
     speed_steps_checked : int
         Consecutive-setpoint pairs checked for speed.
     separation_instants_checked : int
@@ -230,8 +231,7 @@ def _check_pair(report, a, b, tracks_a, tracks_b, min_sep_m, tol_m, stale_after_
         for b0, b1 in tracks_b:
             tb, pb = b.t_s[b0:b1], b.enu_m[b0:b1]
             lo = max(ta[0], tb[0])
-            hi = min(ta[-1], tb[-1]) + stale_after_s
-            hi = min(hi, ta[-1] + stale_after_s, tb[-1] + stale_after_s)
+            hi = min(ta[-1], tb[-1]) + stale_after_s     # both commanded until then
             if hi < lo:
                 continue
             tq = np.concatenate([ta, tb, [lo, hi]])

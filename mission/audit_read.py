@@ -222,50 +222,68 @@ def read_vehicle_setpoints(paths, sysid: int, mission_origin, gcs_sysid: int = 2
         events.extend(_read_tlog(path, sysid, gcs_sysid))
     events.sort(key=lambda e: e[0])
     out = VehicleSetpoints(sysid, np.empty(0), np.empty((0, 3)))
-    t_list, p_list = [], []
-    home = local_origin = None
+    t_list, rows, groups = [], [], []        # rows: (group, x, y, z); group -1 = geodetic
+    origins: dict[tuple, int] = {}
+    home = None
+    group = None
     for t_s, kind, msg in events:
         if kind == "home":
             out.homes += 1
             home = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
-            local_origin = _local_origin(home, (msg.x, msg.y, msg.z))
+            origin = _local_origin(home, (msg.x, msg.y, msg.z))
+            group = origins.setdefault(origin, len(origins))
             continue
-        ignored = msg.type_mask & _POS_IGNORE
-        if ignored == _POS_IGNORE:
-            out.skipped += 1
-            continue
-        frame = msg.coordinate_frame
-        name = msg.get_type()
-        if ignored:
-            out.problems.append(AuditViolation("frame", t_s, (sysid,), float(msg.type_mask), 0.0,
-                                               f"{name} ignores only some position axes (type_mask 0x{msg.type_mask:X})"))
-            continue
-        if name == _SP_LOCAL and frame == _FRAME_LOCAL_NED:
-            if local_origin is None:
-                out.problems.append(AuditViolation("no_home", t_s, (sysid,), math.nan, math.nan,
-                                                   "LOCAL_NED setpoint sent before any HOME_POSITION was received"))
-                continue
-            p = _local_to_mission((msg.x, msg.y, msg.z), local_origin, mission_origin)
-        elif name == _SP_GLOBAL and frame in (_FRAME_GLOBAL_INT, _FRAME_GLOBAL_RELATIVE_ALT_INT):
-            alt = float(msg.alt)
-            if frame == _FRAME_GLOBAL_RELATIVE_ALT_INT:
-                if home is None:
-                    out.problems.append(AuditViolation("no_home", t_s, (sysid,), math.nan, math.nan,
-                                                       "relative-altitude setpoint sent before any HOME_POSITION"))
-                    continue
-                alt += home[2]
-            p = geodetic_to_enu(msg.lat_int * 1e-7, msg.lon_int * 1e-7, alt, mission_origin)
-        else:
-            out.problems.append(AuditViolation("frame", t_s, (sysid,), float(frame), 0.0,
-                                               f"{name} in coordinate frame {frame}, which the audit cannot place"))
-            continue
-        t_list.append(t_s)
-        p_list.append(np.asarray(p, dtype=float).reshape(3))
-    if t_list:
-        out.t_s = np.asarray(t_list, dtype=float)
-        out.enu_m = np.vstack(p_list)
+        row = _setpoint_row(msg, t_s, sysid, home, group, out)
+        if row is not None:
+            t_list.append(t_s)
+            rows.append(row)
+    if not t_list:
+        return out
+    data = np.asarray(rows, dtype=float)
+    enu = np.empty((len(rows), 3))
+    geo = data[:, 0] < 0
+    if np.any(geo):
+        enu[geo] = geodetic_to_enu(data[geo, 1], data[geo, 2], data[geo, 3], mission_origin)
+    for origin, g in origins.items():
+        sel = data[:, 0] == g
+        if np.any(sel):
+            enu[sel] = _local_to_mission(data[sel, 1:], origin, mission_origin)
+    out.t_s = np.asarray(t_list, dtype=float)
+    out.enu_m = enu
     return out
 
+
+def _setpoint_row(msg, t_s, sysid, home, group, out):
+    """``(group, x, y, z)`` of one setpoint (LOCAL_NED in ``group``'s frame, or -1 and geodetic),
+    or None after counting it as skipped or as a problem."""
+    ignored = msg.type_mask & _POS_IGNORE
+    if ignored == _POS_IGNORE:
+        out.skipped += 1
+        return None
+    frame = msg.coordinate_frame
+    name = msg.get_type()
+    if ignored:
+        out.problems.append(AuditViolation("frame", t_s, (sysid,), float(msg.type_mask), 0.0,
+                                           f"{name} ignores only some position axes (type_mask 0x{msg.type_mask:X})"))
+        return None
+    if name == _SP_LOCAL and frame == _FRAME_LOCAL_NED:
+        if group is None:
+            out.problems.append(AuditViolation("no_home", t_s, (sysid,), math.nan, math.nan,
+                                               "LOCAL_NED setpoint sent before any HOME_POSITION was received"))
+            return None
+        return (group, msg.x, msg.y, msg.z)
+    if name == _SP_GLOBAL and frame in (_FRAME_GLOBAL_INT, _FRAME_GLOBAL_RELATIVE_ALT_INT):
+        alt = float(msg.alt)
+        if frame == _FRAME_GLOBAL_RELATIVE_ALT_INT:
+            if home is None:
+                out.problems.append(AuditViolation("no_home", t_s, (sysid,), math.nan, math.nan,
+                                                   "relative-altitude setpoint sent before any HOME_POSITION"))
+                return None
+            alt += home[2]
+        return (-1, msg.lat_int * 1e-7, msg.lon_int * 1e-7, alt)
+    out.problems.append(AuditViolation("frame", t_s, (sysid,), float(frame), 0.0,
+                                       f"{name} in coordinate frame {frame}, which the audit cannot place"))
+    return None
 
 
 def find_tlogs(log_dir: Path) -> dict[int, list[Path]]:
