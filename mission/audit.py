@@ -126,14 +126,11 @@ class AuditReport:
             self.violations.append(violation)
 
     def to_dict(self) -> dict:
-        """JSON-ready dictionary (infinities as None)."""
+        """JSON-ready dictionary (non-finite numbers as None, strict JSON)."""
         d = asdict(self)
         d["ok"] = self.ok
         d["violations"] = [dict(asdict(v), sysids=list(v.sysids)) for v in self.violations]
-        for key in ("min_separation_seen_m", "min_fence_margin_m"):
-            if not math.isfinite(d[key]):
-                d[key] = None
-        return d
+        return _finite(d)
 
     def format_text(self) -> str:
         """The report as lines of text."""
@@ -159,6 +156,17 @@ class AuditReport:
                 who = "-".join(str(s) for s in v.sysids)
                 lines.append(f"    t={v.t_s:.3f} {v.kind} vehicle(s) {who}: {v.detail}")
         return "\n".join(lines)
+
+
+def _finite(obj):
+    """Copy of a JSON-like structure with NaN and infinities replaced by None."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
 
 
 # ---------------------------------------------------------------------------------- checks

@@ -222,7 +222,7 @@ def read_vehicle_setpoints(paths, sysid: int, mission_origin, gcs_sysid: int = 2
         events.extend(_read_tlog(path, sysid, gcs_sysid))
     events.sort(key=lambda e: e[0])
     out = VehicleSetpoints(sysid, np.empty(0), np.empty((0, 3)))
-    t_list, rows, groups = [], [], []        # rows: (group, x, y, z); group -1 = geodetic
+    t_list, rows = [], []        # rows: (group, x, y, z); group -1 = geodetic
     origins: dict[tuple, int] = {}
     home = None
     group = None

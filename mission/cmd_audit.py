@@ -30,7 +30,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"swarmseek audit: {exc}", file=sys.stderr)
         return 2
     if args.json:
-        print(json.dumps(report.to_dict(), indent=2, default=str))
+        print(json.dumps(report.to_dict(), indent=2, allow_nan=False))
     else:
         print(report.format_text())
     return 0 if report.ok else 1

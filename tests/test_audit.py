@@ -210,3 +210,44 @@ def test_global_int_setpoints_are_placed(tmp_path, frame, up_m, kind):
     if kind is None:
         assert report.setpoints_checked == 1
         assert report.min_fence_margin_m == pytest.approx(min(50.0 - 20.0, up_m - 2.0), abs=0.02)
+
+
+def test_zero_time_jump_is_infinitely_fast_and_json_stays_strict(tmp_path, capsys):
+    _write_log(tmp_path, {1: ((0, 0, 0), [(1.0, 0, 0, 10), (1.0, 1.0, 0, 10)])})
+    report = audit_mission(tmp_path)
+    assert report.violation_counts == {"speed": 1}
+    assert report.max_step_speed_m_s == float("inf")
+    assert cli_main(["audit", str(tmp_path), "--json"]) == 1
+    out = json.loads(capsys.readouterr().out)
+    assert out["max_step_speed_m_s"] is None and out["violations"][0]["value"] is None
+
+
+def test_each_setpoint_uses_the_last_home_before_it(tmp_path):
+    # same LOCAL_NED setpoint (10 m east of the local origin) before and after the vehicle's home
+    # moves from (0, 0) to (45, 0): the second one is at 55 m east, outside the fence
+    _write_log(tmp_path, {1: ((0, 0, 0), [(1.0, 10.0, 0, 10)])})
+    veh = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    lat, lon, alt = _home_for((45.0, 0.0, 0.0))
+    home = veh.home_position_encode(lat, lon, alt, 0, 0, 0, [1, 0, 0, 0], 0, 0, 0)
+    sp = gcs.set_position_target_local_ned_encode(0, 1, 1, 1, 0x1F8 | 0xC00, 0.0, 10.0, -10.0, 0, 0, 0, 0, 0, 0, 0, 0)
+    with open(tmp_path / "tlogs" / "vehicle-1.tlog", "ab") as fh:
+        fh.write(tlog_record(home.pack(veh), T0 + 50.0) + tlog_record(sp.pack(gcs), T0 + 60.0))
+    report = audit_mission(tmp_path)
+    assert report.violation_counts == {"fence": 1}, report.format_text()
+    assert report.violations[0].t_s == pytest.approx(T0 + 60.0)
+    assert report.violations[0].value == pytest.approx(5.0, abs=0.05)
+
+
+def test_tlogs_of_a_resumed_mission_are_merged(tmp_path):
+    # a resume appends vehicle-1-2.tlog: its setpoints continue the first file's track
+    _write_log(tmp_path, {1: _line((0, 0, 0), (0, 0, 10), (2.0, 0, 0), n=20)})
+    first = tmp_path / "tlogs" / "vehicle-1.tlog"
+    second = tmp_path / "second"
+    second.mkdir()
+    _write_log(second, {1: ((0, 0, 0), [(3.0, 4.1, 0, 10), (3.1, 4.3, 0, 10)])})
+    (second / "tlogs" / "vehicle-1.tlog").rename(tmp_path / "tlogs" / "vehicle-1-2.tlog")
+    report = audit_mission(tmp_path)
+    assert first.exists() and len(report.tlogs) == 2
+    assert report.setpoints_checked == 22 and report.per_vehicle[1]["tracks"] == 1
+    assert report.ok, report.format_text()

@@ -162,10 +162,13 @@ def test_source_outside_fence_pushes_setpoints_to_the_fence(missions):
     assert report.min_fence_margin_m < 1.0, report.format_text()
 
 
-def test_speed_over_one_second_windows_is_within_one_ramp_period(flown):
+def test_speed_over_one_second_windows_is_bounded_by_the_ramp(flown):
+    # the ramp moves a target by at most max_speed * dt with dt capped at 5 periods (0.5 s), so
+    # over any window of >= 1 s the sent setpoints move at most max_speed * (1 + 0.5) per second
+    # (measured: 3.2 to 3.3 m/s for 3 m/s)
     _, _, _, report = flown
     limit = report.limits["max_speed_m_s"]
-    assert report.max_speed_seen_m_s <= limit * 1.15, report.format_text()
+    assert report.max_speed_seen_m_s <= limit * 1.5, report.format_text()
 
 
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason="TargetRamp and SetpointStreamer run on separate 10 Hz schedules: "
