@@ -4,8 +4,10 @@ invalid input changes nothing.
 Entry point: ``sitl_mock.transport.VehicleLinks._receive(parser, data)``, what the UDP and TCP
 handlers call with each datagram / chunk and that peer's parser; it hands every parsed message to
 ``MockAutopilot.handle_message``, which accepts it (``rx_frames``) or counts why not
-(``rx_bad_crc``, ``rx_malformed``, ``rx_unknown_msg``). The socket-level test goes through a
-running :class:`~sitl_mock.fleet.MockFleet`.
+(``rx_bad_crc``, ``rx_malformed``, ``rx_unknown_msg``). A datagram is a whole unit: a partial
+frame ending it is counted (``rx_truncated``) and dropped, so the expected frames are those of
+each datagram parsed afresh. The socket-level test goes through a running
+:class:`~sitl_mock.fleet.MockFleet`.
 """
 from __future__ import annotations
 
