@@ -253,7 +253,8 @@ async def takeoff(co) -> None:
     co.set_phase("takeoff")
     plan = co.plan
     _plan_slots(co)
-    co.streamer = SetpointStreamer(list(co.vehicles.values()), rate_hz=plan.setpoint_rate_hz, clock=co.clock)
+    co.streamer = SetpointStreamer(list(co.vehicles.values()), rate_hz=plan.setpoint_rate_hz, clock=co.clock,
+                                 max_speed_m_s=plan.max_speed_m_s)
     # the ramp (new setpoints, each batch safety-checked) runs at most at 10 Hz; the streamer
     # repeats the latest setpoint at setpoint_rate_hz in between (identical, hence as safe)
     co.ramp = TargetRamp(co.streamer, co.clock, plan.max_speed_m_s, rate_hz=min(plan.setpoint_rate_hz, 10.0),

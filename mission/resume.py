@@ -236,7 +236,7 @@ async def rejoin(co, state: ResumeState) -> None:
         else:
             flying.append(sysid)
     co.streamer = SetpointStreamer([co.vehicles[s] for s in flying], rate_hz=plan.setpoint_rate_hz,
-                                   clock=co.clock)
+                                   clock=co.clock, max_speed_m_s=plan.max_speed_m_s)
     co.ramp = TargetRamp(co.streamer, co.clock, plan.max_speed_m_s, rate_hz=min(plan.setpoint_rate_hz, 10.0),
                          envelope=co.envelope, on_violation=lambda m: co.event(m, level="warning"))
     for s in flying:

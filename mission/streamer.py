@@ -4,6 +4,12 @@ One task wakes at ``rate_hz`` on the mission clock (absolute schedule: no drift)
 latest target of every vehicle, one non-blocking datagram each, so no vehicle waits for another.
 The order rotates every tick so that the same vehicle is not always the last one of the burst.
 If the loop falls more than a period behind, it skips ahead rather than bursting to catch up.
+
+With ``max_speed_m_s`` the streamer is the last speed gate before the wire: each datagram sent to
+a vehicle is at most ``max_speed_m_s`` times the time since that vehicle's previous datagram away
+from it, whatever the targets do between two ticks (a ramp running on its own schedule, an event
+loop that stalled). The sent setpoint moves along the straight line towards the target and
+reaches it as soon as the limit allows.
 """
 from __future__ import annotations
 
@@ -20,10 +26,14 @@ _HISTORY = 1200
 
 
 class _Track:
-    __slots__ = ("target", "yaw", "sent", "errors", "last_s", "intervals", "first_s", "last_error")
+    __slots__ = ("target", "yaw", "sent", "errors", "last_s", "intervals", "first_s", "last_error",
+                 "sent_pos", "sent_pos_s", "limited")
 
     def __init__(self) -> None:
         self.target = None
+        self.sent_pos = None  # last position actually sent, and when (clock seconds)
+        self.sent_pos_s = None
+        self.limited = 0
         self.yaw = None
         self.sent = 0
         self.errors = 0
@@ -44,6 +54,9 @@ class SetpointStreamer:
         Setpoints per clock second per vehicle.
     clock : object, optional
         Mission clock; default :class:`~mission.clock.WallClock`.
+    max_speed_m_s : float, optional
+        Largest speed between two consecutive setpoints sent to one vehicle (module docstring);
+        None: targets are sent as they are.
 
     Attributes
     ----------
@@ -53,10 +66,14 @@ class SetpointStreamer:
         Ticks that started more than one period late (the schedule was reset).
     """
 
-    def __init__(self, vehicles, rate_hz: float = 10.0, clock=None) -> None:
+    def __init__(self, vehicles, rate_hz: float = 10.0, clock=None, max_speed_m_s: float | None = None) -> None:
         if not rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        if max_speed_m_s is not None and not (np.isfinite(max_speed_m_s) and max_speed_m_s > 0):
+            raise ValueError(f"max_speed_m_s must be a positive number, got {max_speed_m_s}")
         self.rate_hz = float(rate_hz)
+        # 2 % margin: the time a datagram is stamped (e.g. in a .tlog) trails the clock reading
+        self._max_speed_m_s = None if max_speed_m_s is None else 0.98 * float(max_speed_m_s)
         self.clock = clock if clock is not None else WallClock()
         self._vehicles = {v.sysid: v for v in vehicles}
         self._tracks = {sysid: _Track() for sysid in self._vehicles}
@@ -132,8 +149,11 @@ class SetpointStreamer:
         for sysid, track in items[k:] + items[:k]:
             if track.target is None:
                 continue
+            position = track.target
+            if self._max_speed_m_s is not None:
+                position, send_s = self._limited(track, self.clock.time())
             try:
-                self._vehicles[sysid].send_position_enu(track.target, track.yaw)
+                self._vehicles[sysid].send_position_enu(position, track.yaw)
             except Exception as exc:  # one vehicle's problem must not starve the others
                 track.errors += 1
                 track.last_error = str(exc)
@@ -143,10 +163,25 @@ class SetpointStreamer:
             else:
                 track.first_s = now
             track.last_s = now
+            if self._max_speed_m_s is not None:
+                track.sent_pos, track.sent_pos_s = position, send_s
             track.sent += 1
             sent += 1
         self.ticks += 1
         return sent
+
+    def _limited(self, track: _Track, now_s: float):
+        """The target, or the point towards it that keeps the step within the speed limit."""
+        target = track.target
+        if track.sent_pos is None:
+            return target, now_s
+        step = np.subtract(target, track.sent_pos)
+        dist = float(np.linalg.norm(step))
+        reach = self._max_speed_m_s * max(now_s - track.sent_pos_s, 0.0)
+        if dist <= reach:
+            return target, now_s
+        track.limited += 1
+        return tuple(float(v) for v in np.add(track.sent_pos, step * (reach / dist))), now_s
 
     async def _run(self) -> None:
         clock = self.clock
@@ -168,11 +203,13 @@ class SetpointStreamer:
         Returns
         -------
         dict
-            ``sent``, ``errors``, ``last_error``, ``rate_hz`` (over the recent history),
+            ``sent``, ``errors``, ``last_error``, ``speed_limited`` (datagrams moved less than
+            their target to keep the speed limit), ``rate_hz`` (over the recent history),
             ``p50_interval_s``, ``p99_interval_s`` (None before two sends).
         """
         track = self._tracks[sysid]
         out = {"sent": track.sent, "errors": track.errors, "last_error": track.last_error,
+               "speed_limited": track.limited,
                "rate_hz": None, "p50_interval_s": None, "p99_interval_s": None}
         if track.intervals:
             intervals = np.fromiter(track.intervals, dtype=float)

@@ -6,13 +6,10 @@ Four missions (N = 5 or 6, CVT, 10x), each flown once per module: a plain ``swar
 one where vehicle 3 crashes at the second iteration (loss, re-formation for five); one with the
 source outside the geofence (the centre is held at the fence: ``stopped_at_fence``).
 
-The speed check fails on every mission: the setpoints sent are a resampling, by the
-``SetpointStreamer`` (10 Hz on an absolute schedule), of the ``TargetRamp`` (its own 10 Hz loop,
-``dt`` = the measured sleep, about 0.12 s at 10x): a streamer tick often carries a full ramp step
-(up to ``3 m/s * 0.125 s = 0.37 m``) in 0.07 to 0.1 s, i.e. 3.6 to 5.4 m/s for a 3 m/s limit
-(over 1 s windows the speed is within one ramp period of the limit, 3.3 m/s). That test is a
-strict xfail until the ramp steps inside the streamer's tick (see docs/audit.md). The same
-mission in real time (1x, 82 s, too slow for this suite) audits clean: largest step 3.14 m/s.
+The speed check once failed on every mission: the setpoints sent were a resampling, by the
+``SetpointStreamer`` (10 Hz on an absolute schedule), of the ``TargetRamp`` (its own 10 Hz loop),
+so a streamer tick could carry a full ramp step (0.37 m) in 0.07 s (5.4 m/s for a 3 m/s limit).
+The streamer is now the last speed gate before the wire (``max_speed_m_s``), and the test holds.
 """
 from __future__ import annotations
 
@@ -172,8 +169,6 @@ def test_speed_over_one_second_windows_is_bounded_by_the_ramp(flown):
     assert report.max_speed_seen_m_s <= limit * 1.5, report.format_text()
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="TargetRamp and SetpointStreamer run on separate 10 Hz schedules: "
-                   "sent setpoints step up to 0.37 m in 0.07-0.1 s (3.6-5.4 m/s for 3 m/s); docs/audit.md")
 def test_no_setpoint_step_exceeds_the_speed_limit(flown):
     _, _, _, report = flown
     assert report.violation_counts.get("speed", 0) == 0, report.format_text()
