@@ -72,8 +72,7 @@ class SetpointStreamer:
         if max_speed_m_s is not None and not (np.isfinite(max_speed_m_s) and max_speed_m_s > 0):
             raise ValueError(f"max_speed_m_s must be a positive number, got {max_speed_m_s}")
         self.rate_hz = float(rate_hz)
-        # 2 % margin: the time a datagram is stamped (e.g. in a .tlog) trails the clock reading
-        self._max_speed_m_s = None if max_speed_m_s is None else 0.98 * float(max_speed_m_s)
+        self._max_speed_m_s = None if max_speed_m_s is None else float(max_speed_m_s)
         self.clock = clock if clock is not None else WallClock()
         self._vehicles = {v.sysid: v for v in vehicles}
         self._tracks = {sysid: _Track() for sysid in self._vehicles}
@@ -151,7 +150,7 @@ class SetpointStreamer:
                 continue
             position = track.target
             if self._max_speed_m_s is not None:
-                position, send_s = self._limited(track, self.clock.time())
+                position = self._limited(track, self.clock.time())
             try:
                 self._vehicles[sysid].send_position_enu(position, track.yaw)
             except Exception as exc:  # one vehicle's problem must not starve the others
@@ -164,7 +163,9 @@ class SetpointStreamer:
                 track.first_s = now
             track.last_s = now
             if self._max_speed_m_s is not None:
-                track.sent_pos, track.sent_pos_s = position, send_s
+                # read after the send, so that the next step's time base is never longer than
+                # the time between the two datagrams as stamped on the way out (e.g. in a .tlog)
+                track.sent_pos, track.sent_pos_s = position, self.clock.time()
             track.sent += 1
             sent += 1
         self.ticks += 1
@@ -174,14 +175,14 @@ class SetpointStreamer:
         """The target, or the point towards it that keeps the step within the speed limit."""
         target = track.target
         if track.sent_pos is None:
-            return target, now_s
+            return target
         step = np.subtract(target, track.sent_pos)
         dist = float(np.linalg.norm(step))
         reach = self._max_speed_m_s * max(now_s - track.sent_pos_s, 0.0)
         if dist <= reach:
-            return target, now_s
+            return target
         track.limited += 1
-        return tuple(float(v) for v in np.add(track.sent_pos, step * (reach / dist))), now_s
+        return tuple(float(v) for v in np.add(track.sent_pos, step * (reach / dist)))
 
     async def _run(self) -> None:
         clock = self.clock
