@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+from mission.zenoh_security import ZenohSecurityError
+
 __all__ = ["configure", "main", "fly"]
 
 
@@ -70,6 +72,9 @@ def main(args) -> int:
     except (OSError, zenoh.ZError) as exc:
         print(f"swarmseek fly: cannot open the zenoh session or the log: {exc}", file=sys.stderr)
         return 1
+    except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
+        print(f"swarmseek fly: zenoh security settings: {exc}", file=sys.stderr)
+        return 2
     if args.json:
         print(json.dumps(result.to_json(), indent=2))
     else:

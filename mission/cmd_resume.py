@@ -16,6 +16,8 @@ import json
 import sys
 from pathlib import Path
 
+from mission.zenoh_security import ZenohSecurityError
+
 __all__ = ["configure", "main", "resume"]
 
 
@@ -95,6 +97,9 @@ def main(args) -> int:
     except (OSError, zenoh.ZError) as exc:
         print(f"swarmseek resume: cannot open the zenoh session or the log: {exc}", file=sys.stderr)
         return 1
+    except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
+        print(f"swarmseek resume: zenoh security settings: {exc}", file=sys.stderr)
+        return 2
     if args.json:
         print(json.dumps(result.to_json(), indent=2))
     else:

@@ -94,6 +94,7 @@ class MissionResult:
     reengaged: dict = field(default_factory=dict)
     max_loop_lag_s: float | None = None
     lost: list = field(default_factory=list)
+    readmitted: list = field(default_factory=list)  # sysid, lost_s, came_back_s, readmitted_s
 
     @property
     def ok(self) -> bool:
@@ -174,6 +175,7 @@ class Coordinator:
         self.reengaged: dict[int, int] = {}
         self.max_loop_lag_s = 0.0
         self.lost: dict = {}
+        self.readmitted: list = []  # mission.rejoin.readmit
         self.return_on_interrupt = True
         self.formation_kind = plan.formation.type
         self._loss_task: asyncio.Task | None = None
@@ -488,7 +490,7 @@ class Coordinator:
             reengaged=dict(self.reengaged), max_loop_lag_s=round(self.max_loop_lag_s, 4),
             lost=[{"sysid": x.sysid, "reason": x.reason, "detail": x.detail, "phase": x.phase,
                    "latency_s": round(x.latency_s, 3), "came_back_s": x.came_back_s}
-                  for x in self.lost.values()])
+                  for x in self.lost.values()], readmitted=list(self.readmitted))
 
 
 def _plan_json(plan: Plan) -> dict:

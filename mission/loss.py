@@ -14,9 +14,12 @@ Rules (see ``docs/faults.md``):
 * A lost vehicle is taken off the setpoint stream, released (never re-engaged) and no longer
   waited for; the seek loop re-forms the formation for the survivors (:func:`reformed_offsets`)
   and flies a separation-keeping transfer (:func:`mission.safety.plan_transfer`) to it.
-* **coming back** (link heard again after a link loss): with ``[faults] readmit = false`` (the
-  only behaviour implemented) the vehicle is kept out and commanded to land or RTL (the plan's
-  ``return``), once.
+* **coming back** (link heard again after a link loss): with ``[faults] readmit = false`` the
+  vehicle is kept out and commanded to land or RTL (the plan's ``return``), once; with
+  ``readmit = true`` and during the seek, armed, airborne and not in RTL/LAND, it is re-admitted
+  at the start of the next iteration (:func:`mission.rejoin.readmit`).
+* A lost vehicle that still flies is an obstacle for the re-formed slots and the transfers
+  (:mod:`mission.rejoin`).
 """
 from __future__ import annotations
 
@@ -26,7 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LEFT_MODES", "VehicleLoss", "classify_loss", "reform", "reformed_offsets", "watch_losses"]
+__all__ = ["LEFT_MODES", "VehicleLoss", "classify_loss", "keep_out", "reform", "reformed_offsets",
+           "transfer_to", "watch_losses"]
 
 #: modes that mean "this vehicle left the mission" when the coordinator did not ask for them
 LEFT_MODES = {"px4": frozenset({"AUTO.RTL", "AUTO.LAND"}),
@@ -51,6 +55,12 @@ class VehicleLoss:
         mode (``left``); ``detected_s - since_s`` is the detection latency seen by the coordinator.
     phase : str
         Coordinator phase at detection.
+    came_back_s : float or None
+        Mission clock when its frames were heard again (link losses).
+    last_setpoint_enu : numpy.ndarray or None
+        Its last setpoint when it was lost (a silent vehicle may still fly there).
+    readmit_pending : bool
+        Heard again and waiting for re-admission at the next seek iteration.
     """
 
     sysid: int
@@ -60,6 +70,8 @@ class VehicleLoss:
     since_s: float
     phase: str = ""
     came_back_s: float | None = None
+    last_setpoint_enu: np.ndarray | None = None
+    readmit_pending: bool = False
 
     @property
     def latency_s(self) -> float:
@@ -208,6 +220,7 @@ def _declare_lost(co, loss: VehicleLoss) -> None:
     co.released.add(sysid)
     co.airborne.discard(sysid)
     if co.ramp is not None and sysid in co.ramp.sysids:
+        loss.last_setpoint_enu = co.ramp.setpoint(sysid)
         co.ramp.remove(sysid)
     co.status[sysid] = f"lost ({loss.reason}: {loss.detail})"
     co.event(f"vehicle {sysid} lost: {loss.detail}; detected {loss.latency_s:.2f} s after its last sign "
@@ -219,33 +232,46 @@ async def _maybe_came_back(co, v, loss: VehicleLoss, now: float) -> None:
     if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
         return
     loss.came_back_s = now
+    alt = getattr(v.state, "relative_alt_m", None)
+    if co.plan.faults.readmit:
+        if (co.phase == "seek" and v.state.armed and (alt is None or alt >= 1.0)
+                and v.state.mode not in LEFT_MODES.get(v.flavour, ())):
+            loss.readmit_pending = True
+            co.event(f"vehicle {loss.sysid} is heard again after its link loss; re-admitted at the next "
+                     "iteration (faults.readmit = true)", level="warning", sysid=loss.sysid)
+            return
+        why = f"faults.readmit = true, but not re-admissible (phase {co.phase}, mode {v.state.mode})"
+    else:
+        why = "faults.readmit = false"
+    await keep_out(co, loss.sysid, v, loss, why)
+
+
+async def keep_out(co, sysid: int, v, loss: VehicleLoss, why: str) -> None:
+    """Keep a returning vehicle out of the formation and command it to land (or RTL), once."""
     rtl = co.plan.return_behaviour == "rtl"
-    why = ("faults.readmit = false" if not co.plan.faults.readmit
-           else "faults.readmit = true, but re-admission mid-seek is not implemented")
-    co.event(f"vehicle {loss.sysid} is heard again after its link loss; kept out of the formation "
-             f"({why}) and commanded to {'RTL' if rtl else 'land'}", level="warning", sysid=loss.sysid)
-    if not v.state.armed:
-        co.status[loss.sysid] = "lost (back, on the ground)"
+    loss.readmit_pending = False
+    co.event(f"vehicle {sysid} is heard again after its link loss; kept out of the formation "
+             f"({why}) and commanded to {'RTL' if rtl else 'land'}", level="warning", sysid=sysid)
+    if v is None or not v.state.armed:
+        co.status[sysid] = "lost (back, on the ground)"
         return
-    co.status[loss.sysid] = "kept out: " + ("returning" if rtl else "landing")
+    co.status[sysid] = "kept out: " + ("returning" if rtl else "landing")
     try:
         await asyncio.wait_for(v.rtl() if rtl else v.land(), timeout=30.0)
     except Exception as exc:  # noqa: BLE001 - CommandError, link, timeout: reported
-        co.event(f"vehicle {loss.sysid}: {'RTL' if rtl else 'land'} after its return failed: {exc}",
-                 level="error", sysid=loss.sysid)
+        co.event(f"vehicle {sysid}: {'RTL' if rtl else 'land'} after its return failed: {exc}",
+                 level="error", sysid=sysid)
 
 
 async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
     """Re-form the formation about ``centre_enu`` for the vehicles of ``sysids`` not lost.
 
-    Computes the survivors' slots (:func:`reformed_offsets`), plans a separation-keeping
-    transfer from their current setpoints (:func:`mission.safety.plan_transfer`, at 80 % of the
-    speed limit so that the ramp keeps up), flies it leg by leg (interpolated goals every
-    0.1 s of the mission clock) and updates ``co.slot_offsets`` and ``co.formation_kind``.
-    Returns the survivors; with fewer than 4 nothing is flown (the caller ends the mission).
+    Computes the survivors' slots (:func:`reformed_offsets`), rotated about the centre clear of
+    the lost vehicles still flying (:func:`mission.rejoin.clear_offsets`), then
+    :func:`transfer_to`. Returns the survivors; with fewer than 4 nothing is flown (the caller
+    ends the mission).
     """
-    from mission.phases import move_and_wait
-    from mission.safety import TransferError, plan_transfer
+    from mission.rejoin import OBSTACLE_MARGIN_M, clear_offsets, obstacles
 
     survivors = [s for s in sysids if s not in co.lost and co.ramp is not None and s in co.ramp.sysids]
     if len(survivors) < 4:
@@ -263,31 +289,59 @@ async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
         co.event(f"{len(survivors)} vehicles left: the symmetric formation needs an even number; "
                  "switching to the CVT formation (and the Theorem 2 estimator)", level="warning")
         co.formation_kind = kind
+    obs = obstacles(co)
+    if len(obs):
+        new, ok = await loop.run_in_executor(None, functools.partial(
+            clear_offsets, new, centre_enu, obs, plan.min_separation_m + OBSTACLE_MARGIN_M,
+            allow_tilt=kind == "cvt"))
+        co.event(f"re-formed slots rotated clear of {len(obs)} position(s) of lost vehicles still flying"
+                 + ("" if ok else " (no rotation keeps the full clearance)"),
+                 level="info" if ok else "warning", obstacles=obs)
+    await transfer_to(co, survivors, new, centre_enu, f"re-forming for {len(survivors)} vehicles ({kind})",
+                      lost_here)
+    return [s for s in survivors if s not in co.lost]
+
+
+async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what: str,
+                      lost_here: list[int]) -> None:
+    """Fly ``sysids`` from their setpoints to ``centre_enu + new_offsets`` and adopt those slots.
+
+    The transfer is planned by :func:`mission.rejoin.plan_clear_transfer` (separation kept
+    between the vehicles and from the lost vehicles still flying, inside the fence, at 80 % of
+    the speed limit so that the ramp keeps up), flown leg by leg (interpolated goals every 0.1 s
+    of the mission clock); then ``co.slot_offsets`` is updated and the formation settles.
+    Without a separation-keeping plan the vehicles fly straight under the safety envelope.
+    """
+    from mission.phases import move_and_wait
+    from mission.rejoin import obstacles, plan_clear_transfer
+    from mission.safety import TransferError
+
+    plan = co.plan
+    loop = asyncio.get_running_loop()
     centre = np.asarray(centre_enu, dtype=float)
-    start = np.array([co.ramp.setpoint(s) for s in survivors])
-    goal = np.array([centre + new[s] for s in survivors])
+    start = np.array([co.ramp.setpoint(s) for s in sysids])
+    goal = np.array([centre + new_offsets[s] for s in sysids])
     fence = None if co.envelope is None else co.envelope.fence
     t0 = co.clock.time()
     try:
         tp = await loop.run_in_executor(None, functools.partial(
-            plan_transfer, start, goal, plan.min_separation_m, 0.8 * plan.max_speed_m_s, fence=fence))
+            plan_clear_transfer, start, goal, obstacles(co), plan.min_separation_m, 0.8 * plan.max_speed_m_s,
+            fence=fence))
     except (TransferError, ValueError) as exc:
         tp = None
-        co.event(f"re-formation: no separation-keeping transfer ({exc}); flying straight to the new "
+        co.event(f"{what}: no separation-keeping transfer ({exc}); flying straight to the new "
                  "slots under the safety envelope", level="warning")
     if tp is not None:
-        co.event(f"re-forming for {len(survivors)} vehicles ({kind}): transfer {tp.strategy}, "
-                 f"{tp.duration_s:.1f} s, closest approach {tp.min_separation_m:.2f} m",
-                 survivors=survivors, lost=lost_here, strategy=tp.strategy,
-                 min_separation_m=tp.min_separation_m, slots={s: new[s] for s in survivors})
-        await _fly_transfer(co, survivors, tp)
-    for s in survivors:
-        co.slot_offsets[s] = new[s]
-    await move_and_wait(co, {s: goal[i] for i, s in enumerate(survivors)}, plan.seeking.arrival_tol_m,
+        co.event(f"{what}: transfer {tp.strategy}, {tp.duration_s:.1f} s, closest approach "
+                 f"{tp.min_separation_m:.2f} m", survivors=sysids, lost=lost_here, strategy=tp.strategy,
+                 min_separation_m=tp.min_separation_m, slots={s: new_offsets[s] for s in sysids})
+        await _fly_transfer(co, sysids, tp)
+    for s in sysids:
+        co.slot_offsets[s] = new_offsets[s]
+    await move_and_wait(co, {s: goal[i] for i, s in enumerate(sysids)}, plan.seeking.arrival_tol_m,
                         what="the re-formed formation to settle")
-    co.event(f"formation re-formed for {len(survivors)} vehicles in {co.clock.time() - t0:.1f} s",
-             survivors=survivors, duration_s=co.clock.time() - t0)
-    return [s for s in survivors if s not in co.lost]
+    co.event(f"formation re-formed for {len(sysids)} vehicles in {co.clock.time() - t0:.1f} s",
+             survivors=sysids, duration_s=co.clock.time() - t0)
 
 
 async def _fly_transfer(co, sysids: list[int], tp) -> None:

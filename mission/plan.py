@@ -11,7 +11,7 @@ The file format is documented in ``docs/mission.md`` and illustrated by
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +19,7 @@ import numpy as np
 from formation.geodesy import geodetic_to_enu
 from mission.plan_checks import Checker, check_connection, polygon_area, show_value
 from mission.signing import SigningConfig, SigningError, signing_config_from_table
+from mission.zenoh_security import ZenohPlan, parse_zenoh
 
 __all__ = [
     "PLAN_VERSION",
@@ -39,9 +40,6 @@ PLAN_VERSION = 1
 _FORMATIONS = ("cvt", "symmetric")
 _ESTIMATORS = ("cvt", "symmetric", "robust")
 _RETURNS = ("land", "rtl")
-_ZENOH_MODES = ("peer", "client", "router")
-_TLS_KEYS = ("root_ca_certificate", "listen_certificate", "listen_private_key",
-             "connect_certificate", "connect_private_key")
 
 
 class PlanError(ValueError):
@@ -145,31 +143,6 @@ class GeofencePlan:
 
 
 @dataclass(frozen=True)
-class ZenohPlan:
-    """zenoh session: mode, explicit endpoints, optional TLS file paths."""
-
-    mode: str = "peer"
-    listen: tuple[str, ...] = ()
-    connect: tuple[str, ...] = ()
-    tls: dict = field(default_factory=dict)
-
-    def to_config(self):
-        """A ``zenoh.Config`` with explicit endpoints and multicast scouting off."""
-        import json
-
-        import zenoh
-
-        conf = zenoh.Config()
-        conf.insert_json5("mode", json.dumps(self.mode))
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
-        conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
-        for key, path in self.tls.items():
-            conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(path)))
-        return conf
-
-
-@dataclass(frozen=True)
 class FaultsPlan:
     """Vehicle-loss handling (``[faults]``): see ``docs/faults.md``.
 
@@ -177,8 +150,8 @@ class FaultsPlan:
     ----------
     readmit : bool
         A lost vehicle whose link comes back is kept out and commanded to land / RTL per
-        ``return`` (False, the default and the only value the parser accepts for now; True,
-        rejoining the formation, is reserved).
+        ``return`` (False, the default); True: re-admitted into the formation if it comes back
+        during the seek, armed and airborne (``mission.rejoin``).
     link_timeout_s : float
         A vehicle silent for this long (mission clock) is lost (default 1.0; detection within
         ``link_timeout_s`` + 0.1 s).
@@ -296,7 +269,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     )
     geofence = _parse_geofence(c, doc, origin)
     faults = _parse_faults(c, doc)
-    zen = _parse_zenoh(c, doc, Path(base_dir) if base_dir is not None else None)
+    zen = parse_zenoh(c, doc, Path(base_dir) if base_dir is not None else None)
     security = _parse_security(c, doc, Path(base_dir) if base_dir is not None else None)
     if formation is not None and vehicles:
         n = len(vehicles)
@@ -330,9 +303,6 @@ def _parse_faults(c: Checker, doc: dict) -> FaultsPlan:
     if not isinstance(readmit, bool):
         c.bad("faults.readmit", f"must be true or false, got {show_value(readmit)}")
         readmit = False
-    elif readmit:
-        c.bad("faults.readmit", "true is not supported yet: a vehicle that comes back is kept out of "
-              "the formation and landed (or RTL); use false (docs/faults.md)")
     timeout = c.number(t, "link_timeout_s", "faults", 1.0, low=0.2, high=1.4)
     return FaultsPlan(readmit=readmit, link_timeout_s=1.0 if timeout is None else timeout)
 
@@ -464,39 +434,6 @@ def _parse_geofence(c: Checker, doc: dict, origin) -> GeofencePlan | None:
     if lo is None or hi is None:
         return None
     return GeofencePlan(polygon_en_m=tuple(polygon), min_alt_m=lo, max_alt_m=hi)
-
-
-def _parse_zenoh(c: Checker, doc: dict, base_dir: Path | None) -> ZenohPlan:
-    t = c.table(doc, "zenoh")
-    p = "zenoh"
-    c.unknown(t, ("mode", "listen", "connect", "tls"), p)
-    mode = c.string(t, "mode", p, "peer", choices=_ZENOH_MODES)
-    listen = c.strings(t, "listen", p)
-    connect = c.strings(t, "connect", p)
-    if "listen" in t or "connect" in t:
-        if not listen and not connect:
-            c.bad(p, "give at least one listen or connect endpoint (multicast scouting is off)")
-    for j, ep in enumerate(listen + connect):
-        if "/" not in ep:
-            c.bad(f"{p}.{'listen' if j < len(listen) else 'connect'}",
-                  f"endpoint {ep!r} must look like tcp/HOST:PORT or tls/HOST:PORT")
-    tls_t = c.table(t, "tls", p)
-    c.unknown(tls_t, _TLS_KEYS, f"{p}.tls")
-    tls: dict[str, str] = {}
-    for key in _TLS_KEYS:
-        if key not in tls_t:
-            continue
-        v = c.string(tls_t, key, f"{p}.tls")
-        if v is None:
-            continue
-        fp = Path(v)
-        if not fp.is_absolute() and base_dir is not None:
-            fp = base_dir / fp
-        if not fp.is_file():
-            c.bad(f"{p}.tls.{key}", f"file not found: {fp}")
-            continue
-        tls[key] = str(fp)
-    return ZenohPlan(mode=mode or "peer", listen=listen, connect=connect, tls=tls)
 
 
 def _parse_security(c: Checker, doc: dict, base_dir: Path | None) -> SigningConfig | None:

@@ -59,11 +59,14 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     at the geofence for a whole convergence window: the source is probably outside),
     ``too_few_vehicles`` (vehicles were lost and fewer than 4 are left: the caller brings the
     others home). After a loss the formation is re-formed for the survivors
-    (:func:`mission.loss.reform`) before the next iteration.
+    (:func:`mission.loss.reform`) before the next iteration; a returning vehicle is re-admitted
+    (``[faults] readmit = true``, :func:`mission.rejoin.readmit`); every iteration's slots are
+    rotated clear of lost vehicles still flying (:func:`mission.rejoin.clear_goals`).
     """
     from estimator import ConvergenceMonitor, GeometryError, seek_step
 
     from mission.loss import reform
+    from mission.rejoin import clear_goals, pending_readmissions, readmit
     from mission.phases import move_and_wait
 
     co.set_phase("seek")
@@ -98,6 +101,11 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
             if co.formation_kind == "cvt" and est_kind == "symmetric":
                 est_kind = "cvt"
             estimate = make_estimator(est_kind, len(sysids))
+        returning = pending_readmissions(co)
+        if returning:
+            sysids = await readmit(co, centre, sysids, returning)
+            estimate = make_estimator(est_kind, len(sysids))
+        clear_goals(co, centre, sysids)  # a few ms at most: slots clear of lost vehicles still flying
         goals = {s: centre + co.slot_offsets[s] for s in sysids}
         try:
             await move_and_wait(co, goals, sk.arrival_tol_m,

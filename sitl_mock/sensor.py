@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import json
 import math
-from typing import TYPE_CHECKING, Iterable
+from pathlib import Path
+from typing import TYPE_CHECKING, Iterable, Mapping
 
 import numpy as np
 
@@ -33,6 +34,8 @@ __all__ = [
 
 SENSOR_SCHEMA = "swarmseek.sensor.v1"
 SENSOR_ENCODING = "application/json"
+_TLS_FILE_KEYS = ("root_ca_certificate", "listen_certificate", "listen_private_key",
+                  "connect_certificate", "connect_private_key")
 _ZENOH_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream")
 
 
@@ -187,18 +190,32 @@ def _endpoints(value, what: str) -> list[str]:
 
 
 def zenoh_config(listen: str | Iterable[str] | None = None,
-                 connect: str | Iterable[str] | None = None) -> "zenoh.Config":
+                 connect: str | Iterable[str] | None = None, *,
+                 tls: Mapping[str, str] | None = None, enable_mtls: bool = False,
+                 username: str | None = None, password: str | None = None,
+                 dictionary_file: str | None = None) -> "zenoh.Config":
     """A peer-mode zenoh configuration with explicit endpoints and multicast scouting off.
 
     Parameters
     ----------
     listen, connect : str or iterable of str or None
-        Endpoints such as ``tcp/127.0.0.1:7447``. At least one of the two must be given.
+        Endpoints such as ``tcp/127.0.0.1:7447`` or ``tls/127.0.0.1:7447``. At least one of
+        the two must be given.
+    tls : mapping, optional
+        ``transport/link/tls`` file paths: ``root_ca_certificate``, ``listen_certificate``,
+        ``listen_private_key``, ``connect_certificate``, ``connect_private_key``.
+    enable_mtls : bool
+        Mutual TLS (present and require certificates).
+    username, password : str, optional
+        zenoh user/password authentication (``transport/auth/usrpwd``); both or neither.
+    dictionary_file : str, optional
+        ``user:password`` lines of the peers this session accepts.
 
     Raises
     ------
     ValueError
-        If no endpoint is given or an endpoint is malformed.
+        If no endpoint is given, an endpoint is malformed, a TLS key is unknown, a TLS file is
+        missing, or only one of username/password is given.
     """
     import zenoh
 
@@ -211,6 +228,25 @@ def zenoh_config(listen: str | Iterable[str] | None = None,
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("listen/endpoints", json.dumps(listen_eps))
     conf.insert_json5("connect/endpoints", json.dumps(connect_eps))
+    for key, path in (tls or {}).items():
+        if key not in _TLS_FILE_KEYS:
+            raise ValueError(f"unknown zenoh TLS key {key!r} (allowed: {', '.join(_TLS_FILE_KEYS)})")
+        if not Path(path).is_file():
+            raise ValueError(f"zenoh TLS {key}: file not found: {path}")
+        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(path)))
+    if enable_mtls:
+        conf.insert_json5("transport/link/tls/enable_mtls", "true")
+    if (username is None) != (password is None):
+        raise ValueError("zenoh authentication needs both username and password")
+    usrpwd = {}
+    if username is not None:
+        usrpwd.update(user=str(username), password=str(password))
+    if dictionary_file is not None:
+        if not Path(dictionary_file).is_file():
+            raise ValueError(f"zenoh dictionary_file not found: {dictionary_file}")
+        usrpwd["dictionary_file"] = str(dictionary_file)
+    if usrpwd:
+        conf.insert_json5("transport/auth/usrpwd", json.dumps(usrpwd))
     return conf
 
 

@@ -227,7 +227,6 @@ def test_symmetric_loss_switches_to_cvt_and_converges(tmp_path):
 
 @pytest.mark.parametrize("faults, problem", [
     ({"readmit": "yes"}, "faults.readmit: must be true or false"),
-    ({"readmit": True}, "faults.readmit: true is not supported yet"),
     ({"link_timeout_s": 3.0}, "faults.link_timeout_s: must be <= 1.4"),
     ({"retries": 2}, "faults.retries"),
 ])
@@ -239,6 +238,7 @@ def test_plan_faults_section_is_checked(faults, problem):
 
     doc = tomllib.loads((Path(__file__).parents[1] / "mission/examples/sitl_plan.toml").read_text())
     assert parse_plan(doc).faults.readmit is False          # default: kept out
+    assert parse_plan({**doc, "faults": {"readmit": True}}).faults.readmit is True
     doc["faults"] = faults
     with pytest.raises(PlanError, match=problem):
         parse_plan(doc)
