@@ -344,6 +344,9 @@ async def readmit(co, centre_enu, sysids: list[int], returning: list[int]) -> li
     if len(obs):
         new, _ = clear_offsets(new, centre, obs, plan.min_separation_m + OBSTACLE_MARGIN_M,
                                allow_tilt=kind == "cvt")
+    if kind != co.formation_kind:
+        co.event(f"{len(everyone)} vehicles: the symmetric formation needs an even number; switching to "
+                 "the CVT formation (and the Theorem 2 estimator)", level="warning")
     co.formation_kind = kind
     await transfer_to(co, everyone, new, centre, f"re-forming for {len(everyone)} vehicles ({kind}), "
                       f"re-admitting {joined}", lost_here=[])

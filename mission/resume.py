@@ -155,6 +155,10 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
             slots.update({int(k): np.asarray(v, dtype=float) for k, v in r["slots"].items()})
         elif msg.startswith("vehicle ") and " lost:" in msg and "sysid" in r:
             lost.append(int(r["sysid"]))
+        elif msg.startswith("vehicle ") and " re-admitted" in msg and "sysid" in r:
+            lost = [s for s in lost if s != int(r["sysid"])]
+        elif msg.startswith("formation rotated") and "slots" in r:
+            slots.update({int(k): np.asarray(v, dtype=float) for k, v in r["slots"].items()})
         elif "switching to the CVT formation" in msg:
             kind = "cvt"
         elif msg == "embedded mock fleet":

@@ -104,6 +104,8 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
         returning = pending_readmissions(co)
         if returning:
             sysids = await readmit(co, centre, sysids, returning)
+            if co.formation_kind == "cvt" and est_kind == "symmetric":
+                est_kind = "cvt"
             estimate = make_estimator(est_kind, len(sysids))
         clear_goals(co, centre, sysids)  # a few ms at most: slots clear of lost vehicles still flying
         goals = {s: centre + co.slot_offsets[s] for s in sysids}
