@@ -95,6 +95,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``mock`` command's arguments to ``parser``."""
     from sitl_mock.ap_modes import PERSONALITY_NAMES
     from sitl_mock.fields import FIELD_NAMES
+    from sitl_mock.zenoh_flags import add_arguments as add_zenoh_security_arguments
 
     parser.add_argument("--vehicles", type=_vehicles, default=4, help="number of vehicles (sysid 1..N)")
     parser.add_argument("--personality", choices=PERSONALITY_NAMES, default="px4")
@@ -116,6 +117,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
     parser.add_argument("--zenoh-connect", type=_endpoint, action="append", default=[], metavar="ENDPOINT",
                         help="zenoh connect endpoint (repeatable)")
+    add_zenoh_security_arguments(parser)
     parser.add_argument("--noise", type=_nonnegative, default=0.0, help="sensor noise standard deviation")
     parser.add_argument("--fault", type=_fault, action="append", default=[], metavar="SYSID:NAME=VALUE",
                         help="inject a fault, e.g. 2:loss_uplink=0.2 (repeatable)")
@@ -133,12 +135,18 @@ def main(args: argparse.Namespace) -> int:
     from sitl_mock.fields import make_field
     from sitl_mock.fleet import DEFAULT_ORIGIN, MockFleet
     from sitl_mock.transport import PortInUseError
+    from sitl_mock.zenoh_flags import ZenohFlagError, security_kwargs
 
     for sysid, _name, _value in args.fault:
         if sysid > args.vehicles:
             print(f"swarmseek mock: error: --fault for sysid {sysid} but only {args.vehicles} vehicles",
                   file=sys.stderr)
             return 2
+    try:
+        zenoh_security = security_kwargs(args)
+    except ZenohFlagError as exc:
+        print(f"swarmseek mock: error: {exc}", file=sys.stderr)
+        return 2
     signing_key = None
     if args.signing_key_file is not None:
         try:
@@ -153,7 +161,7 @@ def main(args: argparse.Namespace) -> int:
             udp_base_port=args.udp_base_port, udp_bind_base_port=args.udp_bind_base_port,
             tcp_base_port=args.tcp_base_port, fleet_name=args.fleet, sensor_noise_std=args.noise,
             zenoh_listen=args.zenoh_listen or None, zenoh_connect=args.zenoh_connect or None,
-            signing_key=signing_key)
+            signing_key=signing_key, zenoh_security=zenoh_security)
         for sysid, name, value in args.fault:
             fleet.set_fault(sysid, name, value)
     except ValueError as exc:
@@ -171,7 +179,9 @@ def main(args: argparse.Namespace) -> int:
     try:
         print(f"mock fleet {args.fleet!r}: {args.vehicles} x {args.personality}, "
               f"speedup {args.speedup:g}, origin {fleet.origin}, "
-              f"signing {'on' if signing_key is not None else 'off'}", flush=True)
+              f"signing {'on' if signing_key is not None else 'off'}, "
+              f"zenoh tls {'on' if 'tls' in zenoh_security else 'off'}, "
+              f"zenoh login {'on' if 'username' in zenoh_security else 'off'}", flush=True)
         for v in fleet.vehicles:
             udp = (f"udp listen 127.0.0.1:{v.udp_bind_port} -> 127.0.0.1:{v.udp_send_port}"
                    if v.udp_bind_port else "udp off")

@@ -34,6 +34,7 @@ _HOME_SPACING_M = 5.0
 _MAX_CATCHUP_STEPS = 25
 _LOCKSTEP_POLL_S = 0.002
 _MAX_ERRORS_KEPT = 20
+_ZENOH_SECURITY_KEYS = frozenset({"tls", "enable_mtls", "username", "password", "dictionary_file"})
 
 
 def default_home_offsets(n: int, spacing_m: float = _HOME_SPACING_M) -> np.ndarray:
@@ -176,6 +177,11 @@ class MockFleet:
         they need a ``field``).
     zenoh : bool
         False disables zenoh even if endpoints are given.
+    zenoh_security : dict, optional
+        TLS / login keywords of :func:`sitl_mock.sensor.zenoh_config` for the fleet's session:
+        ``tls`` (mapping of ``transport/link/tls`` file keys), ``enable_mtls``, ``username``,
+        ``password``, ``dictionary_file`` (as built by
+        :func:`sitl_mock.zenoh_flags.security_kwargs`).
     dynamics : DynamicsParams
         Dynamics of every vehicle (copied per vehicle: parameters can then differ).
     params : dict or list of dict, optional
@@ -192,7 +198,7 @@ class MockFleet:
                  tcp_base_port: int = 5760, fleet_name: str = "swarmseek",
                  sensor_noise_std=0.0, sensor_rate_hz: float = 10.0, zenoh_listen=None,
                  zenoh_connect=None, zenoh: bool = True, dynamics: DynamicsParams | None = None,
-                 params=None, signing_key: bytes | None = None):
+                 params=None, signing_key: bytes | None = None, zenoh_security: dict | None = None):
         n = int(n)
         if not 1 <= n <= 255:
             raise ValueError(f"n must be 1..255 vehicles, got {n}")
@@ -223,6 +229,11 @@ class MockFleet:
         self._zenoh_listen = zenoh_listen
         self._zenoh_connect = zenoh_connect
         self._zenoh_enabled = bool(zenoh) and bool(zenoh_listen or zenoh_connect)
+        self._zenoh_security = dict(zenoh_security or {})
+        unknown = set(self._zenoh_security) - _ZENOH_SECURITY_KEYS
+        if unknown:
+            raise ValueError(f"unknown zenoh_security keys {sorted(unknown)} "
+                             f"(allowed: {', '.join(sorted(_ZENOH_SECURITY_KEYS))})")
         if self._zenoh_enabled and field is None:
             raise ValueError("zenoh endpoints given but no field: the sensors would have nothing "
                              "to publish (pass field=..., or zenoh=False)")
@@ -272,7 +283,8 @@ class MockFleet:
                 import zenoh
 
                 from sitl_mock.sensor import SensorPublisher, zenoh_config
-                self._session = zenoh.open(zenoh_config(self._zenoh_listen, self._zenoh_connect))
+                self._session = zenoh.open(zenoh_config(self._zenoh_listen, self._zenoh_connect,
+                                                        **self._zenoh_security))
                 self._publisher = SensorPublisher(self._session, self.fleet_name,
                                                   [v.sysid for v in self.vehicles])
         except BaseException:

@@ -22,6 +22,8 @@ from formation.geodesy import geodetic_to_enu
 from sitl_mock.faults import FaultSet
 from sitl_mock.fields import FIELD_NAMES, make_field
 from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key, zenoh_config
+from sitl_mock.zenoh_flags import ZenohFlagError, security_kwargs
+from sitl_mock.zenoh_flags import add_arguments as _add_zenoh_security_arguments
 
 __all__ = ["VirtualSensorError", "configure", "main", "run"]
 
@@ -160,6 +162,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
     parser.add_argument("--zenoh-connect", type=_endpoint_arg, action="append", default=[], metavar="ENDPOINT",
                         help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    _add_zenoh_security_arguments(parser)
     parser.add_argument("--count", type=_positive_int, default=None, metavar="N", help="stop after N readings")
     parser.add_argument("--duration", type=_positive_float, default=None, metavar="S", help="stop after S seconds")
     parser.add_argument("--timeout", type=_positive_float, default=30.0, metavar="S",
@@ -230,13 +233,18 @@ def _request_position_rate(conn, sysid: int, compid: int, rate_hz: float) -> Non
 
 
 # ----------------------------------------------------------------------------- main loop
-def _open_zenoh(listen, connect):
+def _open_zenoh(args):
     try:
         import zenoh
     except ImportError as exc:
         raise VirtualSensorError(f"zenoh is not installed: {exc}") from None
     try:
-        return zenoh.open(zenoh_config(listen=listen or None, connect=connect or None))
+        conf = zenoh_config(listen=args.zenoh_listen or None, connect=args.zenoh_connect or None,
+                            **security_kwargs(args))
+    except ValueError as exc:  # ZenohFlagError, or a TLS file that vanished
+        raise VirtualSensorError(f"bad zenoh settings: {exc}") from None
+    try:
+        return zenoh.open(conf)
     except Exception as exc:  # zenoh.ZError and friends: bad or busy endpoint
         raise VirtualSensorError(f"cannot open the zenoh session: {exc}") from None
 
@@ -260,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         hb = _wait_heartbeat(conn, args.sysid, args.timeout)
         sysid, compid = hb.get_srcSystem(), hb.get_srcComponent()
-        session = _open_zenoh(args.zenoh_listen, args.zenoh_connect)
+        session = _open_zenoh(args)
         publisher = SensorPublisher(session, args.fleet, [sysid])
         sensor = SignalSensor(field, args.noise, np.random.default_rng(args.seed), FaultSet(), args.fleet, sysid)
         _log(args, f"autopilot sysid {sysid} on {args.connect}; publishing {sensor_key(args.fleet, sysid)} "
@@ -310,7 +318,9 @@ def _loop(args, conn, publisher, sensor, sysid, compid) -> int:
             continue  # the autopilot streams faster than asked: keep our rate
         if not waited:
             waited = True
-            _wait_for_subscriber(publisher, sysid, args.wait_subscriber)
+            if not _wait_for_subscriber(publisher, sysid, args.wait_subscriber) and args.wait_subscriber > 0:
+                _log(args, f"no zenoh subscriber matched within {args.wait_subscriber:g} s (coordinator not up, "
+                           "or its TLS / login refused us?); publishing anyway")
         lat, lon, alt = msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3
         enu = geodetic_to_enu(lat, lon, alt, args.origin)
         publisher.publish(sensor.sample(time.time(), enu, lat, lon, alt))
@@ -320,18 +330,24 @@ def _loop(args, conn, publisher, sensor, sysid, compid) -> int:
     return sent
 
 
-def _wait_for_subscriber(publisher, sysid: int, timeout_s: float) -> None:
+def _wait_for_subscriber(publisher, sysid: int, timeout_s: float) -> bool:
     deadline = time.monotonic() + timeout_s
     while not publisher.has_subscribers(sysid) and time.monotonic() < deadline:
         time.sleep(0.02)
+    return publisher.has_subscribers(sysid)
 
 
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``swarmseek sensor``: 0 on success, 1 with a one-line message on failure,
-    2 when no zenoh endpoint was given."""
+    2 when no zenoh endpoint was given or the zenoh TLS / login flags do not fit together."""
     if not args.zenoh_listen and not args.zenoh_connect:
         print("swarmseek sensor: error: give --zenoh-listen and/or --zenoh-connect "
               "(zenoh endpoints are always explicit)", file=sys.stderr)
+        return 2
+    try:
+        security_kwargs(args)
+    except ZenohFlagError as exc:
+        print(f"swarmseek sensor: error: {exc}", file=sys.stderr)
         return 2
     try:
         run(args)

@@ -1,0 +1,143 @@
+"""zenoh TLS and login flags shared by ``swarmseek sensor`` and ``swarmseek mock``.
+
+``--zenoh-tls-ca``, ``--zenoh-tls-cert``, ``--zenoh-tls-key``, ``--zenoh-mtls``, ``--zenoh-user``
+and ``--zenoh-password-file`` (the password is never on the command line; a world-readable
+password file is refused). :func:`security_kwargs` checks the combination against the endpoints
+and returns the keyword arguments of :func:`sitl_mock.sensor.zenoh_config`: the certificate and
+key become ``listen_*`` for ``tls/`` listen endpoints and ``connect_*`` for ``tls/`` connect
+endpoints. ``sitl_mock`` does not import ``mission``, hence its own small password reader.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import stat
+from pathlib import Path
+
+__all__ = ["ZenohFlagError", "add_arguments", "read_password_file", "security_kwargs"]
+
+
+class ZenohFlagError(ValueError):
+    """The zenoh security flags are inconsistent or a secret file is unusable."""
+
+
+def _existing_file(text: str) -> str:
+    if not Path(text).is_file():
+        raise argparse.ArgumentTypeError(f"file not found: {text}")
+    return text
+
+
+def read_password_file(path: str | Path) -> str:
+    """The password on the first line of ``path`` (trailing newline stripped).
+
+    Parameters
+    ----------
+    path : str or Path
+        A file readable by its owner only (not world-readable).
+
+    Returns
+    -------
+    str
+        The password.
+
+    Raises
+    ------
+    ZenohFlagError
+        The file is missing, world-readable, unreadable, not UTF-8, or its first line is empty.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ZenohFlagError(f"password file not found: {p}")
+    if os.name == "posix" and p.stat().st_mode & stat.S_IROTH:
+        raise ZenohFlagError(f"password file {p} is world-readable; run chmod 600 {p}")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ZenohFlagError(f"cannot read password file {p}: {exc}") from None
+    lines = text.splitlines()
+    if not lines or not lines[0]:
+        raise ZenohFlagError(f"password file {p}: the first line (the password) is empty")
+    return lines[0]
+
+
+def _password_file_arg(text: str) -> str:
+    try:
+        read_password_file(text)  # check now (argparse error); read again when used
+    except ZenohFlagError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the zenoh TLS / login flags to ``parser`` (next to ``--zenoh-listen/--zenoh-connect``)."""
+    parser.add_argument("--zenoh-tls-ca", type=_existing_file, default=None, metavar="PATH",
+                        help="CA certificate (PEM) that signed the peers' TLS certificates")
+    parser.add_argument("--zenoh-tls-cert", type=_existing_file, default=None, metavar="PATH",
+                        help="this session's TLS certificate (PEM), used on tls/ endpoints")
+    parser.add_argument("--zenoh-tls-key", type=_existing_file, default=None, metavar="PATH",
+                        help="private key (PEM) of --zenoh-tls-cert")
+    parser.add_argument("--zenoh-mtls", action="store_true",
+                        help="mutual TLS: present the certificate and require the peer's")
+    parser.add_argument("--zenoh-user", default=None, metavar="NAME",
+                        help="zenoh user name (with --zenoh-password-file)")
+    parser.add_argument("--zenoh-password-file", type=_password_file_arg, default=None, metavar="PATH",
+                        help="file whose first line is the zenoh password (not world-readable)")
+
+
+def _is_tls(endpoint: str) -> bool:
+    return endpoint.startswith(("tls/", "quic/"))
+
+
+def security_kwargs(args: argparse.Namespace) -> dict:
+    """Check the zenoh security flags and return the matching ``zenoh_config`` keywords.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed flags of :func:`add_arguments` plus ``zenoh_listen`` and ``zenoh_connect``.
+
+    Returns
+    -------
+    dict
+        Some of ``tls`` (mapping of ``transport/link/tls`` file keys), ``enable_mtls``,
+        ``username`` and ``password``; empty when no security flag was given.
+
+    Raises
+    ------
+    ZenohFlagError
+        A certificate without its key (or the reverse), TLS flags without a ``tls/`` endpoint,
+        a ``tls/`` listen endpoint without certificate, ``--zenoh-mtls`` without CA, certificate
+        and key, a user without a password file (or the reverse), or an unusable password file.
+    """
+    listen_tls = any(_is_tls(ep) for ep in args.zenoh_listen or ())
+    connect_tls = any(_is_tls(ep) for ep in args.zenoh_connect or ())
+    ca, cert, key = args.zenoh_tls_ca, args.zenoh_tls_cert, args.zenoh_tls_key
+    if (cert is None) != (key is None):
+        raise ZenohFlagError("--zenoh-tls-cert and --zenoh-tls-key go together (a certificate needs its key)")
+    if (ca or cert or args.zenoh_mtls) and not (listen_tls or connect_tls):
+        raise ZenohFlagError("zenoh TLS flags given but no tls/ endpoint "
+                             "(use e.g. --zenoh-connect tls/127.0.0.1:7447)")
+    if listen_tls and cert is None:
+        raise ZenohFlagError("a tls/ listen endpoint needs --zenoh-tls-cert and --zenoh-tls-key")
+    if args.zenoh_mtls and (ca is None or cert is None):
+        raise ZenohFlagError("--zenoh-mtls needs --zenoh-tls-ca, --zenoh-tls-cert and --zenoh-tls-key")
+    out: dict = {}
+    tls: dict = {}
+    if ca is not None:
+        tls["root_ca_certificate"] = ca
+    if cert is not None:
+        for side, used in (("listen", listen_tls), ("connect", connect_tls)):
+            if used:
+                tls[f"{side}_certificate"], tls[f"{side}_private_key"] = cert, key
+    if tls:
+        out["tls"] = tls
+    if args.zenoh_mtls:
+        out["enable_mtls"] = True
+    if (args.zenoh_user is None) != (args.zenoh_password_file is None):
+        raise ZenohFlagError("--zenoh-user and --zenoh-password-file go together")
+    if args.zenoh_user is not None:
+        if not args.zenoh_user or ":" in args.zenoh_user:
+            raise ZenohFlagError(f"--zenoh-user must be a non-empty name without ':', got {args.zenoh_user!r}")
+        out["username"] = args.zenoh_user
+        out["password"] = read_password_file(args.zenoh_password_file)
+    return out
