@@ -6,22 +6,18 @@ project's mock autopilot) only when the sensor's certificate / password is the r
 """
 from __future__ import annotations
 
-import datetime
-import ipaddress
 import os
 import socket
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
 import zenoh  # noqa: E402  (a project dependency)
-from cryptography import x509  # noqa: E402  (in the [test] extra: the tests make their own CA)
 
-from cryptography.hazmat.primitives import hashes, serialization  # noqa: E402
+from cryptography.hazmat.primitives import serialization  # noqa: E402  ([test] extra)
 from cryptography.hazmat.primitives.asymmetric import ec  # noqa: E402
-from cryptography.x509.oid import NameOID  # noqa: E402
+from tls_helpers import make_cert, write_private  # noqa: E402
 
 from mission.cli import main as swarmseek  # noqa: E402
 from mission.clock import WallClock  # noqa: E402
@@ -37,35 +33,6 @@ REFUSED_WAIT_S = "1"  # --wait-subscriber when no subscriber can ever match
 
 
 # --------------------------------------------------------------------------- certificates
-def _name(cn: str):
-    return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)])
-
-
-def _cert(subject_cn: str, key, issuer_cn: str, issuer_key, *, ca: bool):
-    now = datetime.datetime.now(datetime.timezone.utc)
-    builder = (x509.CertificateBuilder().subject_name(_name(subject_cn)).issuer_name(_name(issuer_cn))
-               .public_key(key.public_key()).serial_number(x509.random_serial_number())
-               .not_valid_before(now - datetime.timedelta(days=1))
-               .not_valid_after(now + datetime.timedelta(days=2))
-               .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True))
-    if ca:
-        builder = builder.add_extension(x509.KeyUsage(
-            digital_signature=True, key_cert_sign=True, crl_sign=True, content_commitment=False,
-            key_encipherment=False, data_encipherment=False, key_agreement=False,
-            encipher_only=False, decipher_only=False), critical=True)
-    else:
-        builder = builder.add_extension(x509.SubjectAlternativeName(
-            [x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]),
-            critical=False)
-    return builder.sign(issuer_key, hashes.SHA256())
-
-
-def _write_private(path: Path, data: bytes) -> str:
-    path.write_bytes(data)
-    os.chmod(path, 0o600)
-    return str(path)
-
-
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory) -> dict:
     """Two CAs; leaf certificates ``(pem, key)`` per subject; ``rogue`` is signed by ``other_ca``."""
@@ -76,13 +43,13 @@ def pki(tmp_path_factory) -> dict:
         key = ec.generate_private_key(ec.SECP256R1())
         cas[ca_name] = key
         (out / f"{ca_name}.pem").write_bytes(
-            _cert(ca_name, key, ca_name, key, ca=True).public_bytes(serialization.Encoding.PEM))
+            make_cert(ca_name, key, ca_name, key, ca=True).public_bytes(serialization.Encoding.PEM))
         files[ca_name] = str(out / f"{ca_name}.pem")
     for stem, ca_name in (("coordinator", "ca"), ("vehicle1", "ca"), ("rogue", "other_ca")):
         key = ec.generate_private_key(ec.SECP256R1())
         (out / f"{stem}.pem").write_bytes(
-            _cert(stem, key, ca_name, cas[ca_name], ca=False).public_bytes(serialization.Encoding.PEM))
-        files[stem] = (str(out / f"{stem}.pem"), _write_private(out / f"{stem}.key", key.private_bytes(
+            make_cert(stem, key, ca_name, cas[ca_name], ca=False).public_bytes(serialization.Encoding.PEM))
+        files[stem] = (str(out / f"{stem}.pem"), write_private(out / f"{stem}.key", key.private_bytes(
             serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())))
     return files
 
@@ -193,9 +160,9 @@ def test_sensor_delivers_over_mutual_tls_only_with_the_right_ca(pki, coordinator
 def test_sensor_delivers_with_user_password_only_when_right(tmp_path, coordinator, autopilot, password,
                                                             delivered, capsys):
     port = _free_port()
-    users = _write_private(tmp_path / "users.txt", b"sensor1:s3cret\n")
+    users = write_private(tmp_path / "users.txt", b"sensor1:s3cret\n")
     coord = coordinator(zenoh_config(listen=f"tcp/127.0.0.1:{port}", dictionary_file=users))
-    pw = _write_private(tmp_path / "sensor.pw", f"{password}\n".encode())
+    pw = write_private(tmp_path / "sensor.pw", f"{password}\n".encode())
     rc = swarmseek(_sensor_argv(autopilot, "--zenoh-connect", f"tcp/127.0.0.1:{port}",
                                 "--zenoh-user", "sensor1", "--zenoh-password-file", pw,
                                 wait_s="20" if delivered else REFUSED_WAIT_S, quiet=delivered))
@@ -255,7 +222,7 @@ def _bad_flag_cases(pki, tmp_path) -> list:
     world = tmp_path / "world.pw"
     world.write_text("pw\n")
     os.chmod(world, 0o644)
-    empty = _write_private(tmp_path / "empty.pw", b"\n")
+    empty = write_private(tmp_path / "empty.pw", b"\n")
     tls = ["--zenoh-connect", "tls/127.0.0.1:7447"]
     return [
         (tls + ["--zenoh-tls-ca", str(tmp_path / "missing.pem")], "file not found"),
@@ -285,7 +252,7 @@ def test_bad_security_flags_exit_2_with_a_clear_message(pki, tmp_path, command, 
 
 
 def test_user_name_with_colon_is_refused(tmp_path, capsys):
-    pw = _write_private(tmp_path / "ok.pw", b"secret\n")
+    pw = write_private(tmp_path / "ok.pw", b"secret\n")
     argv = _sensor_argv("tcp:127.0.0.1:9", "--zenoh-connect", "tcp/127.0.0.1:7447",
                         "--zenoh-user", "a:b", "--zenoh-password-file", pw)
     assert _exit_code(argv) == 2
@@ -294,7 +261,7 @@ def test_user_name_with_colon_is_refused(tmp_path, capsys):
 
 @pytest.mark.parametrize("content, expected", [(b"pw\n", "pw"), (b"p w:x\nignored\n", "p w:x"), (b"solo", "solo")])
 def test_read_password_file_takes_the_first_line(tmp_path, content, expected):
-    assert read_password_file(_write_private(tmp_path / "p", content)) == expected
+    assert read_password_file(write_private(tmp_path / "p", content)) == expected
 
 
 def test_read_password_file_refuses_a_world_readable_file(tmp_path):

@@ -6,8 +6,6 @@ Validation errors are reported with their dotted keys, all at once; then real ze
 """
 from __future__ import annotations
 
-import datetime
-import ipaddress
 import json
 import os
 import socket
@@ -25,11 +23,10 @@ from mission.zenoh_security import ZenohSecurityError, acl_config, read_password
 from sitl_mock.sensor import zenoh_config
 
 import zenoh  # noqa: E402  (a project dependency)
-from cryptography import x509  # noqa: E402  (in the [test] extra: the tests make their own CA)
 
-from cryptography.hazmat.primitives import hashes, serialization  # noqa: E402
+from cryptography.hazmat.primitives import serialization  # noqa: E402  ([test] extra)
 from cryptography.hazmat.primitives.asymmetric import ec  # noqa: E402
-from cryptography.x509.oid import NameOID  # noqa: E402
+from tls_helpers import make_cert, write_private  # noqa: E402
 
 SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
 DELIVER_TIMEOUT_S = 20.0
@@ -37,35 +34,6 @@ REFUSED_WINDOW_S = 2.0
 
 
 # --------------------------------------------------------------------------- certificates
-def _name(cn: str):
-    return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)])
-
-
-def _cert(subject_cn: str, key, issuer_cn: str, issuer_key, *, ca: bool):
-    now = datetime.datetime.now(datetime.timezone.utc)
-    builder = (x509.CertificateBuilder().subject_name(_name(subject_cn)).issuer_name(_name(issuer_cn))
-               .public_key(key.public_key()).serial_number(x509.random_serial_number())
-               .not_valid_before(now - datetime.timedelta(days=1))
-               .not_valid_after(now + datetime.timedelta(days=2))
-               .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True))
-    if ca:
-        builder = builder.add_extension(x509.KeyUsage(
-            digital_signature=True, key_cert_sign=True, crl_sign=True, content_commitment=False,
-            key_encipherment=False, data_encipherment=False, key_agreement=False,
-            encipher_only=False, decipher_only=False), critical=True)
-    else:
-        builder = builder.add_extension(x509.SubjectAlternativeName(
-            [x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]),
-            critical=False)
-    return builder.sign(issuer_key, hashes.SHA256())
-
-
-def _write_private(path: Path, data: bytes) -> str:
-    path.write_bytes(data)
-    os.chmod(path, 0o600)
-    return str(path)
-
-
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory) -> dict:
     """Two CAs; leaf certificates (ECDSA P-256) ``<name>.pem`` / ``<name>.key`` per subject."""
@@ -76,15 +44,15 @@ def pki(tmp_path_factory) -> dict:
         key = ec.generate_private_key(ec.SECP256R1())
         cas[ca_name] = (key, ca_name)
         (out / f"{ca_name}.pem").write_bytes(
-            _cert(ca_name, key, ca_name, key, ca=True).public_bytes(serialization.Encoding.PEM))
+            make_cert(ca_name, key, ca_name, key, ca=True).public_bytes(serialization.Encoding.PEM))
         files[ca_name] = str(out / f"{ca_name}.pem")
     for stem, cn, ca_name in (("coordinator", "coordinator", "ca"), ("vehicle1", "vehicle-1", "ca"),
                               ("intruder", "intruder", "ca"), ("rogue", "vehicle-1", "other_ca")):
         key = ec.generate_private_key(ec.SECP256R1())
         ca_key, issuer = cas[ca_name]
         (out / f"{stem}.pem").write_bytes(
-            _cert(cn, key, issuer, ca_key, ca=False).public_bytes(serialization.Encoding.PEM))
-        files[stem] = (str(out / f"{stem}.pem"), _write_private(out / f"{stem}.key", key.private_bytes(
+            make_cert(cn, key, issuer, ca_key, ca=False).public_bytes(serialization.Encoding.PEM))
+        files[stem] = (str(out / f"{stem}.pem"), write_private(out / f"{stem}.key", key.private_bytes(
             serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())))
     files["dir"] = out
     return files
@@ -108,8 +76,8 @@ def _keys(exc: PlanError) -> list[str]:
 
 def _secrets(tmp_path: Path) -> dict:
     """A password file and a user dictionary, mode 600."""
-    return {"password_file": _write_private(tmp_path / "coordinator.pw", b"coord-pass\n"),
-            "dictionary_file": _write_private(
+    return {"password_file": write_private(tmp_path / "coordinator.pw", b"coord-pass\n"),
+            "dictionary_file": write_private(
                 tmp_path / "users.txt", b"sensor1:s3cret\nmonitor1:m0n\ncoordinator:coord-pass\n")}
 
 
@@ -249,7 +217,7 @@ def _world_readable(tmp_path: Path) -> str:
 def test_invalid_security_keys_are_reported_with_their_path(doc, pki, tmp_path, section, value, key, why):
     names = {"OPEN": _world_readable(tmp_path), "PW": _secrets(tmp_path)["password_file"],
              "CERT": pki["coordinator"][0],
-             "BADDICT": _write_private(tmp_path / "bad.txt", b"no-colon-here\n")}
+             "BADDICT": write_private(tmp_path / "bad.txt", b"no-colon-here\n")}
     value = {k: names.get(v, v) if isinstance(v, str) else v for k, v in value.items()}
     if section == "access_control_connect":
         doc["zenoh"] = {"connect": ["tcp/127.0.0.1:7447"], "auth": {"dictionary_file": _secrets(tmp_path)["dictionary_file"]}}
