@@ -6,79 +6,23 @@ Prints one line per vehicle with its system id and ports. Bad flags are argparse
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import threading
+
+from sitl_mock.cli_args import (
+    int_in_range,
+    nonnegative_float,
+    origin_geodetic,
+    positive_float,
+    source_enu,
+    zenoh_endpoint,
+)
 
 __all__ = ["configure", "main"]
 
 
-def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != n or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected {what} ({n} comma-separated finite numbers), got {text!r}")
-    return values
-
-
-def _source(text: str):
-    return _floats(text, 3, "E,N,U")
-
-
-def _origin(text: str):
-    lat, lon, alt = _floats(text, 3, "LAT,LON,ALT")
-    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
-        raise argparse.ArgumentTypeError(f"origin latitude must be in [-90, 90] and longitude in [-180, 180], got {text!r}")
-    return lat, lon, alt
-
-
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
-
-
-def _nonnegative(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return v
-
-
-def _vehicles(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if not 1 <= n <= 255:
-        raise argparse.ArgumentTypeError(f"--vehicles must be 1..255, got {n}")
-    return n
-
-
-def _port(text: str) -> int:
-    try:
-        p = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
-    if not 0 <= p <= 65535:
-        raise argparse.ArgumentTypeError(f"port must be 0..65535 (0 disables), got {p}")
-    return p
-
-
-def _endpoint(text: str) -> str:
-    proto, sep, address = text.partition("/")
-    if not sep or not proto or not address:
-        raise argparse.ArgumentTypeError(f"expected a zenoh endpoint PROTO/ADDRESS, e.g. tcp/127.0.0.1:7447, got {text!r}")
-    return text
+_vehicles = int_in_range(1, 255, "--vehicles")
+_port = int_in_range(0, 65535, "port (0 disables)")
 
 
 def _fault(text: str):
@@ -100,11 +44,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vehicles", type=_vehicles, default=4, help="number of vehicles (sysid 1..N)")
     parser.add_argument("--personality", choices=PERSONALITY_NAMES, default="px4")
     parser.add_argument("--field", choices=FIELD_NAMES, default="sigma1", help="signal field the sensors sample")
-    parser.add_argument("--source", type=_source, default=(0.0, 0.0, 0.0), metavar="E,N,U",
+    parser.add_argument("--source", type=source_enu, default=(0.0, 0.0, 0.0), metavar="E,N,U",
                         help="field source in the mission frame (ENU m)")
-    parser.add_argument("--origin", type=_origin, default=None, metavar="LAT,LON,ALT",
+    parser.add_argument("--origin", type=origin_geodetic, default=None, metavar="LAT,LON,ALT",
                         help="fleet / mission origin")
-    parser.add_argument("--speedup", type=_positive, default=1.0, help="simulated seconds per wall second")
+    parser.add_argument("--speedup", type=positive_float, default=1.0, help="simulated seconds per wall second")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--udp-base-port", type=_port, default=14540,
                         help="vehicle i streams to 127.0.0.1:BASE+i (0 disables UDP)")
@@ -113,19 +57,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tcp-base-port", type=_port, default=5760,
                         help="vehicle i serves TCP on 127.0.0.1:BASE+10*i (0 disables TCP)")
     parser.add_argument("--fleet", default="swarmseek", help="fleet name (zenoh keys)")
-    parser.add_argument("--zenoh-listen", type=_endpoint, action="append", default=[], metavar="ENDPOINT",
+    parser.add_argument("--zenoh-listen", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
                         help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    parser.add_argument("--zenoh-connect", type=_endpoint, action="append", default=[], metavar="ENDPOINT",
+    parser.add_argument("--zenoh-connect", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
                         help="zenoh connect endpoint (repeatable)")
     add_zenoh_security_arguments(parser)
-    parser.add_argument("--noise", type=_nonnegative, default=0.0, help="sensor noise standard deviation")
+    parser.add_argument("--noise", type=nonnegative_float, default=0.0, help="sensor noise standard deviation")
     parser.add_argument("--fault", type=_fault, action="append", default=[], metavar="SYSID:NAME=VALUE",
                         help="inject a fault, e.g. 2:loss_uplink=0.2 (repeatable)")
     parser.add_argument("--signing-key-file", default=None, metavar="PATH",
                         help="MAVLink 2 signing key file (64 hex characters, 32 raw bytes or a "
                              "one-line passphrase, not world-readable): every vehicle signs and "
                              "rejects unsigned or replayed commands")
-    parser.add_argument("--duration", type=_positive, default=None, metavar="S",
+    parser.add_argument("--duration", type=positive_float, default=None, metavar="S",
                         help="stop after S wall seconds (default: until Ctrl-C)")
 
 

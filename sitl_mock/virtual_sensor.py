@@ -19,6 +19,13 @@ import time
 import numpy as np
 
 from formation.geodesy import geodetic_to_enu
+from sitl_mock.cli_args import (
+    nonnegative_float,
+    origin_geodetic,
+    positive_float,
+    source_enu,
+    zenoh_endpoint,
+)
 from sitl_mock.faults import FaultSet
 from sitl_mock.fields import FIELD_NAMES, make_field
 from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key, zenoh_config
@@ -42,49 +49,6 @@ class VirtualSensorError(RuntimeError):
 
 
 # ----------------------------------------------------------------------------- argument types
-def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
-    parts = text.split(",")
-    try:
-        values = tuple(float(p) for p in parts)
-    except ValueError:
-        values = ()
-    if len(values) != n or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected {what} ({n} comma-separated finite numbers), got {text!r}")
-    return values
-
-
-def _source_arg(text: str) -> tuple[float, ...]:
-    return _floats(text, 3, "E,N,U")
-
-
-def _origin_arg(text: str) -> tuple[float, ...]:
-    lat, lon, alt = _floats(text, 3, "LAT,LON,ALT")
-    if not -90.0 <= lat <= 90.0 or not -180.0 <= lon <= 180.0:
-        raise argparse.ArgumentTypeError(
-            f"origin latitude must be in [-90, 90] and longitude in [-180, 180], got {text!r}")
-    return lat, lon, alt
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0.0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
-
-
-def _nonnegative_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(v) and v >= 0.0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return v
-
-
 def _positive_int(text: str) -> int:
     try:
         v = int(text)
@@ -129,45 +93,35 @@ def _connection_arg(text: str) -> str:
     return text  # serial device or another pymavlink form: pymavlink judges it
 
 
-def _endpoint_arg(text: str) -> str:
-    try:
-        zenoh_config(listen=text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    except ImportError:  # zenoh missing: reported when the session is opened
-        pass
-    return text
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``swarmseek sensor`` arguments to ``parser``."""
     parser.add_argument("--connect", required=True, type=_connection_arg, metavar="CONN",
                         help="pymavlink connection to the autopilot, "
                              "e.g. tcp:127.0.0.1:5762 or udpin:0.0.0.0:14550")
     parser.add_argument("--field", required=True, choices=FIELD_NAMES, help="simulated signal field")
-    parser.add_argument("--source", type=_source_arg, default=(0.0, 0.0, 0.0), metavar="E,N,U",
+    parser.add_argument("--source", type=source_enu, default=(0.0, 0.0, 0.0), metavar="E,N,U",
                         help="field source in the field frame, metres (default 0,0,0; "
                              "write --source=-5,2,10 when it starts with a minus)")
-    parser.add_argument("--origin", required=True, type=_origin_arg, metavar="LAT,LON,ALT",
+    parser.add_argument("--origin", required=True, type=origin_geodetic, metavar="LAT,LON,ALT",
                         help="geodetic origin of the field frame (degrees, degrees, metres AMSL)")
-    parser.add_argument("--noise", type=_nonnegative_float, default=0.0, metavar="STD",
+    parser.add_argument("--noise", type=nonnegative_float, default=0.0, metavar="STD",
                         help="standard deviation of the sensor noise, signal units (default 0)")
-    parser.add_argument("--rate", type=_positive_float, default=10.0, metavar="HZ",
+    parser.add_argument("--rate", type=positive_float, default=10.0, metavar="HZ",
                         help="readings per second (default 10)")
     parser.add_argument("--fleet", type=_fleet_arg, default="swarmseek",
                         help="fleet name in the zenoh key (default swarmseek, like swarmseek mock)")
     parser.add_argument("--sysid", type=_sysid_arg, default=None, metavar="N",
                         help="autopilot system id (default: the first autopilot heartbeat's)")
-    parser.add_argument("--zenoh-listen", type=_endpoint_arg, action="append", default=[], metavar="ENDPOINT",
+    parser.add_argument("--zenoh-listen", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
                         help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    parser.add_argument("--zenoh-connect", type=_endpoint_arg, action="append", default=[], metavar="ENDPOINT",
+    parser.add_argument("--zenoh-connect", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
                         help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
     _add_zenoh_security_arguments(parser)
     parser.add_argument("--count", type=_positive_int, default=None, metavar="N", help="stop after N readings")
-    parser.add_argument("--duration", type=_positive_float, default=None, metavar="S", help="stop after S seconds")
-    parser.add_argument("--timeout", type=_positive_float, default=30.0, metavar="S",
+    parser.add_argument("--duration", type=positive_float, default=None, metavar="S", help="stop after S seconds")
+    parser.add_argument("--timeout", type=positive_float, default=30.0, metavar="S",
                         help="how long to wait for the autopilot's heartbeat (default 30)")
-    parser.add_argument("--wait-subscriber", type=_nonnegative_float, default=2.0, metavar="S",
+    parser.add_argument("--wait-subscriber", type=nonnegative_float, default=2.0, metavar="S",
                         help="before the first reading, wait up to S seconds for a zenoh subscriber (default 2)")
     parser.add_argument("--retries", type=_positive_int, default=3, metavar="N",
                         help="TCP connection attempts (default 3)")
