@@ -15,9 +15,7 @@ import pytest
 
 import zenoh  # noqa: E402  (a project dependency)
 
-from cryptography.hazmat.primitives import serialization  # noqa: E402  ([test] extra)
-from cryptography.hazmat.primitives.asymmetric import ec  # noqa: E402
-from tls_helpers import make_cert, write_private  # noqa: E402
+from tls_helpers import make_pki, write_private  # noqa: E402  (cryptography: the [test] extra)
 
 from mission.cli import main as swarmseek  # noqa: E402
 from mission.clock import WallClock  # noqa: E402
@@ -36,22 +34,7 @@ REFUSED_WAIT_S = "1"  # --wait-subscriber when no subscriber can ever match
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory) -> dict:
     """Two CAs; leaf certificates ``(pem, key)`` per subject; ``rogue`` is signed by ``other_ca``."""
-    out = tmp_path_factory.mktemp("pki")
-    files: dict = {}
-    cas = {}
-    for ca_name in ("ca", "other_ca"):
-        key = ec.generate_private_key(ec.SECP256R1())
-        cas[ca_name] = key
-        (out / f"{ca_name}.pem").write_bytes(
-            make_cert(ca_name, key, ca_name, key, ca=True).public_bytes(serialization.Encoding.PEM))
-        files[ca_name] = str(out / f"{ca_name}.pem")
-    for stem, ca_name in (("coordinator", "ca"), ("vehicle1", "ca"), ("rogue", "other_ca")):
-        key = ec.generate_private_key(ec.SECP256R1())
-        (out / f"{stem}.pem").write_bytes(
-            make_cert(stem, key, ca_name, cas[ca_name], ca=False).public_bytes(serialization.Encoding.PEM))
-        files[stem] = (str(out / f"{stem}.pem"), write_private(out / f"{stem}.key", key.private_bytes(
-            serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())))
-    return files
+    return make_pki(tmp_path_factory.mktemp("pki"), (("coordinator", "coordinator", "ca"), ("vehicle1", "vehicle1", "ca"), ("rogue", "rogue", "other_ca")))
 
 
 # --------------------------------------------------------------------------- helpers

@@ -24,9 +24,7 @@ from sitl_mock.sensor import zenoh_config
 
 import zenoh  # noqa: E402  (a project dependency)
 
-from cryptography.hazmat.primitives import serialization  # noqa: E402  ([test] extra)
-from cryptography.hazmat.primitives.asymmetric import ec  # noqa: E402
-from tls_helpers import make_cert, write_private  # noqa: E402
+from tls_helpers import make_pki, write_private  # noqa: E402  (cryptography: the [test] extra)
 
 SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
 DELIVER_TIMEOUT_S = 20.0
@@ -37,25 +35,8 @@ REFUSED_WINDOW_S = 2.0
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory) -> dict:
     """Two CAs; leaf certificates (ECDSA P-256) ``<name>.pem`` / ``<name>.key`` per subject."""
-    out = tmp_path_factory.mktemp("pki")
-    files: dict = {}
-    cas = {}
-    for ca_name in ("ca", "other_ca"):
-        key = ec.generate_private_key(ec.SECP256R1())
-        cas[ca_name] = (key, ca_name)
-        (out / f"{ca_name}.pem").write_bytes(
-            make_cert(ca_name, key, ca_name, key, ca=True).public_bytes(serialization.Encoding.PEM))
-        files[ca_name] = str(out / f"{ca_name}.pem")
-    for stem, cn, ca_name in (("coordinator", "coordinator", "ca"), ("vehicle1", "vehicle-1", "ca"),
-                              ("intruder", "intruder", "ca"), ("rogue", "vehicle-1", "other_ca")):
-        key = ec.generate_private_key(ec.SECP256R1())
-        ca_key, issuer = cas[ca_name]
-        (out / f"{stem}.pem").write_bytes(
-            make_cert(cn, key, issuer, ca_key, ca=False).public_bytes(serialization.Encoding.PEM))
-        files[stem] = (str(out / f"{stem}.pem"), write_private(out / f"{stem}.key", key.private_bytes(
-            serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())))
-    files["dir"] = out
-    return files
+    return make_pki(tmp_path_factory.mktemp("pki"), (("coordinator", "coordinator", "ca"), ("vehicle1", "vehicle-1", "ca"),
+                     ("intruder", "intruder", "ca"), ("rogue", "vehicle-1", "other_ca")))
 
 
 # --------------------------------------------------------------------------- helpers

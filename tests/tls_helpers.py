@@ -10,7 +10,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives import hashes
 from cryptography.x509.oid import NameOID
 
-__all__ = ["make_cert", "write_private"]
+__all__ = ["make_cert", "make_pki", "write_private"]
 
 
 def _name(cn: str):
@@ -42,3 +42,37 @@ def write_private(path: Path, data: bytes) -> str:
     path.write_bytes(data)
     os.chmod(path, 0o600)
     return str(path)
+
+
+def make_pki(out: Path, leaves) -> dict:
+    """Two CAs (``ca``, ``other_ca``) and leaf certificates in ``out``.
+
+    Parameters
+    ----------
+    out : Path
+        Directory to write ``<name>.pem`` (and ``<leaf>.key``, mode 600) into.
+    leaves : iterable of (stem, common_name, ca_name)
+
+    Returns
+    -------
+    dict
+        ``files[ca_name]`` = CA certificate path; ``files[stem]`` = ``(cert_path, key_path)``;
+        ``files["dir"]`` = ``out``.
+    """
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    pem = serialization.Encoding.PEM
+    files: dict = {"dir": out}
+    cas = {}
+    for ca_name in ("ca", "other_ca"):
+        key = ec.generate_private_key(ec.SECP256R1())
+        cas[ca_name] = key
+        (out / f"{ca_name}.pem").write_bytes(make_cert(ca_name, key, ca_name, key, ca=True).public_bytes(pem))
+        files[ca_name] = str(out / f"{ca_name}.pem")
+    for stem, cn, ca_name in leaves:
+        key = ec.generate_private_key(ec.SECP256R1())
+        (out / f"{stem}.pem").write_bytes(make_cert(cn, key, ca_name, cas[ca_name], ca=False).public_bytes(pem))
+        files[stem] = (str(out / f"{stem}.pem"), write_private(out / f"{stem}.key", key.private_bytes(
+            pem, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())))
+    return files
