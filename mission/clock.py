@@ -11,7 +11,7 @@ import asyncio
 import time
 from typing import Awaitable, TypeVar
 
-__all__ = ["WallClock", "wait_on_clock"]
+__all__ = ["WallClock", "wait_on_clock", "cancel_and_wait"]
 
 _T = TypeVar("_T")
 
@@ -83,3 +83,17 @@ async def wait_on_clock(awaitable: Awaitable[_T], timeout_s: float, clock) -> _T
         return target.result()
     target.cancel()
     raise TimeoutError(f"timed out after {timeout_s:g} s")
+
+
+async def cancel_and_wait(task) -> None:
+    """Cancel ``task`` (an asyncio task or None) and wait until it has finished.
+
+    Its own cancellation is absorbed; any other exception it ends with propagates.
+    """
+    if task is None:
+        return
+    task.cancel()
+    try:
+        await task
+    except asyncio.CancelledError:
+        pass

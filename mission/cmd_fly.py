@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import sys
 import time
 from pathlib import Path
@@ -51,7 +50,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
 
 def main(args) -> int:
     """Load the plan and fly it."""
-    from mission.display import Display
+    from mission.display import Display, report_result
     from mission.plan import PlanError, load_plan
 
     try:
@@ -75,8 +74,4 @@ def main(args) -> int:
     except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
         print(f"swarmseek fly: zenoh security settings: {exc}", file=sys.stderr)
         return 2
-    if args.json:
-        print(json.dumps(result.to_json(), indent=2))
-    else:
-        display.summary(result.to_json())
-    return 0 if result.ok else 1
+    return report_result(result, display, args.json)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import sys
 from pathlib import Path
 
@@ -75,7 +74,7 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
 
 def main(args) -> int:
     """Resume the mission of ``args.log``."""
-    from mission.display import Display
+    from mission.display import Display, report_result
     from mission.plan import PlanError, load_plan
     from mission.resume import ResumeError
 
@@ -100,8 +99,4 @@ def main(args) -> int:
     except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
         print(f"swarmseek resume: zenoh security settings: {exc}", file=sys.stderr)
         return 2
-    if args.json:
-        print(json.dumps(result.to_json(), indent=2))
-    else:
-        display.summary(result.to_json())
-    return 0 if result.ok else 1
+    return report_result(result, display, args.json)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import sys
 import time
 from pathlib import Path
@@ -151,7 +150,7 @@ async def run_embedded(args, display=None):
 
 def main(args) -> int:
     """Run the embedded mission; 0 if it converged, 1 if not, 2 for bad options."""
-    from mission.display import Display
+    from mission.display import Display, report_result
 
     problem = _check_args(args)
     if problem:
@@ -165,10 +164,7 @@ def main(args) -> int:
     except (OSError, zenoh.ZError) as exc:
         print(f"swarmseek run: cannot start the embedded fleet or zenoh: {exc}", file=sys.stderr)
         return 1
-    if args.json:
-        print(json.dumps(result.to_json(), indent=2))
-    else:
-        display.summary(result.to_json())
-        if result.log_path:
-            print(f"  mission log: {result.log_path}  (swarmseek plot {result.log_path} --out DIR)")
-    return 0 if result.ok else 1
+    status = report_result(result, display, args.json)
+    if not args.json and result.log_path:
+        print(f"  mission log: {result.log_path}  (swarmseek plot {result.log_path} --out DIR)")
+    return status

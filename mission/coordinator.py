@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from mission.clock import cancel_and_wait
 from mission.loss import LEFT_MODES, watch_losses
 from mission.mission_log import MissionLog, to_jsonable
 from mission.plan import Plan
@@ -339,14 +340,8 @@ class Coordinator:
 
     async def _stop_background(self) -> None:
         for name in ("_watchdog_task", "_loss_task"):
-            task = getattr(self, name)
-            if task is not None:
-                task.cancel()
-                try:
-                    await task
-                except asyncio.CancelledError:
-                    pass
-                setattr(self, name, None)
+            await cancel_and_wait(getattr(self, name))
+            setattr(self, name, None)
         if self.ramp is not None:
             await self.ramp.stop()
         if self.streamer is not None:

@@ -6,11 +6,12 @@ altitude, link age and setpoint rate; centre, gradient and distance flown.
 """
 from __future__ import annotations
 
+import json
 import sys
 import time
 from typing import IO
 
-__all__ = ["Display", "format_table", "format_line", "format_summary"]
+__all__ = ["Display", "format_table", "format_line", "format_summary", "report_result"]
 
 
 def _vec(v, fmt="{:7.2f}") -> str:
@@ -148,3 +149,14 @@ class Display:
         for line in format_summary(summary):
             self.stream.write(line + "\n")
         self.stream.flush()
+
+
+def report_result(result, display: "Display", as_json: bool) -> int:
+    """Print a finished mission's summary (JSON with ``as_json``) and return the exit status:
+    0 when the mission succeeded (``result.ok``), else 1."""
+    summary = result.to_json()
+    if as_json:
+        print(json.dumps(summary, indent=2))
+    else:
+        display.summary(summary)
+    return 0 if result.ok else 1

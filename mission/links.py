@@ -26,7 +26,7 @@ from typing import Callable
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from pymavlink.generator import mavcrc
 
-from mission.clock import wait_on_clock
+from mission.clock import cancel_and_wait, wait_on_clock
 from mission.links_transport import open_transport
 from mission.links_uri import DEFAULT_SERIAL_BAUD, ConnectionSpec, parse_connection
 from mission.signing import (SignatureVerifier, SigningConfig, apply_signing, refresh_timestamp,
@@ -223,12 +223,7 @@ class MavEndpoint:
         if self.closed:
             return
         self.closed = True
-        if self._housekeeping is not None:
-            self._housekeeping.cancel()
-            try:
-                await self._housekeeping
-            except asyncio.CancelledError:
-                pass
+        await cancel_and_wait(self._housekeeping)
         if self._transport is not None:
             await self._transport.close()
         for _, fut in self._hb_waiters:

@@ -18,6 +18,8 @@ import select
 import socket
 from typing import Callable
 
+from mission.clock import cancel_and_wait
+
 __all__ = ["UdpPoller"]
 
 _MAX_DATAGRAMS_PER_SOCKET = 256
@@ -108,12 +110,7 @@ class UdpPoller:
 
     async def close(self) -> None:
         """Stop polling and release the epoll set (sockets are closed by their owners)."""
-        if self._task is not None:
-            self._task.cancel()
-            try:
-                await self._task
-            except asyncio.CancelledError:
-                pass
-            self._task = None
+        await cancel_and_wait(self._task)
+        self._task = None
         self._entries.clear()
         self._epoll.close()

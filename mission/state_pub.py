@@ -11,6 +11,7 @@ import asyncio
 import json
 from typing import Callable
 
+from mission.clock import cancel_and_wait
 from mission.mission_log import to_jsonable
 
 __all__ = ["STATE_SCHEMA", "state_key", "StatePublisher"]
@@ -82,13 +83,8 @@ class StatePublisher:
 
     async def stop(self) -> None:
         """Stop the task, publish a last snapshot, undeclare the publisher."""
-        if self._task is not None:
-            self._task.cancel()
-            try:
-                await self._task
-            except asyncio.CancelledError:
-                pass
-            self._task = None
+        await cancel_and_wait(self._task)
+        self._task = None
         self.publish_now()
         if self._pub is not None:
             try:

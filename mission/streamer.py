@@ -18,7 +18,7 @@ import collections
 
 import numpy as np
 
-from mission.clock import WallClock
+from mission.clock import WallClock, cancel_and_wait
 
 __all__ = ["SetpointStreamer"]
 
@@ -124,12 +124,7 @@ class SetpointStreamer:
     async def stop(self) -> None:
         """Stop the streaming task and wait for it."""
         task, self._task = self._task, None
-        if task is not None:
-            task.cancel()
-            try:
-                await task
-            except asyncio.CancelledError:
-                pass
+        await cancel_and_wait(task)
 
     @property
     def running(self) -> bool:

@@ -20,6 +20,8 @@ from typing import Callable
 
 import numpy as np
 
+from mission.clock import cancel_and_wait
+
 __all__ = ["TargetRamp", "layered_altitudes", "layered_transfer", "assign_slots"]
 
 _log = logging.getLogger(__name__)
@@ -232,10 +234,5 @@ class TargetRamp:
 
     async def stop(self) -> None:
         """Stop the task (setpoints stay where they are)."""
-        if self._task is not None:
-            self._task.cancel()
-            try:
-                await self._task
-            except asyncio.CancelledError:
-                pass
-            self._task = None
+        await cancel_and_wait(self._task)
+        self._task = None

@@ -15,6 +15,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from formation.geodesy import enu_to_geodetic, ned_to_enu
 
+from mission.clock import cancel_and_wait
+
 __all__ = ["FakeAutopilot", "FakeUdpVehicle"]
 
 _M = mavlink
@@ -277,11 +279,6 @@ class FakeUdpVehicle(asyncio.DatagramProtocol):
 
     async def stop(self) -> None:
         """Stop telemetry and close the socket."""
-        if self._task is not None:
-            self._task.cancel()
-            try:
-                await self._task
-            except asyncio.CancelledError:
-                pass
+        await cancel_and_wait(self._task)
         if self.transport is not None:
             self.transport.close()
