@@ -1,7 +1,6 @@
 """MockFleet over real sockets: pymavlink over UDP and TCP, link faults, crash, ports, the CLI."""
 from __future__ import annotations
 
-import random
 import socket
 import subprocess
 import sys
@@ -11,6 +10,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from mission.embedded import free_port_block
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import PortInUseError
 
@@ -19,22 +19,7 @@ SPEEDUP = 5.0
 
 def _free_base(count: int, step: int = 1, kind=socket.SOCK_DGRAM) -> int:
     """A port base such that base + step*i (i < count) are all free right now."""
-    rnd = random.Random()
-    for _ in range(200):
-        base = rnd.randrange(20000, 60000 - step * count)
-        socks = []
-        try:
-            for i in range(count):
-                s = socket.socket(socket.AF_INET, kind)
-                socks.append(s)
-                s.bind(("127.0.0.1", base + step * i))
-            return base
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise RuntimeError("no free port range found")
+    return free_port_block(count, step, ("udp",) if kind == socket.SOCK_DGRAM else ("tcp",))
 
 
 def _fleet(n=2, personality="ardupilot", **kw):
