@@ -8,6 +8,8 @@ seek_step, ConvergenceMonitor, ConvergenceVerdict, convergence_scan
     The capped gradient-ascent step and the convergence test.
 RobustGradientEstimator, weighted_gradient
     Weighted Theorem 2 and the online estimator that finds and sidelines faulty sensors.
+SensorRetirement
+    The rule that retires a persistently faulty sensor from the formation.
 """
 from estimator.gradient import (
     DEFAULT_MAX_CONDITION,
@@ -17,6 +19,7 @@ from estimator.gradient import (
     gradient,
     gradient_batch,
 )
+from estimator.retire import SensorRetirement
 from estimator.robust import RobustGradientEstimator, weighted_gradient
 from estimator.seeking import ConvergenceMonitor, ConvergenceVerdict, convergence_scan, seek_step
 
@@ -33,4 +36,5 @@ __all__ = [
     "convergence_scan",
     "RobustGradientEstimator",
     "weighted_gradient",
+    "SensorRetirement",
 ]

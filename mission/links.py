@@ -141,11 +141,14 @@ class MavEndpoint:
              "unknown_msgid", "truncated", "unroutable", "send_errors", "duplicate_sysid",
              "handler_errors"), 0)
         self.last_handler_error: str | None = None
-        self.counters.update(unsigned=0, bad_signature=0, replayed=0, setup_signing_sent=0)
+        self.counters.update(unsigned=0, bad_signature=0, replayed=0, setup_signing_sent=0,
+                             setup_signing_refused=0)
         self.signing = signing
         self.signing_state = signing.new_state(clock.time()) if signing is not None else None
         self.verifier = SignatureVerifier(signing, self.signing_state) if signing is not None else None
         self._setup_sent_s: dict[int, float] = {}
+        #: system ids this mission waits for or attached: the only ones ever sent the key
+        self._expected: set[int] = set()
         self.errors: list[LinkError] = []
         self._transport = None
         self._datagram_parser = self._new_parser()
@@ -191,7 +194,9 @@ class MavEndpoint:
             frame received is checked (:class:`mission.signing.SignatureVerifier`; rejections
             counted as ``unsigned``, ``bad_signature``, ``replayed``, never delivered nor
             logged); an autopilot heard unsigned that never signed gets SETUP_SIGNING (at most
-            once a second, counted ``setup_signing_sent``) if ``signing.send_setup``.
+            once a second, counted ``setup_signing_sent``) if ``signing.send_setup`` and it is a
+            system id the mission waits for (:meth:`wait_heartbeat`) or attached; any other
+            system id is never sent the key (counted ``setup_signing_refused``).
 
         Raises
         ------
@@ -263,6 +268,7 @@ class MavEndpoint:
         if sysid in self._handlers:
             raise LinkError(f"system id {sysid} on {self.uri!r} is already attached to a vehicle")
         self.check_sysid(sysid)
+        self._expected.add(sysid)
         self._handlers[sysid] = (on_message, on_error or (lambda exc: None))
 
     def detach(self, sysid: int) -> None:
@@ -288,6 +294,8 @@ class MavEndpoint:
         LinkError
             On timeout (clock seconds), naming the endpoint and the system id.
         """
+        if sysid is not None:
+            self._expected.add(sysid)  # may be sent SETUP_SIGNING from now on
         for sid, hb in self._last_heartbeat.items():
             if (sysid is None and sid not in self._handlers) or sid == sysid:
                 return sid, hb
@@ -366,7 +374,10 @@ class MavEndpoint:
                     sysid = msg._header.srcSystem
                     if (reason == "unsigned" and msg_id == _MSG_HEARTBEAT and self.signing.send_setup
                             and _is_autopilot_heartbeat(msg) and self.verifier.needs_setup(sysid)):
-                        self._send_setup_signing(sysid, msg._header.srcComponent, peer)
+                        if sysid in self._expected:
+                            self._send_setup_signing(sysid, msg._header.srcComponent, peer)
+                        else:  # not a vehicle of this mission: never hand it the key
+                            counters["setup_signing_refused"] += 1
                     continue
             counters["frames_in"] += 1
             # MAVLink_unknown has no real header (srcSystem 0): its sender is in the raw frame

@@ -14,7 +14,7 @@ import numpy as np
 
 from formation.geodesy import geodetic_to_enu
 from mission.coordinator import MissionError, VehicleReadiness
-from mission.targets import TargetRamp, assign_slots, layered_altitudes, layered_transfer
+from mission.targets import TargetRamp, assign_slots, layered_altitudes
 
 __all__ = ["connect", "preflight", "takeoff", "assemble", "return_home", "land_all_now",
            "formation_offsets", "build_envelope", "move_and_wait"]
@@ -341,23 +341,22 @@ async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_
 
 
 async def assemble(co) -> None:
-    """Fly from the takeoff layers into the formation at the start point (layered transfer)."""
+    """Fly from the takeoff layers into the formation at the start point (layered transfer).
+
+    The legs keep clear of lost vehicles still flying (:func:`mission.return_clear.fly_clear`).
+    """
     co.set_phase("assemble")
     plan = co.plan
     sysids = sorted(s for s in co.vehicles if s not in co.lost and s in co.ramp.sysids)
     if len(sysids) < 4:
         raise MissionError(f"vehicles {sorted(co.lost)} lost before the formation was assembled: "
                            f"{len(sysids)} left, a formation needs 4")
-    start = np.array([co.ramp.setpoint(s) for s in sysids])
+    from mission.return_clear import fly_clear
+
     centre = plan.seeking.start_point()
-    goal = np.array([centre + co.slot_offsets[s] for s in sysids])
-    layers = [co.layer_alt_m[s] for s in sysids]
-    names = ("layers", "across", "slots")
-    for name, batch in zip(names, layered_transfer(start, goal, layers)):
-        for s in sysids:
-            co.status[s] = f"assemble: {name}"
-        await move_and_wait(co, {s: batch[i] for i, s in enumerate(sysids)}, plan.seeking.arrival_tol_m,
-                            what=f"the formation to reach its {name}")
+    # the layered legs, re-planned around lost vehicles still flying (e.g. one lost in takeoff)
+    await fly_clear(co, sysids, {s: centre + co.slot_offsets[s] for s in sysids},
+                    plan.seeking.arrival_tol_m, what="assembly")
     co.centre_enu = centre.copy()
     for s in sysids:
         co.status[s] = "in formation"
@@ -366,44 +365,42 @@ async def assemble(co) -> None:
 
 # ------------------------------------------------------------------------------------- return
 async def return_home(co) -> None:
-    """Back over the homes by layers, then land (or RTL), staggered by ``stagger_s``."""
+    """Back over the homes by layers, then land (or RTL), staggered by ``stagger_s``.
+
+    The paths, the descents included, keep ``min_separation_m + OBSTACLE_MARGIN_M`` from lost
+    vehicles still flying (:func:`mission.return_clear.fly_return`); a vehicle whose home is
+    obstructed lands beside it.
+    """
+    from mission.return_clear import fly_return
+
     co.set_phase("return", behaviour=co.plan.return_behaviour)
     plan = co.plan
     flying = [s for s in sorted(co.airborne) if co.ramp is not None and s in co.ramp.sysids]
+    land_here: set[int] = set()
     if flying:
-        start = np.array([co.ramp.setpoint(s) for s in flying])
-        homes = np.array([[co.home_enu[s][0], co.home_enu[s][1], co.layer_alt_m[s]] for s in flying])
-        layers = [co.layer_alt_m[s] for s in flying]
-        up, across, _ = layered_transfer(start, homes, layers)
-        for name, batch in (("layers", up), ("homes", across)):
-            for s in flying:
-                co.status[s] = f"return: {name}"
-            try:
-                await move_and_wait(co, {s: batch[i] for i, s in enumerate(flying)},
-                                    max(plan.seeking.arrival_tol_m, 1.0), what=f"the vehicles to reach their {name}")
-            except MissionError as exc:
-                co.event(f"return: {exc}; landing from where they are", level="warning")
-                break
+        land_here = await fly_return(co, flying)
     await _land_staggered(co, sorted(co.airborne, key=lambda s: co.layer_alt_m.get(s, 0.0)),
-                          rtl=plan.return_behaviour == "rtl")
+                          rtl=plan.return_behaviour == "rtl", land_only=land_here)
 
 
-async def _land_staggered(co, order, rtl: bool) -> None:
+async def _land_staggered(co, order, rtl: bool, land_only=frozenset()) -> None:
+    """Land (or RTL) ``order`` one after the other; vehicles in ``land_only`` land even with RTL."""
     waits = []
     for i, sysid in enumerate(order):
         if i:
             await co.clock.sleep(co.plan.stagger_s)
         v = co.vehicles[sysid]
         co.released.add(sysid)
+        by_rtl = rtl and sysid not in land_only
         try:
-            await _retried(co, (lambda v=v: v.rtl()) if rtl else (lambda v=v: v.land()),
-                           f"{'RTL' if rtl else 'land'} of vehicle {sysid}")
+            await _retried(co, (lambda v=v: v.rtl()) if by_rtl else (lambda v=v: v.land()),
+                           f"{'RTL' if by_rtl else 'land'} of vehicle {sysid}")
         except MissionError as exc:
             co.event(str(exc), level="error")
             continue
         if co.ramp is not None and sysid in co.ramp.sysids:
             co.ramp.remove(sysid)
-        co.status[sysid] = "returning" if rtl else "landing"
+        co.status[sysid] = "returning" if by_rtl else "landing"
         waits.append(asyncio.ensure_future(_wait_landed(co, sysid)))
     await asyncio.gather(*waits)
 

@@ -152,14 +152,18 @@ def clear_offsets(offsets: dict[int, np.ndarray], centre_enu, obstacle_points, c
 
 
 def plan_clear_transfer(start, goal, obstacle_points, min_separation_m: float, max_speed_m_s: float,
-                        fence=None):
+                        fence=None, clearance_m: float | None = None):
     """:func:`mission.safety.plan_transfer` with the obstacles as participants that do not move.
 
     The obstacles are appended to ``start`` and ``goal`` (same position in both), so the
     planner keeps ``min_separation_m`` from them along every path; a plan in which an obstacle's
     row moves (a layered strategy lifts every row) is rejected and the next strategy tried;
     last, the layered strategies for the movers alone, kept if every leg passes the obstacles at
-    ``min_separation_m`` or more.
+    ``clearance_m`` or more.
+
+    ``clearance_m`` (default ``min_separation_m``) is the distance every path must keep from
+    the obstacles (e.g. ``min_separation_m + OBSTACLE_MARGIN_M``); the vehicles keep
+    ``min_separation_m`` between themselves.
 
     Returns
     -------
@@ -177,6 +181,7 @@ def plan_clear_transfer(start, goal, obstacle_points, min_separation_m: float, m
     obs = np.asarray(obstacle_points, dtype=float).reshape(-1, 3)
     if not len(obs):
         return plan_transfer(start, goal, min_separation_m, max_speed_m_s, fence=fence)
+    clear_m = float(min_separation_m if clearance_m is None else max(clearance_m, min_separation_m))
     # fixed participants must be apart themselves (a lost vehicle's last position and last
     # setpoint are close): plan with a thinned set, then check every leg against all of them
     fixed = []
@@ -199,7 +204,7 @@ def plan_clear_transfer(start, goal, obstacle_points, min_separation_m: float, m
             errors.append(f"{strategy}: moves the obstacle")
             continue
         movers = wps[:, :n]
-        if min(segment_clearance(x, y, obs) for x, y in zip(movers[:-1], movers[1:])) >= min_separation_m:
+        if min(segment_clearance(x, y, obs) for x, y in zip(movers[:-1], movers[1:])) >= clear_m:
             return TransferPlan(tp.times_s, movers, tp.strategy, tp.min_separation_m)
         errors.append(f"{strategy}: passes too close to an obstacle")
     # the layered strategies move every row: plan the movers alone, keep a plan whose every leg
@@ -210,7 +215,7 @@ def plan_clear_transfer(start, goal, obstacle_points, min_separation_m: float, m
         except TransferError:
             continue
         wps = np.asarray(tp.waypoints_enu, dtype=float)
-        if min(segment_clearance(x, y, obs) for x, y in zip(wps[:-1], wps[1:])) >= min_separation_m:
+        if min(segment_clearance(x, y, obs) for x, y in zip(wps[:-1], wps[1:])) >= clear_m:
             return tp
         errors.append(f"{strategy} (movers only): passes too close to an obstacle")
     raise TransferError("no transfer keeping clear of the lost vehicles still flying (" + "; ".join(errors) + ")")

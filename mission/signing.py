@@ -216,7 +216,9 @@ def sign_frame(frame: bytes, crc_extra: int, state: mavlink.MAVLinkSigning) -> b
     body[2] |= _SIGNED
     body += _crc(memoryview(body)[1:], crc_extra).to_bytes(2, "little")
     body.append(state.link_id & 0xFF)
-    body += int(state.timestamp).to_bytes(6, "little")
+    # low 48 bits, as pymavlink packs it: a peer's valid timestamp of 2**48 - 1 must not make
+    # every later send raise OverflowError (the peer then rejects the wrapped stamps as replayed)
+    body += (int(state.timestamp) & _TIMESTAMP_MAX).to_bytes(6, "little")
     body += _signature(state.secret_key, body)
     state.timestamp += 1
     return bytes(body)

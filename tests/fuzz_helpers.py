@@ -5,9 +5,16 @@ random field values (NaN and infinities included); :func:`mutated` then breaks t
 truncation, splicing, wrong CRC, wrong length, bad incompat flags, inserted or deleted bytes).
 :func:`reference_parse` is an independent robust parser: what it yields for a byte string is
 what the code under test must account for, frame by frame.
+
+Signing (MAVLink 2): :func:`sign` encodes a signed frame at a chosen timestamp, link id and key;
+:func:`mutate_signed` breaks one region of a signed frame (header, payload, CRC, signed flag,
+link id, timestamp, signature) or truncates it; :class:`SigningOracle` is an independent model of
+the receiver's signature check (mavlink.io "Message signing"): the outcome each decoded frame must
+get, in order.
 """
 from __future__ import annotations
 
+import hashlib
 import math
 
 from hypothesis import strategies as st
@@ -26,6 +33,10 @@ __all__ = [
     "is_bad",
     "is_valid_for",
     "state_repr",
+    "SIGNED_REGIONS",
+    "sign",
+    "mutate_signed",
+    "SigningOracle",
 ]
 
 _M = mavlink
@@ -209,3 +220,104 @@ def state_repr(*values) -> str:
             v = v.tolist()
         out.append(repr(v))
     return "|".join(out)
+
+
+# ------------------------------------------------------------------------- MAVLink 2 signing
+_SIG_BLOCK = 13                      # link id (1) + timestamp (6) + signature (6)
+_STAMP_MAX = (1 << 48) - 1
+_NEW_STREAM_LAG = 6_000_000          # a new stream may be one minute (10 us units) behind
+#: parts of a signed frame :func:`mutate_signed` can break (``truncate`` cuts the frame short)
+SIGNED_REGIONS = ("header", "payload", "crc", "signed_flag", "link_id", "timestamp", "signature",
+                  "truncate")
+
+
+def sign(msg, key: bytes, timestamp: int, sysid: int = 255, compid: int = 190, link_id: int = 0,
+         seq: int = 0) -> bytes:
+    """Encode ``msg`` as a MAVLink 2 frame signed with ``key`` at ``timestamp`` (10 us units since
+    2015-01-01, taken modulo 2**48 as on the wire) on link ``link_id``."""
+    enc = _M.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+    enc.seq = seq & 0xFF
+    enc.signing.secret_key = bytes(key)
+    enc.signing.link_id = link_id & 0xFF
+    enc.signing.timestamp = int(timestamp) & _STAMP_MAX
+    enc.signing.sign_outgoing = True
+    return bytes(msg.pack(enc))
+
+
+def mutate_signed(frame: bytes, region: str, draw) -> bytes:
+    """Break ``region`` (one of :data:`SIGNED_REGIONS`) of the signed MAVLink 2 ``frame``.
+
+    One to three bit flips inside the region; ``signed_flag`` clears the signed incompatibility
+    flag (the signature block then reads as trailing bytes); ``truncate`` keeps a strict prefix.
+    """
+    n = len(frame)
+    if region == "truncate":
+        return frame[:draw(st.integers(1, n - 1))]
+    out = bytearray(frame)
+    if region == "signed_flag":
+        out[2] &= 0xFE
+        return bytes(out)
+    lo, hi = {"header": (1, 10), "payload": (10, n - 15), "crc": (n - 15, n - 13),
+              "link_id": (n - 13, n - 12), "timestamp": (n - 12, n - 6), "signature": (n - 6, n)}[region]
+    bits = draw(st.lists(st.integers(lo * 8, hi * 8 - 1), min_size=1, max_size=3, unique=True))
+    for bit in bits:
+        out[bit // 8] ^= 1 << (bit % 8)
+    return bytes(out)
+
+
+class SigningOracle:
+    """What a MAVLink 2 receiver holding ``key`` must decide for each decoded frame, in order.
+
+    Written from the specification, independently of the code under test: a frame must be signed
+    (else ``unsigned``, or ``unsigned_allowed`` for ``unsigned_ok_ids``), its signature
+    ``SHA-256(key + frame[:-6])[:6]`` right (else ``bad_signature``), its timestamp above the last
+    accepted one of its stream ``(link id, sysid, compid)`` or, for a new stream, at most one
+    minute behind the receiver's timestamp (else ``replayed``); an accepted timestamp moves the
+    receiver's timestamp up.
+
+    Parameters
+    ----------
+    key : bytes
+    timestamp : int
+        The receiver's timestamp when the frames start arriving.
+    unsigned_ok_ids : frozenset of int
+        Message ids accepted unsigned (RADIO_STATUS and RADIO by default).
+    check_unknown : bool
+        True when frames of unknown message ids go through the signature check (the ground
+        station); False when they are rejected as ``unknown`` first (the mock).
+    """
+
+    def __init__(self, key: bytes, timestamp: int,
+                 unsigned_ok_ids=frozenset({_M.MAVLINK_MSG_ID_RADIO_STATUS, _M.MAVLINK_MSG_ID_RADIO}),
+                 check_unknown: bool = True):
+        self.key = bytes(key)
+        self.timestamp = int(timestamp)
+        self.unsigned_ok_ids = frozenset(unsigned_ok_ids)
+        self.check_unknown = check_unknown
+        self.streams: dict[tuple[int, int, int], int] = {}
+
+    def outcome(self, msg) -> str:
+        """``bad_crc``, ``malformed``, ``unknown``, ``unsigned``, ``unsigned_allowed``,
+        ``bad_signature``, ``replayed`` or ``accepted`` for the next decoded ``msg``."""
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            return "bad_crc" if "crc" in str(msg.reason).lower() else "malformed"
+        if kind.startswith("UNKNOWN") and not self.check_unknown:
+            return "unknown"
+        buf = bytes(msg.get_msgbuf())
+        if buf[0] == _M.PROTOCOL_MARKER_V2:
+            msg_id, signed = int.from_bytes(buf[7:10], "little"), bool(buf[2] & 1)
+        else:
+            msg_id, signed = buf[5], False
+        if not signed:
+            return "unsigned_allowed" if msg_id in self.unsigned_ok_ids else "unsigned"
+        if hashlib.sha256(self.key + buf[:-6]).digest()[:6] != buf[-6:]:
+            return "bad_signature"
+        stamp = int.from_bytes(buf[-12:-6], "little")
+        stream = (buf[-_SIG_BLOCK], buf[5], buf[6])
+        last = self.streams.get(stream)
+        if stamp <= (last if last is not None else self.timestamp - _NEW_STREAM_LAG - 1):
+            return "replayed"
+        self.streams[stream] = stamp
+        self.timestamp = max(self.timestamp, stamp)
+        return "accepted"
