@@ -198,11 +198,39 @@ async def preflight(co, timeout_s: float = 30.0) -> None:
         co.status[sysid] = "ready" if r.ready else "not ready: " + "; ".join(r.problems)
 
     await asyncio.gather(*(_check(s, v) for s, v in co.vehicles.items()))
+    await _sensor_check(co)
     for sysid in sorted(co.readiness):
         r = co.readiness[sysid]
         co.event(f"vehicle {sysid} ({r.id}): " + ("ready" if r.ready else "NOT READY: " + "; ".join(r.problems)),
                  level="info" if r.ready else "warning", sysid=sysid, checks=r.checks)
     co.envelope = envelope
+
+
+async def _sensor_check(co, timeout_s: float = 5.0) -> None:
+    """Warn (not fail) about vehicles with no accepted zenoh reading yet.
+
+    zenoh says nothing when a sensor's TLS handshake or login is refused, or when it connects
+    elsewhere: without this, such a mission would take off and only notice in the seek.
+    Not a readiness failure: a sensor may start publishing only once airborne.
+    """
+    if getattr(co, "_subscriber", None) is None:
+        return  # no zenoh session (dry run)
+
+    def _missing():
+        return [s for s in sorted(co.vehicles) if co.store.latest(s) is None]
+
+    deadline = co.clock.time() + timeout_s
+    while _missing() and co.clock.time() < deadline:
+        await co.clock.sleep(0.2)
+    missing = _missing()
+    if missing:
+        counts = co.store.counts()
+        rejected = {k: n for k, n in counts["rejected"].items() if n}
+        co.event(f"preflight: no sensor reading accepted from vehicles {missing} within {timeout_s:g} s "
+                 "(sensor not running or not connected to this zenoh session: a refused TLS handshake "
+                 "or login is silent in zenoh; check the sensor's output)"
+                 + (f"; readings rejected so far: {rejected}" if rejected else ""),
+                 level="warning", sysids=missing, readings=counts)
 
 
 # ------------------------------------------------------------------------------------ takeoff

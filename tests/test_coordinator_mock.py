@@ -42,13 +42,22 @@ async def _fly(plan, fleet, log_path, states=None):
 
 
 @pytest.mark.timeout(300)
-def test_failed_preflight_aborts_and_arms_nothing(tmp_path):
+@pytest.mark.parametrize("zenoh_elsewhere", [False, True])
+def test_failed_preflight_aborts_and_arms_nothing(tmp_path, zenoh_elsewhere):
+    """... and warns when no sensor reading arrives (zenoh connected elsewhere: as silent as a
+    refused TLS handshake or login)."""
+    from mission.embedded import free_port_block
+    from mission.zenoh_security import ZenohPlan
+
     n = 4
     ports = fleet_ports(n, "px4")
     source = np.array([5.0, 5.0, 12.0])
     fleet = _fleet(n, ports, source)
     fleet.set_fault(3, "battery_low", True)
     plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 12.0), eps=50.0)
+    if zenoh_elsewhere:  # nobody listens there
+        nowhere = free_port_block(1, kinds=("tcp",))
+        plan = dataclasses.replace(plan, zenoh=ZenohPlan(mode="peer", connect=(f"tcp/127.0.0.1:{nowhere}",)))
     fleet.start()
     try:
         result = asyncio.run(_fly(plan, fleet, tmp_path / "m.jsonl"))
@@ -62,8 +71,15 @@ def test_failed_preflight_aborts_and_arms_nothing(tmp_path):
     by_sysid = {r["sysid"]: r for r in result.readiness}
     assert by_sysid[3]["checks"]["battery"] is False
     assert all(by_sysid[s]["ready"] for s in (1, 2, 4))
-    phases = [r["phase"] for r in read_mission_log(tmp_path / "m.jsonl") if r["type"] == "phase"]
+    records = read_mission_log(tmp_path / "m.jsonl")
+    phases = [r["phase"] for r in records if r["type"] == "phase"]
     assert "takeoff" not in phases and "aborted" in phases
+    warned = [r for r in records if r["type"] == "event" and "no sensor reading accepted" in r.get("message", "")]
+    if zenoh_elsewhere:
+        assert len(warned) == 1 and warned[0]["sysids"] == [1, 2, 3, 4]
+        assert "TLS handshake or login" in warned[0]["message"]
+    else:
+        assert warned == []
 
 
 @pytest.mark.slow
