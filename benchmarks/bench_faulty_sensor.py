@@ -3,9 +3,10 @@
 Prints a table of the final error ``||c - r*||`` (per trial: mean over the last ``--tail``
 iterations; then mean and std over trials) for
 
-* estimators: eq. (3) on the symmetric formation, Theorem 2 on the CVT, and the robust
+* estimators: eq. (3) on the symmetric formation, Theorem 2 on the CVT, the robust
   estimator (:class:`estimator.robust.RobustGradientEstimator`) on the CVT and on the symmetric
-  formation;
+  formation, and the robust estimator with sensor retirement on the CVT (``CVT robust+retire``:
+  the faulty robot parked at the centre, the others re-formed into a 7-point CVT);
 * faults: none (noise 0.1 on all), one robot at 0.5 (5x, the paper's Fig. 4), one at 1.0 (10x),
   one stuck (frozen at its first reading), one biased (+0.5 = 5 sigma), one spiking (5 % of its
   readings off by +-5);
@@ -14,11 +15,13 @@ with the paper's eps = 1, gamma = 0.1, N = 8, D = 1, sigma_2 with its source at 
 start (20, -20, 5) (as ``swarmseek paper``). Trial k has robot ``k mod 8`` faulty and its own
 random rotation of the formation; every estimator sees the same noise in the same trial
 (paired comparison). For the robust estimator it also reports how often the faulty robot was
-named with the right reason at the end, and how often a healthy robot was named.
+named with the right reason at the end, and how often a healthy robot was named; for the
+retiring one, how often the faulty robot was retired, when, and how often a healthy one was.
+The target line gives 95 % bootstrap intervals (trials resampled in pairs).
 
 Run::
 
-    python benchmarks/bench_faulty_sensor.py            # 100 trials x 5000 iterations (~5 min)
+    python benchmarks/bench_faulty_sensor.py            # 100 trials x 5000 iterations (~20 min)
     python benchmarks/bench_faulty_sensor.py --quick    # 20 x 1500, a smoke run
 """
 from __future__ import annotations
@@ -34,8 +37,9 @@ from scipy.spatial.transform import Rotation
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from estimator import estimator_weights, gradient_batch, seek_step  # noqa: E402
+from estimator.retire import SensorRetirement  # noqa: E402
 from estimator.robust import REASONS, RobustGradientEstimator, weighted_gradient  # noqa: E402
-from formation import cvt_sphere, symmetric_cylinder  # noqa: E402
+from formation import cvt_sphere, reconfigure, symmetric_cylinder  # noqa: E402
 from sitl_mock.fields import sigma2  # noqa: E402
 
 N = 8
@@ -45,41 +49,100 @@ NOISE = 0.1
 FAULTS = ("none", "noisy 5x", "noisy 10x", "stuck", "biased", "spiking")
 #: the suspect reason each injected fault should be reported with
 _WANT = {"noisy 5x": "noisy", "noisy 10x": "noisy", "stuck": "stuck", "biased": "biased", "spiking": "spiking"}
-ESTIMATORS = ("symmetric eq.3", "CVT Thm 2", "CVT robust", "symmetric robust")
+ESTIMATORS = ("symmetric eq.3", "CVT Thm 2", "CVT robust", "CVT robust+retire", "symmetric robust")
+#: the robust estimator plus :class:`estimator.retire.SensorRetirement` (its defaults): a sensor
+#: named stuck, or noisy at 3x the median noise or more, for ``RETIRE_AFTER`` consecutive
+#: iterations is retired, its robot parked at the formation centre, and the others re-formed into
+#: an (N-1)-point CVT (warm-started :func:`formation.reconfigure`), as the mission does
+#: (``mission.retire``)
+RETIRE = "CVT robust+retire"
+RETIRE_AFTER = 20
 #: not in the default table: weighted least squares with the TRUE noise variances (a bound on
 #: what any weighting can achieve; it cannot see stuck/biased/spiking sensors)
 ORACLE = "CVT oracle"
 
 
-def _faulty_readings(fault, clean, noise, faulty, first, rng_spike):
+def _faulty_readings(fault, clean, noise, faulty, first, rng_spike, noise_std=NOISE):
     """Readings (K, N) of one iteration with the fault applied to robot ``faulty[k]``."""
     y = clean + noise
     k = np.arange(len(y))
     if fault == "stuck":
         y[k, faulty] = first[k, faulty]
     elif fault == "biased":
-        y[k, faulty] += 5 * NOISE
+        y[k, faulty] += 5 * noise_std
     elif fault == "spiking":
         spike = rng_spike.random(len(y)) < 0.05
-        y[k, faulty] += np.where(spike, 50 * NOISE * rng_spike.choice([-1.0, 1.0], len(y)), 0.0)
+        y[k, faulty] += np.where(spike, 50 * noise_std * rng_spike.choice([-1.0, 1.0], len(y)), 0.0)
     return y
 
 
-def run(fault, estimator, trials, iterations, tail, radius_m, seed):
+class _Retiring:
+    """The robust estimator with sensor retirement over a batch of formations (``RETIRE``).
+
+    Until a trial retires a sensor, its gradient comes from one batched N-sensor robust
+    estimator; at the retirement its robot is parked at the centre (offset 0, its readings
+    ignored), the others get the warm-started (N-1)-CVT slots of :func:`formation.reconfigure`
+    and a fresh (N-1)-sensor robust estimator, shared by the trials that retire at the same
+    iteration. A second retirement is counted (``second``) but not acted on here.
+    """
+
+    def __init__(self, off, radius_m):
+        self.off = off  # (trials, N, 3), updated in place at a retirement
+        self.radius_m = radius_m
+        trials = off.shape[0]
+        self.est = RobustGradientEstimator(N, batch_shape=(trials,))
+        self.rule = SensorRetirement(N, RETIRE_AFTER, batch_shape=(trials,))
+        self.retired = np.full(trials, -1)
+        self.retired_at = np.full(trials, -1)
+        self.second = np.zeros(trials, dtype=bool)
+        self.groups = []  # (trial indices, kept sensor indices (k, N-1), estimator, rule)
+
+    @property
+    def suspect_codes(self):
+        return self.est.suspect_codes
+
+    def update(self, t, y):
+        g = self.est.update(self.off, y)
+        for idx, keep, est, rule in self.groups:
+            rows = idx[:, None]
+            g[idx] = est.update(self.off[rows, keep], y[rows, keep])
+            self.second[idx] |= rule.update(est.suspect_codes, est.noise_std_estimates) >= 0
+        pick = self.rule.update(self.est.suspect_codes, self.est.noise_std_estimates)
+        new = np.flatnonzero((pick >= 0) & (self.retired < 0))
+        if len(new):
+            keep = np.empty((len(new), N - 1), dtype=int)
+            for j, k in enumerate(new):
+                rec = reconfigure(self.off[k], int(pick[k]), self.radius_m)
+                keep[j] = rec.survivors
+                self.off[k, rec.survivors] = rec.slots[rec.assignment]
+                self.off[k, pick[k]] = 0.0
+            self.retired[new] = pick[new]
+            self.retired_at[new] = t + 1
+            self.groups.append((new, keep, RobustGradientEstimator(N - 1, batch_shape=(len(new),)),
+                                SensorRetirement(N - 1, RETIRE_AFTER, batch_shape=(len(new),))))
+        return g
+
+
+def run(fault, estimator, trials, iterations, tail, radius_m, seed, noise_std=NOISE):
     """One (fault, estimator) cell: final errors (trials,), robust flags, seconds per iteration."""
     field = sigma2()
     base = cvt_sphere(N, radius_m, 0) if estimator.startswith("CVT") else symmetric_cylinder(N, radius_m)
     rot = Rotation.random(trials, random_state=seed).as_matrix()
     off = np.einsum("kij,nj->kni", rot, base)
     faulty = np.arange(trials) % N
-    std = np.full((trials, N), NOISE)
+    std = np.full((trials, N), noise_std)
     if fault == "noisy 5x":
-        std[np.arange(trials), faulty] = 5 * NOISE
+        std[np.arange(trials), faulty] = 5 * noise_std
     elif fault == "noisy 10x":
-        std[np.arange(trials), faulty] = 10 * NOISE
+        std[np.arange(trials), faulty] = 10 * noise_std
     rng = np.random.default_rng(seed + 1)
     rng_spike = np.random.default_rng(seed + 2)
-    robust = RobustGradientEstimator(N, batch_shape=(trials,)) if "robust" in estimator else None
+    if estimator == RETIRE:
+        robust = _Retiring(off, radius_m)
+    elif "robust" in estimator:
+        robust = RobustGradientEstimator(N, batch_shape=(trials,))
+    else:
+        robust = None
     method = "symmetric" if estimator.startswith("symmetric") else "cvt"
     oracle = estimator == ORACLE
     weights = None if (robust or oracle) else estimator_weights(off, method)
@@ -95,8 +158,12 @@ def run(fault, estimator, trials, iterations, tail, radius_m, seed):
         noise = rng.standard_normal((trials, N)) * std
         if first is None:
             first = clean + noise
-        y = _faulty_readings(fault, clean, noise, faulty, first, rng_spike)
-        if robust is not None:
+        y = _faulty_readings(fault, clean, noise, faulty, first, rng_spike, noise_std)
+        if estimator == RETIRE:
+            g = robust.update(t, y)
+            named_now = robust.suspect_codes[np.arange(trials), faulty] == want_code
+            first_named = np.where(named_now & (first_named < 0), t + 1, first_named)
+        elif robust is not None:
             g = robust.update(off, y)
             named_now = robust.suspect_codes[np.arange(trials), faulty] == want_code
             first_named = np.where(named_now & (first_named < 0), t + 1, first_named)
@@ -120,7 +187,28 @@ def run(fault, estimator, trials, iterations, tail, radius_m, seed):
         when = first_named[first_named > 0]
         detect = (float(np.median(when)), float(np.percentile(when, 90))) if len(when) else (np.nan, np.nan)
         flags = (named, false, false_excl, detect)
+    if estimator == RETIRE:
+        r = robust
+        right = np.mean(r.retired == faulty)
+        healthy = np.mean((r.retired >= 0) & (r.retired != faulty))
+        when = r.retired_at[r.retired == faulty]
+        at = (float(np.median(when)), float(np.percentile(when, 90))) if len(when) else (np.nan, np.nan)
+        flags = flags + ((right, healthy, at, float(np.mean(r.second))),)
     return final, flags, per_iter
+
+
+def _ratio_ci(a, b, seed, resamples=2000):
+    """95 % bootstrap intervals of ``mean(a)/mean(b) - 1`` and ``std(a)/std(b) - 1``.
+
+    Trial ``k`` of ``a`` and of ``b`` share the rotation and the faulty robot, so trials are
+    resampled in pairs.
+    """
+    rng = np.random.default_rng(seed + 3)
+    idx = rng.integers(0, len(a), (resamples, len(a)))
+    ra, rb = a[idx], b[idx]
+    mean = ra.mean(axis=1) / rb.mean(axis=1) - 1
+    std = ra.std(axis=1) / rb.std(axis=1) - 1
+    return tuple(np.percentile(mean, [2.5, 97.5])), tuple(np.percentile(std, [2.5, 97.5]))
 
 
 def main(argv=None) -> int:
@@ -131,23 +219,27 @@ def main(argv=None) -> int:
     ap.add_argument("--tail", type=int, default=1000, help="final iterations averaged per trial")
     ap.add_argument("--radius", type=float, default=1.0, help="formation radius D (m)")
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--noise", type=float, default=NOISE,
+                    help="sensor noise std (signal units); the faults scale with it (5x, 10x, bias 5x, spikes 50x)")
     ap.add_argument("--quick", action="store_true", help="20 trials x 1500 iterations")
     ap.add_argument("--faults", default=",".join(FAULTS))
     ap.add_argument("--estimators", default=",".join(ESTIMATORS),
                     help=f"comma-separated subset of: {', '.join(ESTIMATORS + (ORACLE,))}")
     args = ap.parse_args(argv)
+    if not (np.isfinite(args.noise) and args.noise > 0):
+        ap.error(f"--noise must be a positive number, got {args.noise}")
     if args.quick:
         args.trials, args.iterations, args.tail = 20, 1500, 300
     faults = [f for f in args.faults.split(",") if f]
     ests = [e for e in args.estimators.split(",") if e]
     print(f"sigma_2, N = {N}, D = {args.radius:g} m, eps = {EPS:g}, gamma = {GAMMA:g}, start {START_ENU}, "
-          f"noise {NOISE:g}; {args.trials} trials x {args.iterations} iterations, final error = mean "
+          f"noise {args.noise:g}; {args.trials} trials x {args.iterations} iterations, final error = mean "
           f"||c - r*|| over the last {args.tail}; faulty robot = trial mod {N}, random rotation per trial")
     results = {}
     for fault in faults:
         for est in ests:
             final, flags, per_iter = run(fault, est, args.trials, args.iterations, args.tail, args.radius,
-                                         args.seed)
+                                         args.seed, args.noise)
             results[fault, est] = (final, flags, per_iter)
             print(f"  ... {fault:10s} {est:17s} {final.mean():.3f} +- {final.std():.3f} m "
                   f"({per_iter * 1e3:.2f} ms/iteration)", file=sys.stderr, flush=True)
@@ -172,16 +264,29 @@ def main(argv=None) -> int:
         print("|---|---|---|---|---|---|")
         for fault in faults:
             for est in robust_ests:
-                named, false, false_excl, (med, p90) = results[fault, est][1]
+                named, false, false_excl, (med, p90) = results[fault, est][1][:4]
                 named_s = "-" if np.isnan(named) else f"{named:.0%}"
                 when_s = "-" if np.isnan(med) else f"{med:.0f} / {p90:.0f}"
                 print(f"| {fault} | {est} | {named_s} | {when_s} | {false:.0%} | {false_excl:.0%} |")
-    if ("none", "CVT Thm 2") in results and ("noisy 5x", "CVT robust") in results:
+    if RETIRE in ests:
+        print(f"\n| fault | {RETIRE}: faulty robot retired | retired at: median / 90th pct iteration | trials "
+              "with a healthy robot retired | trials with a second sensor due (not acted on) |")
+        print("|---|---|---|---|---|")
+        for fault in faults:
+            right, healthy, (med, p90), second = results[fault, RETIRE][1][4]
+            when_s = "-" if np.isnan(med) else f"{med:.0f} / {p90:.0f}"
+            right_s = f"{right:.0%}" if fault != "none" else "-"
+            print(f"| {fault} | {right_s} | {when_s} | {healthy:.0%} | {second:.0%} |")
+    for est in ("CVT robust", RETIRE):
+        if ("none", "CVT Thm 2") not in results or ("noisy 5x", est) not in results:
+            continue
         base = results["none", "CVT Thm 2"][0]
-        rob = results["noisy 5x", "CVT robust"][0]
-        print(f"\nTarget (one sensor at 5x): CVT robust {rob.mean():.3f} +- {rob.std():.3f} m vs all-equal-noise CVT "
-              f"Thm 2 {base.mean():.3f} +- {base.std():.3f} m: mean {rob.mean() / base.mean() - 1:+.1%}, "
-              f"std {rob.std() / base.std() - 1:+.1%} (target: both within 10 %)")
+        rob = results["noisy 5x", est][0]
+        (m_lo, m_hi), (s_lo, s_hi) = _ratio_ci(rob, base, args.seed)
+        print(f"\nTarget (one sensor at 5x): {est} {rob.mean():.3f} +- {rob.std():.3f} m vs all-equal-noise CVT "
+              f"Thm 2 {base.mean():.3f} +- {base.std():.3f} m: mean {rob.mean() / base.mean() - 1:+.1%} "
+              f"(95 % CI {m_lo:+.1%} .. {m_hi:+.1%}), std {rob.std() / base.std() - 1:+.1%} "
+              f"(95 % CI {s_lo:+.1%} .. {s_hi:+.1%}) (target: both within 10 %)")
     return 0
 
 

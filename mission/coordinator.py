@@ -96,6 +96,7 @@ class MissionResult:
     max_loop_lag_s: float | None = None
     lost: list = field(default_factory=list)
     readmitted: list = field(default_factory=list)  # sysid, lost_s, came_back_s, readmitted_s
+    retired: list = field(default_factory=list)  # retired sensors: mission.retire.RetiredSensor
 
     @property
     def ok(self) -> bool:
@@ -177,6 +178,7 @@ class Coordinator:
         self.max_loop_lag_s = 0.0
         self.lost: dict = {}
         self.readmitted: list = []  # mission.rejoin.readmit
+        self.retired: dict = {}  # sysid -> mission.retire.RetiredSensor (parked at the centre)
         self.return_on_interrupt = True
         self.formation_kind = plan.formation.type
         self._loss_task: asyncio.Task | None = None
@@ -236,7 +238,8 @@ class Coordinator:
         out = []
         for vp in self.plan.vehicles:
             v = self.vehicles.get(vp.sysid)
-            d = {"sysid": vp.sysid, "id": vp.id, "status": self.status.get(vp.sysid, "")}
+            d = {"sysid": vp.sysid, "id": vp.id, "status": self.status.get(vp.sysid, ""),
+                 "sensor_retired": vp.sysid in self.retired}
             if v is not None:
                 st = v.state
                 pos = self._telemetry_position(vp.sysid)
@@ -485,7 +488,8 @@ class Coordinator:
             reengaged=dict(self.reengaged), max_loop_lag_s=round(self.max_loop_lag_s, 4),
             lost=[{"sysid": x.sysid, "reason": x.reason, "detail": x.detail, "phase": x.phase,
                    "latency_s": round(x.latency_s, 3), "came_back_s": x.came_back_s}
-                  for x in self.lost.values()], readmitted=list(self.readmitted))
+                  for x in self.lost.values()], readmitted=list(self.readmitted),
+            retired=[dict(asdict(x), ratio=round(x.ratio, 3)) for x in self.retired.values()])
 
 
 def _plan_json(plan: Plan) -> dict:

@@ -74,6 +74,9 @@ def format_summary(summary: dict) -> list[str]:
         detected = f", detected after {latency:.2f} s" if isinstance(latency, (int, float)) else ""
         lines.append(f"  lost vehicle {loss.get('sysid')} in {loss.get('phase', '?')}: "
                      f"{loss.get('reason', '?')} ({loss.get('detail', '')}){detected}")
+    for x in summary.get("retired") or ():
+        lines.append(f"  sensor of vehicle {x.get('sysid')} retired after iteration {x.get('iteration')} "
+                     f"({x.get('reason')}, {_num(x.get('ratio'), '{:.1f}')}x the median noise): parked at the centre")
     return lines
 
 

@@ -311,11 +311,19 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
     the speed limit so that the ramp keeps up), flown leg by leg (interpolated goals every 0.1 s
     of the mission clock); then ``co.slot_offsets`` is updated and the formation settles.
     Without a separation-keeping plan the vehicles fly straight under the safety envelope.
+    Vehicles parked at the centre (retired sensors, :mod:`mission.retire`) not in ``sysids`` are
+    part of the transfer too, at the new centre.
     """
     from mission.phases import move_and_wait
     from mission.rejoin import obstacles, plan_clear_transfer
+    from mission.retire import parked
     from mission.safety import TransferError
 
+    still = parked(co)
+    members = [s for s in sysids if s not in still]  # the formation's (sensing) vehicles
+    extra = [s for s in still if s not in sysids]
+    sysids = list(sysids) + extra
+    new_offsets = {**new_offsets, **{s: np.zeros(3) for s in extra}}
     plan = co.plan
     loop = asyncio.get_running_loop()
     centre = np.asarray(centre_enu, dtype=float)
@@ -333,21 +341,41 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
                  "slots under the safety envelope", level="warning")
     if tp is not None:
         co.event(f"{what}: transfer {tp.strategy}, {tp.duration_s:.1f} s, closest approach "
-                 f"{tp.min_separation_m:.2f} m", survivors=sysids, lost=lost_here, strategy=tp.strategy,
-                 min_separation_m=tp.min_separation_m, slots={s: new_offsets[s] for s in sysids})
+                 f"{tp.min_separation_m:.2f} m", survivors=members, lost=lost_here, strategy=tp.strategy,
+                 min_separation_m=tp.min_separation_m, slots={s: new_offsets[s] for s in sysids},
+                 parked=parked(co))
         await _fly_transfer(co, sysids, tp)
     for s in sysids:
         co.slot_offsets[s] = new_offsets[s]
     await move_and_wait(co, {s: goal[i] for i, s in enumerate(sysids)}, plan.seeking.arrival_tol_m,
                         what="the re-formed formation to settle")
-    co.event(f"formation re-formed for {len(sysids)} vehicles in {co.clock.time() - t0:.1f} s",
-             survivors=sysids, duration_s=co.clock.time() - t0)
+    co.event(f"formation re-formed for {len(members)} vehicles in {co.clock.time() - t0:.1f} s",
+             survivors=members, duration_s=co.clock.time() - t0)
+
+
+def _ramp_times(times_s, waypoints_enu, max_speed_m_s: float, max_vertical_speed_m_s: float) -> np.ndarray:
+    """Waypoint times no faster than the ramp: every leg at least as long as its slowest vehicle
+    needs under the horizontal and the vertical speed limits.
+
+    The planned legs are synchronous straight lines, so stretching a leg keeps the geometry (and
+    the separation) of the plan; a leg timed faster than the ramp can fly (the planner's single
+    speed applies to the climbs of the layered strategies too, the ramp climbs at 1 m/s) would
+    let each vehicle lag by its own amount, out of step with the others.
+    """
+    t = np.asarray(times_s, dtype=float)
+    d = np.diff(np.asarray(waypoints_enu, dtype=float), axis=0)          # (K-1, N, 3)
+    need = np.maximum(np.linalg.norm(d, axis=-1) / max_speed_m_s,
+                      np.abs(d[..., 2]) / max_vertical_speed_m_s).max(axis=1, initial=0.0)
+    return np.r_[0.0, np.cumsum(np.maximum(np.diff(t), need))]
 
 
 async def _fly_transfer(co, sysids: list[int], tp) -> None:
-    """Feed the transfer's interpolated positions to the ramp as goals, every 0.1 s."""
-    times = np.asarray(tp.times_s, dtype=float)
+    """Feed the transfer's interpolated positions to the ramp as goals, every 0.1 s (legs
+    stretched to the ramp's limits at 80 %, :func:`_ramp_times`)."""
     wps = np.asarray(tp.waypoints_enu, dtype=float)
+    ramp = co.ramp
+    times = _ramp_times(tp.times_s, wps, 0.8 * ramp.max_speed_m_s,
+                        0.8 * getattr(ramp, "max_vertical_speed_m_s", ramp.max_speed_m_s))
     t0 = co.clock.time()
     while True:
         t = co.clock.time() - t0

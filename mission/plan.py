@@ -40,6 +40,7 @@ PLAN_VERSION = 1
 _FORMATIONS = ("cvt", "symmetric")
 _ESTIMATORS = ("cvt", "symmetric", "robust")
 _RETURNS = ("land", "rtl")
+_FAULTY_SENSOR = ("retire", "keep")
 
 
 class PlanError(ValueError):
@@ -155,10 +156,24 @@ class FaultsPlan:
     link_timeout_s : float
         A vehicle silent for this long (mission clock) is lost (default 1.0; detection within
         ``link_timeout_s`` + 0.1 s).
+    faulty_sensor : {"retire", "keep"}
+        With the ``robust`` estimator: a sensor it names for one of the reasons of
+        :class:`estimator.retire.SensorRetirement` (stuck; noisy at 3x the median) for
+        ``retire_after`` consecutive iterations is retired, its vehicle parked at the
+        formation centre and the others re-formed (``retire``, the default,
+        :mod:`mission.retire`); ``keep``: the vehicle keeps its slot, its sensor down-weighted.
+    retire_after : int
+        Consecutive iterations a sensor must be named before it is retired (default 20).
+    retire_min_noise_ratio : float
+        A ``noisy`` sensor counts only while its estimated noise std is at least this many times
+        the median's (``min_noise_ratio`` of the rule; default 3.0, >= 1).
     """
 
     readmit: bool = False
     link_timeout_s: float = 1.0
+    faulty_sensor: str = "retire"
+    retire_after: int = 20
+    retire_min_noise_ratio: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -298,13 +313,19 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
 
 def _parse_faults(c: Checker, doc: dict) -> FaultsPlan:
     t = c.table(doc, "faults")
-    c.unknown(t, ("readmit", "link_timeout_s"), "faults")
+    c.unknown(t, ("readmit", "link_timeout_s", "faulty_sensor", "retire_after", "retire_min_noise_ratio"),
+              "faults")
     readmit = t.get("readmit", False)
     if not isinstance(readmit, bool):
         c.bad("faults.readmit", f"must be true or false, got {show_value(readmit)}")
         readmit = False
     timeout = c.number(t, "link_timeout_s", "faults", 1.0, low=0.2, high=1.4)
-    return FaultsPlan(readmit=readmit, link_timeout_s=1.0 if timeout is None else timeout)
+    d = FaultsPlan()
+    faulty = c.string(t, "faulty_sensor", "faults", d.faulty_sensor, choices=_FAULTY_SENSOR)
+    after = c.number(t, "retire_after", "faults", d.retire_after, low=1, high=10000, integer=True)
+    ratio = c.number(t, "retire_min_noise_ratio", "faults", d.retire_min_noise_ratio, low=1.0, high=100.0)
+    return FaultsPlan(readmit=readmit, link_timeout_s=1.0 if timeout is None else timeout,
+                      faulty_sensor=faulty, retire_after=after, retire_min_noise_ratio=ratio)
 
 
 def _parse_origin(c: Checker, doc: dict):

@@ -4,7 +4,9 @@ What the log holds and the resumed coordinator uses: the plan (``plan`` record),
 slots and altitude layers (the ``formation ...`` event, then every ``re-forming ...`` event), the
 vehicles lost so far (``vehicle N lost`` events), the formation type in use, and the seek's
 progress (the last ``iteration`` record: its ``k``, ``new_centre_enu``, ``distance_flown_m``; the
-last ``convergence_window`` centres prefill the convergence monitor).
+last ``convergence_window`` centres prefill the convergence monitor), and the retired sensors
+(``vehicle N's sensor retired`` events: those vehicles stay parked at the centre, their readings
+ignored, :mod:`mission.retire`).
 
 The resumed coordinator reconnects, and re-engages every vehicle still flying (armed, above
 1 m, not in RTL/LAND): setpoints at its current position first, then OFFBOARD (PX4) or GUIDED
@@ -62,6 +64,8 @@ class ResumeState:
     last_phase : str
     embedded : dict or None
         The ``embedded mock fleet`` event of a ``swarmseek run`` log (source, seed...).
+    retired : dict
+        Sysid -> the fields of its ``sensor retired`` event (:class:`mission.retire.RetiredSensor`).
     """
 
     plan: Plan
@@ -75,6 +79,7 @@ class ResumeState:
     distance_flown_m: float = 0.0
     last_phase: str = ""
     embedded: dict | None = None
+    retired: dict = field(default_factory=dict)
 
 
 def _tuple_of_tuples(x):
@@ -142,6 +147,7 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
     slots: dict[int, np.ndarray] = {}
     layers: dict[int, float] = {}
     lost: list[int] = []
+    retired: dict[int, dict] = {}
     kind = plan.formation.type
     embedded = None
     for r in records:
@@ -159,6 +165,8 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
             lost = [s for s in lost if s != int(r["sysid"])]
         elif msg.startswith("formation rotated") and "slots" in r:
             slots.update({int(k): np.asarray(v, dtype=float) for k, v in r["slots"].items()})
+        elif msg.startswith("vehicle ") and "'s sensor retired (" in msg and "sysid" in r:
+            retired[int(r["sysid"])] = r
         elif "switching to the CVT formation" in msg:
             kind = "cvt"
         elif msg == "embedded mock fleet":
@@ -168,6 +176,9 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
                           "start the mission again")
     for s in lost:
         slots.pop(s, None)
+    for s in retired:
+        if s in slots:
+            slots[s] = np.zeros(3)  # parked at the centre
     iterations = [r for r in records if r["type"] == "iteration"]
     window = plan.seeking.convergence_window
     if iterations:
@@ -179,7 +190,7 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
         centre, centres, k, flown = plan.seeking.start_point(), [], 0, 0.0
     return ResumeState(plan=plan, iteration=k, centre_enu=centre, centres=centres, slot_offsets=slots,
                        layer_alt_m=layers, formation_kind=kind, lost=lost, distance_flown_m=flown,
-                       last_phase=last_phase, embedded=embedded)
+                       last_phase=last_phase, embedded=embedded, retired=retired)
 
 
 async def rejoin(co, state: ResumeState) -> None:
@@ -256,11 +267,15 @@ async def rejoin(co, state: ResumeState) -> None:
         if want is not None and v.state.mode != want:
             await _retried(co, lambda v=v, want=want: v.set_mode(want), f"re-engaging {want} on vehicle {s}")
         co.status[s] = "in formation"
+    from mission.retire import restore_retired
+
+    restore_retired(co, state.retired)
     co.event(f"resumed at iteration {state.iteration} from centre "
              f"({co.centre_enu[0]:.2f}, {co.centre_enu[1]:.2f}, {co.centre_enu[2]:.2f}) m with vehicles "
              f"{flying}", iteration=state.iteration, centre_enu=co.centre_enu, vehicles=flying,
-             lost=sorted(co.lost))
-    if len(flying) < 4:
-        raise MissionError(f"only {len(flying)} vehicles can be re-engaged ({flying}); a formation needs 4: "
-                           "bringing them home")
+             lost=sorted(co.lost), retired=sorted(co.retired))
+    sensing = [s for s in flying if s not in co.retired]
+    if len(sensing) < 4:
+        raise MissionError(f"only {len(sensing)} sensing vehicles can be re-engaged ({sensing}); a formation "
+                           "needs 4: bringing them home")
     await asyncio.sleep(0)

@@ -40,6 +40,8 @@ def make_estimator(kind: str, n: int):
             return np.asarray(robust.update(np.asarray(positions) - centre, np.asarray(values)), dtype=float)
 
         _robust.suspects = lambda: list(robust.suspects)
+        _robust.suspect_codes = lambda: robust.suspect_codes
+        _robust.noise_std = lambda: robust.noise_std_estimates
         _robust.needs_all = True
         return _robust
 
@@ -61,25 +63,31 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     others home). After a loss the formation is re-formed for the survivors
     (:func:`mission.loss.reform`) before the next iteration; a returning vehicle is re-admitted
     (``[faults] readmit = true``, :func:`mission.rejoin.readmit`); every iteration's slots are
-    rotated clear of lost vehicles still flying (:func:`mission.rejoin.clear_goals`).
+    rotated clear of lost vehicles still flying (:func:`mission.rejoin.clear_goals`). With the
+    robust estimator, a sensor it keeps naming is retired: its vehicle is parked at the centre,
+    its readings ignored, the others re-formed (:mod:`mission.retire`); only sensing vehicles
+    count towards the 4.
     """
     from estimator import ConvergenceMonitor, GeometryError, seek_step
 
     from mission.loss import reform
     from mission.rejoin import clear_goals, pending_readmissions, readmit
     from mission.phases import move_and_wait
+    from mission.retire import (formation_goals, keep_out_retired, make_watch, parked, retire_sensor,
+                                rotate_around_parked)
 
     co.set_phase("seek")
     plan = co.plan
     sk = plan.seeking
     # the formation's vehicles: those under setpoints, and those lost since their slot was given
     # (the loop re-forms without them first)
-    sysids = sorted(s for s in co.slot_offsets if s in co.ramp.sysids or s in co.lost)
+    sysids = sorted(s for s in co.slot_offsets if (s in co.ramp.sysids or s in co.lost) and s not in co.retired)
     flying = [s for s in sysids if s not in co.lost]
     if len(flying) < 4:
         raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
     est_kind = sk.estimator
     estimate = make_estimator(est_kind, len(sysids))
+    watch = make_watch(co, est_kind, sysids)
     monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m)
     centre = np.asarray(co.centre_enu, dtype=float).copy()
     for c in history:
@@ -100,15 +108,17 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
                                             "needs 4; ending the mission, the others come home")
             if co.formation_kind == "cvt" and est_kind == "symmetric":
                 est_kind = "cvt"
-            estimate = make_estimator(est_kind, len(sysids))
-        returning = pending_readmissions(co)
+            estimate, watch = make_estimator(est_kind, len(sysids)), make_watch(co, est_kind, sysids)
+        returning = await keep_out_retired(co, pending_readmissions(co))
         if returning:
             sysids = await readmit(co, centre, sysids, returning)
             if co.formation_kind == "cvt" and est_kind == "symmetric":
                 est_kind = "cvt"
-            estimate = make_estimator(est_kind, len(sysids))
+            estimate, watch = make_estimator(est_kind, len(sysids)), make_watch(co, est_kind, sysids)
+        before = {s: co.slot_offsets[s].copy() for s in sysids}
         clear_goals(co, centre, sysids)  # a few ms at most: slots clear of lost vehicles still flying
-        goals = {s: centre + co.slot_offsets[s] for s in sysids}
+        await rotate_around_parked(co, centre, sysids, before)  # planned, if a vehicle is parked
+        goals = formation_goals(co, centre, sysids)  # parked vehicles (retired sensors) at the centre
         try:
             await move_and_wait(co, goals, sk.arrival_tol_m,
                                 timeout_s=20.0 + 3.0 * sk.gamma_m / plan.max_speed_m_s,
@@ -170,6 +180,7 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
                 raise MissionError(f"no gradient estimate for {failures} iterations (last: {exc})") from None
             continue
         failures = 0
+        retiring = None if watch is None else watch.update(estimate, used, k + 1, co.clock.time())
         new_centre = seek_step(centre, grad, sk.eps, sk.gamma_m)
         if co.envelope is not None:
             clamp = co.envelope.clamp_centre(centre, new_centre)
@@ -193,8 +204,8 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
                          new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.estimate_enu,
                          spread_m=co.spread_m, distance_flown_m=co.distance_flown_m,
                          readings=[aligned[s] for s in used],
-                         positions_enu={s: co._telemetry_position(s) for s in sysids},
-                         setpoints_enu={s: co.ramp.setpoint(s) for s in sysids},
+                         positions_enu={s: co._telemetry_position(s) for s in sysids + parked(co)},
+                         setpoints_enu={s: co.ramp.setpoint(s) for s in sysids + parked(co)},
                          suspects=_suspects(estimate, used),
                          status=co.vehicle_status())
         centre = new_centre
@@ -213,16 +224,20 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
             co._t_seek_end = co.clock.time()
             return "stopped_at_fence", ("the formation centre has been held at the geofence for "
                                         f"{at_fence} iterations: the source is probably outside the fence")
+        if retiring is not None:
+            sysids = await retire_sensor(co, centre, sysids, retiring)
+            estimate, watch = make_estimator(est_kind, len(sysids)), make_watch(co, est_kind, sysids)
     co._t_seek_end = co.clock.time()
     return "max_iterations", f"not converged after {sk.max_iterations} iterations"
 
 
 def _suspects(estimate, used: list[int]) -> list[dict] | None:
-    """The robust estimator's suspect sensors as ``{sysid, reason, excluded}`` (None otherwise)."""
+    """The robust estimator's suspect sensors as ``{sysid, reason, excluded, noise_std}`` (None otherwise)."""
     get = getattr(estimate, "suspects", None)
     if get is None:
         return None
     try:
-        return [{"sysid": used[s.index], "reason": s.reason, "excluded": bool(s.excluded)} for s in get()]
+        return [{"sysid": used[s.index], "reason": s.reason, "excluded": bool(s.excluded),
+                 "noise_std": float(s.noise_std)} for s in get()]
     except (AttributeError, IndexError, ValueError):
         return None

@@ -189,3 +189,15 @@ def test_summary_lists_lost_vehicles_with_detection_latency():
                   "latency_s": 1.08}],
     })
     assert any("lost vehicle 3 in seek: silent" in ln and "1.08 s" in ln for ln in lines)
+
+
+def test_summary_lists_retired_sensors():
+    from mission.display import format_summary
+
+    lines = format_summary({
+        "outcome": "converged", "message": "ok", "mission_time_s": 10.0, "seek_time_s": 5.0,
+        "distance_flown_m": 3.0,
+        "retired": [{"sysid": 3, "reason": "noisy", "iteration": 29, "ratio": 3.62}],
+    })
+    assert any("sensor of vehicle 3 retired after iteration 29 (noisy, 3.6x the median noise)" in ln
+               for ln in lines)

@@ -163,3 +163,37 @@ def test_zenoh_config_has_explicit_endpoints_and_no_multicast(doc):
     conf = plan.zenoh.to_config()
     assert '"tcp/127.0.0.1:7447"' in conf.get_json("listen/endpoints")
     assert conf.get_json("scouting/multicast/enabled") == "false"
+
+
+@pytest.mark.parametrize("faults, expected", [
+    ({}, ("retire", 20)),
+    ({"faulty_sensor": "keep"}, ("keep", 20)),
+    ({"faulty_sensor": "retire", "retire_after": 5}, ("retire", 5)),
+    ({"retire_after": 1, "retire_min_noise_ratio": 2}, ("retire", 1, 2.0)),
+])
+def test_faulty_sensor_keys_and_defaults(doc, faults, expected):
+    doc["faults"] = faults
+    f = parse_plan(doc).faults
+    assert (f.faulty_sensor, f.retire_after, f.retire_min_noise_ratio) == expected + (3.0,) * (3 - len(expected))
+
+
+@pytest.mark.parametrize("key, value, why", [
+    ("faulty_sensor", "land", "must be one of retire, keep"),
+    ("faulty_sensor", "", "expected a non-empty string"),
+    ("faulty_sensor", True, "expected a non-empty string"),
+    ("retire_after", 0, "must be >= 1"),
+    ("retire_after", -3, "must be >= 1"),
+    ("retire_after", 2.5, "expected an integer"),
+    ("retire_after", "20", "expected an integer"),
+    ("retire_after", True, "expected an integer"),
+    ("retire_after", 10**6, "must be <= 10000"),
+    ("retire_min_noise_ratio", 0.5, "must be >= 1.0"),
+    ("retire_min_noise_ratio", "3x", "expected a number"),
+    ("retire_min_noise_ratio", float("inf"), "must be finite"),
+])
+def test_bad_faulty_sensor_keys_are_reported_with_their_key(doc, key, value, why):
+    doc["faults"] = {key: value}
+    with pytest.raises(PlanError, match=f"faults.{key}") as info:
+        parse_plan(doc)
+    assert _keys(info.value) == [f"faults.{key}"]
+    assert why in info.value.problems[0][1], info.value.problems
