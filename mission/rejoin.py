@@ -22,7 +22,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["OBSTACLE_MARGIN_M", "OBSTACLE_TTL_S", "clear_goals", "clear_offsets", "obstacles",
+__all__ = ["OBSTACLE_MARGIN_M", "OBSTACLE_TTL_S", "clear_goals", "clear_offsets", "fly_rotation", "obstacles",
            "pending_readmissions", "plan_clear_transfer", "readmit", "readmitted_offsets",
            "segment_clearance"]
 
@@ -243,6 +243,23 @@ def clear_goals(co, centre_enu, sysids: list[int]) -> bool:
                  + ("" if ok else " (no rotation keeps the full clearance)"),
                  level="info" if ok else "warning", obstacles=obs, slots={s: new[s] for s in sysids})
     return ok
+
+
+async def fly_rotation(co, centre_enu, sysids: list[int], before: dict[int, np.ndarray]) -> None:
+    """Fly a rotation of the slots made by :func:`clear_goals` as a separation-keeping transfer.
+
+    Flown straight, a large rotation takes the slots along chords that cross each other and
+    pass near the centre (where a vehicle with a retired sensor is parked); as a transfer
+    (:func:`mission.loss.transfer_to`) every path is planned and checked. ``before``: the slot
+    offsets before :func:`clear_goals`. Nothing is flown when nothing rotated.
+    """
+    from mission.loss import transfer_to
+
+    members = [s for s in sysids if s not in co.lost and co.ramp is not None and s in co.ramp.sysids]
+    if all(np.allclose(before[s], co.slot_offsets[s]) for s in members if s in before):
+        return
+    await transfer_to(co, members, {s: co.slot_offsets[s] for s in members}, centre_enu,
+                      f"rotating the formation of {len(members)} clear of a lost vehicle", [])
 
 
 def pending_readmissions(co) -> list[int]:

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["PARKED_STATUS", "RetiredSensor", "SensorWatch", "formation_goals", "keep_out_retired",
-           "make_watch", "parked", "restore_retired", "retire_sensor", "rotate_around_parked"]
+           "make_watch", "parked", "restore_retired", "retire_sensor"]
 
 #: ``co.status`` of a vehicle whose sensor was retired
 PARKED_STATUS = "sensor retired: at the centre"
@@ -200,22 +200,6 @@ async def retire_sensor(co, centre_enu, sysids: list[int], info: RetiredSensor) 
     await transfer_to(co, remaining + [sysid], new, centre_enu,
                       f"re-forming for {len(remaining)} vehicles ({kind}), sensor of {sysid} retired", [])
     return [s for s in remaining if s not in co.lost]
-
-
-async def rotate_around_parked(co, centre_enu, sysids: list[int], before: dict[int, np.ndarray]) -> None:
-    """Fly a rotation of the slots as a planned transfer while a vehicle is parked at the centre.
-
-    :func:`mission.rejoin.clear_goals` may rotate the formation about its centre (clear of a lost
-    vehicle still flying); flown straight, a large rotation takes the slots along chords that
-    pass near the centre, where the parked vehicle is. ``before``: the slot offsets before.
-    """
-    from mission.loss import transfer_to
-
-    members = [s for s in sysids if s not in co.lost and co.ramp is not None and s in co.ramp.sysids]
-    if not parked(co) or all(np.allclose(before[s], co.slot_offsets[s]) for s in members if s in before):
-        return
-    await transfer_to(co, members, {s: co.slot_offsets[s] for s in members}, centre_enu,
-                      f"rotating the formation of {len(members)} around the parked vehicle", [])
 
 
 async def keep_out_retired(co, returning: list[int]) -> list[int]:

@@ -71,10 +71,9 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     from estimator import ConvergenceMonitor, GeometryError, seek_step
 
     from mission.loss import reform
-    from mission.rejoin import clear_goals, pending_readmissions, readmit
+    from mission.rejoin import clear_goals, fly_rotation, pending_readmissions, readmit
     from mission.phases import move_and_wait
-    from mission.retire import (formation_goals, keep_out_retired, make_watch, parked, retire_sensor,
-                                rotate_around_parked)
+    from mission.retire import formation_goals, keep_out_retired, make_watch, parked, retire_sensor
 
     co.set_phase("seek")
     plan = co.plan
@@ -117,7 +116,7 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
             estimate, watch = make_estimator(est_kind, len(sysids)), make_watch(co, est_kind, sysids)
         before = {s: co.slot_offsets[s].copy() for s in sysids}
         clear_goals(co, centre, sysids)  # a few ms at most: slots clear of lost vehicles still flying
-        await rotate_around_parked(co, centre, sysids, before)  # planned, if a vehicle is parked
+        await fly_rotation(co, centre, sysids, before)  # a rotation is flown as a planned transfer
         goals = formation_goals(co, centre, sysids)  # parked vehicles (retired sensors) at the centre
         try:
             await move_and_wait(co, goals, sk.arrival_tol_m,
