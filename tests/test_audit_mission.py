@@ -23,12 +23,12 @@ import pytest
 
 from mission.audit import audit_mission
 from mission.cli import main as cli_main
-from mission.coordinator import Coordinator
 from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.mission_log import MissionLog, read_mission_log
+from mission.mission_log import read_mission_log
 from mission.plan import GeofencePlan
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
+from fly_helpers import fly as _fly
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
@@ -52,19 +52,6 @@ class _CrashAt(threading.Thread):
                 self.injected.set()
                 return
             self.done.wait(0.05)
-
-
-async def _fly(plan, fleet, log_dir):
-    import zenoh
-
-    session = zenoh.open(plan.zenoh.to_config())
-    log = MissionLog(log_dir / "mission.jsonl", fleet.clock)
-    try:
-        return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log,
-                                 tlog_dir=log_dir / "tlogs").run()
-    finally:
-        log.close()
-        session.close()
 
 
 def _fly_against_mock(log_dir, n, source, start_enu_m=(0.0, 0.0, 11.0), plan_changes=None, crash=None):

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from mission.audit import audit_mission
-from mission.coordinator import Coordinator, _plan_json
+from mission.coordinator import _plan_json
 from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.mission_log import MissionLog, read_mission_log
 from mission.plan import FaultsPlan
@@ -40,6 +40,7 @@ from mission.retire import (
 )
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
+from fly_helpers import fly as _fly
 
 _NOISY = 3
 _LEAVING = 6
@@ -197,19 +198,6 @@ def test_resume_reads_the_retired_sensor_back(tmp_path):
 
 
 # ------------------------------------------------------------------------ against the mock
-async def _fly(plan, fleet, log_dir):
-    import zenoh
-
-    session = zenoh.open(plan.zenoh.to_config())
-    log = MissionLog(log_dir / "mission.jsonl", fleet.clock)
-    try:
-        return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log,
-                                 tlog_dir=log_dir / "tlogs").run()
-    finally:
-        log.close()
-        session.close()
-
-
 class _LeaveAfterRetirement(threading.Thread):
     """Low battery on ``sysid`` (PX4: RTL failsafe, the vehicle leaves the mission) one iteration
     after the log shows a retired sensor (polled, generous timeout)."""
