@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LEFT_MODES", "VehicleLoss", "classify_loss", "keep_out", "reform", "reformed_offsets",
-           "transfer_to", "watch_losses"]
+__all__ = ["LEFT_MODES", "VehicleLoss", "classify_loss", "keep_out", "reform", "reformed_offsets", "survivor_slots",
+           "fly_timed", "transfer_to", "watch_losses"]
 
 #: modes that mean "this vehicle left the mission" when the coordinator did not ask for them
 LEFT_MODES = {"px4": frozenset({"AUTO.RTL", "AUTO.LAND"}),
@@ -266,28 +266,40 @@ async def keep_out(co, sysid: int, v, loss: VehicleLoss, why: str) -> None:
 async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
     """Re-form the formation about ``centre_enu`` for the vehicles of ``sysids`` not lost.
 
-    Computes the survivors' slots (:func:`reformed_offsets`), rotated about the centre clear of
-    the lost vehicles still flying (:func:`mission.rejoin.clear_offsets`), then
-    :func:`transfer_to`. Returns the survivors; with fewer than 4 nothing is flown (the caller
-    ends the mission).
+    Computes the survivors' slots (:func:`survivor_slots`), then :func:`transfer_to`. Returns
+    the survivors; with fewer than 4 nothing is flown (the caller ends the mission).
     """
-    from mission.rejoin import OBSTACLE_MARGIN_M, clear_offsets, obstacles
-
     survivors = [s for s in sysids if s not in co.lost and co.ramp is not None and s in co.ramp.sysids]
     if len(survivors) < 4:
         return survivors
-    plan = co.plan
     lost_here = [s for s in sysids if s not in survivors]
-    # the CVT solve and the transfer planning take 0.1-0.3 s of CPU: in a worker thread, so that
-    # the event loop keeps streaming setpoints (at 10x, 0.1 s of wall time is PX4's 1 s
-    # offboard-loss timeout)
+    new, kind = await survivor_slots(co, centre_enu, sysids, lost_here, "vehicles",
+                                     " (and the Theorem 2 estimator)")
+    await transfer_to(co, survivors, new, centre_enu, f"re-forming for {len(survivors)} vehicles ({kind})",
+                      lost_here)
+    return [s for s in survivors if s not in co.lost]
+
+
+async def survivor_slots(co, centre_enu, sysids: list[int], gone: list[int], who: str = "vehicles",
+                         switch_note: str = "") -> tuple[dict[int, np.ndarray], str]:
+    """New slot offsets for ``sysids`` without ``gone``, and the formation type.
+
+    :func:`reformed_offsets` (a switch from symmetric to CVT is logged, ``who`` and
+    ``switch_note`` in its message), rotated about the centre clear of the lost vehicles still
+    flying (:func:`mission.rejoin.clear_offsets`, logged). Both run in a worker thread: the CVT
+    solve takes 0.1-0.3 s of CPU and the event loop must keep streaming setpoints (at 10x,
+    0.1 s of wall time is PX4's 1 s offboard-loss timeout).
+    """
+    from mission.rejoin import OBSTACLE_MARGIN_M, clear_offsets, obstacles
+
+    plan = co.plan
     loop = asyncio.get_running_loop()
     new, kind = await loop.run_in_executor(None, functools.partial(
-        reformed_offsets, co.formation_kind, {s: co.slot_offsets[s] for s in sysids}, lost_here,
+        reformed_offsets, co.formation_kind, {s: co.slot_offsets[s] for s in sysids}, gone,
         plan.formation.radius_m, plan.formation.seed))
     if kind != co.formation_kind:
-        co.event(f"{len(survivors)} vehicles left: the symmetric formation needs an even number; "
-                 "switching to the CVT formation (and the Theorem 2 estimator)", level="warning")
+        co.event(f"{len(sysids) - len(gone)} {who} left: the symmetric formation needs an even number; "
+                 f"switching to the CVT formation{switch_note}", level="warning")
         co.formation_kind = kind
     obs = obstacles(co)
     if len(obs):
@@ -297,9 +309,7 @@ async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
         co.event(f"re-formed slots rotated clear of {len(obs)} position(s) of lost vehicles still flying"
                  + ("" if ok else " (no rotation keeps the full clearance)"),
                  level="info" if ok else "warning", obstacles=obs)
-    await transfer_to(co, survivors, new, centre_enu, f"re-forming for {len(survivors)} vehicles ({kind})",
-                      lost_here)
-    return [s for s in survivors if s not in co.lost]
+    return new, kind
 
 
 async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what: str,
@@ -370,11 +380,21 @@ def _ramp_times(times_s, waypoints_enu, max_speed_m_s: float, max_vertical_speed
 
 
 async def _fly_transfer(co, sysids: list[int], tp) -> None:
-    """Feed the transfer's interpolated positions to the ramp as goals, every 0.1 s (legs
-    stretched to the ramp's limits at 80 %, :func:`_ramp_times`)."""
-    wps = np.asarray(tp.waypoints_enu, dtype=float)
+    """Fly a planned transfer (:func:`fly_timed`)."""
+    await fly_timed(co, sysids, tp.times_s, tp.waypoints_enu)
+
+
+async def fly_timed(co, sysids: list[int], times_s, waypoints_enu) -> None:
+    """Feed a synchronous plan's interpolated positions to the ramp as goals, every 0.1 s.
+
+    ``waypoints_enu`` ``(K, N, 3)`` at ``times_s`` ``(K,)`` for ``sysids``; the legs are
+    stretched to 80 % of the ramp's horizontal and vertical limits (:func:`_ramp_times`), so
+    every vehicle follows the plan's timing and the pairs keep the separation it was checked
+    for. Lost vehicles are skipped.
+    """
+    wps = np.asarray(waypoints_enu, dtype=float)
     ramp = co.ramp
-    times = _ramp_times(tp.times_s, wps, 0.8 * ramp.max_speed_m_s,
+    times = _ramp_times(times_s, wps, 0.8 * ramp.max_speed_m_s,
                         0.8 * getattr(ramp, "max_vertical_speed_m_s", ramp.max_speed_m_s))
     t0 = co.clock.time()
     while True:
@@ -385,7 +405,7 @@ async def _fly_transfer(co, sysids: list[int], tp) -> None:
             k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2))
             span = max(times[k + 1] - times[k], 1e-9)
             pos = wps[k] + (t - times[k]) / span * (wps[k + 1] - wps[k])
-        co.ramp.set_goals({s: pos[i] for i, s in enumerate(sysids) if s in co.ramp.sysids})
+        ramp.set_goals({s: pos[i] for i, s in enumerate(sysids) if s in ramp.sysids and s not in co.lost})
         if t >= times[-1]:
             return
         await co.clock.sleep(0.1)

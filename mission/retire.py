@@ -24,8 +24,6 @@ kept out and landed, never re-admitted (:func:`keep_out_retired`).
 """
 from __future__ import annotations
 
-import asyncio
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -161,10 +159,8 @@ async def retire_sensor(co, centre_enu, sysids: list[int], info: RetiredSensor) 
 
     Returns the sensing vehicles left (not lost).
     """
-    from mission.loss import reformed_offsets, transfer_to
-    from mission.rejoin import OBSTACLE_MARGIN_M, clear_offsets, obstacles
+    from mission.loss import survivor_slots, transfer_to
 
-    plan = co.plan
     sysid = info.sysid
     remaining = [s for s in sysids if s != sysid and s not in co.lost]
     why = ("the vehicle was lost" if sysid in co.lost or sysid not in co.ramp.sysids
@@ -173,20 +169,8 @@ async def retire_sensor(co, centre_enu, sysids: list[int], info: RetiredSensor) 
     if why is not None:  # a loss or a parking since the watch was made: the seek's rules apply
         co.event(f"vehicle {sysid}'s sensor not retired: {why}", level="warning", sysid=sysid, reason=info.reason)
         return list(sysids)
-    loop = asyncio.get_running_loop()
-    # the CVT solve in a worker thread: the event loop keeps streaming setpoints
-    new, kind = await loop.run_in_executor(None, functools.partial(
-        reformed_offsets, co.formation_kind, {s: co.slot_offsets[s] for s in sysids},
-        [s for s in sysids if s not in remaining], plan.formation.radius_m, plan.formation.seed))
-    if kind != co.formation_kind:
-        co.event(f"{len(remaining)} sensing vehicles left: the symmetric formation needs an even number; "
-                 "switching to the CVT formation", level="warning")
-        co.formation_kind = kind
-    obs = obstacles(co)
-    if len(obs):
-        new, _ = await loop.run_in_executor(None, functools.partial(
-            clear_offsets, new, centre_enu, obs, plan.min_separation_m + OBSTACLE_MARGIN_M,
-            allow_tilt=kind == "cvt"))
+    new, kind = await survivor_slots(co, centre_enu, sysids, [s for s in sysids if s not in remaining],
+                                     "sensing vehicles")
     co.retired[sysid] = info
     co.status[sysid] = PARKED_STATUS
     ratio = info.ratio

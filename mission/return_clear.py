@@ -351,21 +351,10 @@ def plan_clear_return(start, goal, layer_alt_m, obstacle_points, min_separation_
 
 # ------------------------------------------------------------------------------------ flight
 async def _fly_timed(co, sysids, plan: ClearPlan) -> None:
-    """Feed the synchronous plan's interpolated positions to the ramp as goals, every 0.1 s."""
-    times = plan.times_s
-    wps = plan.waypoints_enu
-    t0 = co.clock.time()
-    while True:
-        t = co.clock.time() - t0
-        if t >= times[-1]:
-            pos = wps[-1]
-        else:
-            k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2))
-            pos = wps[k] + (t - times[k]) / max(times[k + 1] - times[k], 1e-9) * (wps[k + 1] - wps[k])
-        co.ramp.set_goals({s: pos[i] for i, s in enumerate(sysids) if s in co.ramp.sysids and s not in co.lost})
-        if t >= times[-1]:
-            return
-        await co.clock.sleep(0.1)
+    """Fly the synchronous plan (:func:`mission.loss.fly_timed`: legs timed so the ramp follows)."""
+    from mission.loss import fly_timed
+
+    await fly_timed(co, sysids, plan.times_s, plan.waypoints_enu)
 
 
 async def _fly(co, sysids, plan: ClearPlan, tol_m: float, names: tuple[str, str, str]) -> bool:

@@ -1,22 +1,40 @@
 """Shared by the whole-mission tests: fly one plan against a mock fleet with a mission log."""
 from __future__ import annotations
 
+import asyncio
+
 from mission.coordinator import Coordinator
 from mission.mission_log import MissionLog
 
-__all__ = ["fly"]
+__all__ = ["fly", "run_with_saboteur"]
 
 
-async def fly(plan, fleet, log_dir):
-    """Run a :class:`Coordinator` on ``plan`` with the fleet's clock; the mission log goes to
-    ``log_dir / "mission.jsonl"``, the .tlog files to ``log_dir / "tlogs"``. Returns the result."""
+async def fly(plan, fleet, log_path, tlog_dir=None):
+    """Run a :class:`Coordinator` on ``plan`` with the fleet's clock, its mission log at
+    ``log_path`` and the .tlog files in ``tlog_dir`` (None: none). Returns the result."""
     import zenoh
 
     session = zenoh.open(plan.zenoh.to_config())
-    log = MissionLog(log_dir / "mission.jsonl", fleet.clock)
+    log = MissionLog(log_path, fleet.clock)
     try:
         return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log,
-                                 tlog_dir=log_dir / "tlogs").run()
+                                 tlog_dir=tlog_dir).run()
     finally:
         log.close()
         session.close()
+
+
+def run_with_saboteur(plan, fleet, log_dir, saboteur=None):
+    """Start ``fleet`` (and the ``saboteur`` thread, which sets faults as the mission log grows:
+    it has a ``done`` event), fly ``plan`` (:func:`fly`: log ``log_dir / "mission.jsonl"``, .tlog
+    files in ``log_dir / "tlogs"``), stop both; returns the result."""
+    fleet.start()
+    if saboteur:
+        saboteur.start()
+    try:
+        return asyncio.run(fly(plan, fleet, log_dir / "mission.jsonl", log_dir / "tlogs"))
+    finally:
+        if saboteur:
+            saboteur.done.set()
+            saboteur.join(timeout=30)
+        fleet.stop()

@@ -20,7 +20,7 @@ import math
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-__all__ = [
+__all__ = ["run_autopilot", 
     "ALL_MESSAGE_CLASSES",
     "FakeClock",
     "message_class",
@@ -321,3 +321,13 @@ class SigningOracle:
         self.streams[stream] = stamp
         self.timestamp = max(self.timestamp, stamp)
         return "accepted"
+
+
+def run_autopilot(ap, t_s: float, duration_s: float, dt_s: float = 0.02) -> float:
+    """Step a mock autopilot, its dynamics and its telemetry for ``duration_s``; the time after."""
+    for _ in range(int(round(duration_s / dt_s))):
+        ap.step(t_s, dt_s)
+        ap.mc.step(dt_s)
+        ap.send_telemetry(t_s)
+        t_s += dt_s
+    return t_s

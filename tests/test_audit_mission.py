@@ -13,7 +13,6 @@ The streamer is now the last speed gate before the wire (``max_speed_m_s``), and
 """
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import json
 import threading
@@ -28,7 +27,7 @@ from mission.mission_log import read_mission_log
 from mission.plan import GeofencePlan
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
-from fly_helpers import fly as _fly
+from fly_helpers import run_with_saboteur
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
@@ -64,16 +63,7 @@ def _fly_against_mock(log_dir, n, source, start_enu_m=(0.0, 0.0, 11.0), plan_cha
     if plan_changes:
         plan = dataclasses.replace(plan, **plan_changes)
     saboteur = _CrashAt(fleet, log_dir / "mission.jsonl", *crash) if crash else None
-    fleet.start()
-    if saboteur:
-        saboteur.start()
-    try:
-        result = asyncio.run(_fly(plan, fleet, log_dir))
-    finally:
-        if saboteur:
-            saboteur.done.set()
-            saboteur.join(timeout=30)
-        fleet.stop()
+    result = run_with_saboteur(plan, fleet, log_dir, saboteur)
     return result, saboteur
 
 

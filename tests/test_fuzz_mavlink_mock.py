@@ -16,7 +16,6 @@ import random
 import select
 import selectors
 import socket
-import struct
 import time
 
 import numpy as np
@@ -32,7 +31,7 @@ from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.dynamics import DynamicsParams, Multicopter
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import VehicleLinks, make_parser
-from fuzz_helpers import (ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad, is_valid_for, message_class,
+from fuzz_helpers import (run_autopilot, ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad, is_valid_for, message_class,
                           mutated, reference_parse, state_repr)
 
 _M = mavlink
@@ -58,12 +57,7 @@ _ABSURD_SETPOINT_M = 1e6
 
 
 def _run(ap, t_s: float, duration_s: float) -> float:
-    for _ in range(int(round(duration_s / _DT_S))):
-        ap.step(t_s, _DT_S)
-        ap.mc.step(_DT_S)
-        ap.send_telemetry(t_s)
-        t_s += _DT_S
-    return t_s
+    return run_autopilot(ap, t_s, duration_s, _DT_S)
 
 
 def _command(command: int, *params: float, target=(SYSID, 1)) -> bytes:

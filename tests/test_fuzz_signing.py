@@ -26,7 +26,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fuzz_helpers import (SIGNED_REGIONS, FakeClock, SigningOracle, encode, message_class, messages,
+from fuzz_helpers import (run_autopilot, SIGNED_REGIONS, FakeClock, SigningOracle, encode, message_class, messages,
                           mutate_signed, reference_parse, sign, state_repr)
 from mission.links import LinkError, MavEndpoint, parse_connection
 from mission.signing import SigningConfig, signing_timestamp
@@ -352,12 +352,7 @@ _ACTED_UPON = tuple(message_class(n) for n in (
 
 
 def _run(ap, t_s: float, duration_s: float) -> float:
-    for _ in range(int(round(duration_s / _DT_S))):
-        ap.step(t_s, _DT_S)
-        ap.mc.step(_DT_S)
-        ap.send_telemetry(t_s)
-        t_s += _DT_S
-    return t_s
+    return run_autopilot(ap, t_s, duration_s, _DT_S)
 
 
 def _mock(personality: str, case: str):

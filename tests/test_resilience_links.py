@@ -15,23 +15,13 @@ import threading
 import numpy as np
 import pytest
 
-from mission.coordinator import Coordinator
 from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.mission_log import MissionLog, read_mission_log
+from mission.mission_log import read_mission_log
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
+from fly_helpers import fly as _fly
 
 
-async def _fly(plan, fleet, log_path):
-    import zenoh
-
-    session = zenoh.open(plan.zenoh.to_config())
-    log = MissionLog(log_path, fleet.clock)
-    try:
-        return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, tlog_dir=None).run()
-    finally:
-        log.close()
-        session.close()
 
 
 @pytest.mark.slow

@@ -11,13 +11,13 @@ import threading
 import numpy as np
 import pytest
 
-from mission.coordinator import Coordinator
 from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.mission_log import MissionLog, read_mission_log
+from mission.mission_log import read_mission_log
 from mission.plan import FaultsPlan
 from mission.rejoin import clear_offsets, plan_clear_transfer, readmitted_offsets, segment_clearance
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
+from fly_helpers import fly as _fly
 
 pytestmark = pytest.mark.timeout(400)
 
@@ -140,16 +140,6 @@ class _Watcher(threading.Thread):
             self.fleet.clock.sleep_blocking(0.05)
 
 
-async def _fly(plan, fleet, log_path):
-    import zenoh
-
-    session = zenoh.open(plan.zenoh.to_config())
-    log = MissionLog(log_path, fleet.clock)
-    try:
-        return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, tlog_dir=None).run()
-    finally:
-        log.close()
-        session.close()
 
 
 def _mission(tmp_path, n, source, watcher_kwargs, readmit):

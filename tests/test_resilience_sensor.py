@@ -40,7 +40,7 @@ from mission.retire import (
 )
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
-from fly_helpers import fly as _fly
+from fly_helpers import run_with_saboteur
 
 _NOISY = 3
 _LEAVING = 6
@@ -236,16 +236,7 @@ def _fly_noisy(log_dir, faulty_sensor: str, max_iterations: int, leave: int | No
     plan = dataclasses.replace(plan, faults=FaultsPlan(faulty_sensor=faulty_sensor, retire_after=5,
                                                       retire_min_noise_ratio=2.0))
     saboteur = _LeaveAfterRetirement(fleet, log_dir / "mission.jsonl", leave) if leave else None
-    fleet.start()
-    if saboteur:
-        saboteur.start()
-    try:
-        result = asyncio.run(_fly(plan, fleet, log_dir))
-    finally:
-        if saboteur:
-            saboteur.done.set()
-            saboteur.join(timeout=30)
-        fleet.stop()
+    result = run_with_saboteur(plan, fleet, log_dir, saboteur)
     return plan, result, read_mission_log(log_dir / "mission.jsonl")
 
 

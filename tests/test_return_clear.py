@@ -17,6 +17,7 @@ from mission.rejoin import OBSTACLE_MARGIN_M
 from mission.return_clear import landing_spots, path_clearance, plan_clear_return
 from mission.safety import Geofence
 from mission.targets import layered_transfer
+from fly_helpers import fly
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -298,12 +299,9 @@ class _Watcher(threading.Thread):
 
 
 def _whole_mission(tmp_path, keep_clear, monkeypatch):
-    import zenoh
-
     from mission import return_clear
-    from mission.coordinator import Coordinator
     from mission.embedded import DEFAULT_ORIGIN, embedded_plan, fleet_ports
-    from mission.mission_log import MissionLog, read_mission_log
+    from mission.mission_log import read_mission_log
     from sitl_mock.fields import sigma2
     from sitl_mock.fleet import MockFleet
 
@@ -333,19 +331,10 @@ def _whole_mission(tmp_path, keep_clear, monkeypatch):
     # the fleet's origin is the plan's: homes are mission ENU
     watcher = _Watcher(fleet, log_path, _blocking_pick(homes, _layers))
 
-    async def _fly():
-        session = zenoh.open(plan.zenoh.to_config())
-        log = MissionLog(log_path, fleet.clock)
-        try:
-            return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, tlog_dir=None).run()
-        finally:
-            log.close()
-            session.close()
-
     fleet.start()
     watcher.start()
     try:
-        result = asyncio.run(_fly())
+        result = asyncio.run(fly(plan, fleet, log_path))
     finally:
         watcher.done.set()
         watcher.join(timeout=30)
