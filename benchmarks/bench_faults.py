@@ -29,10 +29,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mission.coordinator import Coordinator  # noqa: E402
-from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports, free_port_block  # noqa: E402
-from mission.mission_log import MissionLog, read_mission_log  # noqa: E402
-from mission.plan import GeofencePlan  # noqa: E402
+from mission.flight.coordinator import Coordinator  # noqa: E402
+from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports, free_port_block  # noqa: E402
+from mission.telemetry.mission_log import MissionLog, read_mission_log  # noqa: E402
+from mission.core.plan import GeofencePlan  # noqa: E402
 from sitl_mock.fields import sigma2  # noqa: E402
 from sitl_mock.fleet import MockFleet  # noqa: E402
 
@@ -166,7 +166,7 @@ def scenario(name, *, n=6, formation="cvt", estimator=None, speedup=10.0, person
 
         result = asyncio.run(_main())
         if resume_after is not None:
-            from mission.cmd_resume import resume
+            from mission.cli.cmd_resume import resume
 
             deadline = fleet.clock.time() + 30.0
             while fleet.clock.time() < deadline and any(v.mode_name == "OFFBOARD" for v in fleet.vehicles):

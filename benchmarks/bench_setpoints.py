@@ -2,7 +2,7 @@
 
 For every N and every stack, three processes:
 
-* the *vehicles* (``--role vehicles``): N fake autopilots (``mission.vehicle_fake``), one UDP
+* the *vehicles* (``--role vehicles``): N fake autopilots (``mission.vehicle.fake``), one UDP
   socket each, sending telemetry like an autopilot at the rates the mission asks for
   (GLOBAL_POSITION_INT and LOCAL_POSITION_NED 5 Hz; HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE
   1 Hz) and time-stamping every setpoint they receive (``time.perf_counter``): the intervals and
@@ -17,7 +17,7 @@ Stacks:
 
 * ``bare-pymavlink``: the floor: one non-blocking socket, pymavlink ``pack`` + ``sendto`` for
   every vehicle at 20 Hz, nothing received or parsed (the issue's "bare pymavlink sending alone");
-* ``swarmseek``: ``mission.links`` + ``mission.vehicle`` + ``mission.streamer``, one ``udpin``
+* ``swarmseek``: ``mission.link.endpoint`` + ``mission.vehicle.vehicle_link`` + ``mission.vehicle.streamer``, one ``udpin``
   endpoint per vehicle (PX4 SITL style ports);
 * ``swarmseek-polled``: the same with a shared ``UdpPoller`` (sockets drained every 10 ms by one
   task instead of one event-loop wake-up per datagram);
@@ -92,7 +92,7 @@ def _stdin_commands(loop, queue) -> None:
 
 # ---------------------------------------------------------------------------------- vehicles
 async def _vehicles_main(n: int, port_base: int, shared: bool) -> None:
-    from mission.vehicle_fake import FakeAutopilot, FakeUdpVehicle
+    from mission.vehicle.fake import FakeAutopilot, FakeUdpVehicle
     from formation.geodesy import enu_to_geodetic
 
     fakes = []
@@ -137,16 +137,16 @@ async def _vehicles_main(n: int, port_base: int, shared: bool) -> None:
 # ------------------------------------------------------------------------------ coordinator
 async def run_swarmseek(n: int, port_base: int, shared: bool, rate_hz: float, window_cb, extra_load=None,
                         polled: bool = False) -> dict:
-    """Connect ``n`` vehicles with mission.links/vehicle and stream setpoints at ``rate_hz``.
+    """Connect ``n`` vehicles with mission.link.endpoint/vehicle and stream setpoints at ``rate_hz``.
 
     ``window_cb`` is an async callable run while streaming (it opens and closes the measurement
     window and returns its measurements); ``extra_load(vehicles, streamer, clock)`` optional.
     """
-    from mission.clock import WallClock
-    from mission.links import MavEndpoint
-    from mission.links_poller import UdpPoller
-    from mission.streamer import SetpointStreamer
-    from mission.vehicle import DEFAULT_RATES_HZ, VehicleLink
+    from mission.core.clock import WallClock
+    from mission.link.endpoint import MavEndpoint
+    from mission.link.poller import UdpPoller
+    from mission.vehicle.streamer import SetpointStreamer
+    from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, VehicleLink
 
     clock = WallClock()
     poller = UdpPoller() if polled else None

@@ -7,8 +7,8 @@ Run from the repository root::
 Prints microseconds per frame (CPU time of this process, best of 3) for:
 
 1. pymavlink ``msg.pack`` of a SET_POSITION_TARGET_LOCAL_NED, unsigned and signed;
-2. :func:`mission.signing.sign_frame` on an already packed frame (the setpoint fast path);
-3. :meth:`mission.signing.SignatureVerifier.check_frame` (accepted frames);
+2. :func:`mission.link.signing.sign_frame` on an already packed frame (the setpoint fast path);
+3. :meth:`mission.link.signing.SignatureVerifier.check_frame` (accepted frames);
 4. the mock autopilot's receive gate (``MockAutopilot.accept_frame``) with signing off and on;
 5. frame sizes (a signed frame is 13 bytes longer).
 """
@@ -24,7 +24,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import numpy as np  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 
-from mission.signing import SignatureVerifier, SigningConfig, apply_signing, sign_frame  # noqa: E402
+from mission.link.signing import SignatureVerifier, SigningConfig, apply_signing, sign_frame  # noqa: E402
 from sitl_mock.autopilot import MockAutopilot  # noqa: E402
 from sitl_mock.dynamics import DynamicsParams, Multicopter  # noqa: E402
 from sitl_mock.transport import make_parser  # noqa: E402

@@ -1,7 +1,7 @@
 """A whole signed mission against the embedded mock fleet while an intruder injects frames.
 
-Run from the repository root (needs ``mission.links.MavEndpoint.open(..., signing=...)``, the
-change described with :mod:`mission.signing`; says so and exits otherwise)::
+Run from the repository root (needs ``mission.link.endpoint.MavEndpoint.open(..., signing=...)``, the
+change described with :mod:`mission.link.signing`; says so and exits otherwise)::
 
     python benchmarks/bench_signing_mission.py [--n 4] [--attack-hz 20] [--provision]
 
@@ -35,7 +35,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import numpy as np  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 
-from mission.signing import SigningConfig, apply_signing  # noqa: E402
+from mission.link.signing import SigningConfig, apply_signing  # noqa: E402
 
 KEY = bytes(range(1, 33))
 WRONG_KEY = bytes(range(101, 133))
@@ -119,9 +119,9 @@ class _Intruder(threading.Thread):
 async def _mission(n: int, attack_hz: float, provision: bool, seed: int) -> dict:
     import zenoh
 
-    from mission.coordinator import Coordinator
-    from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-    from mission.plan import replace_plan
+    from mission.flight.coordinator import Coordinator
+    from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
+    from mission.core.plan import replace_plan
     from sitl_mock.fields import make_field
     from sitl_mock.fleet import MockFleet
 
@@ -171,7 +171,7 @@ async def _mission(n: int, attack_hz: float, provision: bool, seed: int) -> dict
 
 def main() -> int:
     """Run the mission without and with the intruder; print the figures."""
-    from mission.links import MavEndpoint
+    from mission.link.endpoint import MavEndpoint
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=4)
@@ -180,7 +180,7 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=3)
     args = parser.parse_args()
     if "signing" not in inspect.signature(MavEndpoint.open).parameters:
-        print("skipped: mission.links.MavEndpoint.open has no signing= yet")
+        print("skipped: mission.link.endpoint.MavEndpoint.open has no signing= yet")
         return 0
     for attack_hz in (0.0, args.attack_hz):
         t0 = time.monotonic()

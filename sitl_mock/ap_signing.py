@@ -28,7 +28,7 @@ reboot (ArduPilot keeps it in flash). Everything runs in the fleet thread except
 :meth:`VehicleSigning.set_key` called from Python, which is ordered so that a concurrent send
 never signs without a key; prefer setting keys before the fleet starts.
 
-The key-file format is the one of :mod:`mission.signing` (64 hex characters, 32 raw bytes or a
+The key-file format is the one of :mod:`mission.link.signing` (64 hex characters, 32 raw bytes or a
 passphrase hashed with SHA-256); :func:`read_key_file` reads it for ``swarmseek mock`` (the mock
 may not import ``mission``).
 """
@@ -90,7 +90,7 @@ def _check_key(key) -> bytes:
 
 
 def read_key_file(path) -> bytes:
-    """Read a 32-byte signing key file (same format and checks as :mod:`mission.signing`).
+    """Read a 32-byte signing key file (same format and checks as :mod:`mission.link.signing`).
 
     Formats: 64 hexadecimal characters (surrounding whitespace ignored); exactly 32 raw bytes
     that are not all printable ASCII; otherwise one line of UTF-8 text, a passphrase, whose

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import asyncio
 
-from mission.coordinator import Coordinator
-from mission.mission_log import MissionLog
+from mission.flight.coordinator import Coordinator
+from mission.telemetry.mission_log import MissionLog
 
 __all__ = ["fly", "run_with_saboteur"]
 

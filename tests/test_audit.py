@@ -1,4 +1,4 @@
-"""``mission.audit`` on synthetic tlogs: each kind of broken rule is caught, clean logs pass, bad
+"""``mission.safety.audit`` on synthetic tlogs: each kind of broken rule is caught, clean logs pass, bad
 input is a clear error (and ``swarmseek audit`` exits 0 / 1 / 2)."""
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from formation.geodesy import geodetic_to_enu
-from mission.audit import AuditError, audit_mission
+from mission.safety.audit import AuditError, audit_mission
 from mission.cli import main as cli_main
-from mission.tlog import tlog_record
+from mission.link.tlog import tlog_record
 
 ORIGIN = (45.1885, 5.7245, 212.0)
 T0 = 1.8e9
@@ -134,7 +134,7 @@ def test_velocity_only_setpoints_are_skipped(tmp_path):
 def test_setpoint_before_home_is_reported(tmp_path):
     _write_log(tmp_path, {1: ((0, 0, 0), [(1.0, 0, 0, 10)])})
     path = tmp_path / "tlogs" / "vehicle-1.tlog"
-    from mission.tlog import read_tlog_records, tlog_record as rec
+    from mission.link.tlog import read_tlog_records, tlog_record as rec
     records = read_tlog_records(path)
     (_, home), (t_sp, setpoint) = records
     path.write_bytes(rec(setpoint, t_sp) + rec(home, t_sp + 1.0))   # the home comes after the setpoint

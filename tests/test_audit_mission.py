@@ -1,4 +1,4 @@
-"""Whole missions against the mock fleet, then :func:`mission.audit.audit_mission` on their
+"""Whole missions against the mock fleet, then :func:`mission.safety.audit.audit_mission` on their
 ``.tlog`` files: no setpoint broke the fence or the separation, thousands were checked.
 
 Four missions (N = 5 or 6, CVT, 10x), each flown once per module: a plain ``swarmseek run``
@@ -20,11 +20,11 @@ import threading
 import numpy as np
 import pytest
 
-from mission.audit import audit_mission
+from mission.safety.audit import audit_mission
 from mission.cli import main as cli_main
-from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.mission_log import read_mission_log
-from mission.plan import GeofencePlan
+from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
+from mission.telemetry.mission_log import read_mission_log
+from mission.core.plan import GeofencePlan
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
 from fly_helpers import run_with_saboteur

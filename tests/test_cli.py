@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mission.cli import main as cli_main
-from mission.mission_log import MissionLog
+from mission.telemetry.mission_log import MissionLog
 
 SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
 
@@ -72,7 +72,7 @@ def _to_toml(doc: dict) -> str:
 
 
 def test_round_trip_of_the_test_toml_writer(tmp_path):
-    from mission.plan import load_plan
+    from mission.core.plan import load_plan
 
     plan = load_plan(_write_plan(tmp_path / "p.toml"))
     assert plan == load_plan(SAMPLE)
@@ -127,7 +127,7 @@ def test_dry_run_invalid_plan_lists_every_problem(tmp_path, capsys):
 
 
 def test_dry_run_unreachable_vehicles_are_not_ready(tmp_path, capsys):
-    from mission.embedded import free_port_block
+    from mission.sim.embedded import free_port_block
 
     base = free_port_block(4, kinds=("udp",))
     doc = tomllib.loads(SAMPLE.read_text())
@@ -180,7 +180,7 @@ def test_fly_with_a_busy_zenoh_port_fails_clearly(tmp_path, capsys):
 
 
 def test_summary_lists_lost_vehicles_with_detection_latency():
-    from mission.display import format_summary
+    from mission.telemetry.display import format_summary
 
     lines = format_summary({
         "outcome": "converged", "message": "ok", "mission_time_s": 10.0, "seek_time_s": 5.0,
@@ -192,7 +192,7 @@ def test_summary_lists_lost_vehicles_with_detection_latency():
 
 
 def test_summary_lists_retired_sensors():
-    from mission.display import format_summary
+    from mission.telemetry.display import format_summary
 
     lines = format_summary({
         "outcome": "converged", "message": "ok", "mission_time_s": 10.0, "seek_time_s": 5.0,

@@ -10,9 +10,9 @@ import time
 import numpy as np
 import pytest
 
-from mission.display import Display, format_line, format_summary, format_table
-from mission.mission_log import MissionLog, read_mission_log
-from mission.targets import TargetRamp, assign_slots, layered_altitudes, layered_transfer
+from mission.telemetry.display import Display, format_line, format_summary, format_table
+from mission.telemetry.mission_log import MissionLog, read_mission_log
+from mission.flight.targets import TargetRamp, assign_slots, layered_altitudes, layered_transfer
 
 
 class _Clock:
@@ -67,7 +67,7 @@ def test_ramp_limits_speed_and_reaches_goal(speed, vspeed):
 
 
 def test_ramp_passes_every_batch_through_the_safety_envelope():
-    from mission.safety import Geofence, SafetyEnvelope
+    from mission.safety.envelope import Geofence, SafetyEnvelope
 
     fence = Geofence(np.array([[-10.0, -10], [10, -10], [10, 10], [-10, 10]]), 2.0, 30.0)
     env = SafetyEnvelope(fence, max_speed_m_s=2.0, min_separation_m=1.0, formation_radius_m=1.0)
@@ -111,8 +111,8 @@ def _simulate_ramp(batches, speed, vspeed, dt=0.05):
 @pytest.mark.parametrize("n, kind, seed", [(4, "cvt", 0), (7, "cvt", 1), (8, "cvt", 2), (8, "symmetric", 3),
                                            (12, "cvt", 4)])
 def test_layered_assembly_and_return_keep_separation(n, kind, seed):
-    from mission.phases import formation_offsets
-    from mission.safety import pairwise_path_separation
+    from mission.flight.phases import formation_offsets
+    from mission.safety.envelope import pairwise_path_separation
 
     rng = np.random.default_rng(seed)
     min_sep = 1.5
@@ -213,8 +213,8 @@ def test_quiet_display_prints_nothing_and_summary_lines():
 def test_state_publisher_puts_json_snapshots_on_the_documented_key():
     import zenoh
 
-    from mission.embedded import free_port_block
-    from mission.state_pub import STATE_SCHEMA, StatePublisher, state_key
+    from mission.sim.embedded import free_port_block
+    from mission.telemetry.state_pub import STATE_SCHEMA, StatePublisher, state_key
 
     port = free_port_block(1, kinds=("tcp",))
 
@@ -253,8 +253,8 @@ def test_state_publisher_puts_json_snapshots_on_the_documented_key():
 
 def test_seek_load_runs_the_seek_work_until_cancelled():
     """The benchmark load: readings validated, setpoints ramped through the envelope, estimates."""
-    from mission.clock import WallClock
-    from mission.seek_load import seek_load
+    from mission.core.clock import WallClock
+    from mission.flight.seek_load import seek_load
 
     class _V:
         def __init__(self, i):

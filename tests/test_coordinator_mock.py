@@ -8,10 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mission.coordinator import Coordinator
-from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.mission_log import MissionLog, read_mission_log
-from mission.plan import GeofencePlan
+from mission.flight.coordinator import Coordinator
+from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
+from mission.telemetry.mission_log import MissionLog, read_mission_log
+from mission.core.plan import GeofencePlan
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
 
@@ -28,7 +28,7 @@ async def _fly(plan, fleet, log_path, states=None):
 
     import zenoh
 
-    from mission.state_pub import state_key
+    from mission.telemetry.state_pub import state_key
 
     session = zenoh.open(plan.zenoh.to_config())
     log = MissionLog(log_path, fleet.clock)
@@ -46,8 +46,8 @@ async def _fly(plan, fleet, log_path, states=None):
 def test_failed_preflight_aborts_and_arms_nothing(tmp_path, zenoh_elsewhere):
     """... and warns when no sensor reading arrives (zenoh connected elsewhere: as silent as a
     refused TLS handshake or login)."""
-    from mission.embedded import free_port_block
-    from mission.zenoh_security import ZenohPlan
+    from mission.sim.embedded import free_port_block
+    from mission.core.zenoh_security import ZenohPlan
 
     n = 4
     ports = fleet_ports(n, "px4")

@@ -1,7 +1,7 @@
 """End to end: ``swarmseek run`` (in-process) flies the whole mission against the mock fleet over
 real sockets (MAVLink UDP for PX4, TCP for ArduPilot; readings and state over zenoh).
 
-Tolerance, justified from the offline simulation of the same setting: ``sitl_mock.offline``
+Tolerance, justified from the offline simulation of the same setting: ``experiments.offline``
 runs the same formation (same offsets, same orientation), field, start, eps, gamma and noise
 with perfect tracking over many noise draws, and the same convergence test; the mission must
 find the source within the offline 99th-percentile error plus ``_FLIGHT_MARGIN_M``. The margin
@@ -36,9 +36,9 @@ def _offline_tolerance(formation: str, n: int, source, start, eps: float, gamma:
                        window: int, tol_m: float) -> tuple[float, np.ndarray]:
     """(99th percentile of the offline final error, offline mean estimate)."""
     from estimator import convergence_scan
-    from mission.phases import formation_offsets
+    from mission.flight.phases import formation_offsets
     from sitl_mock.fields import sigma2
-    from sitl_mock.offline import simulate
+    from experiments.offline import simulate
 
     offsets = formation_offsets(formation, n, 4.0)
     res = simulate(offsets, sigma2(source), start, eps=eps, gamma=gamma, iterations=200, trials=200,
@@ -53,8 +53,8 @@ def _offline_tolerance(formation: str, n: int, source, start, eps: float, gamma:
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("personality, formation, n", CASES)
 def test_mission_finds_the_source(tmp_path, capsys, personality, formation, n):
-    from mission.embedded import default_eps
-    from mission.mission_log import read_mission_log
+    from mission.sim.embedded import default_eps
+    from mission.telemetry.mission_log import read_mission_log
     from sitl_mock.fields import sigma2
 
     source = np.array([6.0, -4.0, 13.0])
@@ -145,10 +145,10 @@ def test_dry_run_then_fly_a_plan_file_against_a_mock_fleet(tmp_path):
     kind is rejected and counted, and the mission still finds the source."""
     import asyncio
 
-    from mission.cmd_dryrun import dry_run
-    from mission.cmd_fly import fly
-    from mission.embedded import DEFAULT_ORIGIN, fleet_ports, free_port_block
-    from mission.plan import load_plan
+    from mission.cli.cmd_dryrun import dry_run
+    from mission.cli.cmd_fly import fly
+    from mission.sim.embedded import DEFAULT_ORIGIN, fleet_ports, free_port_block
+    from mission.core.plan import load_plan
     from sitl_mock.fields import sigma2
     from sitl_mock.fleet import MockFleet
 

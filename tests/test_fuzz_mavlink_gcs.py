@@ -1,11 +1,11 @@
 """Fuzzing the ground station's MAVLink input path: nothing escapes, every frame is counted,
 invalid input changes no vehicle state.
 
-Entry points: ``mission.links.MavEndpoint._on_datagram(data, peer)`` (UDP: one datagram, a
+Entry points: ``mission.link.endpoint.MavEndpoint._on_datagram(data, peer)`` (UDP: one datagram, a
 partial frame at its end counted ``truncated``) and ``MavEndpoint._on_stream_data(data, peer)``
 (TCP / serial), the transport callbacks; each parsed frame is counted (``frames_in``,
 ``bad_crc``, ``malformed``, ``unknown_msgid``) and handed to the attached
-:class:`mission.vehicle.VehicleLink`. The socket-level test goes through a real UDP endpoint.
+:class:`mission.vehicle.vehicle_link.VehicleLink`. The socket-level test goes through a real UDP endpoint.
 """
 from __future__ import annotations
 
@@ -22,10 +22,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fuzz_helpers import (ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad, message_class, mutated,
                           reference_parse, state_repr)
-from mission.clock import WallClock
-from mission.links import MavEndpoint, parse_connection
-from mission.links_poller import UdpPoller
-from mission.vehicle import VehicleLink
+from mission.core.clock import WallClock
+from mission.link.endpoint import MavEndpoint, parse_connection
+from mission.link.poller import UdpPoller
+from mission.vehicle.vehicle_link import VehicleLink
 
 _M = mavlink
 #: NaN and infinite telemetry make numpy warn while the state is updated; that is expected here

@@ -24,7 +24,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from mission.embedded import free_port_block
+from mission.sim.embedded import free_port_block
 from sitl_mock.ap_commands import COMMANDS
 from sitl_mock.ap_telemetry import BUILDERS
 from sitl_mock.autopilot import MockAutopilot

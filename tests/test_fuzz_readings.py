@@ -1,7 +1,7 @@
 """Fuzzing the coordinator's zenoh sensor-payload decoding: nothing escapes, every payload is
 accepted or counted under one reason, accepted readings are sane.
 
-Entry point: ``mission.readings.ReadingStore.offer(key, payload)`` (what the zenoh callback
+Entry point: ``mission.telemetry.readings.ReadingStore.offer(key, payload)`` (what the zenoh callback
 ``ReadingSubscriber._on_sample`` calls with every sample), and ``decode_reading(payload)`` under
 it. The mock has no zenoh input path (it only publishes), so its side is covered by a round trip:
 whatever ``sitl_mock.sensor.encode_reading`` can produce, the coordinator must accept. The
@@ -20,8 +20,8 @@ from hypothesis import strategies as st
 
 from fuzz_helpers import FakeClock
 from formation.geodesy import enu_to_geodetic
-from mission.embedded import free_port_block
-from mission.readings import (REJECT_REASONS, SCHEMA, Reading, ReadingRejected, ReadingStore, ReadingSubscriber,
+from mission.sim.embedded import free_port_block
+from mission.telemetry.readings import (REJECT_REASONS, SCHEMA, Reading, ReadingRejected, ReadingStore, ReadingSubscriber,
                               decode_reading, sensor_key)
 from sitl_mock.sensor import encode_reading
 

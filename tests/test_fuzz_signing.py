@@ -4,10 +4,10 @@ is not validly signed (unsigned, another key, replayed, older or stale timestamp
 forgery, tampered header / payload / CRC / flag / link id / timestamp / signature, truncated)
 changes any state.
 
-Ground station: ``mission.links.MavEndpoint._on_datagram`` / ``_on_stream_data`` with a
-:class:`mission.signing.SigningConfig` (counters ``frames_in``, ``bad_crc``, ``malformed``,
+Ground station: ``mission.link.endpoint.MavEndpoint._on_datagram`` / ``_on_stream_data`` with a
+:class:`mission.link.signing.SigningConfig` (counters ``frames_in``, ``bad_crc``, ``malformed``,
 ``unsigned``, ``bad_signature``, ``replayed``, ``setup_signing_sent``), vehicle state through an
-attached :class:`mission.vehicle.VehicleLink`. Mock: ``sitl_mock.transport.VehicleLinks._receive``
+attached :class:`mission.vehicle.vehicle_link.VehicleLink`. Mock: ``sitl_mock.transport.VehicleLinks._receive``
 into a :class:`sitl_mock.autopilot.MockAutopilot` with a key (``rx_frames``, ``rx_bad_crc``,
 ``rx_malformed``, ``rx_unknown_msg``, ``rx_unsigned``, ``rx_bad_signature``, ``rx_replayed``).
 The expected outcome of every frame comes from :class:`fuzz_helpers.SigningOracle`, a model of
@@ -28,9 +28,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fuzz_helpers import (run_autopilot, SIGNED_REGIONS, FakeClock, SigningOracle, encode, message_class, messages,
                           mutate_signed, reference_parse, sign, state_repr)
-from mission.links import LinkError, MavEndpoint, parse_connection
-from mission.signing import SigningConfig, signing_timestamp
-from mission.vehicle import VehicleLink
+from mission.link.endpoint import LinkError, MavEndpoint, parse_connection
+from mission.link.signing import SigningConfig, signing_timestamp
+from mission.vehicle.vehicle_link import VehicleLink
 from sitl_mock.ap_signing import UNSIGNED_OK_MSG_IDS
 from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.dynamics import DynamicsParams, Multicopter

@@ -1,4 +1,4 @@
-"""mission.links: connection strings, demultiplexing, duplicate system ids, robust parsing, transports."""
+"""mission.link.endpoint: connection strings, demultiplexing, duplicate system ids, robust parsing, transports."""
 from __future__ import annotations
 
 import asyncio
@@ -7,11 +7,11 @@ import os
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from mission.clock import WallClock
-from mission.links import ConnectionSpec, LinkError, MavEndpoint, SysidRegistry, parse_connection
-from mission.links_poller import UdpPoller
-from mission.vehicle import VehicleLink
-from mission.vehicle_fake import FakeAutopilot, FakeUdpVehicle
+from mission.core.clock import WallClock
+from mission.link.endpoint import ConnectionSpec, LinkError, MavEndpoint, SysidRegistry, parse_connection
+from mission.link.poller import UdpPoller
+from mission.vehicle.vehicle_link import VehicleLink
+from mission.vehicle.fake import FakeAutopilot, FakeUdpVehicle
 
 ORIGIN = (45.0, 5.0, 200.0)
 

@@ -10,7 +10,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mission.embedded import free_port_block
+from mission.sim.embedded import free_port_block
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import PortInUseError
 

@@ -12,7 +12,7 @@ import formation
 from estimator import GeometryError, gradient, seek_step
 from mission.cli import main as cli_main
 from sitl_mock.fields import GaussianField, SumField, sigma1, sigma2
-from sitl_mock.offline import simulate
+from experiments.offline import simulate
 
 
 def _plain_loop(offsets_k, field, start, eps, gamma, readings, method, sigma_c_exact):

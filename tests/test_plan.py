@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mission.plan import PLAN_VERSION, Plan, PlanError, load_plan, parse_plan
+from mission.core.plan import PLAN_VERSION, Plan, PlanError, load_plan, parse_plan
 
 SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
 

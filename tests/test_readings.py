@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from formation.geodesy import enu_to_geodetic
-from mission.readings import (
+from mission.telemetry.readings import (
     REJECT_REASONS,
     SCHEMA,
     ReadingRejected,
@@ -169,8 +169,8 @@ def test_zenoh_subscriber_feeds_the_store():
     """Real zenoh session pair on free loopback ports; publish until the subscriber matches."""
     import zenoh
 
-    from mission.embedded import free_port_block
-    from mission.readings import ReadingSubscriber
+    from mission.sim.embedded import free_port_block
+    from mission.telemetry.readings import ReadingSubscriber
 
     port = free_port_block(1, kinds=("tcp",))
 
@@ -211,7 +211,7 @@ def test_zenoh_subscriber_feeds_the_store():
        st.floats(-100, 3000))
 def test_fast_enu_conversion_matches_geodesy(lat0, lon0, dlat, dlon, alt):
     from formation.geodesy import geodetic_to_enu
-    from mission.readings import _EnuConverter
+    from mission.telemetry.readings import _EnuConverter
 
     origin = (lat0, lon0, 100.0)
     got = _EnuConverter(origin)(lat0 + dlat, lon0 + dlon, alt)

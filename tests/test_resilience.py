@@ -10,9 +10,9 @@ import threading
 import numpy as np
 import pytest
 
-from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.loss import classify_loss, reformed_offsets
-from mission.mission_log import read_mission_log
+from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
+from mission.flight.loss import classify_loss, reformed_offsets
+from mission.telemetry.mission_log import read_mission_log
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
 from fly_helpers import fly as _fly
@@ -58,7 +58,7 @@ def test_loss_rules(flavour, mode, age_s, armed, commanded, expected):
 def test_reformed_offsets_keep_radius_and_separation(kind, n, lost, kind_after):
     from formation import metrics
 
-    from mission.phases import formation_offsets
+    from mission.flight.phases import formation_offsets
 
     offsets = formation_offsets(kind, n, 4.0)
     new, used = reformed_offsets(kind, {s + 1: offsets[s] for s in range(n)}, lost, 4.0)
@@ -70,7 +70,7 @@ def test_reformed_offsets_keep_radius_and_separation(kind, n, lost, kind_after):
 
 
 def test_reformed_offsets_refuse_below_four():
-    from mission.phases import formation_offsets
+    from mission.flight.phases import formation_offsets
 
     offsets = formation_offsets("cvt", 5, 4.0)
     with pytest.raises(ValueError, match="at least 4 vehicles, 3 left"):
@@ -224,7 +224,7 @@ def test_plan_faults_section_is_checked(faults, problem):
     import tomllib
     from pathlib import Path
 
-    from mission.plan import PlanError, parse_plan
+    from mission.core.plan import PlanError, parse_plan
 
     doc = tomllib.loads((Path(__file__).parents[1] / "mission/examples/sitl_plan.toml").read_text())
     assert parse_plan(doc).faults.readmit is False          # default: kept out

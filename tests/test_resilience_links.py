@@ -15,8 +15,8 @@ import threading
 import numpy as np
 import pytest
 
-from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.mission_log import read_mission_log
+from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
+from mission.telemetry.mission_log import read_mission_log
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
 from fly_helpers import fly as _fly

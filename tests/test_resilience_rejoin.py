@@ -1,4 +1,4 @@
-"""Returning vehicles and lost vehicles that still fly (``mission.rejoin``): the geometry
+"""Returning vehicles and lost vehicles that still fly (``mission.flight.rejoin``): the geometry
 (clearance of slots and paths, transfers with fixed obstacles, N+1 formations), then two whole
 missions against the mock fleet: a vehicle re-admitted after its link comes back
 (``[faults] readmit = true``), and survivors keeping clear of a vehicle hovering in hold."""
@@ -11,10 +11,10 @@ import threading
 import numpy as np
 import pytest
 
-from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.mission_log import read_mission_log
-from mission.plan import FaultsPlan
-from mission.rejoin import clear_offsets, plan_clear_transfer, readmitted_offsets, segment_clearance
+from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
+from mission.telemetry.mission_log import read_mission_log
+from mission.core.plan import FaultsPlan
+from mission.flight.rejoin import clear_offsets, plan_clear_transfer, readmitted_offsets, segment_clearance
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
 from fly_helpers import fly as _fly
@@ -37,7 +37,7 @@ def test_segment_clearance(a, b, p, expected):
 def test_clear_offsets_moves_slots_off_an_obstacle_on_the_sphere(kind, n, allow_tilt):
     from formation import metrics
 
-    from mission.phases import formation_offsets
+    from mission.flight.phases import formation_offsets
 
     offsets = {s + 1: o for s, o in enumerate(formation_offsets(kind, n, 4.0))}
     centre = np.array([3.0, -2.0, 12.0])
@@ -76,7 +76,7 @@ def test_plan_clear_transfer_keeps_the_obstacle_fixed_and_clear():
 def test_readmitted_offsets_grow_the_formation(kind, n, kind_after):
     from formation import metrics
 
-    from mission.phases import formation_offsets
+    from mission.flight.phases import formation_offsets
 
     offsets = {s + 1: o for s, o in enumerate(formation_offsets("cvt" if kind == "cvt" or n % 2 else kind, n, 4.0))}
     returning = {n + 1: np.array([1.0, 2.5, -0.5])}                       # anywhere, not on the sphere

@@ -1,8 +1,8 @@
-"""A faulty sensor retired during the mission (``[faults] faulty_sensor``, :mod:`mission.retire`).
+"""A faulty sensor retired during the mission (``[faults] faulty_sensor``, :mod:`mission.flight.retire`).
 
 Unit: the watch maps the rule's pick to a sysid with its reason and noise figures, is only
 made for the robust estimator with ``retire`` and while nobody is parked; the goals park the
-retired vehicle at the centre; ``mission.resume`` reads the retired sensors back.
+retired vehicle at the centre; ``mission.flight.resume`` reads the retired sensors back.
 
 Against the mock fleet (N = 8, CVT, D = 2 m, noise 0.005 on seven sensors and 0.025 on vehicle 3,
 robust estimator, ``retire_after = 5``, ``retire_min_noise_ratio = 2``: in these missions the
@@ -24,12 +24,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mission.audit import audit_mission
-from mission.coordinator import _plan_json
-from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.mission_log import MissionLog, read_mission_log
-from mission.plan import FaultsPlan
-from mission.retire import (
+from mission.safety.audit import audit_mission
+from mission.flight.coordinator import _plan_json
+from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
+from mission.telemetry.mission_log import MissionLog, read_mission_log
+from mission.core.plan import FaultsPlan
+from mission.flight.retire import (
     PARKED_STATUS,
     RetiredSensor,
     SensorWatch,
@@ -143,7 +143,7 @@ def test_parked_vehicle_goes_to_the_centre_unless_lost():
     ([1, 2, 3, 4, 5, 7], (), (6,), "vehicle 6 is already parked at the centre"),
 ])
 def test_retirement_is_refused_when_things_changed_since_the_estimate(sysids, lost, retired, why):
-    from mission.retire import retire_sensor
+    from mission.flight.retire import retire_sensor
 
     co = _co(retired=retired, lost=lost, under=[s for s in range(1, 9) if s not in lost])
     events = []
@@ -159,7 +159,7 @@ def test_retirement_is_refused_when_things_changed_since_the_estimate(sysids, lo
     (3.0, 5.0, 5.0),        # planned slower than the ramp: kept
 ])
 def test_transfer_legs_are_never_faster_than_the_ramp(climb_m, planned_s, expected_s):
-    from mission.loss import _ramp_times
+    from mission.flight.loss import _ramp_times
 
     wps = np.zeros((3, 2, 3))
     wps[1, 0] = [2.0, 0.0, climb_m]          # leg 1: vehicle 0 moves, vehicle 1 holds
@@ -171,7 +171,7 @@ def test_transfer_legs_are_never_faster_than_the_ramp(climb_m, planned_s, expect
 
 
 def test_resume_reads_the_retired_sensor_back(tmp_path):
-    from mission.resume import load_resume_state
+    from mission.flight.resume import load_resume_state
 
     ports = {"udp_base_port": 20000, "udp_bind_base_port": 20100, "tcp_base_port": 0, "zenoh_port": 20200}
     plan = embedded_plan(6, ports, estimator="robust")

@@ -9,10 +9,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mission.coordinator import Coordinator
-from mission.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.mission_log import MissionLog, read_mission_log
-from mission.resume import ResumeError, load_resume_state, plan_from_json
+from mission.flight.coordinator import Coordinator
+from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
+from mission.telemetry.mission_log import MissionLog, read_mission_log
+from mission.flight.resume import ResumeError, load_resume_state, plan_from_json
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
 
@@ -92,7 +92,7 @@ def test_gcs_stop_each_vehicle_does_what_its_autopilot_does(tmp_path):
 
 @pytest.mark.slow
 def test_resume_after_a_gcs_stop_goes_on_and_converges(tmp_path):
-    from mission.cmd_resume import resume
+    from mission.cli.cmd_resume import resume
 
     n = 6
     ports = fleet_ports(n, "px4")
@@ -135,7 +135,7 @@ def test_resume_refuses_a_finished_or_foreign_log(tmp_path):
         load_resume_state(bad)
     done = tmp_path / "d.jsonl"
     plan = embedded_plan(4, {"udp_base_port": 15000, "zenoh_port": 7447})
-    from mission.coordinator import _plan_json
+    from mission.flight.coordinator import _plan_json
 
     import json
     done.write_text("\n".join(json.dumps(r) for r in (
@@ -146,7 +146,7 @@ def test_resume_refuses_a_finished_or_foreign_log(tmp_path):
 
 
 def test_plan_round_trips_through_the_log():
-    from mission.coordinator import _plan_json
+    from mission.flight.coordinator import _plan_json
 
     plan = embedded_plan(5, {"udp_base_port": 15000, "zenoh_port": 7447}, formation="cvt", eps=49.9)
     assert plan_from_json(_plan_json(plan)) == plan

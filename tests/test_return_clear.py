@@ -1,4 +1,4 @@
-"""The return phase keeps clear of lost vehicles still flying (``mission.return_clear``): the
+"""The return phase keeps clear of lost vehicles still flying (``mission.flight.return_clear``): the
 planning (layers, detours, transfers, landing spots), the flight and its events against a fake
 coordinator, then one whole mission against the mock fleet with a vehicle hovering on a
 survivor's return path."""
@@ -13,10 +13,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mission.rejoin import OBSTACLE_MARGIN_M
-from mission.return_clear import landing_spots, path_clearance, plan_clear_return
-from mission.safety import Geofence
-from mission.targets import layered_transfer
+from mission.flight.rejoin import OBSTACLE_MARGIN_M
+from mission.flight.return_clear import landing_spots, path_clearance, plan_clear_return
+from mission.safety.envelope import Geofence
+from mission.flight.targets import layered_transfer
 from fly_helpers import fly
 
 pytestmark = pytest.mark.timeout(300)
@@ -50,11 +50,11 @@ def test_plan_keeps_clear_of_an_obstacle_on_a_straight_return_path(obstacle, str
     assert path_clearance(wps, obs) >= CLEAR_M - 1e-9
     assert plan.clearance_m == pytest.approx(path_clearance(wps, obs))
     if plan.times_s is None:   # batch by batch, vehicles not in step: paths pairwise apart
-        from mission.return_clear import _batch_separation
+        from mission.flight.return_clear import _batch_separation
 
         assert _batch_separation(wps[1:]) >= SEP_M
     else:
-        from mission.safety_transfer import leg_separation
+        from mission.safety.transfer import leg_separation
 
         assert np.all(np.diff(plan.times_s) >= 0)
         assert min(leg_separation(a, b) for a, b in zip(wps[:-1], wps[1:])) >= SEP_M - 1e-9
@@ -151,7 +151,7 @@ class _FakeClock:
 
 class _FakeCoordinator:
     def __init__(self, start, homes, layers, return_behaviour="land"):
-        from mission.targets import TargetRamp
+        from mission.flight.targets import TargetRamp
 
         self.clock = _FakeClock()
         streamer = SimpleNamespace(set_target=lambda s, p: None, remove=lambda s: None)
@@ -181,7 +181,7 @@ class _FakeCoordinator:
         return self.ramp.setpoint(sysid)
 
     async def wait_until(self, predicate, timeout_s, what, poll_s=0.1):
-        from mission.coordinator import MissionError
+        from mission.flight.coordinator import MissionError
 
         deadline = self.clock.time() + timeout_s
         while not predicate():
@@ -197,7 +197,7 @@ class _FakeCoordinator:
     ([0.0, 0.0, 10.4], "warning", set()),       # on top of vehicle 1: nothing keeps clear
 ])
 def test_fly_return_flies_clear_and_says_so(monkeypatch, obstacle, level, land_here):
-    from mission import return_clear
+    from mission.flight import return_clear
 
     obs = np.zeros((0, 3)) if obstacle is None else np.array([obstacle])
     monkeypatch.setattr(return_clear, "obstacles", lambda co: obs)
@@ -214,7 +214,7 @@ def test_fly_return_flies_clear_and_says_so(monkeypatch, obstacle, level, land_h
 
 
 def test_fly_clear_assembles_round_a_vehicle_lost_during_the_takeoff(monkeypatch):
-    from mission import return_clear
+    from mission.flight import return_clear
 
     above_homes = np.c_[HOMES[:, :2], LAYERS]                   # after the takeoff
     obs = np.array([[10.0, 0.2, 8.0]])                           # lost climbing, on vehicle 1's way
@@ -230,7 +230,7 @@ def test_fly_clear_assembles_round_a_vehicle_lost_during_the_takeoff(monkeypatch
 
 
 def test_fly_return_replans_after_a_loss_on_the_way(monkeypatch):
-    from mission import return_clear
+    from mission.flight import return_clear
 
     co = _FakeCoordinator(START, HOMES, LAYERS)
     t_loss = co.clock.t + 4.0
@@ -299,9 +299,9 @@ class _Watcher(threading.Thread):
 
 
 def _whole_mission(tmp_path, keep_clear, monkeypatch):
-    from mission import return_clear
-    from mission.embedded import DEFAULT_ORIGIN, embedded_plan, fleet_ports
-    from mission.mission_log import read_mission_log
+    from mission.flight import return_clear
+    from mission.sim.embedded import DEFAULT_ORIGIN, embedded_plan, fleet_ports
+    from mission.telemetry.mission_log import read_mission_log
     from sitl_mock.fields import sigma2
     from sitl_mock.fleet import MockFleet
 

@@ -5,14 +5,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from mission.safety import (
+from mission.safety.envelope import (
     EmptyFenceError,
     Geofence,
     SafetyEnvelope,
     SafetyError,
     SafetyViolation,
 )
-from mission.safety_geometry import (
+from mission.safety.geometry import (
     offset_polygon_inward,
     point_in_polygon,
     segment_distance,
@@ -358,7 +358,7 @@ def test_point_in_polygon_is_boundary_inclusive():
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10_000), n=st.integers(2, 12), step=st.floats(0.0, 30.0))
 def test_pair_pruning_matches_the_dense_check(seed, n, step):
-    from mission.safety import pairwise_path_separation
+    from mission.safety.envelope import pairwise_path_separation
 
     rng = np.random.default_rng(seed)
     prev = np.c_[rng.uniform(10, 40, (n, 2)), rng.uniform(10, 40, n)]
@@ -376,7 +376,7 @@ def test_pair_pruning_matches_the_dense_check(seed, n, step):
 @given(poly=star_polygons, a=st.tuples(st.floats(0, 1), st.floats(0, 1)),
        b=st.tuples(st.floats(-60, 160), st.floats(-60, 160)))
 def test_inside_fraction_matches_sampling(poly, a, b):
-    from mission.safety_geometry import inside_fraction
+    from mission.safety.geometry import inside_fraction
 
     # a start point inside: somewhere between the centre (50, 50) and a vertex
     k = int(a[0] * (len(poly) - 1))

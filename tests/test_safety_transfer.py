@@ -7,8 +7,8 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from formation import cvt_sphere, symmetric_cylinder
-from mission.safety import Geofence, TransferError, plan_transfer
-from mission.safety_transfer import leg_separation
+from mission.safety.envelope import Geofence, TransferError, plan_transfer
+from mission.safety.transfer import leg_separation
 
 SEP_M = 2.0
 

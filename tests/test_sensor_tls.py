@@ -1,6 +1,6 @@
 """zenoh TLS (mutual TLS) and user/password login for ``swarmseek sensor`` and ``swarmseek mock``.
 
-A coordinator-side :class:`~mission.readings.ReadingStore` behind a TLS (or login-protected)
+A coordinator-side :class:`~mission.telemetry.readings.ReadingStore` behind a TLS (or login-protected)
 listener on 127.0.0.1 receives the readings of ``swarmseek sensor`` (run in-process against the
 project's mock autopilot) only when the sensor's certificate / password is the right one.
 """
@@ -18,8 +18,8 @@ import zenoh  # noqa: E402  (a project dependency)
 from tls_helpers import make_pki, write_private  # noqa: E402  (cryptography: the [test] extra)
 
 from mission.cli import main as swarmseek  # noqa: E402
-from mission.clock import WallClock  # noqa: E402
-from mission.readings import ReadingStore, ReadingSubscriber  # noqa: E402
+from mission.core.clock import WallClock  # noqa: E402
+from mission.telemetry.readings import ReadingStore, ReadingSubscriber  # noqa: E402
 from sitl_mock.fleet import MockFleet  # noqa: E402
 from sitl_mock.sensor import zenoh_config  # noqa: E402
 from sitl_mock.zenoh_flags import ZenohFlagError, read_password_file  # noqa: E402

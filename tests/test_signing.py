@@ -1,4 +1,4 @@
-"""mission.signing: key files, signing state, frame signing and the checks of received frames.
+"""mission.link.signing: key files, signing state, frame signing and the checks of received frames.
 
 The mock's key-file reader (:func:`sitl_mock.ap_signing.read_key_file`) must read every file
 exactly as the ground station does: both are checked on the same files.
@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mission import signing as sg
+from mission.link import signing as sg
 from sitl_mock.ap_signing import SigningKeyError, read_key_file
 
 KEY = bytes(range(1, 33))

@@ -18,7 +18,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mission import cli
-from mission.signing import (SignatureVerifier, SigningConfig, apply_signing,
+from mission.link.signing import (SignatureVerifier, SigningConfig, apply_signing,
                              disable_signing_message, setup_signing_message, signing_timestamp)
 from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.dynamics import DynamicsParams, Multicopter

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from mission.streamer import SetpointStreamer
+from mission.vehicle.streamer import SetpointStreamer
 
 
 class _Clock:

@@ -1,4 +1,4 @@
-"""mission.tlog: per-vehicle .tlog files that pymavlink reads back."""
+"""mission.link.tlog: per-vehicle .tlog files that pymavlink reads back."""
 from __future__ import annotations
 
 import asyncio
@@ -7,11 +7,11 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from mission.clock import WallClock
-from mission.links import MavEndpoint
-from mission.tlog import TlogSet, read_tlog_records, tlog_record
-from mission.vehicle import VehicleLink
-from mission.vehicle_fake import FakeAutopilot, FakeUdpVehicle
+from mission.core.clock import WallClock
+from mission.link.endpoint import MavEndpoint
+from mission.link.tlog import TlogSet, read_tlog_records, tlog_record
+from mission.vehicle.vehicle_link import VehicleLink
+from mission.vehicle.fake import FakeAutopilot, FakeUdpVehicle
 
 ORIGIN = (45.0, 5.0, 200.0)
 

@@ -1,4 +1,4 @@
-"""mission.vehicle against the small fake autopilot: commands, sequences, frames, streaming."""
+"""mission.vehicle.vehicle_link against the small fake autopilot: commands, sequences, frames, streaming."""
 from __future__ import annotations
 
 import asyncio
@@ -11,12 +11,12 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from formation.geodesy import enu_to_geodetic, enu_to_ned, geodetic_to_enu
-from mission.clock import WallClock, wait_on_clock
-from mission.links import MavEndpoint
-from mission.streamer import SetpointStreamer
-from mission.vehicle import CommandError, VehicleLink, command_name
-from mission.vehicle_fake import FakeAutopilot, FakeUdpVehicle
-from mission.vehicle_frames import MissionToLocal, mode_name, resolve_mode
+from mission.core.clock import WallClock, wait_on_clock
+from mission.link.endpoint import MavEndpoint
+from mission.vehicle.streamer import SetpointStreamer
+from mission.vehicle.vehicle_link import CommandError, VehicleLink, command_name
+from mission.vehicle.fake import FakeAutopilot, FakeUdpVehicle
+from mission.vehicle.frames import MissionToLocal, mode_name, resolve_mode
 
 ORIGIN = (45.0, 5.0, 200.0)
 ARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
@@ -289,7 +289,7 @@ def test_wait_on_clock_returns_result_or_times_out():
 
 def _attached(clock=None):
     """An endpoint (transport not opened) with an ArduPilot vehicle 3 heard and attached."""
-    from mission.links import parse_connection
+    from mission.link.endpoint import parse_connection
 
     clock = clock or WallClock()
     ep = MavEndpoint(parse_connection("udpin:127.0.0.1:0"), clock=clock, heartbeat_hz=0)

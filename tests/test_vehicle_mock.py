@@ -10,10 +10,10 @@ import socket
 import numpy as np
 import pytest
 
-from mission.links import MavEndpoint, SysidRegistry
-from mission.links_poller import UdpPoller
-from mission.streamer import SetpointStreamer
-from mission.vehicle import DEFAULT_RATES_HZ, CommandError, VehicleLink
+from mission.link.endpoint import MavEndpoint, SysidRegistry
+from mission.link.poller import UdpPoller
+from mission.vehicle.streamer import SetpointStreamer
+from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, CommandError, VehicleLink
 
 fleet_mod = pytest.importorskip("sitl_mock.fleet")
 clock_mod = pytest.importorskip("sitl_mock.clock")

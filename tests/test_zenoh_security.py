@@ -2,7 +2,7 @@
 
 Validation errors are reported with their dotted keys, all at once; then real zenoh sessions on
 127.0.0.1 show that only the intended peers can deliver readings to the coordinator's
-:class:`~mission.readings.ReadingStore`.
+:class:`~mission.telemetry.readings.ReadingStore`.
 """
 from __future__ import annotations
 
@@ -16,10 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from mission.clock import WallClock
-from mission.plan import PlanError, parse_plan
-from mission.readings import ReadingStore, ReadingSubscriber, sensor_key
-from mission.zenoh_security import ZenohSecurityError, acl_config, read_password_file
+from mission.core.clock import WallClock
+from mission.core.plan import PlanError, parse_plan
+from mission.telemetry.readings import ReadingStore, ReadingSubscriber, sensor_key
+from mission.core.zenoh_security import ZenohSecurityError, acl_config, read_password_file
 from sitl_mock.sensor import zenoh_config
 
 import zenoh  # noqa: E402  (a project dependency)
@@ -325,7 +325,7 @@ def test_state_reaches_only_monitors(doc, tmp_path, coordinator, user, password,
 
 
 def test_acl_config_lists_only_the_given_subjects():
-    from mission.zenoh_security import ZenohAclPlan
+    from mission.core.zenoh_security import ZenohAclPlan
 
     conf = acl_config(ZenohAclPlan("swarmseek/f/vehicle/*/sensor", "swarmseek/f/mission/**",
                                    sensor_cert_common_names=("v1", "v2")))
@@ -337,8 +337,8 @@ def test_acl_config_lists_only_the_given_subjects():
 def test_security_plan_survives_the_mission_log_round_trip(doc, pki, tmp_path):
     from dataclasses import asdict
 
-    from mission.mission_log import to_jsonable
-    from mission.resume import plan_from_json
+    from mission.telemetry.mission_log import to_jsonable
+    from mission.flight.resume import plan_from_json
 
     plan = _tls_plan(doc, pki, 7447, auth={"username": "coordinator", **_secrets(tmp_path)},
                      access_control={"sensor_cert_common_names": ["vehicle-1"]})

@@ -1,0 +1,74 @@
+"""The ``swarmseek`` command line: argument parsing only; every command is ``main(args)`` elsewhere.
+
+Each subcommand lives in its own module exposing ``configure(parser)`` (adds its arguments) and
+``main(args) -> int`` (does the work). Modules are imported lazily so that one command's heavy
+imports never slow down another, and a command whose module fails to import says so clearly.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+__all__ = ["COMMANDS", "build_parser", "main"]
+
+#: subcommand -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "run": ("mission.cli.cmd_run", "fly the whole source-seeking mission against an embedded mock swarm"),
+    "fly": ("mission.cli.cmd_fly", "fly the mission against the vehicles named in a plan file"),
+    "dry-run": ("mission.cli.cmd_dryrun", "validate a plan, connect and run preflight checks; arms nothing"),
+    "resume": ("mission.cli.cmd_resume", "restart a stopped mission from its mission log"),
+    "plot": ("mission.cli.cmd_plot", "figures of a flown mission from its mission log"),
+    "audit": ("mission.cli.cmd_audit", "check from the .tlog files that no setpoint broke the fence, speed or separation"),
+    "paper": ("experiments.paper", "regenerate the paper's table and figures from our own geometry"),
+    "simulate": ("experiments.cmd_simulate", "offline source-seeking simulation (perfect tracking, no MAVLink)"),
+    "mock": ("sitl_mock.cli", "run a fleet of mock autopilots until interrupted"),
+    "sensor": ("sitl_mock.virtual_sensor", "publish readings for a real autopilot's position over zenoh"),
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser that exits with status 2 and a one-line error, never a traceback."""
+
+
+def _load(module_name: str):
+    return importlib.import_module(module_name)
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """Build the top-level parser; only the chosen subcommand's module is imported."""
+    parser = _Parser(prog="swarmseek", description="Multi-drone 3D source seeking ground station.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    chosen = None
+    if argv:
+        chosen = next((a for a in argv if not a.startswith("-")), None)
+    for name, (module_name, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if name == chosen:
+            try:
+                module = _load(module_name)
+            except ImportError as exc:
+                parser.error(f"command {name!r} is not available: {exc}")
+            module.configure(p)
+            p.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``swarmseek`` console command."""
+    if argv is None:
+        argv = sys.argv[1:]
+    parser = build_parser(argv)
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(args._module.main(args) or 0)
+    except KeyboardInterrupt:
+        print("swarmseek: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""``swarmseek dry-run --plan plan.toml``: validate, connect, run preflight checks; arm nothing.
+
+Prints each vehicle's readiness (every check and why it failed). Exit status: 0 every vehicle
+ready, 1 some not ready or unreachable, 2 invalid plan.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+from pathlib import Path
+
+__all__ = ["configure", "main", "dry_run", "format_readiness"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the ``dry-run`` options."""
+    parser.add_argument("--plan", type=Path, required=True, help="mission plan (TOML)")
+    parser.add_argument("--json", action="store_true", help="print the readiness report as JSON")
+    parser.add_argument("--verbose", action="store_true", help="show phases and events as they happen")
+    parser.add_argument("--timeout", type=float, default=15.0,
+                        help="seconds to wait for each vehicle's heartbeat (default 15)")
+
+
+async def dry_run(plan, *, clock=None, display=None):
+    """Connect and run preflight; returns the MissionResult (``ready`` / ``not_ready``)."""
+    from mission.core.clock import WallClock
+    from mission.flight.coordinator import Coordinator
+
+    co = Coordinator(plan, clock=clock or WallClock(), zenoh_session=None, display=display)
+    return await co.dry_run()
+
+
+def format_readiness(result) -> list[str]:
+    """One line per vehicle: READY / NOT READY, the checks and the problems."""
+    lines = []
+    for r in result.readiness:
+        checks = " ".join(f"{k}={'ok' if v else 'FAIL'}" for k, v in r.get("checks", {}).items())
+        state = "READY    " if r.get("ready") else "NOT READY"
+        why = "" if r.get("ready") else "  <- " + "; ".join(r.get("problems", []))
+        lines.append(f"vehicle {r['sysid']:>3} {r.get('id', ''):<10} {r.get('connection', ''):<28} "
+                     f"{state} {checks}{why}")
+    lines.append(f"{result.outcome}: {result.message}")
+    return lines
+
+
+def main(args) -> int:
+    """Validate the plan, connect, check, report."""
+    import dataclasses
+
+    from mission.telemetry.display import Display
+    from mission.core.plan import PlanError, load_plan
+
+    try:
+        plan = load_plan(args.plan)
+    except PlanError as exc:
+        print(f"swarmseek dry-run: {exc}", file=sys.stderr)
+        return 2
+    if not args.timeout > 0:
+        print(f"swarmseek dry-run: --timeout must be > 0, got {args.timeout}", file=sys.stderr)
+        return 2
+    plan = dataclasses.replace(plan, heartbeat_timeout_s=args.timeout)
+    display = Display(quiet=args.json, tty=False, min_interval_s=float("inf")) if args.verbose else None
+    result = asyncio.run(dry_run(plan, display=display))
+    if args.json:
+        print(json.dumps(result.to_json(), indent=2))
+    else:
+        for line in format_readiness(result):
+            print(line)
+    return 0 if result.outcome == "ready" else 1

@@ -1,0 +1,77 @@
+"""``swarmseek fly --plan plan.toml``: fly the mission against the vehicles named in a plan.
+
+Readings come over zenoh (e.g. one ``swarmseek sensor`` per vehicle) on the plan's endpoints;
+the mission clock is the wall clock. Exit status: 0 converged, 1 not converged or aborted,
+2 invalid plan or options.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+import time
+from pathlib import Path
+
+from mission.core.zenoh_security import ZenohSecurityError
+
+__all__ = ["configure", "main", "fly"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the ``fly`` options."""
+    parser.add_argument("--plan", type=Path, required=True, help="mission plan (TOML)")
+    parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
+    parser.add_argument("--log-dir", type=Path, default=None,
+                        help="mission log and tlogs go here (default ./swarmseek-logs/fly-TIME)")
+    parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+
+
+async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True):
+    """Open the plan's zenoh session, fly the mission, close; returns the MissionResult."""
+    import zenoh
+
+    from mission.core.clock import WallClock
+    from mission.flight.coordinator import Coordinator
+    from mission.telemetry.mission_log import MissionLog
+
+    clock = clock or WallClock()
+    log = MissionLog(Path(log_dir) / "mission.jsonl", clock)
+    session = None
+    try:
+        session = zenoh.open(plan.zenoh.to_config())
+        co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
+                         tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
+        return await co.run()
+    finally:
+        log.close()
+        if session is not None:
+            session.close()
+
+
+def main(args) -> int:
+    """Load the plan and fly it."""
+    from mission.telemetry.display import Display, report_result
+    from mission.core.plan import PlanError, load_plan
+
+    try:
+        plan = load_plan(args.plan)
+    except PlanError as exc:
+        print(f"swarmseek fly: {exc}", file=sys.stderr)
+        return 2
+    if not plan.zenoh.listen and not plan.zenoh.connect:
+        print("swarmseek fly: the plan's [zenoh] section has no listen or connect endpoint: "
+              "no reading could arrive (multicast scouting is off)", file=sys.stderr)
+        return 2
+    log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("fly-%Y%m%d-%H%M%S")
+    import zenoh
+
+    display = Display(quiet=args.json)
+    try:
+        result = asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog))
+    except (OSError, zenoh.ZError) as exc:
+        print(f"swarmseek fly: cannot open the zenoh session or the log: {exc}", file=sys.stderr)
+        return 1
+    except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
+        print(f"swarmseek fly: zenoh security settings: {exc}", file=sys.stderr)
+        return 2
+    return report_result(result, display, args.json)

@@ -1,0 +1,153 @@
+"""``swarmseek plot LOG --out DIR``: figures of a flown mission from its mission log.
+
+Writes three PNGs (matplotlib, Agg backend):
+
+``trajectory_3d.png``   the formation centre during the seek and every vehicle (telemetry, whole
+                        mission) in the mission ENU frame, the estimated (and, for embedded
+                        runs, the true) source;
+``distance.png``        distance of the centre to the estimated source (and to the true one)
+                        per iteration;
+``gradient.png``        the gradient estimate's components and norm per iteration.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["configure", "main", "plot_mission", "mission_tracks"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the ``plot`` options."""
+    parser.add_argument("log", type=Path, help="mission log (mission.jsonl)")
+    parser.add_argument("--out", type=Path, default=None, help="output directory (default: next to the log)")
+
+
+def mission_tracks(records: list[dict]) -> dict:
+    """Arrays extracted from the log's iteration records.
+
+    Returns
+    -------
+    dict
+        ``k`` (T,), ``centre`` (T+1, 3), ``gradient`` (T, 3), ``estimate`` (3,) or None,
+        ``vehicles`` {sysid: (T, 3)}, ``true_source`` (3,) or None.
+    """
+    its = [r for r in records if r.get("type") == "iteration"]
+    if not its:
+        raise ValueError("the mission log has no seeking iteration (did the mission reach the seek phase?)")
+    k = np.array([r["k"] for r in its])
+    centre = np.array([r["centre_enu"] for r in its] + [its[-1]["new_centre_enu"]], dtype=float)
+    grad = np.array([r["gradient"] for r in its], dtype=float)
+    samples: list[tuple[float, str, list]] = []
+    for r in records:
+        if r.get("type") == "iteration":
+            samples.extend((r.get("t_s", 0.0), str(s), p) for s, p in (r.get("positions_enu") or {}).items())
+        elif r.get("type") == "status":
+            samples.extend((r.get("t_s", 0.0), str(v.get("sysid")), v.get("position_enu"))
+                           for v in r.get("vehicles", []))
+    vehicles: dict[str, list] = {}
+    for _, sysid, p in sorted(samples, key=lambda x: x[0]):
+        if p is not None and len(p) == 3:
+            vehicles.setdefault(sysid, []).append(p)
+    summary = next((r for r in reversed(records) if r.get("type") == "summary"), None)
+    estimate = summary.get("estimate_enu") if summary else None
+    if estimate is None:
+        estimate = its[-1].get("estimate_enu")
+    truth = next((r for r in reversed(records) if r.get("type") == "truth"), None)
+    true_source = truth.get("source_enu") if truth else None
+    if true_source is None and summary:
+        true_source = summary.get("true_source_enu")
+    return {"k": k, "centre": centre, "gradient": grad,
+            "estimate": None if estimate is None else np.asarray(estimate, dtype=float),
+            "vehicles": {s: np.asarray(v, dtype=float) for s, v in vehicles.items()},
+            "true_source": None if true_source is None else np.asarray(true_source, dtype=float)}
+
+
+def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
+    """Write the three figures; returns their paths.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        No log, not a mission log, or no seeking iteration in it.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mission.telemetry.mission_log import read_mission_log
+
+    tr = mission_tracks(read_mission_log(log_path))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+
+    fig = plt.figure(figsize=(8, 7))
+    ax = fig.add_subplot(111, projection="3d")
+    for sysid, p in sorted(tr["vehicles"].items(), key=lambda kv: int(kv[0])):
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], lw=0.8, alpha=0.6, label=f"vehicle {sysid}")
+    c = tr["centre"]
+    ax.plot(c[:, 0], c[:, 1], c[:, 2], "k-", lw=2.0, label="formation centre")
+    ax.scatter(*c[0], color="k", marker="o", s=30, label="start")
+    if tr["estimate"] is not None:
+        ax.scatter(*tr["estimate"], color="tab:red", marker="*", s=150, label="estimated source")
+    if tr["true_source"] is not None:
+        ax.scatter(*tr["true_source"], color="tab:green", marker="x", s=100, label="true source")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_zlabel("up (m)")
+    ax.set_title("Trajectory (mission ENU frame)")
+    ax.legend(fontsize=7, loc="upper left")
+    paths.append(out_dir / "trajectory_3d.png")
+    fig.savefig(paths[-1], dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    iters = np.arange(len(c))
+    if tr["estimate"] is not None:
+        ax.plot(iters, np.linalg.norm(c - tr["estimate"], axis=1), label="to the estimated source")
+    if tr["true_source"] is not None:
+        ax.plot(iters, np.linalg.norm(c - tr["true_source"], axis=1), "--", label="to the true source")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("distance of the centre (m)")
+    ax.set_yscale("log")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    paths.append(out_dir / "distance.png")
+    fig.tight_layout()
+    fig.savefig(paths[-1], dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    g = tr["gradient"]
+    for i, name in enumerate(("east", "north", "up")):
+        ax.plot(tr["k"], g[:, i], lw=1.0, label=f"d/d{name}")
+    ax.plot(tr["k"], np.linalg.norm(g, axis=1), "k-", lw=1.5, label="norm")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("gradient estimate (signal / m)")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    paths.append(out_dir / "gradient.png")
+    fig.tight_layout()
+    fig.savefig(paths[-1], dpi=120)
+    plt.close(fig)
+    return paths
+
+
+def main(args) -> int:
+    """Plot a mission log; 0 on success, 1 if the log cannot be plotted."""
+    out = args.out or args.log.parent
+    try:
+        paths = plot_mission(args.log, out)
+    except FileNotFoundError:
+        print(f"swarmseek plot: no such file: {args.log}", file=sys.stderr)
+        return 1
+    except (ValueError, KeyError, IsADirectoryError) as exc:
+        print(f"swarmseek plot: cannot plot {args.log}: {exc}", file=sys.stderr)
+        return 1
+    for p in paths:
+        print(p)
+    return 0

@@ -1,0 +1,102 @@
+"""``swarmseek resume LOG``: restart a stopped mission's coordinator from its mission log.
+
+The plan comes from the log (its ``plan`` record) or from ``--plan`` (same vehicles). The
+resumed coordinator reconnects, re-engages the vehicles still flying (no new takeoff) and goes on
+seeking from the last centre and iteration, appending to the same log (see
+:mod:`mission.flight.resume`). The mission clock is the wall clock: a ``swarmseek run`` log is
+resumable only while its mock fleet still runs, i.e. in-process (the tests do that with
+:func:`resume`). Exit status: 0 converged, 1 not converged / aborted, 2 the log or plan cannot be
+resumed.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from pathlib import Path
+
+from mission.core.zenoh_security import ZenohSecurityError
+
+__all__ = ["configure", "main", "resume"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the ``resume`` options."""
+    parser.add_argument("log", type=Path, help="mission.jsonl of the stopped mission")
+    parser.add_argument("--plan", type=Path, default=None,
+                        help="plan file (default: the plan recorded in the log)")
+    parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
+    parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+
+
+async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: bool = True):
+    """Resume the mission of ``log_path``; returns the MissionResult.
+
+    Parameters
+    ----------
+    log_path : path
+        The stopped mission's log (appended to).
+    plan : mission.core.plan.Plan, optional
+        Instead of the log's plan record.
+    clock : optional
+        Mission clock (default: wall clock).
+    display : mission.telemetry.display.Display, optional
+    tlog : bool
+        Write ``.tlog`` files next to the log (``tlogs/``, appended).
+
+    Raises
+    ------
+    mission.flight.resume.ResumeError
+        The log cannot be resumed.
+    """
+    import zenoh
+
+    from mission.core.clock import WallClock
+    from mission.flight.coordinator import Coordinator
+    from mission.telemetry.mission_log import MissionLog
+    from mission.flight.resume import load_resume_state
+
+    log_path = Path(log_path)
+    state = load_resume_state(log_path, plan)
+    clock = clock or WallClock()
+    log = MissionLog(log_path, clock)
+    session = None
+    try:
+        session = zenoh.open(state.plan.zenoh.to_config())
+        co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
+                         tlog_dir=log_path.parent / "tlogs" if tlog else None)
+        return await co.run(resume_state=state)
+    finally:
+        log.close()
+        if session is not None:
+            session.close()
+
+
+def main(args) -> int:
+    """Resume the mission of ``args.log``."""
+    from mission.telemetry.display import Display, report_result
+    from mission.core.plan import PlanError, load_plan
+    from mission.flight.resume import ResumeError
+
+    plan = None
+    if args.plan is not None:
+        try:
+            plan = load_plan(args.plan)
+        except PlanError as exc:
+            print(f"swarmseek resume: {exc}", file=sys.stderr)
+            return 2
+    import zenoh
+
+    display = Display(quiet=args.json)
+    try:
+        result = asyncio.run(resume(args.log, plan=plan, display=display, tlog=not args.no_tlog))
+    except ResumeError as exc:
+        print(f"swarmseek resume: {exc}", file=sys.stderr)
+        return 2
+    except (OSError, zenoh.ZError) as exc:
+        print(f"swarmseek resume: cannot open the zenoh session or the log: {exc}", file=sys.stderr)
+        return 1
+    except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
+        print(f"swarmseek resume: zenoh security settings: {exc}", file=sys.stderr)
+        return 2
+    return report_result(result, display, args.json)

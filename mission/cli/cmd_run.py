@@ -1,0 +1,170 @@
+"""``swarmseek run``: fly the whole mission against an embedded mock fleet.
+
+With no options: 8 PX4-personality mock vehicles, CVT formation of radius 4 m, the paper's
+``sigma_2`` source somewhere in a box, the formation starting 25 m away, 10x speed-up (see
+:mod:`mission.sim.embedded` for the defaults and the choice of ``eps``). Shows live progress, writes
+the mission log (and one ``.tlog`` per vehicle) under ``--log-dir``; exits 0 when the mission
+converged, 1 otherwise.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["configure", "main", "run_embedded"]
+
+
+def _vector(text: str) -> tuple[float, float, float]:
+    try:
+        parts = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected E,N,U in metres, got {text!r}") from None
+    if len(parts) != 3 or not all(np.isfinite(parts)):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers E,N,U, got {text!r}")
+    return tuple(parts)
+
+
+def _positive(kind):
+    def parse(text):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not (np.isfinite(v) and v > 0):
+            raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+        return v
+    return parse
+
+
+def _non_negative(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (np.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return v
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the ``run`` options."""
+    parser.add_argument("--n", type=int, default=8, help="number of vehicles (>= 4; default 8)")
+    parser.add_argument("--formation", choices=("cvt", "symmetric"), default="cvt")
+    parser.add_argument("--radius", type=_positive(float), default=4.0, help="formation radius D, m (default 4)")
+    parser.add_argument("--field", choices=("sigma1", "sigma2"), default="sigma2")
+    parser.add_argument("--noise", type=_non_negative, default=0.01,
+                        help="sensor noise standard deviation, signal units (default 0.01)")
+    parser.add_argument("--personality", choices=("px4", "ardupilot"), default="px4")
+    parser.add_argument("--speedup", type=_positive(float), default=10.0,
+                        help="simulated seconds per wall second (default 10)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the source position, noise, fleet")
+    parser.add_argument("--source", type=_vector, default=None, metavar="E,N,U",
+                        help="source position, ENU m (default: drawn from the seed in a box)")
+    parser.add_argument("--start", type=_vector, default=None, metavar="E,N,U",
+                        help="formation start, ENU m (default: 25 m from the source)")
+    parser.add_argument("--eps", type=_positive(float), default=None,
+                        help="step gain (default 1/(2 A lambda_max(S)) of the field; paper: 1)")
+    parser.add_argument("--gamma", type=_positive(float), default=1.0, help="largest step, m (default 1; paper 0.1)")
+    parser.add_argument("--estimator", choices=("cvt", "symmetric", "robust"), default=None,
+                        help="gradient estimator (default: the formation's)")
+    parser.add_argument("--max-iterations", type=int, default=300)
+    parser.add_argument("--return", dest="return_behaviour", choices=("land", "rtl"), default="land")
+    parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
+    parser.add_argument("--log-dir", type=Path, default=None,
+                        help="mission log and tlogs go here (default ./swarmseek-logs/run-TIME)")
+    parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+
+
+def _check_args(args) -> str | None:
+    if args.n < 4:
+        return f"--n must be at least 4 (a formation needs 4 vehicles), got {args.n}"
+    if args.n > 64:
+        return f"--n above 64 is not supported by the embedded run, got {args.n}"
+    if args.formation == "symmetric" and args.n % 2:
+        return f"--formation symmetric needs an even --n, got {args.n}"
+    if args.max_iterations < 1:
+        return f"--max-iterations must be >= 1, got {args.max_iterations}"
+    return None
+
+
+async def run_embedded(args, display=None):
+    """Start the mock fleet, fly the mission, stop everything; returns the MissionResult."""
+    import zenoh
+
+    from mission.flight.coordinator import Coordinator
+    from mission.sim.embedded import (
+        DEFAULT_ORIGIN,
+        default_eps,
+        default_source_and_start,
+        embedded_plan,
+        fleet_ports,
+    )
+    from mission.telemetry.mission_log import MissionLog
+    from sitl_mock.fields import make_field
+    from sitl_mock.fleet import MockFleet
+
+    d_source, d_start = default_source_and_start(args.seed)
+    source = d_source if args.source is None else np.asarray(args.source, dtype=float)
+    start = source + (d_start - d_source) if args.start is None else np.asarray(args.start, dtype=float)
+    field = make_field(args.field, source)
+    eps = args.eps if args.eps is not None else default_eps(field)
+    ports = fleet_ports(args.n, args.personality)
+    log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("run-%Y%m%d-%H%M%S")
+    log_dir.mkdir(parents=True, exist_ok=True)
+    plan = embedded_plan(args.n, ports, personality=args.personality, formation=args.formation,
+                         radius_m=args.radius, start_enu_m=start, eps=eps, gamma_m=args.gamma,
+                         estimator=args.estimator, max_iterations=args.max_iterations,
+                         return_behaviour=args.return_behaviour, origin=DEFAULT_ORIGIN)
+    fleet = MockFleet(n=args.n, personality=args.personality, field=field, origin=DEFAULT_ORIGIN,
+                      speedup=args.speedup, seed=args.seed, udp_base_port=ports["udp_base_port"],
+                      udp_bind_base_port=ports["udp_bind_base_port"], tcp_base_port=ports["tcp_base_port"],
+                      fleet_name=plan.fleet, sensor_noise_std=args.noise,
+                      zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"])
+    fleet.start()
+    session = None
+    log = MissionLog(log_dir / "mission.jsonl", fleet.clock)
+    try:
+        session = zenoh.open(plan.zenoh.to_config())
+        log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field,
+                  source_enu=source, start_enu=start, noise=args.noise, speedup=args.speedup, eps=eps,
+                  gamma_m=args.gamma, seed=args.seed)
+        co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, display=display,
+                         tlog_dir=None if args.no_tlog else log_dir / "tlogs")
+        result = await co.run()
+        result.true_source_enu = [float(x) for x in source]
+        if result.estimate_enu is not None:
+            result.error_m = float(np.linalg.norm(np.asarray(result.estimate_enu) - source))
+        log.write("truth", sync=True, source_enu=source, error_m=result.error_m)
+        return result
+    finally:
+        log.close()
+        if session is not None:
+            session.close()
+        fleet.stop()
+
+
+def main(args) -> int:
+    """Run the embedded mission; 0 if it converged, 1 if not, 2 for bad options."""
+    from mission.telemetry.display import Display, report_result
+
+    problem = _check_args(args)
+    if problem:
+        print(f"swarmseek run: error: {problem}", file=sys.stderr)
+        return 2
+    import zenoh
+
+    display = Display(quiet=args.json)
+    try:
+        result = asyncio.run(run_embedded(args, display=display))
+    except (OSError, zenoh.ZError) as exc:
+        print(f"swarmseek run: cannot start the embedded fleet or zenoh: {exc}", file=sys.stderr)
+        return 1
+    status = report_result(result, display, args.json)
+    if not args.json and result.log_path:
+        print(f"  mission log: {result.log_path}  (swarmseek plot {result.log_path} --out DIR)")
+    return status

@@ -1,0 +1,281 @@
+"""Resume a stopped mission from its mission log (``swarmseek resume LOG``).
+
+What the log holds and the resumed coordinator uses: the plan (``plan`` record), the formation
+slots and altitude layers (the ``formation ...`` event, then every ``re-forming ...`` event), the
+vehicles lost so far (``vehicle N lost`` events), the formation type in use, and the seek's
+progress (the last ``iteration`` record: its ``k``, ``new_centre_enu``, ``distance_flown_m``; the
+last ``convergence_window`` centres prefill the convergence monitor), and the retired sensors
+(``vehicle N's sensor retired`` events: those vehicles stay parked at the centre, their readings
+ignored, :mod:`mission.flight.retire`).
+
+The resumed coordinator reconnects, and re-engages every vehicle still flying (armed, above
+1 m, not in RTL/LAND): setpoints at its current position first, then OFFBOARD (PX4) or GUIDED
+(ArduPilot); there is no new takeoff. Vehicles on the ground, or returning/landing by themselves
+(their autopilot's failsafe while the ground station was away), are counted as lost and left
+to their autopilot; if fewer than 4 fly, the resumed mission brings the others home. The seek
+goes on from the last centre and iteration, appending to the same log.
+"""
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mission.core.plan import (
+    FaultsPlan,
+    FormationPlan,
+    GeofencePlan,
+    Plan,
+    SeekingPlan,
+    VehiclePlan,
+    ZenohPlan,
+)
+
+__all__ = ["ResumeError", "ResumeState", "plan_from_json", "load_resume_state", "rejoin"]
+
+
+class ResumeError(ValueError):
+    """The log cannot be resumed (not a mission log, finished, or stopped before the takeoff)."""
+
+
+@dataclass
+class ResumeState:
+    """What a stopped mission's log says about where it was.
+
+    Attributes
+    ----------
+    plan : Plan
+    iteration : int
+        Seek iterations done (0: stopped before the seek).
+    centre_enu : numpy.ndarray
+        Formation centre to go on from.
+    centres : list of numpy.ndarray
+        The last centres (for the convergence monitor).
+    slot_offsets : dict
+        Slot offset of every vehicle still in the formation, by sysid.
+    layer_alt_m : dict
+        Altitude layer of every vehicle (for the return).
+    formation_kind : str
+    lost : list of int
+        Vehicles lost before the stop.
+    distance_flown_m : float
+    last_phase : str
+    embedded : dict or None
+        The ``embedded mock fleet`` event of a ``swarmseek run`` log (source, seed...).
+    retired : dict
+        Sysid -> the fields of its ``sensor retired`` event (:class:`mission.flight.retire.RetiredSensor`).
+    """
+
+    plan: Plan
+    iteration: int
+    centre_enu: np.ndarray
+    centres: list = field(default_factory=list)
+    slot_offsets: dict = field(default_factory=dict)
+    layer_alt_m: dict = field(default_factory=dict)
+    formation_kind: str = "cvt"
+    lost: list = field(default_factory=list)
+    distance_flown_m: float = 0.0
+    last_phase: str = ""
+    embedded: dict | None = None
+    retired: dict = field(default_factory=dict)
+
+
+def _tuple_of_tuples(x):
+    return tuple(tuple(float(v) for v in p) for p in x)
+
+
+def plan_from_json(d: dict) -> Plan:
+    """Rebuild a :class:`~mission.core.plan.Plan` from the ``plan`` record of a mission log.
+
+    Raises
+    ------
+    ResumeError
+        A field is missing or malformed.
+    """
+    try:
+        sk = dict(d["seeking"])
+        if sk.get("start_enu_m") is not None:
+            sk["start_enu_m"] = tuple(float(v) for v in sk["start_enu_m"])
+        gf = dict(d["geofence"])
+        gf["polygon_en_m"] = _tuple_of_tuples(gf.get("polygon_en_m") or ())
+        zn = dict(d["zenoh"])
+        zn["listen"], zn["connect"] = tuple(zn.get("listen") or ()), tuple(zn.get("connect") or ())
+        top = {k: d[k] for k in ("fleet", "max_speed_m_s", "min_separation_m", "takeoff_alt_m",
+                                 "return_behaviour", "stagger_s", "setpoint_rate_hz",
+                                 "heartbeat_timeout_s", "min_battery_pct", "version") if k in d}
+        return Plan(origin=tuple(float(v) for v in d["origin"]),
+                    vehicles=tuple(VehiclePlan(**v) for v in d["vehicles"]),
+                    formation=FormationPlan(**d["formation"]), seeking=SeekingPlan(**sk),
+                    geofence=GeofencePlan(**gf), zenoh=ZenohPlan(**zn),
+                    faults=FaultsPlan(**d.get("faults", {})), **top)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ResumeError(f"the log's plan record cannot be read back: {type(exc).__name__}: {exc}") from None
+
+
+def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeState:
+    """Read a mission log and say where the mission was.
+
+    Parameters
+    ----------
+    log_path : path
+        ``mission.jsonl`` of the stopped mission.
+    plan : Plan, optional
+        Fly with this plan (same vehicles) instead of the log's ``plan`` record.
+
+    Raises
+    ------
+    ResumeError
+        Not a mission log, no plan, already finished, or stopped before the formation existed.
+    """
+    from mission.telemetry.mission_log import read_mission_log
+
+    try:
+        records = read_mission_log(log_path)
+    except (OSError, ValueError) as exc:
+        raise ResumeError(f"cannot read {log_path}: {exc}") from None
+    plans = [r for r in records if r["type"] == "plan" and not r.get("dry_run")]
+    if plan is None:
+        if not plans:
+            raise ResumeError(f"{log_path}: no plan record (give the plan with --plan)")
+        plan = plan_from_json(plans[0]["plan"])
+    phases = [r["phase"] for r in records if r["type"] == "phase"]
+    last_phase = phases[-1] if phases else ""
+    if last_phase in ("done", "return", "finish") or any(r["type"] == "summary" for r in records):
+        raise ResumeError(f"{log_path}: the mission already ended (last phase {last_phase!r}); nothing to resume")
+    slots: dict[int, np.ndarray] = {}
+    layers: dict[int, float] = {}
+    lost: list[int] = []
+    retired: dict[int, dict] = {}
+    kind = plan.formation.type
+    embedded = None
+    for r in records:
+        if r["type"] != "event":
+            continue
+        msg = r.get("message", "")
+        if msg.startswith("formation ") and "slots" in r and "layers" in r:
+            slots = {int(k): np.asarray(v, dtype=float) for k, v in r["slots"].items()}
+            layers = {int(k): float(v) for k, v in r["layers"].items()}
+        elif msg.startswith("re-forming for") and "slots" in r:
+            slots.update({int(k): np.asarray(v, dtype=float) for k, v in r["slots"].items()})
+        elif msg.startswith("vehicle ") and " lost:" in msg and "sysid" in r:
+            lost.append(int(r["sysid"]))
+        elif msg.startswith("vehicle ") and " re-admitted" in msg and "sysid" in r:
+            lost = [s for s in lost if s != int(r["sysid"])]
+        elif msg.startswith("formation rotated") and "slots" in r:
+            slots.update({int(k): np.asarray(v, dtype=float) for k, v in r["slots"].items()})
+        elif msg.startswith("vehicle ") and "'s sensor retired (" in msg and "sysid" in r:
+            retired[int(r["sysid"])] = r
+        elif "switching to the CVT formation" in msg:
+            kind = "cvt"
+        elif msg == "embedded mock fleet":
+            embedded = r
+    if not slots:
+        raise ResumeError(f"{log_path}: stopped before the formation was planned (phase {last_phase!r}); "
+                          "start the mission again")
+    for s in lost:
+        slots.pop(s, None)
+    for s in retired:
+        if s in slots:
+            slots[s] = np.zeros(3)  # parked at the centre
+    iterations = [r for r in records if r["type"] == "iteration"]
+    window = plan.seeking.convergence_window
+    if iterations:
+        last = iterations[-1]
+        centre = np.asarray(last["new_centre_enu"], dtype=float)
+        centres = [np.asarray(r["new_centre_enu"], dtype=float) for r in iterations[-window:]]
+        k, flown = int(last["k"]), float(last.get("distance_flown_m") or 0.0)
+    else:
+        centre, centres, k, flown = plan.seeking.start_point(), [], 0, 0.0
+    return ResumeState(plan=plan, iteration=k, centre_enu=centre, centres=centres, slot_offsets=slots,
+                       layer_alt_m=layers, formation_kind=kind, lost=lost, distance_flown_m=flown,
+                       last_phase=last_phase, embedded=embedded, retired=retired)
+
+
+async def rejoin(co, state: ResumeState) -> None:
+    """Reconnect and re-engage the vehicles still flying (the coordinator's ``run`` with a state).
+
+    Raises
+    ------
+    mission.flight.coordinator.MissionError
+        Fewer than 4 vehicles can be re-engaged (those that can are still brought home).
+    """
+    from mission.flight.coordinator import MissionError
+    from mission.flight.loss import LEFT_MODES, VehicleLoss
+    from mission.flight.phases import _retried, build_envelope, connect
+    from mission.vehicle.streamer import SetpointStreamer
+    from mission.flight.targets import TargetRamp
+
+    plan = co.plan
+    await connect(co, required=False)
+    co.envelope = build_envelope(plan)
+    co.iteration = state.iteration
+    co.centre_enu = np.asarray(state.centre_enu, dtype=float).copy()
+    co.slot_offsets = {s: np.asarray(o, dtype=float) for s, o in state.slot_offsets.items()}
+    co.layer_alt_m = dict(state.layer_alt_m)
+    co.formation_kind = state.formation_kind
+    co.distance_flown_m = state.distance_flown_m
+    now = co.clock.time()
+    for s in state.lost:
+        co.lost[s] = VehicleLoss(s, "link", "lost before the ground station stopped", now, now, "resume")
+        co.released.add(s)
+    flying = []
+    for sysid in sorted(co.slot_offsets):
+        v = co.vehicles.get(sysid)
+        reason = None
+        if v is None:
+            reason = "not connected at resume"
+        else:
+            try:
+                home = await v.wait_home(10.0)
+            except Exception as exc:  # noqa: BLE001 - CommandError: reported as the reason
+                home, reason = None, f"no home position at resume ({exc})"
+            await co.wait_until(lambda v=v: v.state.position_ok, 10.0, f"vehicle {sysid} position")
+            st = v.state
+            if home is not None:
+                from formation.geodesy import geodetic_to_enu
+
+                co.home_enu[sysid] = np.asarray(geodetic_to_enu(home[0], home[1], home[2], plan.origin), float)
+            if reason is None and not st.armed:
+                reason = "on the ground (disarmed)"
+            elif reason is None and st.mode in LEFT_MODES.get(v.flavour, ()):
+                reason = f"in {st.mode} (its autopilot's failsafe while the ground station was away)"
+            elif reason is None and (st.relative_alt_m is None or st.relative_alt_m < 1.0):
+                reason = "not flying"
+        if reason is not None:
+            co.lost[sysid] = VehicleLoss(sysid, "left", reason, now, now, "resume")
+            co.released.add(sysid)
+            co.status[sysid] = f"lost ({reason})"
+            co.event(f"vehicle {sysid} lost: {reason}; not re-engaged", level="warning", sysid=sysid)
+        else:
+            flying.append(sysid)
+    co.streamer = SetpointStreamer([co.vehicles[s] for s in flying], rate_hz=plan.setpoint_rate_hz,
+                                   clock=co.clock, max_speed_m_s=plan.max_speed_m_s)
+    co.ramp = TargetRamp(co.streamer, co.clock, plan.max_speed_m_s, rate_hz=min(plan.setpoint_rate_hz, 10.0),
+                         envelope=co.envelope, on_violation=lambda m: co.event(m, level="warning"))
+    for s in flying:
+        co.ramp.add(s, co._telemetry_position(s))
+        co.airborne.add(s)
+        co.status[s] = "re-engaging"
+    await co.streamer.start()
+    co.ramp.start()
+    await co.clock.sleep(0.5)  # setpoints flowing before OFFBOARD (PX4 requires it)
+    for s in flying:
+        v = co.vehicles[s]
+        want = co._GUIDED_MODES.get(v.flavour)
+        if want is not None and v.state.mode != want:
+            await _retried(co, lambda v=v, want=want: v.set_mode(want), f"re-engaging {want} on vehicle {s}")
+        co.status[s] = "in formation"
+    from mission.flight.retire import restore_retired
+
+    restore_retired(co, state.retired)
+    co.event(f"resumed at iteration {state.iteration} from centre "
+             f"({co.centre_enu[0]:.2f}, {co.centre_enu[1]:.2f}, {co.centre_enu[2]:.2f}) m with vehicles "
+             f"{flying}", iteration=state.iteration, centre_enu=co.centre_enu, vehicles=flying,
+             lost=sorted(co.lost), retired=sorted(co.retired))
+    sensing = [s for s in flying if s not in co.retired]
+    if len(sensing) < 4:
+        raise MissionError(f"only {len(sensing)} sensing vehicles can be re-engaged ({sensing}); a formation "
+                           "needs 4: bringing them home")
+    await asyncio.sleep(0)

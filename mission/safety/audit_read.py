@@ -1,0 +1,310 @@
+"""Reading a flown mission for :mod:`mission.safety.audit`: the plan's safety limits from
+``mission.jsonl`` and, from each vehicle's ``.tlog``, the position setpoints the ground station
+sent, placed in the mission ENU frame with :mod:`formation.geodesy` only (independent of the
+code that produced them).
+
+A tlog record is an 8-byte big-endian microsecond stamp then one MAVLink frame
+(:mod:`mission.link.tlog`); records are split here (a truncated last record, as a crash leaves, is
+dropped; a record that is not a MAVLink frame is an error) and only the frames the audit needs
+are decoded, with pymavlink (a frame that fails its CRC is an error, never skipped silently).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from formation.geodesy import enu_to_geodetic, geodetic_to_enu, ned_to_enu
+
+__all__ = ["AuditError", "AuditViolation", "VehicleSetpoints", "load_plan_limits", "find_tlogs",
+           "read_vehicle_setpoints"]
+
+_POS_IGNORE = 0x7                      # type_mask bits 0..2: ignore x, y, z
+_FRAME_LOCAL_NED = 1
+_FRAME_GLOBAL_INT = 5
+_FRAME_GLOBAL_RELATIVE_ALT_INT = 6
+_SP_LOCAL = "SET_POSITION_TARGET_LOCAL_NED"
+_SP_GLOBAL = "SET_POSITION_TARGET_GLOBAL_INT"
+
+
+class AuditError(ValueError):
+    """The log directory cannot be audited (missing, no tlogs, unreadable log or plan)."""
+
+
+@dataclass(frozen=True)
+class AuditViolation:
+    """One broken rule.
+
+    Attributes
+    ----------
+    kind : str
+        ``fence`` (outside the polygon), ``altitude`` (outside the band), ``speed``,
+        ``separation``, ``frame`` (a setpoint the audit cannot place), ``no_home``.
+    t_s : float
+        Tlog stamp (mission clock, Unix-epoch seconds).
+    sysids : tuple of int
+        The vehicle, or the pair.
+    value : float
+        The offending figure (metres outside, m/s, metres apart).
+    limit : float
+        The limit it was compared with (tolerance excluded).
+    detail : str
+        Human-readable description.
+    """
+
+    kind: str
+    t_s: float
+    sysids: tuple
+    value: float
+    limit: float
+    detail: str
+
+
+@dataclass
+class VehicleSetpoints:
+    """Position setpoints the ground station sent to one vehicle, in the mission ENU frame.
+
+    Attributes
+    ----------
+    sysid : int
+    t_s : numpy.ndarray, shape (K,)
+        Tlog stamps, non-decreasing.
+    enu_m : numpy.ndarray, shape (K, 3)
+    skipped : int
+        Setpoints that command no position (velocity/acceleration only).
+    problems : list of AuditViolation
+        ``frame`` and ``no_home`` findings.
+    homes : int
+        HOME_POSITION frames received.
+    """
+
+    sysid: int
+    t_s: np.ndarray
+    enu_m: np.ndarray
+    skipped: int = 0
+    problems: list = field(default_factory=list)
+    homes: int = 0
+
+
+def load_plan_limits(log_dir: Path) -> dict:
+    """The safety limits of the first (non dry-run) ``plan`` record of ``log_dir/mission.jsonl``.
+
+    Returns
+    -------
+    dict
+        ``origin``, ``polygon_en_m`` (K, 2), ``min_alt_m``, ``max_alt_m``, ``max_speed_m_s``,
+        ``min_separation_m``.
+
+    Raises
+    ------
+    AuditError
+        No log, no plan record, or a plan record without these fields.
+    """
+    from mission.telemetry.mission_log import iter_mission_log
+
+    path = log_dir / "mission.jsonl"
+    if not path.is_file():
+        raise AuditError(f"{log_dir}: no mission log (mission.jsonl) to take the plan from")
+    try:
+        plans = [r for r in iter_mission_log(path) if r.get("type") == "plan" and not r.get("dry_run")]
+    except OSError as exc:
+        raise AuditError(f"{path}: cannot be read: {exc}") from None
+    if not plans:
+        raise AuditError(f"{path}: no plan record (was the mission flown?)")
+    plan = plans[0].get("plan")
+    try:
+        gf = plan["geofence"]
+        out = {
+            "origin": tuple(float(v) for v in plan["origin"]),
+            "polygon_en_m": np.asarray(gf["polygon_en_m"], dtype=float).reshape(-1, 2),
+            "min_alt_m": float(gf["min_alt_m"]),
+            "max_alt_m": float(gf["max_alt_m"]),
+            "max_speed_m_s": float(plan["max_speed_m_s"]),
+            "min_separation_m": float(plan["min_separation_m"]),
+        }
+    except (KeyError, TypeError, ValueError) as exc:
+        raise AuditError(f"{path}: the plan record lacks the safety limits: {type(exc).__name__}: {exc}") from None
+    if len(out["origin"]) != 3 or len(out["polygon_en_m"]) < 3:
+        raise AuditError(f"{path}: the plan record has no usable origin or geofence polygon")
+    return out
+
+
+def _local_origin(home_geo, home_local_ned):
+    """The LOCAL_NED origin: the home moved back by the home's local coordinates."""
+    lat, lon, alt = enu_to_geodetic(-ned_to_enu(np.asarray(home_local_ned, dtype=float)), home_geo)
+    return float(lat), float(lon), float(alt)
+
+
+def _local_to_mission(ned, local_origin, mission_origin) -> np.ndarray:
+    lat, lon, alt = enu_to_geodetic(ned_to_enu(np.asarray(ned, dtype=float)), local_origin)
+    return geodetic_to_enu(lat, lon, alt, mission_origin)
+
+
+def _split_records(path: Path):
+    """``(t_s, frame)`` records; a truncated last record (a crash while writing) is dropped.
+
+    Raises
+    ------
+    AuditError
+        Unreadable file, or a record that is not a MAVLink frame.
+    """
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise AuditError(f"{path}: cannot be read: {exc}") from None
+    out, i = [], 0
+    while i + 10 <= len(data):
+        stamp_us = int.from_bytes(data[i:i + 8], "big")
+        magic, length = data[i + 8], data[i + 9]
+        if magic == 0xFD:
+            size = 12 + length + (13 if i + 10 < len(data) and data[i + 10] & 0x01 else 0)
+        elif magic == 0xFE:
+            size = 8 + length
+        else:
+            raise AuditError(f"{path}: record at byte {i} starts with 0x{magic:02X}, not a MAVLink frame "
+                             f"(not a tlog, or corrupt)")
+        if i + 8 + size > len(data):
+            break
+        out.append((stamp_us * 1e-6, data[i + 8:i + 8 + size]))
+        i += 8 + size
+    return out
+
+
+def _read_tlog(path, sysid, gcs_sysid):
+    """Decode the setpoints and HOME_POSITION frames of one tlog (others are not decoded)."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    wanted = {mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED, mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT,
+              mavlink.MAVLINK_MSG_ID_HOME_POSITION}
+    mav = mavlink.MAVLink(None)
+    events = []
+    for t_s, frame in _split_records(path):
+        msgid = frame[5] if frame[0] == 0xFE else int.from_bytes(frame[7:10], "little")
+        if msgid not in wanted:
+            continue
+        try:
+            msg = mav.decode(bytearray(frame))
+        except Exception as exc:  # noqa: BLE001 - pymavlink raises MAVError, struct.error...
+            raise AuditError(f"{path}: a frame stamped {t_s:.3f} (message id {msgid}) cannot be decoded: "
+                             f"{exc}") from None
+        src = msg.get_srcSystem()
+        if msgid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
+            if src == sysid:
+                events.append((t_s, "home", msg))
+        elif src == gcs_sysid and msg.target_system in (sysid, 0):
+            events.append((t_s, "sp", msg))
+    return events
+
+
+def read_vehicle_setpoints(paths, sysid: int, mission_origin, gcs_sysid: int = 255) -> VehicleSetpoints:
+    """Decode the position setpoints sent to ``sysid`` in its tlog(s), in the mission ENU frame.
+
+    Parameters
+    ----------
+    paths : list of path-like
+        The vehicle's tlog files (several after a resume), read in time order.
+    sysid : int
+        The vehicle.
+    mission_origin : tuple of float
+        ``(lat_deg, lon_deg, alt_m)`` of the mission frame.
+    gcs_sysid : int
+        System id of the ground station (whose frames are the ones sent).
+
+    Raises
+    ------
+    AuditError
+        A file cannot be read or decoded.
+    """
+    events = []          # (t_s, kind, message)
+    for path in paths:
+        events.extend(_read_tlog(path, sysid, gcs_sysid))
+    events.sort(key=lambda e: e[0])
+    out = VehicleSetpoints(sysid, np.empty(0), np.empty((0, 3)))
+    t_list, rows = [], []        # rows: (group, x, y, z); group -1 = geodetic
+    origins: dict[tuple, int] = {}
+    home = None
+    group = None
+    for t_s, kind, msg in events:
+        if kind == "home":
+            out.homes += 1
+            home = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
+            origin = _local_origin(home, (msg.x, msg.y, msg.z))
+            group = origins.setdefault(origin, len(origins))
+            continue
+        row = _setpoint_row(msg, t_s, sysid, home, group, out)
+        if row is not None:
+            t_list.append(t_s)
+            rows.append(row)
+    if not t_list:
+        return out
+    data = np.asarray(rows, dtype=float)
+    enu = np.empty((len(rows), 3))
+    geo = data[:, 0] < 0
+    if np.any(geo):
+        enu[geo] = geodetic_to_enu(data[geo, 1], data[geo, 2], data[geo, 3], mission_origin)
+    for origin, g in origins.items():
+        sel = data[:, 0] == g
+        if np.any(sel):
+            enu[sel] = _local_to_mission(data[sel, 1:], origin, mission_origin)
+    out.t_s = np.asarray(t_list, dtype=float)
+    out.enu_m = enu
+    return out
+
+
+def _setpoint_row(msg, t_s, sysid, home, group, out):
+    """``(group, x, y, z)`` of one setpoint (LOCAL_NED in ``group``'s frame, or -1 and geodetic),
+    or None after counting it as skipped or as a problem."""
+    ignored = msg.type_mask & _POS_IGNORE
+    if ignored == _POS_IGNORE:
+        out.skipped += 1
+        return None
+    frame = msg.coordinate_frame
+    name = msg.get_type()
+    if ignored:
+        out.problems.append(AuditViolation("frame", t_s, (sysid,), float(msg.type_mask), 0.0,
+                                           f"{name} ignores only some position axes (type_mask 0x{msg.type_mask:X})"))
+        return None
+    if name == _SP_LOCAL and frame == _FRAME_LOCAL_NED:
+        if group is None:
+            out.problems.append(AuditViolation("no_home", t_s, (sysid,), math.nan, math.nan,
+                                               "LOCAL_NED setpoint sent before any HOME_POSITION was received"))
+            return None
+        return (group, msg.x, msg.y, msg.z)
+    if name == _SP_GLOBAL and frame in (_FRAME_GLOBAL_INT, _FRAME_GLOBAL_RELATIVE_ALT_INT):
+        alt = float(msg.alt)
+        if frame == _FRAME_GLOBAL_RELATIVE_ALT_INT:
+            if home is None:
+                out.problems.append(AuditViolation("no_home", t_s, (sysid,), math.nan, math.nan,
+                                                   "relative-altitude setpoint sent before any HOME_POSITION"))
+                return None
+            alt += home[2]
+        return (-1, msg.lat_int * 1e-7, msg.lon_int * 1e-7, alt)
+    out.problems.append(AuditViolation("frame", t_s, (sysid,), float(frame), 0.0,
+                                       f"{name} in coordinate frame {frame}, which the audit cannot place"))
+    return None
+
+
+def find_tlogs(log_dir: Path) -> dict[int, list[Path]]:
+    """``sysid -> [tlog paths]`` in ``log_dir/tlogs`` (or ``log_dir`` itself), by file name.
+
+    Raises
+    ------
+    AuditError
+        A ``.tlog`` not named ``vehicle-<sysid>[-k].tlog``.
+    """
+    tdir = log_dir / "tlogs"
+    files = sorted(tdir.glob("*.tlog")) if tdir.is_dir() else []
+    if not files:
+        files = sorted(log_dir.glob("*.tlog"))
+    by_sysid: dict[int, list[Path]] = {}
+    for f in files:
+        stem = f.stem
+        try:
+            sysid = int(stem.split("-")[1])
+        except (IndexError, ValueError):
+            raise AuditError(f"{f}: not a vehicle tlog name (expected vehicle-<sysid>[-k].tlog)") from None
+        by_sysid.setdefault(sysid, []).append(f)
+    return by_sysid
+

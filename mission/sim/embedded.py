@@ -1,0 +1,125 @@
+"""The embedded mission of ``swarmseek run``: a mock fleet, a plan for it, free loopback ports.
+
+The default: 8 mock vehicles (PX4 personality), CVT formation of radius 4 m, the paper's
+``sigma_2`` field with its source drawn (from the seed) in the box ``E, N in [-20, 20] m,
+U in [12, 18] m``, the formation starting 25 m away horizontally (3 m lower), the fleet's
+``SimClock`` at 10x shared with the coordinator, zenoh: the fleet listens on a free loopback
+port and the coordinator connects to it.
+
+Choice of ``eps``: near the source of a Gaussian ``A exp(-d^T S d)`` the step is
+``eps * 2 A S d``, which contracts the error along each eigenvector of ``S`` by
+``1 - 2 eps A lambda``. ``eps = 1 / (2 A lambda_max(S))`` (a Newton step along the stiffest
+axis) converges fastest without oscillation; for ``sigma_2`` it is 49.9, and 25 m away it gives
+``eps ||grad|| ~ 1.1 m``, i.e. steps of about ``gamma = 1 m`` from the start. The paper's
+``eps = 1`` with ``sigma_2`` (``||grad|| ~ 1e-3..4e-2 /m``) would move the centre by centimetres per
+iteration: thousands of iterations. ``--eps`` and ``--gamma`` override (``--eps 1 --gamma 0.1``
+gives the paper's parameters).
+"""
+from __future__ import annotations
+
+import random
+import socket
+
+import numpy as np
+
+from mission.core.plan import (
+    FormationPlan,
+    GeofencePlan,
+    Plan,
+    SeekingPlan,
+    VehiclePlan,
+    ZenohPlan,
+)
+
+__all__ = ["DEFAULT_ORIGIN", "free_port_block", "default_eps", "default_source_and_start",
+           "embedded_plan", "fleet_ports"]
+
+DEFAULT_ORIGIN = (45.1885, 5.7245, 212.0)
+
+
+def free_port_block(count: int, step: int = 1, kinds: tuple[str, ...] = ("udp",), lo: int = 20000,
+                    hi: int = 60000, tries: int = 200) -> int:
+    """A base port such that ``base + step * i`` (i < count) are free for every kind in ``kinds``.
+
+    Raises
+    ------
+    OSError
+        No free block found.
+    """
+    rng = random.Random()
+    for _ in range(tries):
+        base = rng.randrange(lo, hi - step * count)
+        socks = []
+        try:
+            for i in range(count):
+                for kind in kinds:
+                    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM)
+                    socks.append(s)
+                    s.bind(("127.0.0.1", base + step * i))
+            return base
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise OSError(f"no block of {count} free loopback ports found")
+
+
+def default_eps(field) -> float:
+    """``1 / (2 A lambda_max(S))`` for a Gaussian field (see the module docstring); 1.0 otherwise."""
+    amp = getattr(field, "amplitude", None)
+    S = getattr(field, "S", None)
+    if amp is None or S is None:
+        return 1.0
+    return float(1.0 / (2.0 * amp * np.max(np.linalg.eigvalsh(np.asarray(S, dtype=float)))))
+
+
+def default_source_and_start(seed: int, distance_m: float = 25.0) -> tuple[np.ndarray, np.ndarray]:
+    """Source in the default box and a start ``distance_m`` away horizontally (3 m lower)."""
+    rng = np.random.default_rng(seed)
+    source = rng.uniform([-20.0, -20.0, 12.0], [20.0, 20.0, 18.0])
+    heading = rng.uniform(0.0, 2.0 * np.pi)
+    start = source + np.array([distance_m * np.cos(heading), distance_m * np.sin(heading), -3.0])
+    return source, start
+
+
+def fleet_ports(n: int, personality: str) -> dict:
+    """Free ports for a mock fleet of ``n``: MAVLink (UDP for PX4, TCP for ArduPilot) and zenoh."""
+    ports: dict = {"udp_base_port": 0, "udp_bind_base_port": 0, "tcp_base_port": 0}
+    if personality == "ardupilot":
+        ports["tcp_base_port"] = free_port_block(n, step=10, kinds=("tcp",))
+    else:
+        ports["udp_base_port"] = free_port_block(n, kinds=("udp",))
+        ports["udp_bind_base_port"] = free_port_block(n, kinds=("udp",))
+    ports["zenoh_port"] = free_port_block(1, kinds=("tcp",))
+    return ports
+
+
+def embedded_plan(n: int, ports: dict, *, personality: str = "px4", formation: str = "cvt",
+                  radius_m: float = 4.0, start_enu_m=(0.0, 0.0, 12.0), eps: float = 1.0,
+                  gamma_m: float = 1.0, estimator: str | None = None, max_iterations: int = 300,
+                  fleet: str = "swarmseek", origin=DEFAULT_ORIGIN, convergence_tol_m: float = 0.3,
+                  convergence_window: int = 12, return_behaviour: str = "land",
+                  stagger_s: float = 0.5, max_speed_m_s: float = 3.0) -> Plan:
+    """The :class:`~mission.core.plan.Plan` that flies a mock fleet started with ``ports``."""
+    vehicles = []
+    for i in range(n):
+        if personality == "ardupilot":
+            conn = f"tcp:127.0.0.1:{ports['tcp_base_port'] + 10 * i}"
+        else:
+            conn = f"udpin:127.0.0.1:{ports['udp_base_port'] + i}"
+        vehicles.append(VehiclePlan(id=f"{personality[:3]}{i + 1}", sysid=i + 1, connection=conn))
+    seeking = SeekingPlan(eps=eps, gamma_m=gamma_m, estimator=estimator or formation, rate_hz=2.0,
+                          max_iterations=max_iterations, convergence_tol_m=convergence_tol_m,
+                          convergence_window=convergence_window,
+                          start_enu_m=tuple(float(x) for x in start_enu_m), arrival_tol_m=0.35,
+                          reading_window_s=0.3, max_reading_age_s=5.0, max_position_error_m=10.0)
+    return Plan(
+        fleet=fleet, origin=tuple(origin), vehicles=tuple(vehicles),
+        formation=FormationPlan(type=formation, radius_m=radius_m, seed=0), seeking=seeking,
+        geofence=GeofencePlan(polygon_en_m=((-150.0, -150.0), (150.0, -150.0), (150.0, 150.0),
+                                            (-150.0, 150.0)), min_alt_m=2.0, max_alt_m=80.0),
+        zenoh=ZenohPlan(mode="peer", connect=(f"tcp/127.0.0.1:{ports['zenoh_port']}",)),
+        max_speed_m_s=max_speed_m_s, min_separation_m=1.5, takeoff_alt_m=8.0,
+        return_behaviour=return_behaviour, stagger_s=stagger_s, setpoint_rate_hz=10.0,
+        heartbeat_timeout_s=15.0, min_battery_pct=30.0)

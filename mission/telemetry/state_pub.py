@@ -1,0 +1,94 @@
+"""The coordinator's state over zenoh: ``swarmseek/<fleet>/mission/state`` at about 2 Hz.
+
+Payload: UTF-8 JSON (encoding ``application/json``), the coordinator's state snapshot, schema
+``swarmseek.mission_state.v1`` (fields documented in ``docs/mission.md``). Published with
+``CongestionControl.DROP``: a watcher that cannot keep up misses snapshots, the mission never
+waits for it (the latest snapshot supersedes every older one).
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+from typing import Callable
+
+from mission.core.clock import cancel_and_wait
+from mission.telemetry.mission_log import to_jsonable
+
+__all__ = ["STATE_SCHEMA", "state_key", "StatePublisher"]
+
+STATE_SCHEMA = "swarmseek.mission_state.v1"
+
+
+def state_key(fleet: str) -> str:
+    """``swarmseek/<fleet>/mission/state``."""
+    return f"swarmseek/{fleet}/mission/state"
+
+
+class StatePublisher:
+    """Publishes snapshots from ``snapshot()`` every ``1 / rate_hz`` wall seconds while running.
+
+    Parameters
+    ----------
+    session : zenoh.Session or None
+        None disables publishing (snapshots are still taken for the display).
+    fleet : str
+    snapshot : callable
+        Returns the current state dict.
+    rate_hz : float
+        Publication rate, wall clock (the state is for people and tools watching).
+    on_snapshot : callable, optional
+        Called with every snapshot (e.g. the display's ``update``).
+    """
+
+    def __init__(self, session, fleet: str, snapshot: Callable[[], dict], rate_hz: float = 2.0,
+                 on_snapshot: Callable[[dict], None] | None = None):
+        self.fleet = fleet
+        self.snapshot = snapshot
+        self.period_s = 1.0 / float(rate_hz)
+        self.on_snapshot = on_snapshot
+        self.published = 0
+        self.errors = 0
+        self._task: asyncio.Task | None = None
+        self._pub = None
+        if session is not None:
+            import zenoh
+
+            self._pub = session.declare_publisher(
+                state_key(fleet), encoding=zenoh.Encoding.APPLICATION_JSON,
+                congestion_control=zenoh.CongestionControl.DROP)
+
+    def publish_now(self) -> dict:
+        """Take a snapshot, hand it to ``on_snapshot`` and publish it; returns it."""
+        state = dict(self.snapshot())
+        state["schema"] = STATE_SCHEMA
+        if self.on_snapshot is not None:
+            self.on_snapshot(state)
+        if self._pub is not None:
+            try:
+                self._pub.put(json.dumps(to_jsonable(state), allow_nan=False).encode())
+                self.published += 1
+            except Exception:  # noqa: BLE001 - a closed session must not stop the mission
+                self.errors += 1
+        return state
+
+    async def _run(self) -> None:
+        while True:
+            self.publish_now()
+            await asyncio.sleep(self.period_s)
+
+    def start(self) -> None:
+        """Start the periodic task on the running loop."""
+        if self._task is None:
+            self._task = asyncio.get_running_loop().create_task(self._run())
+
+    async def stop(self) -> None:
+        """Stop the task, publish a last snapshot, undeclare the publisher."""
+        await cancel_and_wait(self._task)
+        self._task = None
+        self.publish_now()
+        if self._pub is not None:
+            try:
+                self._pub.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
+            self._pub = None

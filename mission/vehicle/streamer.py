@@ -1,0 +1,216 @@
+"""Stream every vehicle's latest position setpoint at a steady rate from one asyncio task.
+
+One task wakes at ``rate_hz`` on the mission clock (absolute schedule: no drift) and sends the
+latest target of every vehicle, one non-blocking datagram each, so no vehicle waits for another.
+The order rotates every tick so that the same vehicle is not always the last one of the burst.
+If the loop falls more than a period behind, it skips ahead rather than bursting to catch up.
+
+With ``max_speed_m_s`` the streamer is the last speed gate before the wire: each datagram sent to
+a vehicle is at most ``max_speed_m_s`` times the time since that vehicle's previous datagram away
+from it, whatever the targets do between two ticks (a ramp running on its own schedule, an event
+loop that stalled). The sent setpoint moves along the straight line towards the target and
+reaches it as soon as the limit allows.
+"""
+from __future__ import annotations
+
+import asyncio
+import collections
+
+import numpy as np
+
+from mission.core.clock import WallClock, cancel_and_wait
+
+__all__ = ["SetpointStreamer"]
+
+_HISTORY = 1200
+
+
+class _Track:
+    __slots__ = ("target", "yaw", "sent", "errors", "last_s", "intervals", "first_s", "last_error",
+                 "sent_pos", "sent_pos_s", "limited")
+
+    def __init__(self) -> None:
+        self.target = None
+        self.sent_pos = None  # last position actually sent, and when (clock seconds)
+        self.sent_pos_s = None
+        self.limited = 0
+        self.yaw = None
+        self.sent = 0
+        self.errors = 0
+        self.last_s = None
+        self.first_s = None
+        self.last_error = None
+        self.intervals: collections.deque = collections.deque(maxlen=_HISTORY)
+
+
+class SetpointStreamer:
+    """Send each vehicle's latest setpoint at ``rate_hz``.
+
+    Parameters
+    ----------
+    vehicles : list of VehicleLink
+        Vehicles that may be streamed to (a vehicle is streamed once it has a target).
+    rate_hz : float
+        Setpoints per clock second per vehicle.
+    clock : object, optional
+        Mission clock; default :class:`~mission.core.clock.WallClock`.
+    max_speed_m_s : float, optional
+        Largest speed between two consecutive setpoints sent to one vehicle (module docstring);
+        None: targets are sent as they are.
+
+    Attributes
+    ----------
+    ticks : int
+        Bursts sent so far.
+    late_ticks : int
+        Ticks that started more than one period late (the schedule was reset).
+    """
+
+    def __init__(self, vehicles, rate_hz: float = 10.0, clock=None, max_speed_m_s: float | None = None) -> None:
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        if max_speed_m_s is not None and not (np.isfinite(max_speed_m_s) and max_speed_m_s > 0):
+            raise ValueError(f"max_speed_m_s must be a positive number, got {max_speed_m_s}")
+        self.rate_hz = float(rate_hz)
+        self._max_speed_m_s = None if max_speed_m_s is None else float(max_speed_m_s)
+        self.clock = clock if clock is not None else WallClock()
+        self._vehicles = {v.sysid: v for v in vehicles}
+        self._tracks = {sysid: _Track() for sysid in self._vehicles}
+        self._task: asyncio.Task | None = None
+        self._offset = 0
+        self.ticks = 0
+        self.late_ticks = 0
+
+    def add(self, vehicle) -> None:
+        """Add a vehicle (not streamed until it gets a target)."""
+        self._vehicles[vehicle.sysid] = vehicle
+        self._tracks.setdefault(vehicle.sysid, _Track())
+
+    def set_target(self, sysid: int, position_enu_m, yaw_rad: float | None = None) -> None:
+        """Set the mission-frame ENU target of ``sysid``; streamed from the next tick on.
+
+        Raises
+        ------
+        KeyError
+            Unknown system id.
+        ValueError
+            Not three finite numbers.
+        """
+        track = self._tracks.get(sysid)
+        if track is None:
+            raise KeyError(f"vehicle {sysid} is not in this streamer (known: {sorted(self._tracks)})")
+        e, n, u = (float(v) for v in position_enu_m)
+        if not (np.isfinite(e) and np.isfinite(n) and np.isfinite(u)):
+            raise ValueError(f"vehicle {sysid}: setpoint must be finite, got {(e, n, u)}")
+        track.target = (e, n, u)
+        track.yaw = None if yaw_rad is None else float(yaw_rad)
+
+    def target(self, sysid: int):
+        """The current target of ``sysid`` as ``(east_m, north_m, up_m)``, or None."""
+        return self._tracks[sysid].target
+
+    def remove(self, sysid: int) -> None:
+        """Stop streaming to ``sysid`` (its target is dropped; statistics are kept)."""
+        track = self._tracks.get(sysid)
+        if track is not None:
+            track.target = None
+            track.last_s = None
+
+    async def start(self) -> None:
+        """Start the streaming task (idempotent)."""
+        if self._task is None or self._task.done():
+            self._task = asyncio.ensure_future(self._run())
+
+    async def stop(self) -> None:
+        """Stop the streaming task and wait for it."""
+        task, self._task = self._task, None
+        await cancel_and_wait(task)
+
+    @property
+    def running(self) -> bool:
+        """True while the task runs."""
+        return self._task is not None and not self._task.done()
+
+    def tick(self) -> int:
+        """Send one burst now (the task calls this; usable directly). Returns datagrams sent."""
+        now = self.clock.time()
+        items = list(self._tracks.items())
+        if not items:
+            return 0
+        k = self._offset % len(items)
+        self._offset += 1
+        sent = 0
+        for sysid, track in items[k:] + items[:k]:
+            if track.target is None:
+                continue
+            position = track.target
+            if self._max_speed_m_s is not None:
+                position = self._limited(track, self.clock.time())
+            try:
+                self._vehicles[sysid].send_position_enu(position, track.yaw)
+            except Exception as exc:  # one vehicle's problem must not starve the others
+                track.errors += 1
+                track.last_error = str(exc)
+                continue
+            if track.last_s is not None:
+                track.intervals.append(now - track.last_s)
+            else:
+                track.first_s = now
+            track.last_s = now
+            if self._max_speed_m_s is not None:
+                # read after the send, so that the next step's time base is never longer than
+                # the time between the two datagrams as stamped on the way out (e.g. in a .tlog)
+                track.sent_pos, track.sent_pos_s = position, self.clock.time()
+            track.sent += 1
+            sent += 1
+        self.ticks += 1
+        return sent
+
+    def _limited(self, track: _Track, now_s: float):
+        """The target, or the point towards it that keeps the step within the speed limit."""
+        target = track.target
+        if track.sent_pos is None:
+            return target
+        step = np.subtract(target, track.sent_pos)
+        dist = float(np.linalg.norm(step))
+        reach = self._max_speed_m_s * max(now_s - track.sent_pos_s, 0.0)
+        if dist <= reach:
+            return target
+        track.limited += 1
+        return tuple(float(v) for v in np.add(track.sent_pos, step * (reach / dist)))
+
+    async def _run(self) -> None:
+        clock = self.clock
+        period_s = 1.0 / self.rate_hz
+        next_s = clock.time()
+        while True:
+            self.tick()
+            next_s += period_s
+            delay_s = next_s - clock.time()
+            if delay_s < -period_s:
+                self.late_ticks += 1
+                next_s = clock.time() + period_s
+                delay_s = period_s
+            await clock.sleep(max(0.0, delay_s))
+
+    def stats(self, sysid: int) -> dict:
+        """Sending statistics of ``sysid`` (sender side, clock seconds).
+
+        Returns
+        -------
+        dict
+            ``sent``, ``errors``, ``last_error``, ``speed_limited`` (datagrams moved less than
+            their target to keep the speed limit), ``rate_hz`` (over the recent history),
+            ``p50_interval_s``, ``p99_interval_s`` (None before two sends).
+        """
+        track = self._tracks[sysid]
+        out = {"sent": track.sent, "errors": track.errors, "last_error": track.last_error,
+               "speed_limited": track.limited,
+               "rate_hz": None, "p50_interval_s": None, "p99_interval_s": None}
+        if track.intervals:
+            intervals = np.fromiter(track.intervals, dtype=float)
+            total = float(intervals.sum())
+            out["rate_hz"] = len(intervals) / total if total > 0 else None
+            out["p50_interval_s"] = float(np.percentile(intervals, 50))
+            out["p99_interval_s"] = float(np.percentile(intervals, 99))
+        return out

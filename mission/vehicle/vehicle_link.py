@@ -1,0 +1,449 @@
+"""One vehicle seen through a :class:`~mission.link.endpoint.MavEndpoint`: telemetry, commands, setpoints.
+
+:class:`VehicleLink` keeps :attr:`VehicleLink.state` (a :class:`VehicleState`) up to date from the
+vehicle's telemetry, sends commands with retries and ACK matching (:meth:`VehicleLink.command_long`),
+runs the takeoff, land and RTL sequences each autopilot flavour expects, and converts mission-frame
+setpoints to the vehicle's own frame (:meth:`VehicleLink.send_position_enu`).
+
+Frames: the mission frame is ENU about the mission origin (``docs/interfaces.md``). A vehicle's
+LOCAL_NED origin is derived from its HOME_POSITION (home geodetic minus home's local x, y, z), so
+setpoints are right whatever the vehicle's home and EKF origin. Yaw is a heading in radians,
+clockwise from north (the MAVLink convention).
+"""
+from __future__ import annotations
+
+import asyncio
+import collections
+import time
+from typing import Callable
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from formation.geodesy import enu_to_geodetic
+from mission.core.clock import wait_on_clock
+from mission.link.endpoint import LinkError, MavEndpoint
+from mission.vehicle.frames import MissionToLocal, resolve_mode
+from mission.vehicle.state import CommandError, VehicleState, VehicleTelemetry, command_name
+from mission.vehicle.state import result_name as _result_name
+
+__all__ = ["CommandError", "VehicleState", "VehicleLink", "DEFAULT_RATES_HZ", "command_name"]
+
+#: Telemetry a mission needs, and at what rate (Hz); 0 stops what it does not need (CPU at N = 100+).
+#: The position comes from LOCAL_POSITION_NED (5 Hz, which also updates ``relative_alt_m``);
+#: GLOBAL_POSITION_INT (lat, lon, alt) at 1 Hz. See :meth:`VehicleLink.set_message_rates`.
+DEFAULT_RATES_HZ: dict[str, float] = {
+    "LOCAL_POSITION_NED": 5.0, "GLOBAL_POSITION_INT": 1.0, "SYS_STATUS": 1.0,
+    "EXTENDED_SYS_STATE": 1.0, "HOME_POSITION": 0.5, "GPS_RAW_INT": 1.0,
+    "ATTITUDE": 0.0, "BATTERY_STATUS": 0.0, "POSITION_TARGET_LOCAL_NED": 0.0,
+    "POSITION_TARGET_GLOBAL_INT": 0.0,
+}
+
+_M = mavlink
+_ACCEPTED = _M.MAV_RESULT_ACCEPTED
+_IN_PROGRESS = _M.MAV_RESULT_IN_PROGRESS
+_MASK_POSITION = 0x1F8 | 0x800          # ignore velocity, acceleration, yaw rate
+_MASK_NO_YAW = _MASK_POSITION | 0x400
+_HOLD_RATE_HZ = 10.0
+_SP_LOCAL = _M.MAVLink_set_position_target_local_ned_message
+
+
+class VehicleLink(VehicleTelemetry):
+    """A vehicle (one system id) on an endpoint. Create with :meth:`create`.
+
+    Attributes
+    ----------
+    sysid : int
+    compid : int
+        The autopilot's component id (from its HEARTBEAT).
+    flavour : str
+    uid : int or None
+        AUTOPILOT_VERSION uid once :meth:`request_autopilot_version` ran.
+    state : VehicleState
+    endpoint : MavEndpoint
+    setpoint_frame : str
+        ``"local_ned"`` (SET_POSITION_TARGET_LOCAL_NED) or ``"global_int"``.
+    statustexts : collections.deque
+        The last STATUSTEXT messages as ``(clock_s, severity, text)``.
+    errors : list of LinkError
+        Link problems reported by the endpoint (e.g. duplicate system id).
+    rejected : dict of str to int
+        Telemetry messages rejected because their values cannot be true (NaN positions, a
+        home out of range...), by message name; :attr:`last_rejection` says why.
+    """
+
+    def __init__(self, endpoint: MavEndpoint, sysid: int, heartbeat, *, clock, mission_origin,
+                 setpoint_frame: str = "local_ned") -> None:
+        if setpoint_frame not in ("local_ned", "global_int"):
+            raise ValueError(f"setpoint_frame must be 'local_ned' or 'global_int', got {setpoint_frame!r}")
+        self.endpoint = endpoint
+        self.clock = clock
+        self.sysid = int(sysid)
+        self.compid = int(heartbeat.get_srcComponent())
+        self.mission_origin = tuple(float(v) for v in mission_origin)
+        self.setpoint_frame = setpoint_frame
+        autopilot = heartbeat.autopilot
+        self.flavour = ("ardupilot" if autopilot == _M.MAV_AUTOPILOT_ARDUPILOTMEGA
+                        else "px4" if autopilot == _M.MAV_AUTOPILOT_PX4 else "generic")
+        self.uid: int | None = None
+        self.state = VehicleState(sysid=self.sysid, flavour=self.flavour)
+        self.statustexts: collections.deque = collections.deque(maxlen=20)
+        self.errors: list[LinkError] = []
+        self.rejected: dict[str, int] = {}
+        self.last_rejection: str | None = None
+        self.frame_map: MissionToLocal | None = None
+        self.setpoints_sent = 0
+        self._home_local = (0.0, 0.0, 0.0)
+        self._local_s: float | None = None
+        self._last_rx_s = clock.time()
+        self._t0 = time.monotonic()
+        self._acks: dict[int, asyncio.Queue] = {}
+        self._locks: dict[int, asyncio.Lock] = {}
+        self._events: dict[str, asyncio.Event] = {
+            "home": asyncio.Event(), "version": asyncio.Event(), "update": asyncio.Event()}
+        self._hold_task: asyncio.Task | None = None
+        self._hold_target: tuple | None = None
+        self._external_send_s = -1e18
+        self._handlers: dict[int, Callable] = {
+            _M.MAVLINK_MSG_ID_HEARTBEAT: self._on_heartbeat,
+            _M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self._on_global_position,
+            _M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._on_local_position,
+            _M.MAVLINK_MSG_ID_SYS_STATUS: self._on_sys_status,
+            _M.MAVLINK_MSG_ID_BATTERY_STATUS: self._on_battery,
+            _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self._on_extended_state,
+            _M.MAVLINK_MSG_ID_HOME_POSITION: self._on_home,
+            _M.MAVLINK_MSG_ID_COMMAND_ACK: self._on_ack,
+            _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._on_version,
+            _M.MAVLINK_MSG_ID_STATUSTEXT: self._on_statustext,
+        }
+        self._on_heartbeat(heartbeat)
+
+    @classmethod
+    async def create(cls, endpoint: MavEndpoint, sysid: int | None = None, *, clock,
+                     mission_origin: tuple[float, float, float], heartbeat_timeout_s: float = 10.0,
+                     setpoint_frame: str = "local_ned") -> "VehicleLink":
+        """Wait for the vehicle's first autopilot HEARTBEAT and attach to the endpoint.
+
+        Parameters
+        ----------
+        endpoint : MavEndpoint
+        sysid : int, optional
+            The vehicle's system id; None takes the first autopilot heard that is not attached yet.
+        clock : object
+            The mission clock.
+        mission_origin : tuple of float
+            ``(lat_deg, lon_deg, alt_m)`` of the mission ENU frame.
+        heartbeat_timeout_s : float
+            Clock seconds to wait for the heartbeat.
+        setpoint_frame : str
+            ``"local_ned"`` (default) or ``"global_int"``.
+
+        Raises
+        ------
+        LinkError
+            No heartbeat in time, or the system id is a duplicate (names both endpoints).
+        """
+        sysid, heartbeat = await endpoint.wait_heartbeat(sysid, heartbeat_timeout_s)
+        self = cls(endpoint, sysid, heartbeat, clock=clock, mission_origin=mission_origin,
+                   setpoint_frame=setpoint_frame)
+        endpoint.attach(sysid, self._on_message, self._on_link_error)
+        return self
+
+    def __repr__(self) -> str:
+        return f"VehicleLink(sysid={self.sysid}, {self.flavour}, {self.endpoint.uri!r})"
+
+    # ------------------------------------------------------------------ commands
+    def _recent_text(self, since_s: float) -> str:
+        texts = [t for (ts, _, t) in self.statustexts if ts >= since_s]
+        return f"; autopilot says: {' | '.join(texts[-3:])}" if texts else ""
+
+    async def command_long(self, command: int, *params: float, timeout_s: float = 1.0, retries: int = 3,
+                           accept: tuple[int, ...] = (_ACCEPTED,)) -> int:
+        """Send COMMAND_LONG with retries and wait for its COMMAND_ACK.
+
+        Each retry increments ``confirmation``. An IN_PROGRESS ack stops the retries and extends
+        the wait (up to ``max(5 * timeout_s, 5)`` seconds per progress report).
+
+        Parameters
+        ----------
+        command : int
+            ``MAV_CMD_*``.
+        *params : float
+            Up to 7 parameters (missing ones are 0).
+        timeout_s : float
+            Clock seconds to wait for an ack after each send.
+        retries : int
+            Sends after the first one.
+        accept : tuple of int
+            MAV_RESULT values that count as success.
+
+        Returns
+        -------
+        int
+            The final MAV_RESULT.
+
+        Raises
+        ------
+        CommandError
+            Timeout or a result not in ``accept``; names the vehicle, the command and the result.
+        LinkError
+            A link problem is known for this vehicle (e.g. duplicate system id).
+        ValueError
+            More than 7 parameters.
+        """
+        if len(params) > 7:
+            raise ValueError(f"{command_name(command)}: at most 7 parameters, got {len(params)}")
+        self._raise_link_error()
+        p = [float(v) for v in params] + [0.0] * (7 - len(params))
+        lock = self._locks.setdefault(command, asyncio.Lock())
+        async with lock:
+            queue = self._acks[command] = asyncio.Queue()
+            started_s = self.clock.time()
+            try:
+                result = await self._command_attempts(command, p, timeout_s, retries, queue)
+            finally:
+                self._acks.pop(command, None)
+        name = command_name(command)
+        if result is None:
+            raise CommandError(f"{self._who()}: {name} not acknowledged after {retries + 1} attempts of "
+                               f"{timeout_s:g} s{self._recent_text(started_s)}", sysid=self.sysid, command=command)
+        if result not in accept:
+            raise CommandError(f"{self._who()}: {name} failed: {_result_name(result)}{self._recent_text(started_s)}",
+                               sysid=self.sysid, command=command, result=result)
+        return result
+
+    async def _command_attempts(self, command, p, timeout_s, retries, queue) -> int | None:
+        for confirmation in range(retries + 1):
+            msg = _M.MAVLink_command_long_message(self.sysid, self.compid, command, min(confirmation, 255), *p)
+            self.endpoint.send(self.sysid, msg)
+            wait_s = timeout_s
+            while True:
+                try:
+                    ack = await wait_on_clock(queue.get(), wait_s, self.clock)
+                except TimeoutError:
+                    if wait_s != timeout_s:
+                        return None  # IN_PROGRESS then silence: no resend (the spec says so)
+                    break
+                if ack.result != _IN_PROGRESS:
+                    return ack.result
+                wait_s = max(5.0 * timeout_s, 5.0)
+        return None
+
+    async def request_message(self, msg_id: int, timeout_s: float = 1.0) -> int:
+        """MAV_CMD_REQUEST_MESSAGE for ``msg_id``; returns the MAV_RESULT (raises like command_long)."""
+        return await self.command_long(_M.MAV_CMD_REQUEST_MESSAGE, msg_id, timeout_s=timeout_s)
+
+    async def request_autopilot_version(self, timeout_s: float = 3.0) -> int:
+        """Ask for AUTOPILOT_VERSION and return its uid (also checked for duplicates by the endpoint).
+
+        Falls back to MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES when REQUEST_MESSAGE is unsupported.
+        """
+        event = self._events["version"]
+        event.clear()
+        try:
+            await self.request_message(_M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+        except CommandError as exc:
+            if exc.result != _M.MAV_RESULT_UNSUPPORTED:
+                raise
+            await self.command_long(_M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, 1)
+        try:
+            await wait_on_clock(event.wait(), timeout_s, self.clock)
+        except TimeoutError:
+            raise CommandError(f"{self._who()}: no AUTOPILOT_VERSION within {timeout_s:g} s",
+                               sysid=self.sysid) from None
+        self._raise_link_error()
+        return int(self.uid)
+
+    async def wait_home(self, timeout_s: float) -> tuple[float, float, float]:
+        """Return the home ``(lat_deg, lon_deg, alt_m)``, requesting HOME_POSITION until it comes.
+
+        Raises
+        ------
+        CommandError
+            No HOME_POSITION within ``timeout_s`` clock seconds.
+        """
+        deadline = self.clock.time() + timeout_s
+        event = self._events["home"]
+        while self.state.home is None:
+            remaining = deadline - self.clock.time()
+            if remaining <= 0:
+                raise CommandError(f"{self._who()}: no HOME_POSITION within {timeout_s:g} s", sysid=self.sysid)
+            try:
+                await self.command_long(_M.MAV_CMD_REQUEST_MESSAGE, _M.MAVLINK_MSG_ID_HOME_POSITION,
+                                        timeout_s=min(1.0, remaining), retries=0,
+                                        accept=(_ACCEPTED, _M.MAV_RESULT_TEMPORARILY_REJECTED,
+                                                _M.MAV_RESULT_DENIED, _M.MAV_RESULT_FAILED))
+            except CommandError:
+                pass
+            try:
+                await wait_on_clock(event.wait(), max(0.0, min(1.0, deadline - self.clock.time())), self.clock)
+            except TimeoutError:
+                pass
+        return self.state.home
+
+    async def set_message_rates(self, rates_hz: dict[str, float], *, strict: bool = True) -> dict[str, str]:
+        """Set telemetry rates with MAV_CMD_SET_MESSAGE_INTERVAL (0 Hz stops a message).
+
+        Parameters
+        ----------
+        rates_hz : dict of str to float
+            Message name -> rate in Hz (e.g. :data:`DEFAULT_RATES_HZ`).
+        strict : bool
+            If True the first refusal raises; if False refusals are collected and returned.
+
+        Returns
+        -------
+        dict of str to str
+            Message name -> why it was refused (empty when all were accepted).
+
+        Raises
+        ------
+        ValueError
+            Unknown message name or negative rate (nothing is sent then).
+        CommandError
+            ``strict`` and the autopilot refused one or did not answer.
+        """
+        plan = []
+        for name, rate_hz in rates_hz.items():
+            msg_id = getattr(_M, f"MAVLINK_MSG_ID_{str(name).upper()}", None)
+            if msg_id is None:
+                raise ValueError(f"unknown MAVLink message {name!r}")
+            if not rate_hz >= 0:
+                raise ValueError(f"rate of {name} must be >= 0 Hz, got {rate_hz}")
+            plan.append((str(name).upper(), msg_id, 1e6 / rate_hz if rate_hz > 0 else -1.0))
+        refused = {}
+        for name, msg_id, interval_us in plan:
+            try:
+                await self.command_long(_M.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, interval_us)
+            except CommandError as exc:
+                if strict:
+                    raise
+                refused[name] = str(exc)
+        return refused
+
+    async def set_mode(self, name: str) -> None:
+        """Switch flight mode with MAV_CMD_DO_SET_MODE (aliases per flavour: see vehicle_frames).
+
+        Raises
+        ------
+        CommandError
+            Unknown mode for this flavour, or refused.
+        """
+        try:
+            _, p2, p3 = resolve_mode(self.flavour, name)
+        except ValueError as exc:
+            raise CommandError(f"{self._who()}: {exc}", sysid=self.sysid) from None
+        await self.command_long(_M.MAV_CMD_DO_SET_MODE, _M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, p2, p3)
+
+    async def arm(self) -> None:
+        """Arm (MAV_CMD_COMPONENT_ARM_DISARM 1); returns when acknowledged."""
+        await self.command_long(_M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+
+    async def disarm(self, force: bool = False) -> None:
+        """Disarm (``force`` uses the magic 21196 that disarms in flight)."""
+        await self.command_long(_M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196 if force else 0)
+
+    async def takeoff(self, alt_m: float) -> None:
+        """Take off to ``alt_m`` above home with the flavour's sequence; returns when commanded.
+
+        ArduPilot: GUIDED, arm, MAV_CMD_NAV_TAKEOFF. PX4: stream setpoints at the current
+        position and ``alt_m`` above home, OFFBOARD, arm; the setpoints keep streaming (10 Hz)
+        until :meth:`send_position_enu` is called by someone else (e.g. a SetpointStreamer).
+        """
+        if self.flavour == "ardupilot":
+            await self.set_mode("GUIDED")
+            await self.arm()
+            await self.command_long(_M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, float(alt_m),
+                                    timeout_s=2.0)
+            return
+        if self.flavour != "px4":
+            raise CommandError(f"{self._who()}: takeoff is not supported for a generic autopilot", sysid=self.sysid)
+        here = self.position_enu_m()
+        home = self.home_enu_m()
+        if here is None or home is None:
+            raise CommandError(f"{self._who()}: takeoff needs a position and a home (call wait_home first)",
+                               sysid=self.sysid)
+        self._hold_target = ((float(here[0]), float(here[1]), float(home[2]) + float(alt_m)), None)
+        self._start_hold()
+        await self.clock.sleep(0.5)
+        await self.set_mode("OFFBOARD")
+        await self.arm()
+
+    @property
+    def hold_streaming(self) -> bool:
+        """True while the PX4 takeoff hold stream runs (until someone else sends setpoints)."""
+        return self._hold_task is not None and not self._hold_task.done()
+
+    def _start_hold(self) -> None:
+        self._external_send_s = -1e18
+        if self._hold_task is None or self._hold_task.done():
+            self._hold_task = asyncio.ensure_future(self._hold_loop())
+
+    def _stop_hold(self) -> None:
+        if self._hold_task is not None:
+            self._hold_task.cancel()
+            self._hold_task = None
+
+    async def _hold_loop(self) -> None:
+        period_s = 1.0 / _HOLD_RATE_HZ
+        while self.clock.time() - self._external_send_s > 3 * period_s:
+            position, yaw = self._hold_target
+            self._send_position(position, yaw)
+            await self.clock.sleep(period_s)
+
+    async def land(self) -> None:
+        """Land where it is (LAND mode; PX4 AUTO.LAND); stops the takeoff hold stream."""
+        self._stop_hold()
+        await self.set_mode("LAND")
+
+    async def rtl(self) -> None:
+        """Return to launch (RTL mode; PX4 AUTO.RTL); stops the takeoff hold stream."""
+        self._stop_hold()
+        await self.set_mode("RTL")
+
+    # ------------------------------------------------------------------ setpoints
+    def send_position_enu(self, position_enu_m, yaw_rad: float | None = None) -> None:
+        """Send one position setpoint given in the mission ENU frame (non-blocking, one datagram).
+
+        Parameters
+        ----------
+        position_enu_m : array_like
+            ``(east_m, north_m, up_m)`` in the mission frame.
+        yaw_rad : float, optional
+            Heading (clockwise from north); None leaves the yaw alone.
+
+        Raises
+        ------
+        CommandError
+            The vehicle's home (hence its frame) is not known yet.
+        """
+        self._external_send_s = self.clock.time()
+        self._send_position(position_enu_m, yaw_rad)
+
+    def _send_position(self, position_enu_m, yaw_rad) -> None:
+        east_m, north_m, up_m = position_enu_m
+        mask = _MASK_NO_YAW if yaw_rad is None else _MASK_POSITION
+        yaw = 0.0 if yaw_rad is None else float(yaw_rad)
+        t_ms = int((time.monotonic() - self._t0) * 1000) & 0xFFFFFFFF
+        if self.setpoint_frame == "local_ned":
+            fmap = self.frame_map
+            if fmap is None:
+                raise CommandError(f"{self._who()}: no home yet, cannot place a LOCAL_NED setpoint "
+                                   f"(call wait_home first)", sysid=self.sysid)
+            n, e, d = fmap.mission_enu_to_local_ned(float(east_m), float(north_m), float(up_m))
+            payload = _SP_LOCAL.unpacker.pack(t_ms, n, e, d, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, yaw, 0.0, mask,
+                                              self.sysid, self.compid, _M.MAV_FRAME_LOCAL_NED)
+            sent = self.endpoint.send_payload(self.sysid, _SP_LOCAL.id, _SP_LOCAL.crc_extra, payload)
+        else:
+            lat, lon, alt = enu_to_geodetic([float(east_m), float(north_m), float(up_m)], self.mission_origin)
+            msg = _M.MAVLink_set_position_target_global_int_message(
+                t_ms, self.sysid, self.compid, _M.MAV_FRAME_GLOBAL_INT, mask,
+                int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)), float(alt),
+                0, 0, 0, 0, 0, 0, yaw, 0)
+            sent = self.endpoint.send(self.sysid, msg)
+        if sent:
+            self.setpoints_sent += 1
+
+    async def close(self) -> None:
+        """Stop the hold stream and detach from the endpoint (the endpoint stays open)."""
+        self._stop_hold()
+        self.endpoint.detach(self.sysid)
