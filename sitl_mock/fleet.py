@@ -19,12 +19,13 @@ import traceback
 
 import numpy as np
 
-from formation.geodesy import enu_to_geodetic, geodetic_to_enu, ned_to_enu
+from formation.geodesy import enu_to_geodetic
 from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.clock import SimClock
 from sitl_mock.dynamics import DynamicsParams, Multicopter
 from sitl_mock.faults import FaultSet
 from sitl_mock.transport import VehicleLinks
+from sitl_mock.vehicle import MockVehicle
 
 __all__ = ["MockFleet", "MockVehicle", "PHYSICS_RATE_HZ", "DEFAULT_ORIGIN", "default_home_offsets"]
 
@@ -47,100 +48,6 @@ def _check_port_base(name: str, base: int, n: int, step: int) -> None:
     """Port ``base + step * i`` must be valid for every vehicle i (0 disables the transport)."""
     if base and not (1 <= base and base + step * (n - 1) <= 65535):
         raise ValueError(f"{name}={base} does not leave room for {n} vehicles (step {step})")
-
-
-class MockVehicle:
-    """One vehicle of a :class:`MockFleet` (read-only view plus its parts).
-
-    Attributes
-    ----------
-    sysid : int
-    autopilot : MockAutopilot
-    dynamics : Multicopter
-    faults : FaultSet
-    home_enu : numpy.ndarray
-        Home (its LOCAL_NED origin) in the mission frame, ENU metres about the fleet origin.
-    home_geodetic : tuple
-        ``(lat_deg, lon_deg, alt_m)`` of home.
-    udp_bind_port, udp_send_port, tcp_port : int
-        Its ports (0 when disabled).
-    sensor : SignalSensor or None
-    """
-
-    def __init__(self, index, autopilot, dynamics, faults, home_enu, home_geodetic, origin, links,
-                 sensor):
-        self.index = index
-        self.autopilot = autopilot
-        self.dynamics = dynamics
-        self.faults = faults
-        self.home_enu = np.asarray(home_enu, dtype=float)
-        self.home_geodetic = tuple(float(v) for v in home_geodetic)
-        self.links = links
-        self.sensor = sensor
-        self.next_sample_s = -math.inf
-        # exact affine map from this vehicle's local ENU (tangent plane at home) to mission ENU
-        b = geodetic_to_enu(*self.home_geodetic, origin)
-        cols = [geodetic_to_enu(*enu_to_geodetic(e, self.home_geodetic), origin) - b
-                for e in np.eye(3)]
-        self._to_mission = np.array(cols).T
-        self._mission_offset = b
-
-    @property
-    def sysid(self) -> int:
-        """MAVLink system id."""
-        return self.autopilot.sysid
-
-    @property
-    def mode_name(self) -> str:
-        """Current flight mode name (e.g. ``GUIDED``, ``OFFBOARD``)."""
-        return self.autopilot.mode_name
-
-    @property
-    def armed(self) -> bool:
-        """True while armed."""
-        return self.autopilot.armed
-
-    @property
-    def params(self):
-        """The autopilot's :class:`~sitl_mock.ap_params.ParamTable`."""
-        return self.autopilot.params
-
-    @property
-    def counters(self) -> dict:
-        """A snapshot of the receive / transmit / protocol counters."""
-        return dict(self.autopilot.counters)
-
-    @property
-    def udp_bind_port(self) -> int:
-        """UDP port the vehicle listens on."""
-        return self.links.udp_bind_port
-
-    @property
-    def udp_send_port(self) -> int:
-        """UDP port the vehicle streams to."""
-        return self.links.udp_send_port
-
-    @property
-    def tcp_port(self) -> int:
-        """TCP port of the vehicle's MAVLink server."""
-        return self.links.tcp_port
-
-    def true_position_ned(self) -> np.ndarray:
-        """True position in the vehicle's own LOCAL_NED frame."""
-        return self.dynamics.position_ned_m
-
-    def true_position_enu(self) -> np.ndarray:
-        """True position in the mission frame (ENU metres about the fleet origin)."""
-        return self.to_mission_enu(self.dynamics.position_ned_m)
-
-    def to_mission_enu(self, ned) -> np.ndarray:
-        """Convert a point of this vehicle's LOCAL_NED frame to the mission frame (exact)."""
-        return self._to_mission @ ned_to_enu(ned) + self._mission_offset
-
-    def __repr__(self) -> str:
-        return (f"MockVehicle(sysid={self.sysid}, {self.autopilot.personality.name}, "
-                f"mode={self.mode_name}, udp={self.udp_bind_port}->{self.udp_send_port}, "
-                f"tcp={self.tcp_port})")
 
 
 class MockFleet:
@@ -245,6 +152,9 @@ class MockFleet:
         self._started = threading.Event()
         self._tick_cond = threading.Condition()
         self._sim_time_s = -math.inf
+        self._opened = False
+        self._t_start_s = self.clock.time()
+        self._k = 0  # index of the next physics step: its time is _t_start_s + _k * dt (no drift)
         self.errors: list[str] = []
         self.stats = {"ticks": 0, "lag_s": 0.0, "busy_wall_s": 0.0, "wall_s": 0.0, "dropped_steps": 0}
         dyn_base = dynamics if dynamics is not None else DynamicsParams()
@@ -272,9 +182,17 @@ class MockFleet:
                                              links, sensor))
 
     # ------------------------------------------------------------- lifecycle
-    def start(self) -> "MockFleet":
-        """Open the sockets (and zenoh session) and start the simulation thread."""
-        if self._thread is not None:
+    def start(self, thread: bool = True) -> "MockFleet":
+        """Open the sockets (and zenoh session); with ``thread`` start the simulation thread.
+
+        Parameters
+        ----------
+        thread : bool
+            True (default): a background thread runs the fleet on its clock. False: nothing runs
+            by itself; a lock-step driver calls :meth:`service_io` and :meth:`step_until`
+            (see :mod:`mission.sim.lockstep`).
+        """
+        if self._thread is not None or self._opened:
             raise RuntimeError("fleet already started")
         try:
             for v in self.vehicles:
@@ -286,10 +204,14 @@ class MockFleet:
                 self._session = zenoh.open(zenoh_config(self._zenoh_listen, self._zenoh_connect,
                                                         **self._zenoh_security))
                 self._publisher = SensorPublisher(self._session, self.fleet_name,
-                                                  [v.sysid for v in self.vehicles])
+                                                  [v.sysid for v in self.vehicles],
+                                                  track_matching=not thread)
         except BaseException:
             self._close_io()
             raise
+        self._opened = True
+        if not thread:
+            return self
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="mock-fleet", daemon=True)
         self._thread.start()
@@ -303,6 +225,7 @@ class MockFleet:
             self._thread.join(timeout=10.0)
             self._thread = None
         self._close_io()
+        self._opened = False
 
     def _close_io(self) -> None:
         for v in self.vehicles:
@@ -351,36 +274,94 @@ class MockFleet:
         self.vehicle(sysid).faults.set(name, value)
 
     # ------------------------------------------------------------ simulation
+    # ------------------------------------------------------------ lock-step driving
+    @property
+    def next_step_s(self) -> float:
+        """Simulated time of the next physics step."""
+        return self._t_start_s + self._k / PHYSICS_RATE_HZ
+
+    @property
+    def published_readings(self) -> int:
+        """Readings put on zenoh while some subscriber matched (0 without zenoh).
+
+        Counted only by a fleet started with ``thread=False``: a lock-step driver waits until the
+        ground station has received them all before it lets time move.
+        """
+        return 0 if self._publisher is None else self._publisher.published_matched
+
+    def readings_matched(self) -> bool:
+        """True when every vehicle's sensor publisher has a matching subscriber (no zenoh: True)."""
+        pub = self._publisher
+        return pub is None or all(pub.has_subscribers(s) for s in pub.sysids)
+
+    def service_io(self) -> int:
+        """Read every socket with data now and send what the vehicles have to send.
+
+        Returns
+        -------
+        int
+            Socket events handled (0: nothing was waiting).
+        """
+        handled = 0
+        while True:
+            events = self._selector.select(0)
+            if not events:
+                break
+            handled += len(events)
+            for key, mask in events:
+                self._guard(key.data, mask)
+        t_io = self.clock.time()
+        for v in self.vehicles:
+            self._guard(v.links.pump, t_io)
+        return handled
+
+    def step_until(self, t_s: float) -> int:
+        """Run every physics step due at or before ``t_s`` (simulated), then send their output.
+
+        Returns
+        -------
+        int
+            Steps run.
+        """
+        dt = 1.0 / PHYSICS_RATE_HZ
+        sample_dt = 1.0 / self.sensor_rate_hz
+        steps = 0
+        while self.next_step_s <= t_s + 1e-9:
+            self._tick(self.next_step_s, dt, sample_dt)
+            self._k += 1
+            steps += 1
+        if steps:
+            with self._tick_cond:
+                self._sim_time_s = self.next_step_s - dt
+                self._tick_cond.notify_all()
+            t_io = self.clock.time()
+            for v in self.vehicles:
+                self._guard(v.links.pump, t_io)
+        return steps
+
+    # ------------------------------------------------------------ simulation thread
     def _run(self) -> None:
         clock = self.clock
         dt = 1.0 / PHYSICS_RATE_HZ
         lockstep = math.isinf(getattr(clock, "speedup", 1.0))
         speedup = getattr(clock, "speedup", 1.0)
-        t_start = clock.time()
-        k = 0  # index of the next physics step (its time is t_start + k * dt, no drift)
-        sample_dt = 1.0 / self.sensor_rate_hz
+        self._t_start_s = clock.time()
+        self._k = 0
         wall0 = time.perf_counter()
         busy = 0.0
         self._started.set()
         while not self._stop.is_set():
             t0 = time.perf_counter()
             now = clock.time() + 1e-9
-            steps = 0
-            while t_start + k * dt <= now and steps < _MAX_CATCHUP_STEPS:
-                self._tick(t_start + k * dt, dt, sample_dt)
-                k += 1
-                steps += 1
-            if steps:
-                with self._tick_cond:
-                    self._sim_time_s = t_start + (k - 1) * dt
-                    self._tick_cond.notify_all()
-            next_tick = t_start + k * dt
+            if self.next_step_s <= now:
+                self.step_until(min(now, self.next_step_s + (_MAX_CATCHUP_STEPS - 1) * dt))
+            next_tick = self.next_step_s
             if not lockstep and next_tick <= now - max(1.0, 0.2 * speedup):
                 # hopelessly behind (over 0.2 s of wall time): skip ahead, count it
                 skipped = int((now - next_tick) / dt)
                 self.stats["dropped_steps"] += skipped
-                k += skipped
-                next_tick = t_start + k * dt
+                self._k += skipped
+                next_tick = self.next_step_s
             self.stats["lag_s"] = max(0.0, now - next_tick)
             t_io = clock.time()
             for v in self.vehicles:

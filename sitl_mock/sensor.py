@@ -266,13 +266,17 @@ class SensorPublisher:
     ----------
     published : int
         Readings put so far.
+    published_matched : int
+        Readings put while a subscriber matched their key (counted with ``track_matching``).
     """
 
-    def __init__(self, session, fleet: str, sysids: list[int]):
+    def __init__(self, session, fleet: str, sysids: list[int], track_matching: bool = False):
         import zenoh
 
         self.fleet = _check_fleet(fleet)
         self.published = 0
+        self.published_matched = 0
+        self._track_matching = bool(track_matching)
         self._publishers = {}
         try:
             for sysid in sysids:
@@ -319,9 +323,12 @@ class SensorPublisher:
         """
         if reading.get("fleet") != self.fleet:
             raise ValueError(f"reading of fleet {reading.get('fleet')!r} given to the publisher of {self.fleet!r}")
-        pub = self._publisher(reading.get("sysid"))
+        sysid = reading.get("sysid")
+        pub = self._publisher(sysid)
+        matched = self._track_matching and self.has_subscribers(sysid)
         pub.put(encode_reading(reading))
         self.published += 1
+        self.published_matched += matched
 
     def close(self) -> None:
         """Undeclare every publisher (idempotent)."""

@@ -60,8 +60,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", type=_non_negative, default=0.01,
                         help="sensor noise standard deviation, signal units (default 0.01)")
     parser.add_argument("--personality", choices=("px4", "ardupilot"), default="px4")
-    parser.add_argument("--speedup", type=_positive(float), default=10.0,
-                        help="simulated seconds per wall second (default 10)")
+    parser.add_argument("--realtime", action="store_true",
+                        help="run the fleet and the ground station on the wall clock (threads, real time "
+                             "unless --speedup) instead of the default lock-step simulated clock")
+    parser.add_argument("--speedup", type=_positive(float), default=None,
+                        help="with the wall clock: simulated seconds per wall second (implies --realtime; "
+                             "the default lock-step clock runs as fast as the CPU allows)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the source position, noise, fleet")
     parser.add_argument("--source", type=_vector, default=None, metavar="E,N,U",
                         help="source position, ENU m (default: drawn from the seed in a box)")
@@ -92,11 +96,8 @@ def _check_args(args) -> str | None:
     return None
 
 
-async def run_embedded(args, display=None):
-    """Start the mock fleet, fly the mission, stop everything; returns the MissionResult."""
-    import zenoh
-
-    from mission.flight.coordinator import Coordinator
+def _mission_setup(args):
+    """The plan, field, source and start of the embedded mission ``args`` describe."""
     from mission.sim.embedded import (
         DEFAULT_ORIGIN,
         default_eps,
@@ -104,9 +105,7 @@ async def run_embedded(args, display=None):
         embedded_plan,
         fleet_ports,
     )
-    from mission.telemetry.mission_log import MissionLog
     from sitl_mock.fields import make_field
-    from sitl_mock.fleet import MockFleet
 
     d_source, d_start = default_source_and_start(args.seed)
     source = d_source if args.source is None else np.asarray(args.source, dtype=float)
@@ -114,27 +113,46 @@ async def run_embedded(args, display=None):
     field = make_field(args.field, source)
     eps = args.eps if args.eps is not None else default_eps(field)
     ports = fleet_ports(args.n, args.personality)
-    log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("run-%Y%m%d-%H%M%S")
-    log_dir.mkdir(parents=True, exist_ok=True)
     plan = embedded_plan(args.n, ports, personality=args.personality, formation=args.formation,
                          radius_m=args.radius, start_enu_m=start, eps=eps, gamma_m=args.gamma,
                          estimator=args.estimator, max_iterations=args.max_iterations,
                          return_behaviour=args.return_behaviour, origin=DEFAULT_ORIGIN)
-    fleet = MockFleet(n=args.n, personality=args.personality, field=field, origin=DEFAULT_ORIGIN,
-                      speedup=args.speedup, seed=args.seed, udp_base_port=ports["udp_base_port"],
-                      udp_bind_base_port=ports["udp_bind_base_port"], tcp_base_port=ports["tcp_base_port"],
-                      fleet_name=plan.fleet, sensor_noise_std=args.noise,
-                      zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"])
-    fleet.start()
+    return plan, ports, field, source, start, eps
+
+
+def _make_fleet(args, plan, ports, field, clock):
+    from mission.sim.embedded import DEFAULT_ORIGIN
+    from sitl_mock.fleet import MockFleet
+
+    return MockFleet(n=args.n, personality=args.personality, field=field, origin=DEFAULT_ORIGIN,
+                     clock=clock, seed=args.seed, udp_base_port=ports["udp_base_port"],
+                     udp_bind_base_port=ports["udp_bind_base_port"], tcp_base_port=ports["tcp_base_port"],
+                     fleet_name=plan.fleet, sensor_noise_std=args.noise,
+                     zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"])
+
+
+async def _fly(args, plan, fleet, setup, display, world=None):
+    """Fly ``plan`` against the started ``fleet``; returns the MissionResult."""
+    import zenoh
+
+    from mission.flight.coordinator import Coordinator
+    from mission.telemetry.mission_log import MissionLog
+
+    source, start, eps = setup
+    log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("run-%Y%m%d-%H%M%S")
+    log_dir.mkdir(parents=True, exist_ok=True)
     session = None
     log = MissionLog(log_dir / "mission.jsonl", fleet.clock)
     try:
         session = zenoh.open(plan.zenoh.to_config())
         log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field,
-                  source_enu=source, start_enu=start, noise=args.noise, speedup=args.speedup, eps=eps,
-                  gamma_m=args.gamma, seed=args.seed)
+                  source_enu=source, start_enu=start, noise=args.noise,
+                  clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
+                  eps=eps, gamma_m=args.gamma, seed=args.seed)
         co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=None if args.no_tlog else log_dir / "tlogs")
+        if world is not None:
+            world.store = co.store
         result = await co.run()
         result.true_source_enu = [float(x) for x in source]
         if result.estimate_enu is not None:
@@ -145,6 +163,36 @@ async def run_embedded(args, display=None):
         log.close()
         if session is not None:
             session.close()
+
+
+def run_embedded(args, display=None):
+    """Start the mock fleet, fly the mission, stop everything; returns the MissionResult.
+
+    Lock-step by default (:mod:`mission.sim.lockstep`): one simulated clock for the fleet and
+    the ground station, as fast as the CPU allows, reproducible for a seed. With
+    ``args.realtime`` (or a ``--speedup``) the fleet runs on its own thread against the wall
+    clock, ``speedup`` times faster than real time.
+    """
+    from mission.sim.embedded_world import EmbeddedWorld
+    from mission.sim.lockstep import VirtualClock, run_lockstep
+    from sitl_mock.clock import SimClock
+
+    plan, ports, field, source, start, eps = _mission_setup(args)
+    realtime = args.realtime or args.speedup is not None
+    clock = SimClock(args.speedup or 1.0) if realtime else VirtualClock()
+    fleet = _make_fleet(args, plan, ports, field, clock)
+    fleet.start(thread=realtime)
+    try:
+        if realtime:
+            return asyncio.run(_fly(args, plan, fleet, (source, start, eps), display))
+        world = EmbeddedWorld(fleet)
+        result = run_lockstep(lambda: _fly(args, plan, fleet, (source, start, eps), display, world),
+                              clock, world)
+        if world.stalls:
+            print(f"swarmseek run: warning: {world.stalls} lock-step waits for zenoh ran out "
+                  "(a reading was lost; this run may not be reproducible)", file=sys.stderr)
+        return result
+    finally:
         fleet.stop()
 
 
@@ -160,7 +208,7 @@ def main(args) -> int:
 
     display = Display(quiet=args.json)
     try:
-        result = asyncio.run(run_embedded(args, display=display))
+        result = run_embedded(args, display=display)
     except (OSError, zenoh.ZError) as exc:
         print(f"swarmseek run: cannot start the embedded fleet or zenoh: {exc}", file=sys.stderr)
         return 1

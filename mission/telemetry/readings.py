@@ -255,6 +255,7 @@ class ReadingStore:
         self._last_seq: dict[int, tuple[int, float]] = {}
         self.rejected: dict[str, int] = {r: 0 for r in REJECT_REASONS}
         self.accepted = 0
+        self.subscribers = 0  # open ReadingSubscriber feeds (a lock-step driver reads it)
         self._last_error: dict[str, str] = {}
 
     @property
@@ -392,6 +393,8 @@ class ReadingSubscriber:
     def __init__(self, session, store: ReadingStore):
         self.store = store
         self._sub = session.declare_subscriber(sensor_key_expr(store.fleet), self._on_sample)
+        self._open = True
+        store.subscribers += 1
 
     def _on_sample(self, sample) -> None:
         try:
@@ -406,6 +409,9 @@ class ReadingSubscriber:
 
     def close(self) -> None:
         """Undeclare the subscription."""
+        if self._open:
+            self._open = False
+            self.store.subscribers -= 1
         try:
             self._sub.undeclare()
         except Exception:  # noqa: BLE001 - session may already be closed
