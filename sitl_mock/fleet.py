@@ -25,23 +25,16 @@ from sitl_mock.clock import SimClock
 from sitl_mock.dynamics import DynamicsParams, Multicopter
 from sitl_mock.faults import FaultSet
 from sitl_mock.transport import VehicleLinks
-from sitl_mock.vehicle import MockVehicle
+from sitl_mock.vehicle import MockVehicle, default_home_offsets, per_vehicle, per_vehicle_params
 
 __all__ = ["MockFleet", "MockVehicle", "PHYSICS_RATE_HZ", "DEFAULT_ORIGIN", "default_home_offsets"]
 
 PHYSICS_RATE_HZ = 50.0
 DEFAULT_ORIGIN = (45.1900, 5.7200, 230.0)
-_HOME_SPACING_M = 5.0
 _MAX_CATCHUP_STEPS = 25
 _LOCKSTEP_POLL_S = 0.002
 _MAX_ERRORS_KEPT = 20
 _ZENOH_SECURITY_KEYS = frozenset({"tls", "enable_mtls", "username", "password", "dictionary_file"})
-
-
-def default_home_offsets(n: int, spacing_m: float = _HOME_SPACING_M) -> np.ndarray:
-    """Homes on a square grid ``spacing_m`` apart (ENU metres from the fleet origin), shape (n, 3)."""
-    cols = max(1, math.ceil(math.sqrt(n)))
-    return np.array([((i % cols) * spacing_m, (i // cols) * spacing_m, 0.0) for i in range(n)])
 
 
 def _check_port_base(name: str, base: int, n: int, step: int) -> None:
@@ -109,22 +102,10 @@ class MockFleet:
         n = int(n)
         if not 1 <= n <= 255:
             raise ValueError(f"n must be 1..255 vehicles, got {n}")
-        personalities = [personality] * n if isinstance(personality, str) else list(personality)
-        if len(personalities) != n:
-            raise ValueError(f"{len(personalities)} personalities given for {n} vehicles")
-        offsets = default_home_offsets(n) if home_offsets_enu is None \
-            else np.asarray(home_offsets_enu, dtype=float)
-        if offsets.shape != (n, 3) or not np.all(np.isfinite(offsets)):
-            raise ValueError(f"home_offsets_enu must be {n} finite ENU triples, got shape {offsets.shape}")
-        noise = [float(sensor_noise_std)] * n if np.isscalar(sensor_noise_std) \
-            else [float(v) for v in sensor_noise_std]
-        if len(noise) != n:
-            raise ValueError(f"{len(noise)} sensor noise levels given for {n} vehicles")
+        personalities, offsets, noise = per_vehicle(n, personality, home_offsets_enu, sensor_noise_std)
         if not (math.isfinite(sensor_rate_hz) and sensor_rate_hz > 0):
             raise ValueError(f"sensor_rate_hz must be > 0, got {sensor_rate_hz!r}")
-        overrides = [params or {}] * n if not isinstance(params, (list, tuple)) else list(params)
-        if len(overrides) != n:
-            raise ValueError(f"{len(overrides)} parameter override sets given for {n} vehicles")
+        overrides = per_vehicle_params(n, params)
         _check_port_base("udp_base_port", udp_base_port, n, 1)
         _check_port_base("udp_bind_base_port", udp_bind_base_port, n, 1)
         _check_port_base("tcp_base_port", tcp_base_port, n, 10)

@@ -12,7 +12,9 @@ import numpy as np
 
 from formation.geodesy import enu_to_geodetic, geodetic_to_enu, ned_to_enu
 
-__all__ = ["MockVehicle"]
+__all__ = ["MockVehicle", "default_home_offsets", "per_vehicle", "per_vehicle_params"]
+
+_HOME_SPACING_M = 5.0
 
 
 class MockVehicle:
@@ -107,3 +109,43 @@ class MockVehicle:
         return (f"MockVehicle(sysid={self.sysid}, {self.autopilot.personality.name}, "
                 f"mode={self.mode_name}, udp={self.udp_bind_port}->{self.udp_send_port}, "
                 f"tcp={self.tcp_port})")
+
+def default_home_offsets(n: int, spacing_m: float = _HOME_SPACING_M) -> np.ndarray:
+    """Homes on a square grid ``spacing_m`` apart (ENU metres from the fleet origin), shape (n, 3)."""
+    cols = max(1, math.ceil(math.sqrt(n)))
+    return np.array([((i % cols) * spacing_m, (i // cols) * spacing_m, 0.0) for i in range(n)])
+
+
+def per_vehicle(n: int, personality, home_offsets_enu, sensor_noise_std):
+    """Expand the fleet's per-vehicle settings to one value per vehicle, checked.
+
+    Returns
+    -------
+    tuple
+        ``(personalities, home_offsets_enu (n, 3), sensor_noise_std)``, each of length ``n``.
+
+    Raises
+    ------
+    ValueError
+        When a list has the wrong length or an offset is not a finite ENU triple.
+    """
+    personalities = [personality] * n if isinstance(personality, str) else list(personality)
+    if len(personalities) != n:
+        raise ValueError(f"{len(personalities)} personalities given for {n} vehicles")
+    offsets = default_home_offsets(n) if home_offsets_enu is None \
+        else np.asarray(home_offsets_enu, dtype=float)
+    if offsets.shape != (n, 3) or not np.all(np.isfinite(offsets)):
+        raise ValueError(f"home_offsets_enu must be {n} finite ENU triples, got shape {offsets.shape}")
+    noise = [float(sensor_noise_std)] * n if np.isscalar(sensor_noise_std) \
+        else [float(v) for v in sensor_noise_std]
+    if len(noise) != n:
+        raise ValueError(f"{len(noise)} sensor noise levels given for {n} vehicles")
+    return personalities, offsets, noise
+
+
+def per_vehicle_params(n: int, params) -> list:
+    """Autopilot parameter overrides, one dict per vehicle (``params``: one dict, or a list)."""
+    overrides = [params or {}] * n if not isinstance(params, (list, tuple)) else list(params)
+    if len(overrides) != n:
+        raise ValueError(f"{len(overrides)} parameter override sets given for {n} vehicles")
+    return overrides

@@ -1,0 +1,167 @@
+"""mission.sim.lockstep: simulated time on an asyncio loop, a world driven in lock-step, and
+the reproducibility of a whole embedded mission."""
+from __future__ import annotations
+
+import asyncio
+import json
+import re
+
+import pytest
+
+from mission.cli import main as cli_main
+from mission.sim.lockstep import LOCKSTEP_T0_S, LockstepEventLoop, VirtualClock, run_lockstep
+
+
+class _StepWorld:
+    """A world with an event every ``period_s``; records what the loop asked of it."""
+
+    def __init__(self, clock: VirtualClock, period_s: float = 0.02):
+        self.clock = clock
+        self.period_s = period_s
+        self.next_s = clock.time() + period_s
+        self.advanced_to: list[float] = []
+        self.settles = 0
+
+    def settle(self) -> None:
+        self.settles += 1
+
+    def next_event_s(self) -> float:
+        return self.next_s
+
+    def advance_to(self, t_s: float) -> None:
+        assert t_s == pytest.approx(self.clock.time())
+        self.advanced_to.append(t_s - self.clock.t0_s)
+        while self.next_s <= t_s + 1e-9:
+            self.next_s += self.period_s
+
+
+def test_virtual_clock_starts_at_the_fixed_epoch_and_never_goes_back():
+    clock = VirtualClock()
+    assert clock.time() == LOCKSTEP_T0_S
+    clock.advance_to(2.5)
+    clock.advance_to(1.0)
+    assert clock.elapsed_s == 2.5
+    assert clock.time() == LOCKSTEP_T0_S + 2.5
+    with pytest.raises(ValueError, match="finite"):
+        VirtualClock(float("nan"))
+    with pytest.raises(RuntimeError, match="lock-step loop"):
+        clock.sleep_blocking(1.0)
+
+
+@pytest.mark.parametrize("dt_s", [0.0, 0.013, 5.0, 3600.0])
+def test_sleep_takes_exactly_its_simulated_time(dt_s):
+    clock = VirtualClock()
+
+    async def main():
+        await clock.sleep(dt_s)
+        return clock.elapsed_s
+
+    assert run_lockstep(main, clock) == pytest.approx(dt_s)
+
+
+def test_timeouts_run_on_simulated_time():
+    clock = VirtualClock()
+
+    async def main():
+        never = asyncio.Event()
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(never.wait(), timeout=7.0)
+        return clock.elapsed_s
+
+    assert run_lockstep(main, clock) == pytest.approx(7.0)
+
+
+def test_run_in_executor_runs_at_once_in_zero_simulated_time():
+    clock = VirtualClock()
+
+    async def main():
+        loop = asyncio.get_running_loop()
+        value = await loop.run_in_executor(None, sum, [1, 2, 3])
+        with pytest.raises(ZeroDivisionError):
+            await loop.run_in_executor(None, divmod, 1, 0)
+        return value, clock.elapsed_s
+
+    assert run_lockstep(main, clock) == (6, 0.0)
+
+
+def test_waiting_on_nothing_is_a_deadlock_not_a_hang():
+    clock = VirtualClock()
+
+    async def main():
+        await asyncio.get_running_loop().create_future()
+
+    with pytest.raises(RuntimeError, match="deadlock"):
+        run_lockstep(main, clock)
+
+
+def test_the_world_runs_every_event_up_to_the_sleepers_deadline():
+    clock = VirtualClock()
+    world = _StepWorld(clock, period_s=0.02)
+
+    async def main():
+        await clock.sleep(1.0)
+
+    run_lockstep(main, clock, world)
+    assert clock.elapsed_s == pytest.approx(1.0)
+    # one advance per world event (50 in one second; epoch-second floats may split the last
+    # one in two), none past the deadline
+    assert 50 <= len(world.advanced_to) <= 51
+    assert all(b > a for a, b in zip(world.advanced_to, world.advanced_to[1:]))
+    assert world.advanced_to[0] == pytest.approx(0.02)
+    assert world.advanced_to[-1] == pytest.approx(1.0)
+    assert world.settles >= 2 * 50
+
+
+def test_time_advances_only_when_the_loop_is_idle():
+    clock = VirtualClock()
+    world = _StepWorld(clock, period_s=0.5)
+    seen = []
+
+    async def busy(n):
+        for _ in range(n):
+            seen.append(clock.elapsed_s)
+            await asyncio.sleep(0)  # ready again at once: time must not move
+
+    async def main():
+        await asyncio.gather(busy(100), busy(100))
+        await clock.sleep(0.1)
+
+    run_lockstep(main, clock, world)
+    assert set(seen) == {0.0}
+    assert clock.elapsed_s == pytest.approx(0.1)
+    assert world.advanced_to == [pytest.approx(0.1)]
+
+
+def test_loop_time_is_the_clock():
+    clock = VirtualClock()
+    loop = LockstepEventLoop(clock)
+    try:
+        clock.advance_to(12.0)
+        assert loop.time() == 12.0
+    finally:
+        loop.close()
+
+
+def _normalised_records(path):
+    out = []
+    for line in open(path, encoding="utf-8"):
+        line = re.sub(r"127\.0\.0\.1:\d+", "127.0.0.1:PORT", line)  # ports are chosen at run time
+        rec = json.loads(line)
+        rec.pop("log_path", None)
+        out.append(rec)
+    return out
+
+
+@pytest.mark.slow
+def test_same_seed_same_mission_log(tmp_path, capsys):
+    """Two lock-step runs of one seed write the same mission log, record for record."""
+    argv = ["run", "--n", "4", "--seed", "13", "--max-iterations", "6", "--json", "--no-tlog"]
+    codes = [cli_main(argv + ["--log-dir", str(tmp_path / name)]) for name in ("a", "b")]
+    capsys.readouterr()
+    assert codes[0] == codes[1]
+    a = _normalised_records(tmp_path / "a" / "mission.jsonl")
+    b = _normalised_records(tmp_path / "b" / "mission.jsonl")
+    kinds = {r["type"] for r in a}
+    assert {"plan", "phase", "iteration", "summary"} <= kinds
+    assert sum(r["type"] == "iteration" for r in a) == 6
+    assert a == b
