@@ -4,21 +4,28 @@ from __future__ import annotations
 import asyncio
 
 from mission.flight.coordinator import Coordinator
+from mission.sim.embedded_world import EmbeddedWorld
+from mission.sim.lockstep import VirtualClock, run_lockstep
 from mission.telemetry.mission_log import MissionLog
 
 __all__ = ["fly", "run_with_saboteur"]
 
 
-async def fly(plan, fleet, log_path, tlog_dir=None):
+async def fly(plan, fleet, log_path, tlog_dir=None, world=None):
     """Run a :class:`Coordinator` on ``plan`` with the fleet's clock, its mission log at
-    ``log_path`` and the .tlog files in ``tlog_dir`` (None: none). Returns the result."""
+    ``log_path`` and the .tlog files in ``tlog_dir`` (None: none). Returns the result.
+
+    ``world``: the :class:`~mission.sim.embedded_world.EmbeddedWorld` of a lock-step run (it is
+    told where the coordinator's readings arrive)."""
     import zenoh
 
     session = zenoh.open(plan.zenoh.to_config())
     log = MissionLog(log_path, fleet.clock)
     try:
-        return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log,
-                                 tlog_dir=tlog_dir).run()
+        co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, tlog_dir=tlog_dir)
+        if world is not None:
+            world.store = co.store
+        return await co.run()
     finally:
         log.close()
         session.close()
@@ -27,12 +34,20 @@ async def fly(plan, fleet, log_path, tlog_dir=None):
 def run_with_saboteur(plan, fleet, log_dir, saboteur=None):
     """Start ``fleet`` (and the ``saboteur`` thread, which sets faults as the mission log grows:
     it has a ``done`` event), fly ``plan`` (:func:`fly`: log ``log_dir / "mission.jsonl"``, .tlog
-    files in ``log_dir / "tlogs"``), stop both; returns the result."""
-    fleet.start()
+    files in ``log_dir / "tlogs"``), stop both; returns the result.
+
+    A fleet on a :class:`~mission.sim.lockstep.VirtualClock` flies in lock-step (no fleet
+    thread; the saboteur thread still acts on what the log shows)."""
+    lockstep = isinstance(fleet.clock, VirtualClock)
+    fleet.start(thread=not lockstep)
     if saboteur:
         saboteur.start()
     try:
-        return asyncio.run(fly(plan, fleet, log_dir / "mission.jsonl", log_dir / "tlogs"))
+        if not lockstep:
+            return asyncio.run(fly(plan, fleet, log_dir / "mission.jsonl", log_dir / "tlogs"))
+        world = EmbeddedWorld(fleet)
+        return run_lockstep(lambda: fly(plan, fleet, log_dir / "mission.jsonl", log_dir / "tlogs", world),
+                            fleet.clock, world)
     finally:
         if saboteur:
             saboteur.done.set()
