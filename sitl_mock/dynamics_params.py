@@ -14,6 +14,7 @@ __all__ = ["DynamicsParams", "GRAVITY_M_S2"]
 
 GRAVITY_M_S2 = 9.80665
 
+
 @dataclass
 class DynamicsParams:
     """Physical and controller parameters of one simulated multicopter.
