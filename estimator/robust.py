@@ -31,23 +31,32 @@ noise saved. The details and the measured effects are in ``docs/safety.md``.
 
 The estimator is vectorised over a leading batch of independent formations (``batch_shape``),
 which the offline Monte Carlo uses; a mission uses the default ``()``.
+
+The weighted least squares are in :mod:`estimator.robust_wls`, the choice of the weights in
+:mod:`estimator.robust_weights` and the fault tests in :mod:`estimator.robust_faults`; their
+public names are re-exported here.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from estimator.gradient import DEFAULT_MAX_CONDITION, GeometryError
-from estimator.robust_wls import (
-    CENTRE_MODES,
-    _argmax_mask,
-    _check_inputs,
-    _condition,
-    _moments,
-    _solve_weighted,
-    weighted_gradient,
+from estimator.gradient import DEFAULT_MAX_CONDITION
+from estimator.robust_faults import (
+    MAD_TO_STD,
+    REASONS,
+    Suspect,
+    biased_mask,
+    stuck_mask,
+    suspect_codes,
+    worst_spike,
 )
+from estimator.robust_weights import (
+    WEIGHTINGS,
+    admissible_weights,
+    base_weights,
+    choose_weights,
+)
+from estimator.robust_wls import CENTRE_MODES, _check_inputs, _solve_weighted, weighted_gradient
 
 __all__ = [
     "CENTRE_MODES",
@@ -58,35 +67,10 @@ __all__ = [
     "weighted_gradient",
 ]
 
-#: how the weights are chosen (see RobustGradientEstimator)
-WEIGHTINGS = ("auto", "inverse_variance", "equal")
-#: exponents ``a`` of the weights ``var^-a`` that ``weighting="auto"`` chooses from
-_AUTO_EXPONENTS = (0.0, 0.5, 1.0)
-#: suspect reasons, in order of precedence (a sensor is reported once, for the first that applies)
-REASONS = ("stuck", "biased", "spiking", "noisy")
-_MAD_TO_STD = 1.4826
-#: the curvature residual kappa is averaged over this many windows
-_KAPPA_WINDOWS = 4
-#: |b|^2 must exceed this many times its noise-only expectation to count as a curvature bias
-_BIAS_SIGNIFICANCE = 9.0
-#: a bias is also accepted when what it leaves unexplained is below this fraction of it
-_BIAS_DOMINANCE = 0.15
 #: strength (in updates) of the shrinkage of each sensor's variance towards the median
 _PRIOR_UPDATES = 25
 #: E[min(X^2, 9)] for a standard normal X (winsorising at 3 standard deviations)
 _WINSOR3 = 0.99734
-
-
-@dataclass(frozen=True)
-class Suspect:
-    """A sensor the estimator distrusts: 0-based ``index`` in the order of the readings,
-    ``reason`` (one of :data:`REASONS`), whether the last estimate ``excluded`` it, and its
-    current ``noise_std`` estimate."""
-
-    index: int
-    reason: str
-    excluded: bool
-    noise_std: float
 
 
 class RobustGradientEstimator:
@@ -267,26 +251,13 @@ class RobustGradientEstimator:
         abs_tol = 1e-9 * (1.0 + np.median(np.abs(y), axis=-1, keepdims=True))
         alpha = 1.0 / self.window
         warm = self.updates >= self.warmup
-        base_w = self._base_weights(warm)
+        base_w = base_weights(self._var, self.var_floor_rel, warm)
         persistent = warm & np.isin(self._code, (REASONS.index("stuck") + 1, REASONS.index("biased") + 1))
-        w = self._admissible(r, base_w, persistent, self.min_sensors)
-        spikes = np.zeros(w.shape, dtype=bool)
-        for _ in range(self.n):
-            g, s_c, m, rbar = _solve_weighted(r, y, w, self.centre)
-            d, p, hat = self._deleted(r, y, w, g, s_c, m, rbar)
-            if self.updates == 0:
-                break
-            worst = self._worst_spike(d, p, w > 0, abs_tol)
-            if not np.any(worst):
-                break
-            # a spike is dropped only while one residual degree of freedom remains
-            w2 = self._admissible(r, base_w, (w == 0) | worst, self.min_sensors + 1, fallback=w)
-            if np.array_equal(w2, w):
-                break
-            spikes |= worst & (w2 == 0)
-            w = w2
+        w = admissible_weights(r, base_w, persistent, self.min_sensors, self.centre, self.max_condition)
+        w, g, d, p, hat, spikes = self._reject_spikes(r, y, w, base_w, abs_tol, warm)
         if self.weighting != "inverse_variance" and warm:
-            w, g = self._choose_weights(r, y, w)
+            w, g, self._kappa, self._alpha_used = choose_weights(
+                r, y, w, self._kappa, self._var, self.centre, self.weighting, self.window, self.bias_gain)
         else:
             self._alpha_used = np.full(self.batch_shape, 1.0 if warm else 0.0)
         # commit the new state only now that the update cannot fail any more
@@ -302,91 +273,34 @@ class RobustGradientEstimator:
         self._weights = w / w.sum(axis=-1, keepdims=True)
         return g
 
-    def _operator(self, r, w):
-        """Gradient rows of the weighted fit: ``g = G y``, shape (..., 3, N)."""
-        m, rbar, _ = _moments(r, w, self.centre)
-        rbar_w = np.einsum("...n,...ni->...i", w, r) / w.sum(axis=-1)[..., None]
-        return np.einsum("...ij,...nj->...in", np.linalg.inv(m), w[..., None] * (r - rbar_w[..., None, :]))
+    def _reject_spikes(self, r, y, w, base_w, abs_tol, warm):
+        """Fit, and drop the worst spike (one per formation) and fit again until none is left.
 
-    def _choose_weights(self, r, y, w):
-        """Equal weights on the sensors in the fit, or ``var^-a``: the smallest predicted error.
-
-        ``kappa`` is the persistent residual of the equal-weight fit (the part of the field the
-        linear model misses: curvature). Weights ``w`` move the estimate by ``b = G_w kappa``
-        (a bias) and change its noise variance ``v_w = sum_i |G_w[:, i]|^2 var_i``. Predicted
-        error: ``v_w + bias_gain * max(0, |b|^2 - 9 var(b))`` where ``var(b)`` is the part of
-        ``|b|^2`` due to the noise in ``kappa`` itself (an exponential mean over
-        ``4 * window`` updates).
+        Returns the weights, the gradient, the leave-one-out errors, their prediction
+        variances and map of the last fit (see :meth:`_deleted`), and the dropped spikes.
         """
-        active = w > 0
-        w_eq = active.astype(float)
-        g_eq_op = self._operator(r, w_eq)
-        # residual of the equal-weight fit (intercept included)
-        g_eq, s_eq, _, _ = _solve_weighted(r, y, w_eq, self.centre)
-        e_eq = y - s_eq[..., None] - np.einsum("...ni,...i->...n", r, g_eq)
-        alpha_k = 1.0 / (_KAPPA_WINDOWS * self.window)
-        self._kappa = np.where(active, self._kappa + alpha_k * (e_eq - self._kappa), self._kappa)
-        if self.weighting == "equal":
-            self._alpha_used = np.zeros(self.batch_shape)
-            return w_eq, g_eq
-        var = self._var
-        n_eff = (2.0 - alpha_k) / alpha_k
-        best_w, best_g = w_eq, g_eq
-        best_cost = np.einsum("...in,...n->...", g_eq_op**2, var)
-        best_a = np.zeros(self.batch_shape)
-        for a in _AUTO_EXPONENTS[1:]:
-            w_a = np.where(active, w ** a, 0.0)
-            op = self._operator(r, w_a)
-            b = np.einsum("...in,...n->...i", op, np.where(active, self._kappa, 0.0))
-            var_b = np.einsum("...in,...n->...", (op - g_eq_op) ** 2, var) / n_eff
-            cost = np.einsum("...in,...n->...", op**2, var) + self.bias_gain * np.maximum(
-                0.0, np.einsum("...i,...i->...", b, b) - _BIAS_SIGNIFICANCE * var_b)
-            better = cost < best_cost
-            if np.any(better):
-                g_a = np.einsum("...in,...n->...i", op, y)
-                best_w = np.where(better[..., None], w_a, best_w)
-                best_g = np.where(better[..., None], g_a, best_g)
-                best_cost = np.where(better, cost, best_cost)
-                best_a = np.where(better, a, best_a)
-        self._alpha_used = best_a
-        return best_w, best_g
+        spikes = np.zeros(w.shape, dtype=bool)
+        for _ in range(self.n):
+            g, s_c, m, rbar = _solve_weighted(r, y, w, self.centre)
+            d, p, hat = self._deleted(r, y, w, g, s_c, m, rbar)
+            if self.updates == 0:
+                break
+            worst = worst_spike(d, p, w > 0, abs_tol, self._var, self._med_d, self.k_mad, warm)
+            if not np.any(worst):
+                break
+            # a spike is dropped only while one residual degree of freedom remains
+            w2 = admissible_weights(r, base_w, (w == 0) | worst, self.min_sensors + 1, self.centre,
+                                    self.max_condition, fallback=w)
+            if np.array_equal(w2, w):
+                break
+            spikes |= worst & (w2 == 0)
+            w = w2
+        return w, g, d, p, hat, spikes
 
     @property
     def weighting_exponent(self) -> np.ndarray:
         """Exponent ``a`` of the weights ``var^-a`` used by the last update (0 = equal)."""
         return self._alpha_used.copy()
-
-    def _base_weights(self, warm):
-        """Relative inverse-variance weights (typical sensor = 1), equal before warm-up."""
-        if not warm:
-            return np.ones(self.batch_shape + (self.n,))
-        ref = np.median(self._var, axis=-1, keepdims=True)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            w = ref / np.clip(self._var, self.var_floor_rel * ref, 1e6 * ref)
-        return np.where(ref > 0, w, 1.0)
-
-    def _admissible(self, r, base_w, drop, min_active, fallback=None):
-        """Weights with ``drop`` sensors removed where that keeps ``min_active`` sensors and a
-        well-conditioned geometry; otherwise ``fallback`` (default: ``base_w``, nobody
-        dropped) for that formation. If the weights themselves starve the geometry, equal
-        weights are used."""
-        fallback = base_w if fallback is None else fallback
-        w = np.where(drop, 0.0, base_w)
-        ok = np.count_nonzero(w > 0, axis=-1) >= min_active
-        if np.any(ok):
-            m = _moments(r, np.where(ok[..., None], w, fallback), self.centre)[0]
-            ok &= _condition(m) <= self.max_condition
-        w = np.where(ok[..., None], w, fallback)
-        if not np.all(ok):
-            bad = ~(_condition(_moments(r, w, self.centre)[0]) <= self.max_condition)
-            if np.any(bad):
-                w = np.where(bad[..., None], 1.0, w)
-                cond = _condition(_moments(r, w, self.centre)[0])
-                if np.any(~(cond <= self.max_condition)):
-                    raise GeometryError(
-                        f"formation geometry is degenerate: cond(M) = {float(np.max(cond)):.3g} exceeds "
-                        f"max_condition = {self.max_condition:.3g}")
-        return w
 
     def _deleted(self, r, y, w, g, s_c, m, rbar):
         """Leave-one-out errors ``d = D^-1 (I - H) y`` (``H`` hat matrix, ``D = diag(1 - h)``; a
@@ -409,22 +323,6 @@ class RobustGradientEstimator:
         loo = (np.eye(self.n) - hat) / omh[..., :, None]
         return d, np.where(free, s2 * q / omh, 0.0), loo
 
-    def _worst_spike(self, d, p, active, abs_tol):
-        """Per formation, the active sensor farthest beyond ``k_mad`` robust deviations (if any)."""
-        valid = active & np.isfinite(d)
-        if self.updates < self.warmup:
-            # too little history: compare with the other sensors' prediction errors
-            da = np.where(valid, d, np.nan)
-            med = np.nanmedian(da, axis=-1, keepdims=True)
-            mad = np.nanmedian(np.abs(da - med), axis=-1, keepdims=True)
-            scale = np.maximum(_MAD_TO_STD * mad, np.sqrt(np.median(self._var, axis=-1, keepdims=True) + p))
-        else:
-            med = self._med_d
-            scale = np.sqrt(self._var + p)
-        dev = np.abs(np.where(valid, d, 0.0) - med)
-        score = np.where(valid & (dev > abs_tol), dev / np.maximum(scale, np.finfo(float).tiny), 0.0)
-        return _argmax_mask(score) & (score > self.k_mad)
-
     def _learn(self, d, p, spikes, alpha):
         slot = self.updates % self.window
         k = min(self.updates + 1, self.window)
@@ -441,7 +339,7 @@ class RobustGradientEstimator:
         else:
             self._med_d = np.median(buf, axis=-1)
             dev = np.abs(buf - self._med_d[..., None])
-            scale = _MAD_TO_STD * np.median(dev, axis=-1, keepdims=True)
+            scale = MAD_TO_STD * np.median(dev, axis=-1, keepdims=True)
             # winsorised at 3 robust std: efficient like a mean square, robust like the MAD
             total = np.mean(np.minimum(dev, 3.0 * scale) ** 2, axis=-1) / _WINSOR3
         raw = np.maximum(total - pbar, 0.05 * total)
@@ -453,46 +351,12 @@ class RobustGradientEstimator:
         self._spike_counts += spikes
 
     def _classify(self):
-        code = np.zeros(self._code.shape, dtype=np.int8)
-        n = self.n
+        """Suspect codes from the statistics of the window (see :mod:`estimator.robust_faults`)."""
         k = min(self.updates, self.window)
-        # stuck: readings stop changing while the others' change
-        d2 = self._diff2
-        others = np.stack([np.median(np.delete(d2, i, axis=-1), axis=-1) for i in range(n)], axis=-1)
-        stuck = (d2 <= self.stuck_ratio * others) & (others > 0)
-        biased = self._biased(k)
+        stuck = stuck_mask(self._diff2, self.stuck_ratio)
+        biased = biased_mask(self._var, self._p_buf[..., :k].mean(axis=-1), self._med_d, self._hat,
+                             self._code, k, self.k_bias, self.bias_min_std, self.bias_explained)
         spiking = self._spike_ewma > self.spike_rate
         med_std = np.sqrt(np.median(self._var, axis=-1, keepdims=True))
         noisy = np.sqrt(self._var) > self.k_noisy * med_std
-        for j, mask in reversed(list(enumerate((stuck, biased, spiking, noisy)))):
-            code = np.where(mask, np.int8(j + 1), code)
-        self._code = code
-
-    def _biased(self, k):
-        """A bias ``b_i`` on sensor i moves the median errors by ``b_i c_i`` (``c_i``: column i
-        of the leave-one-out map). Best candidate: the largest explained fraction of their
-        weighted energy (>= ``bias_explained``) with ``|b_i|`` significant; a sensor already
-        excluded as biased stays so while its own median error stays significant."""
-        std_d = np.sqrt(self._var + self._p_buf[..., :k].mean(axis=-1))
-        se = 1.2533 * std_d / np.sqrt(k)
-        med = self._med_d
-        inv_var = 1.0 / np.maximum(std_d**2, np.finfo(float).tiny)
-        cols = self._hat  # loo[..., j, i]: effect on d_j of reading i
-        num = np.einsum("...j,...j,...ji->...i", inv_var, med, cols)
-        den = np.einsum("...j,...ji,...ji->...i", inv_var, cols, cols)
-        b = num / np.maximum(den, np.finfo(float).tiny)
-        energy = np.einsum("...j,...j->...", inv_var, med**2)[..., None]
-        explained = b**2 * den / np.maximum(energy, np.finfo(float).tiny)
-        significant = (np.abs(b) > self.k_bias * se) & (np.abs(b) > self.bias_min_std * std_d)
-        # what one bias leaves unexplained must be noise, or small next to the bias: not
-        # structure of its own size (strong curvature across the formation looks like that)
-        remainder = np.abs(med[..., :, None] - cols * b[..., None, :])  # [..., j, i]: without bias i
-        clean = (np.max(remainder / np.maximum(se, 1e-300)[..., :, None], axis=-2) <= self.k_bias) \
-            | (np.max(remainder, axis=-2) <= _BIAS_DOMINANCE * np.abs(b))
-        score = np.where(significant & clean, explained, 0.0)
-        new = _argmax_mask(score) & (score >= self.bias_explained)
-        stay = (self._code == REASONS.index("biased") + 1) & (np.abs(med) > self.k_bias * se) \
-            & (np.abs(med) > self.bias_min_std * std_d)
-        # one biased sensor at a time: the one already excluded, else the new best candidate
-        return np.where(np.any(stay, axis=-1, keepdims=True), stay & _argmax_mask(np.where(stay, np.abs(med), -1.0)),
-                        new)
+        self._code = suspect_codes(stuck, biased, spiking, noisy)

@@ -4,7 +4,9 @@
 (:meth:`MockAutopilot.handle_message`) and take the encoded frames it produces
 (:meth:`MockAutopilot.drain_outbox`); the fleet calls :meth:`MockAutopilot.step` before each
 physics step. Everything runs on the fleet's simulated clock. Commands are in
-:mod:`sitl_mock.ap_commands`, setpoints and flight behaviours in :mod:`sitl_mock.ap_flight`.
+:mod:`sitl_mock.ap_commands`, setpoints and flight behaviours in :mod:`sitl_mock.ap_flight`,
+the dispatch of accepted messages and the parameter protocol in :mod:`sitl_mock.ap_receive`
+(whose ``classify_bad_frame`` is re-exported here).
 """
 from __future__ import annotations
 
@@ -14,29 +16,19 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from formation.geodesy import enu_to_ned, geodetic_to_enu
-from sitl_mock import ap_commands, ap_failsafe, ap_flight, ap_mission_exec
+from sitl_mock import ap_failsafe, ap_flight, ap_mission_exec, ap_receive
 from sitl_mock.ap_geo import LocalFrame
 from sitl_mock.ap_signing import VehicleSigning, signing_timestamp
 from sitl_mock.ap_mission import MissionItem, MissionServer
 from sitl_mock.ap_modes import Personality, make_personality
-from sitl_mock.ap_params import ParamError, ParamTable
+from sitl_mock.ap_params import ParamTable
+from sitl_mock.ap_receive import classify_bad_frame
 from sitl_mock.ap_telemetry import MessageScheduler, build_message
 from sitl_mock.faults import FaultSet
 
 __all__ = ["MockAutopilot", "classify_bad_frame"]
 
-_MAV_TYPE_GCS = mavlink2.MAV_TYPE_GCS
 _TARGETED_AUTOPILOT_COMPONENTS = (0, mavlink2.MAV_COMP_ID_AUTOPILOT1)
-
-
-def classify_bad_frame(reason: str) -> str:
-    """Counter name for a frame pymavlink could not decode (from its error text)."""
-    low = reason.lower()
-    if "crc" in low:
-        return "rx_bad_crc"
-    if "unknown mavlink message id" in low:
-        return "rx_unknown_msg"
-    return "rx_malformed"
 
 
 class MockAutopilot:
@@ -287,80 +279,11 @@ class MockAutopilot:
         if self.faults.crashed:
             return
         try:
-            self._dispatch(msg, t_s)
+            ap_receive.dispatch(self, msg, t_s)
         except Exception as exc:  # a handler bug must not stop the link: counted and kept
             self.counters["rx_handler_error"] += 1
             self.counters["rx_handler_error:" + type(exc).__name__] += 1
             self.last_error = f"{msg.get_type()}: {type(exc).__name__}: {exc}"
-
-    def _dispatch(self, msg, t_s: float) -> None:
-        kind = msg.get_type()
-        if kind == "HEARTBEAT":
-            self._on_heartbeat(msg, t_s)
-        elif kind in ("COMMAND_LONG", "COMMAND_INT"):
-            ap_commands.handle_command(self, msg, t_s)
-        elif kind == "SET_MODE":
-            ap_commands.handle_set_mode(self, msg, t_s)
-        elif kind in ("SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
-            ap_flight.handle_setpoint(self, msg, t_s)
-        elif kind.startswith("PARAM_"):
-            self._on_param(msg, kind)
-        elif kind == "TIMESYNC":
-            if msg.tc1 == 0:
-                self.emit(self.mav.timesync_encode(int(t_s * 1e9), msg.ts1))
-        elif kind == "REQUEST_DATA_STREAM":
-            ap_commands.handle_request_data_stream(self, msg, t_s)
-        elif kind == "SETUP_SIGNING":
-            if self.signing.handle_setup(msg, self.armed) == "signing_setup_refused_armed":
-                self.statustext("ERROR: Won't setup signing when armed",
-                                mavlink2.MAV_SEVERITY_WARNING)
-        elif not self.missions.handle(msg, t_s):
-            self.counters["rx_unhandled"] += 1
-
-    def _on_heartbeat(self, msg, t_s: float) -> None:
-        if self.personality.name == "ardupilot":
-            is_gcs = msg.get_srcSystem() == self.params["SYSID_MYGCS"]
-        else:
-            is_gcs = msg.type == _MAV_TYPE_GCS
-        if is_gcs:
-            self.last_gcs_heartbeat_s = t_s
-
-    def _on_param(self, msg, kind: str) -> None:
-        params = self.params
-        if kind == "PARAM_REQUEST_LIST":
-            for name in params.names():
-                self._send_param(name)
-        elif kind == "PARAM_REQUEST_READ":
-            if msg.param_index >= 0:
-                if msg.param_index >= len(params):
-                    self.counters["param_unknown"] += 1
-                    return
-                name = params.name_at(msg.param_index)
-            else:
-                name = msg.param_id
-            if name not in params:
-                self.counters["param_unknown"] += 1
-                return
-            self._send_param(name)
-        elif kind == "PARAM_SET":
-            name = msg.param_id
-            if name not in params:
-                self.counters["param_unknown"] += 1
-                return
-            try:
-                params.set(name, params.decode_wire(name, msg.param_value))
-            except ParamError:
-                self.counters["param_rejected"] += 1
-            else:
-                self.apply_params()
-            self._send_param(name)  # the current value tells the GCS whether it took
-        else:
-            self.counters["rx_unhandled"] += 1
-
-    def _send_param(self, name: str) -> None:
-        p = self.params
-        self.emit(self.mav.param_value_encode(name.encode(), p.encode_wire(name), p.ptype(name),
-                                              len(p), p.index_of(name)))
 
     def apply_params(self) -> None:
         """Push the parameters that shape the dynamics into the vehicle model."""

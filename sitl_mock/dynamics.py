@@ -18,17 +18,27 @@ The controller is the usual autopilot cascade, reduced to a point mass:
 
 The state is kept in plain floats (faster than tiny numpy arrays); the array attributes of the
 API (``position_ned_m``, ``velocity_ned_m_s``) are properties returning fresh copies.
+
+The parameters live in :mod:`sitl_mock.dynamics_params` and the control laws in
+:mod:`sitl_mock.dynamics_control`; ``DynamicsParams`` and ``GRAVITY_M_S2`` are re-exported here.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DynamicsParams", "Multicopter", "GRAVITY_M_S2"]
+from sitl_mock.dynamics_control import (
+    finite3 as _finite3,
+    limit_velocity_command,
+    position_velocity_command,
+    velocity_loop_step,
+    wrap_pi as _wrap_pi,
+)
+from sitl_mock.dynamics_disturbances import NormalBatch, gauss_markov_step, wind_drag_step
+from sitl_mock.dynamics_params import GRAVITY_M_S2, DynamicsParams
 
-GRAVITY_M_S2 = 9.80665
+__all__ = ["DynamicsParams", "Multicopter", "GRAVITY_M_S2"]
 
 _MODE_IDLE = "idle"          # motors off, or armed and sitting on the ground
 _MODE_POSITION = "position"  # fly to / hold a position target
@@ -44,106 +54,6 @@ _CRASH_IMPACT_M_S = 3.0      # hitting the ground faster than this: crashed
 _TERMINAL_SPEED_M_S = 20.0
 _LAND_HIGH_ALT_M = 10.0      # above this height LAND descends at max_speed_down (LAND_SPEED_HIGH)
 _MAX_SUBSTEP_S = 0.02
-_NORMAL_BATCH = 3 * 256
-
-
-@dataclass
-class DynamicsParams:
-    """Physical and controller parameters of one simulated multicopter.
-
-    Attributes
-    ----------
-    max_speed_h_m_s, max_speed_up_m_s, max_speed_down_m_s : float
-        Horizontal, climb and descent speed limits.
-    max_accel_m_s2 : float
-        Acceleration limit of the controller (horizontal and vertical each).
-    land_speed_m_s, takeoff_speed_m_s : float
-        Final descent speed when landing, climb speed when taking off.
-    wind_ned_m_s : tuple of float
-        Constant wind, NED m/s.
-    wind_gust_std_m_s : float
-        Standard deviation of the gusts (per axis, Ornstein-Uhlenbeck).
-    gps_noise_std_m : float
-        Standard deviation of the reported position's error (per axis).
-    gps_noise_tau_s : float
-        Correlation time of that error (first-order Gauss-Markov, updated every step: the
-        reports of one step agree with each other, as a real GPS fix does).
-    battery_flight_time_s : float
-        Hover time from full to empty.
-    kp_pos_per_s, kp_vel_per_s : float
-        Position and velocity loop gains.
-    drag_per_s : float
-        Linear drag coefficient through which the wind acts.
-    wind_comp_tau_s : float
-        Time constant of the autopilot's wind compensation.
-    gust_tau_s : float
-        Correlation time of the gusts.
-    yaw_rate_max_rad_s : float
-        Yaw rate limit.
-    battery_cells : int
-        LiPo cells in series (voltage model: 4.2 V full .. 3.5 V empty per cell, with sag).
-    gps_warmup_s : float
-        Time after boot before the position estimate is ready.
-    """
-
-    max_speed_h_m_s: float = 10.0
-    max_speed_up_m_s: float = 3.0
-    max_speed_down_m_s: float = 1.5
-    max_accel_m_s2: float = 4.0
-    land_speed_m_s: float = 0.7
-    takeoff_speed_m_s: float = 1.5
-    wind_ned_m_s: tuple = (0.0, 0.0, 0.0)
-    wind_gust_std_m_s: float = 0.0
-    gps_noise_std_m: float = 0.0
-    gps_noise_tau_s: float = 1.0
-    battery_flight_time_s: float = 1500.0
-    kp_pos_per_s: float = 1.0
-    kp_vel_per_s: float = 3.0
-    drag_per_s: float = 0.3
-    wind_comp_tau_s: float = 2.0
-    gust_tau_s: float = 2.0
-    yaw_rate_max_rad_s: float = math.radians(90.0)
-    battery_cells: int = 4
-    gps_warmup_s: float = 2.0
-
-    def __post_init__(self):
-        for name in ("max_speed_h_m_s", "max_speed_up_m_s", "max_speed_down_m_s", "max_accel_m_s2",
-                     "land_speed_m_s", "takeoff_speed_m_s", "battery_flight_time_s", "kp_pos_per_s",
-                     "kp_vel_per_s", "wind_comp_tau_s", "gust_tau_s", "gps_noise_tau_s", "yaw_rate_max_rad_s",
-                     "wind_gust_std_m_s", "gps_noise_std_m", "drag_per_s", "gps_warmup_s"):
-            v = float(getattr(self, name))
-            may_be_zero = name in ("wind_gust_std_m_s", "gps_noise_std_m", "drag_per_s", "gps_warmup_s")
-            if not (math.isfinite(v) and (v >= 0.0 if may_be_zero else v > 0.0)):
-                kind = ">= 0 and finite" if may_be_zero else "a positive finite number"
-                raise ValueError(f"DynamicsParams.{name} must be {kind}, got {v!r}")
-        wind = tuple(float(w) for w in self.wind_ned_m_s)
-        if len(wind) != 3 or not all(math.isfinite(w) for w in wind):
-            raise ValueError(f"DynamicsParams.wind_ned_m_s must be 3 finite numbers, got {self.wind_ned_m_s!r}")
-        self.wind_ned_m_s = wind
-        if int(self.battery_cells) < 1:
-            raise ValueError(f"DynamicsParams.battery_cells must be >= 1, got {self.battery_cells!r}")
-
-
-def _finite3(values, what: str) -> tuple[float, float, float]:
-    try:
-        a, b, c = (float(v) for v in values)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} must be 3 numbers, got {values!r}") from None
-    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
-        raise ValueError(f"{what} must be finite, got {values!r}")
-    return a, b, c
-
-
-def _wrap_pi(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def _sqrt_speed(err_m: float, kp: float, accel: float) -> float:
-    """Speed (>= 0) commanded for a distance ``err_m`` >= 0 (ArduPilot's sqrt_controller)."""
-    lin = accel / (kp * kp)
-    if err_m <= lin:
-        return kp * err_m
-    return math.sqrt(2.0 * accel * (err_m - 0.5 * lin))
 
 
 class Multicopter:
@@ -189,10 +99,9 @@ class Multicopter:
         self._yaw_tgt: float | None = None
         self._gust = (0.0, 0.0, 0.0)
         self._gps_err = (0.0, 0.0, 0.0)
-        self._wind_comp = [0.0, 0.0, 0.0]  # autopilot's compensation (m/s^2)
+        self._wind_comp = (0.0, 0.0, 0.0)  # autopilot's compensation (m/s^2)
         self._load = 0.0                   # 0 (motors off) .. ~1.5 (climbing)
-        self._normal_buf: list[float] = []
-        self._normal_i = 0
+        self._normals = NormalBatch(rng)   # gusts and GPS noise share one stream
 
     # ------------------------------------------------------------------ state
     @property
@@ -352,99 +261,94 @@ class Multicopter:
             self._step(dt_s / n)
         std = self.params.gps_noise_std_m
         if std > 0.0:
-            self._gps_err = self._gauss_markov(self._gps_err, dt_s, self.params.gps_noise_tau_s, std)
+            self._gps_err = gauss_markov_step(self._gps_err, dt_s, self.params.gps_noise_tau_s, std,
+                                              self._normals)
         elif self._gps_err != (0.0, 0.0, 0.0):
             self._gps_err = (0.0, 0.0, 0.0)
 
     def _step(self, dt: float) -> None:
-        p = self.params
         mode = self._mode
         if mode == _MODE_FALLING:
             self._fall(dt)
             return
         if mode == _MODE_IDLE:
-            if not self.on_ground:  # idle in the air (teleported): hold if armed, else fall
-                if self.armed:
-                    self.command_hold()
-                else:
-                    self._mode = _MODE_FALLING
-                return
-            self._vn = self._ve = self._vd = 0.0
-            self._load = 0.1 if self.armed else 0.0
-            self._drain(dt)
-            self.landed = True
+            self._idle_step(dt)
             return
+        cn, ce, cd = self._velocity_command()
+        # on the ground and not asked to climb: stay there
+        if self._d >= -_GROUND_EPS_M and cd >= 0.0:
+            self._stay_on_ground(dt)
+            return
+        p = self.params
+        self._vn, self._ve, self._vd = velocity_loop_step(
+            self._vn, self._ve, self._vd, cn, ce, cd, p.kp_vel_per_s, p.max_accel_m_s2, dt)
+        if p.drag_per_s > 0.0:
+            self._wind_step(dt)
+        self._integrate(dt)
 
-        # ---- velocity command
+    def _idle_step(self, dt: float) -> None:
+        """Idle: sit on the ground (motors idling if armed); in the air hold if armed, else fall."""
+        if not self.on_ground:  # idle in the air (teleported)
+            if self.armed:
+                self.command_hold()
+            else:
+                self._mode = _MODE_FALLING
+            return
+        self._vn = self._ve = self._vd = 0.0
+        self._load = 0.1 if self.armed else 0.0
+        self._drain(dt)
+        self.landed = True
+
+    def _velocity_command(self) -> tuple[float, float, float]:
+        """Velocity command (NED m/s) of the current mode, within its speed limits."""
+        p = self.params
+        mode = self._mode
         if mode == _MODE_VELOCITY:
             cn, ce, cd = self._vel_tgt
         else:
             tn, te, td = self._tgt
-            en, ee, ed = tn - self._n, te - self._e, td - self._d
-            acc = 0.5 * p.max_accel_m_s2
-            dist_h = math.hypot(en, ee)
-            if dist_h > 1e-9:
-                s = _sqrt_speed(dist_h, p.kp_pos_per_s, acc) / dist_h
-                cn, ce = en * s, ee * s
-            else:
-                cn = ce = 0.0
-            sd = _sqrt_speed(abs(ed), p.kp_pos_per_s, acc)
-            cd = sd if ed > 0 else -sd
+            cn, ce, cd = position_velocity_command(tn - self._n, te - self._e, td - self._d,
+                                                   p.kp_pos_per_s, 0.5 * p.max_accel_m_s2)
             fn, fe, fd = self._vel_tgt
             cn, ce, cd = cn + fn, ce + fe, cd + fd
         # speed limits (per mode)
-        h_max, up_max, down_max = p.max_speed_h_m_s, p.max_speed_up_m_s, p.max_speed_down_m_s
+        up_max, down_max = p.max_speed_up_m_s, p.max_speed_down_m_s
         if mode == _MODE_TAKEOFF:
             up_max = min(up_max, p.takeoff_speed_m_s)
         elif mode == _MODE_LAND:
             # descend at a constant rate until touchdown (faster high up: LAND_SPEED_HIGH)
             cd = p.land_speed_m_s if -self._d <= _LAND_HIGH_ALT_M else max(down_max, p.land_speed_m_s)
             down_max = max(down_max, p.land_speed_m_s)
-        sh = math.hypot(cn, ce)
-        if sh > h_max:
-            cn, ce = cn * h_max / sh, ce * h_max / sh
-        cd = min(max(cd, -up_max), down_max)
+        return limit_velocity_command(cn, ce, cd, p.max_speed_h_m_s, up_max, down_max)
 
-        # on the ground and not asked to climb: stay there
-        if self._d >= -_GROUND_EPS_M and cd >= 0.0:
-            self._d = 0.0
-            self._vn = self._ve = self._vd = 0.0
-            self.landed = True
-            self._load = 0.1
-            if mode in (_MODE_LAND, _MODE_TAKEOFF):
-                self._mode = _MODE_IDLE
-            self._drain(dt)
-            return
+    def _stay_on_ground(self, dt: float) -> None:
+        """On the ground with no climb commanded: stop there (a takeoff or landing ends)."""
+        self._d = 0.0
+        self._vn = self._ve = self._vd = 0.0
+        self.landed = True
+        self._load = 0.1
+        if self._mode in (_MODE_LAND, _MODE_TAKEOFF):
+            self._mode = _MODE_IDLE
+        self._drain(dt)
 
-        # ---- velocity loop (towards the command, never past it)
-        amax_dt = p.max_accel_m_s2 * dt
-        kdt = min(p.kp_vel_per_s * dt, 1.0)
-        dn, de = cn - self._vn, ce - self._ve
-        dh = math.hypot(dn, de)
-        f = kdt if dh * kdt <= amax_dt else amax_dt / dh
-        self._vn, self._ve = self._vn + dn * f, self._ve + de * f
-        dd = cd - self._vd
-        f = kdt if abs(dd) * kdt <= amax_dt else amax_dt / abs(dd)
-        self._vd += dd * f
+    def _wind_step(self, dt: float) -> None:
+        """Wind: drag towards the air mass (constant + gusts), minus the autopilot's compensation."""
+        p = self.params
+        wn, we, wd = p.wind_ned_m_s
+        if p.wind_gust_std_m_s > 0.0:
+            g = self._gust = gauss_markov_step(self._gust, dt, p.gust_tau_s, p.wind_gust_std_m_s,
+                                               self._normals)
+            wn, we, wd = wn + g[0], we + g[1], wd + g[2]
+        c = self._wind_comp
+        if wn or we or wd or c[0] or c[1] or c[2]:
+            self._wind_comp, (dn, de, dd) = wind_drag_step((wn, we, wd), c, p.drag_per_s,
+                                                           p.wind_comp_tau_s, dt)
+            self._vn += dn
+            self._ve += de
+            self._vd += dd
 
-        # ---- wind: drag towards the air mass, minus the autopilot's compensation
-        if p.drag_per_s > 0.0:
-            wn, we, wd = p.wind_ned_m_s
-            if p.wind_gust_std_m_s > 0.0:
-                g = self._gust = self._gauss_markov(self._gust, dt, p.gust_tau_s, p.wind_gust_std_m_s)
-                wn, we, wd = wn + g[0], we + g[1], wd + g[2]
-            c = self._wind_comp
-            if wn or we or wd or c[0] or c[1] or c[2]:
-                b = min(dt / p.wind_comp_tau_s, 1.0)
-                k = p.drag_per_s
-                c[0] += (k * wn - c[0]) * b
-                c[1] += (k * we - c[1]) * b
-                c[2] += (k * wd - c[2]) * b
-                self._vn += (k * wn - c[0]) * dt
-                self._ve += (k * we - c[1]) * dt
-                self._vd += (k * wd - c[2]) * dt
-
-        # ---- integrate position, ground contact
+    def _integrate(self, dt: float) -> None:
+        """Integrate the position; ground contact, liftoff, end of takeoff, yaw, battery."""
         self._n += self._vn * dt
         self._e += self._ve * dt
         self._d += self._vd * dt
@@ -452,24 +356,11 @@ class Multicopter:
             self._d, self._vd = 0.0, min(self._vd, 0.0)
         if self.landed and self._d < -_LIFTOFF_M:
             self.landed = False
-        if mode == _MODE_TAKEOFF and abs(self._tgt[2] - self._d) < 0.05:
+        if self._mode == _MODE_TAKEOFF and abs(self._tgt[2] - self._d) < 0.05:
             self._mode = _MODE_POSITION
         self._yaw_step(dt)
-        self._load = 1.0 + 0.5 * max(-self._vd, 0.0) / p.max_speed_up_m_s
+        self._load = 1.0 + 0.5 * max(-self._vd, 0.0) / self.params.max_speed_up_m_s
         self._drain(dt)
-
-    def _gauss_markov(self, x, dt: float, tau: float, std: float) -> tuple[float, float, float]:
-        """One exact step of a 3-axis first-order Gauss-Markov process of stationary ``std``.
-        Normals come from the rng in batches (a draw per step is slow)."""
-        phi = math.exp(-dt / tau)
-        q = std * math.sqrt(1.0 - phi * phi)
-        i = self._normal_i
-        if i + 3 > len(self._normal_buf):
-            self._normal_buf = self.rng.standard_normal(_NORMAL_BATCH).tolist()
-            i = 0
-        self._normal_i = i + 3
-        b = self._normal_buf
-        return x[0] * phi + q * b[i], x[1] * phi + q * b[i + 1], x[2] * phi + q * b[i + 2]
 
     def _yaw_step(self, dt: float) -> None:
         if self._yaw_tgt is None:
