@@ -61,6 +61,7 @@ __all__ = [
     "ReadingSubscriber",
 ]
 
+
 class _EnuConverter:
     """Geodetic -> mission ENU for one point at a time (WGS-84 maths of :mod:`pymap3d`).
 
