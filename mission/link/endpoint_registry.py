@@ -6,12 +6,15 @@ of one mission; :class:`LinkError` is what every link problem raises. Both are r
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:  # only for annotations: this module must not import the endpoint
-    from mission.link.endpoint import MavEndpoint
+from typing import Protocol
 
 __all__ = ["LinkError", "SysidRegistry"]
+
+
+class _Endpoint(Protocol):
+    """What the registry needs of an endpoint (a :class:`~mission.link.endpoint.MavEndpoint`)."""
+
+    uri: str
 
 
 class LinkError(ConnectionError):
@@ -26,16 +29,16 @@ class SysidRegistry:
     """
 
     def __init__(self) -> None:
-        self._owner: dict[int, "MavEndpoint"] = {}
+        self._owner: dict[int, _Endpoint] = {}
 
-    def claim(self, sysid: int, endpoint: "MavEndpoint") -> None:
+    def claim(self, sysid: int, endpoint: _Endpoint) -> None:
         """Record that ``sysid`` is on ``endpoint``; raise if it is already on another one."""
         owner = self._owner.setdefault(sysid, endpoint)
         if owner is not endpoint:
             raise LinkError(
                 f"duplicate MAVLink system id {sysid}: heard on {owner.uri!r} and on {endpoint.uri!r}")
 
-    def release(self, endpoint: "MavEndpoint") -> None:
+    def release(self, endpoint: _Endpoint) -> None:
         """Forget every system id of ``endpoint`` (when it closes)."""
         for sysid in [s for s, e in self._owner.items() if e is endpoint]:
             del self._owner[sysid]
