@@ -1,4 +1,4 @@
-"""Formation geometry for swarmseek (pure numpy/scipy, no I/O).
+"""Formation geometry for swarmseek (pure numpy/scipy/pymap3d, no I/O).
 
 * :func:`symmetric_cylinder`: the Symmetric Cylindrical formation, paper eq. (1).
 * :func:`cvt_sphere`: the CVT-based Spherical formation, paper eq. (7), with exact spherical
@@ -7,7 +7,7 @@
 * :func:`reconfigure` / :func:`assign_slots`: formation change after a vehicle loss and
   minimum-travel assignment of vehicles to slots.
 * :func:`metrics`: d_min, r_bar, M, M_alpha, ||(n D^2/3) M^-1||, cond(M).
-* :mod:`formation.geodesy`: WGS-84 <-> ENU/NED conversions.
+* :mod:`formation.geodesy`: WGS-84 <-> ENU/NED conversions (the ellipsoid maths from pymap3d).
 """
 from . import geodesy
 from .assignment import Reconfiguration, assign_slots, kabsch_rotation, reconfigure

@@ -16,21 +16,26 @@ A system id claimed by two vehicles is an error (:class:`LinkError`) that names 
 two addresses sending autopilot heartbeats with the same id on one endpoint, two different
 AUTOPILOT_VERSION uids for one id, or one id heard on two endpoints sharing a
 :class:`SysidRegistry`.
+
+The endpoint is split by concern: :mod:`mission.link.endpoint_receive` (parsing, checks,
+demultiplexing), :mod:`mission.link.endpoint_send` (encoding, routing, framing, heartbeat) and
+:mod:`mission.link.endpoint_registry` (:class:`LinkError`, :class:`SysidRegistry`, re-exported
+here); this module holds the endpoint itself: opening, closing and the vehicles' API.
 """
 from __future__ import annotations
 
 import asyncio
-import struct
 from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from pymavlink.generator import mavcrc
 
 from mission.core.clock import cancel_and_wait, wait_on_clock
 from mission.link.transport import open_transport
 from mission.core.uri import DEFAULT_SERIAL_BAUD, ConnectionSpec, parse_connection
-from mission.link.signing import (SignatureVerifier, SigningConfig, apply_signing, refresh_timestamp,
-                             setup_signing_message, sign_frame)
+from mission.link.endpoint_receive import EndpointReceiving
+from mission.link.endpoint_registry import LinkError, SysidRegistry
+from mission.link.endpoint_send import EndpointSending
+from mission.link.signing import SignatureVerifier, SigningConfig
 from mission.link.tlog import TlogSet
 
 __all__ = [
@@ -42,66 +47,8 @@ __all__ = [
     "DEFAULT_SERIAL_BAUD",
 ]
 
-_V2_HEADER = struct.Struct("<BBBBBBBHB")
-#: an address heard from within this many clock seconds is still "active" (duplicate detection)
-_ACTIVE_WINDOW_S = 3.0
 
-
-def _crc16(frame: bytes, crc_extra: int) -> int:
-    """MAVLink CRC of a frame without its magic byte, then ``crc_extra`` (fastcrc when available)."""
-    fast = mavcrc.mcrf4xx
-    if fast is not None:
-        return fast(bytes((crc_extra,)), fast(memoryview(frame)[1:], 0xFFFF))
-    crc = mavcrc.x25crc(frame[1:])
-    crc.accumulate(bytes((crc_extra,)))
-    return crc.crc
-
-
-class LinkError(ConnectionError):
-    """A MAVLink link problem; the message names the endpoint (and the other one, if any)."""
-
-
-class SysidRegistry:
-    """Which endpoint each vehicle system id was heard on; share one between endpoints.
-
-    :meth:`claim` raises :class:`LinkError` naming both endpoints when a system id shows up on a
-    second endpoint.
-    """
-
-    def __init__(self) -> None:
-        self._owner: dict[int, "MavEndpoint"] = {}
-
-    def claim(self, sysid: int, endpoint: "MavEndpoint") -> None:
-        """Record that ``sysid`` is on ``endpoint``; raise if it is already on another one."""
-        owner = self._owner.setdefault(sysid, endpoint)
-        if owner is not endpoint:
-            raise LinkError(
-                f"duplicate MAVLink system id {sysid}: heard on {owner.uri!r} and on {endpoint.uri!r}")
-
-    def release(self, endpoint: "MavEndpoint") -> None:
-        """Forget every system id of ``endpoint`` (when it closes)."""
-        for sysid in [s for s, e in self._owner.items() if e is endpoint]:
-            del self._owner[sysid]
-
-
-_MSG_HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
-_MSG_BAD = mavlink.MAVLINK_MSG_ID_BAD_DATA
-_MSG_UNKNOWN = mavlink.MAVLINK_MSG_ID_UNKNOWN
-_AUTOPILOT_INVALID = mavlink.MAV_AUTOPILOT_INVALID
-_TYPE_GCS = mavlink.MAV_TYPE_GCS
-
-
-def _raw_sender(frame) -> int:
-    """Sender system id read from a raw MAVLink frame (v2: byte 5, v1: byte 3)."""
-    index = 5 if frame[0] == mavlink.PROTOCOL_MARKER_V2 else 3
-    return frame[index] if len(frame) > index else 0
-
-
-def _is_autopilot_heartbeat(msg) -> bool:
-    return msg.autopilot != _AUTOPILOT_INVALID and msg.type != _TYPE_GCS
-
-
-class MavEndpoint:
+class MavEndpoint(EndpointReceiving, EndpointSending):
     """One MAVLink transport, possibly carrying several vehicles (system ids).
 
     Create with :meth:`open`. Vehicles attach with :meth:`attach` (``VehicleLink`` does it).
@@ -320,222 +267,3 @@ class MavEndpoint:
         old = self._uids.setdefault(sysid, uid)
         if old != uid:
             self._report_duplicate(sysid, f"AUTOPILOT_VERSION uids {old:#x} and {uid:#x}")
-
-    # ------------------------------------------------------------------ receiving
-    @staticmethod
-    def _new_parser() -> mavlink.MAVLink:
-        parser = mavlink.MAVLink(None)
-        parser.robust_parsing = True
-        return parser
-
-    def _on_datagram(self, data: bytes, peer) -> None:
-        """Transport callback: one UDP datagram (whole frames; a partial tail is counted)."""
-        parser = self._datagram_parser
-        msgs = parser.parse_buffer(data)
-        if parser.buf_len():
-            self.counters["truncated"] += 1
-            parser.buf = bytearray()
-            parser.buf_index = 0
-            parser.expected_length = mavlink.HEADER_LEN_V1 + 2
-        if msgs:
-            self._deliver(msgs, peer, len(data))
-
-    def _on_stream_data(self, data: bytes, peer) -> None:
-        """Transport callback: bytes from a stream (TCP connection, serial line)."""
-        parser = self._stream_parsers.get(peer)
-        if parser is None:
-            parser = self._stream_parsers[peer] = self._new_parser()
-        msgs = parser.parse_buffer(data)
-        if msgs:
-            self._deliver(msgs, peer, len(data))
-
-    def _on_peer_lost(self, peer) -> None:
-        """Transport callback: a stream peer went away."""
-        self._stream_parsers.pop(peer, None)
-        self._encoders.pop(peer, None)
-
-    def _deliver(self, msgs, peer, nbytes: int) -> None:
-        counters = self.counters
-        counters["bytes_in"] += nbytes
-        tlogs = self.tlogs
-        peer_of = self._peer_of
-        handlers = self._handlers
-        for msg in msgs:
-            # not msg.id: BAD_DATA / UNKNOWN inherit id 0 (HEARTBEAT) and messages with a
-            # field named "id" (BATTERY_STATUS...) shadow the class attribute
-            msg_id = msg._header.msgId
-            if msg_id == _MSG_BAD:
-                counters["bad_crc" if "CRC" in msg.reason else "malformed"] += 1
-                continue
-            if self.verifier is not None:
-                reason = self.verifier.check(msg)
-                if reason is not None:
-                    counters[reason] += 1
-                    sysid = msg._header.srcSystem
-                    if (reason == "unsigned" and msg_id == _MSG_HEARTBEAT and self.signing.send_setup
-                            and _is_autopilot_heartbeat(msg) and self.verifier.needs_setup(sysid)):
-                        if sysid in self._expected:
-                            self._send_setup_signing(sysid, msg._header.srcComponent, peer)
-                        else:  # not a vehicle of this mission: never hand it the key
-                            counters["setup_signing_refused"] += 1
-                    continue
-            counters["frames_in"] += 1
-            # MAVLink_unknown has no real header (srcSystem 0): its sender is in the raw frame
-            sysid = msg._header.srcSystem if msg_id != _MSG_UNKNOWN else _raw_sender(msg.get_msgbuf())
-            if tlogs is not None:
-                tlogs.write(sysid, msg._msgbuf)
-            if msg_id == _MSG_UNKNOWN:
-                counters["unknown_msgid"] += 1
-                continue
-            if msg_id == _MSG_HEARTBEAT and _is_autopilot_heartbeat(msg):
-                self._on_autopilot_heartbeat(sysid, msg, peer)
-            elif sysid not in peer_of:
-                peer_of[sysid] = peer
-            handler = handlers.get(sysid)
-            if handler is not None:
-                try:
-                    handler[0](msg)
-                except Exception as exc:  # a vehicle's bug must not stop the link (or the poller)
-                    counters["handler_errors"] += 1
-                    self.last_handler_error = f"{msg.get_type()} from {sysid}: {type(exc).__name__}: {exc}"
-
-    def _on_autopilot_heartbeat(self, sysid: int, msg, peer) -> None:
-        now = self.clock.time()
-        seen = self._hb_seen.setdefault(sysid, {})
-        seen[peer] = now
-        if len(seen) > 1:
-            active = [p for p, t in seen.items() if now - t <= _ACTIVE_WINDOW_S]
-            for p in [p for p in seen if p not in active]:
-                del seen[p]
-            if len(active) > 1:
-                self._report_duplicate(sysid, f"autopilot heartbeats from {active[0]} and {active[1]}")
-        new = sysid not in self._last_heartbeat
-        self._peer_of[sysid] = peer
-        self._last_heartbeat[sysid] = msg
-        if new:
-            try:
-                self.registry.claim(sysid, self)
-            except LinkError as exc:
-                self._record_error(sysid, exc)
-        for entry in list(self._hb_waiters):
-            want, fut = entry
-            if not fut.done() and (want == sysid or (want is None and sysid not in self._handlers)):
-                fut.set_result((sysid, msg))
-
-    def _report_duplicate(self, sysid: int, detail: str) -> None:
-        if any(getattr(e, "sysid", None) == sysid for e in self.errors):
-            return
-        self._record_error(sysid, LinkError(f"duplicate MAVLink system id {sysid} on {self.uri!r}: {detail}"))
-
-    def _record_error(self, sysid: int, exc: LinkError) -> None:
-        exc.sysid = sysid
-        self.counters["duplicate_sysid"] += 1
-        self.errors.append(exc)
-        handler = self._handlers.get(sysid)
-        if handler is not None:
-            handler[1](exc)
-
-    # ------------------------------------------------------------------ sending
-    def _encoder(self, peer) -> mavlink.MAVLink:
-        enc = self._encoders.get(peer)
-        if enc is None:
-            enc = self._encoders[peer] = mavlink.MAVLink(None, srcSystem=self.gcs_sysid,
-                                                         srcComponent=self.gcs_compid)
-            if self.signing_state is not None:
-                apply_signing(enc, self.signing_state)
-        return enc
-
-    def _send_setup_signing(self, sysid: int, compid: int, peer) -> None:
-        """Give our key to a vehicle heard unsigned (at most once per clock second)."""
-        now = self.clock.time()
-        if now - self._setup_sent_s.get(sysid, -1e18) < 1.0:
-            return
-        self._setup_sent_s[sysid] = now
-        enc = self._encoder(peer)
-        msg = setup_signing_message(sysid, self.signing.key, self.signing_state.timestamp, compid)
-        frame = msg.pack(enc)
-        enc.seq = (enc.seq + 1) & 0xFF
-        if self._transport.send(peer, frame):  # not _send_frame: the key must not go to the tlog
-            self.counters["setup_signing_sent"] += 1
-
-    def send(self, sysid: int, msg) -> bool:
-        """Encode ``msg`` and send it to the address ``sysid`` was last heard from.
-
-        Non-blocking. Returns False (and counts ``unroutable``) when ``sysid`` was never heard
-        and the transport has no default destination.
-        """
-        peer = self._peer_of.get(sysid)
-        if peer is None:
-            peer = self._transport.default_peer()
-            if peer is None:
-                self.counters["unroutable"] += 1
-                return False
-        enc = self._encoder(peer)
-        frame = msg.pack(enc)
-        enc.seq = (enc.seq + 1) & 0xFF
-        return self._send_frame(peer, frame, (sysid,))
-
-    def send_payload(self, sysid: int, msg_id: int, crc_extra: int, payload: bytes) -> bool:
-        """Send an already packed MAVLink 2 payload to ``sysid`` (the fast path for setpoints).
-
-        The endpoint adds the header (our system and component ids, the peer's sequence number),
-        truncates trailing zero bytes as MAVLink 2 requires and appends the CRC; the frame is
-        byte-identical to pymavlink's ``msg.pack``. ``payload`` is the message's fields in wire
-        order, e.g. ``MAVLink_set_position_target_local_ned_message.unpacker.pack(...)``.
-        Same routing, counting and logging as :meth:`send`.
-        """
-        peer = self._peer_of.get(sysid)
-        if peer is None:
-            peer = self._transport.default_peer()
-            if peer is None:
-                self.counters["unroutable"] += 1
-                return False
-        enc = self._encoder(peer)
-        seq = enc.seq
-        enc.seq = (seq + 1) & 0xFF
-        body = payload.rstrip(b"\x00") or b"\x00"
-        frame = _V2_HEADER.pack(0xFD, len(body), 0, 0, seq, self.gcs_sysid, self.gcs_compid,
-                                msg_id & 0xFFFF, msg_id >> 16) + body
-        frame += _crc16(frame, crc_extra).to_bytes(2, "little")
-        if self.signing_state is not None:
-            frame = sign_frame(frame, crc_extra, self.signing_state)
-        return self._send_frame(peer, frame, (sysid,))
-
-    def _send_frame(self, peer, frame: bytes, sysids) -> bool:
-        if not self._transport.send(peer, frame):
-            self.counters["send_errors"] += 1
-            return False
-        self.counters["frames_out"] += 1
-        self.counters["bytes_out"] += len(frame)
-        if self.tlogs is not None:
-            for sysid in sysids:
-                self.tlogs.write(sysid, frame)
-        return True
-
-    def send_heartbeat(self) -> int:
-        """Send one GCS HEARTBEAT to every peer; returns how many were sent."""
-        peers = {}
-        for sysid, peer in self._peer_of.items():
-            peers.setdefault(peer, []).append(sysid)
-        for peer in self._transport.peers():
-            peers.setdefault(peer, [])
-        sent = 0
-        for peer, sysids in peers.items():
-            enc = self._encoder(peer)
-            msg = mavlink.MAVLink_heartbeat_message(
-                _TYPE_GCS, _AUTOPILOT_INVALID, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0,
-                mavlink.MAV_STATE_ACTIVE, 3)
-            frame = msg.pack(enc)
-            enc.seq = (enc.seq + 1) & 0xFF
-            sent += self._send_frame(peer, frame, sysids)
-        return sent
-
-    async def _housekeeping_loop(self) -> None:
-        period_s = 1.0 / self.heartbeat_hz
-        while True:
-            if self.signing_state is not None:
-                refresh_timestamp(self.signing_state, self.clock.time())
-            self.send_heartbeat()
-            if self.tlogs is not None:
-                self.tlogs.flush()
-            await self.clock.sleep(period_s)

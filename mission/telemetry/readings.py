@@ -22,20 +22,33 @@ and either keeps it (a bounded history per vehicle) or rejects it and counts the
 
 Time alignment: :meth:`ReadingStore.aligned` returns, for an estimation instant ``t``, each
 vehicle's reading nearest ``t`` within ``window_s``, with the position where it was taken in the
-mission ENU frame (converted with :mod:`formation.geodesy`).
+mission ENU frame (converted with :mod:`formation.geodesy` / :mod:`pymap3d`).
+
+The wire format (schema, keys, :func:`decode_reading`, :class:`Reading`) lives in
+:mod:`mission.telemetry.reading_format` and is re-exported here.
 """
 from __future__ import annotations
 
 import bisect
-import json
 import math
 import threading
 from collections import deque
-from dataclasses import dataclass
 from typing import Callable, Iterable
 
 import numpy as np
+import pymap3d
 
+from formation.geodesy import geodetic_to_ecef
+from mission.telemetry.reading_format import (
+    REJECT_REASONS,
+    SCHEMA,
+    Reading,
+    ReadingRejected,
+    decode_reading,
+    sensor_key,
+    sensor_key_expr,
+    sysid_from_key,
+)
 
 __all__ = [
     "SCHEMA",
@@ -49,167 +62,33 @@ __all__ = [
     "ReadingSubscriber",
 ]
 
-SCHEMA = "swarmseek.sensor.v1"
-REJECT_REASONS = ("malformed", "wrong_schema", "wrong_fleet", "bad_key", "unknown_vehicle",
-                  "sysid_mismatch", "not_finite", "duplicate", "old_seq", "late", "position_far")
-_FIELDS = {"schema": str, "fleet": str, "sysid": int, "seq": int, "time_s": float,
-           "lat_deg": float, "lon_deg": float, "alt_m": float, "value": float}
 
+class _EnuConverter:
+    """Geodetic -> mission ENU for one point at a time (WGS-84 maths of :mod:`pymap3d`).
 
-class ReadingRejected(ValueError):
-    """A reading that cannot be used; ``reason`` is one of :data:`REJECT_REASONS`."""
-
-    def __init__(self, reason: str, detail: str):
-        self.reason = reason
-        super().__init__(f"{reason}: {detail}")
-
-
-@dataclass(frozen=True)
-class Reading:
-    """One accepted sensor reading.
-
-    Attributes
-    ----------
-    sysid, seq : int
-    time_s : float
-        Sender's clock when the sample was taken.
-    lat_deg, lon_deg, alt_m : float
-        Where it was taken.
-    value : float
-    position_enu_m : numpy.ndarray
-        Where it was taken, mission ENU frame.
-    received_s : float
-        Mission clock when it was accepted.
-    """
-
-    sysid: int
-    seq: int
-    time_s: float
-    lat_deg: float
-    lon_deg: float
-    alt_m: float
-    value: float
-    position_enu_m: np.ndarray
-    received_s: float
-
-    def to_json(self) -> dict:
-        """A JSON-friendly dict (for the mission log)."""
-        return {"sysid": self.sysid, "seq": self.seq, "time_s": self.time_s, "value": self.value,
-                "position_enu_m": [round(float(x), 4) for x in self.position_enu_m]}
-
-
-def sensor_key(fleet: str, sysid: int) -> str:
-    """``swarmseek/<fleet>/vehicle/<sysid>/sensor``."""
-    return f"swarmseek/{fleet}/vehicle/{sysid}/sensor"
-
-
-def sensor_key_expr(fleet: str) -> str:
-    """Key expression matching every vehicle's readings of a fleet."""
-    return f"swarmseek/{fleet}/vehicle/*/sensor"
-
-
-def _sysid_from_key(key: str, fleet: str) -> int:
-    parts = key.split("/")
-    if (len(parts) != 5 or parts[0] != "swarmseek" or parts[1] != fleet or parts[2] != "vehicle"
-            or parts[4] != "sensor"):
-        raise ReadingRejected("bad_key", f"unexpected key {key!r}")
-    chunk = parts[3]
-    # the canonical decimal form only (as sensor_key writes it): no sign, leading zero,
-    # whitespace, underscore or non-ASCII digit, which int() would all accept
-    if not (len(chunk) <= 3 and chunk.isascii() and chunk.isdigit() and chunk == str(int(chunk))):
-        raise ReadingRejected("bad_key", f"sysid {chunk[:12]!r} in key {key[:80]!r} is not a canonical "
-                              "integer")
-    sysid = int(chunk)
-    if not 1 <= sysid <= 255:
-        raise ReadingRejected("bad_key", f"sysid {sysid} in key {key!r} is out of range")
-    return sysid
-
-
-def decode_reading(payload: bytes | str) -> dict:
-    """Decode and type-check one payload (no fleet or vehicle checks).
+    The origin's ECEF position, its latitude and longitude in radians and the WGS-84 ellipsoid
+    are kept once; each call is one ``pymap3d.geodetic2ecef`` and one ``pymap3d.uvw2enu``
+    (rotation into the tangent plane): the result of :func:`formation.geodesy.geodetic_to_enu`
+    at about a third of its cost on a single point.
 
     Parameters
     ----------
-    payload : bytes or str
-        UTF-8 JSON.
-
-    Returns
-    -------
-    dict
-        The fields of the schema, typed (``sysid``, ``seq`` int; the rest float / str).
-
-    Raises
-    ------
-    ReadingRejected
-        ``malformed``, ``wrong_schema`` or ``not_finite``.
+    origin : tuple of float
+        Mission origin ``(lat_deg, lon_deg, alt_m)``.
     """
-    try:
-        if isinstance(payload, memoryview):
-            payload = bytes(payload)
-        text = payload.decode("utf-8") if isinstance(payload, (bytes, bytearray)) else payload
-        doc = json.loads(text)
-    except (UnicodeDecodeError, ValueError, TypeError, RecursionError) as exc:
-        raise ReadingRejected("malformed", f"not UTF-8 JSON ({type(exc).__name__})") from None
-    if not isinstance(doc, dict):
-        raise ReadingRejected("malformed", f"expected a JSON object, got {type(doc).__name__}")
-    if doc.get("schema") != SCHEMA:
-        raise ReadingRejected("wrong_schema", f"schema {str(doc.get('schema'))[:40]!r}, expected {SCHEMA!r}")
-    out: dict = {}
-    for name, kind in _FIELDS.items():
-        if name not in doc:
-            raise ReadingRejected("malformed", f"field {name!r} missing")
-        v = doc[name]
-        if kind is str:
-            if not isinstance(v, str):
-                raise ReadingRejected("malformed", f"field {name!r} must be a string")
-        elif isinstance(v, bool) or not isinstance(v, (int, float)):
-            # json.loads turns NaN / Infinity literals into floats; strings are malformed
-            raise ReadingRejected("malformed", f"field {name!r} must be a number")
-        elif kind is int:
-            if not isinstance(v, int):
-                if isinstance(v, float) and math.isfinite(v) and v.is_integer():
-                    v = int(v)
-                else:
-                    raise ReadingRejected("malformed", f"field {name!r} must be an integer")
-        else:
-            try:
-                v = float(v)
-            except OverflowError:  # a JSON integer beyond the float range (> ~1.8e308)
-                raise ReadingRejected("not_finite", f"field {name!r} is too large for a float") from None
-            if not math.isfinite(v):
-                raise ReadingRejected("not_finite", f"field {name!r} is {v}")
-        out[name] = v
-    if not (-90.0 <= out["lat_deg"] <= 90.0 and -180.0 <= out["lon_deg"] <= 180.0):
-        raise ReadingRejected("malformed", "latitude/longitude out of range")
-    return out
-
-
-class _EnuConverter:
-    """Geodetic -> mission ENU for one point at a time, in plain floats (about 5x faster than
-    :func:`formation.geodesy.geodetic_to_enu` on scalars; same WGS-84 maths)."""
 
     def __init__(self, origin):
-        from formation.geodesy import WGS84_A_M, WGS84_F
-
-        self._a = WGS84_A_M
-        self._e2 = WGS84_F * (2.0 - WGS84_F)
-        lat0, lon0, alt0 = (float(v) for v in origin)
-        self._o = self._ecef(lat0, lon0, alt0)
-        sl, cl = math.sin(math.radians(lat0)), math.cos(math.radians(lat0))
-        so, co = math.sin(math.radians(lon0)), math.cos(math.radians(lon0))
-        self._rows = ((-so, co, 0.0), (-sl * co, -sl * so, cl), (cl * co, cl * so, sl))
-
-    def _ecef(self, lat_deg, lon_deg, alt_m):
-        lat, lon = math.radians(lat_deg), math.radians(lon_deg)
-        s = math.sin(lat)
-        n = self._a / math.sqrt(1.0 - self._e2 * s * s)
-        c = math.cos(lat)
-        return ((n + alt_m) * c * math.cos(lon), (n + alt_m) * c * math.sin(lon), (n * (1.0 - self._e2) + alt_m) * s)
+        lat0_deg, lon0_deg, alt0_m = (float(v) for v in origin)
+        self._ellipsoid = pymap3d.Ellipsoid.from_name("wgs84")
+        self._lat0_rad, self._lon0_rad = math.radians(lat0_deg), math.radians(lon0_deg)
+        self._origin_ecef_m = tuple(float(v) for v in geodetic_to_ecef(lat0_deg, lon0_deg, alt0_m))
 
     def __call__(self, lat_deg, lon_deg, alt_m) -> np.ndarray:
-        x, y, z = self._ecef(lat_deg, lon_deg, alt_m)
-        d = (x - self._o[0], y - self._o[1], z - self._o[2])
-        return np.array([r[0] * d[0] + r[1] * d[1] + r[2] * d[2] for r in self._rows])
+        """ENU metres ``(east, north, up)`` of one geodetic point."""
+        x_m, y_m, z_m = pymap3d.geodetic2ecef(lat_deg, lon_deg, alt_m, self._ellipsoid)
+        x0_m, y0_m, z0_m = self._origin_ecef_m
+        return np.array(pymap3d.uvw2enu(x_m - x0_m, y_m - y0_m, z_m - z0_m, self._lat0_rad, self._lon0_rad,
+                                        deg=False))
 
 
 class ReadingStore:
@@ -285,7 +164,7 @@ class ReadingStore:
         return reading
 
     def _validate(self, key: str, payload) -> Reading:
-        key_sysid = _sysid_from_key(str(key), self.fleet)
+        key_sysid = sysid_from_key(str(key), self.fleet)
         doc = decode_reading(payload)
         if doc["fleet"] != self.fleet:
             raise ReadingRejected("wrong_fleet", f"fleet {doc['fleet'][:40]!r}, expected {self.fleet!r}")

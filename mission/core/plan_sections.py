@@ -1,0 +1,198 @@
+"""Parsers of the plan's sections (``[origin]``, ``[[vehicles]]``, ``[formation]``, ``[seeking]``,
+``[geofence]``, ``[faults]``, ``[security]``).
+
+Each takes the :class:`~mission.core.plan_checks.Checker` that collects problems and the decoded
+TOML document, records every invalid key of its section and returns the section's value (None
+when it is invalid). :func:`mission.core.plan.parse_plan` calls them and adds the checks that span
+sections.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from formation.geodesy import geodetic_to_enu
+from mission.core.plan_checks import Checker, check_connection, polygon_area, show_value
+from mission.core.plan_types import FaultsPlan, FormationPlan, GeofencePlan, SeekingPlan, VehiclePlan
+from mission.core.signing_config import SigningConfig, signing_config_from_table
+from mission.core.signing_keys import SigningError
+
+__all__ = [
+    "RETURN_BEHAVIOURS",
+    "parse_faults",
+    "parse_origin",
+    "parse_vehicles",
+    "parse_formation",
+    "parse_seeking",
+    "parse_geofence",
+    "parse_security",
+]
+
+_FORMATIONS = ("cvt", "symmetric")
+_ESTIMATORS = ("cvt", "symmetric", "robust")
+#: values of the top-level ``return`` key
+RETURN_BEHAVIOURS = ("land", "rtl")
+_FAULTY_SENSOR = ("retire", "keep")
+
+
+def parse_faults(c: Checker, doc: dict) -> FaultsPlan:
+    """``[faults]``: vehicle-loss and faulty-sensor handling (defaults when absent)."""
+    t = c.table(doc, "faults")
+    c.unknown(t, ("readmit", "link_timeout_s", "faulty_sensor", "retire_after", "retire_min_noise_ratio"),
+              "faults")
+    readmit = t.get("readmit", False)
+    if not isinstance(readmit, bool):
+        c.bad("faults.readmit", f"must be true or false, got {show_value(readmit)}")
+        readmit = False
+    timeout = c.number(t, "link_timeout_s", "faults", 1.0, low=0.2, high=1.4)
+    d = FaultsPlan()
+    faulty = c.string(t, "faulty_sensor", "faults", d.faulty_sensor, choices=_FAULTY_SENSOR)
+    after = c.number(t, "retire_after", "faults", d.retire_after, low=1, high=10000, integer=True)
+    ratio = c.number(t, "retire_min_noise_ratio", "faults", d.retire_min_noise_ratio, low=1.0, high=100.0)
+    return FaultsPlan(readmit=readmit, link_timeout_s=1.0 if timeout is None else timeout,
+                      faulty_sensor=faulty, retire_after=after, retire_min_noise_ratio=ratio)
+
+
+def parse_origin(c: Checker, doc: dict):
+    """``[origin]`` (required): ``(lat_deg, lon_deg, alt_m)``, or None if invalid."""
+    t = c.table(doc, "origin", required=True)
+    c.unknown(t, ("lat_deg", "lon_deg", "alt_m"), "origin")
+    lat = c.number(t, "lat_deg", "origin", low=-90, high=90, required=True)
+    lon = c.number(t, "lon_deg", "origin", low=-180, high=180, required=True)
+    alt = c.number(t, "alt_m", "origin", 0.0, low=-500, high=9000)
+    if None in (lat, lon, alt):
+        return None
+    return (lat, lon, alt)
+
+
+def parse_vehicles(c: Checker, doc: dict) -> list[VehiclePlan]:
+    """``[[vehicles]]``: id, sysid and connection of each; duplicates are problems."""
+    raw = doc.get("vehicles")
+    if raw is None:
+        c.bad("vehicles", "required: at least 4 [[vehicles]] entries")
+        return []
+    if not isinstance(raw, list) or not all(isinstance(v, dict) for v in raw):
+        c.bad("vehicles", "expected an array of tables ([[vehicles]])")
+        return []
+    out: list[VehiclePlan] = []
+    seen_ids: dict[str, int] = {}
+    seen_sysids: dict[int, int] = {}
+    for i, v in enumerate(raw):
+        prefix = f"vehicles[{i}]"
+        c.unknown(v, ("id", "sysid", "connection"), prefix)
+        sysid = c.number(v, "sysid", prefix, low=1, high=254, required=True, integer=True)
+        vid = c.string(v, "id", prefix, f"v{sysid}" if sysid is not None else None)
+        conn = c.string(v, "connection", prefix, required=True)
+        if conn is not None:
+            why = check_connection(conn)
+            if why:
+                c.bad(f"{prefix}.connection", why)
+                conn = None
+        if vid is not None and vid in seen_ids:
+            c.bad(f"{prefix}.id", f"duplicate id {vid!r} (also vehicles[{seen_ids[vid]}])")
+        if sysid is not None and sysid in seen_sysids:
+            c.bad(f"{prefix}.sysid", f"duplicate sysid {sysid} (also vehicles[{seen_sysids[sysid]}])")
+        if None in (sysid, vid, conn):
+            continue
+        seen_ids.setdefault(vid, i)
+        seen_sysids.setdefault(sysid, i)
+        out.append(VehiclePlan(id=vid, sysid=sysid, connection=conn))
+    return out
+
+
+def parse_formation(c: Checker, doc: dict) -> FormationPlan | None:
+    """``[formation]``: type, radius and seed, or None if invalid."""
+    t = c.table(doc, "formation")
+    c.unknown(t, ("type", "radius_m", "seed"), "formation")
+    kind = c.string(t, "type", "formation", "cvt", choices=_FORMATIONS)
+    radius = c.number(t, "radius_m", "formation", 4.0, low=0, low_open=True, high=500)
+    seed = c.number(t, "seed", "formation", 0, low=0, integer=True)
+    if None in (kind, radius, seed):
+        return None
+    return FormationPlan(type=kind, radius_m=radius, seed=seed)
+
+
+def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
+    """``[seeking]``: the source-seeking parameters, or None if invalid."""
+    t = c.table(doc, "seeking")
+    p = "seeking"
+    c.unknown(t, tuple(SeekingPlan.__dataclass_fields__), p)
+    d = SeekingPlan()
+    vals = dict(
+        eps=c.number(t, "eps", p, d.eps, low=0, low_open=True),
+        gamma_m=c.number(t, "gamma_m", p, d.gamma_m, low=0, low_open=True, high=100),
+        estimator=c.string(t, "estimator", p, d.estimator, choices=_ESTIMATORS),
+        rate_hz=c.number(t, "rate_hz", p, d.rate_hz, low=0, low_open=True, high=50),
+        max_iterations=c.number(t, "max_iterations", p, d.max_iterations, low=1, integer=True),
+        convergence_tol_m=c.number(t, "convergence_tol_m", p, d.convergence_tol_m, low=0, low_open=True),
+        convergence_window=c.number(t, "convergence_window", p, d.convergence_window, low=8, integer=True),
+        altitude_m=c.number(t, "altitude_m", p, d.altitude_m),
+        arrival_tol_m=c.number(t, "arrival_tol_m", p, d.arrival_tol_m, low=0, low_open=True),
+        reading_window_s=c.number(t, "reading_window_s", p, d.reading_window_s, low=0, low_open=True),
+        max_reading_age_s=c.number(t, "max_reading_age_s", p, d.max_reading_age_s, low=0, low_open=True),
+        max_position_error_m=c.number(t, "max_position_error_m", p, d.max_position_error_m,
+                                      low=0, low_open=True),
+    )
+    start = c.point(t, "start_enu_m", p, 3)
+    if None in vals.values():
+        return None
+    return SeekingPlan(start_enu_m=start, **vals)
+
+
+def parse_geofence(c: Checker, doc: dict, origin) -> GeofencePlan | None:
+    """``[geofence]`` (required): polygon (mission ENU or lat/lon, converted about ``origin``) and
+    altitude band, or None if invalid."""
+    t = c.table(doc, "geofence")
+    p = "geofence"
+    c.unknown(t, ("polygon_enu_m", "polygon_latlon_deg", "min_alt_m", "max_alt_m"), p)
+    lo = c.number(t, "min_alt_m", p, 2.0)
+    hi = c.number(t, "max_alt_m", p, 120.0)
+    if lo is not None and hi is not None and lo >= hi:
+        c.bad(f"{p}.max_alt_m", f"must be greater than min_alt_m ({lo}), got {hi}")
+        hi = None
+    if "polygon_enu_m" in t and "polygon_latlon_deg" in t:
+        c.bad(p, "give polygon_enu_m or polygon_latlon_deg, not both")
+        return None
+    polygon: list[tuple[float, float]] = []
+    for key in ("polygon_enu_m", "polygon_latlon_deg"):
+        if key not in t:
+            continue
+        raw = t[key]
+        path = f"{p}.{key}"
+        if not isinstance(raw, list) or len(raw) < 3:
+            c.bad(path, f"expected a list of at least 3 [x, y] vertices, got {show_value(raw)}")
+            return None
+        for j, vertex in enumerate(raw):
+            pt = c.point({"v": vertex}, "v", f"{path}[{j}]", 2)
+            if pt is None:
+                continue
+            if key == "polygon_latlon_deg":
+                if not (-90 <= pt[0] <= 90 and -180 <= pt[1] <= 180):
+                    c.bad(f"{path}[{j}]", f"latitude/longitude out of range: {pt}")
+                    continue
+                if origin is None:
+                    continue
+                e, n, _ = geodetic_to_enu(pt[0], pt[1], origin[2], origin)
+                pt = (float(e), float(n))
+            polygon.append(pt)
+        if len(polygon) != len(raw):
+            return None
+        if abs(polygon_area(polygon)) < 1e-6:
+            c.bad(path, "the polygon has zero area")
+            return None
+    if "polygon_enu_m" not in t and "polygon_latlon_deg" not in t:
+        c.bad(p, "required: a polygon_enu_m or polygon_latlon_deg of at least 3 vertices")
+        return None
+    if lo is None or hi is None:
+        return None
+    return GeofencePlan(polygon_en_m=tuple(polygon), min_alt_m=lo, max_alt_m=hi)
+
+
+def parse_security(c: Checker, doc: dict, base_dir: Path | None) -> SigningConfig | None:
+    """``[security]``: MAVLink 2 signing (see :func:`mission.core.signing_config.signing_config_from_table`)."""
+    t = c.table(doc, "security")
+    try:
+        return signing_config_from_table(t, base_dir)
+    except SigningError as exc:
+        for key, why in exc.problems:
+            c.bad(key, why)
+        return None

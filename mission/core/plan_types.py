@@ -1,0 +1,190 @@
+"""The mission plan's data model: one frozen dataclass per section, the plan and its error.
+
+What :func:`mission.core.plan.parse_plan` builds once every key is valid. Everything here is
+re-exported by :mod:`mission.core.plan`, where the file format is described.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from mission.core.signing_config import SigningConfig
+from mission.core.zenoh_config import ZenohPlan
+
+__all__ = [
+    "PLAN_VERSION",
+    "PlanError",
+    "VehiclePlan",
+    "FaultsPlan",
+    "FormationPlan",
+    "SeekingPlan",
+    "GeofencePlan",
+    "ZenohPlan",
+    "Plan",
+    "replace_plan",
+]
+
+PLAN_VERSION = 1
+
+
+class PlanError(ValueError):
+    """An invalid plan; ``problems`` lists ``(key_path, why)`` for every invalid key.
+
+    Parameters
+    ----------
+    problems : list of (str, str)
+        Dotted key path (e.g. ``vehicles[2].sysid``) and a reason.
+    source : str, optional
+        File name, for the message.
+    """
+
+    def __init__(self, problems: list[tuple[str, str]], source: str | None = None):
+        self.problems = list(problems)
+        where = f" in {source}" if source else ""
+        lines = [f"  {key}: {why}" for key, why in self.problems]
+        super().__init__(f"invalid plan{where} ({len(self.problems)} problem"
+                         f"{'s' if len(self.problems) != 1 else ''}):\n" + "\n".join(lines))
+
+
+@dataclass(frozen=True)
+class VehiclePlan:
+    """One vehicle: a name, its MAVLink system id and connection string."""
+
+    id: str
+    sysid: int
+    connection: str
+
+
+@dataclass(frozen=True)
+class FormationPlan:
+    """Formation type (``cvt`` or ``symmetric``), radius ``D`` in metres, CVT seed."""
+
+    type: str = "cvt"
+    radius_m: float = 4.0
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class SeekingPlan:
+    """Source-seeking parameters.
+
+    Attributes
+    ----------
+    eps : float
+        Gain of the step ``eps * grad`` (paper: 1).
+    gamma_m : float
+        Largest centre move per iteration (paper: 0.1).
+    estimator : str
+        ``cvt`` (Theorem 2 on the actual positions), ``symmetric`` (eq. 3) or ``robust``.
+    rate_hz : float
+        Highest estimation rate (iterations per second of mission clock).
+    max_iterations : int
+        The mission stops seeking after this many iterations (not converged).
+    convergence_tol_m, convergence_window : float, int
+        Converged when the centre's spread over the last ``window`` iterations is below tol.
+    start_enu_m : tuple of float or None
+        Formation centre where seeking starts (mission ENU); ``None``: above the origin at
+        ``altitude_m``.
+    altitude_m : float
+        Up coordinate of the start point when ``start_enu_m`` is not given.
+    arrival_tol_m : float
+        A vehicle is "at its slot" within this distance.
+    reading_window_s : float
+        Readings used for an estimation instant are at most this far from it.
+    max_reading_age_s : float
+        Readings older than this (by the mission clock) are rejected as late.
+    max_position_error_m : float
+        Readings taken farther than this from the vehicle's telemetry position are rejected.
+    """
+
+    eps: float = 1.0
+    gamma_m: float = 0.1
+    estimator: str = "cvt"
+    rate_hz: float = 2.0
+    max_iterations: int = 300
+    convergence_tol_m: float = 0.5
+    convergence_window: int = 12
+    start_enu_m: tuple[float, float, float] | None = None
+    altitude_m: float = 10.0
+    arrival_tol_m: float = 0.5
+    reading_window_s: float = 0.5
+    max_reading_age_s: float = 5.0
+    max_position_error_m: float = 10.0
+
+    def start_point(self) -> np.ndarray:
+        """Start of the formation centre, ENU metres."""
+        if self.start_enu_m is not None:
+            return np.asarray(self.start_enu_m, dtype=float)
+        return np.array([0.0, 0.0, self.altitude_m])
+
+
+@dataclass(frozen=True)
+class GeofencePlan:
+    """Geofence: polygon vertices (east_m, north_m) in the mission frame and altitude band (up_m)."""
+
+    polygon_en_m: tuple[tuple[float, float], ...] = ()
+    min_alt_m: float = 2.0
+    max_alt_m: float = 120.0
+
+
+@dataclass(frozen=True)
+class FaultsPlan:
+    """Vehicle-loss handling (``[faults]``): see ``docs/faults.md``.
+
+    Attributes
+    ----------
+    readmit : bool
+        A lost vehicle whose link comes back is kept out and commanded to land / RTL per
+        ``return`` (False, the default); True: re-admitted into the formation if it comes back
+        during the seek, armed and airborne (``mission.flight.rejoin``).
+    link_timeout_s : float
+        A vehicle silent for this long (mission clock) is lost (default 1.0; detection within
+        ``link_timeout_s`` + 0.1 s).
+    faulty_sensor : {"retire", "keep"}
+        With the ``robust`` estimator: a sensor it names for one of the reasons of
+        :class:`estimator.retire.SensorRetirement` (stuck; noisy at 3x the median) for
+        ``retire_after`` consecutive iterations is retired, its vehicle parked at the
+        formation centre and the others re-formed (``retire``, the default,
+        :mod:`mission.flight.retire`); ``keep``: the vehicle keeps its slot, its sensor down-weighted.
+    retire_after : int
+        Consecutive iterations a sensor must be named before it is retired (default 20).
+    retire_min_noise_ratio : float
+        A ``noisy`` sensor counts only while its estimated noise std is at least this many times
+        the median's (``min_noise_ratio`` of the rule; default 3.0, >= 1).
+    """
+
+    readmit: bool = False
+    link_timeout_s: float = 1.0
+    faulty_sensor: str = "retire"
+    retire_after: int = 20
+    retire_min_noise_ratio: float = 3.0
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A validated mission plan (see the module docstring)."""
+
+    fleet: str
+    origin: tuple[float, float, float]
+    vehicles: tuple[VehiclePlan, ...]
+    formation: FormationPlan = FormationPlan()
+    seeking: SeekingPlan = SeekingPlan()
+    geofence: GeofencePlan = GeofencePlan()
+    zenoh: ZenohPlan = ZenohPlan()
+    security: SigningConfig | None = None
+    max_speed_m_s: float = 3.0
+    min_separation_m: float = 1.5
+    takeoff_alt_m: float = 10.0
+    return_behaviour: str = "land"
+    stagger_s: float = 1.0
+    setpoint_rate_hz: float = 10.0
+    heartbeat_timeout_s: float = 10.0
+    min_battery_pct: float = 30.0
+    version: int = PLAN_VERSION
+    faults: FaultsPlan = FaultsPlan()
+
+
+def replace_plan(plan: Plan, **sections) -> Plan:
+    """Return a copy of ``plan`` with top-level fields replaced (e.g. ``seeking=...``)."""
+    return replace(plan, **sections)
