@@ -9,14 +9,12 @@ import socket
 import time
 
 import pytest
+from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
+from mavsdk.plugins.action import Action
+from mavsdk.plugins.offboard import Offboard, PositionNedYaw
+from mavsdk.plugins.telemetry import FlightMode, Telemetry
 
-mavsdk = pytest.importorskip("mavsdk")
-from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk  # noqa: E402
-from mavsdk.plugins.action import Action  # noqa: E402
-from mavsdk.plugins.offboard import Offboard, PositionNedYaw  # noqa: E402
-from mavsdk.plugins.telemetry import FlightMode, Telemetry  # noqa: E402
-
-from sitl_mock.fleet import MockFleet  # noqa: E402
+from sitl_mock.fleet import MockFleet
 
 
 def _free_udp_port() -> int:

@@ -8,12 +8,11 @@ import time
 
 import numpy as np
 import pytest
+import zenoh
 
-zenoh = pytest.importorskip("zenoh")
-
-from sitl_mock.faults import FaultSet  # noqa: E402
-from sitl_mock.fields import sigma2  # noqa: E402
-from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key, zenoh_config  # noqa: E402
+from sitl_mock.faults import FaultSet
+from sitl_mock.fields import sigma2
+from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key, zenoh_config
 
 TIMEOUT_S = 30.0
 

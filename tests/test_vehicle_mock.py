@@ -10,13 +10,12 @@ import socket
 import numpy as np
 import pytest
 
+import sitl_mock.clock as clock_mod
+import sitl_mock.fleet as fleet_mod
 from mission.link.endpoint import MavEndpoint, SysidRegistry
 from mission.link.poller import UdpPoller
 from mission.vehicle.streamer import SetpointStreamer
 from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, CommandError, VehicleLink
-
-fleet_mod = pytest.importorskip("sitl_mock.fleet")
-clock_mod = pytest.importorskip("sitl_mock.clock")
 
 SPEEDUP = 4.0
 HOMES_ENU = [(0.0, 0.0, 0.0), (12.0, -7.0, 0.0)]
