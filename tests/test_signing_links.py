@@ -1,14 +1,10 @@
 """Signing end to end through the ground station's links (``mission.link.endpoint`` + ``mission.vehicle.vehicle_link``)
 and the mock fleet: SETUP_SIGNING provisioning, and forged, unsigned and replayed telemetry
 injected at the ground station's port change nothing and are counted.
-
-Skipped until ``MavEndpoint.open`` takes ``signing=`` (the change described with
-:mod:`mission.link.signing`).
 """
 from __future__ import annotations
 
 import asyncio
-import inspect
 import socket
 
 import pytest
@@ -19,9 +15,6 @@ from mission.link.signing import SigningConfig, apply_signing
 from mission.vehicle.vehicle_link import VehicleLink
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import make_parser
-
-pytestmark = pytest.mark.skipif("signing" not in inspect.signature(MavEndpoint.open).parameters,
-                                reason="mission.link.endpoint.MavEndpoint has no signing= yet")
 
 KEY = bytes(range(1, 33))
 OTHER_KEY = bytes(range(101, 133))
