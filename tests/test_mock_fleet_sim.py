@@ -84,7 +84,7 @@ def test_sensor_readings_published_over_zenoh_and_crash_stops_them():
                 assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
             fleet.set_fault(2, "crashed", True)
             crash_time = fleet.clock.time()
-            fleet.wait_for_sim_time(crash_time + 2.0)
+            assert fleet.wait_for_sim_time(crash_time + 2.0)
             late = []
             stop_at = time.monotonic() + 1.0
             while time.monotonic() < stop_at:  # readings keep coming from vehicle 1
