@@ -26,6 +26,7 @@ from mission.core.clock import WallClock
 from mission.link.endpoint import MavEndpoint, parse_connection
 from mission.link.poller import UdpPoller
 from mission.vehicle.vehicle_link import VehicleLink
+from wait_helpers import wait_until_async
 
 _M = mavlink
 #: NaN and infinite telemetry make numpy warn while the state is updated; that is expected here
@@ -260,15 +261,6 @@ def _garbage_datagrams(count: int, seed: int) -> list[bytes]:
     return out
 
 
-async def _until(predicate, timeout_s: float, what: str) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout_s
-    while not predicate():
-        if loop.time() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.01)
-
-
 @pytest.mark.parametrize("use_poller", [False, True], ids=["asyncio-transport", "udp-poller"])
 def test_garbage_datagrams_to_an_endpoint_are_counted_and_it_still_hears_heartbeats(use_poller):
     garbage = _garbage_datagrams(400, seed=11)
@@ -290,8 +282,8 @@ def test_garbage_datagrams_to_an_endpoint_are_counted_and_it_still_hears_heartbe
                 for data in garbage[start:start + 25]:
                     sender.sendto(data)
                 want = expected[min(start + 25, len(garbage)) - 1]
-                await _until(lambda: (_counts(ep)[0], _counts(ep)[2]) == want, 30.0,
-                             f"{want} garbage frames / truncated datagrams counted")
+                await wait_until_async(lambda: (_counts(ep)[0], _counts(ep)[2]) == want, 30.0,
+                                       f"{want} garbage frames / truncated datagrams counted")
             assert ep.counters["frames_in"] == ep.counters["unknown_msgid"]   # nothing decoded
             assert ep.counters["bad_crc"] > 50 and ep.counters["malformed"] > 50
             sender.sendto(encode(_heartbeat(), 7, 1))
@@ -322,9 +314,9 @@ def test_one_poisonous_datagram_does_not_stop_a_polled_endpoint():
             home = _M.MAVLink_home_position_message(451900000, 57200000, 230000, 1e30, 0, 0, [1, 0, 0, 0],
                                                     0, 0, 0)
             sender.sendto(encode(home, SYSID, 1))
-            await _until(lambda: ep.counters["frames_in"] >= 2, 10.0, "the HOME_POSITION")
+            await wait_until_async(lambda: ep.counters["frames_in"] >= 2, 10.0, "the HOME_POSITION")
             sender.sendto(encode(_heartbeat(), SYSID, 1))
-            await _until(lambda: ep.counters["frames_in"] >= 3, 20.0, "a heartbeat after it")
+            await wait_until_async(lambda: ep.counters["frames_in"] >= 3, 20.0, "a heartbeat after it")
             assert vl.rejected == {"HOME_POSITION": 1} and ep.counters["handler_errors"] == 0
         finally:
             sender.close()

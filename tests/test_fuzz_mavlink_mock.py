@@ -33,6 +33,7 @@ from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import VehicleLinks, make_parser
 from fuzz_helpers import (run_autopilot, ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad, is_valid_for, message_class,
                           mutated, reference_parse, state_repr)
+from wait_helpers import wait_until
 
 _M = mavlink
 SYSID = 1
@@ -408,14 +409,6 @@ def _await_ack(sock, peer, frame: bytes, command: int, timeout_s: float = 30.0):
     raise AssertionError(f"no COMMAND_ACK for command {command} within {timeout_s} s")
 
 
-def _wait_for(predicate, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.01)
-
-
 def test_garbage_datagrams_to_a_running_vehicle_are_counted_and_it_still_answers():
     garbage = _garbage_datagrams(400, seed=5)
     expected = []             # (frames, truncated datagrams) the vehicle must account for, cumulative
@@ -442,9 +435,9 @@ def test_garbage_datagrams_to_a_running_vehicle_are_counted_and_it_still_answers
             for data in garbage[start:start + 25]:
                 attacker.sendto(data, peer)
             want, want_truncated = expected[min(start + 25, len(garbage)) - 1]
-            _wait_for(lambda: (sum(vehicle.counters.get(n, 0) for n in _COUNTED) - counted0 >= want
-                               and vehicle.counters.get("rx_truncated", 0) - truncated0 >= want_truncated),
-                      30.0, f"{want} garbage frames and {want_truncated} truncated datagrams counted")
+            wait_until(lambda: (sum(vehicle.counters.get(n, 0) for n in _COUNTED) - counted0 >= want
+                                and vehicle.counters.get("rx_truncated", 0) - truncated0 >= want_truncated),
+                       30.0, f"{want} garbage frames and {want_truncated} truncated datagrams counted")
         counters = vehicle.counters
         assert sum(counters.get(n, 0) for n in _COUNTED) - counted0 == expected[-1][0]
         assert counters.get("rx_truncated", 0) - truncated0 == expected[-1][1] > 0

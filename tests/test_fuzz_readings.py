@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 
 import numpy as np
 import pytest
@@ -24,6 +23,7 @@ from mission.sim.embedded import free_port_block
 from mission.telemetry.readings import (REJECT_REASONS, SCHEMA, Reading, ReadingRejected, ReadingStore, ReadingSubscriber,
                               decode_reading, sensor_key)
 from sitl_mock.sensor import encode_reading
+from wait_helpers import wait_until
 
 FLEET = "demo"
 ORIGIN = (45.19, 5.72, 230.0)
@@ -236,14 +236,6 @@ def _garbage_payloads(count: int) -> list[bytes]:
     return out
 
 
-def _wait_for(predicate, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.01)
-
-
 def test_garbage_published_over_zenoh_is_counted_and_a_good_reading_still_gets_in():
     import zenoh
 
@@ -258,14 +250,14 @@ def test_garbage_published_over_zenoh_is_counted_and_a_good_reading_still_gets_i
         pubs = [pub_session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
                 for k in keys]
         for pub in pubs:
-            _wait_for(lambda: pub.matching_status.matching, 30.0, "the subscriber to match")
+            wait_until(lambda: pub.matching_status.matching, 30.0, "the subscriber to match")
         garbage = _garbage_payloads(240)
         for i, payload in enumerate(garbage):
             pubs[i % 3].put(payload)
         pubs[0].put(json.dumps(_doc(seq=10_000)).encode())
         total = len(garbage) + 1
-        _wait_for(lambda: sum(store.counts()["rejected"].values()) + store.counts()["accepted"] >= total,
-                  60.0, f"{total} samples counted")
+        wait_until(lambda: sum(store.counts()["rejected"].values()) + store.counts()["accepted"] >= total,
+                   60.0, f"{total} samples counted")
         counts = store.counts()
         assert counts["accepted"] == 1 and store.latest(3).seq == 10_000
         assert sum(counts["rejected"].values()) == len(garbage)

@@ -12,21 +12,13 @@ from mission.link.endpoint import ConnectionSpec, LinkError, MavEndpoint, SysidR
 from mission.link.poller import UdpPoller
 from mission.vehicle.vehicle_link import VehicleLink
 from mission.vehicle.fake import FakeAutopilot, FakeUdpVehicle
+from wait_helpers import wait_until_async
 
 ORIGIN = (45.0, 5.0, 200.0)
 
 
 def _run(coro, timeout_s: float = 60.0):
     return asyncio.run(asyncio.wait_for(coro, timeout_s))
-
-
-async def _until(predicate, timeout_s: float = 20.0, what: str = "condition") -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout_s
-    while not predicate():
-        if loop.time() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.02)
 
 
 @pytest.mark.parametrize("uri, expected", [
@@ -111,7 +103,7 @@ def test_one_udp_socket_demultiplexes_vehicles_and_addresses_each(n_vehicles, po
                 await v.wait_home(10.0)
                 for _ in range(5):
                     v.send_position_enu([float(v.sysid), 0.0, 10.0])
-            await _until(lambda: all(f.autopilots[0].setpoint_count == 5 for f in fakes), what="setpoints")
+            await wait_until_async(lambda: all(f.autopilots[0].setpoint_count == 5 for f in fakes), what="setpoints")
             # every datagram went only to its own vehicle's socket: the frames each socket saw are
             # its own commands, setpoints and heartbeats only
             for fake, v in zip(fakes, vehicles):
@@ -134,7 +126,7 @@ def test_gcs_heartbeat_reaches_every_vehicle():
         ep = await MavEndpoint.open("udpin:127.0.0.1:0", clock=clock, heartbeat_hz=5.0)
         fakes = await _fleet(ep, [1, 2, 3])
         try:
-            await _until(lambda: all(f.autopilots[0].gcs_heartbeats >= 2 for f in fakes), what="GCS heartbeats")
+            await wait_until_async(lambda: all(f.autopilots[0].gcs_heartbeats >= 2 for f in fakes), what="GCS heartbeats")
             assert ep.counters["frames_out"] >= 6
         finally:
             await _stop(*fakes, ep)
@@ -149,7 +141,7 @@ def test_duplicate_sysid_from_two_addresses_is_an_error_naming_both(polled):
         ep = await MavEndpoint.open("udpin:127.0.0.1:0", clock=clock, poller=poller)
         fakes = await _fleet(ep, [7, 7])
         try:
-            await _until(lambda: ep.errors, what="duplicate detection")
+            await wait_until_async(lambda: ep.errors, what="duplicate detection")
             a, b = (f"{f.address}" for f in fakes)
             message = str(ep.errors[0])
             assert "duplicate MAVLink system id 7" in message and a in message and b in message
@@ -173,7 +165,7 @@ def test_duplicate_sysid_behind_one_address_is_caught_by_autopilot_version_uid()
             vehicle = await VehicleLink.create(ep, 5, clock=clock, mission_origin=ORIGIN)
             with pytest.raises(LinkError, match="duplicate MAVLink system id 5.*uids 0x1111 and 0x2222"):
                 await vehicle.request_autopilot_version()
-                await _until(lambda: vehicle.errors, what="uid duplicate")
+                await wait_until_async(lambda: vehicle.errors, what="uid duplicate")
                 await vehicle.arm()
         finally:
             await _stop(fake, ep)
@@ -215,7 +207,7 @@ def test_garbage_and_bad_crc_are_counted_and_good_frames_still_arrive():
             sender.sendto(good[:7])                    # truncated frame
             sender.sendto(good + b"\x55\x55" + good)   # two good frames around junk
             sysid, heartbeat = await ep.wait_heartbeat(3, 10.0)
-            await _until(lambda: ep.counters["frames_in"] == 2, what="good frames")
+            await wait_until_async(lambda: ep.counters["frames_in"] == 2, what="good frames")
             assert (sysid, heartbeat.autopilot) == (3, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
             assert ep.counters["bad_crc"] == 1
             assert ep.counters["malformed"] >= 2
@@ -262,7 +254,7 @@ async def _exercise_stream_endpoint(ep, fake: _StreamVehicle) -> None:
     await vehicle.set_mode("GUIDED")
     await vehicle.arm()
     assert fake.ap.armed and fake.ap.custom_mode == 4
-    await _until(lambda: fake.ap.gcs_heartbeats >= 1, what="GCS heartbeat over the stream")
+    await wait_until_async(lambda: fake.ap.gcs_heartbeats >= 1, what="GCS heartbeat over the stream")
 
 
 @pytest.mark.parametrize("server_side", ["vehicle", "ground"])
@@ -293,7 +285,7 @@ def test_tcp_client_and_server(server_side):
             reader, writer = await asyncio.open_connection(*ep.local_address)
             announce = asyncio.ensure_future(serve(reader, writer))
         try:
-            await _until(lambda: "fake" in holder, what="connection")
+            await wait_until_async(lambda: "fake" in holder, what="connection")
             await _exercise_stream_endpoint(ep, holder["fake"])
         finally:
             await ep.close()

@@ -358,7 +358,8 @@ def test_set_message_interval_changes_the_stream(msg_id, interval_us, expected_c
 @pytest.mark.parametrize("personality", ["ardupilot", "px4"])
 def test_autopilot_version_has_capabilities_and_uid(personality):
     h = Harness(personality)
-    h.command(mav.MAV_CMD_REQUEST_MESSAGE, mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+    assert h.command(mav.MAV_CMD_REQUEST_MESSAGE, mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION) == \
+        mav.MAV_RESULT_ACCEPTED
     version = [m for m in h.received if m.get_type() == "AUTOPILOT_VERSION"][0]
     for cap in (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2, mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT,
                 mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT,
@@ -388,7 +389,10 @@ def test_sysid_param_takes_effect_after_reboot():
     h.run(2.0)
     assert {m.get_srcSystem() for m in h.received[start:] if m.get_type() == "HEARTBEAT"} == {7}
     assert h.ap.sysid == 7
-    assert h.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, target=7) is not None
+    # answered as system 7, and accepted: STABILIZE allows arming and the 2 s GPS warm-up since
+    # the reboot is over
+    assert h.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, target=7) == mav.MAV_RESULT_ACCEPTED
+    assert h.ap.armed
 
 
 @pytest.mark.parametrize("glitch_m", [0.0, 25.0])

@@ -13,6 +13,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from mission.sim.embedded import free_port_block
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import PortInUseError
+from wait_helpers import wait_until
 
 SPEEDUP = 5.0
 
@@ -26,16 +27,6 @@ def _fleet(n=2, personality="ardupilot", **kw):
     return MockFleet(n, personality=personality, speedup=SPEEDUP,
                      udp_base_port=_free_base(n), udp_bind_base_port=_free_base(n),
                      tcp_base_port=_free_base(n, 10, socket.SOCK_STREAM), **kw)
-
-
-def _wait(predicate, timeout_s=20.0, what="condition"):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def _ack(conn, command, timeout_s=10.0):
@@ -61,7 +52,7 @@ def test_pymavlink_flies_each_personality_over_udp(personality):
         conn = _connect(f"udpin:127.0.0.1:{v.udp_send_port}")
         try:
             assert conn.target_system == 2
-            _wait(lambda: v.autopilot.position_ready(fleet.clock.time()), what="position estimate")
+            wait_until(lambda: v.autopilot.position_ready(fleet.clock.time()), what="position estimate")
             if personality == "ardupilot":
                 conn.mav.command_long_send(2, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, 4, 0, 0, 0, 0, 0)
                 assert _ack(conn, mav.MAV_CMD_DO_SET_MODE) == mav.MAV_RESULT_ACCEPTED
@@ -70,7 +61,7 @@ def test_pymavlink_flies_each_personality_over_udp(personality):
             alt = v.home_geodetic[2] + 8.0 if personality == "px4" else 8.0
             conn.mav.command_long_send(2, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, alt)
             assert _ack(conn, mav.MAV_CMD_NAV_TAKEOFF) == mav.MAV_RESULT_ACCEPTED
-            _wait(lambda: v.true_position_ned()[2] < -7.5, what="takeoff")
+            wait_until(lambda: v.true_position_ned()[2] < -7.5, what="takeoff")
             if personality == "px4":
                 conn.mav.set_position_target_local_ned_send(0, 2, 1, 1, 0b110111111000, 10, 5, -8,
                                                             0, 0, 0, 0, 0, 0, 0, 0)
@@ -82,10 +73,10 @@ def test_pymavlink_flies_each_personality_over_udp(personality):
                                                             0, 0, 0, 0, 0, 0, 0, 0)
                 m = conn.recv_match(type="LOCAL_POSITION_NED", blocking=True, timeout=0.5)
                 return m is not None and abs(m.x - 10) < 0.3 and abs(m.y - 5) < 0.3
-            _wait(converged, 30.0, "LOCAL_POSITION_NED to converge")
+            wait_until(converged, 30.0, "LOCAL_POSITION_NED to converge")
             conn.mav.command_long_send(2, 1, mav.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0)
             assert _ack(conn, mav.MAV_CMD_NAV_LAND) == mav.MAV_RESULT_ACCEPTED
-            _wait(lambda: not v.armed, 30.0, "landing and disarm")
+            wait_until(lambda: not v.armed, 30.0, "landing and disarm")
             assert v.dynamics.landed
             assert fleet.vehicles[0].true_position_ned()[2] == 0.0  # the other vehicle stayed put
         finally:
@@ -118,14 +109,16 @@ def test_link_cut_and_crash_silence_the_vehicle(fault):
         conn = _connect(f"udpin:127.0.0.1:{v.udp_send_port}")
         try:
             fleet.set_fault(1, fault, True)
-            time.sleep(0.1)  # let frames already in flight arrive, then drain them
+            # every frame sent before the fault is in our socket once the physics has ticked past
+            # now (a later loop of the fleet reads the fault before it sends), then drain them
+            assert fleet.wait_for_sim_time(fleet.clock.time() + 0.05)
             while conn.recv_match(blocking=False) is not None:
                 pass
             assert conn.recv_match(type="HEARTBEAT", blocking=True, timeout=1.0) is None
             if fault == "crashed":
                 assert v.dynamics.crashed
             else:
-                _wait(lambda: v.counters.get("tx_dropped_link", 0) > 0, what="dropped frames counted")
+                wait_until(lambda: v.counters.get("tx_dropped_link", 0) > 0, what="dropped frames counted")
                 fleet.set_fault(1, fault, False)
                 assert conn.recv_match(type="HEARTBEAT", blocking=True, timeout=5.0) is not None
         finally:
@@ -141,7 +134,7 @@ def test_uplink_loss_drops_and_counts():
             fleet.set_fault(1, "loss_uplink", 1.0)
             for _ in range(20):
                 conn.mav.param_request_read_send(1, 1, b"MAV_SYS_ID", -1)
-            _wait(lambda: v.counters.get("rx_dropped_loss", 0) == 20, what="20 dropped frames")
+            wait_until(lambda: v.counters.get("rx_dropped_loss", 0) == 20, what="20 dropped frames")
         finally:
             conn.close()
 

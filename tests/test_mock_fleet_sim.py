@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+import zenoh
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
@@ -50,7 +51,6 @@ def test_lockstep_fleet_is_deterministic_per_seed():
 
 
 def test_sensor_readings_published_over_zenoh_and_crash_stops_them():
-    zenoh = pytest.importorskip("zenoh")
     from sitl_mock.sensor import sensor_key, zenoh_config
 
     port = _free_port(socket.SOCK_STREAM)
@@ -84,7 +84,7 @@ def test_sensor_readings_published_over_zenoh_and_crash_stops_them():
                 assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
             fleet.set_fault(2, "crashed", True)
             crash_time = fleet.clock.time()
-            fleet.wait_for_sim_time(crash_time + 2.0)
+            assert fleet.wait_for_sim_time(crash_time + 2.0)
             late = []
             stop_at = time.monotonic() + 1.0
             while time.monotonic() < stop_at:  # readings keep coming from vehicle 1

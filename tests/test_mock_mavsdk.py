@@ -6,17 +6,15 @@ move. Real time (speedup 1): MAVSDK streams offboard setpoints on the wall clock
 from __future__ import annotations
 
 import socket
-import time
 
 import pytest
+from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
+from mavsdk.plugins.action import Action
+from mavsdk.plugins.offboard import Offboard, PositionNedYaw
+from mavsdk.plugins.telemetry import FlightMode, Telemetry
 
-mavsdk = pytest.importorskip("mavsdk")
-from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk  # noqa: E402
-from mavsdk.plugins.action import Action  # noqa: E402
-from mavsdk.plugins.offboard import Offboard, PositionNedYaw  # noqa: E402
-from mavsdk.plugins.telemetry import FlightMode, Telemetry  # noqa: E402
-
-from sitl_mock.fleet import MockFleet  # noqa: E402
+from sitl_mock.fleet import MockFleet
+from wait_helpers import wait_until
 
 
 def _free_udp_port() -> int:
@@ -25,15 +23,6 @@ def _free_udp_port() -> int:
     port = s.getsockname()[1]
     s.close()
     return port
-
-
-def _wait(predicate, timeout_s, what):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 @pytest.mark.slow
@@ -50,28 +39,28 @@ def test_mavsdk_px4_connect_telemetry_arm_takeoff_offboard():
             system = sdk.first_autopilot(15.0)
             assert system is not None
             telemetry, action, offboard = Telemetry(system), Action(system), Offboard(system)
-            _wait(lambda: telemetry.health().is_global_position_ok
-                  and telemetry.health().is_home_position_ok, 20.0, "health ok")
+            wait_until(lambda: telemetry.health().is_global_position_ok
+                       and telemetry.health().is_home_position_ok, 20.0, "health ok")
             pos = telemetry.position()
             assert pos.latitude_deg == pytest.approx(vehicle.home_geodetic[0], abs=1e-6)
             assert pos.absolute_altitude_m == pytest.approx(vehicle.home_geodetic[2], abs=0.1)
             action.arm()
-            _wait(telemetry.armed, 10.0, "armed")
+            wait_until(telemetry.armed, 10.0, "armed")
             action.takeoff()
-            _wait(lambda: telemetry.position().relative_altitude_m > 4.5, 20.0, "takeoff to 5 m")
+            wait_until(lambda: telemetry.position().relative_altitude_m > 4.5, 20.0, "takeoff to 5 m")
             offboard.set_position_ned(PositionNedYaw(0.0, 0.0, -5.0, 0.0))
             offboard.start()
-            _wait(lambda: telemetry.flight_mode() == FlightMode.OFFBOARD, 10.0, "offboard mode")
+            wait_until(lambda: telemetry.flight_mode() == FlightMode.OFFBOARD, 10.0, "offboard mode")
             offboard.set_position_ned(PositionNedYaw(8.0, -4.0, -6.0, 0.0))
 
             def arrived():
                 p = telemetry.position_velocity_ned().position
                 return abs(p.north_m - 8.0) < 0.5 and abs(p.east_m + 4.0) < 0.5
-            _wait(arrived, 30.0, "vehicle to reach the offboard setpoint")
+            wait_until(arrived, 30.0, "vehicle to reach the offboard setpoint")
             assert vehicle.mode_name == "OFFBOARD"
             offboard.stop()
             action.land()
-            _wait(lambda: not telemetry.armed(), 40.0, "landing and disarm")
+            wait_until(lambda: not telemetry.armed(), 40.0, "landing and disarm")
         finally:
             sdk.destroy()
     assert fleet.errors == []
@@ -90,19 +79,19 @@ def test_mavsdk_ardupilot_connect_arm_takeoff_goto_land():
             system = sdk.first_autopilot(15.0)
             assert system is not None
             telemetry, action = Telemetry(system), Action(system)
-            _wait(lambda: telemetry.health().is_global_position_ok
-                  and telemetry.health().is_home_position_ok, 20.0, "health ok")
+            wait_until(lambda: telemetry.health().is_global_position_ok
+                       and telemetry.health().is_home_position_ok, 20.0, "health ok")
             action.set_takeoff_altitude(6.0)
             action.arm()
-            _wait(telemetry.armed, 10.0, "armed")
+            wait_until(telemetry.armed, 10.0, "armed")
             action.takeoff()  # MAVSDK switches ArduCopter to GUIDED, then NAV_TAKEOFF
-            _wait(lambda: telemetry.position().relative_altitude_m > 5.5, 20.0, "takeoff to 6 m")
+            wait_until(lambda: telemetry.position().relative_altitude_m > 5.5, 20.0, "takeoff to 6 m")
             assert vehicle.mode_name == "GUIDED"
             p = telemetry.position()
             action.goto_location(p.latitude_deg + 5e-5, p.longitude_deg, p.absolute_altitude_m, 0.0)
-            _wait(lambda: vehicle.true_position_ned()[0] > 5.0, 20.0, "goto to move north")
+            wait_until(lambda: vehicle.true_position_ned()[0] > 5.0, 20.0, "goto to move north")
             action.land()
-            _wait(lambda: not telemetry.armed(), 40.0, "landing and disarm")
+            wait_until(lambda: not telemetry.armed(), 40.0, "landing and disarm")
             assert vehicle.mode_name == "LAND" and vehicle.dynamics.landed
         finally:
             sdk.destroy()

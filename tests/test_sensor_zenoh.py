@@ -4,16 +4,15 @@ from __future__ import annotations
 import json
 import queue
 import socket
-import time
 
 import numpy as np
 import pytest
+import zenoh
 
-zenoh = pytest.importorskip("zenoh")
-
-from sitl_mock.faults import FaultSet  # noqa: E402
-from sitl_mock.fields import sigma2  # noqa: E402
-from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key, zenoh_config  # noqa: E402
+from sitl_mock.faults import FaultSet
+from sitl_mock.fields import sigma2
+from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key, zenoh_config
+from wait_helpers import wait_until
 
 TIMEOUT_S = 30.0
 
@@ -22,14 +21,6 @@ def _free_tcp_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _wait_for(predicate, timeout_s=TIMEOUT_S, what="condition"):
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.01)
 
 
 @pytest.fixture
@@ -59,8 +50,8 @@ def test_subscriber_on_another_session_receives_every_reading(two_sessions):
     publisher = SensorPublisher(pub_session, "demo", [1, 2])
     try:
         assert publisher.sysids == [1, 2]
-        _wait_for(lambda: publisher.has_subscribers(1) and publisher.has_subscribers(2),
-                  what="the remote subscriber to match")
+        wait_until(lambda: publisher.has_subscribers(1) and publisher.has_subscribers(2), TIMEOUT_S,
+                   what="the remote subscriber to match")
         sent = []
         for i in range(20):
             for sid, sensor in sensors.items():

@@ -24,6 +24,7 @@ from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.dynamics import DynamicsParams, Multicopter
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import make_parser
+from wait_helpers import wait_until
 
 KEY = bytes(range(1, 33))
 OTHER_KEY = bytes(range(101, 133))
@@ -250,15 +251,6 @@ def _free_udp_ports(count: int) -> list[int]:
             s.close()
 
 
-def _wait_for(predicate, what, timeout_s=20.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
 def _ack(conn, command, timeout_s=10.0):
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -283,7 +275,7 @@ def test_pymavlink_client_with_the_key_flies_a_signed_fleet_over_udp():
             conn.setup_signing(KEY, sign_outgoing=True, link_id=1)
             assert conn.wait_heartbeat(timeout=10).get_signed()
             assert conn.mav.signing.goodsig_count > 0 and conn.mav.signing.badsig_count == 0
-            _wait_for(lambda: v.autopilot.position_ready(fleet.clock.time()), "position estimate")
+            wait_until(lambda: v.autopilot.position_ready(fleet.clock.time()), what="position estimate")
             conn.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, 4, 0, 0, 0, 0, 0)
             assert _ack(conn, mav.MAV_CMD_DO_SET_MODE) == mav.MAV_RESULT_ACCEPTED
             arm = conn.mav.command_long_encode(1, 1, ARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(conn.mav)
@@ -297,7 +289,7 @@ def test_pymavlink_client_with_the_key_flies_a_signed_fleet_over_udp():
             conn.write(intruder.command_long_encode(1, 1, ARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(intruder))
             conn.write(mav.MAVLink(None, 255, 190).command_long_encode(
                 1, 1, ARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav.MAVLink(None, 255, 190)))
-            _wait_for(lambda: sum(v.counters.get(k, 0) for k in REJECTIONS) == 3, "3 rejections")
+            wait_until(lambda: sum(v.counters.get(k, 0) for k in REJECTIONS) == 3, what="3 rejections")
             assert {k: v.counters.get(k, 0) for k in REJECTIONS} == dict.fromkeys(REJECTIONS, 1)
             assert _ack(conn, ARM, timeout_s=1.0) is None and not v.armed
         finally:

@@ -12,6 +12,7 @@ from mission.link.endpoint import MavEndpoint
 from mission.link.tlog import TlogSet, read_tlog_records, tlog_record
 from mission.vehicle.vehicle_link import VehicleLink
 from mission.vehicle.fake import FakeAutopilot, FakeUdpVehicle
+from wait_helpers import wait_until_async
 
 ORIGIN = (45.0, 5.0, 200.0)
 
@@ -39,11 +40,8 @@ def test_endpoint_logs_every_frame_per_vehicle_readable_by_pymavlink(tmp_path):
                 await v.arm()
                 for k in range(3):
                     v.send_position_enu([float(k), 0.0, 10.0])
-            loop = asyncio.get_running_loop()
-            deadline = loop.time() + 20
-            while not all(f.autopilots[0].setpoint_count == 3 for f in fakes):
-                assert loop.time() < deadline, "setpoints did not arrive"
-                await asyncio.sleep(0.02)
+            await wait_until_async(lambda: all(f.autopilots[0].setpoint_count == 3 for f in fakes), 20.0,
+                                   "the setpoints to arrive")
         finally:
             for fake in fakes:
                 await fake.stop()

@@ -17,6 +17,7 @@ from mission.vehicle.streamer import SetpointStreamer
 from mission.vehicle.vehicle_link import CommandError, VehicleLink, command_name
 from mission.vehicle.fake import FakeAutopilot, FakeUdpVehicle
 from mission.vehicle.frames import MissionToLocal, mode_name, resolve_mode
+from wait_helpers import wait_until_async
 
 ORIGIN = (45.0, 5.0, 200.0)
 ARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
@@ -24,15 +25,6 @@ ARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
 
 def _run(coro, timeout_s: float = 60.0):
     return asyncio.run(asyncio.wait_for(coro, timeout_s))
-
-
-async def _until(predicate, timeout_s: float = 20.0, what: str = "condition") -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout_s
-    while not predicate():
-        if loop.time() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.02)
 
 
 async def _with_vehicles(aps, body, *, telemetry_hz: float = 5.0, **link_kwargs):
@@ -111,18 +103,18 @@ def test_takeoff_sequence_per_flavour(flavour, expected):
     async def body(vehicles, aps):
         v, ap = vehicles[0], aps[0]
         await v.wait_home(10.0)
-        await _until(lambda: v.position_enu_m() is not None, what="position")
+        await wait_until_async(lambda: v.position_enu_m() is not None, what="position")
         await v.takeoff(12.0)
         got = [(c.command, c.param2 if c.command == mavlink.MAV_CMD_DO_SET_MODE else c.param1) for c in ap.commands
                if c.command != mavlink.MAV_CMD_REQUEST_MESSAGE]
         assert got == expected
-        await _until(lambda: v.state.armed, what="armed in telemetry")
+        await wait_until_async(lambda: v.state.armed, what="armed in telemetry")
         if flavour == "px4":
             # setpoints at the current position, 12 m up, streamed before OFFBOARD was asked for
             assert ap.setpoints and ap.setpoints[0].z == pytest.approx(-12.0, abs=1e-3)
             assert v.state.mode == "OFFBOARD"
             n_before = ap.setpoint_count
-            await _until(lambda: ap.setpoint_count >= n_before + 3, what="hold stream")
+            await wait_until_async(lambda: ap.setpoint_count >= n_before + 3, what="hold stream")
             assert v.hold_streaming
             # a streamer taking over ends the hold stream
             for _ in range(100):
@@ -193,7 +185,7 @@ def test_setpoints_land_in_each_vehicles_own_frame_when_homes_differ(frame):
         for v in vehicles:
             await v.wait_home(10.0)
             v.send_position_enu(target, yaw_rad=math.pi / 2)
-        await _until(lambda: all(ap.setpoints for ap in aps), what="setpoints")
+        await wait_until_async(lambda: all(ap.setpoints for ap in aps), what="setpoints")
         for ap, home_enu in zip(aps, homes_enu):
             sp = ap.setpoints[0]
             assert sp.yaw == pytest.approx(math.pi / 2)
@@ -205,8 +197,9 @@ def test_setpoints_land_in_each_vehicles_own_frame_when_homes_differ(frame):
                 assert np.allclose(got, target, atol=0.02)
         # the fakes apply LOCAL_NED setpoints at once: telemetry then puts both at the target
         if frame == "local_ned":
-            await _until(lambda: all(v.position_fresh() and np.allclose(v.position_enu_m(), target, atol=0.02)
-                                     for v in vehicles), what="telemetry at the target")
+            await wait_until_async(lambda: all(v.position_fresh()
+                                               and np.allclose(v.position_enu_m(), target, atol=0.02)
+                                               for v in vehicles), what="telemetry at the target")
     _run(_with_vehicles(aps, body, setpoint_frame=frame))
 
 
@@ -255,10 +248,10 @@ def test_streamer_feeds_every_vehicle_and_reports_stats():
             streamer.set_target(v.sysid, [1.0, 2.0, 3.0])
         await streamer.start()
         try:
-            await _until(lambda: all(ap.setpoint_count >= 10 for ap in aps[:2]), what="streamed setpoints")
+            await wait_until_async(lambda: all(ap.setpoint_count >= 10 for ap in aps[:2]), what="streamed setpoints")
             streamer.remove(2)
             count_2 = aps[1].setpoint_count
-            await _until(lambda: aps[0].setpoint_count >= 20, what="more setpoints")
+            await wait_until_async(lambda: aps[0].setpoint_count >= 20, what="more setpoints")
         finally:
             await streamer.stop()
         assert aps[1].setpoint_count <= count_2 + 1

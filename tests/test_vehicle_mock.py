@@ -10,13 +10,12 @@ import socket
 import numpy as np
 import pytest
 
+import sitl_mock.clock as clock_mod
+import sitl_mock.fleet as fleet_mod
 from mission.link.endpoint import MavEndpoint, SysidRegistry
 from mission.link.poller import UdpPoller
 from mission.vehicle.streamer import SetpointStreamer
-from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, CommandError, VehicleLink
-
-fleet_mod = pytest.importorskip("sitl_mock.fleet")
-clock_mod = pytest.importorskip("sitl_mock.clock")
+from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, VehicleLink
 
 SPEEDUP = 4.0
 HOMES_ENU = [(0.0, 0.0, 0.0), (12.0, -7.0, 0.0)]
@@ -53,15 +52,11 @@ async def _fly(fleet, clock, transport: str, tmp_path) -> dict:
             await v.wait_home(20.0)
             assert np.allclose(v.home_enu_m(), HOMES_ENU[v.sysid - 1], atol=0.02)
             await v.wait_for(lambda s: s.position_ok and s.landed, 30.0, "position estimate on the ground")
-        for v in vehicles:  # the mock refuses to arm until its position estimate is ready
-            for attempt in range(10):
-                try:
-                    await v.takeoff(6.0)
-                    break
-                except CommandError:
-                    if attempt == 9:
-                        raise
-                    await clock.sleep(1.0)
+            # the mock refuses to arm until its position estimate is ready: it says so in
+            # SYS_STATUS (GPS and pre-arm health bits), so the first takeoff must be accepted
+            await v.wait_for(lambda s: s.gps_healthy, 30.0, "GPS / pre-arm health in SYS_STATUS")
+        for v in vehicles:
+            await v.takeoff(6.0)
         for v in vehicles:
             await v.wait_for(lambda s: s.armed and (s.relative_alt_m or 0.0) > 5.0, 60.0, "climb to 6 m")
         streamer = SetpointStreamer(vehicles, rate_hz=10.0, clock=clock)

@@ -11,15 +11,13 @@ import time
 
 import numpy as np
 import pytest
+import zenoh
+from pymavlink.dialects.v20 import common as mavlink2
 
-zenoh = pytest.importorskip("zenoh")
-
-from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
-
-from formation.geodesy import enu_to_geodetic, geodetic_to_enu  # noqa: E402
-from mission.cli import main as swarmseek  # noqa: E402
-from sitl_mock.fields import make_field  # noqa: E402
-from sitl_mock.sensor import sensor_key, zenoh_config  # noqa: E402
+from formation.geodesy import enu_to_geodetic, geodetic_to_enu
+from mission.cli import main as swarmseek
+from sitl_mock.fields import make_field
+from sitl_mock.sensor import sensor_key, zenoh_config
 
 TIMEOUT_S = 60.0
 ORIGIN = (45.19, 5.72, 200.0)

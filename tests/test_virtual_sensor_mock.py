@@ -7,14 +7,13 @@ import socket
 
 import numpy as np
 import pytest
+import zenoh
 
-zenoh = pytest.importorskip("zenoh")
-fleet_mod = pytest.importorskip("sitl_mock.fleet")
-
-from formation.geodesy import geodetic_to_enu  # noqa: E402
-from mission.cli import main as swarmseek  # noqa: E402
-from sitl_mock.fields import make_field  # noqa: E402
-from sitl_mock.sensor import sensor_key, zenoh_config  # noqa: E402
+import sitl_mock.fleet as fleet_mod
+from formation.geodesy import geodetic_to_enu
+from mission.cli import main as swarmseek
+from sitl_mock.fields import make_field
+from sitl_mock.sensor import sensor_key, zenoh_config
 
 TIMEOUT_S = 60.0
 ORIGIN = (45.19, 5.72, 230.0)
