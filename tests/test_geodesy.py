@@ -106,7 +106,7 @@ def test_the_mock_autopilots_fast_local_frame_agrees_with_pymap3d(origin):
     rng = np.random.default_rng(7)
     for north_m, east_m, down_m in rng.uniform(-2000.0, 2000.0, size=(200, 3)):
         lat, lon, alt = frame.ned_to_geodetic(north_m, east_m, down_m)
-        ref = geodesy.enu_to_geodetic(np.array([east_m, north_m, -down_m]), origin)
-        back = geodesy.geodetic_to_enu(lat, lon, alt, origin)
+        ref = enu_to_geodetic(np.array([east_m, north_m, -down_m]), origin)
+        back = geodetic_to_enu(lat, lon, alt, origin)
         assert np.allclose(back, [east_m, north_m, -down_m], atol=1e-3), (back, ref)
         assert abs(lat - ref[0]) < 1e-8 and abs(lon - ref[1]) < 1e-8 and abs(alt - ref[2]) < 1e-3
