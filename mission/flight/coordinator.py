@@ -11,101 +11,23 @@ display). Every phase change, event and seeking iteration goes to the mission lo
 from __future__ import annotations
 
 import asyncio
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 
 import numpy as np
 
 from mission.core.clock import cancel_and_wait
-from mission.flight.loss import LEFT_MODES, watch_losses
-from mission.telemetry.mission_log import MissionLog, to_jsonable
 from mission.core.plan import Plan
+from mission.flight import connect as connect_phase
+from mission.flight import phases, seek
+from mission.flight.loss import watch_losses
+from mission.flight.modes import GUIDED_MODES, LEFT_MODES
+from mission.flight.result import MissionResult
+from mission.flight.resume import rejoin
+from mission.flight.state import PHASES, MissionError, VehicleReadiness
+from mission.telemetry.mission_log import MissionLog, to_jsonable
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber
 
-__all__ = ["PHASES", "MissionError", "MissionResult", "VehicleReadiness", "Coordinator"]
-
-PHASES = ("idle", "connect", "preflight", "takeoff", "assemble", "seek", "finish", "return", "done",
-          "aborted")
-
-
-class MissionError(RuntimeError):
-    """The mission cannot go on (a phase failed); the message says which and why."""
-
-
-@dataclass
-class VehicleReadiness:
-    """Preflight result of one vehicle: every check and why it failed."""
-
-    sysid: int
-    id: str
-    connection: str
-    checks: dict = field(default_factory=dict)
-    problems: list = field(default_factory=list)
-    flavour: str | None = None
-
-    @property
-    def ready(self) -> bool:
-        """All checks passed."""
-        return bool(self.checks) and all(self.checks.values()) and not self.problems
-
-
-@dataclass
-class MissionResult:
-    """End of a mission (what ``--json`` prints).
-
-    Attributes
-    ----------
-    outcome : str
-        ``converged``, ``max_iterations``, ``stopped_at_fence``, ``aborted``, ``ready`` or
-        ``not_ready`` (dry run).
-    message : str
-    estimate_enu : list or None
-        Estimated source position (mean of the last ``convergence_window`` centres).
-    spread_m : float or None
-        RMS spread of those centres.
-    iterations : int
-    mission_time_s, seek_time_s : float
-        Mission clock seconds, whole mission and seek phase.
-    distance_flown_m : float
-        Path length of the formation centre during the seek.
-    vehicle_distance_m : dict
-        Path length flown by each vehicle (telemetry), by sysid.
-    readings : dict
-        Accepted readings and rejections per reason.
-    readiness : list
-        Preflight result per vehicle.
-    lost : list
-        Vehicles lost during the mission: ``sysid``, ``reason`` (``link`` / ``left``),
-        ``detail``, ``phase``, ``latency_s`` (see :mod:`mission.flight.loss`).
-    """
-
-    outcome: str
-    message: str = ""
-    estimate_enu: list | None = None
-    spread_m: float | None = None
-    iterations: int = 0
-    mission_time_s: float = 0.0
-    seek_time_s: float = 0.0
-    distance_flown_m: float = 0.0
-    vehicle_distance_m: dict = field(default_factory=dict)
-    readings: dict = field(default_factory=dict)
-    readiness: list = field(default_factory=list)
-    true_source_enu: list | None = None
-    error_m: float | None = None
-    log_path: str | None = None
-    reengaged: dict = field(default_factory=dict)
-    max_loop_lag_s: float | None = None
-    lost: list = field(default_factory=list)
-    readmitted: list = field(default_factory=list)  # sysid, lost_s, came_back_s, readmitted_s
-    retired: list = field(default_factory=list)  # retired sensors: mission.flight.retire.RetiredSensor
-
-    @property
-    def ok(self) -> bool:
-        """The mission reached its goal (converged), or the dry run found every vehicle ready."""
-        return self.outcome in ("converged", "ready")
-
-    def to_json(self) -> dict:
-        """JSON-friendly dict."""
-        return to_jsonable(asdict(self))
+__all__ = ["Coordinator"]
 
 
 class Coordinator:
@@ -278,8 +200,6 @@ class Coordinator:
             await self.clock.sleep(poll_s)
 
     # ----------------------------------------------------------------- mission entry points
-    _GUIDED_MODES = {"px4": "OFFBOARD", "ardupilot": "GUIDED"}
-
     async def _watchdog(self, period_s: float = 0.1) -> None:
         """Odometry, event-loop lag, and re-engaging OFFBOARD/GUIDED after a setpoint-loss failsafe.
 
@@ -302,7 +222,7 @@ class Coordinator:
                 continue
             for sysid in self.ramp.sysids:
                 v = self.vehicles.get(sysid)
-                want = self._GUIDED_MODES.get(getattr(v, "flavour", None))
+                want = GUIDED_MODES.get(getattr(v, "flavour", None))
                 if (v is None or want is None or sysid in self._reengaging or sysid in self.released
                         or sysid in self.lost or v.state.mode == want):
                     continue
@@ -369,14 +289,12 @@ class Coordinator:
 
     async def dry_run(self) -> MissionResult:
         """Connect and run the preflight checks; arms nothing. Outcome ``ready`` or ``not_ready``."""
-        from mission.flight import phases
-
         if self.log is not None:
             self.log.write("plan", plan=_plan_json(self.plan), dry_run=True)
         self._start_background()
         try:
-            await phases.connect(self, required=False)
-            await phases.preflight(self)
+            await connect_phase.connect(self, required=False)
+            await connect_phase.preflight(self)
         except MissionError as exc:
             self.event(str(exc), level="error")
         finally:
@@ -408,16 +326,14 @@ class Coordinator:
         Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
         False (a ground station that just stops: the vehicles do what their autopilot does).
         """
-        from mission.flight import phases, seek
-
         if self.log is not None:
             self.log.write("plan", plan=_plan_json(self.plan), resumed=resume_state is not None)
         self._start_background()
         outcome, message = "aborted", ""
         try:
             if resume_state is None:
-                await phases.connect(self, required=True)
-                await phases.preflight(self)
+                await connect_phase.connect(self, required=True)
+                await connect_phase.preflight(self)
                 not_ready = [r for r in self.readiness.values() if not r.ready]
                 if not_ready:
                     raise MissionError("preflight failed: " + "; ".join(
@@ -426,8 +342,6 @@ class Coordinator:
                 await phases.assemble(self)
                 outcome, message = await seek.seek(self)
             else:
-                from mission.flight.resume import rejoin
-
                 await rejoin(self, resume_state)
                 outcome, message = await seek.seek(self, start_iteration=resume_state.iteration,
                                                    history=resume_state.centres)
@@ -461,8 +375,6 @@ class Coordinator:
         return result
 
     async def _return_safely(self) -> None:
-        from mission.flight import phases
-
         if not self.airborne:
             return
         try:

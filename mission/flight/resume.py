@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from formation.geodesy import geodetic_to_enu
 from mission.core.plan import (
     FaultsPlan,
     FormationPlan,
@@ -32,6 +33,12 @@ from mission.core.plan import (
     VehiclePlan,
     ZenohPlan,
 )
+from mission.flight.connect import build_envelope, connect
+from mission.flight.modes import GUIDED_MODES, LEFT_MODES
+from mission.flight.motion import retried
+from mission.flight.retire import restore_retired
+from mission.flight.state import MissionError, VehicleLoss
+from mission.flight.targets import TargetRamp
 
 __all__ = ["ResumeError", "ResumeState", "plan_from_json", "load_resume_state", "rejoin"]
 
@@ -198,14 +205,10 @@ async def rejoin(co, state: ResumeState) -> None:
 
     Raises
     ------
-    mission.flight.coordinator.MissionError
+    mission.flight.state.MissionError
         Fewer than 4 vehicles can be re-engaged (those that can are still brought home).
     """
-    from mission.flight.coordinator import MissionError
-    from mission.flight.loss import LEFT_MODES, VehicleLoss
-    from mission.flight.phases import _retried, build_envelope, connect
     from mission.vehicle.streamer import SetpointStreamer
-    from mission.flight.targets import TargetRamp
 
     plan = co.plan
     await connect(co, required=False)
@@ -234,8 +237,6 @@ async def rejoin(co, state: ResumeState) -> None:
             await co.wait_until(lambda v=v: v.state.position_ok, 10.0, f"vehicle {sysid} position")
             st = v.state
             if home is not None:
-                from formation.geodesy import geodetic_to_enu
-
                 co.home_enu[sysid] = np.asarray(geodetic_to_enu(home[0], home[1], home[2], plan.origin), float)
             if reason is None and not st.armed:
                 reason = "on the ground (disarmed)"
@@ -263,12 +264,10 @@ async def rejoin(co, state: ResumeState) -> None:
     await co.clock.sleep(0.5)  # setpoints flowing before OFFBOARD (PX4 requires it)
     for s in flying:
         v = co.vehicles[s]
-        want = co._GUIDED_MODES.get(v.flavour)
+        want = GUIDED_MODES.get(v.flavour)
         if want is not None and v.state.mode != want:
-            await _retried(co, lambda v=v, want=want: v.set_mode(want), f"re-engaging {want} on vehicle {s}")
+            await retried(co, lambda v=v, want=want: v.set_mode(want), f"re-engaging {want} on vehicle {s}")
         co.status[s] = "in formation"
-    from mission.flight.retire import restore_retired
-
     restore_retired(co, state.retired)
     co.event(f"resumed at iteration {state.iteration} from centre "
              f"({co.centre_enu[0]:.2f}, {co.centre_enu[1]:.2f}, {co.centre_enu[2]:.2f}) m with vehicles "

@@ -22,7 +22,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from mission.flight.coordinator import MissionError
+from mission.flight.loss import reform
+from mission.flight.motion import move_and_wait, parked
+from mission.flight.rejoin import clear_goals, fly_rotation, pending_readmissions, readmit
+from mission.flight.retire import formation_goals, keep_out_retired, make_watch, retire_sensor
+from mission.flight.state import MissionError
 
 __all__ = ["seek", "make_estimator"]
 
@@ -69,11 +73,6 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     count towards the 4.
     """
     from estimator import ConvergenceMonitor, GeometryError, seek_step
-
-    from mission.flight.loss import reform
-    from mission.flight.rejoin import clear_goals, fly_rotation, pending_readmissions, readmit
-    from mission.flight.phases import move_and_wait
-    from mission.flight.retire import formation_goals, keep_out_retired, make_watch, parked, retire_sensor
 
     co.set_phase("seek")
     plan = co.plan
