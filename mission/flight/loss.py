@@ -123,7 +123,7 @@ async def watch_losses(co, period_s: float = 0.1) -> None:
 
     Only vehicles under the mission's setpoints, or airborne and not yet released, are watched,
     from the takeoff on. A detection logs a ``vehicle lost`` event with its latency, takes the
-    vehicle off the stream and marks it in ``co.lost``; the seek loop re-forms.
+    vehicle off the stream and marks it lost in the mission state; the seek loop re-forms.
     """
     faults = co.plan.faults
     seen_armed: set[int] = set()
@@ -173,13 +173,10 @@ async def watch_losses(co, period_s: float = 0.1) -> None:
 
 def _declare_lost(co, loss: VehicleLoss) -> None:
     sysid = loss.sysid
-    co.lost[sysid] = loss
-    co.released.add(sysid)
-    co.airborne.discard(sysid)
     if co.ramp is not None and sysid in co.ramp.sysids:
         loss.last_setpoint_enu = co.ramp.setpoint(sysid)
         co.ramp.remove(sysid)
-    co.status[sysid] = f"lost ({loss.reason}: {loss.detail})"
+    co.state.declare_lost(loss, f"lost ({loss.reason}: {loss.detail})")
     co.event(f"vehicle {sysid} lost: {loss.detail}; detected {loss.latency_s:.2f} s after its last sign "
              f"(phase {loss.phase})", level="warning", sysid=sysid, reason=loss.reason,
              latency_s=round(loss.latency_s, 3), detected_s=loss.detected_s, since_s=loss.since_s)
@@ -188,19 +185,19 @@ def _declare_lost(co, loss: VehicleLoss) -> None:
 async def _maybe_came_back(co, v, loss: VehicleLoss, now: float) -> None:
     if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
         return
-    loss.came_back_s = now
     alt = getattr(v.state, "relative_alt_m", None)
+    readmissible = (co.plan.faults.readmit and co.phase == "seek" and v.state.armed
+                    and (alt is None or alt >= 1.0) and v.state.mode not in LEFT_MODES.get(v.flavour, ()))
+    co.state.came_back(loss.sysid, now, readmit=readmissible)
+    if readmissible:
+        co.event(f"vehicle {loss.sysid} is heard again after its link loss; re-admitted at the next "
+                 "iteration (faults.readmit = true)", level="warning", sysid=loss.sysid)
+        return
     if co.plan.faults.readmit:
-        if (co.phase == "seek" and v.state.armed and (alt is None or alt >= 1.0)
-                and v.state.mode not in LEFT_MODES.get(v.flavour, ())):
-            loss.readmit_pending = True
-            co.event(f"vehicle {loss.sysid} is heard again after its link loss; re-admitted at the next "
-                     "iteration (faults.readmit = true)", level="warning", sysid=loss.sysid)
-            return
         why = f"faults.readmit = true, but not re-admissible (phase {co.phase}, mode {v.state.mode})"
     else:
         why = "faults.readmit = false"
-    await keep_out(co, loss.sysid, v, loss, why)
+    await keep_out(co, loss.sysid, v, why)
 
 
 async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
@@ -238,7 +235,7 @@ async def survivor_slots(co, centre_enu, sysids: list[int], gone: list[int], who
     if kind != co.formation_kind:
         co.event(f"{len(sysids) - len(gone)} {who} left: the symmetric formation needs an even number; "
                  f"switching to the CVT formation{switch_note}", level="warning")
-        co.formation_kind = kind
+        co.state.set_formation_kind(kind)
     obs = obstacles(co)
     if len(obs):
         new, ok = await loop.run_in_executor(None, functools.partial(

@@ -1,5 +1,6 @@
 """Motion primitives shared by the phases: commands retried, goals flown and waited for, transfers.
 
+* :func:`setpoint_stream`: the setpoint streamer and the speed-limited, safety-checked ramp;
 * :func:`retried`: a vehicle command retried a few rounds (lossy links);
 * :func:`move_and_wait`: ramp goals set, then waited for (setpoints there, vehicles within a tolerance);
 * :func:`fly_timed`: a synchronous plan fed to the ramp as interpolated goals;
@@ -15,9 +16,27 @@ import functools
 import numpy as np
 
 from mission.flight.obstacles import obstacles, plan_clear_transfer
-from mission.flight.state import MissionError, VehicleLoss
+from mission.flight.state import MissionError
+from mission.flight.targets import TargetRamp
 
-__all__ = ["fly_timed", "keep_out", "move_and_wait", "parked", "retried", "transfer_to"]
+__all__ = ["fly_timed", "keep_out", "move_and_wait", "parked", "retried", "setpoint_stream", "transfer_to"]
+
+
+def setpoint_stream(co, vehicles: list) -> None:
+    """Give the coordinator a setpoint streamer for ``vehicles`` and a ramp feeding it (not started).
+
+    The ramp (new setpoints, each batch checked by the safety envelope) runs at most at 10 Hz;
+    the streamer repeats the latest setpoint at ``setpoint_rate_hz`` in between (identical,
+    hence as safe).
+    """
+    from mission.vehicle.streamer import SetpointStreamer
+
+    plan = co.plan
+    streamer = SetpointStreamer(vehicles, rate_hz=plan.setpoint_rate_hz, clock=co.clock,
+                                max_speed_m_s=plan.max_speed_m_s)
+    ramp = TargetRamp(streamer, co.clock, plan.max_speed_m_s, rate_hz=min(plan.setpoint_rate_hz, 10.0),
+                      envelope=co.envelope, on_violation=lambda m: co.event(m, level="warning"))
+    co.use_setpoints(streamer, ramp)
 
 
 async def retried(co, action, what: str, attempts: int = 3):
@@ -39,6 +58,12 @@ async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_
     """Set ramp goals and wait until every setpoint is there and every vehicle within ``tol_m``.
 
     Lost vehicles (``co.lost``, also those lost while waiting) are not waited for.
+
+    Notes
+    -----
+    Positions are read through the coordinator's ``_telemetry_position`` alias of
+    ``telemetry_position``: the test doubles of ``tests/test_return_clear.py`` implement only that
+    name (test files may not change in this redesign step; rename there, then here).
     """
     goals = {s: g for s, g in goals.items() if s not in co.lost and s in co.ramp.sysids}
     co.ramp.set_goals(goals)
@@ -53,7 +78,7 @@ async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_
                 continue
             if not co.ramp.at_goal(s):
                 return False
-            p = co._telemetry_position(s)
+            p = co._telemetry_position(s)  # the coordinator's telemetry_position (see the notes)
             if p is None or float(np.linalg.norm(np.asarray(p) - g)) > tol_m:
                 return False
         return True
@@ -67,16 +92,15 @@ def parked(co) -> list[int]:
     return sorted(s for s in retired if s not in co.lost and co.ramp is not None and s in co.ramp.sysids)
 
 
-async def keep_out(co, sysid: int, v, loss: VehicleLoss, why: str) -> None:
+async def keep_out(co, sysid: int, v, why: str) -> None:
     """Keep a returning vehicle out of the formation and command it to land (or RTL), once."""
     rtl = co.plan.return_behaviour == "rtl"
-    loss.readmit_pending = False
     co.event(f"vehicle {sysid} is heard again after its link loss; kept out of the formation "
              f"({why}) and commanded to {'RTL' if rtl else 'land'}", level="warning", sysid=sysid)
     if v is None or not v.state.armed:
-        co.status[sysid] = "lost (back, on the ground)"
+        co.state.keep_out(sysid, "lost (back, on the ground)")
         return
-    co.status[sysid] = "kept out: " + ("returning" if rtl else "landing")
+    co.state.keep_out(sysid, "kept out: " + ("returning" if rtl else "landing"))
     try:
         await asyncio.wait_for(v.rtl() if rtl else v.land(), timeout=30.0)
     except Exception as exc:  # noqa: BLE001 - CommandError, link, timeout: reported
@@ -124,8 +148,7 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
                  min_separation_m=tp.min_separation_m, slots={s: new_offsets[s] for s in sysids},
                  parked=parked(co))
         await _fly_transfer(co, sysids, tp)
-    for s in sysids:
-        co.slot_offsets[s] = new_offsets[s]
+    co.state.update_slots({s: new_offsets[s] for s in sysids})
     await move_and_wait(co, {s: goal[i] for i, s in enumerate(sysids)}, plan.seeking.arrival_tol_m,
                         what="the re-formed formation to settle")
     co.event(f"formation re-formed for {len(members)} vehicles in {co.clock.time() - t0:.1f} s",

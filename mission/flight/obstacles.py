@@ -42,7 +42,7 @@ def obstacles(co) -> np.ndarray:
         alt = getattr(st, "relative_alt_m", None)
         if not st.armed or (alt is not None and alt < 1.0) or st.mode in LEFT_MODES.get(v.flavour, ()):
             continue
-        pos = co._telemetry_position(sysid)
+        pos = co.telemetry_position(sysid)
         for p in (pos, loss.last_setpoint_enu):
             if p is not None and np.all(np.isfinite(np.asarray(p, dtype=float))):
                 pts.append(np.asarray(p, dtype=float))

@@ -14,10 +14,10 @@ import asyncio
 import numpy as np
 
 from formation.geodesy import geodetic_to_enu
-from mission.flight.motion import retried
+from mission.flight.motion import retried, setpoint_stream
 from mission.flight.return_clear import fly_clear, fly_return
 from mission.flight.state import MissionError
-from mission.flight.targets import TargetRamp, assign_slots, layered_altitudes
+from mission.flight.targets import assign_slots, layered_altitudes
 
 __all__ = ["takeoff", "assemble", "return_home", "land_all_now", "formation_offsets"]
 
@@ -51,7 +51,7 @@ def _plan_slots(co) -> None:
     cur = np.column_stack([homes[:, :2], np.zeros(len(sysids))])
     slots = start + offsets
     perm = assign_slots(cur, np.column_stack([slots[:, :2], np.zeros(len(sysids))]))
-    co.slot_offsets = {s: offsets[perm[i]] for i, s in enumerate(sysids)}
+    slot_offsets = {s: offsets[perm[i]] for i, s in enumerate(sysids)}
     from formation import metrics
 
     d_min = float(metrics(offsets).d_min)
@@ -64,27 +64,20 @@ def _plan_slots(co) -> None:
         alts = layered_altitudes(len(sysids), base, plan.geofence.max_alt_m - 0.5, plan.min_separation_m)
     except ValueError as exc:
         raise MissionError(f"takeoff layers: {exc}") from None
-    order = sorted(sysids, key=lambda s: co.slot_offsets[s][2])  # lowest slot -> lowest layer
-    co.layer_alt_m = {s: float(alts[i]) for i, s in enumerate(order)}
-    co.home_enu = {s: homes[i] for i, s in enumerate(sysids)}
+    order = sorted(sysids, key=lambda s: slot_offsets[s][2])  # lowest slot -> lowest layer
+    co.state.set_formation(slot_offsets, layer_alt_m={s: float(alts[i]) for i, s in enumerate(order)},
+                           home_enu={s: homes[i] for i, s in enumerate(sysids)})
     co.event(f"formation {plan.formation.type}, {len(sysids)} slots, radius {plan.formation.radius_m} m, "
              f"d_min {d_min:.2f} m; layers {alts[0]:.1f}..{alts[-1]:.1f} m",
-             slots={s: co.slot_offsets[s] for s in sysids}, layers=co.layer_alt_m)
+             slots={s: co.slot_offsets[s] for s in sysids}, layers=dict(co.layer_alt_m))
 
 
 async def takeoff(co) -> None:
     """Arm and take off, staggered by ``stagger_s``, each vehicle to its own altitude layer."""
-    from mission.vehicle.streamer import SetpointStreamer
-
     co.set_phase("takeoff")
     plan = co.plan
     _plan_slots(co)
-    co.streamer = SetpointStreamer(list(co.vehicles.values()), rate_hz=plan.setpoint_rate_hz, clock=co.clock,
-                                 max_speed_m_s=plan.max_speed_m_s)
-    # the ramp (new setpoints, each batch safety-checked) runs at most at 10 Hz; the streamer
-    # repeats the latest setpoint at setpoint_rate_hz in between (identical, hence as safe)
-    co.ramp = TargetRamp(co.streamer, co.clock, plan.max_speed_m_s, rate_hz=min(plan.setpoint_rate_hz, 10.0),
-                         envelope=co.envelope, on_violation=lambda m: co.event(m, level="warning"))
+    setpoint_stream(co, list(co.vehicles.values()))
     await co.streamer.start()
     co.ramp.start()
     order = sorted(co.vehicles, key=lambda s: co.layer_alt_m[s])
@@ -96,8 +89,7 @@ async def takeoff(co) -> None:
         home = co.home_enu[sysid]
         rel_alt = co.layer_alt_m[sysid] - home[2]
         await retried(co, lambda v=v: v.takeoff(rel_alt), f"takeoff of vehicle {sysid}")
-        co.airborne.add(sysid)
-        co.status[sysid] = "taking off"
+        co.state.set_airborne(sysid, "taking off")
         co.event(f"vehicle {sysid} taking off to {rel_alt:.1f} m above home", sysid=sysid)
         waits.append(asyncio.ensure_future(_hold_after_climb(co, sysid, home, co.layer_alt_m[sysid])))
     await asyncio.gather(*waits)
@@ -113,7 +105,7 @@ async def _hold_after_climb(co, sysid, home, layer_alt):
     def _near():
         if sysid in co.lost:
             return True
-        p = co._telemetry_position(sysid)
+        p = co.telemetry_position(sysid)
         return p is not None and abs(float(p[2]) - layer_alt) < 0.6
 
     await co.wait_until(_near, 60.0 + 2.0 * layer_alt, f"vehicle {sysid} to climb to {layer_alt:.1f} m")
@@ -121,7 +113,7 @@ async def _hold_after_climb(co, sysid, home, layer_alt):
         return
     if sysid not in co.ramp.sysids:
         co.ramp.add(sysid, target)
-    co.status[sysid] = "holding"
+    co.state.set_status(sysid, "holding")
 
 
 
@@ -141,9 +133,9 @@ async def assemble(co) -> None:
     # the layered legs, re-planned around lost vehicles still flying (e.g. one lost in takeoff)
     await fly_clear(co, sysids, {s: centre + co.slot_offsets[s] for s in sysids},
                     plan.seeking.arrival_tol_m, what="assembly")
-    co.centre_enu = centre.copy()
+    co.state.move_centre(centre)
     for s in sysids:
-        co.status[s] = "in formation"
+        co.state.set_status(s, "in formation")
     co.event(f"formation assembled at ({centre[0]:.1f}, {centre[1]:.1f}, {centre[2]:.1f}) m")
 
 
@@ -172,7 +164,7 @@ async def _land_staggered(co, order, rtl: bool, land_only=frozenset()) -> None:
         if i:
             await co.clock.sleep(co.plan.stagger_s)
         v = co.vehicles[sysid]
-        co.released.add(sysid)
+        co.state.release(sysid)
         by_rtl = rtl and sysid not in land_only
         try:
             await retried(co, (lambda v=v: v.rtl()) if by_rtl else (lambda v=v: v.land()),
@@ -182,7 +174,7 @@ async def _land_staggered(co, order, rtl: bool, land_only=frozenset()) -> None:
             continue
         if co.ramp is not None and sysid in co.ramp.sysids:
             co.ramp.remove(sysid)
-        co.status[sysid] = "returning" if by_rtl else "landing"
+        co.state.set_status(sysid, "returning" if by_rtl else "landing")
         waits.append(asyncio.ensure_future(_wait_landed(co, sysid)))
     await asyncio.gather(*waits)
 
@@ -199,8 +191,7 @@ async def _wait_landed(co, sysid, timeout_s: float = 180.0) -> None:
     except MissionError as exc:
         co.event(str(exc), level="error")
         return
-    co.airborne.discard(sysid)
-    co.status[sysid] = "landed"
+    co.state.set_landed(sysid)
     co.event(f"vehicle {sysid} landed", sysid=sysid)
 
 

@@ -30,7 +30,7 @@ __all__ = ["clear_goals", "fly_rotation", "pending_readmissions", "readmit", "re
 
 
 def clear_goals(co, centre_enu, sysids: list[int]) -> bool:
-    """Rotate ``co.slot_offsets`` (about the centre) if a goal of this iteration is near an obstacle.
+    """Rotate the formation's slots (about the centre) if a goal of this iteration is near an obstacle.
 
     Called by the seek before each iteration's move; logs an event when it rotates. Returns
     False if no clear rotation was found (the goals are then the best found).
@@ -46,7 +46,7 @@ def clear_goals(co, centre_enu, sysids: list[int]) -> bool:
     new, ok = clear_offsets(offsets, centre_enu, obs, sep, start_enu=start,
                             allow_tilt=co.formation_kind == "cvt")
     if any(not np.allclose(new[s], offsets[s]) for s in sysids):
-        co.slot_offsets.update(new)
+        co.state.update_slots(new)
         co.event("formation rotated to keep clear of a lost vehicle still flying"
                  + ("" if ok else " (no rotation keeps the full clearance)"),
                  level="info" if ok else "warning", obstacles=obs, slots={s: new[s] for s in sysids})
@@ -118,45 +118,13 @@ async def readmit(co, centre_enu, sysids: list[int], returning: list[int]) -> li
     """Re-admit ``returning`` into the formation of ``sysids`` about ``centre_enu``.
 
     Each returning vehicle still armed, airborne and heard is held at its position under
-    setpoints and re-engaged (OFFBOARD/GUIDED); the formation re-forms for the larger number
-    (:func:`readmitted_offsets`, rotated clear of obstacles) and a separation-keeping transfer
-    is flown. A vehicle that cannot be re-engaged is kept out and landed. Returns the new
-    formation's sysids.
+    setpoints and re-engaged (OFFBOARD/GUIDED, :func:`_rejoin_one`); the formation re-forms for
+    the larger number (:func:`readmitted_offsets`, rotated clear of obstacles) and a
+    separation-keeping transfer is flown. A vehicle that cannot be re-engaged is kept out and
+    landed. Returns the new formation's sysids.
     """
     plan = co.plan
-    joined = []
-    for sysid in returning:
-        loss = co.lost[sysid]
-        loss.readmit_pending = False
-        v = co.vehicles.get(sysid)
-        pos = co._telemetry_position(sysid)
-        alt = None if v is None else getattr(v.state, "relative_alt_m", None)
-        if (v is None or pos is None or not v.state.armed or (alt is not None and alt < 1.0)
-                or v.link_age_s() > plan.faults.link_timeout_s or v.state.mode in LEFT_MODES.get(v.flavour, ())):
-            await keep_out(co, sysid, v, loss, "no longer fit to re-join (disarmed, landed, silent or returning)")
-            continue
-        want = GUIDED_MODES[v.flavour]
-        co._reengaging.add(sysid)  # the watchdog must not race us
-        try:
-            co.ramp.add(sysid, np.asarray(pos, dtype=float))
-            co.released.discard(sysid)
-            await co.clock.sleep(0.5)  # a few setpoints first: PX4 refuses OFFBOARD without them
-            await asyncio.wait_for(v.set_mode(want), timeout=30.0)
-            await co.wait_until(lambda v=v, want=want: v.state.mode == want, 10.0, f"vehicle {sysid} in {want}")
-        except Exception as exc:  # noqa: BLE001 - CommandError, MissionError, timeout: kept out
-            co.ramp.remove(sysid)
-            co.released.add(sysid)
-            await keep_out(co, sysid, v, loss, f"could not re-engage {want}: {exc}")
-            continue
-        finally:
-            co._reengaging.discard(sysid)
-        del co.lost[sysid]
-        co.airborne.add(sysid)
-        co.readmitted.append({"sysid": sysid, "lost_s": loss.detected_s, "came_back_s": loss.came_back_s,
-                              "readmitted_s": co.clock.time()})
-        co.status[sysid] = "re-admitted"
-        co.event(f"vehicle {sysid} re-admitted: re-engaged {want} at its position", sysid=sysid)
-        joined.append(sysid)
+    joined = [sysid for sysid in returning if await _rejoin_one(co, sysid)]
     if not joined:
         return sysids
     members = [s for s in sysids if s not in co.lost]
@@ -173,7 +141,40 @@ async def readmit(co, centre_enu, sysids: list[int], returning: list[int]) -> li
     if kind != co.formation_kind:
         co.event(f"{len(everyone)} vehicles: the symmetric formation needs an even number; switching to "
                  "the CVT formation (and the Theorem 2 estimator)", level="warning")
-    co.formation_kind = kind
+    co.state.set_formation_kind(kind)
     await transfer_to(co, everyone, new, centre, f"re-forming for {len(everyone)} vehicles ({kind}), "
                       f"re-admitting {joined}", lost_here=[])
     return everyone
+
+
+async def _rejoin_one(co, sysid: int) -> bool:
+    """Hold a returning vehicle at its position under setpoints and re-engage it; True when re-admitted.
+
+    A vehicle no longer fit to re-join (disarmed, landed, silent, returning) or that cannot be
+    re-engaged is kept out (:func:`mission.flight.motion.keep_out`).
+    """
+    v = co.vehicles.get(sysid)
+    pos = co.telemetry_position(sysid)
+    alt = None if v is None else getattr(v.state, "relative_alt_m", None)
+    if (v is None or pos is None or not v.state.armed or (alt is not None and alt < 1.0)
+            or v.link_age_s() > co.plan.faults.link_timeout_s or v.state.mode in LEFT_MODES.get(v.flavour, ())):
+        await keep_out(co, sysid, v, "no longer fit to re-join (disarmed, landed, silent or returning)")
+        return False
+    want = GUIDED_MODES[v.flavour]
+    co.state.begin_reengaging(sysid)  # the watchdog must not race us
+    try:
+        co.ramp.add(sysid, np.asarray(pos, dtype=float))
+        co.state.unrelease(sysid)
+        await co.clock.sleep(0.5)  # a few setpoints first: PX4 refuses OFFBOARD without them
+        await asyncio.wait_for(v.set_mode(want), timeout=30.0)
+        await co.wait_until(lambda: v.state.mode == want, 10.0, f"vehicle {sysid} in {want}")
+    except Exception as exc:  # noqa: BLE001 - CommandError, MissionError, timeout: kept out
+        co.ramp.remove(sysid)
+        co.state.release(sysid)
+        await keep_out(co, sysid, v, f"could not re-engage {want}: {exc}")
+        return False
+    finally:
+        co.state.end_reengaging(sysid)
+    co.state.readmit(sysid, co.clock.time())
+    co.event(f"vehicle {sysid} re-admitted: re-engaged {want} at its position", sysid=sysid)
+    return True

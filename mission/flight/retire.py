@@ -34,7 +34,7 @@ from mission.flight.motion import keep_out, parked, transfer_to
 __all__ = ["PARKED_STATUS", "RetiredSensor", "SensorWatch", "formation_goals", "keep_out_retired",
            "make_watch", "parked", "restore_retired", "retire_sensor"]
 
-#: ``co.status`` of a vehicle whose sensor was retired
+#: the status of a vehicle whose sensor was retired
 PARKED_STATUS = "sensor retired: at the centre"
 
 
@@ -166,8 +166,7 @@ async def retire_sensor(co, centre_enu, sysids: list[int], info: RetiredSensor) 
         return list(sysids)
     new, kind = await survivor_slots(co, centre_enu, sysids, [s for s in sysids if s not in remaining],
                                      "sensing vehicles")
-    co.retired[sysid] = info
-    co.status[sysid] = PARKED_STATUS
+    co.state.retire(info, status=PARKED_STATUS)
     ratio = info.ratio
     co.event(f"vehicle {sysid}'s sensor retired ({info.reason}, std {info.noise_std:.3g} = {ratio:.1f}x the "
              f"median, named for {info.named_for} iterations): parked at the formation centre, readings "
@@ -188,12 +187,17 @@ async def keep_out_retired(co, returning: list[int]) -> list[int]:
     """
     retired = getattr(co, "retired", None) or {}
     for s in [s for s in returning if s in retired]:
-        await keep_out(co, s, co.vehicles.get(s), co.lost[s], "its sensor was retired")
+        await keep_out(co, s, co.vehicles.get(s), "its sensor was retired")
     return [s for s in returning if s not in retired]
 
 
 def restore_retired(co, records: dict) -> None:
-    """Put the retired sensors read back from a mission log (:mod:`mission.flight.resume`) into ``co``."""
+    """Put the retired sensors read back from a mission log (:mod:`mission.flight.resume`) into ``co``.
+
+    Written against mappings (``co.retired``, ``co.status``): on the coordinator, item assignment
+    there is :meth:`MissionState.retire <mission.flight.state.MissionState.retire>` and
+    :meth:`MissionState.set_status <mission.flight.state.MissionState.set_status>`.
+    """
     defaults = {"reason": "", "noise_std": float("nan"), "median_std": float("nan"), "iteration": 0,
                 "named_for": 0, "retired_s": float("nan")}
     for sysid, fields in records.items():

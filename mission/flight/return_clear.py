@@ -51,6 +51,7 @@ async def _fly(co, sysids, plan: ClearPlan, tol_m: float, names: tuple[str, str,
     lost_before = frozenset(co.lost)
     wps = plan.waypoints_enu
     first, across, last = names
+    # co.status[s] = ... is MissionState.set_status on the coordinator (a plain dict on test doubles)
     if plan.times_s is not None:
         for s in sysids:
             co.status[s] = f"{co.phase}: {plan.strategy}"
