@@ -164,7 +164,6 @@ def plan_clear_transfer(start, goal, obstacle_points, min_separation_m: float, m
         No strategy keeps the separation with the obstacles fixed.
     """
     from mission.safety.envelope import TransferError, plan_transfer
-    from mission.safety.transfer import TransferPlan
 
     obs = np.asarray(obstacle_points, dtype=float).reshape(-1, 3)
     if not len(obs):
@@ -172,6 +171,34 @@ def plan_clear_transfer(start, goal, obstacle_points, min_separation_m: float, m
     clear_m = float(min_separation_m if clearance_m is None else max(clearance_m, min_separation_m))
     # fixed participants must be apart themselves (a lost vehicle's last position and last
     # setpoint are close): plan with a thinned set, then check every leg against all of them
+    errors: list[str] = []
+    tp = _plan_with_fixed(start, goal, obs, min_separation_m, max_speed_m_s, fence, clear_m, errors)
+    if tp is not None:
+        return tp
+    # the layered strategies move every row: plan the movers alone, keep a plan whose every leg
+    # stays clear of the obstacles
+    for strategy in ("layered", "relayered"):
+        try:
+            tp = plan_transfer(start, goal, min_separation_m, max_speed_m_s, fence=fence, strategy=strategy)
+        except TransferError:
+            continue
+        wps = np.asarray(tp.waypoints_enu, dtype=float)
+        if min(segment_clearance(x, y, obs) for x, y in zip(wps[:-1], wps[1:])) >= clear_m:
+            return tp
+        errors.append(f"{strategy} (movers only): passes too close to an obstacle")
+    raise TransferError("no transfer keeping clear of the lost vehicles still flying (" + "; ".join(errors) + ")")
+
+
+def _plan_with_fixed(start, goal, obs, min_separation_m: float, max_speed_m_s: float, fence, clear_m: float,
+                     errors: list[str]):
+    """:func:`plan_clear_transfer`'s first try: the obstacles (thinned) as participants that do not move.
+
+    Returns the plan with the obstacle rows removed, or None (each strategy's failure appended to
+    ``errors``).
+    """
+    from mission.safety.envelope import TransferError, plan_transfer
+    from mission.safety.transfer import TransferPlan
+
     fixed = []
     for q in obs:
         if all(np.linalg.norm(q - f) >= min_separation_m for f in fixed):
@@ -180,7 +207,6 @@ def plan_clear_transfer(start, goal, obstacle_points, min_separation_m: float, m
     a = np.vstack([np.asarray(start, dtype=float), fixed])
     b = np.vstack([np.asarray(goal, dtype=float), fixed])
     n = len(a) - len(fixed)
-    errors = []
     for strategy in ("direct", "sequenced", "layered", "relayered"):
         try:
             tp = plan_transfer(a, b, min_separation_m, max_speed_m_s, fence=fence, strategy=strategy)
@@ -195,15 +221,4 @@ def plan_clear_transfer(start, goal, obstacle_points, min_separation_m: float, m
         if min(segment_clearance(x, y, obs) for x, y in zip(movers[:-1], movers[1:])) >= clear_m:
             return TransferPlan(tp.times_s, movers, tp.strategy, tp.min_separation_m)
         errors.append(f"{strategy}: passes too close to an obstacle")
-    # the layered strategies move every row: plan the movers alone, keep a plan whose every leg
-    # stays clear of the obstacles
-    for strategy in ("layered", "relayered"):
-        try:
-            tp = plan_transfer(start, goal, min_separation_m, max_speed_m_s, fence=fence, strategy=strategy)
-        except TransferError:
-            continue
-        wps = np.asarray(tp.waypoints_enu, dtype=float)
-        if min(segment_clearance(x, y, obs) for x, y in zip(wps[:-1], wps[1:])) >= clear_m:
-            return tp
-        errors.append(f"{strategy} (movers only): passes too close to an obstacle")
-    raise TransferError("no transfer keeping clear of the lost vehicles still flying (" + "; ".join(errors) + ")")
+    return None

@@ -150,11 +150,27 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
     last_phase = phases[-1] if phases else ""
     if last_phase in ("done", "return", "finish") or any(r["type"] == "summary" for r in records):
         raise ResumeError(f"{log_path}: the mission already ended (last phase {last_phase!r}); nothing to resume")
+    slots, layers, lost, retired, kind, embedded = _formation_from_events(records, plan.formation.type)
+    if not slots:
+        raise ResumeError(f"{log_path}: stopped before the formation was planned (phase {last_phase!r}); "
+                          "start the mission again")
+    for s in lost:
+        slots.pop(s, None)
+    for s in retired:
+        if s in slots:
+            slots[s] = np.zeros(3)  # parked at the centre
+    centre, centres, k, flown = _seek_progress(records, plan)
+    return ResumeState(plan=plan, iteration=k, centre_enu=centre, centres=centres, slot_offsets=slots,
+                       layer_alt_m=layers, formation_kind=kind, lost=lost, distance_flown_m=flown,
+                       last_phase=last_phase, embedded=embedded, retired=retired)
+
+
+def _formation_from_events(records: list[dict], kind: str):
+    """``(slots, layers, lost, retired, kind, embedded)`` from the log's events, in order."""
     slots: dict[int, np.ndarray] = {}
     layers: dict[int, float] = {}
     lost: list[int] = []
     retired: dict[int, dict] = {}
-    kind = plan.formation.type
     embedded = None
     for r in records:
         if r["type"] != "event":
@@ -177,26 +193,19 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
             kind = "cvt"
         elif msg == "embedded mock fleet":
             embedded = r
-    if not slots:
-        raise ResumeError(f"{log_path}: stopped before the formation was planned (phase {last_phase!r}); "
-                          "start the mission again")
-    for s in lost:
-        slots.pop(s, None)
-    for s in retired:
-        if s in slots:
-            slots[s] = np.zeros(3)  # parked at the centre
+    return slots, layers, lost, retired, kind, embedded
+
+
+def _seek_progress(records: list[dict], plan: Plan):
+    """``(centre, last centres, iterations done, distance flown)`` from the log's ``iteration`` records."""
     iterations = [r for r in records if r["type"] == "iteration"]
+    if not iterations:
+        return plan.seeking.start_point(), [], 0, 0.0
+    last = iterations[-1]
     window = plan.seeking.convergence_window
-    if iterations:
-        last = iterations[-1]
-        centre = np.asarray(last["new_centre_enu"], dtype=float)
-        centres = [np.asarray(r["new_centre_enu"], dtype=float) for r in iterations[-window:]]
-        k, flown = int(last["k"]), float(last.get("distance_flown_m") or 0.0)
-    else:
-        centre, centres, k, flown = plan.seeking.start_point(), [], 0, 0.0
-    return ResumeState(plan=plan, iteration=k, centre_enu=centre, centres=centres, slot_offsets=slots,
-                       layer_alt_m=layers, formation_kind=kind, lost=lost, distance_flown_m=flown,
-                       last_phase=last_phase, embedded=embedded, retired=retired)
+    centres = [np.asarray(r["new_centre_enu"], dtype=float) for r in iterations[-window:]]
+    return (np.asarray(last["new_centre_enu"], dtype=float), centres, int(last["k"]),
+            float(last.get("distance_flown_m") or 0.0))
 
 
 async def rejoin(co, state: ResumeState) -> None:

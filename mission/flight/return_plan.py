@@ -124,38 +124,48 @@ def landing_spots(homes_enu, layer_alt_m, obstacle_points, clearance_m: float, m
     c = float(clearance_m)
 
     def _column_clear(xy, i):
-        top = np.c_[xy, np.full(len(xy), max(layers[i], homes[i, 2]))]
-        bottom = np.c_[xy, np.full(len(xy), homes[i, 2])]
-        return _point_clearance(top, bottom, obs) >= c
+        return _column_clearance(xy, layers[i], homes[i, 2], obs) >= c
 
-    def _home_blocked(i):
-        if rtl:
-            return bool(np.min(np.linalg.norm(obs[:, :2] - homes[i, :2], axis=1)) < c)
-        return not bool(_column_clear(homes[i:i + 1, :2], i)[0])
-
-    angles = np.radians(np.arange(0.0, 360.0, 15.0))
-    ring = np.c_[np.cos(angles), np.sin(angles)]
     for i in range(n):
-        if not _home_blocked(i):
+        if rtl:
+            blocked = bool(np.min(np.linalg.norm(obs[:, :2] - homes[i, :2], axis=1)) < c)
+        else:
+            blocked = not bool(_column_clear(homes[i:i + 1, :2], i)[0])
+        if not blocked:
             continue
         others = np.delete(spots[:, :2], i, axis=0)
-        found = None
-        for d in np.arange(0.5, max_shift_m + 1e-9, 0.5):
-            xy = homes[i, :2] + d * ring
-            ok = _column_clear(xy, i) & _horizontal_ok(fence, xy)
-            if len(others):
-                ok &= np.min(np.linalg.norm(xy[:, None] - others[None], axis=-1), axis=1) >= min_separation_m
-            if np.any(ok):
-                # among the clear spots at this distance, the one farthest from the obstacles
-                far = np.min(np.linalg.norm(xy[:, None] - obs[None, :, :2], axis=-1), axis=1)
-                found = xy[np.flatnonzero(ok)[np.argmax(far[ok])]]
-                break
+        found = _nearest_clear_spot(homes[i, :2], lambda xy, i=i: _column_clear(xy, i) & _horizontal_ok(fence, xy),
+                                    others, obs, min_separation_m, max_shift_m)
         if found is None:
             clear[i] = False
             continue
         spots[i, :2] = found
         moved[i] = True
     return spots, moved, clear
+
+
+def _column_clearance(xy, layer_alt_m: float, ground_alt_m: float, obs) -> np.ndarray:
+    """``(M,)`` distance from the vertical descent columns over ``xy`` ``(M, 2)`` to the obstacles."""
+    top = np.c_[xy, np.full(len(xy), max(layer_alt_m, ground_alt_m))]
+    bottom = np.c_[xy, np.full(len(xy), ground_alt_m)]
+    return _point_clearance(top, bottom, obs)
+
+
+def _nearest_clear_spot(home_xy, ok_at, others, obs, min_separation_m: float, max_shift_m: float):
+    """The nearest spot beside ``home_xy`` (rings every 0.5 m, 15 deg) where ``ok_at(xy)`` holds and that
+    is ``min_separation_m`` from ``others``; among the clear ones of a ring, the farthest from the
+    obstacles. None within ``max_shift_m``."""
+    angles = np.radians(np.arange(0.0, 360.0, 15.0))
+    ring = np.c_[np.cos(angles), np.sin(angles)]
+    for d in np.arange(0.5, max_shift_m + 1e-9, 0.5):
+        xy = home_xy + d * ring
+        ok = ok_at(xy)
+        if len(others):
+            ok &= np.min(np.linalg.norm(xy[:, None] - others[None], axis=-1), axis=1) >= min_separation_m
+        if np.any(ok):
+            far = np.min(np.linalg.norm(xy[:, None] - obs[None, :, :2], axis=-1), axis=1)
+            return xy[np.flatnonzero(ok)[np.argmax(far[ok])]]
+    return None
 
 
 def _via_candidates(obs, z_m, clearance_m):
@@ -272,8 +282,6 @@ def plan_clear_return(start, goal, layer_alt_m, obstacle_points, min_separation_
     ValueError
         Shapes do not match or a coordinate is not finite.
     """
-    from mission.safety.envelope import TransferError
-
     s = np.asarray(start, dtype=float)
     g = np.asarray(goal, dtype=float)
     lay = np.asarray(layer_alt_m, dtype=float).reshape(-1)
@@ -294,23 +302,42 @@ def plan_clear_return(start, goal, layer_alt_m, obstacle_points, min_separation_
         return ClearPlan(layered, None, "layered", cl, True)
     candidates = [ClearPlan(layered, None, "layered", cl, False)]
     # the same legs with horizontal detours at each vehicle's own layer
-    if path_clearance(np.stack([s, up]), obs) >= c and path_clearance(np.stack([across, g]), obs) >= c:
-        vias, complete = [], True
-        for i in range(len(s)):
-            v = _detour(up[i], across[i], obs, c, fence)
-            if v is None:
-                complete, v = False, np.zeros((0, 3))
-            vias.append(v)
-        k = max(len(v) for v in vias)
-        rows = [np.array([v[j] if j < len(v) else across[i] for i, v in enumerate(vias)]) for j in range(k)]
-        det = np.stack([s, up, *rows, across, g])
-        det_cl = path_clearance(det, obs)
-        if k and _batch_separation(det[1:-1]) >= min_separation_m:
-            plan = ClearPlan(det, None, "layered+detour", det_cl, complete and det_cl >= c)
-            if plan.clear:
-                return plan
+    for plan in (_detoured(s, up, across, g, obs, c, min_separation_m, fence),
+                 # synchronous transfer with the obstacles as fixed participants
+                 _transfer(s, g, obs, c, min_separation_m, max_speed_m_s, max_vertical_speed_m_s, fence)):
+        if plan is not None and plan.clear:
+            return plan
+        if plan is not None:
             candidates.append(plan)
-    # synchronous transfer with the obstacles as fixed participants
+    return max(candidates, key=lambda p: p.clearance_m)
+
+
+def _detoured(s, up, across, g, obs, c: float, min_separation_m: float, fence) -> ClearPlan | None:
+    """The layered legs with horizontal detours at each vehicle's own layer, or None (the vertical
+    legs are not clear, no detour needed, or the detours of one batch come too close)."""
+    if path_clearance(np.stack([s, up]), obs) < c or path_clearance(np.stack([across, g]), obs) < c:
+        return None
+    vias, complete = [], True
+    for i in range(len(s)):
+        v = _detour(up[i], across[i], obs, c, fence)
+        if v is None:
+            complete, v = False, np.zeros((0, 3))
+        vias.append(v)
+    k = max(len(v) for v in vias)
+    rows = [np.array([v[j] if j < len(v) else across[i] for i, v in enumerate(vias)]) for j in range(k)]
+    det = np.stack([s, up, *rows, across, g])
+    det_cl = path_clearance(det, obs)
+    if not k or _batch_separation(det[1:-1]) < min_separation_m:
+        return None
+    return ClearPlan(det, None, "layered+detour", det_cl, complete and det_cl >= c)
+
+
+def _transfer(s, g, obs, c: float, min_separation_m: float, max_speed_m_s: float, max_vertical_speed_m_s: float,
+              fence) -> ClearPlan | None:
+    """A synchronous transfer with the obstacles as fixed participants (clearance ``c``, else the
+    separation), retimed for the ramp; None when none can be planned."""
+    from mission.safety.envelope import TransferError
+
     for need in (c, min_separation_m):
         try:
             tp = plan_clear_transfer(s, g, obs, min_separation_m, max_speed_m_s, fence=fence, clearance_m=need)
@@ -318,10 +345,6 @@ def plan_clear_return(start, goal, layer_alt_m, obstacle_points, min_separation_
             continue
         wps = np.asarray(tp.waypoints_enu, dtype=float)
         tr_cl = path_clearance(wps, obs)
-        plan = ClearPlan(wps, _retimed(wps, max_speed_m_s, max_vertical_speed_m_s), f"transfer ({tp.strategy})",
+        return ClearPlan(wps, _retimed(wps, max_speed_m_s, max_vertical_speed_m_s), f"transfer ({tp.strategy})",
                          tr_cl, tr_cl >= c)
-        if plan.clear:
-            return plan
-        candidates.append(plan)
-        break
-    return max(candidates, key=lambda p: p.clearance_m)
+    return None
