@@ -96,7 +96,7 @@ def test_loss_and_readmission_keep_the_sets_consistent(tmp_path):
 
 
 def test_retired_board_and_seek_progress(tmp_path):
-    state, log, _ = _state(tmp_path)
+    state, _log, _ = _state(tmp_path)
     info = SimpleNamespace(sysid=4, reason="noisy")
     state.retire(info, status="sensor retired: at the centre")
     assert state.retired[4] is info and state.status[4] == "sensor retired: at the centre"

@@ -32,7 +32,12 @@ import numpy as np
 
 from mission.flight.motion import fly_timed, move_and_wait
 from mission.flight.obstacles import OBSTACLE_MARGIN_M, obstacles
-from mission.flight.return_plan import ClearPlan, landing_spots, path_clearance, plan_clear_return
+from mission.flight.return_plan import (
+    ClearPlan,
+    landing_spots,
+    path_clearance,
+    plan_clear_return,
+)
 from mission.flight.state import MissionError
 
 __all__ = ["fly_clear", "fly_return"]

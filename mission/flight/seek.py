@@ -24,8 +24,18 @@ import numpy as np
 
 from mission.flight.loss import reform
 from mission.flight.motion import move_and_wait, parked
-from mission.flight.rejoin import clear_goals, fly_rotation, pending_readmissions, readmit
-from mission.flight.retire import formation_goals, keep_out_retired, make_watch, retire_sensor
+from mission.flight.rejoin import (
+    clear_goals,
+    fly_rotation,
+    pending_readmissions,
+    readmit,
+)
+from mission.flight.retire import (
+    formation_goals,
+    keep_out_retired,
+    make_watch,
+    retire_sensor,
+)
 from mission.flight.state import MissionError
 
 __all__ = ["seek", "make_estimator"]
