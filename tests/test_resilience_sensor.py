@@ -159,7 +159,7 @@ def test_retirement_is_refused_when_things_changed_since_the_estimate(sysids, lo
     (3.0, 5.0, 5.0),        # planned slower than the ramp: kept
 ])
 def test_transfer_legs_are_never_faster_than_the_ramp(climb_m, planned_s, expected_s):
-    from mission.flight.loss import _ramp_times
+    from mission.flight.motion import _ramp_times
 
     wps = np.zeros((3, 2, 3))
     wps[1, 0] = [2.0, 0.0, climb_m]          # leg 1: vehicle 0 moves, vehicle 1 holds

@@ -13,8 +13,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mission.flight.rejoin import OBSTACLE_MARGIN_M
-from mission.flight.return_clear import landing_spots, path_clearance, plan_clear_return
+from mission.flight.obstacles import OBSTACLE_MARGIN_M
+from mission.flight.return_plan import landing_spots, path_clearance, plan_clear_return
 from mission.safety.envelope import Geofence
 from mission.flight.targets import layered_transfer
 from fly_helpers import fly
@@ -50,7 +50,7 @@ def test_plan_keeps_clear_of_an_obstacle_on_a_straight_return_path(obstacle, str
     assert path_clearance(wps, obs) >= CLEAR_M - 1e-9
     assert plan.clearance_m == pytest.approx(path_clearance(wps, obs))
     if plan.times_s is None:   # batch by batch, vehicles not in step: paths pairwise apart
-        from mission.flight.return_clear import _batch_separation
+        from mission.flight.return_plan import _batch_separation
 
         assert _batch_separation(wps[1:]) >= SEP_M
     else:
@@ -181,7 +181,7 @@ class _FakeCoordinator:
         return self.ramp.setpoint(sysid)
 
     async def wait_until(self, predicate, timeout_s, what, poll_s=0.1):
-        from mission.flight.coordinator import MissionError
+        from mission.flight.state import MissionError
 
         deadline = self.clock.time() + timeout_s
         while not predicate():

@@ -1,4 +1,13 @@
 """mission.flight: the mission state machine, its explicit state and its phases.
 
 Depends on every room below it (safety, telemetry, vehicle, link, core), never on ``cli``.
+Inside, imports go one way only (no cycle, lazy imports included)::
+
+    state, modes, targets                    the mission's state and types, flight modes, the ramp
+      <- result, obstacles                   the end result; lost vehicles as obstacles
+      <- motion                              retried commands, move-and-wait, timed plans, transfers
+      <- loss, return_plan, return_clear     losses and re-forming; the return planned clear
+      <- rejoin, retire, watchdog            re-admission; retired sensors; re-engaging
+      <- connect, phases, seek               connect/preflight; takeoff, assemble, return; the seek
+      <- resume <- coordinator               resuming from a log; the coordinator
 """

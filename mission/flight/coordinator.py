@@ -11,101 +11,36 @@ display). Every phase change, event and seeking iteration goes to the mission lo
 from __future__ import annotations
 
 import asyncio
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 
 import numpy as np
 
 from mission.core.clock import cancel_and_wait
-from mission.flight.loss import LEFT_MODES, watch_losses
-from mission.telemetry.mission_log import MissionLog, to_jsonable
 from mission.core.plan import Plan
+from mission.flight import connect as connect_phase
+from mission.flight import phases, seek
+from mission.flight.loss import watch_losses
+from mission.flight.result import MissionResult, mission_result, readiness_result
+from mission.flight.resume import rejoin
+from mission.flight.state import MissionError, MissionState
+from mission.flight.watchdog import watchdog
+from mission.telemetry.mission_log import MissionLog, to_jsonable
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber
 
-__all__ = ["PHASES", "MissionError", "MissionResult", "VehicleReadiness", "Coordinator"]
-
-PHASES = ("idle", "connect", "preflight", "takeoff", "assemble", "seek", "finish", "return", "done",
-          "aborted")
+__all__ = ["Coordinator"]
 
 
-class MissionError(RuntimeError):
-    """The mission cannot go on (a phase failed); the message says which and why."""
+class _FromState:
+    """Read-only coordinator attribute: the :class:`MissionState` attribute of the same name."""
 
+    def __set_name__(self, owner, name: str) -> None:
+        self._name = name
 
-@dataclass
-class VehicleReadiness:
-    """Preflight result of one vehicle: every check and why it failed."""
+    def __get__(self, obj, objtype=None):
+        return self if obj is None else getattr(obj.state, self._name)
 
-    sysid: int
-    id: str
-    connection: str
-    checks: dict = field(default_factory=dict)
-    problems: list = field(default_factory=list)
-    flavour: str | None = None
-
-    @property
-    def ready(self) -> bool:
-        """All checks passed."""
-        return bool(self.checks) and all(self.checks.values()) and not self.problems
-
-
-@dataclass
-class MissionResult:
-    """End of a mission (what ``--json`` prints).
-
-    Attributes
-    ----------
-    outcome : str
-        ``converged``, ``max_iterations``, ``stopped_at_fence``, ``aborted``, ``ready`` or
-        ``not_ready`` (dry run).
-    message : str
-    estimate_enu : list or None
-        Estimated source position (mean of the last ``convergence_window`` centres).
-    spread_m : float or None
-        RMS spread of those centres.
-    iterations : int
-    mission_time_s, seek_time_s : float
-        Mission clock seconds, whole mission and seek phase.
-    distance_flown_m : float
-        Path length of the formation centre during the seek.
-    vehicle_distance_m : dict
-        Path length flown by each vehicle (telemetry), by sysid.
-    readings : dict
-        Accepted readings and rejections per reason.
-    readiness : list
-        Preflight result per vehicle.
-    lost : list
-        Vehicles lost during the mission: ``sysid``, ``reason`` (``link`` / ``left``),
-        ``detail``, ``phase``, ``latency_s`` (see :mod:`mission.flight.loss`).
-    """
-
-    outcome: str
-    message: str = ""
-    estimate_enu: list | None = None
-    spread_m: float | None = None
-    iterations: int = 0
-    mission_time_s: float = 0.0
-    seek_time_s: float = 0.0
-    distance_flown_m: float = 0.0
-    vehicle_distance_m: dict = field(default_factory=dict)
-    readings: dict = field(default_factory=dict)
-    readiness: list = field(default_factory=list)
-    true_source_enu: list | None = None
-    error_m: float | None = None
-    log_path: str | None = None
-    reengaged: dict = field(default_factory=dict)
-    max_loop_lag_s: float | None = None
-    lost: list = field(default_factory=list)
-    readmitted: list = field(default_factory=list)  # sysid, lost_s, came_back_s, readmitted_s
-    retired: list = field(default_factory=list)  # retired sensors: mission.flight.retire.RetiredSensor
-
-    @property
-    def ok(self) -> bool:
-        """The mission reached its goal (converged), or the dry run found every vehicle ready."""
-        return self.outcome in ("converged", "ready")
-
-    def to_json(self) -> dict:
-        """JSON-friendly dict."""
-        return to_jsonable(asdict(self))
+    def __set__(self, obj, value) -> None:
+        raise AttributeError(f"{self._name} is mission state: change it through the methods of Coordinator.state")
 
 
 class Coordinator:
@@ -127,7 +62,36 @@ class Coordinator:
         State publication / display rate (wall clock).
     status_period_s : float
         A ``status`` record (every vehicle's state) goes to the mission log this often (mission clock).
+
+    Notes
+    -----
+    The mission's state is :attr:`state` (:class:`~mission.flight.state.MissionState`); the
+    coordinator's ``phase``, ``status``, ``lost``... are read-only views of it. The links,
+    vehicles, setpoint stream and envelope are set by the phases through :meth:`add_endpoint`,
+    :meth:`add_vehicle`, :meth:`use_poller`, :meth:`use_envelope` and :meth:`use_setpoints`.
     """
+
+    phase = _FromState()
+    status = _FromState()
+    readiness = _FromState()
+    airborne = _FromState()
+    released = _FromState()
+    reengaged = _FromState()
+    lost = _FromState()
+    readmitted = _FromState()
+    retired = _FromState()
+    slot_offsets = _FromState()
+    layer_alt_m = _FromState()
+    home_enu = _FromState()
+    formation_kind = _FromState()
+    iteration = _FromState()
+    centre_enu = _FromState()
+    gradient = _FromState()
+    estimate_enu = _FromState()
+    spread_m = _FromState()
+    distance_flown_m = _FromState()
+    vehicle_distance_m = _FromState()
+    max_loop_lag_s = _FromState()
 
     def __init__(self, plan: Plan, *, clock, zenoh_session=None, log: MissionLog | None = None,
                  display=None, tlog_dir=None, state_rate_hz: float = 2.0, status_period_s: float = 1.0):
@@ -139,9 +103,10 @@ class Coordinator:
         self.tlog_dir = tlog_dir
         self.state_rate_hz = state_rate_hz
         self.status_period_s = float(status_period_s)
-        self.phase = "idle"
+        self.state = MissionState([v.sysid for v in plan.vehicles], clock=clock, log=log,
+                                  formation_kind=plan.formation.type)
         self.endpoints: dict[str, object] = {}
-        self.poller = None  # mission.link.poller.UdpPoller when many UDP endpoints (phases.connect)
+        self.poller = None  # mission.link.poller.UdpPoller when many UDP endpoints (connect)
         self.vehicles: dict[int, object] = {}
         self.ids = {v.sysid: v.id for v in plan.vehicles}
         self.streamer = None
@@ -149,46 +114,48 @@ class Coordinator:
         self.envelope = None
         self.store = ReadingStore(
             plan.fleet, [v.sysid for v in plan.vehicles], plan.origin, clock,
-            telemetry_position=self._telemetry_position,
+            telemetry_position=self.telemetry_position,
             max_age_s=plan.seeking.max_reading_age_s,
             max_position_error_m=plan.seeking.max_position_error_m)
         self._subscriber: ReadingSubscriber | None = None
         self._state_pub = None
-        self.iteration = 0
-        self.centre_enu: np.ndarray | None = None
-        self.gradient: np.ndarray | None = None
-        self.estimate_enu: np.ndarray | None = None
-        self.spread_m: float | None = None
-        self.distance_flown_m = 0.0
-        self.vehicle_distance_m: dict[int, float] = {}
-        self._last_pos: dict[int, np.ndarray] = {}
-        self.slot_offsets: dict[int, np.ndarray] = {}
-        self.layer_alt_m: dict[int, float] = {}
-        self.home_enu: dict[int, np.ndarray] = {}
-        self.readiness: dict[int, VehicleReadiness] = {}
-        self.status: dict[int, str] = {v.sysid: "pending" for v in plan.vehicles}
-        self.airborne: set[int] = set()
-        self._t_start = clock.time()
-        self._t_seek_start: float | None = None
-        self._t_seek_end: float | None = None
         self._watchdog_task: asyncio.Task | None = None
-        self._reengaging: set[int] = set()
-        self.released: set[int] = set()
-        self.reengaged: dict[int, int] = {}
-        self.max_loop_lag_s = 0.0
-        self.lost: dict = {}
-        self.readmitted: list = []  # mission.flight.rejoin.readmit
-        self.retired: dict = {}  # sysid -> mission.flight.retire.RetiredSensor (parked at the centre)
-        self.return_on_interrupt = True
-        self.formation_kind = plan.formation.type
         self._loss_task: asyncio.Task | None = None
+        self.return_on_interrupt = True
+
+    # ----------------------------------------------------------------- resources set by the phases
+    def add_endpoint(self, uri: str, endpoint) -> None:
+        """A MAVLink endpoint opened for ``uri`` (closed at the end)."""
+        self.endpoints[uri] = endpoint
+
+    def add_vehicle(self, vehicle) -> None:
+        """A vehicle link attached (by its ``sysid``; closed at the end)."""
+        self.vehicles[vehicle.sysid] = vehicle
+
+    def use_poller(self, poller) -> None:
+        """The UDP poller reading every UDP endpoint (closed at the end)."""
+        self.poller = poller
+
+    def use_envelope(self, envelope) -> None:
+        """The safety envelope every setpoint batch is checked against (None: no fence)."""
+        self.envelope = envelope
+
+    def use_setpoints(self, streamer, ramp) -> None:
+        """The setpoint streamer and the ramp feeding it (stopped at the end)."""
+        self.streamer, self.ramp = streamer, ramp
+
+    @property
+    def readings_subscribed(self) -> bool:
+        """The zenoh readings subscription is running (False in a dry run without a session)."""
+        return self._subscriber is not None
 
     # ----------------------------------------------------------------- helpers used by phases
     def plan_vehicle(self, sysid: int):
         """The plan's entry of a vehicle."""
         return next(v for v in self.plan.vehicles if v.sysid == sysid)
 
-    def _telemetry_position(self, sysid: int):
+    def telemetry_position(self, sysid: int):
+        """The vehicle's telemetry position (mission ENU m), or None (unknown vehicle, no telemetry yet)."""
         v = self.vehicles.get(sysid)
         if v is None:
             return None
@@ -197,11 +164,12 @@ class Coordinator:
         except Exception:  # noqa: BLE001 - no telemetry yet
             return None
 
+    #: the name the motion primitives use (their test doubles implement only this one)
+    _telemetry_position = telemetry_position
+
     def set_phase(self, name: str, **fields) -> None:
         """Enter a phase: log it, show it."""
-        if name not in PHASES:
-            raise ValueError(f"unknown phase {name!r}; phases: {', '.join(PHASES)}")
-        self.phase = name
+        self.state.set_phase(name)
         if self.log is not None:
             self.log.phase(name, **fields)
         self.say(f"phase {name}" + (f" ({', '.join(f'{k}={v}' for k, v in fields.items())})" if fields else ""))
@@ -221,17 +189,7 @@ class Coordinator:
 
     def update_odometry(self) -> None:
         """Accumulate each vehicle's flown distance from telemetry."""
-        for sysid, v in self.vehicles.items():
-            p = self._telemetry_position(sysid)
-            if p is None:
-                continue
-            p = np.asarray(p, dtype=float)
-            last = self._last_pos.get(sysid)
-            if last is not None and sysid in self.airborne:
-                step = float(np.linalg.norm(p - last))
-                if step < 50.0:
-                    self.vehicle_distance_m[sysid] = self.vehicle_distance_m.get(sysid, 0.0) + step
-            self._last_pos[sysid] = p
+        self.state.add_positions({s: self.telemetry_position(s) for s in self.vehicles})
 
     def vehicle_status(self) -> list[dict]:
         """Per-vehicle status dicts (display, state, log)."""
@@ -242,7 +200,7 @@ class Coordinator:
                  "sensor_retired": vp.sysid in self.retired}
             if v is not None:
                 st = v.state
-                pos = self._telemetry_position(vp.sysid)
+                pos = self.telemetry_position(vp.sysid)
                 d.update(flavour=v.flavour, mode=st.mode, armed=bool(st.armed),
                          relative_alt_m=st.relative_alt_m, battery_pct=st.battery_remaining_pct,
                          link_age_s=round(float(v.link_age_s()), 3),
@@ -261,7 +219,7 @@ class Coordinator:
         g = self.gradient
         return {
             "fleet": self.plan.fleet, "phase": self.phase, "t_s": self.clock.time(),
-            "elapsed_s": self.clock.time() - self._t_start, "iteration": self.iteration,
+            "elapsed_s": self.clock.time() - self.state.t_start_s, "iteration": self.iteration,
             "centre_enu": self.centre_enu, "gradient": g,
             "gradient_norm": None if g is None else float(np.linalg.norm(g)),
             "estimate_enu": self.estimate_enu, "spread_m": self.spread_m,
@@ -278,58 +236,11 @@ class Coordinator:
             await self.clock.sleep(poll_s)
 
     # ----------------------------------------------------------------- mission entry points
-    _GUIDED_MODES = {"px4": "OFFBOARD", "ardupilot": "GUIDED"}
-
-    async def _watchdog(self, period_s: float = 0.1) -> None:
-        """Odometry, event-loop lag, and re-engaging OFFBOARD/GUIDED after a setpoint-loss failsafe.
-
-        A vehicle under the mission's setpoints (takeoff done, not returning) found in another
-        mode is switched back (PX4 falls back to hold when setpoints pause for COM_OF_LOSS_T;
-        the stream resumes at once, so re-engaging is safe); each time is logged and counted.
-        """
-        loop = asyncio.get_running_loop()
-        next_status_s = self.clock.time()
-        while True:
-            t0 = loop.time()
-            await asyncio.sleep(period_s)
-            self.max_loop_lag_s = max(self.max_loop_lag_s, loop.time() - t0 - period_s)
-            self.update_odometry()
-            if self.log is not None and self.vehicles and self.clock.time() >= next_status_s:
-                next_status_s = self.clock.time() + self.status_period_s
-                self.log.write("status", phase=self.phase, centre_enu=self.centre_enu,
-                               vehicles=self.vehicle_status())
-            if self.phase not in ("assemble", "seek", "finish", "return") or self.ramp is None:
-                continue
-            for sysid in self.ramp.sysids:
-                v = self.vehicles.get(sysid)
-                want = self._GUIDED_MODES.get(getattr(v, "flavour", None))
-                if (v is None or want is None or sysid in self._reengaging or sysid in self.released
-                        or sysid in self.lost or v.state.mode == want):
-                    continue
-                if v.state.mode in LEFT_MODES.get(v.flavour, ()) or v.link_age_s() > self.plan.faults.link_timeout_s:
-                    continue  # left the mission or silent: mission.flight.loss decides, never re-engaged
-                if not v.state.armed:
-                    continue
-                self._reengaging.add(sysid)
-                loop.create_task(self._reengage(sysid, v, want))
-
-    async def _reengage(self, sysid: int, v, want: str) -> None:
-        try:
-            self.event(f"vehicle {sysid} left {want} (now {v.state.mode}); re-engaging", level="warning",
-                       sysid=sysid)
-            await v.set_mode(want)
-            self.reengaged[sysid] = self.reengaged.get(sysid, 0) + 1
-        except Exception as exc:  # noqa: BLE001 - CommandError: reported, retried next tick
-            self.event(f"vehicle {sysid}: could not re-engage {want}: {exc}", level="error", sysid=sysid)
-            await self.clock.sleep(1.0)
-        finally:
-            self._reengaging.discard(sysid)
-
     def _start_background(self) -> None:
         from mission.telemetry.state_pub import StatePublisher
 
         if self._watchdog_task is None:
-            self._watchdog_task = asyncio.get_running_loop().create_task(self._watchdog())
+            self._watchdog_task = asyncio.get_running_loop().create_task(watchdog(self))
         if self._loss_task is None:
             self._loss_task = asyncio.get_running_loop().create_task(watch_losses(self))
 
@@ -350,8 +261,8 @@ class Coordinator:
         if self.streamer is not None:
             try:
                 await self.streamer.stop()
-            except Exception:  # noqa: BLE001
-                pass
+            except Exception as exc:  # noqa: BLE001 - stopping must go on; say what failed
+                self.event(f"stopping the setpoint streamer failed: {exc!r}", level="warning")
         if self._state_pub is not None:
             await self._state_pub.stop()
             self._state_pub = None
@@ -369,29 +280,18 @@ class Coordinator:
 
     async def dry_run(self) -> MissionResult:
         """Connect and run the preflight checks; arms nothing. Outcome ``ready`` or ``not_ready``."""
-        from mission.flight import phases
-
         if self.log is not None:
             self.log.write("plan", plan=_plan_json(self.plan), dry_run=True)
         self._start_background()
         try:
-            await phases.connect(self, required=False)
-            await phases.preflight(self)
+            await connect_phase.connect(self, required=False)
+            await connect_phase.preflight(self)
         except MissionError as exc:
             self.event(str(exc), level="error")
         finally:
             await self._stop_background()
-        ready = [r for r in self.readiness.values()]
-        all_ready = len(ready) == len(self.plan.vehicles) and all(r.ready for r in ready)
-        missing = [vp for vp in self.plan.vehicles if vp.sysid not in self.readiness]
-        readiness = [asdict(r) | {"ready": r.ready} for r in ready] + [
-            {"sysid": vp.sysid, "id": vp.id, "connection": vp.connection, "ready": False,
-             "checks": {"connected": False}, "problems": ["not connected"]} for vp in missing]
-        result = MissionResult(outcome="ready" if all_ready else "not_ready",
-                               message="every vehicle is ready" if all_ready else
-                               f"{sum(not r['ready'] for r in readiness)} vehicle(s) not ready",
-                               readiness=readiness, readings=self.store.counts(),
-                               mission_time_s=self.clock.time() - self._t_start)
+        result = readiness_result(self.state, self.plan.vehicles, self.store.counts(),
+                                  self.clock.time() - self.state.t_start_s)
         if self.log is not None:
             self.log.write("summary", sync=True, **result.to_json())
         return result
@@ -408,16 +308,14 @@ class Coordinator:
         Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
         False (a ground station that just stops: the vehicles do what their autopilot does).
         """
-        from mission.flight import phases, seek
-
         if self.log is not None:
             self.log.write("plan", plan=_plan_json(self.plan), resumed=resume_state is not None)
         self._start_background()
         outcome, message = "aborted", ""
         try:
             if resume_state is None:
-                await phases.connect(self, required=True)
-                await phases.preflight(self)
+                await connect_phase.connect(self, required=True)
+                await connect_phase.preflight(self)
                 not_ready = [r for r in self.readiness.values() if not r.ready]
                 if not_ready:
                     raise MissionError("preflight failed: " + "; ".join(
@@ -426,8 +324,6 @@ class Coordinator:
                 await phases.assemble(self)
                 outcome, message = await seek.seek(self)
             else:
-                from mission.flight.resume import rejoin
-
                 await rejoin(self, resume_state)
                 outcome, message = await seek.seek(self, start_iteration=resume_state.iteration,
                                                    history=resume_state.centres)
@@ -461,8 +357,6 @@ class Coordinator:
         return result
 
     async def _return_safely(self) -> None:
-        from mission.flight import phases
-
         if not self.airborne:
             return
         try:
@@ -472,24 +366,10 @@ class Coordinator:
             await phases.land_all_now(self)
 
     def result(self, outcome: str, message: str) -> MissionResult:
-        """The :class:`MissionResult` of the mission so far."""
-        t_end = self._t_seek_end or self.clock.time()
-        return MissionResult(
-            outcome=outcome, message=message,
-            estimate_enu=None if self.estimate_enu is None else [float(x) for x in self.estimate_enu],
-            spread_m=self.spread_m, iterations=self.iteration,
-            mission_time_s=self.clock.time() - self._t_start,
-            seek_time_s=0.0 if self._t_seek_start is None else t_end - self._t_seek_start,
-            distance_flown_m=self.distance_flown_m,
-            vehicle_distance_m={int(k): round(v, 2) for k, v in self.vehicle_distance_m.items()},
-            readings=self.store.counts() | {"last_errors": self.store.last_errors()},
-            readiness=[asdict(r) | {"ready": r.ready} for r in self.readiness.values()],
-            log_path=None if self.log is None else str(self.log.path),
-            reengaged=dict(self.reengaged), max_loop_lag_s=round(self.max_loop_lag_s, 4),
-            lost=[{"sysid": x.sysid, "reason": x.reason, "detail": x.detail, "phase": x.phase,
-                   "latency_s": round(x.latency_s, 3), "came_back_s": x.came_back_s}
-                  for x in self.lost.values()], readmitted=list(self.readmitted),
-            retired=[dict(asdict(x), ratio=round(x.ratio, 3)) for x in self.retired.values()])
+        """The :class:`~mission.flight.result.MissionResult` of the mission so far."""
+        return mission_result(self.state, outcome, message, now_s=self.clock.time(),
+                              readings=self.store.counts() | {"last_errors": self.store.last_errors()},
+                              log_path=None if self.log is None else str(self.log.path))
 
 
 def _plan_json(plan: Plan) -> dict:

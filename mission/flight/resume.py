@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from formation.geodesy import geodetic_to_enu
 from mission.core.plan import (
     FaultsPlan,
     FormationPlan,
@@ -32,6 +33,11 @@ from mission.core.plan import (
     VehiclePlan,
     ZenohPlan,
 )
+from mission.flight.connect import build_envelope, connect
+from mission.flight.modes import GUIDED_MODES, LEFT_MODES
+from mission.flight.motion import retried, setpoint_stream
+from mission.flight.retire import restore_retired
+from mission.flight.state import MissionError, VehicleLoss
 
 __all__ = ["ResumeError", "ResumeState", "plan_from_json", "load_resume_state", "rejoin"]
 
@@ -144,11 +150,27 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
     last_phase = phases[-1] if phases else ""
     if last_phase in ("done", "return", "finish") or any(r["type"] == "summary" for r in records):
         raise ResumeError(f"{log_path}: the mission already ended (last phase {last_phase!r}); nothing to resume")
+    slots, layers, lost, retired, kind, embedded = _formation_from_events(records, plan.formation.type)
+    if not slots:
+        raise ResumeError(f"{log_path}: stopped before the formation was planned (phase {last_phase!r}); "
+                          "start the mission again")
+    for s in lost:
+        slots.pop(s, None)
+    for s in retired:
+        if s in slots:
+            slots[s] = np.zeros(3)  # parked at the centre
+    centre, centres, k, flown = _seek_progress(records, plan)
+    return ResumeState(plan=plan, iteration=k, centre_enu=centre, centres=centres, slot_offsets=slots,
+                       layer_alt_m=layers, formation_kind=kind, lost=lost, distance_flown_m=flown,
+                       last_phase=last_phase, embedded=embedded, retired=retired)
+
+
+def _formation_from_events(records: list[dict], kind: str):
+    """``(slots, layers, lost, retired, kind, embedded)`` from the log's events, in order."""
     slots: dict[int, np.ndarray] = {}
     layers: dict[int, float] = {}
     lost: list[int] = []
     retired: dict[int, dict] = {}
-    kind = plan.formation.type
     embedded = None
     for r in records:
         if r["type"] != "event":
@@ -171,26 +193,19 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
             kind = "cvt"
         elif msg == "embedded mock fleet":
             embedded = r
-    if not slots:
-        raise ResumeError(f"{log_path}: stopped before the formation was planned (phase {last_phase!r}); "
-                          "start the mission again")
-    for s in lost:
-        slots.pop(s, None)
-    for s in retired:
-        if s in slots:
-            slots[s] = np.zeros(3)  # parked at the centre
+    return slots, layers, lost, retired, kind, embedded
+
+
+def _seek_progress(records: list[dict], plan: Plan):
+    """``(centre, last centres, iterations done, distance flown)`` from the log's ``iteration`` records."""
     iterations = [r for r in records if r["type"] == "iteration"]
+    if not iterations:
+        return plan.seeking.start_point(), [], 0, 0.0
+    last = iterations[-1]
     window = plan.seeking.convergence_window
-    if iterations:
-        last = iterations[-1]
-        centre = np.asarray(last["new_centre_enu"], dtype=float)
-        centres = [np.asarray(r["new_centre_enu"], dtype=float) for r in iterations[-window:]]
-        k, flown = int(last["k"]), float(last.get("distance_flown_m") or 0.0)
-    else:
-        centre, centres, k, flown = plan.seeking.start_point(), [], 0, 0.0
-    return ResumeState(plan=plan, iteration=k, centre_enu=centre, centres=centres, slot_offsets=slots,
-                       layer_alt_m=layers, formation_kind=kind, lost=lost, distance_flown_m=flown,
-                       last_phase=last_phase, embedded=embedded, retired=retired)
+    centres = [np.asarray(r["new_centre_enu"], dtype=float) for r in iterations[-window:]]
+    return (np.asarray(last["new_centre_enu"], dtype=float), centres, int(last["k"]),
+            float(last.get("distance_flown_m") or 0.0))
 
 
 async def rejoin(co, state: ResumeState) -> None:
@@ -198,77 +213,25 @@ async def rejoin(co, state: ResumeState) -> None:
 
     Raises
     ------
-    mission.flight.coordinator.MissionError
+    mission.flight.state.MissionError
         Fewer than 4 vehicles can be re-engaged (those that can are still brought home).
     """
-    from mission.flight.coordinator import MissionError
-    from mission.flight.loss import LEFT_MODES, VehicleLoss
-    from mission.flight.phases import _retried, build_envelope, connect
-    from mission.vehicle.streamer import SetpointStreamer
-    from mission.flight.targets import TargetRamp
-
-    plan = co.plan
     await connect(co, required=False)
-    co.envelope = build_envelope(plan)
-    co.iteration = state.iteration
-    co.centre_enu = np.asarray(state.centre_enu, dtype=float).copy()
-    co.slot_offsets = {s: np.asarray(o, dtype=float) for s, o in state.slot_offsets.items()}
-    co.layer_alt_m = dict(state.layer_alt_m)
-    co.formation_kind = state.formation_kind
-    co.distance_flown_m = state.distance_flown_m
+    co.use_envelope(build_envelope(co.plan))
+    co.state.resume_seek(state.iteration, state.centre_enu, state.distance_flown_m)
+    co.state.set_formation(state.slot_offsets, layer_alt_m=state.layer_alt_m, kind=state.formation_kind)
     now = co.clock.time()
     for s in state.lost:
-        co.lost[s] = VehicleLoss(s, "link", "lost before the ground station stopped", now, now, "resume")
-        co.released.add(s)
+        co.state.declare_lost(VehicleLoss(s, "link", "lost before the ground station stopped", now, now, "resume"))
     flying = []
     for sysid in sorted(co.slot_offsets):
-        v = co.vehicles.get(sysid)
-        reason = None
-        if v is None:
-            reason = "not connected at resume"
-        else:
-            try:
-                home = await v.wait_home(10.0)
-            except Exception as exc:  # noqa: BLE001 - CommandError: reported as the reason
-                home, reason = None, f"no home position at resume ({exc})"
-            await co.wait_until(lambda v=v: v.state.position_ok, 10.0, f"vehicle {sysid} position")
-            st = v.state
-            if home is not None:
-                from formation.geodesy import geodetic_to_enu
-
-                co.home_enu[sysid] = np.asarray(geodetic_to_enu(home[0], home[1], home[2], plan.origin), float)
-            if reason is None and not st.armed:
-                reason = "on the ground (disarmed)"
-            elif reason is None and st.mode in LEFT_MODES.get(v.flavour, ()):
-                reason = f"in {st.mode} (its autopilot's failsafe while the ground station was away)"
-            elif reason is None and (st.relative_alt_m is None or st.relative_alt_m < 1.0):
-                reason = "not flying"
+        reason = await _why_not_flying(co, sysid)
         if reason is not None:
-            co.lost[sysid] = VehicleLoss(sysid, "left", reason, now, now, "resume")
-            co.released.add(sysid)
-            co.status[sysid] = f"lost ({reason})"
+            co.state.declare_lost(VehicleLoss(sysid, "left", reason, now, now, "resume"), f"lost ({reason})")
             co.event(f"vehicle {sysid} lost: {reason}; not re-engaged", level="warning", sysid=sysid)
         else:
             flying.append(sysid)
-    co.streamer = SetpointStreamer([co.vehicles[s] for s in flying], rate_hz=plan.setpoint_rate_hz,
-                                   clock=co.clock, max_speed_m_s=plan.max_speed_m_s)
-    co.ramp = TargetRamp(co.streamer, co.clock, plan.max_speed_m_s, rate_hz=min(plan.setpoint_rate_hz, 10.0),
-                         envelope=co.envelope, on_violation=lambda m: co.event(m, level="warning"))
-    for s in flying:
-        co.ramp.add(s, co._telemetry_position(s))
-        co.airborne.add(s)
-        co.status[s] = "re-engaging"
-    await co.streamer.start()
-    co.ramp.start()
-    await co.clock.sleep(0.5)  # setpoints flowing before OFFBOARD (PX4 requires it)
-    for s in flying:
-        v = co.vehicles[s]
-        want = co._GUIDED_MODES.get(v.flavour)
-        if want is not None and v.state.mode != want:
-            await _retried(co, lambda v=v, want=want: v.set_mode(want), f"re-engaging {want} on vehicle {s}")
-        co.status[s] = "in formation"
-    from mission.flight.retire import restore_retired
-
+    await _reengage(co, flying)
     restore_retired(co, state.retired)
     co.event(f"resumed at iteration {state.iteration} from centre "
              f"({co.centre_enu[0]:.2f}, {co.centre_enu[1]:.2f}, {co.centre_enu[2]:.2f}) m with vehicles "
@@ -279,3 +242,43 @@ async def rejoin(co, state: ResumeState) -> None:
         raise MissionError(f"only {len(sensing)} sensing vehicles can be re-engaged ({sensing}); a formation "
                            "needs 4: bringing them home")
     await asyncio.sleep(0)
+
+
+async def _why_not_flying(co, sysid: int) -> str | None:
+    """Why a vehicle of the stopped formation cannot be re-engaged (None: it can); records its home."""
+    v = co.vehicles.get(sysid)
+    if v is None:
+        return "not connected at resume"
+    reason = None
+    try:
+        home = await v.wait_home(10.0)
+    except Exception as exc:  # noqa: BLE001 - CommandError: reported as the reason
+        home, reason = None, f"no home position at resume ({exc})"
+    await co.wait_until(lambda: v.state.position_ok, 10.0, f"vehicle {sysid} position")
+    st = v.state
+    if home is not None:
+        co.state.set_home(sysid, geodetic_to_enu(home[0], home[1], home[2], co.plan.origin))
+    if reason is None and not st.armed:
+        reason = "on the ground (disarmed)"
+    elif reason is None and st.mode in LEFT_MODES.get(v.flavour, ()):
+        reason = f"in {st.mode} (its autopilot's failsafe while the ground station was away)"
+    elif reason is None and (st.relative_alt_m is None or st.relative_alt_m < 1.0):
+        reason = "not flying"
+    return reason
+
+
+async def _reengage(co, flying: list[int]) -> None:
+    """Setpoints at each flying vehicle's position first, then OFFBOARD (PX4) or GUIDED (ArduPilot)."""
+    setpoint_stream(co, [co.vehicles[s] for s in flying])
+    for s in flying:
+        co.ramp.add(s, co.telemetry_position(s))
+        co.state.set_airborne(s, "re-engaging")
+    await co.streamer.start()
+    co.ramp.start()
+    await co.clock.sleep(0.5)  # setpoints flowing before OFFBOARD (PX4 requires it)
+    for s in flying:
+        v = co.vehicles[s]
+        want = GUIDED_MODES.get(v.flavour)
+        if want is not None and v.state.mode != want:
+            await retried(co, lambda v=v, want=want: v.set_mode(want), f"re-engaging {want} on vehicle {s}")
+        co.state.set_status(s, "in formation")

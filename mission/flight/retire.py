@@ -14,7 +14,7 @@ vehicles would remain, is *retired* (:func:`retire_sensor`):
 * the sensing vehicles are re-formed (:func:`mission.flight.loss.reformed_offsets` with the retired
   vehicle passed as lost: warm-started CVT, a symmetric formation left with an odd number
   switches to CVT) and a separation-keeping transfer is flown in which the retired vehicle
-  flies to the centre (:func:`mission.flight.loss.transfer_to`, which also keeps every parked vehicle
+  flies to the centre (:func:`mission.flight.motion.transfer_to`, which also keeps every parked vehicle
   in the planning of later transfers);
 * the seek starts a fresh robust estimator and a fresh rule for the remaining sensors.
 
@@ -28,10 +28,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mission.flight.loss import survivor_slots
+from mission.flight.motion import keep_out, parked, transfer_to
+
 __all__ = ["PARKED_STATUS", "RetiredSensor", "SensorWatch", "formation_goals", "keep_out_retired",
            "make_watch", "parked", "restore_retired", "retire_sensor"]
 
-#: ``co.status`` of a vehicle whose sensor was retired
+#: the status of a vehicle whose sensor was retired
 PARKED_STATUS = "sensor retired: at the centre"
 
 
@@ -140,12 +143,6 @@ def make_watch(co, est_kind: str, sysids: list[int]) -> SensorWatch | None:
                        min_noise_ratio=getattr(faults, "retire_min_noise_ratio", None))
 
 
-def parked(co) -> list[int]:
-    """Vehicles whose sensor was retired, still under the mission's setpoints (sorted)."""
-    retired = getattr(co, "retired", None) or {}
-    return sorted(s for s in retired if s not in co.lost and co.ramp is not None and s in co.ramp.sysids)
-
-
 def formation_goals(co, centre_enu, sysids: list[int]) -> dict[int, np.ndarray]:
     """Goals of one iteration: the sensing vehicles at their slots, the parked ones at the centre."""
     centre = np.asarray(centre_enu, dtype=float)
@@ -159,8 +156,6 @@ async def retire_sensor(co, centre_enu, sysids: list[int], info: RetiredSensor) 
 
     Returns the sensing vehicles left (not lost).
     """
-    from mission.flight.loss import survivor_slots, transfer_to
-
     sysid = info.sysid
     remaining = [s for s in sysids if s != sysid and s not in co.lost]
     why = ("the vehicle was lost" if sysid in co.lost or sysid not in co.ramp.sysids
@@ -171,8 +166,7 @@ async def retire_sensor(co, centre_enu, sysids: list[int], info: RetiredSensor) 
         return list(sysids)
     new, kind = await survivor_slots(co, centre_enu, sysids, [s for s in sysids if s not in remaining],
                                      "sensing vehicles")
-    co.retired[sysid] = info
-    co.status[sysid] = PARKED_STATUS
+    co.state.retire(info, status=PARKED_STATUS)
     ratio = info.ratio
     co.event(f"vehicle {sysid}'s sensor retired ({info.reason}, std {info.noise_std:.3g} = {ratio:.1f}x the "
              f"median, named for {info.named_for} iterations): parked at the formation centre, readings "
@@ -191,16 +185,19 @@ async def keep_out_retired(co, returning: list[int]) -> list[int]:
 
     Returns the others (to re-admit).
     """
-    from mission.flight.loss import keep_out
-
     retired = getattr(co, "retired", None) or {}
     for s in [s for s in returning if s in retired]:
-        await keep_out(co, s, co.vehicles.get(s), co.lost[s], "its sensor was retired")
+        await keep_out(co, s, co.vehicles.get(s), "its sensor was retired")
     return [s for s in returning if s not in retired]
 
 
 def restore_retired(co, records: dict) -> None:
-    """Put the retired sensors read back from a mission log (:mod:`mission.flight.resume`) into ``co``."""
+    """Put the retired sensors read back from a mission log (:mod:`mission.flight.resume`) into ``co``.
+
+    Written against mappings (``co.retired``, ``co.status``): on the coordinator, item assignment
+    there is :meth:`MissionState.retire <mission.flight.state.MissionState.retire>` and
+    :meth:`MissionState.set_status <mission.flight.state.MissionState.set_status>`.
+    """
     defaults = {"reason": "", "noise_std": float("nan"), "median_std": float("nan"), "iteration": 0,
                 "named_for": 0, "retired_s": float("nan")}
     for sysid, fields in records.items():

@@ -22,7 +22,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from mission.flight.coordinator import MissionError
+from mission.flight.loss import reform
+from mission.flight.motion import move_and_wait, parked
+from mission.flight.rejoin import (
+    clear_goals,
+    fly_rotation,
+    pending_readmissions,
+    readmit,
+)
+from mission.flight.retire import (
+    formation_goals,
+    keep_out_retired,
+    make_watch,
+    retire_sensor,
+)
+from mission.flight.state import MissionError
 
 __all__ = ["seek", "make_estimator"]
 
@@ -68,100 +82,134 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     its readings ignored, the others re-formed (:mod:`mission.flight.retire`); only sensing vehicles
     count towards the 4.
     """
-    from estimator import ConvergenceMonitor, GeometryError, seek_step
-
-    from mission.flight.loss import reform
-    from mission.flight.rejoin import clear_goals, fly_rotation, pending_readmissions, readmit
-    from mission.flight.phases import move_and_wait
-    from mission.flight.retire import formation_goals, keep_out_retired, make_watch, parked, retire_sensor
-
     co.set_phase("seek")
-    plan = co.plan
-    sk = plan.seeking
-    # the formation's vehicles: those under setpoints, and those lost since their slot was given
-    # (the loop re-forms without them first)
-    sysids = sorted(s for s in co.slot_offsets if (s in co.ramp.sysids or s in co.lost) and s not in co.retired)
-    flying = [s for s in sysids if s not in co.lost]
-    if len(flying) < 4:
-        raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
-    est_kind = sk.estimator
-    estimate = make_estimator(est_kind, len(sysids))
-    watch = make_watch(co, est_kind, sysids)
-    monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m)
-    centre = np.asarray(co.centre_enu, dtype=float).copy()
-    for c in history:
-        monitor.update(np.asarray(c, dtype=float))
-    if not len(history):
-        monitor.update(centre)
-    co._t_seek_start = co.clock.time()
-    period_s = 1.0 / sk.rate_hz
-    last_estimate_t = -np.inf
-    failures = 0
-    at_fence = 0
-    for k in range(int(start_iteration), sk.max_iterations):
-        if any(s in co.lost for s in sysids):
-            sysids = await reform(co, centre, sysids)
-            if len(sysids) < 4:
-                co._t_seek_end = co.clock.time()
-                return "too_few_vehicles", (f"vehicles {sorted(co.lost)} lost: {len(sysids)} left, a formation "
-                                            "needs 4; ending the mission, the others come home")
-            if co.formation_kind == "cvt" and est_kind == "symmetric":
-                est_kind = "cvt"
-            estimate, watch = make_estimator(est_kind, len(sysids)), make_watch(co, est_kind, sysids)
+    run = _Seek(co, history)
+    co.state.begin_seek()
+    ended = None
+    for k in range(int(start_iteration), co.plan.seeking.max_iterations):
+        ended = await run.iteration(k)
+        if ended is not None:
+            break
+    co.state.end_seek()  # not on a MissionError: the seek time of an aborted mission runs to its end
+    return ended or ("max_iterations", f"not converged after {co.plan.seeking.max_iterations} iterations")
+
+
+class _Seek:
+    """The seek loop's own state (formation members, estimator, monitor, centre) and its steps."""
+
+    def __init__(self, co, history=()):
+        from estimator import ConvergenceMonitor
+
+        self.co = co
+        self.sk = sk = co.plan.seeking
+        # the formation's vehicles: those under setpoints, and those lost since their slot was
+        # given (the loop re-forms without them first)
+        self.sysids = sorted(s for s in co.slot_offsets
+                             if (s in co.ramp.sysids or s in co.lost) and s not in co.retired)
+        flying = [s for s in self.sysids if s not in co.lost]
+        if len(flying) < 4:
+            raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
+        self.est_kind = sk.estimator
+        self.estimate = make_estimator(self.est_kind, len(self.sysids))
+        self.watch = make_watch(co, self.est_kind, self.sysids)
+        self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m)
+        self.centre = np.asarray(co.centre_enu, dtype=float).copy()
+        for c in history:
+            self.monitor.update(np.asarray(c, dtype=float))
+        if not len(history):
+            self.monitor.update(self.centre)
+        self.period_s = 1.0 / sk.rate_hz
+        self.last_estimate_t = -np.inf
+        self.failures = 0
+        self.at_fence = 0
+
+    def _new_estimator(self, symmetric_to_cvt: bool = True) -> None:
+        """A fresh estimator (and retirement watch) for the current members."""
+        if symmetric_to_cvt and self.co.formation_kind == "cvt" and self.est_kind == "symmetric":
+            self.est_kind = "cvt"
+        self.estimate = make_estimator(self.est_kind, len(self.sysids))
+        self.watch = make_watch(self.co, self.est_kind, self.sysids)
+
+    async def iteration(self, k: int) -> tuple[str, str] | None:
+        """One iteration: re-form, move, readings, estimate, step; ``(outcome, message)`` when it ends."""
+        ended = await self._update_members()
+        if ended is not None:
+            return ended
+        t_arrive = await self._move(k)
+        await self._wait_readings(k, t_arrive)
+        if any(s in self.co.lost for s in self.sysids):
+            return None  # lost during this iteration: re-form first
+        found = await self._estimate(k, t_arrive)
+        if found is None:
+            return None
+        ended = self._step(k, *found)
+        if ended is None and found[-1] is not None:
+            self.sysids = await retire_sensor(self.co, self.centre, self.sysids, found[-1])
+            self._new_estimator(symmetric_to_cvt=False)
+        return ended
+
+    async def _update_members(self) -> tuple[str, str] | None:
+        """Re-form without lost vehicles, re-admit returning ones; the end when fewer than 4 are left."""
+        co = self.co
+        if any(s in co.lost for s in self.sysids):
+            self.sysids = await reform(co, self.centre, self.sysids)
+            if len(self.sysids) < 4:
+                return "too_few_vehicles", (f"vehicles {sorted(co.lost)} lost: {len(self.sysids)} left, a "
+                                            "formation needs 4; ending the mission, the others come home")
+            self._new_estimator()
         returning = await keep_out_retired(co, pending_readmissions(co))
         if returning:
-            sysids = await readmit(co, centre, sysids, returning)
-            if co.formation_kind == "cvt" and est_kind == "symmetric":
-                est_kind = "cvt"
-            estimate, watch = make_estimator(est_kind, len(sysids)), make_watch(co, est_kind, sysids)
-        before = {s: co.slot_offsets[s].copy() for s in sysids}
-        clear_goals(co, centre, sysids)  # a few ms at most: slots clear of lost vehicles still flying
-        await fly_rotation(co, centre, sysids, before)  # a rotation is flown as a planned transfer
-        goals = formation_goals(co, centre, sysids)  # parked vehicles (retired sensors) at the centre
+            self.sysids = await readmit(co, self.centre, self.sysids, returning)
+            self._new_estimator()
+        return None
+
+    async def _move(self, k: int) -> float:
+        """Fly the formation to its slots about the centre and settle; the arrival time."""
+        co, sk = self.co, self.sk
+        before = {s: co.slot_offsets[s].copy() for s in self.sysids}
+        clear_goals(co, self.centre, self.sysids)  # a few ms at most: slots clear of lost vehicles still flying
+        await fly_rotation(co, self.centre, self.sysids, before)  # a rotation is flown as a planned transfer
+        goals = formation_goals(co, self.centre, self.sysids)  # parked vehicles (retired sensors) at the centre
         try:
             await move_and_wait(co, goals, sk.arrival_tol_m,
-                                timeout_s=20.0 + 3.0 * sk.gamma_m / plan.max_speed_m_s,
+                                timeout_s=20.0 + 3.0 * sk.gamma_m / co.plan.max_speed_m_s,
                                 what=f"iteration {k + 1}: the formation to settle")
         except MissionError as exc:
             co.event(f"{exc}; estimating anyway", level="warning")
         t_arrive = co.clock.time()
-        wait_s = period_s - (t_arrive - last_estimate_t)
+        wait_s = self.period_s - (t_arrive - self.last_estimate_t)
         if wait_s > 0:
             await co.clock.sleep(wait_s)
+        return t_arrive
+
+    async def _wait_readings(self, k: int, t_arrive: float) -> None:
+        """Wait for a reading taken after the arrival from every vehicle (a warning after a while)."""
+        co, sk = self.co, self.sk
 
         def _fresh():
             return all((r := co.store.latest(s)) is not None and r.time_s >= t_arrive
-                       for s in sysids if s not in co.lost)
+                       for s in self.sysids if s not in co.lost)
 
         try:
             await co.wait_until(_fresh, max(5.0, 10 * sk.reading_window_s), "fresh readings", poll_s=0.02)
         except MissionError:
-            missing = [s for s in sysids if (r := co.store.latest(s)) is None or r.time_s < t_arrive]
+            missing = [s for s in self.sysids if (r := co.store.latest(s)) is None or r.time_s < t_arrive]
             co.event(f"iteration {k + 1}: no fresh reading from vehicles {missing}", level="warning")
+
+    async def _estimate(self, k: int, t_arrive: float):
+        """Aligned readings and the gradient: ``(t_est, aligned, used, centroid, grad, retiring)`` or None."""
+        from estimator import GeometryError
+
+        co, sk = self.co, self.sk
         # estimation instant: the oldest of the vehicles' newest readings, so that every vehicle
         # has a reading at or after it (robust to delivery latency, e.g. at a high speed-up)
-        if any(s in co.lost for s in sysids):
-            continue  # lost during this iteration: re-form first
-        latest = [co.store.latest(s) for s in sysids]
+        latest = [co.store.latest(s) for s in self.sysids]
         fresh = [r.time_s for r in latest if r is not None and r.time_s >= t_arrive]
-        t_est = min(fresh) if len(fresh) == len(sysids) else co.clock.time()
-        last_estimate_t = co.clock.time()
-        aligned = co.store.aligned(t_est, sk.reading_window_s, sysids)
-        if len(aligned) < 4:
-            failures += 1
-            co.event(f"iteration {k + 1}: only {len(aligned)} aligned readings (need 4); waiting",
-                     level="warning", counts=co.store.counts())
-            if failures >= 20:
-                raise MissionError(f"no usable readings for {failures} iterations "
-                                   f"(rejections: {co.store.counts()['rejected']})")
-            await co.clock.sleep(1.0)
-            continue
-        if getattr(estimate, "needs_all", False) and len(aligned) < len(sysids):
-            # the robust estimator tracks each sensor by its index: estimate only with all of them
-            co.event(f"iteration {k + 1}: {len(aligned)} of {len(sysids)} readings aligned; the robust "
-                     "estimator needs all; waiting", level="warning")
-            await co.clock.sleep(0.5)
-            continue
+        t_est = min(fresh) if len(fresh) == len(self.sysids) else co.clock.time()
+        self.last_estimate_t = co.clock.time()
+        aligned = co.store.aligned(t_est, sk.reading_window_s, self.sysids)
+        if not await self._enough(k, aligned):
+            return None
         used = sorted(aligned)
         positions = np.array([aligned[s].position_enu_m for s in used])
         values = np.array([aligned[s].value for s in used])
@@ -171,63 +219,88 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
         # 3 sigma offset / D^2, enough to make the centre oscillate near the source
         centroid = positions.mean(axis=0)
         try:
-            grad = np.asarray(estimate(positions, values, centroid), dtype=float)
+            grad = np.asarray(self.estimate(positions, values, centroid), dtype=float)
         except (GeometryError, ValueError) as exc:
-            failures += 1
+            self.failures += 1
             co.event(f"iteration {k + 1}: gradient not estimated: {exc}", level="warning")
-            if failures >= 20:
-                raise MissionError(f"no gradient estimate for {failures} iterations (last: {exc})") from None
-            continue
-        failures = 0
-        retiring = None if watch is None else watch.update(estimate, used, k + 1, co.clock.time())
-        new_centre = seek_step(centre, grad, sk.eps, sk.gamma_m)
-        if co.envelope is not None:
-            clamp = co.envelope.clamp_centre(centre, new_centre)
-            if clamp.at_boundary:
-                at_fence += 1
-                if at_fence in (1, sk.convergence_window):
-                    co.event(clamp.message, level="warning")
-                new_centre = np.asarray(clamp.centre_enu, dtype=float)
-            else:
-                at_fence = 0
-        step_m = float(np.linalg.norm(new_centre - centre))
-        co.distance_flown_m += step_m
-        co.iteration = k + 1
-        co.gradient = grad
-        converged = monitor.update(new_centre)
-        co.estimate_enu = monitor.estimate_enu
-        co.spread_m = monitor.spread_m
+            if self.failures >= 20:
+                raise MissionError(f"no gradient estimate for {self.failures} iterations (last: {exc})") from None
+            return None
+        self.failures = 0
+        retiring = None if self.watch is None else self.watch.update(self.estimate, used, k + 1, co.clock.time())
+        return t_est, aligned, used, centroid, grad, retiring
+
+    async def _enough(self, k: int, aligned: dict) -> bool:
+        """At least 4 aligned readings (all of them for the robust estimator); else warn and wait."""
+        co = self.co
+        if len(aligned) < 4:
+            self.failures += 1
+            co.event(f"iteration {k + 1}: only {len(aligned)} aligned readings (need 4); waiting",
+                     level="warning", counts=co.store.counts())
+            if self.failures >= 20:
+                raise MissionError(f"no usable readings for {self.failures} iterations "
+                                   f"(rejections: {co.store.counts()['rejected']})")
+            await co.clock.sleep(1.0)
+            return False
+        if getattr(self.estimate, "needs_all", False) and len(aligned) < len(self.sysids):
+            # the robust estimator tracks each sensor by its index: estimate only with all of them
+            co.event(f"iteration {k + 1}: {len(aligned)} of {len(self.sysids)} readings aligned; the robust "
+                     "estimator needs all; waiting", level="warning")
+            await co.clock.sleep(0.5)
+            return False
+        return True
+
+    def _clamped(self, new_centre: np.ndarray) -> np.ndarray:
+        """The new centre held inside the safety envelope (counts the iterations at the fence)."""
+        co = self.co
+        if co.envelope is None:
+            return new_centre
+        clamp = co.envelope.clamp_centre(self.centre, new_centre)
+        if not clamp.at_boundary:
+            self.at_fence = 0
+            return new_centre
+        self.at_fence += 1
+        if self.at_fence in (1, self.sk.convergence_window):
+            co.event(clamp.message, level="warning")
+        return np.asarray(clamp.centre_enu, dtype=float)
+
+    def _step(self, k, t_est, aligned, used, centroid, grad, retiring) -> tuple[str, str] | None:
+        """Move the centre up the gradient, log the iteration; ``(outcome, message)`` when the seek ends."""
+        from estimator import seek_step
+
+        co, sk = self.co, self.sk
+        new_centre = self._clamped(seek_step(self.centre, grad, sk.eps, sk.gamma_m))
+        step_m = float(np.linalg.norm(new_centre - self.centre))
+        converged = self.monitor.update(new_centre)
+        co.state.record_iteration(k + 1, grad, step_m, self.monitor.estimate_enu, self.monitor.spread_m)
         if co.log is not None:
-            co.log.write("iteration", k=k + 1, t_estimate_s=t_est, centre_enu=centre, centroid_enu=centroid,
-                         gradient=grad,
-                         new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.estimate_enu,
+            everyone = self.sysids + parked(co)
+            co.log.write("iteration", k=k + 1, t_estimate_s=t_est, centre_enu=self.centre, centroid_enu=centroid,
+                         gradient=grad, new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.estimate_enu,
                          spread_m=co.spread_m, distance_flown_m=co.distance_flown_m,
                          readings=[aligned[s] for s in used],
-                         positions_enu={s: co._telemetry_position(s) for s in sysids + parked(co)},
-                         setpoints_enu={s: co.ramp.setpoint(s) for s in sysids + parked(co)},
-                         suspects=_suspects(estimate, used),
-                         status=co.vehicle_status())
-        centre = new_centre
-        co.centre_enu = centre.copy()
-        if converged and at_fence:
-            co._t_seek_end = co.clock.time()
+                         positions_enu={s: co.telemetry_position(s) for s in everyone},
+                         setpoints_enu={s: co.ramp.setpoint(s) for s in everyone},
+                         suspects=_suspects(self.estimate, used), status=co.vehicle_status())
+        self.centre = new_centre
+        co.state.move_centre(new_centre)
+        return self._ended(k, converged)
+
+    def _ended(self, k: int, converged: bool) -> tuple[str, str] | None:
+        """``(outcome, message)`` when the seek ends after iteration ``k``, else None."""
+        centre, co = self.centre, self.co
+        if converged and self.at_fence:
             return "stopped_at_fence", (f"stopped at the geofence after {k + 1} iterations, centre held at "
                                         f"({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}) m: the "
                                         "source is probably outside the fence (shrunk by the radius)")
         if converged:
-            co._t_seek_end = co.clock.time()
             e = co.estimate_enu
             return "converged", (f"converged after {k + 1} iterations: source at ({e[0]:.2f}, {e[1]:.2f}, "
                                  f"{e[2]:.2f}) m, spread {co.spread_m:.2f} m")
-        if at_fence >= sk.convergence_window:
-            co._t_seek_end = co.clock.time()
+        if self.at_fence >= self.sk.convergence_window:
             return "stopped_at_fence", ("the formation centre has been held at the geofence for "
-                                        f"{at_fence} iterations: the source is probably outside the fence")
-        if retiring is not None:
-            sysids = await retire_sensor(co, centre, sysids, retiring)
-            estimate, watch = make_estimator(est_kind, len(sysids)), make_watch(co, est_kind, sysids)
-    co._t_seek_end = co.clock.time()
-    return "max_iterations", f"not converged after {sk.max_iterations} iterations"
+                                        f"{self.at_fence} iterations: the source is probably outside the fence")
+        return None
 
 
 def _suspects(estimate, used: list[int]) -> list[dict] | None:

@@ -30,13 +30,11 @@ __all__ = ["seek_load"]
 async def seek_load(vehicles, streamer, clock, *, reading_rate_hz: float = 10.0, estimate_rate_hz: float = 2.0,
                     radius_m: float = 4.0, fleet: str = "bench") -> None:
     """Run the seek-loop work until cancelled (see the module docstring)."""
-    import estimator
-    from formation.geodesy import enu_to_geodetic
-    from mission.telemetry.mission_log import MissionLog
     from mission.flight.phases import formation_offsets
-    from mission.telemetry.readings import SCHEMA, ReadingStore, sensor_key
-    from mission.safety.envelope import Geofence, SafetyEnvelope
     from mission.flight.targets import TargetRamp
+    from mission.safety.envelope import Geofence, SafetyEnvelope
+    from mission.telemetry.mission_log import MissionLog
+    from mission.telemetry.readings import ReadingStore
 
     n = len(vehicles)
     origin = vehicles[0].mission_origin if hasattr(vehicles[0], "mission_origin") else None
@@ -58,13 +56,7 @@ async def seek_load(vehicles, streamer, clock, *, reading_rate_hz: float = 10.0,
         ramp.add(v.sysid, p if p is not None else centre + offsets[i])
     ramp.set_goals({s: centre + offsets[i] for i, s in enumerate(sysids)})
     ramp.start()
-    templates = {}
-    for i, s in enumerate(sysids):
-        lat, lon, alt = enu_to_geodetic(centre + offsets[i], origin)
-        templates[s] = (sensor_key(fleet, s), json.dumps(
-            {"schema": SCHEMA, "fleet": fleet, "sysid": s, "seq": 0, "time_s": 0.0, "lat_deg": float(lat),
-             "lon_deg": float(lon), "alt_m": float(alt), "value": 0.5}).replace('"seq": 0', '"seq": %d')
-            .replace('"time_s": 0.0', '"time_s": %.4f').replace('"value": 0.5', '"value": %.6f'))
+    templates = _reading_templates(fleet, sysids, origin, centre, offsets)
 
     async def readings():
         seq = 0
@@ -79,26 +71,50 @@ async def seek_load(vehicles, streamer, clock, *, reading_rate_hz: float = 10.0,
     log = MissionLog(Path(tmp.name) / "mission.jsonl", clock)
     task = asyncio.ensure_future(readings())
     try:
-        while True:
-            await clock.sleep(1.0 / estimate_rate_hz)
-            aligned = store.aligned(clock.time(), 0.5)
-            if len(aligned) < 4:
-                continue
-            used = sorted(aligned)
-            pos = np.array([aligned[s].position_enu_m for s in used])
-            vals = np.array([aligned[s].value for s in used])
-            try:
-                grad = estimator.gradient(pos, vals, pos.mean(axis=0), method="cvt", max_condition=1e12)
-            except ValueError:
-                continue
-            new_centre = envelope.clamp_centre(centre, estimator.seek_step(centre, grad, 1.0, 0.1)).centre_enu
-            log.write("iteration", centre_enu=centre, gradient=grad, new_centre_enu=new_centre,
-                      readings=[aligned[s] for s in used],
-                      positions_enu={s: by_sysid[s].position_enu_m() for s in used})
-            centre = np.asarray(new_centre, dtype=float)
-            ramp.set_goals({s: centre + offsets[i] for i, s in enumerate(sysids)})
+        await _estimate_forever(store, envelope, ramp, log, clock, centre, offsets, sysids, by_sysid,
+                                estimate_rate_hz)
     finally:
         task.cancel()
         await ramp.stop()
         log.close()
         tmp.cleanup()
+
+
+def _reading_templates(fleet: str, sysids, origin, centre, offsets) -> dict:
+    """Per vehicle: its sensor key and a reading payload with ``%d`` (seq), ``%.4f`` (time), ``%.6f`` (value)."""
+    from formation.geodesy import enu_to_geodetic
+    from mission.telemetry.readings import SCHEMA, sensor_key
+
+    templates = {}
+    for i, s in enumerate(sysids):
+        lat, lon, alt = enu_to_geodetic(centre + offsets[i], origin)
+        templates[s] = (sensor_key(fleet, s), json.dumps(
+            {"schema": SCHEMA, "fleet": fleet, "sysid": s, "seq": 0, "time_s": 0.0, "lat_deg": float(lat),
+             "lon_deg": float(lon), "alt_m": float(alt), "value": 0.5}).replace('"seq": 0', '"seq": %d')
+            .replace('"time_s": 0.0', '"time_s": %.4f').replace('"value": 0.5', '"value": %.6f'))
+    return templates
+
+
+async def _estimate_forever(store, envelope, ramp, log, clock, centre, offsets, sysids, by_sysid,
+                            estimate_rate_hz: float) -> None:
+    """The coordinator's estimation work at ``estimate_rate_hz`` (see the module docstring), until cancelled."""
+    import estimator
+
+    while True:
+        await clock.sleep(1.0 / estimate_rate_hz)
+        aligned = store.aligned(clock.time(), 0.5)
+        if len(aligned) < 4:
+            continue
+        used = sorted(aligned)
+        pos = np.array([aligned[s].position_enu_m for s in used])
+        vals = np.array([aligned[s].value for s in used])
+        try:
+            grad = estimator.gradient(pos, vals, pos.mean(axis=0), method="cvt", max_condition=1e12)
+        except ValueError:
+            continue
+        new_centre = envelope.clamp_centre(centre, estimator.seek_step(centre, grad, 1.0, 0.1)).centre_enu
+        log.write("iteration", centre_enu=centre, gradient=grad, new_centre_enu=new_centre,
+                  readings=[aligned[s] for s in used],
+                  positions_enu={s: by_sysid[s].position_enu_m() for s in used})
+        centre = np.asarray(new_centre, dtype=float)
+        ramp.set_goals({s: centre + offsets[i] for i, s in enumerate(sysids)})

@@ -9,7 +9,9 @@ One JSON object per line; every record has ``t_s`` (mission clock) and ``type``:
 ``iteration``  one seeking iteration: ``k``, ``centre_enu``, ``gradient``, ``new_centre_enu``,
                ``estimate_enu``, ``spread_m``, ``readings`` (sysid, seq, time_s, value,
                position_enu_m), ``positions_enu`` (telemetry), ``distance_flown_m``
-``summary``    the end result (see :class:`mission.flight.coordinator.MissionResult`)
+``status_change``  one vehicle's status changed: ``sysid``, ``status``, ``previous``, ``reason``,
+               ``phase`` (:meth:`mission.flight.state.MissionState.set_status`)
+``summary``    the end result (see :class:`mission.flight.result.MissionResult`)
 
 Each line is flushed (and ``os.fsync``-ed for ``phase``/``summary`` records) as soon as it is
 written, so a crash loses nothing already logged. :func:`read_mission_log` reads a log back,

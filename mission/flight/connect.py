@@ -1,0 +1,222 @@
+"""The coordinator's first phases: connect to every vehicle, then the preflight checks.
+
+Each function takes the :class:`~mission.flight.coordinator.Coordinator`; nothing is armed here
+(``swarmseek dry-run`` runs only these two phases).
+"""
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+
+from formation.geodesy import geodetic_to_enu
+from mission.flight.state import MissionError, VehicleReadiness
+
+__all__ = ["build_envelope", "connect", "preflight"]
+
+_MAV_STATE_STANDBY = 3
+
+
+def build_envelope(plan):
+    """The plan's :class:`mission.safety.envelope.SafetyEnvelope`, or None when no fence polygon is given."""
+    if not plan.geofence.polygon_en_m:
+        return None
+    from mission.safety.envelope import Geofence, SafetyEnvelope
+
+    fence = Geofence(np.asarray(plan.geofence.polygon_en_m, dtype=float),
+                     plan.geofence.min_alt_m, plan.geofence.max_alt_m)
+    return SafetyEnvelope(fence, plan.max_speed_m_s, plan.min_separation_m, plan.formation.radius_m)
+
+
+# ------------------------------------------------------------------------------------ connect
+async def connect(co, required: bool = True) -> None:
+    """Open each distinct connection once and attach every vehicle of the plan to it."""
+    from mission.core.uri import parse_connection
+    from mission.link.endpoint import SysidRegistry
+    from mission.link.poller import UdpPoller
+
+    co.set_phase("connect")
+    plan = co.plan
+    by_uri: dict[str, list] = {}
+    for vp in plan.vehicles:
+        by_uri.setdefault(vp.connection, []).append(vp)
+    problems: list[str] = []
+    # one registry: a system id heard on two endpoints is an error naming both; one poller for
+    # many UDP sockets (cheaper than one loop wake-up per datagram from a few tens of vehicles on)
+    registry = SysidRegistry()
+    n_udp = sum(1 for uri in by_uri if _is_udp(parse_connection, uri))
+    if n_udp >= _POLLER_MIN_UDP_ENDPOINTS and co.poller is None:
+        co.use_poller(UdpPoller())
+    await asyncio.gather(*(_open(co, uri, by_uri[uri], registry, problems) for uri in by_uri))
+    await asyncio.gather(*(_attach(co, vp, problems) for vp in plan.vehicles))
+    dup = _duplicate_uids(co)
+    if dup:
+        problems.append(dup)
+    for sysid, v in co.vehicles.items():
+        co.event(f"vehicle {sysid} ({co.ids[sysid]}): {v.flavour} on {co.plan_vehicle(sysid).connection}",
+                 sysid=sysid, flavour=v.flavour, uid=getattr(v, "uid", None))
+    if problems and required:
+        raise MissionError("connect failed: " + "; ".join(problems))
+    for p in problems:
+        co.event(p, level="error")
+
+
+async def _open(co, uri: str, vehicles: list, registry, problems: list[str]) -> None:
+    """Open the endpoint of ``uri``; on failure every vehicle on it is not ready (``no link``)."""
+    from mission.link.endpoint import MavEndpoint
+
+    try:
+        co.add_endpoint(uri, await MavEndpoint.open(uri, clock=co.clock, tlog_dir=co.tlog_dir,
+                                                    signing=co.plan.security, registry=registry,
+                                                    poller=co.poller))
+    except (OSError, ValueError) as exc:
+        problems.append(f"{uri}: {exc}")
+        for vp in vehicles:
+            co.state.set_readiness(VehicleReadiness(vp.sysid, vp.id, uri, {"connected": False},
+                                                    [f"cannot open {uri}: {exc}"]), "no link")
+
+
+async def _attach(co, vp, problems: list[str]) -> None:
+    """Attach vehicle ``vp`` to its endpoint (heartbeat, autopilot version, telemetry rates)."""
+    from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, VehicleLink
+
+    ep = co.endpoints.get(vp.connection)
+    if ep is None:
+        return
+    try:
+        v = await VehicleLink.create(ep, vp.sysid, clock=co.clock, mission_origin=co.plan.origin,
+                                     heartbeat_timeout_s=co.plan.heartbeat_timeout_s)
+    except Exception as exc:  # noqa: BLE001 - LinkError, timeouts: reported per vehicle
+        problems.append(f"vehicle {vp.sysid} ({vp.id}) on {vp.connection}: {exc or type(exc).__name__}")
+        co.state.set_readiness(VehicleReadiness(vp.sysid, vp.id, vp.connection, {"connected": False},
+                                                [f"no heartbeat: {exc or type(exc).__name__}"]), "no heartbeat")
+        return
+    co.add_vehicle(v)
+    co.state.set_status(vp.sysid, "connected")
+    try:
+        await v.request_autopilot_version()
+    except Exception as exc:  # noqa: BLE001 - optional information
+        co.event(f"vehicle {vp.sysid}: no AUTOPILOT_VERSION ({exc})", level="warning")
+    try:  # only the telemetry the mission needs (CPU at N = 100+); refusals are not fatal
+        refused = await v.set_message_rates(DEFAULT_RATES_HZ, strict=False)
+    except Exception as exc:  # noqa: BLE001 - the autopilot's default rates still work
+        refused = {"*": str(exc)}
+    if refused:
+        co.event(f"vehicle {vp.sysid}: telemetry rates not all set ({refused})", level="warning")
+
+
+#: from this many UDP endpoints on, one poller task reads them all
+_POLLER_MIN_UDP_ENDPOINTS = 16
+
+
+def _is_udp(parse_connection, uri: str) -> bool:
+    try:
+        return parse_connection(uri).kind.startswith("udp")
+    except (ValueError, AttributeError):
+        return False
+
+
+def _duplicate_uids(co) -> str | None:
+    seen: dict[int, int] = {}
+    for sysid, v in co.vehicles.items():
+        uid = getattr(v, "uid", None)
+        if not uid:
+            continue
+        if uid in seen:
+            a, b = seen[uid], sysid
+            return (f"vehicles {a} ({co.plan_vehicle(a).connection}) and {b} ({co.plan_vehicle(b).connection}) "
+                    f"report the same autopilot uid {uid:#x}: one autopilot reached twice?")
+        seen[uid] = sysid
+    return None
+
+
+# ---------------------------------------------------------------------------------- preflight
+async def preflight(co, timeout_s: float = 30.0) -> None:
+    """Check every connected vehicle: heartbeat, position estimate, home, battery, armable, fence."""
+    co.set_phase("preflight")
+    plan = co.plan
+    envelope = None
+    try:
+        envelope = build_envelope(plan)
+    except ValueError as exc:
+        raise MissionError(f"preflight: the safety envelope cannot be built: {exc}") from None
+
+    await asyncio.gather(*(_check_vehicle(co, s, v, envelope, timeout_s) for s, v in co.vehicles.items()))
+    await _sensor_check(co)
+    for sysid in sorted(co.readiness):
+        r = co.readiness[sysid]
+        co.event(f"vehicle {sysid} ({r.id}): " + ("ready" if r.ready else "NOT READY: " + "; ".join(r.problems)),
+                 level="info" if r.ready else "warning", sysid=sysid, checks=r.checks)
+    co.use_envelope(envelope)
+
+
+async def _check_vehicle(co, sysid: int, v, envelope, timeout_s: float) -> None:
+    """One vehicle's preflight checks (:func:`preflight`); records its readiness and status."""
+    vp = co.plan_vehicle(sysid)
+    r = VehicleReadiness(sysid, vp.id, vp.connection, flavour=v.flavour)
+    r.checks["connected"] = True
+    r.checks["heartbeat"] = v.link_age_s() < 3.0
+    if not r.checks["heartbeat"]:
+        r.problems.append(f"last heartbeat {v.link_age_s():.1f} s ago")
+    deadline = co.clock.time() + timeout_s
+    while not v.state.position_ok and co.clock.time() < deadline:
+        await co.clock.sleep(0.2)
+    r.checks["position"] = bool(v.state.position_ok)
+    if not r.checks["position"]:
+        r.problems.append(f"no position estimate after {timeout_s:.0f} s")
+    try:
+        home = await v.wait_home(max(1.0, deadline - co.clock.time()))
+        r.checks["home"] = True
+    except Exception as exc:  # noqa: BLE001 - timeout or link error
+        home = None
+        r.checks["home"] = False
+        r.problems.append(f"no home position ({exc or 'timeout'})")
+    batt_deadline = co.clock.time() + 5.0
+    while v.state.battery_remaining_pct is None and co.clock.time() < batt_deadline:
+        await co.clock.sleep(0.2)
+    batt = v.state.battery_remaining_pct
+    r.checks["battery"] = batt is None or batt >= co.plan.min_battery_pct
+    if batt is None:
+        co.event(f"vehicle {sysid}: battery level not reported; not checked", level="warning")
+    elif not r.checks["battery"]:
+        r.problems.append(f"battery {batt:.0f} % below {co.plan.min_battery_pct:.0f} %")
+    st = v.state.system_status
+    r.checks["armable"] = (not v.state.armed) and st in (None, _MAV_STATE_STANDBY)
+    if v.state.armed:
+        r.problems.append("already armed")
+    elif not r.checks["armable"]:
+        r.problems.append(f"system status {st} (not STANDBY)")
+    if home is not None and envelope is not None:
+        h = geodetic_to_enu(home[0], home[1], home[2], co.plan.origin)
+        inside = bool(envelope.fence.contains(np.array([h[0], h[1], co.plan.geofence.min_alt_m + 0.01])))
+        r.checks["home_in_fence"] = inside
+        if not inside:
+            r.problems.append(f"home ({h[0]:.1f}, {h[1]:.1f}) m is outside the geofence")
+    co.state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
+
+
+async def _sensor_check(co, timeout_s: float = 5.0) -> None:
+    """Warn (not fail) about vehicles with no accepted zenoh reading yet.
+
+    zenoh says nothing when a sensor's TLS handshake or login is refused, or when it connects
+    elsewhere: without this, such a mission would take off and only notice in the seek.
+    Not a readiness failure: a sensor may start publishing only once airborne.
+    """
+    if not co.readings_subscribed:
+        return  # no zenoh session (dry run)
+
+    def _missing():
+        return [s for s in sorted(co.vehicles) if co.store.latest(s) is None]
+
+    deadline = co.clock.time() + timeout_s
+    while _missing() and co.clock.time() < deadline:
+        await co.clock.sleep(0.2)
+    missing = _missing()
+    if missing:
+        counts = co.store.counts()
+        rejected = {k: n for k, n in counts["rejected"].items() if n}
+        co.event(f"preflight: no sensor reading accepted from vehicles {missing} within {timeout_s:g} s "
+                 "(sensor not running or not connected to this zenoh session: a refused TLS handshake "
+                 "or login is silent in zenoh; check the sensor's output)"
+                 + (f"; readings rejected so far: {rejected}" if rejected else ""),
+                 level="warning", sysids=missing, readings=counts)

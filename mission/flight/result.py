@@ -1,0 +1,114 @@
+"""The end result of a mission (:class:`MissionResult`, what ``--json`` prints)."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+from mission.telemetry.mission_log import to_jsonable
+
+__all__ = ["MissionResult", "mission_result", "readiness_result"]
+
+@dataclass
+class MissionResult:
+    """End of a mission (what ``--json`` prints).
+
+    Attributes
+    ----------
+    outcome : str
+        ``converged``, ``max_iterations``, ``stopped_at_fence``, ``aborted``, ``ready`` or
+        ``not_ready`` (dry run).
+    message : str
+    estimate_enu : list or None
+        Estimated source position (mean of the last ``convergence_window`` centres).
+    spread_m : float or None
+        RMS spread of those centres.
+    iterations : int
+    mission_time_s, seek_time_s : float
+        Mission clock seconds, whole mission and seek phase.
+    distance_flown_m : float
+        Path length of the formation centre during the seek.
+    vehicle_distance_m : dict
+        Path length flown by each vehicle (telemetry), by sysid.
+    readings : dict
+        Accepted readings and rejections per reason.
+    readiness : list
+        Preflight result per vehicle.
+    lost : list
+        Vehicles lost during the mission: ``sysid``, ``reason`` (``link`` / ``left``),
+        ``detail``, ``phase``, ``latency_s`` (see :mod:`mission.flight.loss`).
+    """
+
+    outcome: str
+    message: str = ""
+    estimate_enu: list | None = None
+    spread_m: float | None = None
+    iterations: int = 0
+    mission_time_s: float = 0.0
+    seek_time_s: float = 0.0
+    distance_flown_m: float = 0.0
+    vehicle_distance_m: dict = field(default_factory=dict)
+    readings: dict = field(default_factory=dict)
+    readiness: list = field(default_factory=list)
+    true_source_enu: list | None = None
+    error_m: float | None = None
+    log_path: str | None = None
+    reengaged: dict = field(default_factory=dict)
+    max_loop_lag_s: float | None = None
+    lost: list = field(default_factory=list)
+    readmitted: list = field(default_factory=list)  # sysid, lost_s, came_back_s, readmitted_s
+    retired: list = field(default_factory=list)  # retired sensors: mission.flight.retire.RetiredSensor
+
+    @property
+    def ok(self) -> bool:
+        """The mission reached its goal (converged), or the dry run found every vehicle ready."""
+        return self.outcome in ("converged", "ready")
+
+    def to_json(self) -> dict:
+        """JSON-friendly dict."""
+        return to_jsonable(asdict(self))
+
+
+def mission_result(state, outcome: str, message: str, *, now_s: float, readings: dict,
+                   log_path: str | None = None) -> MissionResult:
+    """The :class:`MissionResult` of a mission whose state is ``state`` (:class:`~mission.flight.state.MissionState`).
+
+    Parameters
+    ----------
+    state : MissionState
+    outcome, message : str
+    now_s : float
+        Mission clock now.
+    readings : dict
+        The reading store's counts (and last errors).
+    log_path : str, optional
+    """
+    t_end = state.t_seek_end_s or now_s
+    est = state.estimate_enu
+    return MissionResult(
+        outcome=outcome, message=message,
+        estimate_enu=None if est is None else [float(x) for x in est],
+        spread_m=state.spread_m, iterations=state.iteration,
+        mission_time_s=now_s - state.t_start_s,
+        seek_time_s=0.0 if state.t_seek_start_s is None else t_end - state.t_seek_start_s,
+        distance_flown_m=state.distance_flown_m,
+        vehicle_distance_m={int(k): round(v, 2) for k, v in state.vehicle_distance_m.items()},
+        readings=readings,
+        readiness=[asdict(r) | {"ready": r.ready} for r in state.readiness.values()],
+        log_path=log_path, reengaged=dict(state.reengaged), max_loop_lag_s=round(state.max_loop_lag_s, 4),
+        lost=[{"sysid": x.sysid, "reason": x.reason, "detail": x.detail, "phase": x.phase,
+               "latency_s": round(x.latency_s, 3), "came_back_s": x.came_back_s}
+              for x in state.lost.values()], readmitted=list(state.readmitted),
+        retired=[dict(asdict(x), ratio=round(x.ratio, 3)) for x in state.retired.values()])
+
+
+def readiness_result(state, plan_vehicles, readings: dict, mission_time_s: float) -> MissionResult:
+    """The dry run's result: ``ready`` when every vehicle of the plan passed its preflight, else ``not_ready``."""
+    ready = list(state.readiness.values())
+    all_ready = len(ready) == len(plan_vehicles) and all(r.ready for r in ready)
+    missing = [vp for vp in plan_vehicles if vp.sysid not in state.readiness]
+    readiness = [asdict(r) | {"ready": r.ready} for r in ready] + [
+        {"sysid": vp.sysid, "id": vp.id, "connection": vp.connection, "ready": False,
+         "checks": {"connected": False}, "problems": ["not connected"]} for vp in missing]
+    return MissionResult(outcome="ready" if all_ready else "not_ready",
+                         message="every vehicle is ready" if all_ready else
+                         f"{sum(not r['ready'] for r in readiness)} vehicle(s) not ready",
+                         readiness=readiness, readings=readings, mission_time_s=mission_time_s)

@@ -1,0 +1,56 @@
+"""The coordinator's watchdog: odometry, event-loop lag, status records, and re-engaging after a failsafe."""
+from __future__ import annotations
+
+import asyncio
+
+from mission.flight.modes import GUIDED_MODES, LEFT_MODES
+
+__all__ = ["watchdog"]
+
+
+async def watchdog(co, period_s: float = 0.1) -> None:
+    """Odometry, event-loop lag, and re-engaging OFFBOARD/GUIDED after a setpoint-loss failsafe.
+
+    A vehicle under the mission's setpoints (takeoff done, not returning) found in another
+    mode is switched back (PX4 falls back to hold when setpoints pause for COM_OF_LOSS_T;
+    the stream resumes at once, so re-engaging is safe); each time is logged and counted.
+    """
+    loop = asyncio.get_running_loop()
+    next_status_s = co.clock.time()
+    while True:
+        t0 = loop.time()
+        await asyncio.sleep(period_s)
+        co.state.note_loop_lag(loop.time() - t0 - period_s)
+        co.update_odometry()
+        if co.log is not None and co.vehicles and co.clock.time() >= next_status_s:
+            next_status_s = co.clock.time() + co.status_period_s
+            co.log.write("status", phase=co.phase, centre_enu=co.centre_enu, vehicles=co.vehicle_status())
+        if co.phase not in ("assemble", "seek", "finish", "return") or co.ramp is None:
+            continue
+        for sysid in co.ramp.sysids:
+            v = co.vehicles.get(sysid)
+            want = GUIDED_MODES.get(getattr(v, "flavour", None))
+            if (v is None or want is None or sysid in co.state.reengaging or sysid in co.released
+                    or sysid in co.lost or v.state.mode == want):
+                continue
+            if v.state.mode in LEFT_MODES.get(v.flavour, ()) or v.link_age_s() > co.plan.faults.link_timeout_s:
+                continue  # left the mission or silent: mission.flight.loss decides, never re-engaged
+            if not v.state.armed:
+                continue
+            co.state.begin_reengaging(sysid)
+            loop.create_task(_reengage(co, sysid, v, want))
+
+
+async def _reengage(co, sysid: int, v, want: str) -> None:
+    """Switch ``v`` back to ``want``; counted when it worked, reported (and retried later) when not."""
+    done = False
+    try:
+        co.event(f"vehicle {sysid} left {want} (now {v.state.mode}); re-engaging", level="warning",
+                 sysid=sysid)
+        await v.set_mode(want)
+        done = True
+    except Exception as exc:  # noqa: BLE001 - CommandError: reported, retried next tick
+        co.event(f"vehicle {sysid}: could not re-engage {want}: {exc}", level="error", sysid=sysid)
+        await co.clock.sleep(1.0)
+    finally:
+        co.state.end_reengaging(sysid, succeeded=done)
