@@ -229,6 +229,11 @@ class MockFleet:
         """True while the simulation thread runs."""
         return self._thread is not None and self._thread.is_alive()
 
+    @property
+    def started(self) -> bool:
+        """True from :meth:`start` (with or without thread) until :meth:`stop`."""
+        return self._opened
+
     # ------------------------------------------------------------------ API
     @property
     def sim_time_s(self) -> float:
@@ -254,7 +259,6 @@ class MockFleet:
         """Set one fault of one vehicle (see :class:`~sitl_mock.faults.FaultSet`)."""
         self.vehicle(sysid).faults.set(name, value)
 
-    # ------------------------------------------------------------ simulation
     # ------------------------------------------------------------ lock-step driving
     @property
     def next_step_s(self) -> float:
@@ -263,11 +267,7 @@ class MockFleet:
 
     @property
     def published_readings(self) -> int:
-        """Readings put on zenoh while some subscriber matched (0 without zenoh).
-
-        Counted only by a fleet started with ``thread=False``: a lock-step driver waits until the
-        ground station has received them all before it lets time move.
-        """
+        """Readings put on zenoh while a subscriber matched (counted with ``thread=False`` only)."""
         return 0 if self._publisher is None else self._publisher.published_matched
 
     def readings_matched(self) -> bool:
@@ -276,13 +276,7 @@ class MockFleet:
         return pub is None or all(pub.has_subscribers(s) for s in pub.sysids)
 
     def service_io(self) -> int:
-        """Read every socket with data now and send what the vehicles have to send.
-
-        Returns
-        -------
-        int
-            Socket events handled (0: nothing was waiting).
-        """
+        """Read every socket with data now, send what the vehicles have to send; events handled."""
         handled = 0
         while True:
             events = self._selector.select(0)

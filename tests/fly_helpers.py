@@ -8,7 +8,7 @@ from mission.sim.embedded_world import EmbeddedWorld
 from mission.sim.lockstep import VirtualClock, run_lockstep
 from mission.telemetry.mission_log import MissionLog
 
-__all__ = ["fly", "run_with_saboteur"]
+__all__ = ["fly", "run_fleet", "run_with_saboteur"]
 
 
 async def fly(plan, fleet, log_path, tlog_dir=None, world=None):
@@ -31,6 +31,22 @@ async def fly(plan, fleet, log_path, tlog_dir=None, world=None):
         session.close()
 
 
+def run_fleet(fleet, make_main):
+    """Run ``make_main(world)`` (a coroutine) against ``fleet``, starting the fleet if needed.
+
+    A fleet on a :class:`~mission.sim.lockstep.VirtualClock` runs in lock-step: no fleet thread,
+    ``world`` is its :class:`~mission.sim.embedded_world.EmbeddedWorld`. Any other fleet runs
+    on its thread against the wall clock and ``world`` is None. The caller stops the fleet.
+    """
+    lockstep = isinstance(fleet.clock, VirtualClock)
+    if not fleet.started:
+        fleet.start(thread=not lockstep)
+    if not lockstep:
+        return asyncio.run(make_main(None))
+    world = EmbeddedWorld(fleet)
+    return run_lockstep(lambda: make_main(world), fleet.clock, world)
+
+
 def run_with_saboteur(plan, fleet, log_dir, saboteur=None):
     """Start ``fleet`` (and the ``saboteur`` thread, which sets faults as the mission log grows:
     it has a ``done`` event), fly ``plan`` (:func:`fly`: log ``log_dir / "mission.jsonl"``, .tlog
@@ -38,16 +54,11 @@ def run_with_saboteur(plan, fleet, log_dir, saboteur=None):
 
     A fleet on a :class:`~mission.sim.lockstep.VirtualClock` flies in lock-step (no fleet
     thread; the saboteur thread still acts on what the log shows)."""
-    lockstep = isinstance(fleet.clock, VirtualClock)
-    fleet.start(thread=not lockstep)
     if saboteur:
         saboteur.start()
     try:
-        if not lockstep:
-            return asyncio.run(fly(plan, fleet, log_dir / "mission.jsonl", log_dir / "tlogs"))
-        world = EmbeddedWorld(fleet)
-        return run_lockstep(lambda: fly(plan, fleet, log_dir / "mission.jsonl", log_dir / "tlogs", world),
-                            fleet.clock, world)
+        return run_fleet(fleet, lambda world: fly(plan, fleet, log_dir / "mission.jsonl", log_dir / "tlogs",
+                                                  world))
     finally:
         if saboteur:
             saboteur.done.set()

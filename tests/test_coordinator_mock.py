@@ -2,7 +2,6 @@
 a failed preflight arms nothing; a source outside the geofence stops the mission at the fence."""
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 
 import numpy as np
@@ -12,18 +11,21 @@ from mission.flight.coordinator import Coordinator
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.core.plan import GeofencePlan
+from mission.sim.lockstep import VirtualClock
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
 
+from fly_helpers import run_fleet
+
 
 def _fleet(n, ports, source, **kw):
-    return MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, speedup=10.0,
+    return MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                      seed=7, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
                      tcp_base_port=0, fleet_name="swarmseek", zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"],
                      **kw)
 
 
-async def _fly(plan, fleet, log_path, states=None):
+async def _fly(plan, fleet, log_path, states=None, world=None):
     import json
 
     import zenoh
@@ -35,7 +37,10 @@ async def _fly(plan, fleet, log_path, states=None):
     if states is not None:  # a watcher of the published state (same session: local delivery)
         session.declare_subscriber(state_key(plan.fleet), lambda s: states.append(json.loads(s.payload.to_bytes())))
     try:
-        return await Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, tlog_dir=None).run()
+        co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, tlog_dir=None)
+        if world is not None:
+            world.store = co.store
+        return await co.run()
     finally:
         log.close()
         session.close()
@@ -58,9 +63,8 @@ def test_failed_preflight_aborts_and_arms_nothing(tmp_path, zenoh_elsewhere):
     if zenoh_elsewhere:  # nobody listens there
         nowhere = free_port_block(1, kinds=("tcp",))
         plan = dataclasses.replace(plan, zenoh=ZenohPlan(mode="peer", connect=(f"tcp/127.0.0.1:{nowhere}",)))
-    fleet.start()
     try:
-        result = asyncio.run(_fly(plan, fleet, tmp_path / "m.jsonl"))
+        result = run_fleet(fleet, lambda world: _fly(plan, fleet, tmp_path / "m.jsonl", world=world))
         armed = [v.armed for v in fleet.vehicles]
     finally:
         fleet.stop()
@@ -94,9 +98,8 @@ def test_source_outside_the_fence_stops_at_the_boundary(tmp_path):
     plan = dataclasses.replace(plan, geofence=GeofencePlan(
         polygon_en_m=((-15.0, -15.0), (15.0, -15.0), (15.0, 15.0), (-15.0, 15.0)), min_alt_m=2.0, max_alt_m=40.0))
     states: list[dict] = []
-    fleet.start()
     try:
-        result = asyncio.run(_fly(plan, fleet, tmp_path / "m.jsonl", states))
+        result = run_fleet(fleet, lambda world: _fly(plan, fleet, tmp_path / "m.jsonl", states, world))
     finally:
         fleet.stop()
     assert result.outcome == "stopped_at_fence", result.message
@@ -156,10 +159,9 @@ def test_offboard_loss_is_reengaged_and_the_mission_goes_on(tmp_path):
         fleet.set_fault(1, "loss_uplink", 0.0)
 
     thread = threading.Thread(target=saboteur, daemon=True)
-    fleet.start()
     thread.start()
     try:
-        result = asyncio.run(_fly(plan, fleet, log_path))
+        result = run_fleet(fleet, lambda world: _fly(plan, fleet, log_path, world=world))
     finally:
         done.set()
         thread.join(timeout=30)

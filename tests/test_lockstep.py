@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import re
+import threading
 
 import pytest
 
@@ -44,8 +45,24 @@ def test_virtual_clock_starts_at_the_fixed_epoch_and_never_goes_back():
     assert clock.time() == LOCKSTEP_T0_S + 2.5
     with pytest.raises(ValueError, match="finite"):
         VirtualClock(float("nan"))
-    with pytest.raises(RuntimeError, match="lock-step loop"):
-        clock.sleep_blocking(1.0)
+
+
+def test_sleep_blocking_waits_for_the_loop_and_refuses_on_the_loops_own_thread():
+    clock = VirtualClock()
+    woke_at = []
+    beside = threading.Thread(target=lambda: (clock.sleep_blocking(2.0), woke_at.append(clock.elapsed_s)))
+    beside.start()
+
+    async def main():
+        with pytest.raises(RuntimeError, match="own thread"):
+            clock.sleep_blocking(1.0)
+        for _ in range(40):
+            await clock.sleep(0.1)
+
+    run_lockstep(main, clock)
+    beside.join(timeout=10)
+    assert not beside.is_alive()
+    assert woke_at and 2.0 <= woke_at[0] <= 4.0
 
 
 @pytest.mark.parametrize("dt_s", [0.0, 0.013, 5.0, 3600.0])

@@ -12,8 +12,9 @@
   ``t_s``.
 
 Waiting for zenoh is done on the wall clock, bounded by ``settle_timeout_s``; a wait that runs
-out is counted in :attr:`EmbeddedWorld.stalls` (it means a reading was lost, which breaks
-reproducibility but not the mission) and the run goes on.
+out is counted in :attr:`EmbeddedWorld.stalls` (a reading was lost, or the ground station's
+zenoh session does not reach the fleet: reproducibility is lost, not the mission) and is not
+repeated for the same loss.
 """
 from __future__ import annotations
 
@@ -50,28 +51,41 @@ class EmbeddedWorld:
         self.settle_timeout_s = float(settle_timeout_s)
         self.stalls = 0
         self.waits = 0
+        self._lost = 0
+        self._match_given_up = False
 
     def _received(self) -> int:
         counts = self.store.counts()
         return counts["accepted"] + sum(counts["rejected"].values())
 
-    def _delivered(self) -> bool:
+    def _pending(self) -> bool:
+        """Something the ground station listens for is still on its way."""
         if self.store is None or not self.store.subscribers:
-            return True
-        if not self.fleet.readings_matched():
             return False
-        return self._received() >= self.fleet.published_readings
+        if not self.fleet.readings_matched():
+            return not self._match_given_up
+        self._match_given_up = False
+        return self._received() + self._lost < self.fleet.published_readings
 
     def settle(self) -> None:
-        """Handle every frame waiting at the vehicles; wait for zenoh to deliver (bounded)."""
+        """Handle every frame waiting at the vehicles; wait for zenoh to deliver (bounded).
+
+        A wait that runs out is counted in :attr:`stalls` and not repeated: a lost reading is
+        written off, and a subscription that does not match (zenoh not connected to the fleet)
+        is not waited for again until it matches.
+        """
         self.fleet.service_io()
-        if self._delivered():
+        if not self._pending():
             return
         self.waits += 1
         give_up = time.monotonic() + self.settle_timeout_s
-        while not self._delivered():
+        while self._pending():
             if time.monotonic() > give_up:
                 self.stalls += 1
+                if self.fleet.readings_matched():
+                    self._lost = self.fleet.published_readings - self._received()
+                else:
+                    self._match_given_up = True
                 return
             time.sleep(_POLL_WALL_S)
 

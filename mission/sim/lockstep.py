@@ -30,6 +30,7 @@ from __future__ import annotations
 import asyncio
 import math
 import selectors
+import threading
 from typing import Awaitable, Callable, Protocol, TypeVar
 
 __all__ = ["LOCKSTEP_T0_S", "LockstepWorld", "VirtualClock", "LockstepEventLoop", "run_lockstep"]
@@ -76,6 +77,8 @@ class VirtualClock:
             raise ValueError(f"t0_s must be finite, got {t0_s!r}")
         self.t0_s = t0
         self._elapsed_s = 0.0
+        self._moved = threading.Condition()
+        self._loop_thread: int | None = None
 
     @property
     def elapsed_s(self) -> float:
@@ -87,18 +90,33 @@ class VirtualClock:
         return self.t0_s + self._elapsed_s
 
     def advance_to(self, elapsed_s: float) -> None:
-        """Move to ``elapsed_s`` seconds after the start (never backwards)."""
+        """Move to ``elapsed_s`` seconds after the start (never backwards); wake blocked threads."""
         if elapsed_s > self._elapsed_s:
-            self._elapsed_s = float(elapsed_s)
+            with self._moved:
+                self._elapsed_s = float(elapsed_s)
+                self._moved.notify_all()
+
+    def bind_loop_thread(self, thread_id: int | None) -> None:
+        """Record the thread that moves this clock (its ``sleep_blocking`` would never return)."""
+        self._loop_thread = thread_id
 
     async def sleep(self, dt_s: float) -> None:
         """Suspend the calling task for ``dt_s`` simulated seconds (the loop's own timers)."""
         await asyncio.sleep(max(0.0, float(dt_s)))
 
     def sleep_blocking(self, dt_s: float) -> None:
-        """Not available: nothing may block the only thread that moves this clock."""
-        raise RuntimeError("VirtualClock.sleep_blocking would block the lock-step loop forever; "
-                           "use await clock.sleep(dt_s)")
+        """Block the calling thread until the clock has moved ``dt_s`` simulated seconds.
+
+        For threads beside a lock-step run (a test's fault injector, say). The thread that
+        moves the clock cannot wait for itself: it gets a :class:`RuntimeError`.
+        """
+        if threading.get_ident() == self._loop_thread:
+            raise RuntimeError("VirtualClock.sleep_blocking on the lock-step loop's own thread would "
+                               "never return; use await clock.sleep(dt_s)")
+        with self._moved:
+            deadline = self._elapsed_s + max(0.0, float(dt_s))
+            while self._elapsed_s < deadline:
+                self._moved.wait()
 
     def __repr__(self) -> str:
         return f"VirtualClock(t={self.time():.3f})"
@@ -218,5 +236,9 @@ def run_lockstep(main: Callable[[], Awaitable[_T]], clock: VirtualClock,
     object
         What the coroutine returned.
     """
-    with asyncio.Runner(loop_factory=lambda: LockstepEventLoop(clock, world)) as runner:
-        return runner.run(main())
+    clock.bind_loop_thread(threading.get_ident())
+    try:
+        with asyncio.Runner(loop_factory=lambda: LockstepEventLoop(clock, world)) as runner:
+            return runner.run(main())
+    finally:
+        clock.bind_loop_thread(None)
