@@ -50,19 +50,31 @@ def test_virtual_clock_starts_at_the_fixed_epoch_and_never_goes_back():
 def test_sleep_blocking_waits_for_the_loop_and_refuses_on_the_loops_own_thread():
     clock = VirtualClock()
     woke_at = []
-    beside = threading.Thread(target=lambda: (clock.sleep_blocking(2.0), woke_at.append(clock.elapsed_s)))
-    beside.start()
+    asleep = threading.Event()
+
+    def nap():
+        asleep.set()
+        clock.sleep_blocking(2.0)
+        woke_at.append(clock.elapsed_s)
+
+    beside = threading.Thread(target=nap)
+    stuck = threading.Thread(target=lambda: clock.sleep_blocking(1e6))  # longer than the run
 
     async def main():
         with pytest.raises(RuntimeError, match="own thread"):
             clock.sleep_blocking(1.0)
+        beside.start()
+        stuck.start()
+        assert asleep.wait(10)
         for _ in range(40):
             await clock.sleep(0.1)
 
     run_lockstep(main, clock)
     beside.join(timeout=10)
-    assert not beside.is_alive()
-    assert woke_at and 2.0 <= woke_at[0] <= 4.0
+    stuck.join(timeout=10)  # released when the run ends: nothing would move the clock any more
+    assert not beside.is_alive() and not stuck.is_alive()
+    # not before its 2 s (when exactly it runs after that depends on when it gets the GIL)
+    assert woke_at and 2.0 <= woke_at[0] <= 4.0 + 1e-9
 
 
 @pytest.mark.parametrize("dt_s", [0.0, 0.013, 5.0, 3600.0])

@@ -3,7 +3,6 @@ with separation kept, the mission going on while 4 are left and ending safely be
 a vehicle heard again is kept out and landed (``[faults] readmit = false``)."""
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import threading
 
@@ -15,7 +14,8 @@ from mission.flight.loss import classify_loss, reformed_offsets
 from mission.telemetry.mission_log import read_mission_log
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
-from fly_helpers import fly as _fly
+from mission.sim.lockstep import VirtualClock
+from fly_helpers import fly as _fly, run_fleet
 
 pytestmark = pytest.mark.timeout(400)
 
@@ -78,8 +78,8 @@ def test_reformed_offsets_refuse_below_four():
 
 
 # ------------------------------------------------------------------------ against the mock
-def _fleet(n, ports, source, speedup=10.0):
-    return MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, speedup=speedup,
+def _fleet(n, ports, source):
+    return MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                      seed=11, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
                      tcp_base_port=0, fleet_name="swarmseek", zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"],
                      sensor_noise_std=0.005)
@@ -116,10 +116,9 @@ class _Saboteur(threading.Thread):
 
 
 def _run(plan, fleet, log_path, saboteur):
-    fleet.start()
     saboteur.start()
     try:
-        return asyncio.run(_fly(plan, fleet, log_path))
+        return run_fleet(fleet, lambda world: _fly(plan, fleet, log_path, world=world))
     finally:
         saboteur.done.set()
         saboteur.join(timeout=30)

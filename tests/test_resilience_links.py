@@ -9,7 +9,6 @@ row lost (0.2 ** 10 = 1e-7) to starve a vehicle; the parameter is left at its de
 """
 from __future__ import annotations
 
-import asyncio
 import threading
 
 import numpy as np
@@ -19,7 +18,8 @@ from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fle
 from mission.telemetry.mission_log import read_mission_log
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
-from fly_helpers import fly as _fly
+from mission.sim.lockstep import VirtualClock
+from fly_helpers import fly as _fly, run_fleet
 
 
 
@@ -30,7 +30,7 @@ def test_lossy_slow_links_mission_completes_without_offboard_loss(tmp_path):
     n = 5
     ports = fleet_ports(n, "px4")
     source = np.array([5.0, 4.0, 13.0])
-    fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, speedup=4.0,
+    fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                       seed=3, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
                       tcp_base_port=0, zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"],
                       sensor_noise_std=0.005)
@@ -55,10 +55,9 @@ def test_lossy_slow_links_mission_completes_without_offboard_loss(tmp_path):
             fleet.clock.sleep_blocking(0.5)
 
     watcher = threading.Thread(target=watch, daemon=True)
-    fleet.start()
     watcher.start()
     try:
-        result = asyncio.run(_fly(plan, fleet, log_path))
+        result = run_fleet(fleet, lambda world: _fly(plan, fleet, log_path, world=world))
         dropped = {k: sum(v.counters.get(k, 0) for v in fleet.vehicles)
                    for k in ("rx_dropped_loss", "tx_dropped_loss")}
     finally:

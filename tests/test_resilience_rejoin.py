@@ -4,7 +4,6 @@ missions against the mock fleet: a vehicle re-admitted after its link comes back
 (``[faults] readmit = true``), and survivors keeping clear of a vehicle hovering in hold."""
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import threading
 
@@ -18,7 +17,8 @@ from mission.flight.obstacles import clear_offsets, plan_clear_transfer, segment
 from mission.flight.rejoin import readmitted_offsets
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
-from fly_helpers import fly as _fly
+from mission.sim.lockstep import VirtualClock
+from fly_helpers import fly as _fly, run_fleet
 
 pytestmark = pytest.mark.timeout(400)
 
@@ -91,7 +91,7 @@ def test_readmitted_offsets_grow_the_formation(kind, n, kind_after):
 
 # ------------------------------------------------------------------------ against the mock
 def _fleet(n, ports, source):
-    return MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, speedup=10.0,
+    return MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                      seed=11, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
                      tcp_base_port=0, fleet_name="swarmseek", zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"],
                      sensor_noise_std=0.005)
@@ -111,9 +111,20 @@ class _Watcher(threading.Thread):
         self.closest_m = np.inf        # survivors to the cut vehicle, while it is cut
         self.closest_pair_m = np.inf   # any two vehicles, after the cut
         self.done = threading.Event()
+        self._read_bytes = 0
+        self._iterations_seen = 0
 
     def _iterations(self):
-        return self.log_path.read_text().count('"type":"iteration"') if self.log_path.exists() else 0
+        """Iterations in the mission log so far (reads only what was appended since last time)."""
+        if not self.log_path.exists():
+            return 0
+        with open(self.log_path, "rb") as fh:
+            fh.seek(self._read_bytes)
+            new = fh.read()
+        done = new.rfind(b"\n") + 1  # count whole lines only
+        self._read_bytes += done
+        self._iterations_seen += new[:done].count(b'"type":"iteration"')
+        return self._iterations_seen
 
     def run(self):
         deadline = self.fleet.clock.time() + 900.0
@@ -151,10 +162,9 @@ def _mission(tmp_path, n, source, watcher_kwargs, readmit):
     plan = dataclasses.replace(plan, faults=FaultsPlan(readmit=readmit))
     log_path = tmp_path / "m.jsonl"
     watcher = _Watcher(fleet, log_path, **watcher_kwargs)
-    fleet.start()
     watcher.start()
     try:
-        result = asyncio.run(_fly(plan, fleet, log_path))
+        result = run_fleet(fleet, lambda world: _fly(plan, fleet, log_path, world=world))
     finally:
         watcher.done.set()
         watcher.join(timeout=30)

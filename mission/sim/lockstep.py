@@ -31,6 +31,7 @@ import asyncio
 import math
 import selectors
 import threading
+import time as _time
 from typing import Awaitable, Callable, Protocol, TypeVar
 
 __all__ = ["LOCKSTEP_T0_S", "LockstepWorld", "VirtualClock", "LockstepEventLoop", "run_lockstep"]
@@ -97,8 +98,14 @@ class VirtualClock:
                 self._moved.notify_all()
 
     def bind_loop_thread(self, thread_id: int | None) -> None:
-        """Record the thread that moves this clock (its ``sleep_blocking`` would never return)."""
-        self._loop_thread = thread_id
+        """Record the thread that moves this clock (None: no lock-step run is going on).
+
+        Unbinding wakes every thread blocked in :meth:`sleep_blocking`: with no run, nothing
+        would ever move the clock for them.
+        """
+        with self._moved:
+            self._loop_thread = thread_id
+            self._moved.notify_all()
 
     async def sleep(self, dt_s: float) -> None:
         """Suspend the calling task for ``dt_s`` simulated seconds (the loop's own timers)."""
@@ -107,16 +114,21 @@ class VirtualClock:
     def sleep_blocking(self, dt_s: float) -> None:
         """Block the calling thread until the clock has moved ``dt_s`` simulated seconds.
 
-        For threads beside a lock-step run (a test's fault injector, say). The thread that
-        moves the clock cannot wait for itself: it gets a :class:`RuntimeError`.
+        For threads beside a lock-step run (a test's fault injector, say). While no run is going
+        on (before it starts, after it ends) nothing moves the clock: the call then returns after
+        one wall millisecond. The thread that moves the clock cannot wait for itself: it gets a
+        :class:`RuntimeError`.
         """
         if threading.get_ident() == self._loop_thread:
             raise RuntimeError("VirtualClock.sleep_blocking on the lock-step loop's own thread would "
                                "never return; use await clock.sleep(dt_s)")
         with self._moved:
             deadline = self._elapsed_s + max(0.0, float(dt_s))
-            while self._elapsed_s < deadline:
+            while self._elapsed_s < deadline and self._loop_thread is not None:
                 self._moved.wait()
+            running = self._loop_thread is not None
+        if not running:
+            _time.sleep(1e-3)
 
     def __repr__(self) -> str:
         return f"VirtualClock(t={self.time():.3f})"
