@@ -15,11 +15,14 @@ from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.flight.resume import ResumeError, load_resume_state, plan_from_json
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
+from mission.sim.lockstep import VirtualClock
+
+from fly_helpers import run_fleet
 
 pytestmark = pytest.mark.timeout(400)
 
 
-async def _fly_then_stop(plan, fleet, log_path, stop_after: int):
+async def _fly_then_stop(plan, fleet, log_path, stop_after: int, world=None):
     """Fly until ``stop_after`` iterations, then stop the coordinator like a crashed ground
     station (no return): its task is cancelled and its links closed."""
     import zenoh
@@ -28,12 +31,15 @@ async def _fly_then_stop(plan, fleet, log_path, stop_after: int):
     log = MissionLog(log_path, fleet.clock)
     try:
         co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, tlog_dir=None)
+        if world is not None:
+            world.store = co.store
         co.return_on_interrupt = False
         task = asyncio.get_running_loop().create_task(co.run())
         deadline = fleet.clock.time() + 600.0
         while co.iteration < stop_after and not task.done() and fleet.clock.time() < deadline:
             await fleet.clock.sleep(0.2)
         assert not task.done(), task.result().message
+        assert co.iteration >= stop_after, f"only {co.iteration} iterations before the deadline"
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task
@@ -44,10 +50,15 @@ async def _fly_then_stop(plan, fleet, log_path, stop_after: int):
 
 
 def _wait(fleet, predicate, timeout_s):
-    deadline = fleet.clock.time() + timeout_s
-    while not predicate() and fleet.clock.time() < deadline:
-        fleet.clock.sleep_blocking(0.2)
-    return predicate()
+    """Let the fleet fly on its own (no ground station) until ``predicate()`` or ``timeout_s``
+    of fleet time; returns ``predicate()``."""
+    async def watch(_world):
+        deadline = fleet.clock.time() + timeout_s
+        while not predicate() and fleet.clock.time() < deadline:
+            await fleet.clock.sleep(0.2)
+        return predicate()
+
+    return run_fleet(fleet, watch)
 
 
 @pytest.mark.slow
@@ -59,7 +70,7 @@ def test_gcs_stop_each_vehicle_does_what_its_autopilot_does(tmp_path):
     params = [{}, {"COM_OBL_RC_ACT": 4}, {}, {"FS_GCS_ENABLE": 2}]
     source = np.array([12.0, 8.0, 13.0])
     fleet = MockFleet(n=n, personality=personalities, field=sigma2(source), origin=DEFAULT_ORIGIN,
-                      speedup=10.0, seed=5, udp_base_port=ports["udp_base_port"],
+                      clock=VirtualClock(), seed=5, udp_base_port=ports["udp_base_port"],
                       udp_bind_base_port=ports["udp_bind_base_port"], tcp_base_port=tcp_base,
                       zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"], params=params,
                       sensor_noise_std=0.005)
@@ -67,9 +78,8 @@ def test_gcs_stop_each_vehicle_does_what_its_autopilot_does(tmp_path):
     vehicles = tuple(dataclasses.replace(v, connection=f"tcp:127.0.0.1:{tcp_base + 10 * i}")
                      if personalities[i] == "ardupilot" else v for i, v in enumerate(plan.vehicles))
     plan = dataclasses.replace(plan, vehicles=vehicles)
-    fleet.start()
     try:
-        asyncio.run(_fly_then_stop(plan, fleet, tmp_path / "m.jsonl", stop_after=2))
+        run_fleet(fleet, lambda world: _fly_then_stop(plan, fleet, tmp_path / "m.jsonl", stop_after=2, world=world))
         t_stop = fleet.clock.time()
         where3 = fleet.vehicle(3).true_position_enu()
         v = {s: fleet.vehicle(s) for s in range(1, n + 1)}
@@ -77,7 +87,7 @@ def test_gcs_stop_each_vehicle_does_what_its_autopilot_does(tmp_path):
                                    and v[4].mode_name == "RTL"), 30.0)
         modes = {s: v[s].mode_name for s in v}
         assert ok, modes
-        fleet.clock.sleep_blocking(2.0)
+        _wait(fleet, lambda: False, 2.0)
         modes = {s: (v[s].mode_name, v[s].armed) for s in v}
         drift3 = float(np.linalg.norm(fleet.vehicle(3).true_position_enu() - where3))
         elapsed = fleet.clock.time() - t_stop
@@ -97,20 +107,19 @@ def test_resume_after_a_gcs_stop_goes_on_and_converges(tmp_path):
     n = 6
     ports = fleet_ports(n, "px4")
     source = np.array([8.0, -5.0, 13.0])
-    fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, speedup=10.0,
+    fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                       seed=9, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
                       tcp_base_port=0, zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"],
                       sensor_noise_std=0.005)
     plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 11.0), eps=default_eps(sigma2(source)))
     log_path = tmp_path / "m.jsonl"
-    fleet.start()
     try:
-        asyncio.run(_fly_then_stop(plan, fleet, log_path, stop_after=4))
+        run_fleet(fleet, lambda world: _fly_then_stop(plan, fleet, log_path, stop_after=4, world=world))
         assert _wait(fleet, lambda: all(v.mode_name == "AUTO.LOITER" for v in fleet.vehicles), 30.0), \
             [v.mode_name for v in fleet.vehicles]
         state = load_resume_state(log_path)
         assert state.iteration >= 4 and len(state.slot_offsets) == n
-        result = asyncio.run(resume(log_path, clock=fleet.clock, tlog=False))
+        result = run_fleet(fleet, lambda _world: resume(log_path, clock=fleet.clock, tlog=False))
         all_down = _wait(fleet, lambda: not any(v.armed for v in fleet.vehicles), 60.0)
     finally:
         fleet.stop()
