@@ -31,8 +31,9 @@ def _home_for(enu):
     return int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)), int(round(float(alt) * 1e3))
 
 
-def _write_log(tmp_path, tracks, plan=None, mask=0x1F8 | 0x800 | 0x400):
-    """``tracks``: sysid -> (home_enu, [(t_s, east, north, up), ...]) in the mission frame."""
+def _write_log(tmp_path, tracks, plan=None, mask=0x1F8 | 0x800 | 0x400, heartbeats=None):
+    """``tracks``: sysid -> (home_enu, [(t_s, east, north, up), ...]) in the mission frame;
+    ``heartbeats``: sysid -> [(t_s, autopilot, base_mode, custom_mode), ...] sent by the vehicle."""
     (tmp_path / "tlogs").mkdir()
     with open(tmp_path / "mission.jsonl", "w") as fh:
         fh.write(json.dumps({"t_s": T0, "type": "plan", "plan": plan or _plan()}) + "\n")
@@ -47,6 +48,10 @@ def _write_log(tmp_path, tracks, plan=None, mask=0x1F8 | 0x800 | 0x400):
             sp = gcs.set_position_target_local_ned_encode(0, sysid, 1, 1, mask, n - h[1], e - h[0], -(u - h[2]),
                                                           0, 0, 0, 0, 0, 0, 0, 0)
             out.append(tlog_record(sp.pack(gcs), T0 + t_s))
+        for t_s, autopilot, base_mode, custom_mode in (heartbeats or {}).get(sysid, []):
+            hb = veh.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, autopilot, base_mode, custom_mode,
+                                      mavlink.MAV_STATE_ACTIVE)
+            out.append(tlog_record(hb.pack(veh), T0 + t_s))
         (tmp_path / "tlogs" / f"vehicle-{sysid}.tlog").write_bytes(b"".join(out))
     return tmp_path
 
@@ -124,6 +129,33 @@ def test_stale_vehicle_does_not_count(tmp_path):
     report = audit_mission(_write_log(tmp_path, {1: a, 2: b}))
     assert report.ok, report.format_text()
     assert report.separation_instants_checked == 0
+
+
+_PX4, _APM = mavlink.MAV_AUTOPILOT_PX4, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED | mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+_PX4_OFFBOARD, _PX4_RTL = 6 << 16, (4 << 16) | (5 << 24)
+_APM_GUIDED, _APM_RTL = 4, 6
+
+
+@pytest.mark.parametrize("heartbeat, caught", [
+    (None, True),                                   # no word from the vehicle: its last setpoint holds 1 s
+    ((2.0, _PX4, _ARMED, _PX4_RTL), False),          # PX4 says AUTO.RTL when its last setpoint is sent
+    ((2.2, _PX4, _ARMED, _PX4_RTL), True),           # ... only after the other came close (2.1 s)
+    ((2.0, _PX4, _ARMED, _PX4_OFFBOARD), True),      # still OFFBOARD: still holding that setpoint
+    ((2.0, _APM, _ARMED, _APM_RTL), False),          # ArduPilot RTL
+    ((2.0, _APM, _ARMED, _APM_GUIDED), True),        # ArduPilot GUIDED
+    ((2.0, _APM, 0, _APM_GUIDED), False),            # disarmed
+])
+def test_a_vehicle_that_left_setpoints_no_longer_holds_its_last_one(tmp_path, heartbeat, caught):
+    """Vehicle 1's last setpoint is at (0, 0, 10) at t = 2 s; vehicle 2 is sent (0.5, 0, 10) at
+    t = 2.1 s: closer than 1.5 m, within the 1 s that vehicle 1 would hold its last setpoint --
+    unless vehicle 1 said (HEARTBEAT in its tlog) that it left OFFBOARD/GUIDED by then."""
+    a = ((0, 0, 0), [(1.0, 0, 0, 10), (2.0, 0, 0, 10)])
+    b = ((9, 9, 0), [(2.1, 0.5, 0, 10), (2.2, 0.5, 0, 10)])
+    hbs = {1: [(1.0, heartbeat[1], _ARMED, _PX4_OFFBOARD if heartbeat[1] == _PX4 else _APM_GUIDED), heartbeat]} \
+        if heartbeat else None
+    report = audit_mission(_write_log(tmp_path, {1: a, 2: b}, heartbeats=hbs))
+    assert (report.violation_counts.get("separation", 0) > 0) == caught, report.format_text()
 
 
 def test_velocity_only_setpoints_are_skipped(tmp_path):

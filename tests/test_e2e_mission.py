@@ -20,9 +20,10 @@ import pytest
 
 from mission.cli import main as cli_main
 
+from fly_helpers import run_fleet
+
 _FLIGHT_MARGIN_M = 0.5
 _NOISE = 0.005
-_SPEEDUP = 10.0
 
 CASES = [
     pytest.param("px4", "cvt", 8, id="px4-cvt-8"),
@@ -51,8 +52,11 @@ def _offline_tolerance(formation: str, n: int, source, start, eps: float, gamma:
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-@pytest.mark.parametrize("personality, formation, n", CASES)
-def test_mission_finds_the_source(tmp_path, capsys, personality, formation, n):
+@pytest.mark.parametrize("personality, formation, n, clock_args", [
+    *[pytest.param(*case.values, [], id=case.id) for case in CASES],
+    pytest.param("px4", "cvt", 8, ["--speedup", "10"], id="px4-cvt-8-wallclock-10x"),
+])
+def test_mission_finds_the_source(tmp_path, capsys, personality, formation, n, clock_args):
     from mission.sim.embedded import default_eps
     from mission.telemetry.mission_log import read_mission_log
     from sitl_mock.fields import sigma2
@@ -62,7 +66,7 @@ def test_mission_finds_the_source(tmp_path, capsys, personality, formation, n):
     eps = default_eps(sigma2(source))
     tolerance_m, offline_estimate = _offline_tolerance(formation, n, source, start, eps, 1.0, 12, 0.3)
     argv = ["run", "--n", str(n), "--formation", formation, "--personality", personality,
-            "--noise", str(_NOISE), "--speedup", str(_SPEEDUP), "--seed", "3", "--json",
+            "--noise", str(_NOISE), "--seed", "3", "--json", *clock_args,
             "--source=" + ",".join(map(str, source)), "--start=" + ",".join(map(str, start)),
             "--max-iterations", "150", "--log-dir", str(tmp_path)]
     code = cli_main(argv)
@@ -143,13 +147,12 @@ def test_dry_run_then_fly_a_plan_file_against_a_mock_fleet(tmp_path):
     """The ``fly`` path: a TOML plan naming the mock's UDP ports and zenoh endpoint, while a rogue
     zenoh peer connected to the coordinator publishes bad readings on the fleet's keys: every
     kind is rejected and counted, and the mission still finds the source."""
-    import asyncio
-
     from mission.cli.cmd_dryrun import dry_run
     from mission.cli.cmd_fly import fly
     from mission.sim.embedded import DEFAULT_ORIGIN, fleet_ports, free_port_block
     from mission.core.plan import load_plan
     from sitl_mock.fields import sigma2
+    from mission.sim.lockstep import VirtualClock
     from sitl_mock.fleet import MockFleet
 
     n = 5
@@ -160,19 +163,18 @@ def test_dry_run_then_fly_a_plan_file_against_a_mock_fleet(tmp_path):
     plan_path = tmp_path / "plan.toml"
     plan_path.write_text(_plan_toml(ports, n, source, start))
     plan = load_plan(plan_path)
-    fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, speedup=_SPEEDUP,
+    fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                       seed=5, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
                       tcp_base_port=0, fleet_name="planned", sensor_noise_std=_NOISE,
                       zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"])
-    fleet.start()
     try:
-        ready = asyncio.run(dry_run(plan, clock=fleet.clock))
+        ready = run_fleet(fleet, lambda _world: dry_run(plan, clock=fleet.clock))
         assert ready.outcome == "ready", ready.readiness
         assert all(r["checks"]["armable"] and r["checks"]["home"] for r in ready.readiness)
         assert not any(v.armed for v in fleet.vehicles)  # the dry run armed nothing
         rogue = _Rogue(ports["coordinator_zenoh_port"], "planned", fleet.clock, plan.origin)
         try:
-            result = asyncio.run(fly(plan, clock=fleet.clock, log_dir=tmp_path, tlog=False))
+            result = run_fleet(fleet, lambda _world: fly(plan, clock=fleet.clock, log_dir=tmp_path, tlog=False))
         finally:
             rogue.stop()
     finally:

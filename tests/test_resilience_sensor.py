@@ -40,6 +40,7 @@ from mission.flight.retire import (
 )
 from sitl_mock.fields import sigma2
 from sitl_mock.fleet import MockFleet
+from mission.sim.lockstep import VirtualClock
 from fly_helpers import run_with_saboteur
 
 _NOISY = 3
@@ -227,7 +228,7 @@ def _fly_noisy(log_dir, faulty_sensor: str, max_iterations: int, leave: int | No
     ports = fleet_ports(n, "px4")
     noise = [0.005] * n
     noise[_NOISY - 1] = 0.025
-    fleet = MockFleet(n=n, personality="px4", field=sigma2(_SOURCE), origin=DEFAULT_ORIGIN, speedup=10.0,
+    fleet = MockFleet(n=n, personality="px4", field=sigma2(_SOURCE), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                       seed=4, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
                       tcp_base_port=0, fleet_name="swarmseek", zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"],
                       sensor_noise_std=noise)

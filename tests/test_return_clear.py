@@ -17,7 +17,7 @@ from mission.flight.obstacles import OBSTACLE_MARGIN_M
 from mission.flight.return_plan import landing_spots, path_clearance, plan_clear_return
 from mission.safety.envelope import Geofence
 from mission.flight.targets import layered_transfer
-from fly_helpers import fly
+from fly_helpers import fly, run_fleet
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -303,6 +303,7 @@ def _whole_mission(tmp_path, keep_clear, monkeypatch):
     from mission.sim.embedded import DEFAULT_ORIGIN, embedded_plan, fleet_ports
     from mission.telemetry.mission_log import read_mission_log
     from sitl_mock.fields import sigma2
+    from mission.sim.lockstep import VirtualClock
     from sitl_mock.fleet import MockFleet
 
     if not keep_clear:
@@ -313,7 +314,7 @@ def _whole_mission(tmp_path, keep_clear, monkeypatch):
     homes = np.array([[-12.4, 17.4, 0.0], [-15.2, 13.3, 0.0], [-18.0, 9.1, 0.0], [-20.8, 5.0, 0.0]])
     source = np.array([-20.0, 0.0, 12.0])
     ports = fleet_ports(n, "px4")
-    fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, speedup=10.0,
+    fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                       seed=5, home_offsets_enu=homes, udp_base_port=ports["udp_base_port"],
                       udp_bind_base_port=ports["udp_bind_base_port"], tcp_base_port=0, fleet_name="swarmseek",
                       zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"], sensor_noise_std=0.005)
@@ -331,10 +332,9 @@ def _whole_mission(tmp_path, keep_clear, monkeypatch):
     # the fleet's origin is the plan's: homes are mission ENU
     watcher = _Watcher(fleet, log_path, _blocking_pick(homes, _layers))
 
-    fleet.start()
     watcher.start()
     try:
-        result = asyncio.run(fly(plan, fleet, log_path))
+        result = run_fleet(fleet, lambda world: fly(plan, fleet, log_path, world=world))
     finally:
         watcher.done.set()
         watcher.join(timeout=30)

@@ -27,8 +27,10 @@ frame with :mod:`formation.geodesy` only.
   straight paths between consecutive setpoints (piecewise-linear commanded trajectories,
   closest approach in closed form), at least ``min_separation_m - separation_tol_m``.
 * A vehicle is *commanded* from its first setpoint until ``stale_after_s`` after its last one
-  (PX4 leaves offboard after about a second without setpoints); a longer gap ends a track and a
-  later setpoint starts a new one (no path is drawn across a gap).
+  (PX4 leaves offboard after about a second without setpoints), or until its own HEARTBEAT (in
+  its tlog) says it no longer flies setpoints (disarmed, or out of OFFBOARD / GUIDED: a
+  failsafe, RTL, LAND), whichever comes first; a longer gap ends a track and a later setpoint
+  starts a new one (no path is drawn across a gap).
 
 **Clock.** The tlog stamps are written by :class:`mission.link.tlog.TlogSet` with the mission clock's
 ``time()`` (``links.py`` passes ``clock.time``): on the simulated timeline when the mission
@@ -239,7 +241,8 @@ def _check_pair(report, a, b, tracks_a, tracks_b, min_sep_m, tol_m, stale_after_
         for b0, b1 in tracks_b:
             tb, pb = b.t_s[b0:b1], b.enu_m[b0:b1]
             lo = max(ta[0], tb[0])
-            hi = min(ta[-1], tb[-1]) + stale_after_s     # both commanded until then
+            # both commanded until then (see VehicleSetpoints.commanded_until)
+            hi = min(a.commanded_until(ta[-1], stale_after_s), b.commanded_until(tb[-1], stale_after_s))
             if hi < lo:
                 continue
             tq = np.concatenate([ta, tb, [lo, hi]])

@@ -29,6 +29,12 @@ _SP_LOCAL = "SET_POSITION_TARGET_LOCAL_NED"
 _SP_GLOBAL = "SET_POSITION_TARGET_GLOBAL_INT"
 
 
+_ARMED = 128                      # MAV_MODE_FLAG_SAFETY_ARMED
+_AUTOPILOT_PX4 = 12               # MAV_AUTOPILOT_PX4
+_PX4_MAIN_OFFBOARD = 6            # PX4_CUSTOM_MAIN_MODE_OFFBOARD
+_ARDUPILOT_GUIDED = frozenset({4, 20})  # COPTER_MODE_GUIDED, COPTER_MODE_GUIDED_NOGPS
+
+
 class AuditError(ValueError):
     """The log directory cannot be audited (missing, no tlogs, unreadable log or plan)."""
 
@@ -78,6 +84,10 @@ class VehicleSetpoints:
         ``frame`` and ``no_home`` findings.
     homes : int
         HOME_POSITION frames received.
+    mode_t_s : numpy.ndarray, shape (M,)
+        Stamps of the vehicle's own HEARTBEATs.
+    following : numpy.ndarray of bool, shape (M,)
+        Whether each of them says the vehicle flies the setpoints (:func:`following_setpoints`).
     """
 
     sysid: int
@@ -86,6 +96,25 @@ class VehicleSetpoints:
     skipped: int = 0
     problems: list = field(default_factory=list)
     homes: int = 0
+    mode_t_s: np.ndarray = field(default_factory=lambda: np.empty(0))
+    following: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=bool))
+
+    def commanded_until(self, t_last_s: float, stale_after_s: float) -> float:
+        """When the setpoint sent at ``t_last_s`` (the last of a track) stops counting.
+
+        ``stale_after_s`` later (PX4 leaves offboard after about a second without setpoints),
+        or earlier: when the vehicle's own HEARTBEAT says it no longer flies setpoints (a
+        failsafe, RTL, LAND): then it is not holding that setpoint any more. If its last
+        HEARTBEAT at or before ``t_last_s`` already said so, at ``t_last_s``.
+        """
+        end = t_last_s + stale_after_s
+        if not len(self.mode_t_s):
+            return end
+        k = int(np.searchsorted(self.mode_t_s, t_last_s, side="right"))
+        if k > 0 and not self.following[k - 1]:
+            return t_last_s
+        released = np.flatnonzero(~self.following[k:])
+        return end if not len(released) else min(end, float(self.mode_t_s[k + released[0]]))
 
 
 def load_plan_limits(log_dir: Path) -> dict:
@@ -172,12 +201,22 @@ def _split_records(path: Path):
     return out
 
 
+def following_setpoints(heartbeat) -> bool:
+    """Whether a vehicle's HEARTBEAT says it flies the ground station's setpoints: armed, and in
+    PX4's OFFBOARD (main mode 6) or ArduPilot's GUIDED (custom mode 4) or GUIDED_NOGPS (20)."""
+    if not heartbeat.base_mode & _ARMED:
+        return False
+    if heartbeat.autopilot == _AUTOPILOT_PX4:
+        return (heartbeat.custom_mode >> 16) & 0xFF == _PX4_MAIN_OFFBOARD
+    return heartbeat.custom_mode in _ARDUPILOT_GUIDED
+
+
 def _read_tlog(path, sysid, gcs_sysid):
-    """Decode the setpoints and HOME_POSITION frames of one tlog (others are not decoded)."""
+    """Decode the setpoints, HOME_POSITION and the vehicle's own HEARTBEAT frames of one tlog."""
     from pymavlink.dialects.v20 import common as mavlink
 
     wanted = {mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED, mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT,
-              mavlink.MAVLINK_MSG_ID_HOME_POSITION}
+              mavlink.MAVLINK_MSG_ID_HOME_POSITION, mavlink.MAVLINK_MSG_ID_HEARTBEAT}
     mav = mavlink.MAVLink(None)
     events = []
     for t_s, frame in _split_records(path):
@@ -190,7 +229,10 @@ def _read_tlog(path, sysid, gcs_sysid):
             raise AuditError(f"{path}: a frame stamped {t_s:.3f} (message id {msgid}) cannot be decoded: "
                              f"{exc}") from None
         src = msg.get_srcSystem()
-        if msgid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
+        if msgid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            if src == sysid and msg.get_srcComponent() == 1:
+                events.append((t_s, "mode", following_setpoints(msg)))
+        elif msgid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
             if src == sysid:
                 events.append((t_s, "home", msg))
         elif src == gcs_sysid and msg.target_system in (sysid, 0):
@@ -226,7 +268,12 @@ def read_vehicle_setpoints(paths, sysid: int, mission_origin, gcs_sysid: int = 2
     origins: dict[tuple, int] = {}
     home = None
     group = None
+    modes = [(t_s, msg) for t_s, kind, msg in events if kind == "mode"]
+    out.mode_t_s = np.array([t for t, _ in modes], dtype=float)
+    out.following = np.array([f for _, f in modes], dtype=bool)
     for t_s, kind, msg in events:
+        if kind == "mode":
+            continue
         if kind == "home":
             out.homes += 1
             home = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
