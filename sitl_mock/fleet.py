@@ -285,9 +285,10 @@ class MockFleet:
             handled += len(events)
             for key, mask in events:
                 self._guard(key.data, mask)
-        t_io = self.clock.time()
-        for v in self.vehicles:
-            self._guard(v.links.pump, t_io)
+        if handled:  # answers to what came in (outboxes fill only here and in the physics steps)
+            t_io = self.clock.time()
+            for v in self.vehicles:
+                self._guard(v.links.pump, t_io)
         return handled
 
     def step_until(self, t_s: float) -> int:

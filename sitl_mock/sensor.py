@@ -267,7 +267,7 @@ class SensorPublisher:
     published : int
         Readings put so far.
     published_matched : int
-        Readings put while a subscriber matched their key (counted with ``track_matching``).
+        Readings put since a subscriber first matched their key (counted with ``track_matching``).
     """
 
     def __init__(self, session, fleet: str, sysids: list[int], track_matching: bool = False):
@@ -277,6 +277,7 @@ class SensorPublisher:
         self.published = 0
         self.published_matched = 0
         self._track_matching = bool(track_matching)
+        self._matched: set[int] = set()
         self._publishers = {}
         try:
             for sysid in sysids:
@@ -325,10 +326,18 @@ class SensorPublisher:
             raise ValueError(f"reading of fleet {reading.get('fleet')!r} given to the publisher of {self.fleet!r}")
         sysid = reading.get("sysid")
         pub = self._publisher(sysid)
-        matched = self._track_matching and self.has_subscribers(sysid)
+        matched = self._track_matching and (sysid in self._matched or self._check_matched(sysid))
         pub.put(encode_reading(reading))
         self.published += 1
         self.published_matched += matched
+
+    def _check_matched(self, sysid) -> bool:
+        """Whether ``sysid``'s key has a subscriber; once it has, it is not asked again (a
+        subscriber that leaves is the end of the ground station's run)."""
+        if self.has_subscribers(sysid):
+            self._matched.add(sysid)
+            return True
+        return False
 
     def close(self) -> None:
         """Undeclare every publisher (idempotent)."""

@@ -1,7 +1,8 @@
 """MAVSDK 4.x (an independent MAVLink client) flies the PX4 personality.
 
 Connect, read telemetry, arm, take off, start offboard with position setpoints, see the vehicle
-move. Real time (speedup 1): MAVSDK streams offboard setpoints on the wall clock.
+move. The mock runs on the wall clock at 2x (MAVSDK streams offboard setpoints on the wall clock,
+fast enough for PX4's offboard-loss timeout at that speed-up).
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ def _free_udp_port() -> int:
 @pytest.mark.slow
 def test_mavsdk_px4_connect_telemetry_arm_takeoff_offboard():
     send_port, bind_port = _free_udp_port(), _free_udp_port()
-    fleet = MockFleet(1, personality="px4", speedup=1.0, udp_base_port=send_port,
+    fleet = MockFleet(1, personality="px4", speedup=2.0, udp_base_port=send_port,
                       udp_bind_base_port=bind_port, tcp_base_port=0,
                       params={"MIS_TAKEOFF_ALT": 5.0})
     with fleet:

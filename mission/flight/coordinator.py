@@ -206,10 +206,7 @@ class Coordinator:
                          link_age_s=round(float(v.link_age_s()), 3),
                          position_enu=None if pos is None else np.round(np.asarray(pos, float), 3))
                 if self.streamer is not None and self.ramp is not None and vp.sysid in self.ramp.sysids:
-                    try:
-                        d["setpoint_rate_hz"] = self.streamer.stats(vp.sysid).get("rate_hz")
-                    except Exception:  # noqa: BLE001 - no stats yet
-                        d["setpoint_rate_hz"] = None
+                    d["setpoint_rate_hz"] = self.streamer.measured_rate_hz(vp.sysid)
                     d["setpoint_enu"] = np.round(self.ramp.setpoint(vp.sysid), 3)
             out.append(d)
         return out

@@ -52,6 +52,7 @@ class EmbeddedWorld:
         self.stalls = 0
         self.waits = 0
         self._lost = 0
+        self._matched = False          # the current subscription was seen matched
         self._match_given_up = False
 
     def _received(self) -> int:
@@ -61,10 +62,12 @@ class EmbeddedWorld:
     def _pending(self) -> bool:
         """Something the ground station listens for is still on its way."""
         if self.store is None or not self.store.subscribers:
+            self._matched = False
             return False
-        if not self.fleet.readings_matched():
-            return not self._match_given_up
-        self._match_given_up = False
+        if not self._matched:
+            if not self.fleet.readings_matched():
+                return not self._match_given_up
+            self._matched, self._match_given_up = True, False
         return self._received() + self._lost < self.fleet.published_readings
 
     def settle(self) -> None:

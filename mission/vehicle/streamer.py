@@ -193,6 +193,12 @@ class SetpointStreamer:
                 delay_s = period_s
             await clock.sleep(max(0.0, delay_s))
 
+    def measured_rate_hz(self, sysid: int) -> float | None:
+        """Setpoints per second to ``sysid`` over the recent history (None before two sends)."""
+        intervals = self._tracks[sysid].intervals
+        total = sum(intervals)
+        return len(intervals) / total if intervals and total > 0 else None
+
     def stats(self, sysid: int) -> dict:
         """Sending statistics of ``sysid`` (sender side, clock seconds).
 
