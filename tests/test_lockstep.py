@@ -194,3 +194,72 @@ def test_same_seed_same_mission_log(tmp_path, capsys):
     assert {"plan", "phase", "iteration", "summary"} <= kinds
     assert sum(r["type"] == "iteration" for r in a) == 6
     assert a == b
+
+
+class _FakeFleet:
+    def __init__(self):
+        self.published_readings = 0
+        self.matched = True
+        self.serviced = 0
+        self.next_step_s = 0.0
+
+    def readings_matched(self):
+        return self.matched
+
+    def service_io(self):
+        self.serviced += 1
+        return 0
+
+    def step_until(self, t_s):
+        self.next_step_s = t_s + 0.02
+
+
+class _FakeStore:
+    def __init__(self):
+        self.subscribers = 1
+        self.accepted = 0
+
+    def counts(self):
+        return {"accepted": self.accepted, "rejected": {"late": 0}}
+
+
+def test_embedded_world_waits_for_readings_and_writes_off_a_lost_one_once():
+    from mission.sim.embedded_world import EmbeddedWorld
+
+    fleet, store = _FakeFleet(), _FakeStore()
+    world = EmbeddedWorld(fleet, store, settle_timeout_s=0.2)
+    world.settle()                                   # nothing in flight
+    assert (world.waits, world.stalls, fleet.serviced) == (0, 0, 1)
+    fleet.published_readings = 2                     # two readings on their way...
+    arrive = threading.Timer(0.02, lambda: setattr(store, "accepted", 2))
+    arrive.start()
+    world.settle()                                   # ... waited for, and they came
+    arrive.join()
+    assert (world.waits, world.stalls) == (1, 0)
+    fleet.published_readings = 3                     # one that never comes
+    world.settle()
+    assert (world.waits, world.stalls) == (2, 1)
+    world.settle()                                   # written off: not waited for again
+    assert (world.waits, world.stalls) == (2, 1)
+    fleet.published_readings = 4
+    store.accepted = 3                               # the next one is counted as usual
+    world.settle()
+    assert (world.waits, world.stalls) == (2, 1)
+
+
+def test_embedded_world_gives_up_on_a_subscription_that_never_matches_until_it_does():
+    from mission.sim.embedded_world import EmbeddedWorld
+
+    fleet, store = _FakeFleet(), _FakeStore()
+    fleet.matched = False                            # zenoh connected elsewhere
+    world = EmbeddedWorld(fleet, store, settle_timeout_s=0.1)
+    world.settle()
+    world.settle()
+    assert (world.waits, world.stalls) == (1, 1)     # one bounded wait, then given up
+    fleet.matched = True
+    fleet.published_readings = 1                     # matched at last: waits again
+    world.settle()
+    assert (world.waits, world.stalls) == (2, 2)
+    store.subscribers = 0                            # nobody listens: nothing to wait for
+    world.settle()
+    assert (world.waits, world.stalls) == (2, 2)
