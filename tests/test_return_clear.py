@@ -177,7 +177,7 @@ class _FakeCoordinator:
     def update_odometry(self):
         self.track.append(np.array([self.ramp.setpoint(s) for s in self.ramp.sysids]))
 
-    def _telemetry_position(self, sysid):
+    def telemetry_position(self, sysid):
         return self.ramp.setpoint(sysid)
 
     async def wait_until(self, predicate, timeout_s, what, poll_s=0.1):

@@ -164,9 +164,6 @@ class Coordinator:
         except Exception:  # noqa: BLE001 - no telemetry yet
             return None
 
-    #: the name the motion primitives use (their test doubles implement only this one)
-    _telemetry_position = telemetry_position
-
     def set_phase(self, name: str, **fields) -> None:
         """Enter a phase: log it, show it."""
         self.state.set_phase(name)

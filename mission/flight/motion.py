@@ -58,12 +58,6 @@ async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_
     """Set ramp goals and wait until every setpoint is there and every vehicle within ``tol_m``.
 
     Lost vehicles (``co.lost``, also those lost while waiting) are not waited for.
-
-    Notes
-    -----
-    Positions are read through the coordinator's ``_telemetry_position`` alias of
-    ``telemetry_position``: the test doubles of ``tests/test_return_clear.py`` implement only that
-    name (test files may not change in this redesign step; rename there, then here).
     """
     goals = {s: g for s, g in goals.items() if s not in co.lost and s in co.ramp.sysids}
     co.ramp.set_goals(goals)
@@ -78,7 +72,7 @@ async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_
                 continue
             if not co.ramp.at_goal(s):
                 return False
-            p = co._telemetry_position(s)  # the coordinator's telemetry_position (see the notes)
+            p = co.telemetry_position(s)
             if p is None or float(np.linalg.norm(np.asarray(p) - g)) > tol_m:
                 return False
         return True
