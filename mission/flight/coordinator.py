@@ -11,8 +11,6 @@ display). Every phase change, event and seeking iteration goes to the mission lo
 from __future__ import annotations
 
 import asyncio
-from dataclasses import asdict
-
 import numpy as np
 
 from mission.core.clock import cancel_and_wait
@@ -370,4 +368,5 @@ class Coordinator:
 
 
 def _plan_json(plan: Plan) -> dict:
-    return to_jsonable(asdict(plan))
+    """The plan for the log's ``plan`` record: secrets redacted (signing: its key's fingerprint)."""
+    return to_jsonable(plan)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
-from mission.telemetry.mission_log import to_jsonable
+from mission.telemetry.mission_log import dataclass_json
 
 __all__ = ["MissionResult", "mission_result", "readiness_result"]
 
@@ -63,8 +63,8 @@ class MissionResult:
         return self.outcome in ("converged", "ready")
 
     def to_json(self) -> dict:
-        """JSON-friendly dict."""
-        return to_jsonable(asdict(self))
+        """JSON-friendly dict (through :func:`~mission.telemetry.mission_log.dataclass_json`: no secret)."""
+        return dataclass_json(self)
 
 
 def mission_result(state, outcome: str, message: str, *, now_s: float, readings: dict,
