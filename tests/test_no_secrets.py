@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from fly_helpers import run_fleet
+from tls_helpers import write_private
 
 from mission.core.plan import replace_plan
 from mission.core.signing_config import signing_config_from_table
@@ -33,9 +35,6 @@ from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.telemetry.state_pub import state_key
 from sitl_mock.fields import make_field
 from sitl_mock.fleet import MockFleet
-
-from fly_helpers import run_fleet
-from tls_helpers import write_private
 
 PASSPHRASE = "swarmseek test passphrase: correct horse battery staple"
 KEY = hashlib.sha256(PASSPHRASE.encode()).digest()
@@ -61,21 +60,21 @@ def leaks(blob: bytes, forms: dict[str, bytes] | None = None) -> list[str]:
     return [name for name, form in (forms or secret_forms()).items() if form in blob]
 
 
-def _fly(tmp_path: Path):
+def _fly(tmp_path: Path, n: int = 4, max_iterations: int = 6, start_offset_m=(-3.0, 2.0, -1.0)):
     """Fly the signed, password-protected mission; returns what it wrote and published."""
     key_file = write_private(tmp_path / "signing.key", (PASSPHRASE + "\n").encode())
     pw_file = write_private(tmp_path / "gcs.pw", (ZENOH_PASSWORD + "\n").encode())
     users = write_private(tmp_path / "users.txt", f"gcs:{ZENOH_PASSWORD}\n".encode())
     source = np.array([6.0, -4.0, 13.0])
-    start = source + np.array([-3.0, 2.0, -1.0])
+    start = source + np.asarray(start_offset_m, dtype=float)
     field = make_field("sigma2", source)
-    ports = fleet_ports(4, "px4")
-    plan = embedded_plan(4, ports, start_enu_m=start, eps=default_eps(field), max_iterations=6,
+    ports = fleet_ports(n, "px4")
+    plan = embedded_plan(n, ports, start_enu_m=start, eps=default_eps(field), max_iterations=max_iterations,
                          origin=DEFAULT_ORIGIN)
     plan = replace_plan(plan, security=signing_config_from_table({"signing_key_file": key_file}),
                         zenoh=ZenohPlan(mode="peer", connect=plan.zenoh.connect,
                                         auth=ZenohAuthPlan(username="gcs", password_file=pw_file)))
-    fleet = MockFleet(n=4, personality="px4", field=field, origin=DEFAULT_ORIGIN, clock=VirtualClock(),
+    fleet = MockFleet(n=n, personality="px4", field=field, origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                       seed=3, udp_base_port=ports["udp_base_port"],
                       udp_bind_base_port=ports["udp_bind_base_port"], tcp_base_port=0,
                       fleet_name=plan.fleet, sensor_noise_std=0.005,

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import Field, field
 
-__all__ = ["REDACTED", "SECRET_METADATA_KEY", "SECRET_NAMES", "secret_field", "is_secret_field", "describe_bytes"]
+__all__ = ["REDACTED", "SECRET_METADATA_KEY", "SECRET_NAMES", "describe_bytes", "is_secret_field", "secret_field"]
 
 #: what a log shows in place of a secret field
 REDACTED = "<redacted>"

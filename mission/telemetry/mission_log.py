@@ -24,14 +24,20 @@ import dataclasses
 import json
 import math
 import os
+from collections.abc import Iterator
 from enum import Enum
 from pathlib import Path, PurePath
-from typing import IO, Iterator
+from typing import IO
 
 import numpy as np
 from pymavlink.dialects.v20.ardupilotmega import MAVLink_message
 
-from mission.core.redaction import REDACTED, SECRET_NAMES, describe_bytes, is_secret_field
+from mission.core.redaction import (
+    REDACTED,
+    SECRET_NAMES,
+    describe_bytes,
+    is_secret_field,
+)
 
 __all__ = ["MissionLog", "dataclass_json", "iter_mission_log", "read_mission_log", "to_jsonable"]
 
