@@ -136,6 +136,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
     import zenoh
 
     from mission.flight.coordinator import Coordinator
+    from mission.sim.fleet_report import vehicle_rejections
     from mission.telemetry.mission_log import MissionLog
 
     source, start, eps = setup
@@ -157,7 +158,9 @@ async def _fly(args, plan, fleet, setup, display, world=None):
         result.true_source_enu = [float(x) for x in source]
         if result.estimate_enu is not None:
             result.error_m = float(np.linalg.norm(np.asarray(result.estimate_enu) - source))
-        log.write("truth", sync=True, source_enu=source, error_m=result.error_m)
+        result.vehicle_rejections = vehicle_rejections(fleet)
+        log.write("truth", sync=True, source_enu=source, error_m=result.error_m,
+                  vehicle_rejections=result.vehicle_rejections)
         return result
     finally:
         log.close()

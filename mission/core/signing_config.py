@@ -7,12 +7,13 @@ checks of received frames are in :mod:`mission.link.signing`.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from mission.core.redaction import secret_field
 from mission.core.signing_keys import SigningError, load_key_file
 
 __all__ = ["SIGNING_EPOCH_UNIX_S", "DEFAULT_ALLOW_UNSIGNED", "SigningConfig", "signing_timestamp",
@@ -36,7 +37,7 @@ def signing_timestamp(unix_s: float) -> int:
 # ---------------------------------------------------------------------------- configuration
 @dataclass(frozen=True)
 class SigningConfig:
-    """What signing the ground station does (the key never appears in ``repr``).
+    """What signing the ground station does (the key never appears in ``repr`` nor in a log).
 
     Parameters
     ----------
@@ -54,7 +55,7 @@ class SigningConfig:
         Where the key came from (for messages).
     """
 
-    key: bytes = field(repr=False)
+    key: bytes = secret_field()
     link_id: int = 0
     allow_unsigned: frozenset = DEFAULT_ALLOW_UNSIGNED
     send_setup: bool = True
@@ -92,6 +93,13 @@ class SigningConfig:
         return (f"SigningConfig(fingerprint={self.fingerprint!r}, link_id={self.link_id}, "
                 f"allow_unsigned={sorted(self.allow_unsigned)}, send_setup={self.send_setup}, "
                 f"key_file={self.key_file!r})")
+
+    def to_json(self) -> dict:
+        """What a log, a summary or a publication says of signing: on, the key's fingerprint,
+        where it came from and the settings; never the key."""
+        return {"signing": True, "fingerprint": self.fingerprint, "key_file": self.key_file,
+                "link_id": self.link_id, "allow_unsigned": sorted(self.allow_unsigned),
+                "send_setup": self.send_setup}
 
     def allows_unsigned(self, msg_id: int) -> bool:
         """True if an unsigned message with this id is accepted."""

@@ -11,8 +11,6 @@ display). Every phase change, event and seeking iteration goes to the mission lo
 from __future__ import annotations
 
 import asyncio
-from dataclasses import asdict
-
 import numpy as np
 
 from mission.core.clock import cancel_and_wait
@@ -24,6 +22,7 @@ from mission.flight.result import MissionResult, mission_result, readiness_resul
 from mission.flight.resume import rejoin
 from mission.flight.state import MissionError, MissionState
 from mission.flight.watchdog import watchdog
+from mission.telemetry.link_report import link_rejections, unknown_sysids
 from mission.telemetry.mission_log import MissionLog, to_jsonable
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber
 
@@ -208,6 +207,15 @@ class Coordinator:
             out.append(d)
         return out
 
+    def link_rejections(self) -> dict[str, int]:
+        """Frames the mission's MAVLink endpoints refused so far, by kind (non-zero only;
+        :func:`mission.telemetry.link_report.link_rejections`)."""
+        return link_rejections(self.endpoints.values())
+
+    def unknown_sysids(self) -> list[int]:
+        """System ids heard on the mission's links that are no vehicle of the plan."""
+        return unknown_sysids(self.endpoints.values(), self.ids)
+
     def snapshot(self) -> dict:
         """The current state (published on ``swarmseek/<fleet>/mission/state``)."""
         g = self.gradient
@@ -218,7 +226,8 @@ class Coordinator:
             "gradient_norm": None if g is None else float(np.linalg.norm(g)),
             "estimate_enu": self.estimate_enu, "spread_m": self.spread_m,
             "distance_flown_m": self.distance_flown_m, "vehicles": self.vehicle_status(),
-            "readings": self.store.counts(),
+            "readings": self.store.counts(), "link_rejections": self.link_rejections(),
+            "unknown_sysids": self.unknown_sysids(),
         }
 
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
@@ -286,6 +295,7 @@ class Coordinator:
             await self._stop_background()
         result = readiness_result(self.state, self.plan.vehicles, self.store.counts(),
                                   self.clock.time() - self.state.t_start_s)
+        result.link_rejections, result.unknown_sysids = self.link_rejections(), self.unknown_sysids()
         if self.log is not None:
             self.log.write("summary", sync=True, **result.to_json())
         return result
@@ -361,10 +371,14 @@ class Coordinator:
 
     def result(self, outcome: str, message: str) -> MissionResult:
         """The :class:`~mission.flight.result.MissionResult` of the mission so far."""
-        return mission_result(self.state, outcome, message, now_s=self.clock.time(),
-                              readings=self.store.counts() | {"last_errors": self.store.last_errors()},
-                              log_path=None if self.log is None else str(self.log.path))
+        result = mission_result(self.state, outcome, message, now_s=self.clock.time(),
+                                readings=self.store.counts() | {"last_errors": self.store.last_errors()},
+                                log_path=None if self.log is None else str(self.log.path))
+        result.link_rejections = self.link_rejections()
+        result.unknown_sysids = self.unknown_sysids()
+        return result
 
 
 def _plan_json(plan: Plan) -> dict:
-    return to_jsonable(asdict(plan))
+    """The plan for the log's ``plan`` record: secrets redacted (signing: its key's fingerprint)."""
+    return to_jsonable(plan)

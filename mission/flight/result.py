@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
-from mission.telemetry.mission_log import to_jsonable
+from mission.telemetry.mission_log import dataclass_json
 
 __all__ = ["MissionResult", "mission_result", "readiness_result"]
 
@@ -35,6 +35,15 @@ class MissionResult:
     lost : list
         Vehicles lost during the mission: ``sysid``, ``reason`` (``link`` / ``left``),
         ``detail``, ``phase``, ``latency_s`` (see :mod:`mission.flight.loss`).
+    link_rejections : dict
+        MAVLink frames the ground station's links refused, by kind (non-zero only:
+        ``unsigned``, ``bad_signature``, ``replayed``, ``bad_crc``, ``malformed``...; see
+        :mod:`mission.telemetry.link_report`).
+    unknown_sysids : list
+        System ids heard on the links that are no vehicle of the plan (ignored).
+    vehicle_rejections : dict
+        ``swarmseek run`` only: frames the embedded mock vehicles refused, by sysid then kind
+        (non-zero only; :func:`mission.sim.fleet_report.vehicle_rejections`).
     """
 
     outcome: str
@@ -56,6 +65,9 @@ class MissionResult:
     lost: list = field(default_factory=list)
     readmitted: list = field(default_factory=list)  # sysid, lost_s, came_back_s, readmitted_s
     retired: list = field(default_factory=list)  # retired sensors: mission.flight.retire.RetiredSensor
+    link_rejections: dict = field(default_factory=dict)
+    unknown_sysids: list = field(default_factory=list)
+    vehicle_rejections: dict = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -63,8 +75,8 @@ class MissionResult:
         return self.outcome in ("converged", "ready")
 
     def to_json(self) -> dict:
-        """JSON-friendly dict."""
-        return to_jsonable(asdict(self))
+        """JSON-friendly dict (through :func:`~mission.telemetry.mission_log.dataclass_json`: no secret)."""
+        return dataclass_json(self)
 
 
 def mission_result(state, outcome: str, message: str, *, now_s: float, readings: dict,

@@ -33,6 +33,8 @@ from mission.core.plan import (
     VehiclePlan,
     ZenohPlan,
 )
+from mission.core.signing_config import SigningConfig
+from mission.core.signing_keys import SigningError
 from mission.flight.connect import build_envelope, connect
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.motion import retried, setpoint_stream
@@ -115,9 +117,44 @@ def plan_from_json(d: dict) -> Plan:
                     vehicles=tuple(VehiclePlan(**v) for v in d["vehicles"]),
                     formation=FormationPlan(**d["formation"]), seeking=SeekingPlan(**sk),
                     geofence=GeofencePlan(**gf), zenoh=ZenohPlan(**zn),
-                    faults=FaultsPlan(**d.get("faults", {})), **top)
+                    faults=FaultsPlan(**d.get("faults", {})), security=_signing_from_json(d.get("security")),
+                    **top)
+    except ResumeError:
+        raise
     except (KeyError, TypeError, ValueError) as exc:
         raise ResumeError(f"the log's plan record cannot be read back: {type(exc).__name__}: {exc}") from None
+
+
+def _signing_from_json(sec: dict | None) -> SigningConfig | None:
+    """The signing configuration of a ``plan`` record: the key read again from its key file.
+
+    The log holds the key's fingerprint, never the key (see
+    :meth:`~mission.core.signing_config.SigningConfig.to_json`); the key file must still hold
+    the same key.
+
+    Raises
+    ------
+    ResumeError
+        The plan signed with a key not read from a file, or the key file is unusable or now
+        holds another key.
+    """
+    if sec is None:
+        return None
+    path, fingerprint = sec.get("key_file"), sec.get("fingerprint")
+    if not path:
+        raise ResumeError(f"the log's plan signs with a key not read from a file (fingerprint "
+                          f"{fingerprint}): give the plan with --plan")
+    try:
+        config = SigningConfig.from_key_file(
+            path, link_id=int(sec.get("link_id", 0)), send_setup=bool(sec.get("send_setup", True)),
+            **({"allow_unsigned": frozenset(sec["allow_unsigned"])}
+               if isinstance(sec.get("allow_unsigned"), list) else {}))
+    except SigningError as exc:
+        raise ResumeError(f"the log's plan signs with the key of {path}: {exc}") from None
+    if fingerprint is not None and config.fingerprint != fingerprint:
+        raise ResumeError(f"{path} now holds another signing key (fingerprint {config.fingerprint}, "
+                          f"the mission flew with {fingerprint}): give the plan with --plan")
+    return config
 
 
 def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeState:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import asyncio
 
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
+from mission.telemetry.link_report import format_rejections, rejection_increase
 
 __all__ = ["watchdog"]
 
@@ -17,14 +18,17 @@ async def watchdog(co, period_s: float = 0.1) -> None:
     """
     loop = asyncio.get_running_loop()
     next_status_s = co.clock.time()
+    rejections = _RejectionReport(co)
     while True:
         t0 = loop.time()
         await asyncio.sleep(period_s)
         co.state.note_loop_lag(loop.time() - t0 - period_s)
         co.update_odometry()
+        rejections.check()
         if co.log is not None and co.vehicles and co.clock.time() >= next_status_s:
             next_status_s = co.clock.time() + co.status_period_s
-            co.log.write("status", phase=co.phase, centre_enu=co.centre_enu, vehicles=co.vehicle_status())
+            co.log.write("status", phase=co.phase, centre_enu=co.centre_enu, vehicles=co.vehicle_status(),
+                         link_rejections=co.link_rejections(), unknown_sysids=co.unknown_sysids())
         if co.phase not in ("assemble", "seek", "finish", "return") or co.ramp is None:
             continue
         for sysid in co.ramp.sysids:
@@ -39,6 +43,36 @@ async def watchdog(co, period_s: float = 0.1) -> None:
                 continue
             co.state.begin_reengaging(sysid)
             loop.create_task(_reengage(co, sysid, v, want))
+
+
+class _RejectionReport:
+    """A warning event when the links refuse frames: at once for the first, then at most once a
+    status period (``co.status_period_s``), with the increase by kind and the totals."""
+
+    def __init__(self, co) -> None:
+        self.co = co
+        self.reported: dict[str, int] = {}
+        self.unknown: list[int] = []
+        self.next_s = co.clock.time()
+
+    def check(self) -> None:
+        """Report what grew since the last report, if a report is due."""
+        co = self.co
+        if co.clock.time() < self.next_s:
+            return
+        now, unknown = co.link_rejections(), co.unknown_sysids()
+        grew = rejection_increase(self.reported, now)
+        new_ids = [s for s in unknown if s not in self.unknown]
+        if not grew and not new_ids:
+            return
+        self.reported, self.unknown = now, unknown
+        self.next_s = co.clock.time() + co.status_period_s
+        if grew:
+            co.event(f"MAVLink frames rejected: {format_rejections(grew)} (totals {format_rejections(now)})",
+                     level="warning", link_rejections=now, increase=grew)
+        if new_ids:
+            co.event(f"MAVLink system id(s) {new_ids} heard, not in the plan: ignored", level="warning",
+                     unknown_sysids=unknown)
 
 
 async def _reengage(co, sysid: int, v, want: str) -> None:

@@ -2,7 +2,8 @@
 
 The display renders the coordinator's state snapshot (the same dict published on
 ``swarmseek/<fleet>/mission/state``, see ``docs/mission.md``): phase, per-vehicle mode, armed,
-altitude, link age and setpoint rate; centre, gradient and distance flown.
+altitude, link age and setpoint rate; centre, gradient and distance flown; the readings and
+MAVLink frames rejected.
 """
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ import json
 import sys
 import time
 from typing import IO
+
+from mission.telemetry.link_report import format_rejections
 
 __all__ = ["Display", "format_table", "format_line", "format_summary", "report_result"]
 
@@ -36,6 +39,9 @@ def format_table(state: dict) -> list[str]:
     rd = state.get("readings") or {}
     rejected = {k: v for k, v in (rd.get("rejected") or {}).items() if v}
     lines.append(f"readings accepted {rd.get('accepted', 0)}  rejected {rejected or 0}")
+    unknown = state.get("unknown_sysids") or []
+    lines.append(f"MAVLink rejected {format_rejections(state.get('link_rejections'))}"
+                 + (f"  unknown sysids {unknown}" if unknown else ""))
     lines.append(f"{'sysid':>5} {'id':10} {'flavour':9} {'mode':12} {'armed':5} {'alt_m':>7} "
                  f"{'link_s':>6} {'sp_hz':>6}  status")
     for v in state.get("vehicles", []):
@@ -50,11 +56,13 @@ def format_table(state: dict) -> list[str]:
 def format_line(state: dict) -> str:
     """One plain progress line for one state snapshot."""
     armed = sum(1 for v in state.get("vehicles", []) if v.get("armed"))
+    rejected = state.get("link_rejections") or {}
     return (f"[{_num(state.get('elapsed_s'), '{:7.1f}')} s] {state.get('phase', '?'):8s} "
             f"k={state.get('iteration', 0):<4d} centre={_vec(state.get('centre_enu'), '{:.2f}')} "
             f"|grad|={_num(state.get('gradient_norm'), '{:.2e}')} "
             f"flown={_num(state.get('distance_flown_m'), '{:.1f}')} m armed={armed}/"
-            f"{len(state.get('vehicles', []))}")
+            f"{len(state.get('vehicles', []))}"
+            + (f" mavlink_rejected={format_rejections(rejected)}" if any(rejected.values()) else ""))
 
 
 def format_summary(summary: dict) -> list[str]:
@@ -74,6 +82,13 @@ def format_summary(summary: dict) -> list[str]:
         detected = f", detected after {latency:.2f} s" if isinstance(latency, (int, float)) else ""
         lines.append(f"  lost vehicle {loss.get('sysid')} in {loss.get('phase', '?')}: "
                      f"{loss.get('reason', '?')} ({loss.get('detail', '')}){detected}")
+    if any((summary.get("link_rejections") or {}).values()):
+        lines.append(f"  MAVLink frames rejected by the ground station: {format_rejections(summary['link_rejections'])}")
+    if summary.get("unknown_sysids"):
+        lines.append(f"  MAVLink system ids heard, not in the plan (ignored): {summary['unknown_sysids']}")
+    for sysid, counts in (summary.get("vehicle_rejections") or {}).items():
+        if any(counts.values()):
+            lines.append(f"  frames rejected by vehicle {sysid}: {format_rejections(counts)}")
     for x in summary.get("retired") or ():
         lines.append(f"  sensor of vehicle {x.get('sysid')} retired after iteration {x.get('iteration')} "
                      f"({x.get('reason')}, {_num(x.get('ratio'), '{:.1f}')}x the median noise): parked at the centre")

@@ -2,7 +2,8 @@
 
 One JSON object per line; every record has ``t_s`` (mission clock) and ``type``:
 
-``plan``       the plan flown (first record)
+``plan``       the plan flown (first record; no secret: signing appears as ``signing: true`` and
+               the key's ``fingerprint``, see :meth:`mission.core.signing_config.SigningConfig.to_json`)
 ``phase``      a phase starts: ``phase``
 ``event``      something worth knowing: ``level`` (info|warning|error), ``message``, extra fields
 ``status``     per-vehicle status: ``vehicles`` (list of dicts)
@@ -19,23 +20,47 @@ ignoring a truncated last line.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
-from pathlib import Path
-from typing import IO, Iterator
+from collections.abc import Iterator
+from enum import Enum
+from pathlib import Path, PurePath
+from typing import IO
 
 import numpy as np
+from pymavlink.dialects.v20.ardupilotmega import MAVLink_message
 
-__all__ = ["MissionLog", "iter_mission_log", "read_mission_log", "to_jsonable"]
+from mission.core.redaction import (
+    REDACTED,
+    SECRET_NAMES,
+    describe_bytes,
+    is_secret_field,
+)
+
+__all__ = ["MissionLog", "dataclass_json", "iter_mission_log", "read_mission_log", "to_jsonable"]
 
 
 def to_jsonable(obj):
-    """Convert numpy arrays/scalars, tuples, dataclass-like values into JSON types (NaN -> None)."""
+    """Convert a value into JSON types for a log, a summary or a publication; never a secret.
+
+    numpy arrays and scalars become lists and numbers (NaN and infinities: None), tuples and sets
+    lists, objects with a ``to_json()`` method what it returns, dataclasses dicts of their fields
+    (:func:`dataclass_json`: fields declared with
+    :func:`mission.core.redaction.secret_field` are redacted), byte strings their length only,
+    paths and enums their text, exceptions their type and message, MAVLink messages their fields.
+    A dict entry named in :data:`mission.core.redaction.SECRET_NAMES` (``secret_key``,
+    ``password``...) is redacted wherever it is. Any other object becomes
+    ``<TypeName>``: its ``str()`` could hold anything (a MAVLink SETUP_SIGNING message holds the
+    key), so it is never written.
+    """
     if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
+        return {str(k): REDACTED if k in SECRET_NAMES else to_jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [to_jsonable(v) for v in obj]
+    if isinstance(obj, (set, frozenset)):
+        return sorted((to_jsonable(v) for v in obj), key=repr)
     if isinstance(obj, np.ndarray):
         return to_jsonable(obj.tolist())
     if isinstance(obj, (np.floating, float)):
@@ -47,9 +72,29 @@ def to_jsonable(obj):
         return bool(obj)
     if isinstance(obj, (str, int, bool)) or obj is None:
         return obj
+    if isinstance(obj, MAVLink_message):  # its own to_json() would write SETUP_SIGNING's key
+        return to_jsonable(obj.to_dict())
     if hasattr(obj, "to_json"):
         return to_jsonable(obj.to_json())
-    return str(obj)
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return dataclass_json(obj)
+    if isinstance(obj, (bytes, bytearray, memoryview)):
+        return describe_bytes(obj)
+    if isinstance(obj, (PurePath, Enum)):
+        return str(obj)
+    if isinstance(obj, BaseException):
+        return f"{type(obj).__name__}: {obj}"
+    return f"<{type(obj).__name__}>"
+
+
+def dataclass_json(obj) -> dict:
+    """The fields of dataclass instance ``obj`` through :func:`to_jsonable`, secret ones redacted.
+
+    Unlike ``dataclasses.asdict``, a nested value's own ``to_json()`` is used (a signing
+    configuration writes its fingerprint, never its key).
+    """
+    return {f.name: REDACTED if is_secret_field(f) else to_jsonable(getattr(obj, f.name))
+            for f in dataclasses.fields(obj)}
 
 
 class MissionLog:
