@@ -1,10 +1,11 @@
 """Whole missions against the mock fleet, then :func:`mission.safety.audit.audit_mission` on their
 ``.tlog`` files: no setpoint broke the fence or the separation, thousands were checked.
 
-Four missions (N = 5 or 6, CVT, 10x), each flown once per module: a plain ``swarmseek run``
+Five missions (N = 5 or 6, CVT, lock-step), each flown once per module: a plain ``swarmseek run``
 (PX4 personality, UDP) and the same with the ArduPilot personality (TCP, NAV_TAKEOFF);
 one where vehicle 3 crashes at the second iteration (loss, re-formation for five); one with the
-source outside the geofence (the centre is held at the fence: ``stopped_at_fence``).
+source outside the geofence (the centre is held at the fence: ``stopped_at_fence``); one where a
+planner fault steers vehicle 1 at vehicle 2 for 3 s (the envelope holds them apart).
 
 The speed check once failed on every mission: the setpoints sent were a resampling, by the
 ``SetpointStreamer`` (10 Hz on an absolute schedule), of the ``TargetRamp`` (its own 10 Hz loop),
@@ -32,7 +33,47 @@ from fly_helpers import run_with_saboteur
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
-_MISSIONS = ["plain", "ardupilot", "crash", "source_outside_fence"]
+_MISSIONS = ["plain", "ardupilot", "crash", "source_outside_fence", "steered_into_neighbour"]
+
+
+class _SteerIntoNeighbour:
+    """A planner fault: from the third seeking move on, for ``steps`` ramp ticks, the ramp steers
+    vehicle ``a`` at vehicle ``b``'s current setpoint (the mission's own goals are untouched
+    and used again afterwards). Without the envelope's separation hold, ``a`` flies into ``b``."""
+
+    def __init__(self, a=1, b=2, after_moves=3, steps=30):
+        from mission.flight import seek
+        from mission.flight.targets import TargetRamp
+
+        self.a, self.b, self.after_moves, self.left = a, b, after_moves, steps
+        self.moves, self.t_start_s = 0, None
+        self._seek, self._ramp_cls = seek, TargetRamp
+        self._move, self._step = seek.move_and_wait, TargetRamp.step
+
+    def __enter__(self):
+        fault = self
+
+        async def move_and_wait(co, *args, **kwargs):
+            fault.moves += 1
+            return await fault._move(co, *args, **kwargs)
+
+        def step(ramp, dt_s):
+            if fault.moves < fault.after_moves or fault.left <= 0 or not {fault.a, fault.b} <= set(ramp.sysids):
+                return fault._step(ramp, dt_s)
+            fault.left -= 1
+            fault.t_start_s = fault.t_start_s if fault.t_start_s is not None else ramp.clock.time()
+            legit = ramp.goal(fault.a)
+            ramp.set_goal(fault.a, ramp.setpoint(fault.b))
+            try:
+                return fault._step(ramp, dt_s)
+            finally:
+                ramp.set_goal(fault.a, legit)
+
+        self._seek.move_and_wait, self._ramp_cls.step = move_and_wait, step
+        return self
+
+    def __exit__(self, *exc):
+        self._seek.move_and_wait, self._ramp_cls.step = self._move, self._step
 
 
 class _CrashAt(threading.Thread):
@@ -79,6 +120,12 @@ def _fly_mission(name, log_dir):
         records = read_mission_log(log_dir / "mission.jsonl")
         outcome = next(r for r in records if r["type"] == "summary")["outcome"]
         assert code in (0, 1)
+    elif name == "steered_into_neighbour":
+        with _SteerIntoNeighbour() as fault:
+            result, _ = _fly_against_mock(log_dir, 5, np.array([6.0, -4.0, 13.0]), start_enu_m=(-2.0, 1.0, 11.0))
+        assert fault.left == 0 and fault.t_start_s is not None, "the fault was never injected"
+        assert result.separation_interventions > 0, result.message
+        outcome = result.outcome
     elif name == "crash":
         result, saboteur = _fly_against_mock(log_dir, 6, np.array([14.0, 10.0, 13.0]), crash=(2, 3))
         assert saboteur.injected.is_set(), "the crash was never injected"
@@ -132,6 +179,30 @@ def test_no_setpoint_broke_the_fence_or_the_separation(flown):
     assert report.min_separation_seen_m >= report.limits["min_separation_m"] - report.limits["separation_tol_m"]
     assert report.min_fence_margin_m >= -report.limits["fence_tol_m"]
     assert all(v["homes"] > 0 for v in report.per_vehicle.values())
+
+
+def test_separation_interventions_are_reported_as_a_number(flown):
+    # the envelope holds vehicles that would come too close; the summary (--json) counts them
+    _, log_dir, _, _ = flown
+    records = read_mission_log(log_dir / "mission.jsonl")
+    summary = next(r for r in records if r["type"] == "summary")
+    count = summary["separation_interventions"]
+    assert isinstance(count, int) and count >= 0, summary
+    held = [r for r in records if str(r.get("message", "")).startswith("separation enforced")]
+    assert bool(held) == (count > 0)
+
+
+def test_a_vehicle_steered_into_its_neighbour_is_held(missions):
+    _, log_dir, outcome, report = missions("steered_into_neighbour")
+    assert outcome == "converged", outcome
+    records = read_mission_log(log_dir / "mission.jsonl")
+    summary = next(r for r in records if r["type"] == "summary")
+    messages = [str(r.get("message", "")) for r in records]
+    started = [m for m in messages if m.startswith("separation enforced")]
+    over = [m for m in messages if m.startswith("separation enforcement over")]
+    assert started and len(started) == len(over) <= 3, messages   # per episode, not per tick
+    assert f"{summary['separation_interventions']} in the mission so far" in over[-1]
+    assert report.min_separation_seen_m >= report.limits["min_separation_m"] - report.limits["separation_tol_m"]
 
 
 def test_source_outside_fence_pushes_setpoints_to_the_fence(missions):

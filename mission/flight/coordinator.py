@@ -373,7 +373,8 @@ class Coordinator:
         """The :class:`~mission.flight.result.MissionResult` of the mission so far."""
         result = mission_result(self.state, outcome, message, now_s=self.clock.time(),
                                 readings=self.store.counts() | {"last_errors": self.store.last_errors()},
-                                log_path=None if self.log is None else str(self.log.path))
+                                log_path=None if self.log is None else str(self.log.path),
+                                separation_interventions=getattr(self.ramp, "separation_interventions", 0))
         result.link_rejections = self.link_rejections()
         result.unknown_sysids = self.unknown_sysids()
         return result

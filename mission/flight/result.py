@@ -44,6 +44,9 @@ class MissionResult:
     vehicle_rejections : dict
         ``swarmseek run`` only: frames the embedded mock vehicles refused, by sysid then kind
         (non-zero only; :func:`mission.sim.fleet_report.vehicle_rejections`).
+    separation_interventions : int
+        Vehicle-setpoints the safety envelope held back to keep ``min_separation_m`` (0: none
+        needed; per vehicle in the mission log's ``separation enforcement`` events).
     """
 
     outcome: str
@@ -68,6 +71,7 @@ class MissionResult:
     link_rejections: dict = field(default_factory=dict)
     unknown_sysids: list = field(default_factory=list)
     vehicle_rejections: dict = field(default_factory=dict)
+    separation_interventions: int = 0
 
     @property
     def ok(self) -> bool:
@@ -80,7 +84,7 @@ class MissionResult:
 
 
 def mission_result(state, outcome: str, message: str, *, now_s: float, readings: dict,
-                   log_path: str | None = None) -> MissionResult:
+                   log_path: str | None = None, separation_interventions: int = 0) -> MissionResult:
     """The :class:`MissionResult` of a mission whose state is ``state`` (:class:`~mission.flight.state.MissionState`).
 
     Parameters
@@ -92,6 +96,8 @@ def mission_result(state, outcome: str, message: str, *, now_s: float, readings:
     readings : dict
         The reading store's counts (and last errors).
     log_path : str, optional
+    separation_interventions : int
+        The ramp's count (:attr:`mission.flight.targets.TargetRamp.separation_interventions`).
     """
     t_end = state.t_seek_end_s or now_s
     est = state.estimate_enu
@@ -109,7 +115,8 @@ def mission_result(state, outcome: str, message: str, *, now_s: float, readings:
         lost=[{"sysid": x.sysid, "reason": x.reason, "detail": x.detail, "phase": x.phase,
                "latency_s": round(x.latency_s, 3), "came_back_s": x.came_back_s}
               for x in state.lost.values()], readmitted=list(state.readmitted),
-        retired=[dict(asdict(x), ratio=round(x.ratio, 3)) for x in state.retired.values()])
+        retired=[dict(asdict(x), ratio=round(x.ratio, 3)) for x in state.retired.values()],
+        separation_interventions=int(separation_interventions))
 
 
 def readiness_result(state, plan_vehicles, readings: dict, mission_time_s: float) -> MissionResult:

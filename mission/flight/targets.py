@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 
 from mission.core.clock import cancel_and_wait
+from mission.safety.separation import describe_conflicts
 
 __all__ = ["TargetRamp", "layered_altitudes", "layered_transfer", "assign_slots"]
 
@@ -106,8 +107,25 @@ class TargetRamp:
         ``mission.safety.envelope.SafetyEnvelope``; its ``clamp_setpoints(prev, new, dt_s)`` is applied to
         every batch.
     on_violation : callable, optional
-        Called with a message when the envelope had to change a batch.
+        Called with a message when the envelope had to change a batch; for separation, once
+        when vehicles start being held and once when the holding has been over for
+        ``SEPARATION_QUIET_S`` (with the counts), not at every tick.
+
+    Attributes
+    ----------
+    separation_interventions : int
+        Vehicle-batches held at their previous setpoints by the envelope to keep separation.
+    separation_held_by_vehicle : dict
+        The same, per sysid.
+
+    Notes
+    -----
+    What the envelope returns is what is streamed and what the ramp keeps as each vehicle's
+    current setpoint: a held vehicle's next step starts from where it was held.
     """
+
+    #: a separation episode is over (and reported) after this long without a hold
+    SEPARATION_QUIET_S = 1.0
 
     def __init__(self, streamer, clock, max_speed_m_s: float, rate_hz: float = 10.0, envelope=None,
                  on_violation: Callable[[str], None] | None = None, max_vertical_speed_m_s: float = 1.0):
@@ -126,6 +144,9 @@ class TargetRamp:
         self.clamped_batches = 0
         self.reported_batches = 0
         self.safety_errors = 0
+        self.separation_interventions = 0
+        self.separation_held_by_vehicle: dict[int, int] = {}
+        self._episode: dict | None = None
 
     @property
     def sysids(self) -> list[int]:
@@ -183,13 +204,13 @@ class TargetRamp:
         scale = np.minimum(scale, max_vstep / np.maximum(np.abs(delta[:, 2:3]), 1e-12))
         new = prev + delta * scale
         if self.envelope is not None and max_step > 0:
-            new = self._apply_envelope(prev, new, dt_s)
+            new = self._apply_envelope(prev, new, dt_s, sysids)
         for s, p in zip(sysids, new):
             self._cmd[s] = p
             self.streamer.set_target(s, p)
         self.batches += 1
 
-    def _apply_envelope(self, prev, new, dt_s):
+    def _apply_envelope(self, prev, new, dt_s, sysids):
         try:
             res = self.envelope.clamp_setpoints(prev, new, dt_s)
         except Exception as exc:  # noqa: BLE001 - SafetyViolation etc.: hold position instead
@@ -202,18 +223,51 @@ class TargetRamp:
         safe = np.asarray(getattr(res, "positions_enu", res), dtype=float)
         if safe.shape != new.shape:
             return prev
+        held = np.asarray(getattr(res, "separation_held", ()), dtype=bool)
+        held = held if held.shape == (len(sysids),) else np.zeros(len(sysids), dtype=bool)
+        self._separation(sysids, held, getattr(res, "separation_conflicts", ()))
         report = getattr(res, "report", None)
         if report is not None and not report.ok:
             self.reported_batches += 1
             if self.on_violation is not None and self.reported_batches in (1, 10, 100, 1000):
                 self.on_violation(f"safety check: {report} ({self.reported_batches} batches so far)")
-        if not np.allclose(safe, new, atol=1e-6):
+        # fence and speed changes (a separation hold is reported by _separation)
+        if not np.allclose(safe[~held], new[~held], atol=1e-6):
             self.clamped_batches += 1
             if self.on_violation is not None and self.clamped_batches in (1, 10, 100, 1000):
-                worst = float(np.max(np.linalg.norm(safe - new, axis=1)))
+                worst = float(np.max(np.linalg.norm(safe[~held] - new[~held], axis=1)))
                 self.on_violation(f"safety envelope changed setpoints by up to {worst:.2f} m "
                                   f"({self.clamped_batches} batches so far)")
         return safe
+
+    def _separation(self, sysids, held, conflicts) -> None:
+        """Count the vehicles held for separation; one event when an episode starts, one when it ends."""
+        now = self.clock.time()
+        if held.any():
+            who = [sysids[k] for k in np.flatnonzero(held)]
+            for s in who:
+                self.separation_held_by_vehicle[s] = self.separation_held_by_vehicle.get(s, 0) + 1
+            self.separation_interventions += len(who)
+            if self._episode is None:
+                self._episode = {"t0": now, "counts": {}}
+                if self.on_violation is not None:
+                    note = describe_conflicts(conflicts, held, self.envelope.min_separation_m, sysids)
+                    self.on_violation(f"separation enforced: {note}")
+            counts = self._episode["counts"]
+            for s in who:
+                counts[s] = counts.get(s, 0) + 1
+            self._episode["t_last"] = now
+        elif self._episode is not None and now - self._episode["t_last"] >= self.SEPARATION_QUIET_S:
+            self._end_separation_episode()
+
+    def _end_separation_episode(self) -> None:
+        ep, self._episode = self._episode, None
+        if ep is None or self.on_violation is None:
+            return
+        counts = ", ".join(f"{s}: {c}" for s, c in sorted(ep["counts"].items()))
+        self.on_violation(f"separation enforcement over: {sum(ep['counts'].values())} intervention(s) in "
+                          f"{ep['t_last'] - ep['t0']:.1f} s (by vehicle {counts}); "
+                          f"{self.separation_interventions} in the mission so far")
 
     async def _run(self) -> None:
         self._last_t = self.clock.time()
@@ -236,3 +290,4 @@ class TargetRamp:
         """Stop the task (setpoints stay where they are)."""
         await cancel_and_wait(self._task)
         self._task = None
+        self._end_separation_episode()

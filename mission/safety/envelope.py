@@ -5,8 +5,9 @@ about the mission origin (``docs/interfaces.md``). Altitudes of the band are mis
 
 The rule the mission relies on: **no setpoint leaves the geofence or the altitude band, ever,
 whatever the maths says.** :meth:`SafetyEnvelope.clamp_setpoints` makes setpoints safe (inside
-the fence and band, speed-limited) and ends with :meth:`SafetyEnvelope.assert_safe`, which raises
-:class:`SafetyViolation` if anything would still leave.
+the fence and band, speed-limited, separated: vehicles that would come too close are held at their
+previous setpoints, :mod:`mission.safety.separation`) and ends with
+:meth:`SafetyEnvelope.assert_safe`, which raises :class:`SafetyViolation` if anything would still leave.
 
 Separation is checked on the paths, not only on the end points: two vehicles flying straight
 lines simultaneously at constant speed (start together, arrive together) are closest at a time
@@ -34,6 +35,8 @@ from mission.safety.report import (
     Violation,
 )
 from mission.safety.fence import Geofence, _as_points
+from mission.safety.separation import close_pairs as _close_pairs
+from mission.safety.separation import hold_for_separation
 from mission.safety.transfer import TransferError, TransferPlan, plan_transfer
 
 __all__ = [
@@ -54,32 +57,6 @@ __all__ = [
 
 #: numerical slack (m) when checking a point against a boundary it was projected onto
 _TOL_M = 1e-7
-
-
-def _pair_distances(p):
-    sq = np.einsum("ni,ni->n", p, p)
-    return np.sqrt(np.maximum(sq[:, None] + sq[None, :] - 2.0 * p @ p.T, 0.0))
-
-
-def _close_pairs(p0, p1, sep_m):
-    """Pairs ``i < j`` that may come closer than ``sep_m`` or be the closest pair, with their
-    path and end-point distances.
-
-    Two vehicles flying ``p0 -> p1`` are never closer than their start distance minus both
-    steps: only pairs whose lower bound is below ``sep_m`` or below the smallest end-point
-    distance (an upper bound of the minimum) need the exact path distance. The overall minimum
-    over all pairs is exact.
-    """
-    step = np.linalg.norm(p1 - p0, axis=1)
-    d_start = _pair_distances(p0)
-    d_end = _pair_distances(p1)
-    iu, ju = np.triu_indices(len(p0), 1)
-    lower = d_start[iu, ju] - step[iu] - step[ju]
-    ends = d_end[iu, ju]
-    keep = (lower < sep_m) | (lower <= ends.min())
-    ii, jj = iu[keep], ju[keep]
-    d_path = synchronous_distance(p0[ii], p1[ii], p0[jj], p1[jj])
-    return ii, jj, np.minimum(d_path, ends[keep]), ends[keep]
 
 
 def pairwise_path_separation(prev_positions, new_positions) -> np.ndarray:
@@ -166,6 +143,10 @@ class SafetyEnvelope:
         points and along the simultaneous straight-line paths.
         """
         p0, p1 = self._check_shapes(prev_positions, new_positions, dt_s)
+        return self._check(p0, p1, dt_s)
+
+    def _check(self, p0, p1, dt_s, pairs=None) -> SetpointReport:
+        """:meth:`check_setpoints` on checked arrays; ``pairs``: ``_close_pairs(p0, p1, sep)`` if known."""
         out = []
         n = len(p0)
         fence = self.fence
@@ -193,7 +174,7 @@ class SafetyEnvelope:
                                  f"vehicle {i} would fly {speed[i]:.2f} m/s > limit {self.max_speed_m_s:g} m/s"))
         sep_min = float("inf")
         if n >= 2:
-            ii, jj, d_path, d_end = _close_pairs(p0, p1, self.min_separation_m)
+            ii, jj, d_path, d_end = _close_pairs(p0, p1, self.min_separation_m) if pairs is None else pairs
             sep_min = float(d_path.min()) if len(d_path) else float("inf")
             lim = self.min_separation_m * (1 - 1e-9)
             for i, j, de in zip(ii, jj, d_end):
@@ -209,14 +190,25 @@ class SafetyEnvelope:
         return SetpointReport(tuple(out), sep_min, float(speed.max()) if n else 0.0)
 
     def clamp_setpoints(self, prev_positions, new_positions, dt_s: float) -> ClampedSetpoints:
-        """Safe setpoints: inside the fence and band, each step scaled down to the speed limit.
+        """Safe setpoints: inside the fence and band, speed-limited, separated.
 
         Each new setpoint is moved to the nearest point of the fence; if the straight path from
         the previous position leaves a non-convex fence, it stops where it would leave; the
         step is then scaled to at most ``max_speed_m_s * dt_s``. The fence wins over the speed
         limit: a vehicle whose previous position is outside the fence gets the nearest inside
-        point (and a ``speed`` violation in the report if that is too far). Separation is
-        checked and reported, not changed.
+        point (and a ``speed`` violation in the report if that is too far). Last, separation is
+        enforced: every vehicle of a pair that would come closer than ``min_separation_m``
+        (end points, or on the simultaneous straight paths) is held at its previous setpoint,
+        and again for the pairs those holds create, until none is left
+        (:func:`mission.safety.separation.hold_for_separation`: if the previous batch was
+        separated, the result is; a pair that already started closer may not come closer).
+        Holding is inside the fence and within the speed limit, so the fence still holds.
+
+        Returns
+        -------
+        ClampedSetpoints
+            With ``separation_held`` (the vehicles held), ``separation_conflicts`` and
+            ``separation_note`` (why).
 
         Raises
         ------
@@ -224,6 +216,17 @@ class SafetyEnvelope:
             If a setpoint would still be outside the fence or band (never expected).
         """
         p0, p1 = self._check_shapes(prev_positions, new_positions, dt_s)
+        out, fence_clamped, speed_limited, inside0 = self._clamp_fence_speed(p0, p1, dt_s)
+        pairs = _close_pairs(p0, out, self.min_separation_m) if len(p0) >= 2 else None
+        hold = hold_for_separation(p0, out, self.min_separation_m, inside0, pairs)
+        out = hold.positions_enu
+        self.assert_safe(p0, out, dt_s)
+        report = self._check(p0, out, dt_s, pairs if not hold.conflicts else None)
+        return ClampedSetpoints(out, fence_clamped, speed_limited, report, hold.held,
+                                hold.describe(self.min_separation_m), hold.conflicts)
+
+    def _clamp_fence_speed(self, p0, p1, dt_s):
+        """Steps (1) to (3) of :meth:`clamp_setpoints`: ``(out, fence_clamped, speed_limited, inside0)``."""
         fence = self.fence
         out = fence.clamp(p1)
         fence_clamped = np.any(out != p1, axis=1)
@@ -243,8 +246,7 @@ class SafetyEnvelope:
         speed_limited = inside0 & (step > step_max)
         scale = np.where(speed_limited, step_max / np.maximum(step, 1e-300), 1.0)
         out = p0 + scale[:, None] * (out - p0)
-        self.assert_safe(p0, out, dt_s)
-        return ClampedSetpoints(out, fence_clamped, speed_limited, self.check_setpoints(p0, out, dt_s))
+        return out, fence_clamped, speed_limited, inside0
 
     def assert_safe(self, prev_positions, new_positions, dt_s: float) -> None:
         """Raise :class:`SafetyViolation` if a setpoint is outside the fence or band, or too

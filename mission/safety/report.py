@@ -91,14 +91,29 @@ class ClampedSetpoints:
     ----------
     positions_enu : numpy.ndarray, shape (N, 3)
         Safe setpoints: inside the fence and band, speed-limited where the previous position
-        was inside the fence.
+        was inside the fence, separated (see ``separation_held``).
     fence_clamped, speed_limited : numpy.ndarray of bool, shape (N,)
         Which vehicles' setpoints were moved by the fence/band or shortened by the speed limit.
     report : SetpointReport
-        The check of the returned setpoints (separation problems are reported, not fixed).
+        The check of the returned setpoints (ok unless the previous batch was already too close
+        or a vehicle outside the fence could not be held).
+    separation_held : numpy.ndarray of bool, shape (N,)
+        Vehicles held at their previous setpoints to keep the separation (one intervention each).
+    separation_note : str
+        Which pairs would have come too close, and who was held, by index ("" when none).
+    separation_conflicts : tuple of (int, int, float)
+        Those pairs ``(i, j, closest approach m)`` as asked for, closest first.
     """
 
     positions_enu: np.ndarray
     fence_clamped: np.ndarray
     speed_limited: np.ndarray
     report: SetpointReport = field(default_factory=SetpointReport)
+    separation_held: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    separation_note: str = ""
+    separation_conflicts: tuple = ()
+
+    @property
+    def separation_interventions(self) -> int:
+        """Vehicles held for separation in this batch."""
+        return int(np.count_nonzero(self.separation_held))
