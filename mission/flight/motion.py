@@ -117,8 +117,11 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
     from mission.safety.envelope import TransferError
 
     still = parked(co)
+    # a vehicle lost (and taken off the ramp) since the caller chose ``sysids`` is not flown: on the
+    # wall clock that can happen while the slots were being computed
+    sysids = [s for s in sysids if s in co.ramp.sysids]
     members = [s for s in sysids if s not in still]  # the formation's (sensing) vehicles
-    extra = [s for s in still if s not in sysids]
+    extra = [s for s in still if s not in sysids and s in co.ramp.sysids]
     sysids = list(sysids) + extra
     new_offsets = {**new_offsets, **{s: np.zeros(3) for s in extra}}
     plan = co.plan
