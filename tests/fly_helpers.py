@@ -11,18 +11,21 @@ from mission.telemetry.mission_log import MissionLog
 __all__ = ["fly", "run_fleet", "run_with_saboteur"]
 
 
-async def fly(plan, fleet, log_path, tlog_dir=None, world=None):
+async def fly(plan, fleet, log_path, tlog_dir=None, world=None, coordinators=None):
     """Run a :class:`Coordinator` on ``plan`` with the fleet's clock, its mission log at
     ``log_path`` and the .tlog files in ``tlog_dir`` (None: none). Returns the result.
 
     ``world``: the :class:`~mission.sim.embedded_world.EmbeddedWorld` of a lock-step run (it is
-    told where the coordinator's readings arrive)."""
+    told where the coordinator's readings arrive). ``coordinators``: a list the coordinator is
+    appended to (a test reads its endpoints' counters, also from a saboteur thread)."""
     import zenoh
 
     session = zenoh.open(plan.zenoh.to_config())
     log = MissionLog(log_path, fleet.clock)
     try:
         co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, tlog_dir=tlog_dir)
+        if coordinators is not None:
+            coordinators.append(co)
         if world is not None:
             world.store = co.store
         return await co.run()
@@ -47,18 +50,18 @@ def run_fleet(fleet, make_main):
     return run_lockstep(lambda: make_main(world), fleet.clock, world)
 
 
-def run_with_saboteur(plan, fleet, log_dir, saboteur=None):
+def run_with_saboteur(plan, fleet, log_dir, saboteur=None, coordinators=None):
     """Start ``fleet`` (and the ``saboteur`` thread, which sets faults as the mission log grows:
     it has a ``done`` event), fly ``plan`` (:func:`fly`: log ``log_dir / "mission.jsonl"``, .tlog
     files in ``log_dir / "tlogs"``), stop both; returns the result.
 
     A fleet on a :class:`~mission.sim.lockstep.VirtualClock` flies in lock-step (no fleet
-    thread; the saboteur thread still acts on what the log shows)."""
+    thread; the saboteur thread still acts on what the log shows). ``coordinators``: see :func:`fly`."""
     if saboteur:
         saboteur.start()
     try:
         return run_fleet(fleet, lambda world: fly(plan, fleet, log_dir / "mission.jsonl", log_dir / "tlogs",
-                                                  world))
+                                                  world, coordinators))
     finally:
         if saboteur:
             saboteur.done.set()

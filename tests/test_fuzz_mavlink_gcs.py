@@ -25,6 +25,7 @@ from fuzz_helpers import (ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad
 from mission.core.clock import WallClock
 from mission.link.endpoint import MavEndpoint, parse_connection
 from mission.link.poller import UdpPoller
+from mission.link.tlog import read_tlog_records
 from mission.vehicle.vehicle_link import VehicleLink
 from wait_helpers import wait_until_async
 
@@ -212,17 +213,21 @@ def test_non_finite_position_telemetry_is_rejected(kind):
     assert vl.rejected == {kind: 1}
 
 
-def test_a_frame_of_unknown_message_id_is_logged_in_its_senders_tlog(tmp_path):
+def test_a_frame_of_unknown_message_id_goes_to_the_quarantine_log_not_a_vehicle_tlog(tmp_path):
+    """Its CRC cannot be checked (no CRC_EXTRA): it is no vehicle's evidence."""
     ep = MavEndpoint(parse_connection("udpin:127.0.0.1:0"), clock=FakeClock(), heartbeat_hz=0,
                      tlog_dir=tmp_path)
     try:
         payload = b"\x01\x02\x03"
         frame = struct.pack("<BBBBBBBHB", 0xFD, len(payload), 0, 0, 0, 42, 1, 0xBEEF, 0) + payload + b"\0\0"
         ep._on_datagram(frame, PEER)
-        assert ep.counters["unknown_msgid"] == 1
-        assert ep.tlogs.path(0) is None and ep.tlogs.path(42) is not None
+        assert ep.counters["unknown_msgid"] == 1 and ep.counters["quarantined"] == 1
+        assert ep.tlogs.paths() == {}
+        ep.quarantine.flush()
+        assert [f for _, f in read_tlog_records(tmp_path / "quarantine.tlog")] == [frame]
     finally:
         ep.tlogs.close()
+        ep.registry.release(ep)
 
 
 def test_a_handler_that_raises_is_counted_and_the_link_goes_on():

@@ -62,13 +62,15 @@ async def connect(co, required: bool = True) -> None:
 
 
 async def _open(co, uri: str, vehicles: list, registry, problems: list[str]) -> None:
-    """Open the endpoint of ``uri``; on failure every vehicle on it is not ready (``no link``)."""
+    """Open the endpoint of ``uri`` for ``vehicles`` (the only system ids it accepts); on failure
+    every vehicle on it is not ready (``no link``)."""
     from mission.link.endpoint import MavEndpoint
 
     try:
         co.add_endpoint(uri, await MavEndpoint.open(uri, clock=co.clock, tlog_dir=co.tlog_dir,
                                                     signing=co.plan.security, registry=registry,
-                                                    poller=co.poller))
+                                                    poller=co.poller,
+                                                    planned_sysids=[vp.sysid for vp in vehicles]))
     except (OSError, ValueError) as exc:
         problems.append(f"{uri}: {exc}")
         for vp in vehicles:

@@ -10,9 +10,14 @@ Rules (see ``docs/faults.md``):
   ``SMART_RTL``, ``LAND``): a failsafe (low battery, geofence, GCS loss) or a pilot. The
   coordinator does not fight it. Any *other* mode change (PX4 offboard loss -> hold, ArduPilot
   GUIDED -> LOITER/BRAKE) is re-engaged by the watchdog (``mission.flight.coordinator``). A vehicle
-  that disarms in the air (not commanded) also left.
+  that disarms in the air (not commanded) also left. Without signing a heartbeat proves nothing,
+  so a mode change or a disarm counts only when corroborated by the vehicle's own stream: two
+  heartbeats in a row (the endpoint delivers only those from the vehicle's pinned address) say
+  so; after the first one the coordinator asks for an immediate HEARTBEAT
+  (``VehicleLink.request_heartbeat``), so a real failsafe is confirmed within a round trip.
 * A lost vehicle is taken off the setpoint stream, released (never re-engaged) and no longer
-  waited for; the seek loop re-forms the formation for the survivors (:func:`reformed_offsets`)
+  waited for (one still armed in OFFBOARD/GUIDED with its link alive is commanded to land or
+  RTL, the plan's ``return``: never left hovering under its last setpoint); the seek loop re-forms the formation for the survivors (:func:`reformed_offsets`)
   and flies a separation-keeping transfer (:func:`mission.safety.envelope.plan_transfer`) to it.
 * **coming back** (link heard again after a link loss): with ``[faults] readmit = false`` the
   vehicle is kept out and commanded to land or RTL (the plan's ``return``), once; with
@@ -28,12 +33,16 @@ import functools
 
 import numpy as np
 
-from mission.flight.modes import LEFT_MODES
+from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.motion import keep_out, transfer_to
 from mission.flight.obstacles import OBSTACLE_MARGIN_M, clear_offsets, obstacles
 from mission.flight.state import VehicleLoss
 
-__all__ = ["classify_loss", "reform", "reformed_offsets", "survivor_slots", "watch_losses"]
+__all__ = ["CORROBORATING_HEARTBEATS", "classify_loss", "reform", "reformed_offsets", "survivor_slots",
+           "watch_losses"]
+
+#: heartbeats in a row that must report a mode change or a disarm before the vehicle "left"
+CORROBORATING_HEARTBEATS = 2
 
 
 def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
@@ -54,6 +63,14 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
     seen_armed : bool
         The vehicle has been seen armed since its takeoff command (a disarmed state before
         that is the arming still on its way, not a vehicle that left).
+
+    Returns
+    -------
+    tuple of str or None
+        ``("link", detail)``, ``("left", detail)``, or ``("unconfirmed", detail)`` when the
+        mode or disarm that would make it "left" was reported by fewer than
+        :data:`CORROBORATING_HEARTBEATS` heartbeats in a row (``vehicle.status_heartbeats``;
+        vehicles without it count as corroborated): not a loss yet.
     """
     age = float(vehicle.link_age_s())
     if age > link_timeout_s:
@@ -62,10 +79,14 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
         return None
     mode = vehicle.state.mode
     if mode in LEFT_MODES.get(vehicle.flavour, ()):
-        return "left", f"switched to {mode} by itself (failsafe)"
-    if seen_armed and not vehicle.state.armed:
-        return "left", "disarmed in the air"
-    return None
+        detail = f"switched to {mode} by itself (failsafe)"
+    elif seen_armed and not vehicle.state.armed:
+        detail = "disarmed in the air"
+    else:
+        return None
+    if getattr(vehicle, "status_heartbeats", CORROBORATING_HEARTBEATS) < CORROBORATING_HEARTBEATS:
+        return "unconfirmed", detail
+    return "left", detail
 
 
 def reformed_offsets(kind: str, offsets: dict[int, np.ndarray], lost, radius_m: float,
@@ -151,24 +172,36 @@ async def watch_losses(co, period_s: float = 0.1) -> None:
                 continue  # commanded by the coordinator to land / RTL
             if v.state.armed:
                 seen_armed.add(sysid)
-            found = classify_loss(v, now, faults.link_timeout_s, commanded=False,
-                                  seen_armed=sysid in seen_armed)
-            if found is not None and found[0] == "link":
-                # let the event loop read whatever is pending before concluding
-                await asyncio.sleep(0)
-                await asyncio.sleep(0)
-                now = co.clock.time()
-                found = classify_loss(v, now, faults.link_timeout_s, commanded=False,
-                                      seen_armed=sysid in seen_armed)
-            if found is None:
-                continue
-            reason, detail = found
-            if reason == "link":
-                since = now - float(v.link_age_s())
-            else:
-                hb = getattr(v.state, "last_heartbeat_s", None)
-                since = now if hb is None else min(now, float(hb))
-            _declare_lost(co, VehicleLoss(sysid, reason, detail, now, since, co.phase))
+            loss = await _check(co, sysid, v, sysid in seen_armed)
+            if loss is not None:
+                _declare_lost(co, loss)
+
+
+async def _check(co, sysid: int, v, seen_armed: bool) -> VehicleLoss | None:
+    """The loss of ``v`` found now, or None (an unconfirmed "left" asks the vehicle to confirm)."""
+    timeout_s = co.plan.faults.link_timeout_s
+    now = co.clock.time()
+    found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed)
+    if found is not None and found[0] == "link":
+        # let the event loop read whatever is pending before concluding
+        await asyncio.sleep(0)
+        await asyncio.sleep(0)
+        now = co.clock.time()
+        found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed)
+    if found is None:
+        return None
+    reason, detail = found
+    if reason == "unconfirmed":  # one heartbeat said so: ask the vehicle itself, decide on its answer
+        request = getattr(v, "request_heartbeat", None)
+        if request is not None:
+            request()
+        return None
+    if reason == "link":
+        since = now - float(v.link_age_s())
+    else:  # the first of the heartbeats that reported it
+        hb = getattr(v, "status_since_s", None) or getattr(v.state, "last_heartbeat_s", None)
+        since = now if hb is None else min(now, float(hb))
+    return VehicleLoss(sysid, reason, detail, now, since, co.phase)
 
 
 def _declare_lost(co, loss: VehicleLoss) -> None:
@@ -180,6 +213,22 @@ def _declare_lost(co, loss: VehicleLoss) -> None:
     co.event(f"vehicle {sysid} lost: {loss.detail}; detected {loss.latency_s:.2f} s after its last sign "
              f"(phase {loss.phase})", level="warning", sysid=sysid, reason=loss.reason,
              latency_s=round(loss.latency_s, 3), detected_s=loss.detected_s, since_s=loss.since_s)
+    v = co.vehicles.get(sysid)
+    if v is not None and loss.reason == "left" and v.state.armed and v.state.mode == GUIDED_MODES.get(v.flavour):
+        asyncio.get_running_loop().create_task(_settle_released(co, sysid, v))
+
+
+async def _settle_released(co, sysid: int, v) -> None:
+    """A vehicle released while still armed in OFFBOARD/GUIDED is told to land (or RTL), once:
+    off the stream it would hover at its last setpoint (ArduPilot GUIDED has no setpoint timeout)."""
+    rtl = co.plan.return_behaviour == "rtl"
+    co.event(f"vehicle {sysid} released while still in {v.state.mode}: commanded to "
+             f"{'RTL' if rtl else 'land'}", level="warning", sysid=sysid)
+    try:
+        await asyncio.wait_for(v.rtl() if rtl else v.land(), timeout=30.0)
+    except Exception as exc:  # noqa: BLE001 - CommandError, link, timeout: reported
+        co.event(f"vehicle {sysid}: {'RTL' if rtl else 'land'} after its release failed: {exc}",
+                 level="error", sysid=sysid)
 
 
 async def _maybe_came_back(co, v, loss: VehicleLoss, now: float) -> None:

@@ -13,9 +13,19 @@ Connection strings are those of pymavlink and MAVProxy: ``udpin:HOST:PORT``, ``u
 (``udp:`` is read as ``udpin:`` like MAVProxy does).
 
 A system id claimed by two vehicles is an error (:class:`LinkError`) that names both endpoints:
-two addresses sending autopilot heartbeats with the same id on one endpoint, two different
-AUTOPILOT_VERSION uids for one id, or one id heard on two endpoints sharing a
-:class:`SysidRegistry`.
+two addresses sending autopilot heartbeats with the same id on one endpoint before the vehicle
+is attached, two different AUTOPILOT_VERSION uids for one id, or one id heard on two endpoints
+sharing a :class:`SysidRegistry`.
+
+Without signing nothing is authenticated, so the endpoint refuses to be steered instead: each
+vehicle is *pinned* to the address (and autopilot component id) of its first autopilot
+HEARTBEAT; frames for a pinned system id from any other address are never delivered, never
+routed to and counted ``foreign_address``; with ``planned_sysids`` (the mission's vehicles on
+this endpoint) frames of any other system id are counted ``unplanned_sysid``; a planned one's
+frames before its pin are held and, once it is pinned, logged in its ``.tlog`` if they came from
+its address (else counted ``foreign_address``). All of those, and frames of unknown message ids (CRC
+unchecked), go to the mission's one capped quarantine log (:class:`~mission.link.tlog.QuarantineLog`),
+never to a vehicle's ``.tlog``. See ``docs/faults.md`` ("Forged MAVLink without signing").
 
 The endpoint is split by concern: :mod:`mission.link.endpoint_receive` (parsing, checks,
 demultiplexing), :mod:`mission.link.endpoint_send` (encoding, routing, framing, heartbeat) and
@@ -32,7 +42,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from mission.core.clock import cancel_and_wait, wait_on_clock
 from mission.link.transport import open_transport
 from mission.core.uri import DEFAULT_SERIAL_BAUD, ConnectionSpec, parse_connection
-from mission.link.endpoint_receive import EndpointReceiving
+from mission.link.endpoint_receive import SUSPECT_REASONS, EndpointReceiving
 from mission.link.endpoint_registry import LinkError, SysidRegistry
 from mission.link.endpoint_send import EndpointSending
 from mission.link.signing import SignatureVerifier, SigningConfig
@@ -45,6 +55,7 @@ __all__ = [
     "SysidRegistry",
     "MavEndpoint",
     "DEFAULT_SERIAL_BAUD",
+    "SUSPECT_REASONS",
 ]
 
 
@@ -64,16 +75,23 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
         read from the raw frame), ``truncated`` (partial frame at the end
         of a datagram), ``unroutable`` (frame for a system id never heard), ``send_errors``,
         ``duplicate_sysid``, ``handler_errors`` (a vehicle handler raised; the message is in
-        :attr:`last_handler_error`, the link goes on).
+        :attr:`last_handler_error`, the link goes on); the suspect senders (:data:`SUSPECT_REASONS`,
+        also :attr:`suspect_counters`): ``foreign_address``, ``unplanned_sysid``, ``unverified``,
+        ``repinned``; ``quarantined`` / ``quarantine_dropped`` (frames this endpoint put in the
+        quarantine log / that were beyond its cap).
     errors : list of LinkError
         Duplicate-sysid problems found so far (also delivered to the attached vehicles).
     tlogs : TlogSet or None
+    quarantine : mission.link.tlog.QuarantineLog or None
+        The mission's quarantine log (shared through the registry), None without ``tlog_dir``.
+    planned_sysids : frozenset of int or None
+        The only system ids this endpoint accepts (None: any).
     """
 
     def __init__(self, spec: ConnectionSpec, *, clock, tlog_dir=None, gcs_sysid: int = 255,
                  gcs_compid: int = 190, heartbeat_hz: float = 1.0,
                  registry: SysidRegistry | None = None, poller=None,
-                 signing: SigningConfig | None = None) -> None:
+                 signing: SigningConfig | None = None, planned_sysids=None) -> None:
         self.spec = spec
         self.poller = poller
         self.uri = spec.uri
@@ -83,10 +101,13 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
         self.heartbeat_hz = float(heartbeat_hz)
         self.registry = registry if registry is not None else SysidRegistry()
         self.tlogs = TlogSet(tlog_dir, time_fn=clock.time) if tlog_dir is not None else None
+        self.quarantine = (self.registry.quarantine(tlog_dir, self, clock.time)
+                           if tlog_dir is not None else None)
+        self.planned_sysids = frozenset(int(s) for s in planned_sysids) if planned_sysids is not None else None
         self.counters = dict.fromkeys(
             ("frames_in", "frames_out", "bytes_in", "bytes_out", "bad_crc", "malformed",
              "unknown_msgid", "truncated", "unroutable", "send_errors", "duplicate_sysid",
-             "handler_errors"), 0)
+             "handler_errors", *SUSPECT_REASONS, "quarantined", "quarantine_dropped"), 0)
         self.last_handler_error: str | None = None
         self.counters.update(unsigned=0, bad_signature=0, replayed=0, setup_signing_sent=0,
                              setup_signing_refused=0)
@@ -94,6 +115,8 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
         self.signing_state = signing.new_state(clock.time()) if signing is not None else None
         self.verifier = SignatureVerifier(signing, self.signing_state) if signing is not None else None
         self._setup_sent_s: dict[int, float] = {}
+        #: sysid -> the address its first SETUP_SIGNING went to (the key never goes elsewhere)
+        self._setup_peer: dict[int, object] = {}
         #: system ids this mission waits for or attached: the only ones ever sent the key
         self._expected: set[int] = set()
         self.errors: list[LinkError] = []
@@ -102,7 +125,11 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
         self._stream_parsers: dict[object, mavlink.MAVLink] = {}
         self._encoders: dict[object, mavlink.MAVLink] = {}
         self._peer_of: dict[int, object] = {}
-        self._hb_seen: dict[int, dict[object, float]] = {}
+        #: sysid -> (address, autopilot component id) of its first autopilot HEARTBEAT
+        self._pins: dict[int, tuple[object, int]] = {}
+        self._pin_heard_s: dict[int, float] = {}
+        #: sysid -> frames of a planned vehicle before its pin: (clock s, sender, frame)
+        self._early: dict[int, list] = {}
         self._uids: dict[int, int] = {}
         self._last_heartbeat: dict[int, object] = {}
         self._handlers: dict[int, tuple[Callable, Callable]] = {}
@@ -115,7 +142,7 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
     async def open(cls, uri: str, *, clock, tlog_dir=None, gcs_sysid: int = 255,
                    gcs_compid: int = 190, heartbeat_hz: float = 1.0,
                    registry: SysidRegistry | None = None, poller=None,
-                   signing: SigningConfig | None = None) -> "MavEndpoint":
+                   signing: SigningConfig | None = None, planned_sysids=None) -> "MavEndpoint":
         """Open the transport named by ``uri`` and start the 1 Hz GCS heartbeat.
 
         Parameters
@@ -144,6 +171,10 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
             once a second, counted ``setup_signing_sent``) if ``signing.send_setup`` and it is a
             system id the mission waits for (:meth:`wait_heartbeat`) or attached; any other
             system id is never sent the key (counted ``setup_signing_refused``).
+        planned_sysids : iterable of int, optional
+            The mission's system ids on this endpoint: frames of any other go to the quarantine
+            log, counted ``unplanned_sysid``. None accepts any system id (each gets its own
+            ``.tlog``).
 
         Raises
         ------
@@ -154,12 +185,14 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
         """
         spec = parse_connection(uri)
         self = cls(spec, clock=clock, tlog_dir=tlog_dir, gcs_sysid=gcs_sysid, gcs_compid=gcs_compid,
-                   heartbeat_hz=heartbeat_hz, registry=registry, poller=poller, signing=signing)
+                   heartbeat_hz=heartbeat_hz, registry=registry, poller=poller, signing=signing,
+                   planned_sysids=planned_sysids)
         try:
             self._transport = await open_transport(spec, self, poller)
         except OSError as exc:
             if self.tlogs is not None:
                 self.tlogs.close()
+            self.registry.release(self)
             raise LinkError(f"cannot open {spec.uri!r}: {exc.strerror or exc}") from exc
         if self.heartbeat_hz > 0:
             self._housekeeping = asyncio.ensure_future(self._housekeeping_loop())
@@ -196,6 +229,26 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
         return f"MavEndpoint({self.uri!r}, sysids={sorted(self._peer_of)})"
 
     # ------------------------------------------------------------------ vehicles
+    @property
+    def suspect_counters(self) -> dict[str, int]:
+        """Frames refused by sender (:data:`SUSPECT_REASONS`) and the quarantine's counts.
+
+        ``quarantined`` / ``quarantine_dropped`` are this endpoint's; ``quarantine_records``,
+        ``quarantine_bytes``, ``quarantine_dropped_total`` are the mission's quarantine log's (shared).
+        """
+        c = self.counters
+        out = {k: c[k] for k in (*SUSPECT_REASONS, "unknown_msgid", "quarantined", "quarantine_dropped")}
+        if self.quarantine is not None:
+            q = self.quarantine.counters
+            out.update(quarantine_records=q["records"], quarantine_bytes=q["bytes"],
+                       quarantine_dropped_total=q["dropped"])
+        return out
+
+    def pinned_address(self, sysid: int):
+        """The address ``sysid`` is pinned to (its first autopilot HEARTBEAT's), or None."""
+        pin = self._pins.get(sysid)
+        return None if pin is None else pin[0]
+
     def sysids_seen(self) -> set[int]:
         """System ids heard on this endpoint so far (any component)."""
         return set(self._peer_of)

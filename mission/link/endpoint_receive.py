@@ -2,10 +2,13 @@
 
 :class:`EndpointReceiving` is a mixin: the transport callbacks (``_on_datagram``,
 ``_on_stream_data``, ``_on_peer_lost``) parse frames robustly (bad frames are counted, never
-raised), check signatures, log each frame in its sender's ``.tlog``, hand each message to the
-vehicle attached to its system id and detect duplicate system ids. It works on the attributes
-that :class:`~mission.link.endpoint.MavEndpoint` sets up in its constructor (``counters``,
-``tlogs``, ``verifier``, ``_peer_of``, ``_handlers``, ``_hb_seen``, ``_hb_waiters`` ...).
+raised), check signatures, screen each frame's sender (:meth:`EndpointReceiving._screen`: the
+vehicle's pinned address, the plan's system ids), log each accepted frame in its sender's
+``.tlog`` and every refused one in the quarantine log, hand each message to the vehicle attached
+to its system id and detect duplicate system ids. It works on the attributes that
+:class:`~mission.link.endpoint.MavEndpoint` sets up in its constructor (``counters``, ``tlogs``,
+``quarantine``, ``verifier``, ``planned_sysids``, ``_pins``, ``_peer_of``, ``_handlers``,
+``_hb_waiters`` ...).
 """
 from __future__ import annotations
 
@@ -13,22 +16,28 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.link.endpoint_registry import LinkError
 
-__all__ = ["EndpointReceiving"]
+__all__ = ["EndpointReceiving", "SUSPECT_REASONS"]
 
-#: an address heard from within this many clock seconds is still "active" (duplicate detection)
+#: counters of suspect senders: a frame for a pinned system id from another address (refused),
+#: a system id not in the plan (refused), a planned one before its first autopilot HEARTBEAT
+#: beyond the ``_EARLY_FRAMES_MAX`` held until it (refused), a vehicle pinned again after its address was silent for ``_REPIN_SILENCE_S``
+SUSPECT_REASONS = ("foreign_address", "unplanned_sysid", "unverified", "repinned")
+
+#: a pinned address heard from within this many clock seconds is still "active": a second
+#: address sending autopilot heartbeats meanwhile, before the vehicle is attached, is a duplicate
 _ACTIVE_WINDOW_S = 3.0
+#: frames of a planned system id held (per id) until its first autopilot HEARTBEAT pins it: then
+#: those from the pinned address go to its ``.tlog``, the others to the quarantine log
+_EARLY_FRAMES_MAX = 64
+#: a vehicle whose pinned address sent no autopilot HEARTBEAT for this long may be pinned again
+#: (a rebooted autopilot on a new UDP port); a vehicle that long silent was declared lost already
+_REPIN_SILENCE_S = 10.0
 
 _MSG_HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
 _MSG_BAD = mavlink.MAVLINK_MSG_ID_BAD_DATA
 _MSG_UNKNOWN = mavlink.MAVLINK_MSG_ID_UNKNOWN
 _AUTOPILOT_INVALID = mavlink.MAV_AUTOPILOT_INVALID
 _TYPE_GCS = mavlink.MAV_TYPE_GCS
-
-
-def _raw_sender(frame) -> int:
-    """Sender system id read from a raw MAVLink frame (v2: byte 5, v1: byte 3)."""
-    index = 5 if frame[0] == mavlink.PROTOCOL_MARKER_V2 else 3
-    return frame[index] if len(frame) > index else 0
 
 
 def _is_autopilot_heartbeat(msg) -> bool:
@@ -66,9 +75,11 @@ class EndpointReceiving:
             self._deliver(msgs, peer, len(data))
 
     def _on_peer_lost(self, peer) -> None:
-        """Transport callback: a stream peer went away."""
+        """Transport callback: a stream peer went away (its vehicles may pin again on reconnection)."""
         self._stream_parsers.pop(peer, None)
         self._encoders.pop(peer, None)
+        for sysid in [s for s, pin in self._pins.items() if pin[0] == peer]:
+            del self._pins[sysid]
 
     def _deliver(self, msgs, peer, nbytes: int) -> None:
         counters = self.counters
@@ -83,30 +94,30 @@ class EndpointReceiving:
             if msg_id == _MSG_BAD:
                 counters["bad_crc" if "CRC" in msg.reason else "malformed"] += 1
                 continue
-            if self.verifier is not None:
-                reason = self.verifier.check(msg)
-                if reason is not None:
-                    counters[reason] += 1
-                    sysid = msg._header.srcSystem
-                    if (reason == "unsigned" and msg_id == _MSG_HEARTBEAT and self.signing.send_setup
-                            and _is_autopilot_heartbeat(msg) and self.verifier.needs_setup(sysid)):
-                        if sysid in self._expected:
-                            self._send_setup_signing(sysid, msg._header.srcComponent, peer)
-                        else:  # not a vehicle of this mission: never hand it the key
-                            counters["setup_signing_refused"] += 1
-                    continue
+            if self.verifier is not None and self._refused_by_signing(msg, msg_id, peer):
+                continue
             counters["frames_in"] += 1
-            # MAVLink_unknown has no real header (srcSystem 0): its sender is in the raw frame
-            sysid = msg._header.srcSystem if msg_id != _MSG_UNKNOWN else _raw_sender(msg.get_msgbuf())
+            if msg_id == _MSG_UNKNOWN:  # CRC not checkable (no CRC_EXTRA): never in a vehicle's tlog
+                counters["unknown_msgid"] += 1
+                self._quarantine_frame(msg.get_msgbuf())
+                continue
+            sysid = msg._header.srcSystem
+            autopilot_hb = msg_id == _MSG_HEARTBEAT and _is_autopilot_heartbeat(msg)
+            refused = self._screen(sysid, msg, peer, autopilot_hb)
+            if refused is not None:
+                if refused == "unverified" and self._hold_early(sysid, msg._msgbuf, peer):
+                    continue
+                counters[refused] += 1
+                self._quarantine_frame(msg._msgbuf)
+                continue
+            if autopilot_hb and sysid in self._early:
+                self._release_early(sysid, peer)
             if tlogs is not None:
                 tlogs.write(sysid, msg._msgbuf)
-            if msg_id == _MSG_UNKNOWN:
-                counters["unknown_msgid"] += 1
-                continue
-            if msg_id == _MSG_HEARTBEAT and _is_autopilot_heartbeat(msg):
+            if autopilot_hb:
                 self._on_autopilot_heartbeat(sysid, msg, peer)
             elif sysid not in peer_of:
-                peer_of[sysid] = peer
+                peer_of[sysid] = peer  # a provisional route (any system id accepted): a pin replaces it
             handler = handlers.get(sysid)
             if handler is not None:
                 try:
@@ -115,16 +126,83 @@ class EndpointReceiving:
                     counters["handler_errors"] += 1
                     self.last_handler_error = f"{msg.get_type()} from {sysid}: {type(exc).__name__}: {exc}"
 
+    def _refused_by_signing(self, msg, msg_id: int, peer) -> bool:
+        """Check ``msg``'s signature; True (counted, SETUP_SIGNING maybe sent) if rejected."""
+        reason = self.verifier.check(msg)
+        if reason is None:
+            return False
+        self.counters[reason] += 1
+        sysid = msg._header.srcSystem
+        if (reason == "unsigned" and msg_id == _MSG_HEARTBEAT and self.signing.send_setup
+                and _is_autopilot_heartbeat(msg) and self.verifier.needs_setup(sysid)):
+            pin = self._pins.get(sysid)
+            first = self._setup_peer.setdefault(sysid, peer) if sysid in self._expected else None
+            if first == peer and (pin is None or pin[0] == peer):
+                self._send_setup_signing(sysid, msg._header.srcComponent, peer)
+            else:  # not a vehicle of this mission, or not its address: never hand it the key
+                self.counters["setup_signing_refused"] += 1
+        return True
+
+    def _screen(self, sysid: int, msg, peer, autopilot_hb: bool) -> str | None:
+        """None if ``msg`` may be delivered, else the counter naming why not (:data:`SUSPECT_REASONS`).
+
+        A system id is pinned to the address of its first autopilot HEARTBEAT; any frame for it
+        from another address is ``foreign_address`` (before the vehicle is attached, a foreign
+        autopilot HEARTBEAT while the pinned address is active is also a duplicate system id),
+        unless the pinned address has been silent for ``_REPIN_SILENCE_S``. With
+        ``planned_sysids``, other system ids are ``unplanned_sysid`` and a planned one's frames
+        before its pin ``unverified`` (held by :meth:`_hold_early` until the pin, counted only
+        when its buffer is full).
+        """
+        pin = self._pins.get(sysid)
+        if pin is None:
+            planned = self.planned_sysids
+            if planned is not None and sysid not in planned:
+                return "unplanned_sysid"
+            return None if autopilot_hb or planned is None else "unverified"
+        if peer == pin[0]:
+            return None
+        if autopilot_hb:
+            silent_s = self.clock.time() - self._pin_heard_s.get(sysid, -1e18)
+            if silent_s >= _REPIN_SILENCE_S and msg._header.srcComponent == pin[1]:
+                return None  # _on_autopilot_heartbeat pins it again (counted "repinned")
+            if sysid not in self._handlers and silent_s <= _ACTIVE_WINDOW_S:
+                self._report_duplicate(sysid, f"autopilot heartbeats from {pin[0]} and {peer}")
+        return "foreign_address"
+
+    def _hold_early(self, sysid: int, frame, peer) -> bool:
+        """Hold a planned vehicle's frame until its pin (False when its buffer is full)."""
+        held = self._early.setdefault(sysid, [])
+        if len(held) >= _EARLY_FRAMES_MAX:
+            return False
+        held.append((self.clock.time(), peer, bytes(frame)))
+        return True
+
+    def _release_early(self, sysid: int, peer) -> None:
+        """``sysid`` is being pinned to ``peer``: its held frames to its tlog, or to the quarantine."""
+        for t_s, sender, frame in self._early.pop(sysid):
+            if sender != peer:
+                self.counters["foreign_address"] += 1
+                self._quarantine_frame(frame)
+            elif self.tlogs is not None:
+                self.tlogs.write(sysid, frame, t_s)
+
+    def _quarantine_frame(self, frame) -> None:
+        quarantine = self.quarantine
+        if quarantine is None:
+            return
+        self.counters["quarantined" if quarantine.write(frame) else "quarantine_dropped"] += 1
+
     def _on_autopilot_heartbeat(self, sysid: int, msg, peer) -> None:
-        now = self.clock.time()
-        seen = self._hb_seen.setdefault(sysid, {})
-        seen[peer] = now
-        if len(seen) > 1:
-            active = [p for p, t in seen.items() if now - t <= _ACTIVE_WINDOW_S]
-            for p in [p for p in seen if p not in active]:
-                del seen[p]
-            if len(active) > 1:
-                self._report_duplicate(sysid, f"autopilot heartbeats from {active[0]} and {active[1]}")
+        compid = msg._header.srcComponent
+        pin = self._pins.get(sysid)
+        if pin is None or pin[0] != peer:  # the first one (or a re-pin that _screen allowed)
+            if pin is not None:
+                self.counters["repinned"] += 1
+            pin = self._pins[sysid] = (peer, compid)
+        elif pin[1] != compid:
+            return  # another component at the vehicle's address: delivered, but not the autopilot
+        self._pin_heard_s[sysid] = self.clock.time()
         new = sysid not in self._last_heartbeat
         self._peer_of[sysid] = peer
         self._last_heartbeat[sysid] = msg

@@ -2,7 +2,7 @@
 
 :class:`EndpointSending` is a mixin: it encodes messages (one pymavlink encoder, hence one
 sequence number, per peer; signed when signing is on), routes each to the address its system id
-was last heard from, builds MAVLink 2 frames from packed payloads (the setpoint fast path), logs
+is pinned to (never to an address that only claimed it), builds MAVLink 2 frames from packed payloads (the setpoint fast path), logs
 what it sends in the ``.tlog`` files and runs the 1 Hz GCS heartbeat. It works on the attributes
 that :class:`~mission.link.endpoint.MavEndpoint` sets up in its constructor (``counters``,
 ``tlogs``, ``signing``, ``signing_state``, ``_transport``, ``_encoders``, ``_peer_of`` ...).
@@ -59,7 +59,7 @@ class EndpointSending:
             self.counters["setup_signing_sent"] += 1
 
     def send(self, sysid: int, msg) -> bool:
-        """Encode ``msg`` and send it to the address ``sysid`` was last heard from.
+        """Encode ``msg`` and send it to the address ``sysid`` is pinned to (its first autopilot HEARTBEAT's).
 
         Non-blocking. Returns False (and counts ``unroutable``) when ``sysid`` was never heard
         and the transport has no default destination.
@@ -113,12 +113,18 @@ class EndpointSending:
         return True
 
     def send_heartbeat(self) -> int:
-        """Send one GCS HEARTBEAT to every peer; returns how many were sent."""
+        """Send one GCS HEARTBEAT to every vehicle's address (and the transport's own peer).
+
+        A ``udpin`` endpoint's transport peers are every address that ever sent a datagram
+        (garbage, forgeries): only the addresses of system ids it accepted get the heartbeat.
+        Returns how many were sent.
+        """
         peers = {}
         for sysid, peer in self._peer_of.items():
             peers.setdefault(peer, []).append(sysid)
-        for peer in self._transport.peers():
-            peers.setdefault(peer, [])
+        if self.spec.kind != "udpin":
+            for peer in self._transport.peers():
+                peers.setdefault(peer, [])
         sent = 0
         for peer, sysids in peers.items():
             enc = self._encoder(peer)

@@ -7,6 +7,13 @@ big-endian count of microseconds since the Unix epoch followed by one raw MAVLin
 Writes are buffered; the files are flushed at least every ``flush_interval_s`` (on the next
 write after the interval, and by the endpoint's 1 Hz housekeeping via :meth:`TlogSet.flush`),
 so a crash loses at most about a second of frames.
+
+Frames the ground station cannot attribute to one of its vehicles (system ids not in the plan,
+frames for a vehicle from an address other than the one it is pinned to, frames of unknown
+message ids whose CRC cannot be checked) go to ONE :class:`QuarantineLog` per mission
+(``quarantine.tlog``, shared by the endpoints through their
+:class:`~mission.link.endpoint_registry.SysidRegistry`), capped at
+:data:`QUARANTINE_MAX_BYTES` (5 MB); what comes beyond the cap is counted, not written.
 """
 from __future__ import annotations
 
@@ -16,9 +23,15 @@ import time
 from pathlib import Path
 from typing import BinaryIO, Callable
 
-__all__ = ["TlogSet", "tlog_record", "read_tlog_records"]
+__all__ = ["QUARANTINE_MAX_BYTES", "QUARANTINE_NAME", "QuarantineLog", "TlogSet", "tlog_record",
+           "read_tlog_records"]
 
 _STAMP = struct.Struct(">Q")
+
+#: size cap of the quarantine log (records, stamps included): 5 MB
+QUARANTINE_MAX_BYTES = 5_000_000
+#: file name stem of the quarantine log (``quarantine.tlog``, ``quarantine-2.tlog`` if taken)
+QUARANTINE_NAME = "quarantine"
 
 
 def tlog_record(frame: bytes, t_s: float) -> bytes:
@@ -154,3 +167,71 @@ class TlogSet:
         self.closed = True
         for fh in self._files.values():
             fh.close()
+
+
+class QuarantineLog:
+    """One capped ``.tlog`` for the frames of unknown or suspect senders (opened on the first one).
+
+    Parameters
+    ----------
+    directory : str or path-like
+        Where ``quarantine.tlog`` goes (``quarantine-2.tlog``... if taken).
+    time_fn : callable, optional
+        Returns the stamp in Unix-epoch seconds; default ``time.time``.
+    max_bytes : int
+        Size cap; a record that would cross it is dropped and counted.
+
+    Attributes
+    ----------
+    counters : dict of str to int
+        ``records`` (written), ``bytes`` (written, stamps included), ``dropped`` (beyond the cap).
+    """
+
+    def __init__(self, directory: str | os.PathLike, *, time_fn: Callable[[], float] | None = None,
+                 max_bytes: int = QUARANTINE_MAX_BYTES) -> None:
+        self.directory = Path(directory)
+        self.max_bytes = int(max_bytes)
+        self._time_fn = time_fn or time.time
+        self._fh: BinaryIO | None = None
+        self.path: Path | None = None
+        self.counters = {"records": 0, "bytes": 0, "dropped": 0}
+        self.closed = False
+
+    def _open(self) -> BinaryIO:
+        self.directory.mkdir(parents=True, exist_ok=True)
+        n = 1
+        while True:
+            path = self.directory / f"{QUARANTINE_NAME}{'' if n == 1 else f'-{n}'}.tlog"
+            try:
+                self._fh = open(path, "xb", buffering=32768)
+            except FileExistsError:
+                n += 1
+                continue
+            self.path = path
+            return self._fh
+
+    def write(self, frame: bytes) -> bool:
+        """Append one frame stamped now; False (counted ``dropped``) beyond the cap or once closed."""
+        size = 8 + len(frame)
+        if self.closed or self.counters["bytes"] + size > self.max_bytes:
+            self.counters["dropped"] += 1
+            return False
+        fh = self._fh if self._fh is not None else self._open()
+        fh.write(_STAMP.pack(int(self._time_fn() * 1e6)))
+        fh.write(frame)
+        self.counters["records"] += 1
+        self.counters["bytes"] += size
+        return True
+
+    def flush(self) -> None:
+        """Flush the file's buffer (if the file exists)."""
+        if self._fh is not None and not self.closed:
+            self._fh.flush()
+
+    def close(self) -> None:
+        """Flush and close; later writes are counted as dropped."""
+        if self.closed:
+            return
+        self.closed = True
+        if self._fh is not None:
+            self._fh.close()

@@ -21,6 +21,9 @@ from formation.geodesy import enu_to_geodetic, geodetic_to_enu, ned_to_enu
 __all__ = ["AuditError", "AuditViolation", "VehicleSetpoints", "load_plan_limits", "find_tlogs",
            "read_vehicle_setpoints"]
 
+#: the ground station's quarantine log (``mission.link.tlog.QUARANTINE_NAME``; spelled out here:
+#: the audit reads the files independently of the code that wrote them)
+_QUARANTINE_STEM = "quarantine"
 _POS_IGNORE = 0x7                      # type_mask bits 0..2: ignore x, y, z
 _FRAME_LOCAL_NED = 1
 _FRAME_GLOBAL_INT = 5
@@ -336,6 +339,9 @@ def _setpoint_row(msg, t_s, sysid, home, group, out):
 def find_tlogs(log_dir: Path) -> dict[int, list[Path]]:
     """``sysid -> [tlog paths]`` in ``log_dir/tlogs`` (or ``log_dir`` itself), by file name.
 
+    The quarantine log (``quarantine[-k].tlog``: frames of unknown or suspect senders,
+    :class:`mission.link.tlog.QuarantineLog`) is no vehicle's and is ignored.
+
     Raises
     ------
     AuditError
@@ -348,6 +354,8 @@ def find_tlogs(log_dir: Path) -> dict[int, list[Path]]:
     by_sysid: dict[int, list[Path]] = {}
     for f in files:
         stem = f.stem
+        if stem == _QUARANTINE_STEM or stem.startswith(_QUARANTINE_STEM + "-"):
+            continue
         try:
             sysid = int(stem.split("-")[1])
         except (IndexError, ValueError):

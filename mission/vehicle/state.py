@@ -137,10 +137,17 @@ class VehicleTelemetry:
         if msg.get_srcComponent() != self.compid:
             return
         st = self.state
-        st.armed = bool(msg.base_mode & _M.MAV_MODE_FLAG_SAFETY_ARMED)
-        st.mode = mode_name(self.flavour, msg.custom_mode)
+        now = self.clock.time()
+        armed = bool(msg.base_mode & _M.MAV_MODE_FLAG_SAFETY_ARMED)
+        mode = mode_name(self.flavour, msg.custom_mode)
+        if self.status_heartbeats and (mode, armed) == (st.mode, st.armed):
+            self.status_heartbeats += 1
+        else:
+            self.status_heartbeats, self.status_since_s = 1, now
+        st.armed = armed
+        st.mode = mode
         st.system_status = msg.system_status
-        st.last_heartbeat_s = self.clock.time()
+        st.last_heartbeat_s = now
         self._events["update"].set()
 
     def _reject(self, msg, why: str) -> None:

@@ -109,6 +109,21 @@ class VehicleCommands:
         """MAV_CMD_REQUEST_MESSAGE for ``msg_id``; returns the MAV_RESULT (raises like command_long)."""
         return await self.command_long(_M.MAV_CMD_REQUEST_MESSAGE, msg_id, timeout_s=timeout_s)
 
+    def request_heartbeat(self, min_interval_s: float = 0.5) -> bool:
+        """Ask for an immediate HEARTBEAT (MAV_CMD_REQUEST_MESSAGE, not waited for, no retries).
+
+        Corroborates a mode or armed change a single heartbeat reported
+        (``VehicleLink.status_heartbeats``) without waiting a second for the next one. At
+        most one request per ``min_interval_s`` clock seconds; returns True if one was sent.
+        """
+        now = self.clock.time()
+        if now - getattr(self, "_heartbeat_request_s", -1e18) < min_interval_s:
+            return False
+        self._heartbeat_request_s = now
+        msg = _M.MAVLink_command_long_message(self.sysid, self.compid, _M.MAV_CMD_REQUEST_MESSAGE, 0,
+                                              float(_M.MAVLINK_MSG_ID_HEARTBEAT), 0, 0, 0, 0, 0, 0)
+        return bool(self.endpoint.send(self.sysid, msg))
+
     async def request_autopilot_version(self, timeout_s: float = 3.0) -> int:
         """Ask for AUTOPILOT_VERSION and return its uid (also checked for duplicates by the endpoint).
 

@@ -71,6 +71,12 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
     rejected : dict of str to int
         Telemetry messages rejected because their values cannot be true (NaN positions, a
         home out of range...), by message name; :attr:`last_rejection` says why.
+    status_heartbeats : int
+        How many autopilot heartbeats in a row (all from the vehicle's pinned address: the
+        endpoint delivers no other) reported the current ``state.mode`` and ``state.armed``: a
+        change reported once is not yet corroborated (``mission.flight.loss`` waits for 2).
+    status_since_s : float or None
+        Clock time of the first of those heartbeats.
     """
 
     def __init__(self, endpoint: MavEndpoint, sysid: int, heartbeat, *, clock, mission_origin,
@@ -92,6 +98,8 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
         self.errors: list[LinkError] = []
         self.rejected: dict[str, int] = {}
         self.last_rejection: str | None = None
+        self.status_heartbeats = 0
+        self.status_since_s: float | None = None
         self.frame_map: MissionToLocal | None = None
         self.setpoints_sent = 0
         self._home_local = (0.0, 0.0, 0.0)
