@@ -52,8 +52,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--udp-base-port", type=_port, default=14540,
                         help="vehicle i streams to 127.0.0.1:BASE+i (0 disables UDP)")
-    parser.add_argument("--udp-bind-base-port", type=_port, default=14580,
-                        help="vehicle i listens on 127.0.0.1:BASE+i")
+    parser.add_argument("--udp-bind-base-port", type=_port, default=None,
+                        help="vehicle i listens on 127.0.0.1:BASE+i (default 14580, or right after the "
+                             "send range when N vehicles from --udp-base-port would reach it)")
     parser.add_argument("--tcp-base-port", type=_port, default=5760,
                         help="vehicle i serves TCP on 127.0.0.1:BASE+10*i (0 disables TCP)")
     parser.add_argument("--fleet", default="swarmseek", help="fleet name (zenoh keys)")

@@ -6,7 +6,10 @@ logic and telemetry, sensor sampling, and all socket I/O through one ``selectors
 ground station in the same process keeps the GIL most of the time).
 
 Vehicle i (0-based) has system id i + 1, binds UDP ``127.0.0.1:udp_bind_base_port + i``, sends
-its stream to ``127.0.0.1:udp_base_port + i`` and serves TCP on ``tcp_base_port + 10 i``.
+its stream to ``127.0.0.1:udp_base_port + i`` and serves TCP on ``tcp_base_port + 10 i``. The
+two UDP ranges must not overlap: by default the bind base is PX4's 14580 while the fleet fits
+below it (up to 40 vehicles from 14540), else right after the send range
+(:func:`default_udp_bind_base_port`).
 """
 from __future__ import annotations
 
@@ -24,10 +27,12 @@ from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.clock import SimClock
 from sitl_mock.dynamics import DynamicsParams, Multicopter
 from sitl_mock.faults import FaultSet
+from sitl_mock.ports import check_port_base, check_udp_ranges, default_udp_bind_base_port
 from sitl_mock.transport import VehicleLinks
 from sitl_mock.vehicle import MockVehicle, default_home_offsets, per_vehicle, per_vehicle_params
 
-__all__ = ["MockFleet", "MockVehicle", "PHYSICS_RATE_HZ", "DEFAULT_ORIGIN", "default_home_offsets"]
+__all__ = ["MockFleet", "MockVehicle", "PHYSICS_RATE_HZ", "DEFAULT_ORIGIN", "default_home_offsets",
+           "default_udp_bind_base_port"]
 
 PHYSICS_RATE_HZ = 50.0
 DEFAULT_ORIGIN = (45.1900, 5.7200, 230.0)
@@ -35,12 +40,6 @@ _MAX_CATCHUP_STEPS = 25
 _LOCKSTEP_POLL_S = 0.002
 _MAX_ERRORS_KEPT = 20
 _ZENOH_SECURITY_KEYS = frozenset({"tls", "enable_mtls", "username", "password", "dictionary_file"})
-
-
-def _check_port_base(name: str, base: int, n: int, step: int) -> None:
-    """Port ``base + step * i`` must be valid for every vehicle i (0 disables the transport)."""
-    if base and not (1 <= base and base + step * (n - 1) <= 65535):
-        raise ValueError(f"{name}={base} does not leave room for {n} vehicles (step {step})")
 
 
 class MockFleet:
@@ -65,7 +64,8 @@ class MockFleet:
     seed : int
         Seeds dynamics, sensor noise and packet loss.
     udp_base_port, udp_bind_base_port, tcp_base_port : int
-        Port bases (0 disables UDP / TCP).
+        Port bases (0 disables UDP / TCP); ``udp_bind_base_port`` None:
+        :func:`default_udp_bind_base_port`. The two UDP ranges must not overlap.
     fleet_name : str
         Name in the zenoh keys and sensor payloads.
     sensor_noise_std : float or list of float
@@ -94,7 +94,7 @@ class MockFleet:
 
     def __init__(self, n: int = 8, personality="px4", field=None, origin=DEFAULT_ORIGIN,
                  home_offsets_enu=None, speedup: float = 1.0, clock=None, seed: int = 0,
-                 udp_base_port: int = 14540, udp_bind_base_port: int = 14580,
+                 udp_base_port: int = 14540, udp_bind_base_port: int | None = None,
                  tcp_base_port: int = 5760, fleet_name: str = "swarmseek",
                  sensor_noise_std=0.0, sensor_rate_hz: float = 10.0, zenoh_listen=None,
                  zenoh_connect=None, zenoh: bool = True, dynamics: DynamicsParams | None = None,
@@ -106,9 +106,12 @@ class MockFleet:
         if not (math.isfinite(sensor_rate_hz) and sensor_rate_hz > 0):
             raise ValueError(f"sensor_rate_hz must be > 0, got {sensor_rate_hz!r}")
         overrides = per_vehicle_params(n, params)
-        _check_port_base("udp_base_port", udp_base_port, n, 1)
-        _check_port_base("udp_bind_base_port", udp_bind_base_port, n, 1)
-        _check_port_base("tcp_base_port", tcp_base_port, n, 10)
+        if udp_bind_base_port is None:
+            udp_bind_base_port = default_udp_bind_base_port(n, udp_base_port)
+        check_port_base("udp_base_port", udp_base_port, n, 1)
+        check_udp_ranges(udp_base_port, udp_bind_base_port, n)
+        check_port_base("udp_bind_base_port", udp_bind_base_port, n, 1)
+        check_port_base("tcp_base_port", tcp_base_port, n, 10)
         self.clock = clock if clock is not None else SimClock(speedup)
         self.origin = tuple(float(v) for v in origin)
         self.fleet_name = fleet_name

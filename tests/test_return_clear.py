@@ -309,9 +309,10 @@ def _whole_mission(tmp_path, keep_clear, monkeypatch):
     if not keep_clear:
         monkeypatch.setattr(return_clear, "obstacles", lambda co: np.zeros((0, 3)))
     n = 4                                    # one lost: 3 left, the seek ends and they return
-    # a row of homes 20 m north-west (found by search): vehicle 3 (slot (1.6, -3.7, 11.0), layer
-    # 9.75 m) flies home at its layer straight over vehicle 4's slot (-3.8, -0.2, 9.8)
-    homes = np.array([[-12.4, 17.4, 0.0], [-15.2, 13.3, 0.0], [-18.0, 9.1, 0.0], [-20.8, 5.0, 0.0]])
+    # a row of homes west-north-west (found by search with the shared
+    # layers of mission.flight.layers): a survivor flies home at its layer straight through the slot of
+    # the vehicle cut at the first iteration (closest approach about 0.1 m)
+    homes = np.array([[-11.6, 4.7, 0.0], [-16.0, 7.2, 0.0], [-20.3, 9.7, 0.0], [-24.6, 12.2, 0.0]])
     source = np.array([-20.0, 0.0, 12.0])
     ports = fleet_ports(n, "px4")
     fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, clock=VirtualClock(),

@@ -53,9 +53,10 @@ def _non_negative(text):
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``run`` options."""
-    parser.add_argument("--n", type=int, default=8, help="number of vehicles (>= 4; default 8)")
+    parser.add_argument("--n", type=int, default=8, help="number of vehicles (4..254; default 8)")
     parser.add_argument("--formation", choices=("cvt", "symmetric"), default="cvt")
-    parser.add_argument("--radius", type=_positive(float), default=4.0, help="formation radius D, m (default 4)")
+    parser.add_argument("--radius", type=_positive(float), default=None,
+                        help="formation radius D, m (default 4; 1.5 n^(1/3) above 18 vehicles)")
     parser.add_argument("--field", choices=("sigma1", "sigma2"), default="sigma2")
     parser.add_argument("--noise", type=_non_negative, default=0.01,
                         help="sensor noise standard deviation, signal units (default 0.01)")
@@ -85,10 +86,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _check_args(args) -> str | None:
+    from mission.sim.embedded import MAX_VEHICLES
+
     if args.n < 4:
         return f"--n must be at least 4 (a formation needs 4 vehicles), got {args.n}"
-    if args.n > 64:
-        return f"--n above 64 is not supported by the embedded run, got {args.n}"
+    if args.n > MAX_VEHICLES:
+        return (f"--n must be at most {MAX_VEHICLES} (MAVLink system ids 1..254; 255 is the ground station's), "
+                f"got {args.n}")
     if args.formation == "symmetric" and args.n % 2:
         return f"--formation symmetric needs an even --n, got {args.n}"
     if args.max_iterations < 1:
@@ -100,21 +104,28 @@ def _mission_setup(args):
     """The plan, field, source and start of the embedded mission ``args`` describe."""
     from mission.sim.embedded import (
         DEFAULT_ORIGIN,
+        FENCE_MIN_ALT_M,
         default_eps,
+        default_radius_m,
         default_source_and_start,
         embedded_plan,
         fleet_ports,
     )
     from sitl_mock.fields import make_field
 
+    radius_m = args.radius if args.radius is not None else default_radius_m(args.n)
     d_source, d_start = default_source_and_start(args.seed)
     source = d_source if args.source is None else np.asarray(args.source, dtype=float)
-    start = source + (d_start - d_source) if args.start is None else np.asarray(args.start, dtype=float)
+    if args.start is None:
+        start = source + (d_start - d_source)
+        start[2] = max(start[2], FENCE_MIN_ALT_M + radius_m + 1.0)  # the lowest slot 1 m inside the fence
+    else:
+        start = np.asarray(args.start, dtype=float)
     field = make_field(args.field, source)
     eps = args.eps if args.eps is not None else default_eps(field)
     ports = fleet_ports(args.n, args.personality)
     plan = embedded_plan(args.n, ports, personality=args.personality, formation=args.formation,
-                         radius_m=args.radius, start_enu_m=start, eps=eps, gamma_m=args.gamma,
+                         radius_m=radius_m, start_enu_m=start, eps=eps, gamma_m=args.gamma,
                          estimator=args.estimator, max_iterations=args.max_iterations,
                          return_behaviour=args.return_behaviour, origin=DEFAULT_ORIGIN)
     return plan, ports, field, source, start, eps

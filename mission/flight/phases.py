@@ -3,9 +3,10 @@
 
 Each function takes the :class:`~mission.flight.coordinator.Coordinator` and works on its vehicles,
 ramp and log. Separation during takeoff, assembly and return comes from altitude layers
-(:func:`mission.flight.targets.layered_altitudes`): every vehicle climbs over its own home to its own
+(:func:`mission.flight.layers.shared_layers`): every vehicle climbs over its own home to its
 layer, flies horizontally at that layer, then moves vertically, all vehicles finishing a step
-before the next starts (see ``docs/mission.md``).
+before the next starts; vehicles share a layer when their horizontal paths keep
+``min_separation_m + LAYER_MARGIN_M`` apart (see ``docs/mission.md``).
 """
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ from formation.geodesy import geodetic_to_enu
 from mission.flight.motion import retried, setpoint_stream
 from mission.flight.return_clear import fly_clear, fly_return
 from mission.flight.state import MissionError
-from mission.flight.targets import assign_slots, layered_altitudes
+from mission.flight.layers import shared_layers
+from mission.flight.targets import assign_slots
 
 __all__ = ["takeoff", "assemble", "return_home", "land_all_now", "formation_offsets"]
 
@@ -60,27 +62,27 @@ def _plan_slots(co) -> None:
                            f"{plan.formation.radius_m} m has slots {d_min:.2f} m apart, below "
                            f"min_separation_m {plan.min_separation_m} m: increase the radius")
     base = float(np.max(homes[:, 2])) + plan.takeoff_alt_m
+    goals = np.array([start + slot_offsets[s] for s in sysids])
     try:
-        alts = layered_altitudes(len(sysids), base, plan.geofence.max_alt_m - 0.5, plan.min_separation_m)
+        alts = shared_layers(homes, goals, base, plan.geofence.max_alt_m - 0.5, plan.min_separation_m)
     except ValueError as exc:
         raise MissionError(f"takeoff layers: {exc}") from None
-    order = sorted(sysids, key=lambda s: slot_offsets[s][2])  # lowest slot -> lowest layer
-    co.state.set_formation(slot_offsets, layer_alt_m={s: float(alts[i]) for i, s in enumerate(order)},
+    co.state.set_formation(slot_offsets, layer_alt_m={s: float(alts[i]) for i, s in enumerate(sysids)},
                            home_enu={s: homes[i] for i, s in enumerate(sysids)})
     co.event(f"formation {plan.formation.type}, {len(sysids)} slots, radius {plan.formation.radius_m} m, "
-             f"d_min {d_min:.2f} m; layers {alts[0]:.1f}..{alts[-1]:.1f} m",
+             f"d_min {d_min:.2f} m; {len(np.unique(alts))} layers {alts.min():.1f}..{alts.max():.1f} m",
              slots={s: co.slot_offsets[s] for s in sysids}, layers=dict(co.layer_alt_m))
 
 
 async def takeoff(co) -> None:
-    """Arm and take off, staggered by ``stagger_s``, each vehicle to its own altitude layer."""
+    """Arm and take off, staggered by ``stagger_s``, each vehicle to its altitude layer (lowest first)."""
     co.set_phase("takeoff")
     plan = co.plan
     _plan_slots(co)
     setpoint_stream(co, list(co.vehicles.values()))
     await co.streamer.start()
     co.ramp.start()
-    order = sorted(co.vehicles, key=lambda s: co.layer_alt_m[s])
+    order = sorted(co.vehicles, key=lambda s: (co.layer_alt_m[s], s))
     waits = []
     for i, sysid in enumerate(order):
         if i:

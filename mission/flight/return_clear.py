@@ -13,9 +13,9 @@ descent included, keeps ``min_separation_m + OBSTACLE_MARGIN_M`` from it:
    anywhere above it within the clearance is replaced likewise and that vehicle lands instead.
 2. **Paths** (:func:`mission.flight.return_plan.plan_clear_return`), first that keeps the clearance:
    ``layered`` (the usual legs: vertical to the layer, horizontal at the layer, vertical to the
-   goal); ``layered+detour`` (the same with horizontal detours at each vehicle's own layer:
-   the layers are ``1.25 * min_separation_m`` apart, so detours cannot bring two vehicles
-   together; the paths of one batch are checked pairwise all the same); ``transfer``
+   goal); ``layered+detour`` (the same with horizontal detours at each vehicle's layer:
+   distinct layers are ``1.25 * min_separation_m`` apart, and the paths of one batch, those of
+   vehicles sharing a layer included, are checked pairwise); ``transfer``
    (:func:`mission.flight.obstacles.plan_clear_transfer`, the obstacles as fixed participants, flown
    synchronously). If none keeps the clearance, the candidate with the largest clearance is
    flown (never blocked) and the caller logs a warning.
@@ -30,6 +30,7 @@ import functools
 
 import numpy as np
 
+from mission.flight.layers import layers_keep_apart, shared_layers
 from mission.flight.motion import fly_timed, move_and_wait
 from mission.flight.obstacles import OBSTACLE_MARGIN_M, obstacles
 from mission.flight.return_plan import (
@@ -138,6 +139,32 @@ async def fly_clear(co, sysids: list[int], goals: dict[int, np.ndarray], tol_m: 
         co.event(f"{what}: a vehicle was lost on the way; re-planning from where the others are", level="warning")
 
 
+def _return_layers(co, flying: list[int], homes) -> np.ndarray:
+    """The layers of ``flying`` for the way home.
+
+    The takeoff layers while they keep the rule of :func:`mission.flight.layers.shared_layers`
+    for the return paths (from the setpoints to above the homes); else new shared layers (the
+    formation has moved since the assembly: two vehicles that shared a layer on the way out may
+    cross on the way back), recorded in the state and logged; the takeoff layers with a warning
+    if none fit.
+    """
+    layers = np.array([co.layer_alt_m[s] for s in flying])
+    start = np.array([co.ramp.setpoint(s) for s in flying])
+    sep = co.plan.min_separation_m
+    if layers_keep_apart(start, homes, layers, sep):
+        return layers
+    try:
+        new = shared_layers(start, homes, float(min(co.layer_alt_m.values())), co.plan.geofence.max_alt_m - 0.5, sep)
+    except ValueError as exc:
+        co.event(f"return: the takeoff layers do not keep the return paths apart and no others fit ({exc}); "
+                 "flying the takeoff layers", level="warning")
+        return layers
+    co.state.update_layers(dict(zip(flying, new)))
+    co.event(f"return: {len(np.unique(new))} shared layers {new.min():.1f}..{new.max():.1f} m for the way home",
+             layers={s: float(a) for s, a in zip(flying, new)})
+    return new
+
+
 async def fly_return(co, sysids: list[int]) -> set[int]:
     """Bring ``sysids`` above their landing spots at their layers, clear of lost vehicles.
 
@@ -162,7 +189,7 @@ async def fly_return(co, sysids: list[int]) -> set[int]:
         if not flying:
             break
         homes = np.array([co.home_enu[s] for s in flying])
-        layers = np.array([co.layer_alt_m[s] for s in flying])
+        layers = _return_layers(co, flying, homes)
         spots, moved, _ = landing_spots(homes, layers, obstacles(co), plan_cfg.min_separation_m + OBSTACLE_MARGIN_M,
                                         plan_cfg.min_separation_m, fence=fence,
                                         rtl=plan_cfg.return_behaviour == "rtl")

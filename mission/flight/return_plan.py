@@ -260,7 +260,8 @@ def plan_clear_return(start, goal, layer_alt_m, obstacle_points, min_separation_
     start, goal : array_like, shape (N, 3)
         Mission ENU metres (for the return, the goal is above each landing spot at its layer).
     layer_alt_m : array_like, shape (N,)
-        Each vehicle's altitude layer (distinct, ``1.25 * min_separation_m`` apart).
+        Each vehicle's altitude layer (``mission.flight.layers``: shared only by vehicles whose
+        paths keep apart; distinct layers ``1.25 * min_separation_m`` apart).
     obstacle_points : array_like, shape (K, 3)
     min_separation_m : float
         Between vehicles.

@@ -325,6 +325,10 @@ class MissionState:
         if kind is not None:
             self.set_formation_kind(kind)
 
+    def update_layers(self, layer_alt_m: dict) -> None:
+        """New altitude layers for some vehicles (the others keep theirs)."""
+        self._layer_alt_m.update({self._known(s): float(a) for s, a in layer_alt_m.items()})
+
     def update_slots(self, offsets: dict) -> None:
         """New slot offsets for some vehicles (the others keep theirs)."""
         self._slot_offsets.update({self._known(s): np.asarray(o, dtype=float) for s, o in offsets.items()})

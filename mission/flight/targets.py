@@ -8,9 +8,10 @@ the :class:`~mission.vehicle.streamer.SetpointStreamer`, which streams the lates
 vehicle at its own steady rate.
 
 :func:`layered_transfer` plans a formation change that keeps separation: vehicles first move
-horizontally, each at its own altitude layer (layers at least ``min_separation_m`` apart), then
-all move vertically to their goals in an order consistent with the layers (proved in
-``docs/mission.md``).
+vertically to their altitude layers, then horizontally at them, then vertically to their goals
+(proved in ``docs/mission.md``). The layers come from
+:func:`mission.flight.layers.shared_layers` (shared by vehicles whose paths keep apart);
+:func:`layered_altitudes` (one layer per vehicle) is kept for small fleets and tests.
 """
 from __future__ import annotations
 

@@ -31,10 +31,14 @@ from mission.core.plan import (
     ZenohPlan,
 )
 
-__all__ = ["DEFAULT_ORIGIN", "free_port_block", "default_eps", "default_source_and_start",
-           "embedded_plan", "fleet_ports"]
+__all__ = ["DEFAULT_ORIGIN", "FENCE_MIN_ALT_M", "MAX_VEHICLES", "free_port_block", "default_eps", "default_radius_m",
+           "default_source_and_start", "embedded_plan", "fleet_ports"]
 
 DEFAULT_ORIGIN = (45.1885, 5.7245, 212.0)
+#: MAVLink system ids 1..254 (255 is the ground station's own)
+MAX_VEHICLES = 254
+#: the embedded plan's geofence floor, m
+FENCE_MIN_ALT_M = 2.0
 
 
 def free_port_block(count: int, step: int = 1, kinds: tuple[str, ...] = ("udp",), lo: int = 20000,
@@ -84,15 +88,33 @@ def default_source_and_start(seed: int, distance_m: float = 25.0) -> tuple[np.nd
 
 
 def fleet_ports(n: int, personality: str) -> dict:
-    """Free ports for a mock fleet of ``n``: MAVLink (UDP for PX4, TCP for ArduPilot) and zenoh."""
+    """Free ports for a mock fleet of ``n``: MAVLink (UDP for PX4, TCP for ArduPilot) and zenoh.
+
+    PX4: one free block of ``2 n`` UDP ports, vehicle ``i`` streaming to ``base + i`` and
+    listening on ``base + n + i`` (two blocks searched apart could overlap: a vehicle would
+    then stream to another's own port). ArduPilot: ``n`` TCP ports 10 apart.
+    """
+    if not 1 <= n <= MAX_VEHICLES:
+        raise ValueError(f"a mock fleet has 1..{MAX_VEHICLES} vehicles, got {n}")
     ports: dict = {"udp_base_port": 0, "udp_bind_base_port": 0, "tcp_base_port": 0}
     if personality == "ardupilot":
         ports["tcp_base_port"] = free_port_block(n, step=10, kinds=("tcp",))
     else:
-        ports["udp_base_port"] = free_port_block(n, kinds=("udp",))
-        ports["udp_bind_base_port"] = free_port_block(n, kinds=("udp",))
+        base = free_port_block(2 * n, kinds=("udp",))
+        ports["udp_base_port"] = base
+        ports["udp_bind_base_port"] = base + n
     ports["zenoh_port"] = free_port_block(1, kinds=("tcp",))
     return ports
+
+
+def default_radius_m(n: int) -> float:
+    """Default formation radius: 4 m, ``1.5 n^(1/3)`` m for more than 18 vehicles.
+
+    The CVT slots of a sphere are about ``1.1 R n^(-1/3)`` apart; this keeps them near 2 m
+    (``min_separation_m`` 1.5 m) and leaves the paths into the formation room enough that
+    shared altitude layers fit below the fence (``mission.flight.layers``).
+    """
+    return max(4.0, 1.7 * float(n) ** (1.0 / 3.0))
 
 
 def embedded_plan(n: int, ports: dict, *, personality: str = "px4", formation: str = "cvt",
@@ -118,7 +140,7 @@ def embedded_plan(n: int, ports: dict, *, personality: str = "px4", formation: s
         fleet=fleet, origin=tuple(origin), vehicles=tuple(vehicles),
         formation=FormationPlan(type=formation, radius_m=radius_m, seed=0), seeking=seeking,
         geofence=GeofencePlan(polygon_en_m=((-150.0, -150.0), (150.0, -150.0), (150.0, 150.0),
-                                            (-150.0, 150.0)), min_alt_m=2.0, max_alt_m=80.0),
+                                            (-150.0, 150.0)), min_alt_m=FENCE_MIN_ALT_M, max_alt_m=80.0),
         zenoh=ZenohPlan(mode="peer", connect=(f"tcp/127.0.0.1:{ports['zenoh_port']}",)),
         max_speed_m_s=max_speed_m_s, min_separation_m=1.5, takeoff_alt_m=8.0,
         return_behaviour=return_behaviour, stagger_s=stagger_s, setpoint_rate_hz=10.0,
