@@ -153,8 +153,9 @@ def attacked(tmp_path_factory):
     return tmp_path, *_fly(tmp_path, BURSTS)
 
 
+# the one correctly signed heartbeat of sysid 77 is refused too: not a system id of the plan
 EXPECTED = {"unsigned": BURSTS, "bad_signature": BURSTS, "replayed": BURSTS, "bad_crc": BURSTS,
-            "malformed": BURSTS}
+            "malformed": BURSTS, "unplanned_sysid": 1}
 
 
 def test_the_mission_flies_on_and_its_summary_counts_every_rejection(attacked):

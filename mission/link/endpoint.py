@@ -130,6 +130,7 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
         self._pin_heard_s: dict[int, float] = {}
         #: sysid -> frames of a planned vehicle before its pin: (clock s, sender, frame)
         self._early: dict[int, list] = {}
+        self._refused_sysids: set[int] = set()  # refused as unplanned (at most 256 remembered)
         self._uids: dict[int, int] = {}
         self._last_heartbeat: dict[int, object] = {}
         self._handlers: dict[int, tuple[Callable, Callable]] = {}
@@ -250,8 +251,8 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
         return None if pin is None else pin[0]
 
     def sysids_seen(self) -> set[int]:
-        """System ids heard on this endpoint so far (any component)."""
-        return set(self._peer_of)
+        """System ids heard on this endpoint so far (any component), refused ones included."""
+        return set(self._peer_of) | self._refused_sysids
 
     def last_heartbeat(self, sysid: int):
         """The last autopilot HEARTBEAT of ``sysid``, or None."""

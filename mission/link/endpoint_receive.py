@@ -21,6 +21,8 @@ __all__ = ["EndpointReceiving", "SUSPECT_REASONS"]
 #: counters of suspect senders: a frame for a pinned system id from another address (refused),
 #: a system id not in the plan (refused), a planned one before its first autopilot HEARTBEAT
 #: beyond the ``_EARLY_FRAMES_MAX`` held until it (refused), a vehicle pinned again after its address was silent for ``_REPIN_SILENCE_S``
+#: distinct refused system ids remembered for the operator (a flood of random ids stays bounded)
+_MAX_REFUSED_SYSIDS = 256
 SUSPECT_REASONS = ("foreign_address", "unplanned_sysid", "unverified", "repinned")
 
 #: a pinned address heard from within this many clock seconds is still "active": a second
@@ -108,6 +110,8 @@ class EndpointReceiving:
                 if refused == "unverified" and self._hold_early(sysid, msg._msgbuf, peer):
                     continue
                 counters[refused] += 1
+                if refused == "unplanned_sysid" and len(self._refused_sysids) < _MAX_REFUSED_SYSIDS:
+                    self._refused_sysids.add(sysid)
                 self._quarantine_frame(msg._msgbuf)
                 continue
             if autopilot_hb and sysid in self._early:

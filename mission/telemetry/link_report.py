@@ -24,9 +24,13 @@ __all__ = [
 #: ``bad_crc``, ``malformed``, ``truncated`` (not MAVLink, or damaged); ``unknown_msgid``
 #: (a message id outside the dialect); ``setup_signing_refused`` (an unsigned autopilot heartbeat
 #: from a system id the mission does not fly: never sent the key); ``duplicate_sysid``
-#: (one system id from two places); ``handler_errors`` (a message a vehicle could not handle)
+#: (one system id from two places); ``handler_errors`` (a message a vehicle could not handle);
+#: ``foreign_address`` (a vehicle's system id from another address than the one it is pinned to),
+#: ``unplanned_sysid`` (a system id the plan does not put on that link), ``unverified`` (a planned
+#: vehicle's frames before its first heartbeat, beyond what is held)
 LINK_REJECTION_KINDS = ("unsigned", "bad_signature", "replayed", "bad_crc", "malformed", "truncated",
-                        "unknown_msgid", "setup_signing_refused", "duplicate_sysid", "handler_errors")
+                        "unknown_msgid", "setup_signing_refused", "duplicate_sysid", "handler_errors",
+                        "foreign_address", "unplanned_sysid", "unverified")
 
 
 def link_rejections(endpoints: Iterable) -> dict[str, int]:
@@ -46,8 +50,8 @@ def link_rejections(endpoints: Iterable) -> dict[str, int]:
 
 
 def unknown_sysids(endpoints: Iterable, expected: Iterable[int]) -> list[int]:
-    """System ids whose frames the endpoints accepted but that are no vehicle of the plan
-    (ignored by the mission: nothing is attached to them), sorted."""
+    """System ids heard on the endpoints that are no vehicle of the plan (refused or ignored:
+    nothing is attached to them), sorted."""
     want = set(expected)
     seen: set[int] = set()
     for ep in endpoints:
