@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import tempfile
 from pathlib import Path
 
@@ -65,7 +66,7 @@ async def seek_load(vehicles, streamer, clock, *, reading_rate_hz: float = 10.0,
             seq += 1
             t = clock.time()
             for s, (key, tpl) in templates.items():
-                store.offer(key, (tpl % (seq, t, 0.5 + 1e-3 * np.sin(seq + s))).encode())
+                store.offer(key, (tpl % (seq, t, 0.5 + 1e-3 * math.sin(seq + s))).encode())
 
     tmp = tempfile.TemporaryDirectory(prefix="swarmseek-seek-load-")
     log = MissionLog(Path(tmp.name) / "mission.jsonl", clock)

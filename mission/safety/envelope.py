@@ -22,7 +22,6 @@ import numpy as np
 from mission.safety.geometry import (
     boundary_distance,
     inside_fraction,
-    point_in_polygon,
     synchronous_distance,
 )
 from mission.safety.report import (
@@ -145,17 +144,23 @@ class SafetyEnvelope:
         p0, p1 = self._check_shapes(prev_positions, new_positions, dt_s)
         return self._check(p0, p1, dt_s)
 
-    def _check(self, p0, p1, dt_s, pairs=None) -> SetpointReport:
-        """:meth:`check_setpoints` on checked arrays; ``pairs``: ``_close_pairs(p0, p1, sep)`` if known."""
+    def _check(self, p0, p1, dt_s, pairs=None, horiz_in0=None, horiz_in=None) -> SetpointReport:
+        """:meth:`check_setpoints` on checked arrays; ``pairs``: ``_close_pairs(p0, p1, sep)``,
+        ``horiz_in0`` / ``horiz_in``: ``fence.horizontal_contains`` of ``p0`` / ``p1`` if known."""
         out = []
         n = len(p0)
         fence = self.fence
         poly = fence.polygon_en_m
-        horiz_in = point_in_polygon(p1[:, :2], poly, _TOL_M)
+        horiz_in = fence.horizontal_contains(p1, _TOL_M) if horiz_in is None else horiz_in
+        horiz_in0 = fence.horizontal_contains(p0, _TOL_M) if horiz_in0 is None else horiz_in0
         # paths: horizontal part only (the band is convex), for vehicles that start inside
-        flat0 = np.c_[p0[:, :2], np.full(n, fence.min_alt_m)]
-        flat1 = np.c_[p1[:, :2], np.full(n, fence.min_alt_m)]
-        path_out = horiz_in & np.atleast_1d(fence.contains(flat0)) & ~np.atleast_1d(fence.segment_inside(flat0, flat1))
+        if fence.convex and horiz_in.all():
+            # a segment between inside points of a convex polygon is inside: no path leaves
+            path_out = np.zeros(n, dtype=bool)
+        else:
+            flat0 = np.c_[p0[:, :2], np.full(n, fence.min_alt_m)]
+            flat1 = np.c_[p1[:, :2], np.full(n, fence.min_alt_m)]
+            path_out = horiz_in & horiz_in0 & ~np.atleast_1d(fence.segment_inside(flat0, flat1))
         z = p1[:, 2]
         low, high = z < fence.min_alt_m - _TOL_M, z > fence.max_alt_m + _TOL_M
         for i in np.flatnonzero(~horiz_in):
@@ -216,24 +221,27 @@ class SafetyEnvelope:
             If a setpoint would still be outside the fence or band (never expected).
         """
         p0, p1 = self._check_shapes(prev_positions, new_positions, dt_s)
-        out, fence_clamped, speed_limited, inside0 = self._clamp_fence_speed(p0, p1, dt_s)
+        fence = self.fence
+        horiz_in0 = fence.horizontal_contains(p0, _TOL_M)
+        inside0 = horiz_in0 & fence.band_contains(p0[:, 2], _TOL_M)  # fence.contains(p0)
+        out, fence_clamped, speed_limited = self._clamp_fence_speed(p0, p1, dt_s, horiz_in0, inside0)
         pairs = _close_pairs(p0, out, self.min_separation_m) if len(p0) >= 2 else None
         hold = hold_for_separation(p0, out, self.min_separation_m, inside0, pairs)
         out = hold.positions_enu
-        self.assert_safe(p0, out, dt_s)
-        report = self._check(p0, out, dt_s, pairs if not hold.conflicts else None)
+        horiz_in = fence.horizontal_contains(out, _TOL_M)
+        self._assert_safe(p0, out, dt_s, inside0, horiz_in & fence.band_contains(out[:, 2], _TOL_M))
+        report = self._check(p0, out, dt_s, pairs if not hold.conflicts else None, horiz_in0, horiz_in)
         return ClampedSetpoints(out, fence_clamped, speed_limited, report, hold.held,
                                 hold.describe(self.min_separation_m), hold.conflicts)
 
-    def _clamp_fence_speed(self, p0, p1, dt_s):
-        """Steps (1) to (3) of :meth:`clamp_setpoints`: ``(out, fence_clamped, speed_limited, inside0)``."""
+    def _clamp_fence_speed(self, p0, p1, dt_s, inside0_h, inside0):
+        """Steps (1) to (3) of :meth:`clamp_setpoints`: ``(out, fence_clamped, speed_limited)``;
+        ``inside0_h`` / ``inside0``: ``p0`` inside the polygon / the prism."""
         fence = self.fence
         out = fence.clamp(p1)
         fence_clamped = np.any(out != p1, axis=1)
-        inside0 = np.atleast_1d(fence.contains(p0))
         # non-convex fences: stop where the straight (horizontal) path would leave the polygon
         poly = fence.polygon_en_m
-        inside0_h = point_in_polygon(p0[:, :2], poly, _TOL_M)
         if not fence.convex:
             frac = np.where(inside0_h, inside_fraction(p0[:, :2], out[:, :2], poly, _TOL_M), 1.0)
             cut = frac < 1.0
@@ -246,17 +254,23 @@ class SafetyEnvelope:
         speed_limited = inside0 & (step > step_max)
         scale = np.where(speed_limited, step_max / np.maximum(step, 1e-300), 1.0)
         out = p0 + scale[:, None] * (out - p0)
-        return out, fence_clamped, speed_limited, inside0
+        return out, fence_clamped, speed_limited
 
     def assert_safe(self, prev_positions, new_positions, dt_s: float) -> None:
         """Raise :class:`SafetyViolation` if a setpoint is outside the fence or band, or too
         fast from a previous position that was inside the fence."""
         p0, p1 = self._check_shapes(prev_positions, new_positions, dt_s)
-        bad = ~np.atleast_1d(self.fence.contains(p1, _TOL_M))
+        self._assert_safe(p0, p1, dt_s, np.atleast_1d(self.fence.contains(p0)),
+                          np.atleast_1d(self.fence.contains(p1, _TOL_M)))
+
+    @staticmethod
+    def _fail_if(bad, what: str) -> None:
         if np.any(bad):
-            raise SafetyViolation(f"setpoints of vehicles {np.nonzero(bad)[0].tolist()} would leave the "
-                                  f"geofence or altitude band: not sent")
-        inside_before = np.atleast_1d(self.fence.contains(p0))
+            raise SafetyViolation(f"setpoints of vehicles {np.nonzero(bad)[0].tolist()} {what}: not sent")
+
+    def _assert_safe(self, p0, p1, dt_s, inside_before, inside_after) -> None:
+        """:meth:`assert_safe` on checked arrays, with ``fence.contains`` of ``p0`` and ``p1`` known."""
+        self._fail_if(~inside_after, "would leave the geofence or altitude band")
         speed = np.linalg.norm(p1 - p0, axis=1) / dt_s
         fast = inside_before & (speed > self.max_speed_m_s * (1 + 1e-6))
         if np.any(fast):

@@ -12,7 +12,6 @@ from mission.safety.geometry import (
     inside_fraction,
     nearest_boundary_point,
     offset_polygon_inward,
-    point_in_polygon,
     polygon_is_simple,
     signed_area,
 )
@@ -92,6 +91,11 @@ class Geofence:
         nxt = np.roll(edge, -1, axis=0)
         turn = edge[:, 0] * nxt[:, 1] - edge[:, 1] * nxt[:, 0]
         self._convex = bool(np.all(turn >= -1e-12 * scale * scale))
+        # edges of the crossing rule of point_in_polygon, kept once (the fence is immutable)
+        start, end = self._poly, np.roll(self._poly, -1, axis=0)
+        self._edge_a0, self._edge_a1, self._edge_b1 = start[:, 0].copy(), start[:, 1].copy(), end[:, 1].copy()
+        self._edge_dx = end[:, 0] - start[:, 0]
+        self._edge_dy = np.where(end[:, 1] - start[:, 1] == 0, 1.0, end[:, 1] - start[:, 1])
         self.min_alt_m = lo
         self.max_alt_m = hi
 
@@ -114,13 +118,36 @@ class Geofence:
         """Horizontal area of the polygon."""
         return signed_area(self._poly)
 
+    def horizontal_contains(self, points, tol_m: float = _TOL_M) -> np.ndarray:
+        """Whether points ``(..., 2 or 3)`` are inside the polygon, ignoring altitude.
+
+        The same as ``point_in_polygon(points[..., :2], polygon_en_m, tol_m)`` (identical
+        results) with the polygon's edges prepared once. Returns a bool array of shape ``(...)``.
+        """
+        pts = np.asarray(points, dtype=float)
+        x, y = pts[..., 0:1], pts[..., 1:2]
+        a1 = self._edge_a1
+        cond = (a1 > y) != (self._edge_b1 > y)
+        x_cross = self._edge_a0 + (y - a1) * self._edge_dx / self._edge_dy
+        inside = (np.count_nonzero(cond & (x < x_cross), axis=-1) % 2) == 1
+        if tol_m <= 0 or inside.all():
+            return inside
+        inside = np.array(inside)  # writable, also for a single point
+        out = ~inside  # only points outside by the crossing rule need the (costlier) distance
+        inside[out] = boundary_distance(pts[..., :2][out], self._poly) <= tol_m
+        return inside
+
+    def band_contains(self, up_m, tol_m: float = _TOL_M) -> np.ndarray:
+        """Whether altitudes ``up_m`` are inside the altitude band (within ``tol_m``)."""
+        return (up_m >= self.min_alt_m - tol_m) & (up_m <= self.max_alt_m + tol_m)
+
     def contains(self, points, tol_m: float = _TOL_M):
         """Whether points ``(..., 3)`` are inside the prism (boundary within ``tol_m`` counts).
 
         Returns a ``bool`` for a single point, else a bool array of shape ``(...)``.
         """
         pts = _as_points(points, "points")
-        inside = point_in_polygon(pts[..., :2], self._poly, tol_m)
+        inside = self.horizontal_contains(pts, tol_m)
         inside &= (pts[..., 2] >= self.min_alt_m - tol_m) & (pts[..., 2] <= self.max_alt_m + tol_m)
         return bool(inside) if inside.ndim == 0 else inside
 
@@ -131,7 +158,7 @@ class Geofence:
         Euclidean distance to the prism.
         """
         pts = _as_points(points, "points")
-        inside_h = point_in_polygon(pts[..., :2], self._poly, 0.0)
+        inside_h = self.horizontal_contains(pts, 0.0)
         dh = boundary_distance(pts[..., :2], self._poly)
         z = pts[..., 2]
         dz_in = np.minimum(z - self.min_alt_m, self.max_alt_m - z)
@@ -146,9 +173,10 @@ class Geofence:
         """Nearest point of the prism to each point ``(..., 3)`` (points inside are unchanged)."""
         pts = _as_points(points, "points")
         out = pts.copy()
-        inside_h = point_in_polygon(pts[..., :2], self._poly, 0.0)
-        near = nearest_boundary_point(pts[..., :2], self._poly)
-        out[..., :2] = np.where(inside_h[..., None], pts[..., :2], near)
+        inside_h = self.horizontal_contains(pts, 0.0)
+        if not inside_h.all():  # (all inside: nothing moves horizontally)
+            near = nearest_boundary_point(pts[..., :2], self._poly)
+            out[..., :2] = np.where(inside_h[..., None], pts[..., :2], near)
         out[..., 2] = np.clip(pts[..., 2], self.min_alt_m, self.max_alt_m)
         return out
 
@@ -192,7 +220,7 @@ class Geofence:
         """
         p0 = _as_points(p0, "p0")
         p1 = _as_points(p1, "p1")
-        if self._convex and np.all(point_in_polygon(p1[..., :2], self._poly, _TOL_M)):
+        if self._convex and np.all(self.horizontal_contains(p1, _TOL_M)):
             t = np.ones(p0.shape[:-1])  # convex: a segment between inside points is inside
         else:
             t = inside_fraction(p0[..., :2], p1[..., :2], self._poly, _TOL_M)

@@ -66,10 +66,12 @@ __all__ = [
 class _EnuConverter:
     """Geodetic -> mission ENU for one point at a time (WGS-84 maths of :mod:`pymap3d`).
 
-    The origin's ECEF position, its latitude and longitude in radians and the WGS-84 ellipsoid
-    are kept once; each call is one ``pymap3d.geodetic2ecef`` and one ``pymap3d.uvw2enu``
-    (rotation into the tangent plane): the result of :func:`formation.geodesy.geodetic_to_enu`
-    at about a third of its cost on a single point.
+    The origin's ECEF position, the sines and cosines of its latitude and longitude and the
+    WGS-84 axes are kept once; each call is ``pymap3d.geodetic2ecef`` and ``pymap3d.uvw2enu``
+    written out on plain floats, with the same operations in the same order (numpy's
+    ``radians``, ``sin``, ``cos`` and ``hypot`` where pymap3d uses them), so the result is
+    bit-identical to theirs (and to :func:`formation.geodesy.geodetic_to_enu`'s maths) at a
+    fraction of the cost on a single point.
 
     Parameters
     ----------
@@ -79,16 +81,38 @@ class _EnuConverter:
 
     def __init__(self, origin):
         lat0_deg, lon0_deg, alt0_m = (float(v) for v in origin)
-        self._ellipsoid = pymap3d.Ellipsoid.from_name("wgs84")
-        self._lat0_rad, self._lon0_rad = math.radians(lat0_deg), math.radians(lon0_deg)
+        ell = pymap3d.Ellipsoid.from_name("wgs84")
+        self._a_m, self._b_m = ell.semimajor_axis, ell.semiminor_axis
+        self._a2_m2 = self._a_m ** 2
+        self._ba2 = (self._b_m / self._a_m) ** 2
+        lat0_rad, lon0_rad = math.radians(lat0_deg), math.radians(lon0_deg)
+        self._sin_lat0, self._cos_lat0 = float(np.sin(lat0_rad)), float(np.cos(lat0_rad))
+        self._sin_lon0, self._cos_lon0 = float(np.sin(lon0_rad)), float(np.cos(lon0_rad))
         self._origin_ecef_m = tuple(float(v) for v in geodetic_to_ecef(lat0_deg, lon0_deg, alt0_m))
 
-    def __call__(self, lat_deg, lon_deg, alt_m) -> np.ndarray:
-        """ENU metres ``(east, north, up)`` of one geodetic point."""
-        x_m, y_m, z_m = pymap3d.geodetic2ecef(lat_deg, lon_deg, alt_m, self._ellipsoid)
+    def ecef_m(self, lat_deg, lon_deg, alt_m) -> tuple[float, float, float]:
+        """``pymap3d.geodetic2ecef`` (WGS-84, degrees) of one point, as plain floats."""
+        lat_rad, lon_rad = np.radians(lat_deg), np.radians(lon_deg)
+        cos_lat, sin_lat = float(np.cos(lat_rad)), float(np.sin(lat_rad))
+        cos_lon, sin_lon = float(np.cos(lon_rad)), float(np.sin(lon_rad))
+        n_m = self._a2_m2 / float(np.hypot(self._a_m * cos_lat, self._b_m * sin_lat))
+        return ((n_m + alt_m) * cos_lat * cos_lon, (n_m + alt_m) * cos_lat * sin_lon,
+                (n_m * self._ba2 + alt_m) * sin_lat)
+
+    def enu_m(self, lat_deg, lon_deg, alt_m) -> tuple[float, float, float]:
+        """ENU metres ``(east, north, up)`` of one geodetic point, as plain floats."""
+        x_m, y_m, z_m = self.ecef_m(lat_deg, lon_deg, alt_m)
         x0_m, y0_m, z0_m = self._origin_ecef_m
-        return np.array(pymap3d.uvw2enu(x_m - x0_m, y_m - y0_m, z_m - z0_m, self._lat0_rad, self._lon0_rad,
-                                        deg=False))
+        u_m, v_m, w_m = x_m - x0_m, y_m - y0_m, z_m - z0_m
+        t_m = self._cos_lon0 * u_m + self._sin_lon0 * v_m
+        east_m = -self._sin_lon0 * u_m + self._cos_lon0 * v_m
+        up_m = self._cos_lat0 * t_m + self._sin_lat0 * w_m
+        north_m = -self._sin_lat0 * t_m + self._cos_lat0 * w_m
+        return east_m, north_m, up_m
+
+    def __call__(self, lat_deg, lon_deg, alt_m) -> np.ndarray:
+        """ENU metres ``array([east, north, up])`` of one geodetic point."""
+        return np.array(self.enu_m(lat_deg, lon_deg, alt_m))
 
 
 class ReadingStore:
@@ -177,11 +201,14 @@ class ReadingStore:
         t = doc["time_s"]
         if t < now - self.max_age_s or t > now + self.max_age_s:
             raise ReadingRejected("late", f"taken at {t:.3f}, now {now:.3f} (max age {self.max_age_s} s)")
-        pos = self._to_enu(doc["lat_deg"], doc["lon_deg"], doc["alt_m"])
+        east_m, north_m, up_m = self._to_enu.enu_m(doc["lat_deg"], doc["lon_deg"], doc["alt_m"])
+        pos = np.array((east_m, north_m, up_m))
         if self.telemetry_position is not None:
             tel = self.telemetry_position(sysid)
             if tel is not None:
-                err = float(np.linalg.norm(pos - np.asarray(tel, dtype=float)))
+                tel_e_m, tel_n_m, tel_u_m = np.asarray(tel, dtype=float).tolist()
+                # plain floats: a 3-vector's norm costs more in numpy than the rest of the check
+                err = math.sqrt((east_m - tel_e_m) ** 2 + (north_m - tel_n_m) ** 2 + (up_m - tel_u_m) ** 2)
                 if err > self.max_position_error_m:
                     raise ReadingRejected("position_far", f"sysid {sysid}: reading position {err:.1f} m "
                                           f"from telemetry (max {self.max_position_error_m} m)")
