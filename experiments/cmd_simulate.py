@@ -11,6 +11,8 @@ import sys
 
 import numpy as np
 
+from sitl_mock.cli_args import nonnegative_float, positive_float
+
 __all__ = ["configure", "main", "run"]
 
 _DEFAULT_STARTS = {"sigma1": "10,50,10", "sigma2": "20,-20,5"}
@@ -39,36 +41,26 @@ def _positive(kind):
     return parse
 
 
-def _non_negative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not (np.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return value
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``simulate`` command's arguments."""
     parser.add_argument("--n", type=_positive(int), default=8, help="number of robots (default 8)")
     parser.add_argument("--formation", choices=("cvt", "symmetric"), default="cvt")
     parser.add_argument("--method", choices=("cvt", "symmetric"), default=None,
                         help="estimator: Theorem 2 or eq. (3) (default: the formation's)")
-    parser.add_argument("--radius", type=_positive(float), default=1.0, help="formation radius D, m")
+    parser.add_argument("--radius", type=positive_float, default=1.0, help="formation radius D, m")
     parser.add_argument("--field", choices=("sigma1", "sigma2"), default="sigma2")
-    parser.add_argument("--noise", type=_non_negative, default=0.0,
+    parser.add_argument("--noise", type=nonnegative_float, default=0.0,
                         help="reading noise standard deviation (signal units)")
     parser.add_argument("--start", type=_vector3, default=None, metavar="E,N,U",
                         help="initial centre, ENU metres (default: sigma1 10,50,10; sigma2 20,-20,5)")
-    parser.add_argument("--eps", type=_positive(float), default=1.0, help="step size (default 1)")
-    parser.add_argument("--gamma", type=_positive(float), default=0.1,
+    parser.add_argument("--eps", type=positive_float, default=1.0, help="step size (default 1)")
+    parser.add_argument("--gamma", type=positive_float, default=0.1,
                         help="largest centre move per iteration, m (default 0.1)")
     parser.add_argument("--iterations", type=_positive(int), default=3000)
     parser.add_argument("--seed", type=int, default=0, help="noise and CVT seed")
     parser.add_argument("--window", type=_positive(int), default=400,
                         help="convergence test window, iterations")
-    parser.add_argument("--tol", type=_positive(float), default=1.0,
+    parser.add_argument("--tol", type=positive_float, default=1.0,
                         help="convergence test tolerance, m")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 

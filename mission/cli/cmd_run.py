@@ -16,65 +16,35 @@ from pathlib import Path
 
 import numpy as np
 
+from sitl_mock.cli_args import nonnegative_float, positive_float, source_enu
+
 __all__ = ["configure", "main", "run_embedded"]
-
-
-def _vector(text: str) -> tuple[float, float, float]:
-    try:
-        parts = [float(x) for x in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected E,N,U in metres, got {text!r}") from None
-    if len(parts) != 3 or not all(np.isfinite(parts)):
-        raise argparse.ArgumentTypeError(f"expected three finite numbers E,N,U, got {text!r}")
-    return tuple(parts)
-
-
-def _positive(kind):
-    def parse(text):
-        try:
-            v = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not (np.isfinite(v) and v > 0):
-            raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
-        return v
-    return parse
-
-
-def _non_negative(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (np.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
-    return v
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``run`` options."""
     parser.add_argument("--n", type=int, default=8, help="number of vehicles (4..254; default 8)")
     parser.add_argument("--formation", choices=("cvt", "symmetric"), default="cvt")
-    parser.add_argument("--radius", type=_positive(float), default=None,
+    parser.add_argument("--radius", type=positive_float, default=None,
                         help="formation radius D, m (default 4; 1.5 n^(1/3) above 18 vehicles)")
     parser.add_argument("--field", choices=("sigma1", "sigma2"), default="sigma2")
-    parser.add_argument("--noise", type=_non_negative, default=0.01,
+    parser.add_argument("--noise", type=nonnegative_float, default=0.01,
                         help="sensor noise standard deviation, signal units (default 0.01)")
     parser.add_argument("--personality", choices=("px4", "ardupilot"), default="px4")
     parser.add_argument("--realtime", action="store_true",
                         help="run the fleet and the ground station on the wall clock (threads, real time "
                              "unless --speedup) instead of the default lock-step simulated clock")
-    parser.add_argument("--speedup", type=_positive(float), default=None,
+    parser.add_argument("--speedup", type=positive_float, default=None,
                         help="with the wall clock: simulated seconds per wall second (implies --realtime; "
                              "the default lock-step clock runs as fast as the CPU allows)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the source position, noise, fleet")
-    parser.add_argument("--source", type=_vector, default=None, metavar="E,N,U",
+    parser.add_argument("--source", type=source_enu, default=None, metavar="E,N,U",
                         help="source position, ENU m (default: drawn from the seed in a box)")
-    parser.add_argument("--start", type=_vector, default=None, metavar="E,N,U",
+    parser.add_argument("--start", type=source_enu, default=None, metavar="E,N,U",
                         help="formation start, ENU m (default: 25 m from the source)")
-    parser.add_argument("--eps", type=_positive(float), default=None,
+    parser.add_argument("--eps", type=positive_float, default=None,
                         help="step gain (default 1/(2 A lambda_max(S)) of the field; paper: 1)")
-    parser.add_argument("--gamma", type=_positive(float), default=1.0, help="largest step, m (default 1; paper 0.1)")
+    parser.add_argument("--gamma", type=positive_float, default=1.0, help="largest step, m (default 1; paper 0.1)")
     parser.add_argument("--estimator", choices=("cvt", "symmetric", "robust"), default=None,
                         help="gradient estimator (default: the formation's)")
     parser.add_argument("--max-iterations", type=int, default=300)
