@@ -117,6 +117,9 @@ def field_from_table(table: dict, where: str = "field"):
     extra = t.pop("extra_sources_enu_m", ())
     strengths = t.pop("strengths", None)
     sensor = {k.removeprefix("sensor_"): t.pop(k) for k in SENSOR_PARAMS if k in t}
+    for k, v in sensor.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and v >= 0):
+            raise ValueError(f"[{where}]: sensor_{k} must be a finite number >= 0, got {v!r}")
     try:
         return make_field(name, source, extra_sources=extra, strengths=strengths, **t), sensor
     except (TypeError, ValueError) as exc:

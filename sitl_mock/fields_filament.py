@@ -43,6 +43,7 @@ __all__ = ["FilamentPlume"]
 _GOLDEN = 0x9E3779B97F4A7C15
 _MIX1 = 0xBF58476D1CE4E5B9
 _MIX2 = 0x94D049BB133111EB
+_CHUNK_POINTS = 2048
 
 
 def _mix(z: np.ndarray) -> np.ndarray:
@@ -105,7 +106,7 @@ class FilamentPlume:
     time_dependent = True
 
     def __init__(self, source=(0.0, 0.0, 0.0), *, seed: int = 0, release_rate_hz: float | None = None,
-                 puff_fraction: float = 0.3, meander_fraction: float = 0.5, meander_time_s: float = 5.0,
+                 puff_fraction: float = 0.2, meander_fraction: float = 0.7, meander_time_s: float = 5.0,
                  max_range_m: float = 150.0, **plume):
         self.steady = GaussianPlume(source, **plume)
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
@@ -136,25 +137,28 @@ class FilamentPlume:
     def background(self) -> float:
         return self.steady.background
 
-    def _meander(self, t: float, t_k: np.ndarray) -> np.ndarray:
-        """``(m_y, m_z)``: the normalised integrals of the two meander processes, shape (2, M)."""
+    def _meander(self, t: np.ndarray, t_k: np.ndarray) -> np.ndarray:
+        """``(m_y, m_z)``: the normalised integrals of the two meander processes from each
+        puff's release ``t_k`` (T, M) to ``t`` (T,), shape (2, T, M)."""
         step = self.meander_time_s
-        lo = int(np.floor(float(np.min(t_k)) / step)) - 1
-        nodes = np.arange(lo, int(np.floor(t / step)) + 3)
-        hat_t = np.clip(1.0 - np.abs(t / step - nodes), 0.0, None)
-        w = _hat_integral(t, nodes, step)[None, :] - _hat_integral(t_k, nodes, step)
-        w = w + 1e-9 * step * hat_t  # age 0: the limit a -> 0 of the normalised integral
-        w /= np.sqrt(np.sum(w * w, axis=1, keepdims=True))
-        return np.stack([w @ hashed_normals(self.seed, s, nodes) for s in (0, 1)])
+        span = int(np.ceil(self.n_puffs / self.release_rate_hz / step)) + 4
+        nodes = np.floor(t / step)[:, None] + np.arange(-span, 3)[None, :]  # (T, L)
+        hat_t = np.clip(1.0 - np.abs(t[:, None] / step - nodes), 0.0, None)
+        w = _hat_integral(t, nodes, step)[:, None, :] - _hat_integral(t_k, nodes[:, None, :], step)
+        w = w + 1e-9 * step * hat_t[:, None, :]  # age 0: the limit a -> 0 of the normalised integral
+        w /= np.sqrt(np.sum(w * w, axis=-1, keepdims=True))
+        ni = nodes.astype(np.int64)
+        return np.stack([np.einsum("tml,tl->tm", w, hashed_normals(self.seed, s, ni)) for s in (0, 1)])
 
-    def puffs(self, t_s: float) -> dict:
-        """The live puffs at time ``t_s`` in the wind frame: centres ``x, y, z`` (z above the
-        ground), kernel standard deviations ``sx, sy, sz`` and ``mass`` (each of shape (M,))."""
+    def puffs(self, t_s) -> dict:
+        """The live puffs at time(s) ``t_s`` (scalar or shape (T,)) in the wind frame: centres
+        ``x, y, z`` (z above the ground), kernel standard deviations ``sx, sy, sz`` (each of
+        shape (M,) or (T, M)) and ``mass``."""
         s = self.steady
-        t = float(t_s)
-        k = np.floor(t * self.release_rate_hz) - np.arange(self.n_puffs)
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        k = np.floor(t * self.release_rate_hz)[:, None] - np.arange(self.n_puffs)[None, :]
         t_k = k / self.release_rate_hz
-        x = s.wind_speed_m_s * np.maximum(t - t_k, 0.0)
+        x = s.wind_speed_m_s * np.maximum(t[:, None] - t_k, 0.0)
         sy, sz = s.spreads(x)
         kap = self.puff_fraction
         rest = np.sqrt(1.0 - kap * kap)
@@ -163,18 +167,27 @@ class FilamentPlume:
         fm, fd = np.sqrt(self.meander_fraction), np.sqrt(1.0 - self.meander_fraction)
         y = rest * sy * (fm * m_y + fd * hashed_normals(self.seed, 2, ki))
         z = s.release_height_m + rest * sz * (fm * m_z + fd * hashed_normals(self.seed, 3, ki))
-        return dict(x=x, y=y, z=z, sx=np.full_like(x, s.source_radius_m),
-                    sy=kap * sy, sz=kap * sz, mass=s.emission_rate / self.release_rate_hz)
+        out = dict(x=x, y=y, z=z, sx=np.full_like(x, s.source_radius_m), sy=kap * sy, sz=kap * sz)
+        if np.ndim(t_s) == 0:
+            out = {key: v[0] for key, v in out.items()}
+        out["mass"] = s.emission_rate / self.release_rate_hz
+        return out
 
-    def _plume_at(self, points: np.ndarray, t: float) -> np.ndarray:
-        """Sum of the puffs at ``points`` (P, 3) at one time, shape (P,)."""
-        pf = self.puffs(t)
+    def _plume_at(self, points: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Sum of the puffs at ``points`` (P, 3), point ``i`` at time ``t[i]``, shape (P,)."""
+        t_unique, inverse = np.unique(t, return_inverse=True)
+        pf = self.puffs(t_unique)
         x, y, z = (v[:, None] for v in self.steady.wind_frame(points))
-        q = ((x - pf["x"]) / pf["sx"]) ** 2 + ((y - pf["y"]) / pf["sy"]) ** 2
-        vert = np.exp(-0.5 * ((z - pf["z"]) / pf["sz"]) ** 2)
+        keys = ("x", "y", "z", "sx", "sy", "sz")
+        if len(t_unique) == 1:  # one time: broadcast the (1, M) puffs instead of copying them
+            px, py, pz, sx, sy, sz = (pf[key] for key in keys)
+        else:
+            px, py, pz, sx, sy, sz = (pf[key][inverse] for key in keys)
+        q = ((x - px) / sx) ** 2 + ((y - py) / sy) ** 2
+        vert = np.exp(-0.5 * ((z - pz) / sz) ** 2)
         if self.steady.ground_reflection:
-            vert = vert + np.exp(-0.5 * ((z + pf["z"]) / pf["sz"]) ** 2)
-        norm = pf["mass"] / ((2.0 * np.pi) ** 1.5 * pf["sx"] * pf["sy"] * pf["sz"])
+            vert = vert + np.exp(-0.5 * ((z + pz) / sz) ** 2)
+        norm = pf["mass"] / ((2.0 * np.pi) ** 1.5 * sx * sy * sz)
         return np.sum(norm * np.exp(-0.5 * q) * vert, axis=1)
 
     def value(self, points, t_s=0.0):
@@ -187,19 +200,32 @@ class FilamentPlume:
         if not np.all(np.isfinite(t)):
             raise ValueError("t_s must be finite")
         flat = p.reshape(-1, 3)
-        if t.ndim == 0:
-            out = self._plume_at(flat, float(t))
-        else:
-            tf = np.broadcast_to(t, p.shape[:-1]).reshape(-1)
-            out = np.empty(len(flat))
-            for tu in np.unique(tf):
-                sel = tf == tu
-                out[sel] = self._plume_at(flat[sel], float(tu))
+        tf = np.broadcast_to(t, p.shape[:-1]).reshape(-1)
+        out = np.empty(len(flat))
+        for lo in range(0, len(flat), _CHUNK_POINTS):  # bounded memory: chunk x live puffs
+            out[lo:lo + _CHUNK_POINTS] = self._plume_at(flat[lo:lo + _CHUNK_POINTS], tf[lo:lo + _CHUNK_POINTS])
         return out.reshape(p.shape[:-1]) + self.steady.background
 
-    def mean_value(self, points):
-        """The ensemble (time) mean: the steady plume's value."""
-        return self.steady.value(points)
+    def mean_value(self, points, nodes: int = 241):
+        """The exact ensemble (time) mean at ``points`` (..., 3), shape (...): the puffs'
+        expected kernels integrated over their release times (trapezoid rule on ``nodes``
+        points within 6 ``s0`` along the wind), plus the background. It is the steady plume
+        smoothed along the wind by ``N(0, s0^2)`` and cut at ``max_range_m``."""
+        s = self.steady
+        x, y, z = (np.asarray(v)[..., None] for v in s.wind_frame(points))
+        s0 = s.source_radius_m
+        lo = np.clip(x - 6.0 * s0, 0.0, self.max_range_m)
+        hi = np.clip(x + 6.0 * s0, 0.0, self.max_range_m)
+        xi = lo + (hi - lo) * np.linspace(0.0, 1.0, nodes)  # puff positions, (..., nodes)
+        sy, sz = s.spreads(xi)
+        h = s.release_height_m
+        vert = np.exp(-0.5 * ((z - h) / sz) ** 2)
+        if s.ground_reflection:
+            vert = vert + np.exp(-0.5 * ((z + h) / sz) ** 2)
+        f = (np.exp(-0.5 * ((x - xi) / s0) ** 2) / (np.sqrt(2.0 * np.pi) * s0)
+             * np.exp(-0.5 * (y / sy) ** 2) * vert / (2.0 * np.pi * sy * sz))
+        integral = np.trapezoid(f, xi, axis=-1)
+        return s.emission_rate / s.wind_speed_m_s * integral + s.background
 
     def gradient(self, points, t_s=0.0):
         """Gradient of the mean field (the instantaneous field has no useful gradient)."""
