@@ -124,6 +124,7 @@ class FilamentPlume:
         self.meander_time_s = _positive(meander_time_s, "meander_time_s")
         self.max_range_m = _positive(max_range_m, "max_range_m")
         self.n_puffs = int(np.ceil(self.max_range_m / s.wind_speed_m_s * self.release_rate_hz)) + 1
+        self._cache = None  # (time, puffs) of the last single-time evaluation (a pure function's memo)
         if self.n_puffs > 200000:
             raise ValueError(f"{self.n_puffs} live puffs (max_range_m / wind_speed_m_s x release_rate_hz) "
                              "is too many; lower release_rate_hz or max_range_m")
@@ -176,7 +177,12 @@ class FilamentPlume:
     def _plume_at(self, points: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Sum of the puffs at ``points`` (P, 3), point ``i`` at time ``t[i]``, shape (P,)."""
         t_unique, inverse = np.unique(t, return_inverse=True)
-        pf = self.puffs(t_unique)
+        if len(t_unique) == 1 and self._cache is not None and self._cache[0] == t_unique[0]:
+            pf = self._cache[1]  # the fleet's vehicles sample one after another at the same time
+        else:
+            pf = self.puffs(t_unique)
+            if len(t_unique) == 1:
+                self._cache = (float(t_unique[0]), pf)
         x, y, z = (v[:, None] for v in self.steady.wind_frame(points))
         keys = ("x", "y", "z", "sx", "sy", "sz")
         if len(t_unique) == 1:  # one time: broadcast the (1, M) puffs instead of copying them

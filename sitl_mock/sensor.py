@@ -186,7 +186,7 @@ class SignalSensor:
             value += float(f.sensor_bias)
             if f.sensor_spike_prob > 0.0 and float(self.rng.random()) < f.sensor_spike_prob:
                 value += float(f.sensor_spike_size) * (1.0 if self.rng.random() < 0.5 else -1.0)
-            if value < self.detection_floor:
+            if self.detection_floor > 0.0 and value < self.detection_floor:
                 value = 0.0
         self._last_value = value
         reading = {

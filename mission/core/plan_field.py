@@ -75,7 +75,8 @@ def _sources(c: Checker, t: dict, p: str):
         c.bad(f"{p}.extra_sources_enu_m", f"expected a list of [E, N, U] points, got {show_value(raw)}")
         raw = []
     for i, v in enumerate(raw):
-        pt = c.point({"v": v}, "v", f"{p}.extra_sources_enu_m[{i}]", 3)
+        key = f"extra_sources_enu_m[{i}]"
+        pt = c.point({key: v}, key, p, 3)
         if pt is not None:
             extra.append(pt)
     strengths = t.get("strengths")
