@@ -43,7 +43,9 @@ __all__ = ["FilamentPlume"]
 _GOLDEN = 0x9E3779B97F4A7C15
 _MIX1 = 0xBF58476D1CE4E5B9
 _MIX2 = 0x94D049BB133111EB
-_CHUNK_POINTS = 2048
+_CHUNK_POINTS = 8192
+#: puffs farther than this many source radii along the wind from a point are left out (< 2e-8)
+_CUTOFF = 6.0
 
 
 def _mix(z: np.ndarray) -> np.ndarray:
@@ -65,12 +67,6 @@ def hashed_normals(seed: int, stream: int, index) -> np.ndarray:
     h = _mix(_mix(idx * np.uint64(_GOLDEN) + key) ^ key)
     u = ((h >> np.uint64(11)).astype(np.float64) + 0.5) * 2.0 ** -53
     return ndtri(u)
-
-
-def _hat_integral(s, nodes, step_s):
-    """``int_-inf^s`` of the hat function of each node (width ``step_s``), shape (..., nodes)."""
-    u = np.clip((np.asarray(s, dtype=float)[..., None] - nodes * step_s) / step_s, -1.0, 1.0)
-    return step_s * np.where(u < 0.0, 0.5 * (u + 1.0) ** 2, 1.0 - 0.5 * (1.0 - u) ** 2)
 
 
 class FilamentPlume:
@@ -140,16 +136,53 @@ class FilamentPlume:
 
     def _meander(self, t: np.ndarray, t_k: np.ndarray) -> np.ndarray:
         """``(m_y, m_z)``: the normalised integrals of the two meander processes from each
-        puff's release ``t_k`` (T, M) to ``t`` (T,), shape (2, T, M)."""
+        puff's release ``t_k`` (T, M) to ``t`` (T,), shape (2, T, M).
+
+        The integral of the interpolated process over ``[t_k, t]`` is ``sum_n theta_n w_n``
+        with ``w_n = H_n(t) - H_n(t_k)`` (``H_n`` the integral of node ``n``'s hat function):
+        computed from the running sum of the nodes' values, and its variance
+        ``sum_n w_n^2`` from the full-weight nodes between the two and the four edge nodes.
+        """
         step = self.meander_time_s
         span = int(np.ceil(self.n_puffs / self.release_rate_hz / step)) + 4
-        nodes = np.floor(t / step)[:, None] + np.arange(-span, 3)[None, :]  # (T, L)
-        hat_t = np.clip(1.0 - np.abs(t[:, None] / step - nodes), 0.0, None)
-        w = _hat_integral(t, nodes, step)[:, None, :] - _hat_integral(t_k, nodes[:, None, :], step)
-        w = w + 1e-9 * step * hat_t[:, None, :]  # age 0: the limit a -> 0 of the normalised integral
-        w /= np.sqrt(np.sum(w * w, axis=-1, keepdims=True))
-        ni = nodes.astype(np.int64)
-        return np.stack([np.einsum("tml,tl->tm", w, hashed_normals(self.seed, s, ni)) for s in (0, 1)])
+        j_t = np.floor(t / step)[:, None]             # (T, 1): cell of t
+        j_k = np.floor(t_k / step)                    # (T, M): cell of each release
+        n0 = j_t - span                               # first node of each time's window
+        nodes = (n0 + np.arange(span + 3)[None, :]).astype(np.int64)  # (T, L)
+        h = self._hat_integrals
+        var = step * step * np.maximum(j_t - j_k - 2.0, 0.0)
+        edges = (j_k, j_k + 1.0, np.broadcast_to(j_t, j_k.shape), np.broadcast_to(j_t + 1.0, j_k.shape))
+        valid = (True, True, (j_t != j_k) & (j_t != j_k + 1.0), j_t != j_k)
+        for n, ok in zip(edges, valid):
+            w = h(n, t[:, None]) - h(n, t_k)
+            var = var + np.where(ok, w * w, 0.0)
+        phi_t = t[:, None] / step - j_t
+        out = []
+        for stream in (0, 1):
+            theta = hashed_normals(self.seed, stream, nodes)                         # (T, L)
+            cum = np.concatenate([np.zeros((len(t), 1)), np.cumsum(theta, axis=1)], axis=1)
+            integral = self._antiderivative(theta, cum, t[:, None], j_t, n0) - \
+                self._antiderivative(theta, cum, t_k, j_k, n0)
+            i = (j_t - n0).astype(np.int64)
+            now = (np.take_along_axis(theta, i, 1) * (1.0 - phi_t) + np.take_along_axis(theta, i + 1, 1) * phi_t) \
+                / np.sqrt((1.0 - phi_t) ** 2 + phi_t ** 2)  # age 0: the limit a -> 0
+            out.append(np.where(var > 0.0, integral / np.sqrt(np.where(var > 0.0, var, 1.0)), now))
+        return np.stack(out)
+
+    def _hat_integrals(self, n, s):
+        """``H_n(s)``: integral up to ``s`` of node ``n``'s hat function (arrays, broadcast)."""
+        step = self.meander_time_s
+        u = np.clip(s / step - n, -1.0, 1.0)
+        return step * np.where(u < 0.0, 0.5 * (u + 1.0) ** 2, 1.0 - 0.5 * (1.0 - u) ** 2)
+
+    def _antiderivative(self, theta, cum, s, j, n0):
+        """``sum_n theta_n H_n(s)`` over the window's nodes (``s`` in cell ``j``), shape of ``s``."""
+        step = self.meander_time_s
+        i = np.broadcast_to((j - n0).astype(np.int64), np.broadcast_shapes(np.shape(s), np.shape(j)))
+        phi = s / step - j
+        full = np.take_along_axis(cum, i, 1)  # nodes before cell j: whole hat integrals
+        return step * (full + np.take_along_axis(theta, i, 1) * (1.0 - 0.5 * (1.0 - phi) ** 2)
+                       + np.take_along_axis(theta, i + 1, 1) * 0.5 * phi ** 2)
 
     def puffs(self, t_s) -> dict:
         """The live puffs at time(s) ``t_s`` (scalar or shape (T,)) in the wind frame: centres
@@ -183,18 +216,23 @@ class FilamentPlume:
             pf = self.puffs(t_unique)
             if len(t_unique) == 1:
                 self._cache = (float(t_unique[0]), pf)
-        x, y, z = (v[:, None] for v in self.steady.wind_frame(points))
-        keys = ("x", "y", "z", "sx", "sy", "sz")
-        if len(t_unique) == 1:  # one time: broadcast the (1, M) puffs instead of copying them
-            px, py, pz, sx, sy, sz = (pf[key] for key in keys)
-        else:
-            px, py, pz, sx, sy, sz = (pf[key][inverse] for key in keys)
-        q = ((x - px) / sx) ** 2 + ((y - py) / sy) ** 2
-        vert = np.exp(-0.5 * ((z - pz) / sz) ** 2)
+        x, y, z = self.steady.wind_frame(points)
+        # only the puffs within CUTOFF source radii along the wind count (s_x = s0 for all):
+        # puff j sits at U (j + frac) / rate downwind, so they are a window of indices
+        lam_u = self.release_rate_hz / self.steady.wind_speed_m_s
+        frac = (t_unique * self.release_rate_hz - np.floor(t_unique * self.release_rate_hz))[inverse]
+        half = int(np.ceil(_CUTOFF * self.steady.source_radius_m * lam_u)) + 1
+        j = np.rint(x * lam_u - frac).astype(np.int64)[:, None] + np.arange(-half, half + 1)[None, :]
+        live = (j >= 0) & (j < self.n_puffs)
+        rows, cols = inverse[:, None] if len(t_unique) > 1 else 0, np.clip(j, 0, self.n_puffs - 1)
+        px, py, pz, sy, sz = (pf[key].reshape(len(t_unique), -1)[rows, cols] for key in ("x", "y", "z", "sy", "sz"))
+        s0 = self.steady.source_radius_m
+        q = ((x[:, None] - px) / s0) ** 2 + ((y[:, None] - py) / sy) ** 2
+        vert = np.exp(-0.5 * ((z[:, None] - pz) / sz) ** 2)
         if self.steady.ground_reflection:
-            vert = vert + np.exp(-0.5 * ((z + pz) / sz) ** 2)
-        norm = pf["mass"] / ((2.0 * np.pi) ** 1.5 * sx * sy * sz)
-        return np.sum(norm * np.exp(-0.5 * q) * vert, axis=1)
+            vert = vert + np.exp(-0.5 * ((z[:, None] + pz) / sz) ** 2)
+        norm = pf["mass"] / ((2.0 * np.pi) ** 1.5 * s0 * sy * sz)
+        return np.sum(np.where(live, norm * np.exp(-0.5 * q) * vert, 0.0), axis=1)
 
     def value(self, points, t_s=0.0):
         """Instantaneous concentration at ``points`` (..., 3) ENU m and time ``t_s`` (scalar or
