@@ -90,7 +90,7 @@ def main(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 2
     try:
-        _name, field, response = field_from_args(args, args.source)
+        field_name, field, response = field_from_args(args, args.source)
     except ValueError as exc:
         print(f"swarmseek mock: error: {exc}", file=sys.stderr)
         return 2
@@ -131,7 +131,7 @@ def main(args: argparse.Namespace) -> int:
         return 1
     try:
         print(f"mock fleet {args.fleet!r}: {args.vehicles} x {args.personality}, "
-              f"speedup {args.speedup:g}, origin {fleet.origin}, "
+              f"speedup {args.speedup:g}, origin {fleet.origin}, field {field_name}, "
               f"signing {'on' if signing_key is not None else 'off'}, "
               f"zenoh tls {'on' if 'tls' in zenoh_security else 'off'}, "
               f"zenoh login {'on' if 'username' in zenoh_security else 'off'}", flush=True)
