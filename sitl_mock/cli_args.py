@@ -113,7 +113,8 @@ def add_field_arguments(parser: argparse.ArgumentParser, default: str) -> None:
 
     g = parser.add_argument_group("simulated field (docs/fields.md)")
     g.add_argument("--field", choices=FIELD_NAMES, default=None,
-                   help=f"signal field the sensors sample (default {default}, or the --field-config's type)")
+                   help=(f"signal field the sensors sample (default {default}, or the --field-config's type)"
+                         if default else "signal field the sensors sample (or give --field-config)"))
     g.add_argument("--field-config", default=None, metavar="PATH",
                    help="TOML file (e.g. the mission plan) whose [field] table gives the field; flags override it")
     g.add_argument("--extra-source", type=source_enu, action="append", default=[], metavar="E,N,U",
@@ -128,10 +129,10 @@ def add_field_arguments(parser: argparse.ArgumentParser, default: str) -> None:
                    help="plumes: spread at the release point, m (default 1)")
     g.add_argument("--emission-rate", type=positive_float, default=None, metavar="Q",
                    help="plumes: emission rate (default: the plume is 1 at the release)")
-    g.add_argument("--background", type=nonnegative_float, default=None,
+    g.add_argument("--background", type=nonnegative_float, default=None, metavar="VALUE",
                    help="plumes: constant background value (default 1e-4)")
     g.add_argument("--no-ground-reflection", action="store_true", help="plumes: no image source below ground")
-    g.add_argument("--field-seed", type=int_in_range(0, None, "--field-seed"), default=None,
+    g.add_argument("--field-seed", type=int_in_range(0, None, "--field-seed"), default=None, metavar="N",
                    help="intermittent plume: seed of the puffs and the meander (default 0)")
     g.add_argument("--release-rate", type=positive_float, default=None, metavar="HZ",
                    help="intermittent plume: puffs per second (default 2 x wind speed / source radius)")
