@@ -32,6 +32,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
 
     from mission.core.clock import WallClock
     from mission.flight.coordinator import Coordinator
+    from mission.flight.operator_stop import run_until_stopped
     from mission.telemetry.mission_log import MissionLog
 
     clock = clock or WallClock()
@@ -41,7 +42,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
         session = zenoh.open(plan.zenoh.to_config())
         co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
-        return await co.run()
+        return await run_until_stopped(co)
     finally:
         log.close()
         if session is not None:
@@ -74,4 +75,6 @@ def main(args) -> int:
     except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
         print(f"swarmseek fly: zenoh security settings: {exc}", file=sys.stderr)
         return 2
-    return report_result(result, display, args.json)
+    from mission.flight.operator_stop import exit_status
+
+    return exit_status(result, report_result(result, display, args.json))

@@ -53,6 +53,7 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
 
     from mission.core.clock import WallClock
     from mission.flight.coordinator import Coordinator
+    from mission.flight.operator_stop import run_until_stopped
     from mission.telemetry.mission_log import MissionLog
     from mission.flight.resume import load_resume_state
 
@@ -65,7 +66,7 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
         session = zenoh.open(state.plan.zenoh.to_config())
         co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=log_path.parent / "tlogs" if tlog else None)
-        return await co.run(resume_state=state)
+        return await run_until_stopped(co, state)
     finally:
         log.close()
         if session is not None:
@@ -99,4 +100,6 @@ def main(args) -> int:
     except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
         print(f"swarmseek resume: zenoh security settings: {exc}", file=sys.stderr)
         return 2
-    return report_result(result, display, args.json)
+    from mission.flight.operator_stop import exit_status
+
+    return exit_status(result, report_result(result, display, args.json))

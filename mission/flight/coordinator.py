@@ -16,7 +16,7 @@ import numpy as np
 from mission.core.clock import cancel_and_wait
 from mission.core.plan import Plan
 from mission.flight import connect as connect_phase
-from mission.flight import phases, seek
+from mission.flight import mission_end, phases, seek
 from mission.flight.loss import watch_losses
 from mission.flight.result import MissionResult, mission_result, readiness_result
 from mission.flight.resume import rejoin
@@ -121,6 +121,8 @@ class Coordinator:
         self._watchdog_task: asyncio.Task | None = None
         self._loss_task: asyncio.Task | None = None
         self.return_on_interrupt = True
+        self.interrupts: list[str] = []  # signals that interrupted the mission (operator_stop)
+        self.final_result: MissionResult | None = None  # set by mission_end.close on every path
 
     # ----------------------------------------------------------------- resources set by the phases
     def add_endpoint(self, uri: str, endpoint) -> None:
@@ -310,7 +312,11 @@ class Coordinator:
             preflight, no takeoff), seek from the state's centre and iteration.
 
         Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
-        False (a ground station that just stops: the vehicles do what their autopilot does).
+        False (a ground station that just stops: the vehicles do what their autopilot does); a
+        second cancellation lands them where they are (:mod:`mission.flight.mission_end`). Every
+        path ends with the never-abandon check (:mod:`mission.flight.landing_guard`) and a
+        ``summary`` record; a cancelled run then raises CancelledError (:attr:`final_result`
+        holds its result).
         """
         if self.log is not None:
             self.log.write("plan", plan=_plan_json(self.plan), resumed=resume_state is not None)
@@ -343,22 +349,10 @@ class Coordinator:
             outcome, message = "aborted", f"unexpected error in phase {self.phase}: {type(exc).__name__}: {exc}"
             self.set_phase("aborted", reason=message)
             self.event(message, level="error", traceback=traceback.format_exc())
-        except asyncio.CancelledError:
-            outcome, message = "aborted", "interrupted"
-            self.event("mission interrupted", level="error")
-            if self.return_on_interrupt:
-                await self._return_safely()
-            await self._stop_background()
-            raise
-        try:
-            await self._return_safely()
-        finally:
-            await self._stop_background()
-        result = self.result(outcome, message)
-        self.set_phase("done")
-        if self.log is not None:
-            self.log.write("summary", sync=True, **result.to_json())
-        return result
+        except asyncio.CancelledError:  # Ctrl-C, SIGTERM, a cancelled task: mission_end counts them
+            return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self),
+                                           interrupted=True)
+        return await mission_end.close(self, outcome, message)
 
     async def _return_safely(self) -> None:
         if not self.airborne:

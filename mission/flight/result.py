@@ -47,6 +47,12 @@ class MissionResult:
     separation_interventions : int
         Vehicle-setpoints the safety envelope held back to keep ``min_separation_m`` (0: none
         needed; per vehicle in the mission log's ``separation enforcement`` events).
+    airborne_left : list
+        Vehicles still airborne with no landing behaviour at the end (the ``airborne_left``
+        record of :mod:`mission.flight.landing_guard`; empty when every vehicle is down or landing).
+    interrupted_by : list
+        The signals (``SIGINT``, ``SIGTERM``) that interrupted the mission, in order
+        (:mod:`mission.flight.operator_stop`).
     """
 
     outcome: str
@@ -72,6 +78,8 @@ class MissionResult:
     unknown_sysids: list = field(default_factory=list)
     vehicle_rejections: dict = field(default_factory=dict)
     separation_interventions: int = 0
+    airborne_left: list = field(default_factory=list)
+    interrupted_by: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
