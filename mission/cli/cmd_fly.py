@@ -1,8 +1,9 @@
 """``swarmseek fly --plan plan.toml``: fly the mission against the vehicles named in a plan.
 
 Readings come over zenoh (e.g. one ``swarmseek sensor`` per vehicle) on the plan's endpoints;
-the mission clock is the wall clock. Exit status: 0 converged, 1 not converged or aborted,
-2 invalid plan or options.
+the mission clock is the wall clock. Exit status: 0 converged, 1 not converged or aborted
+(also: not ready to seek, nothing armed), 2 invalid plan or options, 130 / 143 interrupted by
+SIGINT / SIGTERM (the first brings the vehicles home, a second lands them where they are).
 """
 from __future__ import annotations
 

@@ -5,8 +5,10 @@ resumed coordinator reconnects, re-engages the vehicles still flying (no new tak
 seeking from the last centre and iteration, appending to the same log (see
 :mod:`mission.flight.resume`). The mission clock is the wall clock: a ``swarmseek run`` log is
 resumable only while its mock fleet still runs, i.e. in-process (the tests do that with
-:func:`resume`). Exit status: 0 converged, 1 not converged / aborted, 2 the log or plan cannot be
-resumed.
+:func:`resume`). A log that ends after the seek (``return``, ``finish``, ``done``, a summary)
+is taken over to bring the vehicles still flying home (outcome ``recovered``). Exit status: 0
+converged, or recovered with every vehicle down or landing; 1 not converged / aborted / a
+vehicle left airborne; 2 the log or plan cannot be resumed; 130 / 143 interrupted (SIGINT / SIGTERM).
 """
 from __future__ import annotations
 
@@ -102,4 +104,7 @@ def main(args) -> int:
         return 2
     from mission.flight.operator_stop import exit_status
 
-    return exit_status(result, report_result(result, display, args.json))
+    status = report_result(result, display, args.json)
+    if result.outcome == "recovered" and not result.airborne_left:
+        status = 0
+    return exit_status(result, status)

@@ -19,7 +19,7 @@ from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
 from mission.flight.loss import watch_losses
 from mission.flight.result import MissionResult, mission_result, readiness_result
-from mission.flight.resume import rejoin
+from mission.flight.resume import resume_mission
 from mission.flight.state import MissionError, MissionState
 from mission.flight.watchdog import watchdog
 from mission.telemetry.link_report import link_rejections, unknown_sysids
@@ -334,9 +334,7 @@ class Coordinator:
                 await phases.assemble(self)
                 outcome, message = await seek.seek(self)
             else:
-                await rejoin(self, resume_state)
-                outcome, message = await seek.seek(self, start_iteration=resume_state.iteration,
-                                                   history=resume_state.centres)
+                outcome, message = await resume_mission(self, resume_state)
             self.set_phase("finish", outcome=outcome)
             self.event(message)
         except MissionError as exc:

@@ -49,6 +49,10 @@ async def _return(co, interrupts: int) -> int:
         except asyncio.CancelledError:
             _uncancel()
             interrupts += 1
+            if not co.return_on_interrupt:  # a ground station told to just stop
+                co.event("interrupted during the return: the ground station stops; the vehicles do what "
+                         "their autopilots do", level="error")
+                return interrupts
             if interrupts == 1:
                 co.event("interrupt during the return: the return goes on (interrupt again to LAND every "
                          "vehicle where it is)", level="warning")
@@ -86,8 +90,8 @@ async def close(co, outcome: str, message: str, *, interrupted: bool = False):
                  level="error")
     if co.return_on_interrupt or not interrupted:
         interrupts = await _return(co, interrupts)
-    why = f"mission {outcome}: {message}"
-    left, cut_short = await secure(co, why, land=co.return_on_interrupt or not interrupted)
+    why = f"mission {message}" if message.startswith(outcome) else f"mission {outcome}: {message}"
+    left, cut_short = await secure(co, why, land=co.return_on_interrupt or not interrupts)
     interrupts += int(cut_short)
     try:
         await co._stop_background()

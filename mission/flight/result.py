@@ -14,8 +14,9 @@ class MissionResult:
     Attributes
     ----------
     outcome : str
-        ``converged``, ``max_iterations``, ``stopped_at_fence``, ``aborted``, ``ready`` or
-        ``not_ready`` (dry run).
+        ``converged``, ``max_iterations``, ``stopped_at_fence``, ``aborted``, ``interrupted``
+        (Ctrl-C, SIGTERM), ``recovered`` (``resume`` of a mission that had ended: the vehicles
+        still flying brought home), ``ready`` or ``not_ready`` (dry run).
     message : str
     estimate_enu : list or None
         Estimated source position (mean of the last ``convergence_window`` centres).
