@@ -108,7 +108,9 @@ async def land_now(co, timeout_s: float = 5.0) -> list[int]:
     Returns the vehicles commanded. No return flight, no stagger: each descends where it is.
     """
     timeout = co.plan.faults.link_timeout_s
-    todo = [s for s in engaged_vehicles(co) if verdict(co.vehicles.get(s), timeout)[0] == "airborne"]
+    done = co.__dict__.setdefault("_land_commanded", set())  # LAND accepted here: not sent twice
+    todo = [s for s in engaged_vehicles(co)
+            if s not in done and verdict(co.vehicles.get(s), timeout)[0] == "airborne"]
     if not todo:
         return []
     co.event(f"LANDING vehicles {todo} where they are, now", level="error", sysids=todo)
@@ -116,6 +118,8 @@ async def land_now(co, timeout_s: float = 5.0) -> list[int]:
     for s, err in zip(todo, errors):
         if err is not None:
             co.event(f"vehicle {s}: LAND command failed: {err}", level="error", sysid=s)
+        else:
+            done.add(s)
     return todo
 
 
@@ -143,11 +147,13 @@ async def secure(co, why: str, confirm_timeout_s: float = 5.0,
     timeout = co.plan.faults.link_timeout_s
     cancelled = False
     try:
-        if land and await land_now(co, confirm_timeout_s):
-            deadline = co.clock.time() + confirm_timeout_s
-            while co.clock.time() < deadline and any(
-                    verdict(co.vehicles.get(s), timeout)[0] == "airborne" for s in engaged_vehicles(co)):
-                await co.clock.sleep(0.2)
+        if land:
+            await land_now(co, confirm_timeout_s)
+        commanded = co.__dict__.get("_land_commanded", set())  # here or by an earlier land_now
+        deadline = co.clock.time() + confirm_timeout_s
+        while co.clock.time() < deadline and any(
+                verdict(co.vehicles.get(s), timeout)[0] == "airborne" for s in commanded):
+            await co.clock.sleep(0.2)
     except asyncio.CancelledError:
         cancelled = True
         task = asyncio.current_task()
