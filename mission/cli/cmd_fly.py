@@ -70,8 +70,13 @@ def main(args) -> int:
     display = Display(quiet=args.json)
     try:
         result = asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog))
-    except (OSError, zenoh.ZError) as exc:
-        print(f"swarmseek fly: cannot open the zenoh session or the log: {exc}", file=sys.stderr)
+    except zenoh.ZError as exc:
+        from mission.core.zenoh_errors import zenoh_open_message
+
+        print(f"swarmseek fly: {zenoh_open_message(exc, plan.zenoh)}; nothing armed", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"swarmseek fly: cannot write the mission log: {exc}", file=sys.stderr)
         return 1
     except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
         print(f"swarmseek fly: zenoh security settings: {exc}", file=sys.stderr)

@@ -96,8 +96,13 @@ def main(args) -> int:
     except ResumeError as exc:
         print(f"swarmseek resume: {exc}", file=sys.stderr)
         return 2
-    except (OSError, zenoh.ZError) as exc:
-        print(f"swarmseek resume: cannot open the zenoh session or the log: {exc}", file=sys.stderr)
+    except zenoh.ZError as exc:
+        from mission.core.zenoh_errors import clean_zenoh_error
+
+        print(f"swarmseek resume: cannot open the zenoh session: {clean_zenoh_error(exc)}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"swarmseek resume: cannot write the mission log: {exc}", file=sys.stderr)
         return 1
     except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
         print(f"swarmseek resume: zenoh security settings: {exc}", file=sys.stderr)

@@ -19,6 +19,7 @@ from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
 from mission.flight.loss import watch_losses
 from mission.flight.result import MissionResult, mission_result, readiness_result
+from mission.flight.readiness_mission import not_ready_message
 from mission.flight.resume import resume_mission
 from mission.flight.state import MissionError, MissionState
 from mission.flight.watchdog import watchdog
@@ -296,7 +297,8 @@ class Coordinator:
         finally:
             await self._stop_background()
         result = readiness_result(self.state, self.plan.vehicles, self.store.counts(),
-                                  self.clock.time() - self.state.t_start_s)
+                                  self.clock.time() - self.state.t_start_s,
+                                  mission_checks=self.__dict__.get("mission_checks", []))
         result.link_rejections, result.unknown_sysids = self.link_rejections(), self.unknown_sysids()
         if self.log is not None:
             self.log.write("summary", sync=True, **result.to_json())
@@ -326,10 +328,9 @@ class Coordinator:
             if resume_state is None:
                 await connect_phase.connect(self, required=True)
                 await connect_phase.preflight(self)
-                not_ready = [r for r in self.readiness.values() if not r.ready]
-                if not_ready:
-                    raise MissionError("preflight failed: " + "; ".join(
-                        f"vehicle {r.sysid}: {', '.join(r.problems)}" for r in not_ready))
+                problem = not_ready_message(self)
+                if problem:
+                    raise MissionError(f"preflight failed: {problem}")
                 await phases.takeoff(self)
                 await phases.assemble(self)
                 outcome, message = await seek.seek(self)
