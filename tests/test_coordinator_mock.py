@@ -79,7 +79,8 @@ def test_failed_preflight_aborts_and_arms_nothing(tmp_path, zenoh_elsewhere):
     records = read_mission_log(tmp_path / "m.jsonl")
     phases = [r["phase"] for r in records if r["type"] == "phase"]
     assert "takeoff" not in phases and "aborted" in phases
-    warned = [r for r in records if r["type"] == "event" and "no sensor reading accepted" in r.get("message", "")]
+    warned = [r for r in records if r["type"] == "event" and r.get("check") == "readings"
+              and "no sensor reading accepted" in r.get("message", "")]
     if zenoh_elsewhere:
         assert len(warned) == 1 and "vehicles [1, 2, 3, 4]" in warned[0]["message"]
         assert "TLS handshake or login" in warned[0]["message"]

@@ -185,7 +185,7 @@ async def _check_vehicle(co, sysid: int, v, envelope, timeout_s: float) -> None:
     st = v.state.system_status
     r.checks["armable"] = (not v.state.armed) and st in (None, _MAV_STATE_STANDBY)
     if v.state.armed:
-        r.problems.append("already armed")
+        r.problems.append("already armed (flying from an earlier mission? `swarmseek resume LOG` brings it home)")
     elif not r.checks["armable"]:
         r.problems.append(f"system status {st} (not STANDBY)")
     if home is not None and envelope is not None:
