@@ -45,7 +45,7 @@ def verdict(v, link_timeout_s: float) -> tuple[str, str]:
     under a landing mode (its last state is in ``detail``).
     """
     if v is None:
-        return "unheard", "never connected in this session"
+        return "unheard", "not connected to this ground station: its state is unknown"
     st = v.state
     age = float(v.link_age_s())
     landing_mode = st.mode in LEFT_MODES.get(v.flavour, ())
