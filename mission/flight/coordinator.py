@@ -124,6 +124,8 @@ class Coordinator:
         self.return_on_interrupt = True
         self.interrupts: list[str] = []  # signals that interrupted the mission (operator_stop)
         self.final_result: MissionResult | None = None  # set by mission_end.close on every path
+        self.mission_checks: list[dict] = []  # mission-wide preflight checks (readiness_mission)
+        self.land_commanded: set[int] = set()  # vehicles the landing guard commanded to LAND
 
     # ----------------------------------------------------------------- resources set by the phases
     def add_endpoint(self, uri: str, endpoint) -> None:
@@ -298,7 +300,7 @@ class Coordinator:
             await self._stop_background()
         result = readiness_result(self.state, self.plan.vehicles, self.store.counts(),
                                   self.clock.time() - self.state.t_start_s,
-                                  mission_checks=self.__dict__.get("mission_checks", []))
+                                  mission_checks=self.mission_checks)
         result.link_rejections, result.unknown_sysids = self.link_rejections(), self.unknown_sysids()
         if self.log is not None:
             self.log.write("summary", sync=True, **result.to_json())

@@ -108,7 +108,7 @@ async def land_now(co, timeout_s: float = 5.0) -> list[int]:
     Returns the vehicles commanded. No return flight, no stagger: each descends where it is.
     """
     timeout = co.plan.faults.link_timeout_s
-    done = co.__dict__.setdefault("_land_commanded", set())  # LAND accepted here: not sent twice
+    done = co.land_commanded  # LAND accepted here: not sent twice
     todo = [s for s in engaged_vehicles(co)
             if s not in done and verdict(co.vehicles.get(s), timeout)[0] == "airborne"]
     if not todo:
@@ -149,7 +149,7 @@ async def secure(co, why: str, confirm_timeout_s: float = 5.0,
     try:
         if land:
             await land_now(co, confirm_timeout_s)
-        commanded = co.__dict__.get("_land_commanded", set())  # here or by an earlier land_now
+        commanded = co.land_commanded  # here or by an earlier land_now
         deadline = co.clock.time() + confirm_timeout_s
         while co.clock.time() < deadline and any(
                 verdict(co.vehicles.get(s), timeout)[0] == "airborne" for s in commanded):

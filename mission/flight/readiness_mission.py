@@ -30,15 +30,14 @@ __all__ = ["check", "not_ready_message", "path_problems"]
 
 
 def _record(co, name: str, ok: bool, detail: str) -> None:
-    checks = co.__dict__.setdefault("mission_checks", [])
-    checks.append({"name": name, "ok": bool(ok), "detail": detail})
+    co.mission_checks.append({"name": name, "ok": bool(ok), "detail": detail})
     co.event(f"preflight: {name} " + ("ok" if ok else "FAIL") + f": {detail}",
              level="info" if ok else "warning", check=name, ok=bool(ok))
 
 
 async def check(co) -> None:
     """Run the mission-wide checks (module docstring); record each on ``co.mission_checks``."""
-    co.__dict__["mission_checks"] = []
+    co.mission_checks = []
     await _readings_check(co)  # first: it gives the zenoh connections time to come up
     _zenoh_check(co)
     checks = co.mission_checks
