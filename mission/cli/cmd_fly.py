@@ -1,8 +1,9 @@
 """``swarmseek fly --plan plan.toml``: fly the mission against the vehicles named in a plan.
 
 Readings come over zenoh (e.g. one ``swarmseek sensor`` per vehicle) on the plan's endpoints;
-the mission clock is the wall clock. Exit status: 0 converged, 1 not converged or aborted,
-2 invalid plan or options.
+the mission clock is the wall clock. Exit status: 0 converged, 1 not converged or aborted
+(also: not ready to seek, nothing armed), 2 invalid plan or options, 130 / 143 interrupted by
+SIGINT / SIGTERM (the first brings the vehicles home, a second lands them where they are).
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
 
     from mission.core.clock import WallClock
     from mission.flight.coordinator import Coordinator
+    from mission.flight.operator_stop import run_until_stopped
     from mission.telemetry.mission_log import MissionLog
 
     clock = clock or WallClock()
@@ -41,7 +43,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
         session = zenoh.open(plan.zenoh.to_config())
         co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
-        return await co.run()
+        return await run_until_stopped(co)
     finally:
         log.close()
         if session is not None:
@@ -68,10 +70,17 @@ def main(args) -> int:
     display = Display(quiet=args.json)
     try:
         result = asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog))
-    except (OSError, zenoh.ZError) as exc:
-        print(f"swarmseek fly: cannot open the zenoh session or the log: {exc}", file=sys.stderr)
+    except zenoh.ZError as exc:
+        from mission.core.zenoh_errors import zenoh_open_message
+
+        print(f"swarmseek fly: {zenoh_open_message(exc, plan.zenoh)}; nothing armed", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"swarmseek fly: cannot write the mission log: {exc}", file=sys.stderr)
         return 1
     except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
         print(f"swarmseek fly: zenoh security settings: {exc}", file=sys.stderr)
         return 2
-    return report_result(result, display, args.json)
+    from mission.flight.operator_stop import exit_status
+
+    return exit_status(result, report_result(result, display, args.json))

@@ -125,6 +125,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
     import zenoh
 
     from mission.flight.coordinator import Coordinator
+    from mission.flight.operator_stop import run_until_stopped
     from mission.sim.fleet_report import vehicle_rejections
     from mission.telemetry.mission_log import MissionLog
 
@@ -144,7 +145,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
                          tlog_dir=None if args.no_tlog else log_dir / "tlogs")
         if world is not None:
             world.store = co.store
-        result = await co.run()
+        result = await run_until_stopped(co)
         result.true_source_enu = [float(x) for x in source]
         if result.estimate_enu is not None:
             result.error_m = float(np.linalg.norm(np.asarray(result.estimate_enu) - source))
@@ -205,7 +206,9 @@ def main(args) -> int:
     except (OSError, zenoh.ZError) as exc:
         print(f"swarmseek run: cannot start the embedded fleet or zenoh: {exc}", file=sys.stderr)
         return 1
-    status = report_result(result, display, args.json)
+    from mission.flight.operator_stop import exit_status
+
+    status = exit_status(result, report_result(result, display, args.json))
     if not args.json and result.log_path:
         print(f"  mission log: {result.log_path}  (swarmseek plot {result.log_path} --out DIR)")
     return status

@@ -16,10 +16,11 @@ import numpy as np
 from mission.core.clock import cancel_and_wait
 from mission.core.plan import Plan
 from mission.flight import connect as connect_phase
-from mission.flight import phases, seek
+from mission.flight import mission_end, phases, seek
 from mission.flight.loss import watch_losses
 from mission.flight.result import MissionResult, mission_result, readiness_result
-from mission.flight.resume import rejoin
+from mission.flight.readiness_mission import not_ready_message
+from mission.flight.resume import resume_mission
 from mission.flight.state import MissionError, MissionState
 from mission.flight.watchdog import watchdog
 from mission.telemetry.link_report import link_rejections, unknown_sysids
@@ -121,6 +122,10 @@ class Coordinator:
         self._watchdog_task: asyncio.Task | None = None
         self._loss_task: asyncio.Task | None = None
         self.return_on_interrupt = True
+        self.interrupts: list[str] = []  # signals that interrupted the mission (operator_stop)
+        self.final_result: MissionResult | None = None  # set by mission_end.close on every path
+        self.mission_checks: list[dict] = []  # mission-wide preflight checks (readiness_mission)
+        self.land_commanded: set[int] = set()  # vehicles the landing guard commanded to LAND
 
     # ----------------------------------------------------------------- resources set by the phases
     def add_endpoint(self, uri: str, endpoint) -> None:
@@ -294,7 +299,8 @@ class Coordinator:
         finally:
             await self._stop_background()
         result = readiness_result(self.state, self.plan.vehicles, self.store.counts(),
-                                  self.clock.time() - self.state.t_start_s)
+                                  self.clock.time() - self.state.t_start_s,
+                                  mission_checks=self.mission_checks)
         result.link_rejections, result.unknown_sysids = self.link_rejections(), self.unknown_sysids()
         if self.log is not None:
             self.log.write("summary", sync=True, **result.to_json())
@@ -310,7 +316,11 @@ class Coordinator:
             preflight, no takeoff), seek from the state's centre and iteration.
 
         Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
-        False (a ground station that just stops: the vehicles do what their autopilot does).
+        False (a ground station that just stops: the vehicles do what their autopilot does); a
+        second cancellation lands them where they are (:mod:`mission.flight.mission_end`). Every
+        path ends with the never-abandon check (:mod:`mission.flight.landing_guard`) and a
+        ``summary`` record; a cancelled run then raises CancelledError (:attr:`final_result`
+        holds its result).
         """
         if self.log is not None:
             self.log.write("plan", plan=_plan_json(self.plan), resumed=resume_state is not None)
@@ -320,17 +330,14 @@ class Coordinator:
             if resume_state is None:
                 await connect_phase.connect(self, required=True)
                 await connect_phase.preflight(self)
-                not_ready = [r for r in self.readiness.values() if not r.ready]
-                if not_ready:
-                    raise MissionError("preflight failed: " + "; ".join(
-                        f"vehicle {r.sysid}: {', '.join(r.problems)}" for r in not_ready))
+                problem = not_ready_message(self)
+                if problem:
+                    raise MissionError(f"preflight failed: {problem}")
                 await phases.takeoff(self)
                 await phases.assemble(self)
                 outcome, message = await seek.seek(self)
             else:
-                await rejoin(self, resume_state)
-                outcome, message = await seek.seek(self, start_iteration=resume_state.iteration,
-                                                   history=resume_state.centres)
+                outcome, message = await resume_mission(self, resume_state)
             self.set_phase("finish", outcome=outcome)
             self.event(message)
         except MissionError as exc:
@@ -343,22 +350,10 @@ class Coordinator:
             outcome, message = "aborted", f"unexpected error in phase {self.phase}: {type(exc).__name__}: {exc}"
             self.set_phase("aborted", reason=message)
             self.event(message, level="error", traceback=traceback.format_exc())
-        except asyncio.CancelledError:
-            outcome, message = "aborted", "interrupted"
-            self.event("mission interrupted", level="error")
-            if self.return_on_interrupt:
-                await self._return_safely()
-            await self._stop_background()
-            raise
-        try:
-            await self._return_safely()
-        finally:
-            await self._stop_background()
-        result = self.result(outcome, message)
-        self.set_phase("done")
-        if self.log is not None:
-            self.log.write("summary", sync=True, **result.to_json())
-        return result
+        except asyncio.CancelledError:  # Ctrl-C, SIGTERM, a cancelled task: mission_end counts them
+            return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self),
+                                           interrupted=True)
+        return await mission_end.close(self, outcome, message)
 
     async def _return_safely(self) -> None:
         if not self.airborne:

@@ -14,8 +14,9 @@ class MissionResult:
     Attributes
     ----------
     outcome : str
-        ``converged``, ``max_iterations``, ``stopped_at_fence``, ``aborted``, ``ready`` or
-        ``not_ready`` (dry run).
+        ``converged``, ``max_iterations``, ``stopped_at_fence``, ``aborted``, ``interrupted``
+        (Ctrl-C, SIGTERM), ``recovered`` (``resume`` of a mission that had ended: the vehicles
+        still flying brought home), ``ready`` or ``not_ready`` (dry run).
     message : str
     estimate_enu : list or None
         Estimated source position (mean of the last ``convergence_window`` centres).
@@ -47,6 +48,15 @@ class MissionResult:
     separation_interventions : int
         Vehicle-setpoints the safety envelope held back to keep ``min_separation_m`` (0: none
         needed; per vehicle in the mission log's ``separation enforcement`` events).
+    airborne_left : list
+        Vehicles still airborne with no landing behaviour at the end (the ``airborne_left``
+        record of :mod:`mission.flight.landing_guard`; empty when every vehicle is down or landing).
+    interrupted_by : list
+        The signals (``SIGINT``, ``SIGTERM``) that interrupted the mission, in order
+        (:mod:`mission.flight.operator_stop`).
+    mission_checks : list
+        The mission-wide preflight checks (``name``, ``ok``, ``detail``: zenoh, readings, start
+        and paths inside the fence; :mod:`mission.flight.readiness_mission`).
     """
 
     outcome: str
@@ -72,6 +82,9 @@ class MissionResult:
     unknown_sysids: list = field(default_factory=list)
     vehicle_rejections: dict = field(default_factory=dict)
     separation_interventions: int = 0
+    airborne_left: list = field(default_factory=list)
+    interrupted_by: list = field(default_factory=list)
+    mission_checks: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -119,15 +132,20 @@ def mission_result(state, outcome: str, message: str, *, now_s: float, readings:
         separation_interventions=int(separation_interventions))
 
 
-def readiness_result(state, plan_vehicles, readings: dict, mission_time_s: float) -> MissionResult:
-    """The dry run's result: ``ready`` when every vehicle of the plan passed its preflight, else ``not_ready``."""
+def readiness_result(state, plan_vehicles, readings: dict, mission_time_s: float,
+                     mission_checks=()) -> MissionResult:
+    """The dry run's result: ``ready`` when every vehicle of the plan passed its preflight and
+    every mission-wide check (:mod:`mission.flight.readiness_mission`) passed, else ``not_ready``."""
     ready = list(state.readiness.values())
-    all_ready = len(ready) == len(plan_vehicles) and all(r.ready for r in ready)
+    failed = [c for c in mission_checks if not c["ok"]]
+    all_ready = len(ready) == len(plan_vehicles) and all(r.ready for r in ready) and not failed
     missing = [vp for vp in plan_vehicles if vp.sysid not in state.readiness]
     readiness = [asdict(r) | {"ready": r.ready} for r in ready] + [
         {"sysid": vp.sysid, "id": vp.id, "connection": vp.connection, "ready": False,
          "checks": {"connected": False}, "problems": ["not connected"]} for vp in missing]
+    n_bad = sum(not r["ready"] for r in readiness)
+    why = ([f"{n_bad} vehicle(s) not ready"] if n_bad else []) + [f"{c['name']} failed" for c in failed]
     return MissionResult(outcome="ready" if all_ready else "not_ready",
-                         message="every vehicle is ready" if all_ready else
-                         f"{sum(not r['ready'] for r in readiness)} vehicle(s) not ready",
-                         readiness=readiness, readings=readings, mission_time_s=mission_time_s)
+                         message="every vehicle and the mission are ready to seek" if all_ready else "; ".join(why),
+                         readiness=readiness, readings=readings, mission_time_s=mission_time_s,
+                         mission_checks=[dict(c) for c in mission_checks])

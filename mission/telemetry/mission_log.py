@@ -62,6 +62,8 @@ def to_jsonable(obj):
     if isinstance(obj, (set, frozenset)):
         return sorted((to_jsonable(v) for v in obj), key=repr)
     if isinstance(obj, np.ndarray):
+        if obj.dtype.kind == "f" and obj.ndim == 1 and np.isfinite(obj).all():
+            return [round(v, 6) for v in obj.tolist()]  # the common case, without the recursion
         return to_jsonable(obj.tolist())
     if isinstance(obj, (np.floating, float)):
         f = float(obj)
