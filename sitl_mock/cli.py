@@ -43,7 +43,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("--vehicles", type=_vehicles, default=4, help="number of vehicles (sysid 1..N)")
     parser.add_argument("--personality", choices=PERSONALITY_NAMES, default="px4")
-    parser.add_argument("--field", choices=FIELD_NAMES, default="sigma1", help="signal field the sensors sample")
+    parser.add_argument("--field", choices=FIELD_NAMES, default="sigma2",
+                        help="signal field the sensors sample (default sigma2, as `run` and the sample plan)")
     parser.add_argument("--source", type=source_enu, default=(0.0, 0.0, 0.0), metavar="E,N,U",
                         help="field source in the mission frame (ENU m)")
     parser.add_argument("--origin", type=origin_geodetic, default=None, metavar="LAT,LON,ALT",
