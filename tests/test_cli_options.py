@@ -173,3 +173,20 @@ def test_plot_command_prints_the_four_files(tmp_path, capsys):
     printed = capsys.readouterr().out.split()
     assert [Path(p).name for p in printed] == ["trajectory_3d.png", "trajectory_top.png", "distance.png",
                                                "gradient.png"]
+
+
+def test_mock_samples_the_same_field_as_run_by_default():
+    """``mock`` stands in for the sample plan's vehicles, whose eps is chosen for sigma_2, like ``run``."""
+    import tomllib
+
+    mock = build_args(["mock"])
+    run = build_args(["run"])
+    assert mock.field == run.field == "sigma2"
+    plan_text = SAMPLE.read_text()
+    assert "sigma_2" in plan_text and tomllib.loads(plan_text)["seeking"]["eps"] == 50.0
+
+
+def build_args(argv):
+    from mission.cli import build_parser
+
+    return build_parser(argv).parse_args(argv)

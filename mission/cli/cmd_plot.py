@@ -218,7 +218,7 @@ def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
 
 
 def main(args) -> int:
-    """Plot a mission log; 0 on success, 1 if the log cannot be plotted."""
+    """Plot a mission log; 0 on success, 1 if the log cannot be plotted, 2 if --out cannot be written."""
     from mission.cli.paths import output_dir_problem
 
     out = args.out or args.log.parent
