@@ -139,27 +139,8 @@ def _plot_top(plt, tr: dict, title: str, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
-    """Write the three figures; returns their paths.
-
-    Raises
-    ------
-    FileNotFoundError, ValueError
-        No log, not a mission log, or no seeking iteration in it.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from mission.telemetry.mission_log import read_mission_log
-
-    records = read_mission_log(log_path)
-    tr = mission_tracks(records)
-    title = run_title(records, log_path)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = []
-
+def _plot_3d(plt, tr: dict, title: str, path: Path) -> None:
+    """3D trajectory in the mission ENU frame, equal scales on the three axes."""
     fig = plt.figure(figsize=(8, 7))
     ax = fig.add_subplot(111, projection="3d")
     for sysid, p in sorted(tr["vehicles"].items(), key=lambda kv: int(kv[0])):
@@ -177,12 +158,13 @@ def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
     _equal_3d(ax, _all_points(tr))
     ax.set_title(f"Trajectory (mission ENU frame, equal scales)\n{title}", fontsize=9)
     ax.legend(fontsize=7, loc="upper left")
-    paths.append(out_dir / "trajectory_3d.png")
-    fig.savefig(paths[-1], dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
-    paths.append(out_dir / "trajectory_top.png")
-    _plot_top(plt, tr, f"Seen from above (equal scales)\n{title}", paths[-1])
 
+
+def _plot_distance(plt, tr: dict, title: str, path: Path) -> None:
+    """Distance of the centre to the estimated (and true) source per iteration."""
+    c = tr["centre"]
     fig, ax = plt.subplots(figsize=(8, 4))
     iters = np.arange(len(c))
     if tr["estimate"] is not None:
@@ -195,11 +177,13 @@ def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
     ax.set_title(title, fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    paths.append(out_dir / "distance.png")
     fig.tight_layout()
-    fig.savefig(paths[-1], dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
 
+
+def _plot_gradient(plt, tr: dict, title: str, path: Path) -> None:
+    """The gradient estimate's components and norm per iteration."""
     fig, ax = plt.subplots(figsize=(8, 4))
     g = tr["gradient"]
     for i, name in enumerate(("east", "north", "up")):
@@ -210,10 +194,36 @@ def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
     ax.set_title(title, fontsize=9)
     ax.grid(True, alpha=0.3)
     ax.legend()
-    paths.append(out_dir / "gradient.png")
     fig.tight_layout()
-    fig.savefig(paths[-1], dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
+    """Write the four figures; returns their paths.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        No log, not a mission log, or no seeking iteration in it.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mission.telemetry.mission_log import read_mission_log
+
+    records = read_mission_log(log_path)
+    tr = mission_tracks(records)
+    title = run_title(records, log_path)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [out_dir / name for name in ("trajectory_3d.png", "trajectory_top.png", "distance.png",
+                                         "gradient.png")]
+    _plot_3d(plt, tr, title, paths[0])
+    _plot_top(plt, tr, f"Seen from above (equal scales)\n{title}", paths[1])
+    _plot_distance(plt, tr, title, paths[2])
+    _plot_gradient(plt, tr, title, paths[3])
     return paths
 
 
