@@ -31,6 +31,7 @@ def geodetic_point(origin, enu) -> dict | None:
     lat_deg, lon_deg, alt_m = (float(x) for x in enu_to_geodetic([float(v) for v in enu], origin))
     return {"lat_deg": round(lat_deg, 8), "lon_deg": round(lon_deg, 8), "alt_m": round(alt_m, 3)}
 
+
 @dataclass
 class MissionResult:
     """End of a mission (what ``--json`` prints).
