@@ -190,3 +190,10 @@ def build_args(argv):
     from mission.cli import build_parser
 
     return build_parser(argv).parse_args(argv)
+
+
+def test_an_unknown_option_before_the_command_is_a_top_level_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["--bogus", "run"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "swarmseek: error: unrecognized arguments: --bogus" in err

@@ -71,8 +71,9 @@ def main(argv: list[str] | None = None) -> int:
         argv = sys.argv[1:]
     parser = build_parser(argv)
     args, extra = parser.parse_known_args(argv)
-    if extra:  # the subcommand's usage and error, not the top level's
-        getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
+    if extra:  # after the command: the subcommand's usage and error, not the top level's
+        after_command = args.command in argv and extra[0] in argv[argv.index(args.command) + 1:]
+        (args._parser if after_command else parser).error(f"unrecognized arguments: {' '.join(extra)}")
     if args.command is None:
         parser.print_help()
         return 2
