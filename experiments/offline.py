@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator import DEFAULT_MAX_CONDITION, estimator_weights, gradient_batch, seek_step
+from estimator import DEFAULT_MAX_CONDITION, convergence_scan, estimator_weights, gradient_batch, seek_step
 
-__all__ = ["OfflineResult", "simulate", "SIGMA_C_MODES"]
+__all__ = ["OfflineResult", "simulate", "convergence_report", "SIGMA_C_MODES"]
 
 #: How the estimator gets the field at the centre: the mean of the readings (paper's Remark)
 #: or the exact value (as in Theorem 2's statement; a simulation-only oracle).
@@ -191,3 +191,63 @@ def simulate(
         centres[k + 1] = seek_step(c, g, eps, gamma)
     grad_true[:] = field.gradient(centres[:-1])
     return OfflineResult(centres, grad_est, grad_true, readings, trial_off, field.source_enu())
+
+
+def convergence_report(result: OfflineResult, *, window: int, tol_m: float, trial: int = 0,
+                       stop_at_convergence: bool = False) -> dict:
+    """One trial judged by the mission's convergence test, with every distance named.
+
+    A mission stops at the first iteration where :func:`estimator.convergence_scan` (the
+    :class:`estimator.ConvergenceMonitor` maths) passes and reports the mean of the window's
+    centres; the simulation may go on. The two places are reported separately, each with its
+    distance to the true source, so that "converged" means what a mission means by it.
+
+    Parameters
+    ----------
+    result : OfflineResult
+    window, tol_m : int, float
+        The convergence test's window (iterations) and tolerance (metres).
+    trial : int
+        Which trial of ``result``.
+    stop_at_convergence : bool
+        Treat the run as ended where the test first passes (as a mission does).
+
+    Returns
+    -------
+    dict
+        ``converged``, ``converged_at_iteration``, ``estimated_source_enu``, ``estimate_error_m``,
+        ``estimate_spread_m``, ``centre_at_convergence_enu``, ``centre_at_convergence_distance_m``
+        (None when never converged); ``final_iteration``, ``final_centre_enu``,
+        ``final_distance_m``, ``final_gradient_error``, ``stopped_at_convergence``; and the test
+        over the run's last window: ``converged_at_end``, ``final_window_estimate_enu``,
+        ``final_window_error_m`` (None when the run is shorter than the window).
+    """
+    centres = result.centres[:, trial]
+    source = result.source_enu
+    first, est, spread = convergence_scan(centres[:, None, :], window=window, tol_m=tol_m)
+    k = int(first[0])
+    converged = k >= 0
+    end = k if converged and stop_at_convergence else centres.shape[0] - 1
+    out = {
+        "converged": converged,
+        "converged_at_iteration": k if converged else None,
+        "estimated_source_enu": est[0].tolist() if converged else None,
+        "estimate_error_m": float(np.linalg.norm(est[0] - source)) if converged else None,
+        "estimate_spread_m": float(spread[0]) if converged else None,
+        "centre_at_convergence_enu": centres[k].tolist() if converged else None,
+        "centre_at_convergence_distance_m": float(np.linalg.norm(centres[k] - source)) if converged else None,
+        "stopped_at_convergence": bool(converged and stop_at_convergence),
+        "final_iteration": end,
+        "final_centre_enu": centres[end].tolist(),
+        "final_distance_m": float(np.linalg.norm(centres[end] - source)),
+        "final_gradient_error": float(result.error_norm()[min(end, result.grad_est.shape[0] - 1), trial]),
+    }
+    last = centres[max(0, end + 1 - window):end + 1]
+    if last.shape[0] >= window:
+        ok_end, est_end, _ = convergence_scan(last[:, None, :], window=window, tol_m=tol_m)
+        mean = last.mean(axis=0)
+        out.update(converged_at_end=bool(ok_end[0] >= 0), final_window_estimate_enu=mean.tolist(),
+                   final_window_error_m=float(np.linalg.norm(mean - source)))
+    else:
+        out.update(converged_at_end=None, final_window_estimate_enu=None, final_window_error_m=None)
+    return out

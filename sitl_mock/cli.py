@@ -44,7 +44,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("--vehicles", type=_vehicles, default=4, help="number of vehicles (sysid 1..N)")
     parser.add_argument("--personality", choices=PERSONALITY_NAMES, default="px4")
-    add_field_arguments(parser, "sigma1")
+    add_field_arguments(parser, "sigma2")
     parser.add_argument("--source", type=source_enu, default=None, metavar="E,N,U",
                         help="field source (plumes: release point) in the mission frame, ENU m "
                              "(default: the --field-config's, else 0,0,0)")

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import tempfile
+from pathlib import Path
 
 __all__ = [
     "floats",
@@ -16,6 +18,7 @@ __all__ = [
     "nonnegative_float",
     "int_in_range",
     "zenoh_endpoint",
+    "output_dir_problem",
 ]
 
 
@@ -192,3 +195,33 @@ def field_from_args(args: argparse.Namespace, source):
     except ValueError as exc:
         raise ValueError(f"{args.field_config}: {exc}" if args.field_config else str(exc)) from None
     return table["type"], field, response
+
+
+def output_dir_problem(path: Path, what: str) -> str | None:
+    """Create ``path`` (with its parents) and check that files can be written in it.
+
+    Parameters
+    ----------
+    path : Path
+        The directory (``--log-dir``, ``--out``).
+    what : str
+        What it is for, used in the message (``"log directory"``, ``"output directory"``).
+
+    Returns
+    -------
+    str or None
+        None when the directory exists and is writable, else a one-line reason.
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        return f"the {what} {str(path)!r} exists and is not a directory"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return f"cannot create the {what} {str(path)!r}: {exc.strerror or exc}"
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        return f"cannot write in the {what} {str(path)!r}: {exc.strerror or exc}"
+    return None

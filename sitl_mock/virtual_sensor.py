@@ -305,8 +305,9 @@ def main(args: argparse.Namespace) -> int:
         print(f"swarmseek sensor: error: {exc}", file=sys.stderr)
         return 2
     if not args.zenoh_listen and not args.zenoh_connect:
-        print("swarmseek sensor: error: give --zenoh-listen and/or --zenoh-connect "
-              "(zenoh endpoints are always explicit)", file=sys.stderr)
+        print("swarmseek sensor: error: give --zenoh-listen and/or --zenoh-connect, e.g. "
+              "--zenoh-connect tcp/127.0.0.1:7447 for a coordinator flying the sample plan on this "
+              "machine (zenoh endpoints are always explicit)", file=sys.stderr)
         return 2
     try:
         security_kwargs(args)

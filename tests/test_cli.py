@@ -95,12 +95,12 @@ def _synthetic_log(path: Path, iterations: int = 20) -> Path:
     return path
 
 
-def test_plot_writes_three_pngs(tmp_path, capsys):
+def test_plot_writes_four_pngs(tmp_path, capsys):
     log = _synthetic_log(tmp_path / "mission.jsonl")
     out = tmp_path / "fig"
     assert cli_main(["plot", str(log), "--out", str(out)]) == 0
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["distance.png", "gradient.png", "trajectory_3d.png"]
+    assert names == ["distance.png", "gradient.png", "trajectory_3d.png", "trajectory_top.png"]
     for p in out.iterdir():
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 5000
     assert "trajectory_3d.png" in capsys.readouterr().out

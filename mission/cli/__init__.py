@@ -10,7 +10,7 @@ import argparse
 import importlib
 import sys
 
-__all__ = ["COMMANDS", "build_parser", "main"]
+__all__ = ["COMMANDS", "build_parser", "main", "version_text"]
 
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -35,9 +35,20 @@ def _load(module_name: str):
     return importlib.import_module(module_name)
 
 
+def version_text() -> str:
+    """``swarmseek X.Y.Z`` from the installed package's metadata (``unknown`` when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"swarmseek {version('swarmseek')}"
+    except PackageNotFoundError:
+        return "swarmseek (version unknown: the package is not installed)"
+
+
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """Build the top-level parser; only the chosen subcommand's module is imported."""
     parser = _Parser(prog="swarmseek", description="Multi-drone 3D source seeking ground station.")
+    parser.add_argument("--version", action="version", version=version_text())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     chosen = None
     if argv:
@@ -50,7 +61,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
             except ImportError as exc:
                 parser.error(f"command {name!r} is not available: {exc}")
             module.configure(p)
-            p.set_defaults(_module=module)
+            p.set_defaults(_module=module, _parser=p)
     return parser
 
 
@@ -59,7 +70,10 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:
         argv = sys.argv[1:]
     parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # after the command: the subcommand's usage and error, not the top level's
+        after_command = args.command in argv and extra[0] in argv[argv.index(args.command) + 1:]
+        (args._parser if after_command else parser).error(f"unrecognized arguments: {' '.join(extra)}")
     if args.command is None:
         parser.print_help()
         return 2

@@ -64,7 +64,13 @@ def main(args) -> int:
         print("swarmseek fly: the plan's [zenoh] section has no listen or connect endpoint: "
               "no reading could arrive (multicast scouting is off)", file=sys.stderr)
         return 2
+    from mission.cli.paths import output_dir_problem
+
     log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("fly-%Y%m%d-%H%M%S")
+    problem = output_dir_problem(log_dir, "log directory (--log-dir)")
+    if problem:
+        print(f"swarmseek fly: error: {problem}", file=sys.stderr)
+        return 2
     import zenoh
 
     display = Display(quiet=args.json)

@@ -81,6 +81,12 @@ def main(args) -> int:
     from mission.core.plan import PlanError, load_plan
     from mission.flight.resume import ResumeError
 
+    from mission.cli.paths import writable_file_problem
+
+    problem = writable_file_problem(args.log, "mission log")
+    if problem:
+        print(f"swarmseek resume: error: {problem}", file=sys.stderr)
+        return 2
     plan = None
     if args.plan is not None:
         try:

@@ -126,6 +126,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
 
     from mission.flight.coordinator import Coordinator
     from mission.flight.operator_stop import run_until_stopped
+    from mission.flight.result import geodetic_point
     from mission.sim.fleet_report import vehicle_rejections
     from mission.telemetry.mission_log import MissionLog
 
@@ -147,10 +148,12 @@ async def _fly(args, plan, fleet, setup, display, world=None):
             world.store = co.store
         result = await run_until_stopped(co)
         result.true_source_enu = [float(x) for x in source]
+        result.true_source_geodetic = geodetic_point(plan.origin, source)
         if result.estimate_enu is not None:
             result.error_m = float(np.linalg.norm(np.asarray(result.estimate_enu) - source))
         result.vehicle_rejections = vehicle_rejections(fleet)
-        log.write("truth", sync=True, source_enu=source, error_m=result.error_m,
+        log.write("truth", sync=True, source_enu=source, source_geodetic=result.true_source_geodetic,
+                  error_m=result.error_m,
                   vehicle_rejections=result.vehicle_rejections)
         return result
     finally:
@@ -194,7 +197,10 @@ def main(args) -> int:
     """Run the embedded mission; 0 if it converged, 1 if not, 2 for bad options."""
     from mission.telemetry.display import Display, report_result
 
-    problem = _check_args(args)
+    from mission.cli.paths import output_dir_problem
+
+    args.log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("run-%Y%m%d-%H%M%S")
+    problem = _check_args(args) or output_dir_problem(args.log_dir, "log directory (--log-dir)")
     if problem:
         print(f"swarmseek run: error: {problem}", file=sys.stderr)
         return 2

@@ -18,7 +18,7 @@ from mission.core.plan import Plan
 from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
 from mission.flight.loss import watch_losses
-from mission.flight.result import MissionResult, mission_result, readiness_result
+from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import not_ready_message
 from mission.flight.resume import resume_mission
 from mission.flight.state import MissionError, MissionState
@@ -230,6 +230,7 @@ class Coordinator:
             "centre_enu": self.centre_enu, "gradient": g,
             "gradient_norm": None if g is None else float(np.linalg.norm(g)),
             "estimate_enu": self.estimate_enu, "spread_m": self.spread_m,
+            "estimate_geodetic": geodetic_point(self.plan.origin, self.estimate_enu),
             "distance_flown_m": self.distance_flown_m, "vehicles": self.vehicle_status(),
             "readings": self.store.counts(), "link_rejections": self.link_rejections(),
             "unknown_sysids": self.unknown_sysids(),
@@ -369,7 +370,8 @@ class Coordinator:
         result = mission_result(self.state, outcome, message, now_s=self.clock.time(),
                                 readings=self.store.counts() | {"last_errors": self.store.last_errors()},
                                 log_path=None if self.log is None else str(self.log.path),
-                                separation_interventions=getattr(self.ramp, "separation_interventions", 0))
+                                separation_interventions=getattr(self.ramp, "separation_interventions", 0),
+                                origin=self.plan.origin)
         result.link_rejections = self.link_rejections()
         result.unknown_sysids = self.unknown_sysids()
         return result

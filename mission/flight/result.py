@@ -5,7 +5,32 @@ from dataclasses import asdict, dataclass, field
 
 from mission.telemetry.mission_log import dataclass_json
 
-__all__ = ["MissionResult", "mission_result", "readiness_result"]
+__all__ = ["MissionResult", "mission_result", "readiness_result", "geodetic_point"]
+
+
+def geodetic_point(origin, enu) -> dict | None:
+    """A mission-frame point in WGS-84 geodetic coordinates, for the operator.
+
+    Parameters
+    ----------
+    origin : tuple of float
+        The plan's origin ``(lat_deg, lon_deg, alt_m)`` (altitude AMSL, as MAVLink's).
+    enu : array_like, shape (3,), or None
+        East, north, up metres about ``origin``.
+
+    Returns
+    -------
+    dict or None
+        ``{"lat_deg", "lon_deg", "alt_m"}`` (``alt_m`` AMSL, as the origin's; latitude and
+        longitude to 1e-8 degree, about 1 mm), None when ``enu`` or ``origin`` is None.
+    """
+    if enu is None or origin is None:
+        return None
+    from formation.geodesy import enu_to_geodetic
+
+    lat_deg, lon_deg, alt_m = (float(x) for x in enu_to_geodetic([float(v) for v in enu], origin))
+    return {"lat_deg": round(lat_deg, 8), "lon_deg": round(lon_deg, 8), "alt_m": round(alt_m, 3)}
+
 
 @dataclass
 class MissionResult:
@@ -20,6 +45,8 @@ class MissionResult:
     message : str
     estimate_enu : list or None
         Estimated source position (mean of the last ``convergence_window`` centres).
+    estimate_geodetic : dict or None
+        The same in WGS-84: ``lat_deg``, ``lon_deg``, ``alt_m`` (AMSL, like the plan's origin).
     spread_m : float or None
         RMS spread of those centres.
     iterations : int
@@ -42,6 +69,8 @@ class MissionResult:
         :mod:`mission.telemetry.link_report`).
     unknown_sysids : list
         System ids heard on the links that are no vehicle of the plan (ignored).
+    true_source_geodetic : dict or None
+        ``swarmseek run`` only: the true source in WGS-84 (as ``estimate_geodetic``).
     vehicle_rejections : dict
         ``swarmseek run`` only: frames the embedded mock vehicles refused, by sysid then kind
         (non-zero only; :func:`mission.sim.fleet_report.vehicle_rejections`).
@@ -62,6 +91,7 @@ class MissionResult:
     outcome: str
     message: str = ""
     estimate_enu: list | None = None
+    estimate_geodetic: dict | None = None
     spread_m: float | None = None
     iterations: int = 0
     mission_time_s: float = 0.0
@@ -71,6 +101,7 @@ class MissionResult:
     readings: dict = field(default_factory=dict)
     readiness: list = field(default_factory=list)
     true_source_enu: list | None = None
+    true_source_geodetic: dict | None = None
     error_m: float | None = None
     log_path: str | None = None
     reengaged: dict = field(default_factory=dict)
@@ -97,7 +128,8 @@ class MissionResult:
 
 
 def mission_result(state, outcome: str, message: str, *, now_s: float, readings: dict,
-                   log_path: str | None = None, separation_interventions: int = 0) -> MissionResult:
+                   log_path: str | None = None, separation_interventions: int = 0,
+                   origin=None) -> MissionResult:
     """The :class:`MissionResult` of a mission whose state is ``state`` (:class:`~mission.flight.state.MissionState`).
 
     Parameters
@@ -111,12 +143,15 @@ def mission_result(state, outcome: str, message: str, *, now_s: float, readings:
     log_path : str, optional
     separation_interventions : int
         The ramp's count (:attr:`mission.flight.targets.TargetRamp.separation_interventions`).
+    origin : tuple of float, optional
+        The plan's geodetic origin: gives ``estimate_geodetic``.
     """
     t_end = state.t_seek_end_s or now_s
     est = state.estimate_enu
     return MissionResult(
         outcome=outcome, message=message,
         estimate_enu=None if est is None else [float(x) for x in est],
+        estimate_geodetic=geodetic_point(origin, est),
         spread_m=state.spread_m, iterations=state.iteration,
         mission_time_s=now_s - state.t_start_s,
         seek_time_s=0.0 if state.t_seek_start_s is None else t_end - state.t_seek_start_s,

@@ -24,6 +24,7 @@ import numpy as np
 
 from mission.flight.loss import reform
 from mission.flight.motion import move_and_wait, parked
+from mission.flight.result import geodetic_point
 from mission.flight.rejoin import (
     clear_goals,
     fly_rotation,
@@ -277,6 +278,7 @@ class _Seek:
             everyone = self.sysids + parked(co)
             co.log.write("iteration", k=k + 1, t_estimate_s=t_est, centre_enu=self.centre, centroid_enu=centroid,
                          gradient=grad, new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.estimate_enu,
+                         estimate_geodetic=geodetic_point(co.plan.origin, co.estimate_enu),
                          spread_m=co.spread_m, distance_flown_m=co.distance_flown_m,
                          readings=[aligned[s] for s in used],
                          positions_enu={s: co.telemetry_position(s) for s in everyone},

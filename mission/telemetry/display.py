@@ -14,7 +14,7 @@ from typing import IO
 
 from mission.telemetry.link_report import format_rejections
 
-__all__ = ["Display", "format_table", "format_line", "format_summary", "report_result"]
+__all__ = ["Display", "format_table", "format_line", "format_summary", "format_geodetic", "report_result"]
 
 
 def _vec(v, fmt="{:7.2f}") -> str:
@@ -27,6 +27,17 @@ def _num(v, fmt="{:.2f}") -> str:
     return "-" if v is None else fmt.format(float(v))
 
 
+def format_geodetic(geo: dict | None) -> str:
+    """``lat 45.1900123, lon 5.7200456, alt 242.3 m AMSL`` (``-`` when unknown).
+
+    Seven decimals of a degree: about 1 cm of latitude, finer than any estimate.
+    """
+    if not geo:
+        return "-"
+    return (f"lat {float(geo['lat_deg']):.7f}, lon {float(geo['lon_deg']):.7f}, "
+            f"alt {float(geo['alt_m']):.1f} m AMSL")
+
+
 def format_table(state: dict) -> list[str]:
     """The lines of the live table for one state snapshot."""
     lines = [
@@ -36,6 +47,8 @@ def format_table(state: dict) -> list[str]:
         f"estimate {_vec(state.get('estimate_enu'))} m  spread {_num(state.get('spread_m'))} m"
         f"   flown {_num(state.get('distance_flown_m'), '{:.1f}')} m",
     ]
+    if state.get("estimate_geodetic"):
+        lines.append(f"estimate {format_geodetic(state['estimate_geodetic'])}")
     rd = state.get("readings") or {}
     rejected = {k: v for k, v in (rd.get("rejected") or {}).items() if v}
     lines.append(f"readings accepted {rd.get('accepted', 0)}  rejected {rejected or 0}")
@@ -71,9 +84,13 @@ def format_summary(summary: dict) -> list[str]:
     if summary.get("estimate_enu") is not None:
         lines.append(f"  estimated source {_vec(summary['estimate_enu'], '{:.2f}')} m "
                      f"(spread {_num(summary.get('spread_m'))} m) after {summary.get('iterations', 0)} iterations")
+        if summary.get("estimate_geodetic"):
+            lines.append(f"                   {format_geodetic(summary['estimate_geodetic'])}")
     if summary.get("true_source_enu") is not None:
         lines.append(f"  true source      {_vec(summary['true_source_enu'], '{:.2f}')} m, "
                      f"error {_num(summary.get('error_m'))} m")
+        if summary.get("true_source_geodetic"):
+            lines.append(f"                   {format_geodetic(summary['true_source_geodetic'])}")
     lines.append(f"  mission time {_num(summary.get('mission_time_s'), '{:.1f}')} s, seek time "
                  f"{_num(summary.get('seek_time_s'), '{:.1f}')} s, distance flown (centre) "
                  f"{_num(summary.get('distance_flown_m'), '{:.1f}')} m")
