@@ -179,9 +179,11 @@ def test_mock_samples_the_same_field_as_run_by_default():
     """``mock`` stands in for the sample plan's vehicles, whose eps is chosen for sigma_2, like ``run``."""
     import tomllib
 
+    from sitl_mock.cli_args import field_from_args
+
     mock = build_args(["mock"])
     run = build_args(["run"])
-    assert mock.field == run.field == "sigma2"
+    assert field_from_args(mock, None)[0] == field_from_args(run, None)[0] == "sigma2"
     plan_text = SAMPLE.read_text()
     assert "sigma_2" in plan_text and tomllib.loads(plan_text)["seeking"]["eps"] == 50.0
 
