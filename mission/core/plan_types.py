@@ -17,6 +17,8 @@ __all__ = [
     "PlanError",
     "VehiclePlan",
     "FaultsPlan",
+    "ControlPlan",
+    "ForwardPlan",
     "FormationPlan",
     "SeekingPlan",
     "GeofencePlan",
@@ -162,6 +164,38 @@ class FaultsPlan:
 
 
 @dataclass(frozen=True)
+class ControlPlan:
+    """Operator commands over zenoh (``[control]``, see ``docs/operator.md``).
+
+    Attributes
+    ----------
+    remote : bool
+        The coordinator answers ``swarmseek ctl`` on ``swarmseek/<fleet>/mission/control`` (default
+        True; who may is the zenoh access control's ``commander_*`` subjects); False: only the
+        terminal's keys command the mission.
+    """
+
+    remote: bool = True
+
+
+@dataclass(frozen=True)
+class ForwardPlan:
+    """MAVLink forwarding to ground-control clients (``[forward]``, see ``docs/operator.md``).
+
+    Attributes
+    ----------
+    out : tuple of str
+        ``udp:HOST:PORT`` addresses every vehicle frame is copied to (``--out`` adds more).
+    allow_commands : bool
+        Frames from those clients are relayed to the vehicles (default False: read-only; they are
+        counted as dropped).
+    """
+
+    out: tuple[str, ...] = ()
+    allow_commands: bool = False
+
+
+@dataclass(frozen=True)
 class Plan:
     """A validated mission plan (see the module docstring)."""
 
@@ -183,6 +217,8 @@ class Plan:
     min_battery_pct: float = 30.0
     version: int = PLAN_VERSION
     faults: FaultsPlan = FaultsPlan()
+    control: ControlPlan = ControlPlan()
+    forward: ForwardPlan = ForwardPlan()
 
 
 def replace_plan(plan: Plan, **sections) -> Plan:

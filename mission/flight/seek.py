@@ -87,6 +87,7 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     co.state.begin_seek()
     ended = None
     for k in range(int(start_iteration), co.plan.seeking.max_iterations):
+        await co.control.checkpoint(co)  # an operator's pause holds here, a stop ends the seek
         ended = await run.iteration(k)
         if ended is not None:
             break
