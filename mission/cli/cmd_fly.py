@@ -33,6 +33,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
     from mission.core.clock import WallClock
     from mission.flight.coordinator import Coordinator
     from mission.telemetry.mission_log import MissionLog
+    from mission.telemetry.watch_keys import with_keys
 
     clock = clock or WallClock()
     log = MissionLog(Path(log_dir) / "mission.jsonl", clock)
@@ -41,7 +42,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
         session = zenoh.open(plan.zenoh.to_config())
         co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
-        return await co.run()
+        return await with_keys(co, display, co.run())  # p/c/a/h/l/r on a terminal
     finally:
         log.close()
         if session is not None:

@@ -140,7 +140,7 @@ class MissionControl:
                   t_s=float(self._clock.time()))
         self.history.append(ack.to_json())
         if self._log is not None:
-            self._log.write("command", **ack.to_json())
+            self._log.write("command", **{k: v for k, v in ack.to_json().items() if k != "t_s"})
         return ack
 
     def _decide(self, command: str, sender: str, phase: str) -> tuple[bool, str]:
