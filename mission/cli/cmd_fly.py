@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from mission.core.zenoh_security import ZenohSecurityError
+from mission.link.forward import forwarding, out_address, plan_with_outs
 
 __all__ = ["configure", "main", "fly"]
 
@@ -24,6 +25,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-dir", type=Path, default=None,
                         help="mission log and tlogs go here (default ./swarmseek-logs/fly-TIME)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+    parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
+                        help="forward every vehicle's MAVLink to this client, e.g. QGroundControl on "
+                             "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
 
 
 async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True):
@@ -42,7 +46,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
         session = zenoh.open(plan.zenoh.to_config())
         co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
-        return await with_keys(co, display, co.run())  # p/c/a/h/l/r on a terminal
+        return await forwarding(co, with_keys(co, display, co.run()))  # --out; p/c/a/h/l/r on a terminal
     finally:
         log.close()
         if session is not None:
@@ -59,6 +63,7 @@ def main(args) -> int:
     except PlanError as exc:
         print(f"swarmseek fly: {exc}", file=sys.stderr)
         return 2
+    plan = plan_with_outs(plan, args.out)
     if not plan.zenoh.listen and not plan.zenoh.connect:
         print("swarmseek fly: the plan's [zenoh] section has no listen or connect endpoint: "
               "no reading could arrive (multicast scouting is off)", file=sys.stderr)

@@ -15,6 +15,8 @@ import sys
 import time
 from pathlib import Path
 
+from mission.link.forward import forwarding, out_address, plan_with_outs
+
 import numpy as np
 
 from sitl_mock.cli_args import nonnegative_float, positive_float, source_enu, zenoh_endpoint
@@ -54,6 +56,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-dir", type=Path, default=None,
                         help="mission log and tlogs go here (default ./swarmseek-logs/run-TIME)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+    parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
+                        help="forward every vehicle's MAVLink to this client, e.g. QGroundControl on "
+                             "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
     parser.add_argument("--zenoh-listen", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
                         help="the ground station also listens here, for `swarmseek watch` / `ctl` (repeatable)")
 
@@ -102,6 +107,7 @@ def _mission_setup(args):
                          radius_m=radius_m, start_enu_m=start, eps=eps, gamma_m=args.gamma,
                          estimator=args.estimator, max_iterations=args.max_iterations,
                          return_behaviour=args.return_behaviour, origin=DEFAULT_ORIGIN)
+    plan = plan_with_outs(plan, getattr(args, "out", None))
     if getattr(args, "zenoh_listen", None):  # reachable by `swarmseek watch` / `ctl`
         plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
     return plan, ports, field, source, start, eps
@@ -142,7 +148,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
                          tlog_dir=None if args.no_tlog else log_dir / "tlogs")
         if world is not None:
             world.store = co.store
-        result = await with_keys(co, display, co.run())  # p/c/a/h/l/r on a terminal
+        result = await forwarding(co, with_keys(co, display, co.run()))  # --out; p/c/a/h/l/r on a terminal
         result.true_source_enu = [float(x) for x in source]
         if result.estimate_enu is not None:
             result.error_m = float(np.linalg.norm(np.asarray(result.estimate_enu) - source))
