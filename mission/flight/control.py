@@ -26,6 +26,7 @@ from __future__ import annotations
 import asyncio
 import math
 import re
+from collections import deque
 from dataclasses import dataclass
 
 from mission.core.clock import cancel_and_wait
@@ -97,7 +98,8 @@ class MissionControl:
         self._landing: tuple[str, str] | None = None  # (land | rtl, sender)
         self._holding = False
         self._changed: asyncio.Event | None = None  # created on the running loop
-        self.history: list[dict] = []
+        self.history: deque[dict] = deque(maxlen=100)  # the last answers (all of them are in the log)
+        self.count = 0
 
     # ------------------------------------------------------------------ reading
     @property
@@ -126,7 +128,7 @@ class MissionControl:
         """What the state publication and the display show."""
         last = self.history[-1] if self.history else None
         return {"paused": self.paused, "paused_by": self._paused_by, "holding": self._holding, "stop": self.stop,
-                "last_command": last, "commands": len(self.history)}
+                "last_command": last, "commands": self.count}
 
     # ------------------------------------------------------------------ commands
     def submit(self, command: str, sender: str, phase: str) -> Ack:
@@ -139,6 +141,7 @@ class MissionControl:
         ack = Ack(command=str(command)[:32], sender=sender, accepted=accepted, reason=reason, phase=phase,
                   t_s=float(self._clock.time()))
         self.history.append(ack.to_json())
+        self.count += 1
         if self._log is not None:
             self._log.write("command", **{k: v for k, v in ack.to_json().items() if k != "t_s"})
         return ack
