@@ -171,6 +171,8 @@ def test_land_during_the_seek_lands_every_vehicle_where_it_is(tmp_path):
     assert _down_events(records) == {1, 2, 3, 4}
     phases = [r for r in records if r["type"] == "phase" and r["phase"] == "return"]
     assert [p["behaviour"] for p in phases] == ["land (operator)"]
+    warnings = [r["message"] for r in records if r["type"] == "event" and r["level"] == "warning"]
+    assert not [m for m in warnings if "operator" in m]             # the stop is not taken for a phase's timeout
     for s, p in where.items():      # landed below where they were, not flown back home first
         down = fleet.vehicle(s).true_position_ned()
         assert np.linalg.norm(down[:2] - p[:2]) < 1.5 and down[2] > -0.5, (s, p, down)

@@ -180,5 +180,8 @@ def test_mavproxy_sees_every_vehicle_its_position_and_mode(tmp_path):
     forward = [r for r in read_mission_log(tmp_path / "run" / "mission.jsonl")
                if r["type"] == "event" and "forward" in r]
     counters = forward[-1]["forward"]
+    first = [r for r in read_mission_log(tmp_path / "run" / "mission.jsonl")
+             if r["type"] == "event" and "the forward is read-only" in r["message"]]
+    assert len(first) == 1 and first[0]["level"] == "warning"
     assert counters["frames_out"] > 1000 and counters["relayed"] == 0
     assert counters["dropped_read_only"] > 0 and counters["dropped_read_only"] == counters["client_frames"]

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mission.flight.control import OperatorStop
 from mission.flight.loss import reform
 from mission.flight.motion import move_and_wait, parked
 from mission.flight.rejoin import (
@@ -175,6 +176,8 @@ class _Seek:
             await move_and_wait(co, goals, sk.arrival_tol_m,
                                 timeout_s=20.0 + 3.0 * sk.gamma_m / co.plan.max_speed_m_s,
                                 what=f"iteration {k + 1}: the formation to settle")
+        except OperatorStop:
+            raise
         except MissionError as exc:
             co.event(f"{exc}; estimating anyway", level="warning")
         t_arrive = co.clock.time()
@@ -193,6 +196,8 @@ class _Seek:
 
         try:
             await co.wait_until(_fresh, max(5.0, 10 * sk.reading_window_s), "fresh readings", poll_s=0.02)
+        except OperatorStop:
+            raise
         except MissionError:
             missing = [s for s in self.sysids if (r := co.store.latest(s)) is None or r.time_s < t_arrive]
             co.event(f"iteration {k + 1}: no fresh reading from vehicles {missing}", level="warning")

@@ -39,14 +39,17 @@ class Forwarder:
         Relay the clients' messages addressed to the vehicles (default False: read-only).
     vehicle_sysids : iterable of int
         The mission's vehicles (a client's message for any other system id is dropped).
+    on_first_drop : callable, optional
+        ``on_first_drop(text)`` once, at the first client frame dropped as read-only (tell the operator).
     """
 
-    def __init__(self, outs, allow_commands: bool = False, vehicle_sysids=()):
+    def __init__(self, outs, allow_commands: bool = False, vehicle_sysids=(), on_first_drop=None):
         self.outs = [str(o) for o in outs]
         self.addresses = [parse_forward_out(o) for o in self.outs]
         self.allow_commands = bool(allow_commands)
         self.vehicle_sysids = frozenset(int(s) for s in vehicle_sysids)
         self.counters = dict.fromkeys(COUNTERS, 0)
+        self.on_first_drop = on_first_drop
         self._socks: list[socket.socket] = []
         self._parsers: list = []
         self._endpoints: list = []
@@ -102,6 +105,10 @@ class Forwarder:
         c["client_frames"] += 1
         if not self.allow_commands:
             c["dropped_read_only"] += 1
+            if c["dropped_read_only"] == 1 and self.on_first_drop is not None:
+                self.on_first_drop(f"a forward client sent {msg.get_type()} (sysid {msg.get_srcSystem()}): "
+                                   "dropped, the forward is read-only ([forward] allow_commands = false); "
+                                   "further drops are counted")
             return
         target = getattr(msg, "target_system", None)
         if target is None or (target and target not in self.vehicle_sysids):
@@ -179,7 +186,8 @@ async def forwarding(co, work):
     fwd = co.plan.forward
     if not fwd.out:
         return await work
-    forwarder = Forwarder(fwd.out, fwd.allow_commands, [v.sysid for v in co.plan.vehicles])
+    forwarder = Forwarder(fwd.out, fwd.allow_commands, [v.sysid for v in co.plan.vehicles],
+                          on_first_drop=lambda text: co.event(text, level="warning"))
     forwarder.start(lambda: co.endpoints.values())
     co.event(f"forwarding MAVLink to {', '.join(fwd.out)} "
              f"({'commands relayed' if fwd.allow_commands else 'read-only: client frames dropped'})",
