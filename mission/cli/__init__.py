@@ -18,6 +18,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "fly": ("mission.cli.cmd_fly", "fly the mission against the vehicles named in a plan file"),
     "dry-run": ("mission.cli.cmd_dryrun", "validate a plan, connect and run preflight checks; arms nothing"),
     "resume": ("mission.cli.cmd_resume", "restart a stopped mission from its mission log"),
+    "watch": ("mission.cli.cmd_watch", "the live table of a running mission, over zenoh from anywhere"),
+    "ctl": ("mission.cli.cmd_ctl", "command a running mission over zenoh: pause, continue, abort, land, rtl, return"),
     "plot": ("mission.cli.cmd_plot", "figures of a flown mission from its mission log"),
     "audit": ("mission.cli.cmd_audit", "check from the .tlog files that no setpoint broke the fence, speed or separation"),
     "paper": ("experiments.paper", "regenerate the paper's table and figures from our own geometry"),

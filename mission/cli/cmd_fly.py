@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from mission.core.zenoh_security import ZenohSecurityError
+from mission.link.forward import forwarding, out_address, plan_with_outs
 
 __all__ = ["configure", "main", "fly"]
 
@@ -25,6 +26,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-dir", type=Path, default=None,
                         help="mission log and tlogs go here (default ./swarmseek-logs/fly-TIME)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+    parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
+                        help="forward every vehicle's MAVLink to this client, e.g. QGroundControl on "
+                             "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
 
 
 async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True):
@@ -35,6 +39,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
     from mission.flight.coordinator import Coordinator
     from mission.flight.operator_stop import run_until_stopped
     from mission.telemetry.mission_log import MissionLog
+    from mission.telemetry.watch_keys import with_keys
 
     clock = clock or WallClock()
     log = MissionLog(Path(log_dir) / "mission.jsonl", clock)
@@ -43,7 +48,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
         session = zenoh.open(plan.zenoh.to_config())
         co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
-        return await run_until_stopped(co)
+        return await forwarding(co, with_keys(co, display, run_until_stopped(co)))  # --out; keys on a terminal
     finally:
         log.close()
         if session is not None:
@@ -60,6 +65,7 @@ def main(args) -> int:
     except PlanError as exc:
         print(f"swarmseek fly: {exc}", file=sys.stderr)
         return 2
+    plan = plan_with_outs(plan, args.out)
     if not plan.zenoh.listen and not plan.zenoh.connect:
         print("swarmseek fly: the plan's [zenoh] section has no listen or connect endpoint: "
               "no reading could arrive (multicast scouting is off)", file=sys.stderr)

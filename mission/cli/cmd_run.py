@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import sys
 import time
 from pathlib import Path
 
+from mission.link.forward import forwarding, out_address, plan_with_outs
+
 import numpy as np
 
-from sitl_mock.cli_args import add_field_arguments, field_from_args, nonnegative_float, positive_float, source_enu
+from sitl_mock.cli_args import add_field_arguments, field_from_args, nonnegative_float, positive_float, source_enu, zenoh_endpoint
 
 __all__ = ["configure", "main", "run_embedded"]
 
@@ -53,6 +56,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-dir", type=Path, default=None,
                         help="mission log and tlogs go here (default ./swarmseek-logs/run-TIME)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+    parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
+                        help="forward every vehicle's MAVLink to this client, e.g. QGroundControl on "
+                             "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
+    parser.add_argument("--zenoh-listen", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
+                        help="the ground station also listens here, for `swarmseek watch` / `ctl` (repeatable)")
 
 
 def _check_args(args) -> str | None:
@@ -86,6 +94,7 @@ def _mission_setup(args):
         embedded_plan,
         fleet_ports,
     )
+    from mission.core.plan import replace_plan
 
     radius_m = args.radius if args.radius is not None else default_radius_m(args.n)
     d_source, _ = default_source_and_start(args.seed)
@@ -103,6 +112,9 @@ def _mission_setup(args):
                          radius_m=radius_m, start_enu_m=start, eps=eps, gamma_m=args.gamma,
                          estimator=args.estimator, max_iterations=args.max_iterations,
                          return_behaviour=args.return_behaviour, origin=DEFAULT_ORIGIN)
+    plan = plan_with_outs(plan, getattr(args, "out", None))
+    if getattr(args, "zenoh_listen", None):  # reachable by `swarmseek watch` / `ctl`
+        plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
     return plan, ports, field, source, start, eps
 
 
@@ -129,6 +141,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
     from mission.flight.result import geodetic_point
     from mission.sim.fleet_report import vehicle_rejections
     from mission.telemetry.mission_log import MissionLog
+    from mission.telemetry.watch_keys import with_keys
 
     source, start, eps = setup
     log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("run-%Y%m%d-%H%M%S")
@@ -146,7 +159,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
                          tlog_dir=None if args.no_tlog else log_dir / "tlogs")
         if world is not None:
             world.store = co.store
-        result = await run_until_stopped(co)
+        result = await forwarding(co, with_keys(co, display, run_until_stopped(co)))  # --out; keys on a terminal
         result.true_source_enu = [float(x) for x in source]
         result.true_source_geodetic = geodetic_point(plan.origin, source)
         if result.estimate_enu is not None:

@@ -20,7 +20,9 @@ from mission.core.plan_checks import check_start_in_fence, Checker, show_value
 from mission.core.plan_field import parse_field
 from mission.core.plan_sections import (
     RETURN_BEHAVIOURS,
+    parse_control,
     parse_faults,
+    parse_forward,
     parse_formation,
     parse_geofence,
     parse_origin,
@@ -115,7 +117,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     c.unknown(doc, ("version", "fleet", "origin", "vehicles", "formation", "seeking", "geofence",
                     "zenoh", "security", "max_speed_m_s", "min_separation_m", "takeoff_alt_m", "return",
                     "stagger_s", "setpoint_rate_hz", "heartbeat_timeout_s", "min_battery_pct",
-                    "faults", "preflight", "field"), "")
+                    "faults", "preflight", "field", "control", "forward"), "")
     version = doc.get("version")
     if version is None:
         c.bad("version", f"required (this program reads version = {PLAN_VERSION})")
@@ -144,13 +146,14 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     zen = parse_zenoh(c, doc, Path(base_dir) if base_dir is not None else None)
     security = parse_security(c, doc, Path(base_dir) if base_dir is not None else None)
     field = parse_field(c, doc)
+    control, forward = parse_control(c, doc), parse_forward(c, doc)
     _check_across_sections(c, vehicles, formation, seeking, geofence, top)
     if c.problems:
         raise PlanError(c.problems, source)
     return Plan(fleet=fleet, origin=origin, vehicles=tuple(vehicles), formation=formation,
                 seeking=seeking, geofence=geofence, zenoh=zen, security=security, version=PLAN_VERSION, faults=faults,
                 preflight=preflight, field=field,
-                **top)
+                control=control, forward=forward, **top)
 
 
 def _check_across_sections(c: Checker, vehicles, formation, seeking, geofence, top: dict) -> None:

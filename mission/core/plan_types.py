@@ -19,6 +19,8 @@ __all__ = [
     "VehiclePlan",
     "FaultsPlan",
     "PreflightPlan",
+    "ControlPlan",
+    "ForwardPlan",
     "FormationPlan",
     "SeekingPlan",
     "GeofencePlan",
@@ -193,6 +195,38 @@ class PreflightPlan:
 
 
 @dataclass(frozen=True)
+class ControlPlan:
+    """Operator commands over zenoh (``[control]``, see ``docs/operator.md``).
+
+    Attributes
+    ----------
+    remote : bool
+        The coordinator answers ``swarmseek ctl`` on ``swarmseek/<fleet>/mission/control`` (default
+        True; who may is the zenoh access control's ``commander_*`` subjects); False: only the
+        terminal's keys command the mission.
+    """
+
+    remote: bool = True
+
+
+@dataclass(frozen=True)
+class ForwardPlan:
+    """MAVLink forwarding to ground-control clients (``[forward]``, see ``docs/operator.md``).
+
+    Attributes
+    ----------
+    out : tuple of str
+        ``udp:HOST:PORT`` addresses every vehicle frame is copied to (``--out`` adds more).
+    allow_commands : bool
+        Frames from those clients are relayed to the vehicles (default False: read-only; they are
+        counted as dropped).
+    """
+
+    out: tuple[str, ...] = ()
+    allow_commands: bool = False
+
+
+@dataclass(frozen=True)
 class Plan:
     """A validated mission plan (see the module docstring)."""
 
@@ -216,6 +250,8 @@ class Plan:
     faults: FaultsPlan = FaultsPlan()
     preflight: PreflightPlan = PreflightPlan()
     field: FieldPlan | None = None  # the simulated world's field ([field]); not used to fly
+    control: ControlPlan = ControlPlan()
+    forward: ForwardPlan = ForwardPlan()
 
 
 def replace_plan(plan: Plan, **sections) -> Plan:

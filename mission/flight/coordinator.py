@@ -17,6 +17,7 @@ from mission.core.clock import cancel_and_wait
 from mission.core.plan import Plan
 from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
+from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.loss import watch_losses
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import not_ready_message
@@ -126,6 +127,8 @@ class Coordinator:
         self.final_result: MissionResult | None = None  # set by mission_end.close on every path
         self.mission_checks: list[dict] = []  # mission-wide preflight checks (readiness_mission)
         self.land_commanded: set[int] = set()  # vehicles the landing guard commanded to LAND
+        self.control = MissionControl(clock, log)  # operator commands (mission.flight.control)
+        self._control_channel = None
 
     # ----------------------------------------------------------------- resources set by the phases
     def add_endpoint(self, uri: str, endpoint) -> None:
@@ -233,16 +236,21 @@ class Coordinator:
             "estimate_geodetic": geodetic_point(self.plan.origin, self.estimate_enu),
             "distance_flown_m": self.distance_flown_m, "vehicles": self.vehicle_status(),
             "readings": self.store.counts(), "link_rejections": self.link_rejections(),
-            "unknown_sysids": self.unknown_sysids(),
+            "unknown_sysids": self.unknown_sysids(), "control": self.control.snapshot(),
         }
 
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
         deadline = self.clock.time() + timeout_s
         while not predicate():
+            self.control.check(self.phase)  # an operator's stop ends the phase here
             if self.clock.time() > deadline:
                 raise MissionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
             await self.clock.sleep(poll_s)
+
+    def command(self, command: str, sender: str) -> dict:
+        """An operator command (zenoh, terminal key): :func:`mission.flight.control.operator_command`."""
+        return operator_command(self, command, sender, self._state_pub)
 
     # ----------------------------------------------------------------- mission entry points
     def _start_background(self) -> None:
@@ -260,6 +268,8 @@ class Coordinator:
                 self.session, self.plan.fleet, self.snapshot, rate_hz=self.state_rate_hz,
                 on_snapshot=self.display.update if self.display is not None else None)
             self._state_pub.start()
+        if self._control_channel is None:
+            self._control_channel = open_control_channel(self)
 
     async def _stop_background(self) -> None:
         for name in ("_watchdog_task", "_loss_task"):
@@ -272,6 +282,9 @@ class Coordinator:
                 await self.streamer.stop()
             except Exception as exc:  # noqa: BLE001 - stopping must go on; say what failed
                 self.event(f"stopping the setpoint streamer failed: {exc!r}", level="warning")
+        if self._control_channel is not None:
+            await self._control_channel.stop()
+            self._control_channel = None
         if self._state_pub is not None:
             await self._state_pub.stop()
             self._state_pub = None

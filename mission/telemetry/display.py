@@ -55,6 +55,7 @@ def format_table(state: dict) -> list[str]:
     unknown = state.get("unknown_sysids") or []
     lines.append(f"MAVLink rejected {format_rejections(state.get('link_rejections'))}"
                  + (f"  unknown sysids {unknown}" if unknown else ""))
+    lines.extend(_control_lines(state.get("control")))
     lines.append(f"{'sysid':>5} {'id':10} {'flavour':9} {'mode':12} {'armed':5} {'alt_m':>7} "
                  f"{'link_s':>6} {'sp_hz':>6}  status")
     for v in state.get("vehicles", []):
@@ -66,6 +67,16 @@ def format_table(state: dict) -> list[str]:
     return lines
 
 
+def _control_lines(control) -> list[str]:
+    """The operator's commands in force (``swarmseek ctl``, terminal keys), if any."""
+    if not control or not (control.get("paused") or control.get("stop")):
+        return []
+    if control.get("stop"):
+        return [f"OPERATOR {str(control['stop']).upper()} ordered: the mission is ending"]
+    held = "holding the formation" if control.get("holding") else "the formation holds at the end of this iteration"
+    return [f"PAUSED by {control.get('paused_by')}: {held} (continue: key c, or swarmseek ctl FLEET continue)"]
+
+
 def format_line(state: dict) -> str:
     """One plain progress line for one state snapshot."""
     armed = sum(1 for v in state.get("vehicles", []) if v.get("armed"))
@@ -75,7 +86,9 @@ def format_line(state: dict) -> str:
             f"|grad|={_num(state.get('gradient_norm'), '{:.2e}')} "
             f"flown={_num(state.get('distance_flown_m'), '{:.1f}')} m armed={armed}/"
             f"{len(state.get('vehicles', []))}"
-            + (f" mavlink_rejected={format_rejections(rejected)}" if any(rejected.values()) else ""))
+            + (f" mavlink_rejected={format_rejections(rejected)}" if any(rejected.values()) else "")
+            + "".join(f" [{line.split(':')[0].replace('OPERATOR', 'operator')}]"
+                      for line in _control_lines(state.get("control"))))
 
 
 def format_summary(summary: dict) -> list[str]:
