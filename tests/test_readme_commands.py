@@ -35,6 +35,8 @@ PLACEHOLDERS = {
     "N": "4",
     "S": "10",
     "NAME": "sigma2",
+    "FLEET": "swarmseek",
+    "EP": "tcp/127.0.0.1:7447",
 }
 
 
