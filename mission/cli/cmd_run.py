@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -44,7 +45,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="formation start, ENU m (default: 25 m from the source)")
     parser.add_argument("--eps", type=positive_float, default=None,
                         help="step gain (default 1/(2 A lambda_max(S)) of the field; paper: 1)")
-    parser.add_argument("--gamma", type=positive_float, default=1.0, help="largest step, m (default 1; paper 0.1)")
+    parser.add_argument("--gamma", type=positive_float, default=None,
+                        help="largest step, m (default 1 for the gradient seeker, 20 for newton/model; paper 0.1)")
+    parser.add_argument("--seeker", choices=("gradient", "newton", "model"), default="gradient",
+                        help="how the centre moves: the paper's gradient ascent (default), a Newton "
+                             "trust-region step, or a log-quadratic model fit (docs/seekers.md)")
     parser.add_argument("--estimator", choices=("cvt", "symmetric", "robust"), default=None,
                         help="gradient estimator (default: the formation's)")
     parser.add_argument("--max-iterations", type=int, default=300)
@@ -94,10 +99,13 @@ def _mission_setup(args):
     field = make_field(args.field, source)
     eps = args.eps if args.eps is not None else default_eps(field)
     ports = fleet_ports(args.n, args.personality)
+    if args.gamma is None:
+        args.gamma = 1.0 if args.seeker == "gradient" else 20.0
     plan = embedded_plan(args.n, ports, personality=args.personality, formation=args.formation,
                          radius_m=radius_m, start_enu_m=start, eps=eps, gamma_m=args.gamma,
                          estimator=args.estimator, max_iterations=args.max_iterations,
                          return_behaviour=args.return_behaviour, origin=DEFAULT_ORIGIN)
+    plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, seeker=args.seeker))
     return plan, ports, field, source, start, eps
 
 
@@ -130,7 +138,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
         log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field,
                   source_enu=source, start_enu=start, noise=args.noise,
                   clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
-                  eps=eps, gamma_m=args.gamma, seed=args.seed)
+                  eps=eps, gamma_m=args.gamma, seeker=args.seeker, seed=args.seed)
         co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=None if args.no_tlog else log_dir / "tlogs")
         if world is not None:
