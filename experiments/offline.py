@@ -4,6 +4,11 @@ Many independent trials run at once as numpy arrays: every iteration, each trial
 exactly at ``centre + offset_i`` (perfect tracking), read the field with optional Gaussian noise
 (one standard deviation per robot), the centre estimates the gradient with
 :func:`estimator.gradient_batch` and moves with :func:`estimator.seek_step`.
+
+Any field of :mod:`sitl_mock.fields` (or its name, ``make_field(name)``): a time-dependent one
+(``field.time_dependent``, the intermittent plume) is read at ``t = k * iteration_period_s +
+j * trial_time_offset_s`` in iteration ``k`` of trial ``j`` (trials far apart in time see
+independent plume realisations).
 """
 from __future__ import annotations
 
@@ -95,6 +100,8 @@ def simulate(
     rotate: bool = False,
     seed: int = 0,
     max_condition: float = DEFAULT_MAX_CONDITION,
+    iteration_period_s: float = 0.5,
+    trial_time_offset_s: float = 1.0e4,
 ) -> OfflineResult:
     """Simulate ``trials`` independent source-seeking runs at once.
 
@@ -102,9 +109,9 @@ def simulate(
     ----------
     offsets : array_like, shape (N, 3)
         Formation offsets from the centre, metres (N >= 4), kept rigid during the run.
-    field : Field
+    field : Field or str
         Object with ``value(points)``, ``gradient(points)`` and ``source_enu()``
-        (see :mod:`sitl_mock.fields`).
+        (see :mod:`sitl_mock.fields`), or a field name for ``sitl_mock.fields.make_field``.
     start : array_like, shape (3,) or (K, 3)
         Initial centre (common or per trial), ENU metres.
     eps, gamma : float
@@ -129,6 +136,8 @@ def simulate(
         Seed of the noise and rotations (the result is deterministic for a seed).
     max_condition : float
         Passed to the estimator's geometry check.
+    iteration_period_s, trial_time_offset_s : float
+        Time-dependent fields only: simulated time per iteration and between trials.
 
     Returns
     -------
@@ -150,6 +159,12 @@ def simulate(
         raise ValueError(f"trials must be an integer >= 1, got {trials!r}")
     if sigma_c not in SIGMA_C_MODES:
         raise ValueError(f"sigma_c must be one of {SIGMA_C_MODES}, got {sigma_c!r}")
+    if isinstance(field, str):
+        from sitl_mock.fields import make_field
+
+        field = make_field(field)
+    timed = bool(getattr(field, "time_dependent", False))
+    trial_t = np.arange(int(trials))[:, None] * float(trial_time_offset_s)
     n = off.shape[0]
     std = _noise_std(noise_std, n, int(trials))
     c0 = np.asarray(start, dtype=float)
@@ -172,7 +187,8 @@ def simulate(
         if noisy and k % _NOISE_BLOCK == 0:  # draw the noise in blocks: fewer calls, bounded memory
             noise = rng.standard_normal((min(_NOISE_BLOCK, t_count - k), k_count, n)) * std
         c = centres[k]
-        vals = field.value(c[:, None, :] + trial_off)
+        points = c[:, None, :] + trial_off
+        vals = field.value(points, k * iteration_period_s + trial_t) if timed else field.value(points)
         if noisy:
             vals = vals + noise[k % _NOISE_BLOCK]
         readings[k] = vals

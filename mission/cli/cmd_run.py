@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sitl_mock.cli_args import nonnegative_float, positive_float, source_enu
+from sitl_mock.cli_args import add_field_arguments, field_from_args, nonnegative_float, positive_float, source_enu
 
 __all__ = ["configure", "main", "run_embedded"]
 
@@ -28,7 +28,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--formation", choices=("cvt", "symmetric"), default="cvt")
     parser.add_argument("--radius", type=positive_float, default=None,
                         help="formation radius D, m (default 4; 1.5 n^(1/3) above 18 vehicles)")
-    parser.add_argument("--field", choices=("sigma1", "sigma2"), default="sigma2")
+    add_field_arguments(parser, "sigma2")
     parser.add_argument("--noise", type=nonnegative_float, default=0.01,
                         help="sensor noise standard deviation, signal units (default 0.01)")
     parser.add_argument("--personality", choices=("px4", "ardupilot"), default="px4")
@@ -72,6 +72,10 @@ def _check_args(args) -> str | None:
         return f"--formation symmetric needs an even --n, got {args.n}"
     if args.max_iterations < 1:
         return f"--max-iterations must be >= 1, got {args.max_iterations}"
+    try:
+        field_from_args(args, args.source if args.source is not None else (0.0, 0.0, 20.0))
+    except ValueError as exc:
+        return str(exc)
     return None
 
 
@@ -83,20 +87,21 @@ def _mission_setup(args):
         default_eps,
         default_radius_m,
         default_source_and_start,
+        downwind_en,
         embedded_plan,
         fleet_ports,
     )
-    from sitl_mock.fields import make_field
 
     radius_m = args.radius if args.radius is not None else default_radius_m(args.n)
-    d_source, d_start = default_source_and_start(args.seed)
+    d_source, _ = default_source_and_start(args.seed)
     source = d_source if args.source is None else np.asarray(args.source, dtype=float)
+    args.field, field, args.sensor_response = field_from_args(args, source)
+    d_source, d_start = default_source_and_start(args.seed, downwind=downwind_en(field))
     if args.start is None:
         start = source + (d_start - d_source)
         start[2] = max(start[2], FENCE_MIN_ALT_M + radius_m + 1.0)  # the lowest slot 1 m inside the fence
     else:
         start = np.asarray(args.start, dtype=float)
-    field = make_field(args.field, source)
     eps = args.eps if args.eps is not None else default_eps(field)
     ports = fleet_ports(args.n, args.personality)
     if args.gamma is None:
@@ -112,12 +117,15 @@ def _mission_setup(args):
 def _make_fleet(args, plan, ports, field, clock):
     from mission.sim.embedded import DEFAULT_ORIGIN
     from sitl_mock.fleet import MockFleet
+    from sitl_mock.sensor_response import set_fleet_response
 
-    return MockFleet(n=args.n, personality=args.personality, field=field, origin=DEFAULT_ORIGIN,
+    fleet = MockFleet(n=args.n, personality=args.personality, field=field, origin=DEFAULT_ORIGIN,
                      clock=clock, seed=args.seed, udp_base_port=ports["udp_base_port"],
                      udp_bind_base_port=ports["udp_bind_base_port"], tcp_base_port=ports["tcp_base_port"],
                      fleet_name=plan.fleet, sensor_noise_std=args.noise,
                      zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"])
+    set_fleet_response(fleet, **args.sensor_response)
+    return fleet
 
 
 async def _fly(args, plan, fleet, setup, display, world=None):
@@ -136,6 +144,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
     try:
         session = zenoh.open(plan.zenoh.to_config())
         log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field,
+                  field_model=repr(fleet.field), sensor_response=args.sensor_response,
                   source_enu=source, start_enu=start, noise=args.noise,
                   clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
                   eps=eps, gamma_m=args.gamma, seeker=args.seeker, seed=args.seed)

@@ -17,6 +17,7 @@ import tomllib
 from pathlib import Path
 
 from mission.core.plan_checks import Checker, show_value
+from mission.core.plan_field import parse_field
 from mission.core.plan_sections import (
     RETURN_BEHAVIOURS,
     parse_faults,
@@ -111,7 +112,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     c.unknown(doc, ("version", "fleet", "origin", "vehicles", "formation", "seeking", "geofence",
                     "zenoh", "security", "max_speed_m_s", "min_separation_m", "takeoff_alt_m", "return",
                     "stagger_s", "setpoint_rate_hz", "heartbeat_timeout_s", "min_battery_pct",
-                    "faults"), "")
+                    "faults", "field"), "")
     version = doc.get("version")
     if version is None:
         c.bad("version", f"required (this program reads version = {PLAN_VERSION})")
@@ -138,12 +139,13 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     faults = parse_faults(c, doc)
     zen = parse_zenoh(c, doc, Path(base_dir) if base_dir is not None else None)
     security = parse_security(c, doc, Path(base_dir) if base_dir is not None else None)
+    field = parse_field(c, doc)
     _check_across_sections(c, vehicles, formation, seeking, geofence, top)
     if c.problems:
         raise PlanError(c.problems, source)
     return Plan(fleet=fleet, origin=origin, vehicles=tuple(vehicles), formation=formation,
                 seeking=seeking, geofence=geofence, zenoh=zen, security=security, version=PLAN_VERSION, faults=faults,
-                **top)
+                field=field, **top)
 
 
 def _check_across_sections(c: Checker, vehicles, formation, seeking, geofence, top: dict) -> None:

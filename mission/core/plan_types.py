@@ -9,6 +9,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from mission.core.plan_field import FieldPlan
 from mission.core.signing_config import SigningConfig
 from mission.core.zenoh_config import ZenohPlan
 
@@ -187,6 +188,7 @@ class Plan:
     min_battery_pct: float = 30.0
     version: int = PLAN_VERSION
     faults: FaultsPlan = FaultsPlan()
+    field: FieldPlan | None = None  # the simulated world's field ([field]); not used to fly
 
 
 def replace_plan(plan: Plan, **sections) -> Plan:
