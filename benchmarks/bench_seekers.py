@@ -19,8 +19,13 @@ Per seeker, field and noise:
 * the final distance to the source (median over successes).
 
 Noise levels: 0 and "realistic" = 1 % of the field's peak (0.01 for sigma_2, the default
-``swarmseek run --noise``; 1.0 for sigma_1). Fields: the paper's sigma_1 and sigma_2, and any
-other name :func:`sitl_mock.fields.make_field` knows (``--fields``).
+``swarmseek run --noise``; 1.0 for sigma_1; 0.01 for the plumes, whose peak is about 1). Fields
+(``--fields``): any name :func:`sitl_mock.fields.make_field` knows, with its default parameters:
+the paper's sigma_1 and sigma_2, ``plume`` (steady Gaussian plume, wind 3 m/s) and
+``intermittent`` (puffs: a reading is patchy in time; read at the mission time the time model
+gives). On a plume the starts are downwind (within 10 degrees of the wind axis), as in
+``swarmseek run``; the gradient seeker's ``eps`` is the field's ``default_eps``
+(:func:`mission.sim.embedded.default_eps`).
 
 Usage::
 
@@ -55,9 +60,11 @@ def wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
     return float(max(0.0, mid - half)), float(min(1.0, mid + half))
 
 
-def _starts(source: np.ndarray, trials: int, rng) -> tuple[np.ndarray, np.ndarray]:
+def _starts(source: np.ndarray, trials: int, rng, downwind=None) -> tuple[np.ndarray, np.ndarray]:
     dist = rng.uniform(10.0, 50.0, trials)
     heading = rng.uniform(0, 2 * np.pi, trials)
+    if downwind is not None:  # plumes: downwind of the source (within 10 degrees), as swarmseek run
+        heading = np.arctan2(downwind[1], downwind[0]) + np.deg2rad(rng.uniform(-10.0, 10.0, trials))
     elev = np.deg2rad(rng.uniform(-15.0, 15.0, trials))
     u = np.stack([np.cos(elev) * np.cos(heading), np.cos(elev) * np.sin(heading), np.sin(elev)], axis=1)
     return source + dist[:, None] * u, dist
@@ -92,11 +99,10 @@ def measure(run, start_dist_m: np.ndarray, n: int, time_model, tol_m: float = 1.
 
 def _seeker(name: str, field):
     from estimator.seekers import make_seeker
+    from mission.sim.embedded import default_eps
 
-    amp, s_mat = getattr(field, "amplitude", 1.0), getattr(field, "S", None)
-    eps = 1.0 if s_mat is None else 1.0 / (2.0 * amp * float(np.max(np.linalg.eigvalsh(s_mat))))
     if name == "gradient":
-        return make_seeker("gradient", eps=eps), 1.0
+        return make_seeker("gradient", eps=default_eps(field)), 1.0
     return make_seeker(name), 20.0
 
 
@@ -104,7 +110,8 @@ def _field_and_noise(name: str, source: np.ndarray, level: str):
     from sitl_mock.fields import make_field
 
     field = make_field(name, source)
-    peak = float(field.value(field.source_enu()))
+    steady = getattr(field, "steady", field)  # the intermittent plume's ensemble mean
+    peak = float(steady.value(field.source_enu()))
     return field, (0.0 if level == "0" else 0.01 * peak)
 
 
@@ -116,7 +123,9 @@ def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, i
     rng = np.random.default_rng(seed)
     source = np.array([0.0, 0.0, 15.0])
     field, noise = _field_and_noise(field_name, source, noise_level)
-    starts, dist = _starts(field.source_enu(), trials, rng)
+    from mission.sim.embedded import downwind_en
+
+    starts, dist = _starts(field.source_enu(), trials, rng, downwind_en(field))
     seeker, gamma = _seeker(seeker_name, field)
     offsets = formation.cvt_sphere(8, 4.0, seed=0)
     t0 = time.perf_counter()

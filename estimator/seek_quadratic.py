@@ -155,7 +155,7 @@ def fit_quadratic(positions, values, mask, centre, log: bool) -> QuadraticFit:
     dof = used - _NPAR
     with np.errstate(divide="ignore", invalid="ignore"):
         var = np.where(dof > 0, np.einsum("km,km->k", w, resid**2) / np.maximum(dof, 1), np.inf)
-    cov = var[:, None, None] * ainv
+    cov = np.where(np.isfinite(var)[:, None, None], np.where(np.isfinite(var), var, 0.0)[:, None, None] * ainv, np.inf)
     grad = theta[:, 1:4] / scale[:, None]
     hess = _hessian(theta, scale)
     eig = np.linalg.eigvalsh(hess)

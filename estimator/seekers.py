@@ -111,7 +111,7 @@ class _TrustRegionSeeker:
     use_uncertainty = False
 
     def __init__(self, window: int, radius_m: float = 5.0, min_radius_m: float = 0.25,
-                 max_radius_m: float = 20.0, confidence: float = 0.5, confident_m: float = 0.5,
+                 max_radius_m: float = 20.0, confidence: float = 1.0, confident_m: float = 0.5,
                  merge_m: float = 1.0, shrink: bool = True):
         if int(window) != window or window < 1:
             raise ValueError(f"window must be an integer >= 1, got {window!r}")
@@ -195,11 +195,11 @@ class _TrustRegionSeeker:
         ok = self._newton_ok(fit)
         r = self.radius_m
         newton = np.where(ok[:, None], fit.newton, 0.0)
-        n_len = np.linalg.norm(newton, axis=-1)
+        p_len2 = np.sum(newton**2, axis=-1)
+        std2 = np.where(ok, np.nan_to_num(fit.newton_std_m, posinf=1e150), 0.0) ** 2
         if self.use_uncertainty and self.shrink:  # shrink a step that is mostly noise: |p|^2 / (|p|^2 + std^2)
-            std2 = np.where(ok, fit.newton_std_m, 0.0) ** 2
-            newton = newton * (n_len**2 / np.maximum(n_len**2 + std2, 1e-300))[:, None]
-            n_len = np.linalg.norm(newton, axis=-1)
+            newton = newton * (p_len2 / np.maximum(p_len2 + std2, 1e-300))[:, None]
+        n_len = np.linalg.norm(newton, axis=-1)
         newton = newton * np.minimum(1.0, r / np.maximum(n_len, 1e-300))[:, None]
         step = np.where(ok[:, None], newton, self._uphill(fit, r))
         length = np.linalg.norm(step, axis=-1)

@@ -56,6 +56,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eps", type=positive_float, default=1.0, help="step size (default 1)")
     parser.add_argument("--gamma", type=positive_float, default=0.1,
                         help="largest centre move per iteration, m (default 0.1)")
+    parser.add_argument("--seeker", choices=("gradient", "newton", "model"), default="gradient",
+                        help="how the centre moves (docs/seekers.md): the paper's gradient ascent "
+                             "(default), Newton trust-region, or the log-quadratic model; newton and "
+                             "model take --gamma as their largest step (give e.g. 20)")
     parser.add_argument("--iterations", type=_positive(int), default=3000)
     parser.add_argument("--seed", type=int, default=0, help="noise and CVT seed")
     parser.add_argument("--window", type=_positive(int), default=400,
@@ -86,25 +90,44 @@ def run(args: argparse.Namespace) -> dict:
     method = args.method or args.formation
     start = args.start if args.start is not None else _vector3(_DEFAULT_STARTS[args.field])
     field = make_field(args.field)
-    res = simulate(offsets, field, start, eps=args.eps, gamma=args.gamma,
-                   iterations=args.iterations, noise_std=args.noise, method=method, seed=args.seed)
-    dist = res.distance_to_source_m()[:, 0]
-    first, est, spread = convergence_scan(res.centres, window=args.window, tol_m=args.tol)
+    seeker = getattr(args, "seeker", "gradient")
+    if seeker == "gradient":
+        res = simulate(offsets, field, start, eps=args.eps, gamma=args.gamma,
+                       iterations=args.iterations, noise_std=args.noise, method=method, seed=args.seed)
+        centres, grad_err = res.centres, float(res.error_norm()[-1, 0])
+    else:
+        centres, grad_err = _simulate_seeker(args, offsets, field, start)
+    source = np.asarray(field.source_enu(), dtype=float)
+    dist = np.linalg.norm(centres[:, 0] - source, axis=-1)
+    first, est, spread = convergence_scan(centres, window=args.window, tol_m=args.tol)
     converged = bool(first[0] >= 0)
     return {
         "field": args.field, "formation": args.formation, "method": method, "n": args.n,
         "radius_m": args.radius, "noise_std": args.noise, "eps": args.eps, "gamma_m": args.gamma,
         "iterations": args.iterations, "seed": args.seed, "start_enu": start.tolist(),
-        "source_enu": res.source_enu.tolist(),
-        "final_centre_enu": res.centres[-1, 0].tolist(),
+        "seeker": seeker, "source_enu": source.tolist(),
+        "final_centre_enu": centres[-1, 0].tolist(),
         "final_distance_m": float(dist[-1]),
-        "final_gradient_error": float(res.error_norm()[-1, 0]),
+        "final_gradient_error": grad_err,
         "converged": converged,
         "converged_at_iteration": int(first[0]) if converged else None,
         "estimated_source_enu": est[0].tolist() if converged else None,
-        "estimate_error_m": float(np.linalg.norm(est[0] - res.source_enu)) if converged else None,
+        "estimate_error_m": float(np.linalg.norm(est[0] - source)) if converged else None,
         "estimate_spread_m": float(spread[0]) if converged else None,
     }
+
+
+def _simulate_seeker(args, offsets, field, start):
+    """Centres (T + 1, 1, 3) of one run of a newton/model seeker; the gradient error at the end
+    of the fitted model (the seeker's own gradient, of ``log s`` for ``model``) is not comparable:
+    NaN."""
+    from estimator.seekers import make_seeker
+    from experiments.offline_seek import simulate_seeker
+
+    run = simulate_seeker(offsets, field, np.asarray(start, dtype=float)[None], make_seeker(args.seeker),
+                          gamma_m=args.gamma, iterations=args.iterations, noise_std=args.noise,
+                          rotate=False, seed=args.seed)
+    return run.centres, float("nan")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -119,7 +142,7 @@ def main(args: argparse.Namespace) -> int:
         return 0
     c = np.round(out["final_centre_enu"], 3).tolist()
     print(f"{out['field']}, {out['n']} robots, {out['formation']} formation (D = {out['radius_m']:g} m), "
-          f"estimator {out['method']}, noise {out['noise_std']:g}, start {out['start_enu']}")
+          f"estimator {out['method']}, seeker {out['seeker']}, noise {out['noise_std']:g}, start {out['start_enu']}")
     print(f"after {out['iterations']} iterations: centre {c}, "
           f"distance to source {out['final_distance_m']:.3f} m, "
           f"gradient error {out['final_gradient_error']:.3g}")

@@ -97,7 +97,8 @@ def _rotated(offsets: np.ndarray, trials: int, rng) -> np.ndarray:
 
 
 def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations: int,
-                    noise_std: float = 0.0, rotate: bool = True, seed: int = 0) -> SeekRun:
+                    noise_std: float = 0.0, rotate: bool = True, seed: int = 0,
+                    time_model: StopAndGo | None = None, trial_time_offset_s: float = 1.0e4) -> SeekRun:
     """Run ``K = len(start)`` trials of ``seeker`` on ``field`` (module docstring).
 
     Parameters
@@ -120,6 +121,10 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
         A uniformly random orientation of the formation per trial.
     seed : int
         Seed of the rotations and the noise.
+    time_model : StopAndGo, optional
+        Mission time of each iteration (default ``StopAndGo()``): a time-dependent field
+        (``field.time_dependent``, the intermittent plume) is read at the mission time of the
+        iteration plus ``trial * trial_time_offset_s`` (independent realisations per trial).
 
     Returns
     -------
@@ -135,12 +140,16 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
     off = np.asarray(offsets, dtype=float)
     trial_off = _rotated(off, k, rng) if rotate else np.broadcast_to(off, (k,) + off.shape).copy()
     seeker.reset()
+    model = time_model or StopAndGo()
+    timed = bool(getattr(field, "time_dependent", False))
+    now_s = np.arange(k)[:, None] * float(trial_time_offset_s)
     centres = np.empty((int(iterations) + 1, k, 3))
     centres[0] = c0
     for t in range(int(iterations)):
         pos = centres[t][:, None, :] + trial_off
-        vals = field.value(pos)
+        vals = field.value(pos, now_s) if timed else field.value(pos)
         if noise_std > 0:
             vals = vals + rng.standard_normal(vals.shape) * noise_std
         centres[t + 1] = cap_move(centres[t], seeker.propose(centres[t], pos, vals), gamma_m)
+        now_s = now_s + model.iteration_s(centres[t + 1] - centres[t])[:, None]
     return SeekRun(centres, trial_off, np.asarray(field.source_enu(), dtype=float))

@@ -47,9 +47,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="step gain (default 1/(2 A lambda_max(S)) of the field; paper: 1)")
     parser.add_argument("--gamma", type=positive_float, default=None,
                         help="largest step, m (default 1 for the gradient seeker, 20 for newton/model; paper 0.1)")
-    parser.add_argument("--seeker", choices=("gradient", "newton", "model"), default="gradient",
-                        help="how the centre moves: the paper's gradient ascent (default), a Newton "
-                             "trust-region step, or a log-quadratic model fit (docs/seekers.md)")
+    parser.add_argument("--seeker", choices=("gradient", "newton", "model"), default="model",
+                        help="how the centre moves: a log-quadratic model fit in a trust region (default), "
+                             "a Newton trust-region step, or the paper's gradient ascent (docs/seekers.md)")
     parser.add_argument("--estimator", choices=("cvt", "symmetric", "robust"), default=None,
                         help="gradient estimator (default: the formation's)")
     parser.add_argument("--max-iterations", type=int, default=300)
