@@ -13,7 +13,7 @@ parameters' covariance (delta method, ``dp = -H^-1 (dg + dH p)``).
 
 Weights: raw readings, 1 each; log readings, ``s_i^2`` (``var(log s) ~ sigma_n^2 / s^2`` for an
 additive noise ``sigma_n``), readings ``<= 0`` dropped (weight 0). The six quadratic
-coefficients carry a small ridge (relative ``1e-6``) so that a window with fewer than 10
+coefficients carry a tiny ridge (relative ``1e-10``) so that a window with fewer than 10
 readings, or all on one sphere (``|x - c|^2`` constant: the trace of ``H`` is not observable),
 gives ``H ~ 0`` along the unobservable directions instead of noise; the residual variance is
 estimated from the weighted residuals (``inf`` with fewer than 11 usable readings).
@@ -26,7 +26,7 @@ import numpy as np
 
 __all__ = ["QuadraticFit", "fit_quadratic"]
 
-_RIDGE = 1e-6
+_RIDGE = 1e-10
 _NPAR = 10
 # the quadratic features' index pairs: squares then cross products
 _QI = np.array([0, 1, 2, 0, 0, 1])
