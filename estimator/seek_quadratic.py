@@ -16,7 +16,9 @@ additive noise ``sigma_n``), readings ``<= 0`` dropped (weight 0). The six quadr
 coefficients carry a tiny ridge (relative ``1e-10``) so that a window with fewer than 10
 readings, or all on one sphere (``|x - c|^2`` constant: the trace of ``H`` is not observable),
 gives ``H ~ 0`` along the unobservable directions instead of noise; the residual variance is
-estimated from the weighted residuals (``inf`` with fewer than 11 usable readings).
+estimated from the weighted residuals (``inf`` with fewer than 11 usable readings). A window
+with fewer than 4 usable readings (no signal: every reading ``<= 0`` for the log fit) gives a
+zero model: no gradient, no Newton step, so the seekers hold the centre.
 """
 from __future__ import annotations
 
@@ -148,11 +150,17 @@ def fit_quadratic(positions, values, mask, centre, log: bool) -> QuadraticFit:
     tr = np.trace(a, axis1=1, axis2=2)[:, None]
     ridge = np.zeros(_NPAR)
     ridge[4:] = 1.0
-    a = a + _RIDGE * tr[:, :, None] * np.diag(ridge)[None] + 1e-300 * np.eye(_NPAR)
-    ainv = np.linalg.inv(a)
+    a = a + _RIDGE * tr[:, :, None] * np.diag(ridge)[None]
+    dead = used < 4  # no usable readings (all <= 0 in log): a zero model, no step
+    a = np.where(dead[:, None, None], np.eye(_NPAR), a)
+    try:
+        ainv = np.linalg.inv(a)
+    except np.linalg.LinAlgError:  # an exactly singular window (e.g. repeated points): least norm
+        ainv = np.linalg.pinv(a)
     theta = np.einsum("kij,kmj,km,km->ki", ainv, f, w, y)
+    theta = np.where(dead[:, None], 0.0, theta)
     resid = y - np.einsum("kmi,ki->km", f, theta)
-    dof = used - _NPAR
+    dof = np.where(dead, 0, used - _NPAR)
     with np.errstate(divide="ignore", invalid="ignore"):
         var = np.where(dof > 0, np.einsum("km,km->k", w, resid**2) / np.maximum(dof, 1), np.inf)
     cov = np.where(np.isfinite(var)[:, None, None], np.where(np.isfinite(var), var, 0.0)[:, None, None] * ainv, np.inf)

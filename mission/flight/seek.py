@@ -8,8 +8,10 @@ One iteration (design choice: *move, settle, then estimate*):
    after the arrival, then takes the estimation instant ``t = now`` and each vehicle's reading
    nearest ``t`` within ``reading_window_s``, with the position where it was taken;
 3. gradient from those actual positions about their centroid (Theorem 2, ``method="cvt"``; or
-   eq. 3, or the robust estimator), ``seek_step(eps, gamma)`` from the commanded centre, the
-   safety envelope's ``clamp_centre``;
+   eq. 3, or the robust estimator), ``seek_step(eps, gamma)`` from the commanded centre (the
+   plan's ``seeker = "gradient"``; ``"newton"``/``"model"``: the seeker of
+   :mod:`estimator.seekers` proposes the next centre from the readings and their positions,
+   capped at ``gamma``), the safety envelope's ``clamp_centre``;
 4. the convergence monitor sees the new centre; the iteration is logged.
 
 Why not estimate on the fly at a fixed rate: the centre moves by at most ``gamma`` per
@@ -57,11 +59,20 @@ class _MissionSeeker:
         self.seeker = _make(kind)
 
     def step(self, centre, positions, values, gamma_m: float) -> np.ndarray:
+        """The next centre; the same centre (hold) if the seeker cannot propose one, with ``self.failure`` set."""
         from estimator.seekers import cap_move
 
         c = np.asarray(centre, dtype=float)[None]
-        new = self.seeker.propose(c, np.asarray(positions, dtype=float)[None],
-                                  np.asarray(values, dtype=float)[None])
+        self.failure = None
+        try:
+            new = self.seeker.propose(c, np.asarray(positions, dtype=float)[None],
+                                      np.asarray(values, dtype=float)[None])
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            self.failure = f"seeker {self.seeker.name} proposed no centre ({exc}); holding"
+            return c[0]
+        if not np.all(np.isfinite(new)):
+            self.failure = f"seeker {self.seeker.name} proposed a non-finite centre; holding"
+            return c[0]
         return cap_move(c, new, gamma_m)[0]
 
 
@@ -299,6 +310,8 @@ class _Seek:
         else:
             proposed = self.seeker.step(self.centre, [aligned[s].position_enu_m for s in used],
                                         [aligned[s].value for s in used], sk.gamma_m)
+            if self.seeker.failure:
+                co.event(f"iteration {k + 1}: {self.seeker.failure}", level="warning")
         new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))
         converged = self.monitor.update(new_centre)
