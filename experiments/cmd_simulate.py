@@ -65,6 +65,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eps", type=positive_float, default=1.0, help="step size (default 1)")
     parser.add_argument("--gamma", type=positive_float, default=0.1,
                         help="largest centre move per iteration, m (default 0.1)")
+    parser.add_argument("--seeker", choices=("gradient", "newton", "model"), default="gradient",
+                        help="how the centre moves (docs/seekers.md): the paper's gradient ascent "
+                             "(default), Newton trust-region, or the log-quadratic model; newton and "
+                             "model take --gamma as their largest step (give e.g. 20)")
     parser.add_argument("--iterations", type=_positive(int), default=3000)
     parser.add_argument("--seed", type=int, default=0, help="noise and CVT seed")
     parser.add_argument("--window", type=_positive(int), default=400,
@@ -96,17 +100,45 @@ def run(args: argparse.Namespace) -> dict:
     method = args.method or args.formation
     start = args.start if args.start is not None else _vector3(_DEFAULT_STARTS[args.field])
     field = make_field(args.field)
-    res = simulate(offsets, field, start, eps=args.eps, gamma=args.gamma,
-                   iterations=args.iterations, noise_std=args.noise, method=method, seed=args.seed)
+    seeker = getattr(args, "seeker", "gradient")
+    if seeker == "gradient":
+        res = simulate(offsets, field, start, eps=args.eps, gamma=args.gamma,
+                       iterations=args.iterations, noise_std=args.noise, method=method, seed=args.seed)
+    else:
+        res = _simulate_seeker(args, offsets, field, start)
     out = {
         "field": args.field, "formation": args.formation, "method": method, "n": args.n,
         "radius_m": args.radius, "noise_std": args.noise, "eps": args.eps, "gamma_m": args.gamma,
-        "iterations": args.iterations, "seed": args.seed, "start_enu": start.tolist(),
-        "source_enu": res.source_enu.tolist(), "window": args.window, "tol_m": args.tol,
+        "iterations": args.iterations, "seed": args.seed, "start_enu": start.tolist(), "seeker": seeker,
+        "source_enu": np.asarray(res.source_enu, dtype=float).tolist(), "window": args.window, "tol_m": args.tol,
     }
     out.update(convergence_report(res, window=args.window, tol_m=args.tol,
                                   stop_at_convergence=args.stop_at_convergence))
     return out
+
+
+class _SeekerRun:
+    """A newton/model seeker's run in the shape :func:`experiments.offline.convergence_report` reads
+    (its gradient error is not comparable with the paper's estimator: NaN)."""
+
+    def __init__(self, centres, source_enu):
+        self.centres = centres
+        self.source_enu = np.asarray(source_enu, dtype=float)
+        self.grad_est = np.zeros((centres.shape[0] - 1,) + centres.shape[1:])
+
+    def error_norm(self):
+        return np.full(self.grad_est.shape[:2], np.nan)
+
+
+def _simulate_seeker(args, offsets, field, start) -> _SeekerRun:
+    """One run of a newton/model seeker (centres of shape (T + 1, 1, 3))."""
+    from estimator.seekers import make_seeker
+    from experiments.offline_seek import simulate_seeker
+
+    run = simulate_seeker(offsets, field, np.asarray(start, dtype=float)[None], make_seeker(args.seeker),
+                          gamma_m=args.gamma, iterations=args.iterations, noise_std=args.noise,
+                          rotate=False, seed=args.seed)
+    return _SeekerRun(run.centres, field.source_enu())
 
 
 def main(args: argparse.Namespace) -> int:
@@ -120,7 +152,7 @@ def main(args: argparse.Namespace) -> int:
         print(json.dumps(out))
         return 0
     print(f"{out['field']}, {out['n']} robots, {out['formation']} formation (D = {out['radius_m']:g} m), "
-          f"estimator {out['method']}, noise {out['noise_std']:g}, start {out['start_enu']}")
+          f"estimator {out['method']}, seeker {out['seeker']}, noise {out['noise_std']:g}, start {out['start_enu']}")
     for line in report_lines(out):
         print(line)
     return 0

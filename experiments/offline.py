@@ -21,9 +21,11 @@ from estimator import DEFAULT_MAX_CONDITION, convergence_scan, estimator_weights
 
 __all__ = ["OfflineResult", "simulate", "convergence_report", "SIGMA_C_MODES"]
 
-#: How the estimator gets the field at the centre: the mean of the readings (paper's Remark)
-#: or the exact value (as in Theorem 2's statement; a simulation-only oracle).
-SIGMA_C_MODES = ("mean", "exact")
+#: How the estimator gets the field at the centre: not measured (``"mean"``: least squares with an
+#: intercept, the centred moment matrix), the exact value (as in Theorem 2's statement; a
+#: simulation-only oracle), or the paper's Remark exactly as printed (``"remark"``: the mean of
+#: the readings with the uncentred ``M``; what ``swarmseek paper`` uses to reproduce the paper).
+SIGMA_C_MODES = ("mean", "exact", "remark")
 _NOISE_BLOCK = 256
 
 
@@ -123,8 +125,11 @@ def simulate(
         all trials or per trial.
     method : {"cvt", "symmetric"}
         Estimator (Theorem 2 or eq. (3)).
-    sigma_c : {"mean", "exact"}
-        Field value at the centre used by ``"cvt"``: mean of the readings or exact.
+    sigma_c : {"mean", "exact", "remark"}
+        Field value at the centre used by ``"cvt"``: not measured (``"mean"``: least squares
+        with an intercept, the centred ``M_c``; see :mod:`estimator.gradient`) or exact
+        (Theorem 2 with ``M``), or ``"remark"`` (the paper's Remark: uncentred ``M`` with the
+        mean of the readings; exact only when the offsets sum to zero).
     rotate : bool
         Apply an independent uniformly random rotation to the formation of each trial.
     seed : int
@@ -167,7 +172,9 @@ def simulate(
         raise ValueError(f"start must be a finite (3,) or ({trials}, 3) array, got shape {c0.shape}")
     rng = np.random.default_rng(seed)
     trial_off = _trial_offsets(off, trials, rotate, rng)
-    weights = estimator_weights(trial_off, method, max_condition)
+    weights = estimator_weights(trial_off, method, max_condition, centred=sigma_c == "mean")
+    if sigma_c == "remark":
+        sigma_c = "mean"  # the uncentred weights with s_c = the mean of the readings
     noisy = bool(np.any(std > 0))
     t_count, k_count = int(iterations), int(trials)
     centres = np.empty((t_count + 1, k_count, 3))

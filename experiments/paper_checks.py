@@ -34,7 +34,7 @@ def effective_rate(radius_m: float) -> dict:
     """Linearised seeking map near the source of sigma_1 for N = 7 CVT of radius D:
     eigenvalues of I + eps * d g_hat / d c (|.| < 1 means locally convergent)."""
     off = cvt_formation(7, radius_m)
-    w = estimator_weights(off, "cvt")
+    w = estimator_weights(off, "cvt", centred=False)  # the paper's Remark
     f = sigma1()
     h = 1e-5
     jac = np.empty((3, 3))
@@ -69,7 +69,7 @@ def physics_checks(cfg: PaperConfig, s1_runs: dict) -> dict:
         }
     # sigma_2 noise-free, N = 8 CVT, D = 1: how many iterations the run needs.
     res = simulate(cvt_formation(8, cfg.fig4_radius_m), sigma2(), SIGMA2_START_ENU, eps=EPS,
-                   gamma=GAMMA, iterations=cfg.iterations_checks, method="cvt")
+                   gamma=GAMMA, iterations=cfg.iterations_checks, method="cvt", sigma_c="remark")
     d = res.distance_to_source_m()[:, 0]
     steps = np.linalg.norm(np.diff(res.centres[:, 0], axis=0), axis=-1)
     out["sigma2"].update({
@@ -114,7 +114,8 @@ def convergence_sigma2(cfg: PaperConfig) -> dict:
                                      ("noise 0.1", 0.1, 4.0)):
             res = simulate(paper_formation(kind, 8, radius_m), sigma2(), SIGMA2_START_ENU, eps=EPS,
                            gamma=GAMMA, iterations=cfg.iterations_checks,
-                           trials=cfg.trials, noise_std=std, method=kind, seed=NOISE_SEED)
+                           trials=cfg.trials, noise_std=std, method=kind, seed=NOISE_SEED,
+                           sigma_c="remark")
             first, est, _ = convergence_scan(res.centres)
             ok = first >= 0
             err = np.linalg.norm(est[ok], axis=-1)

@@ -56,7 +56,7 @@ def robustness(cfg: PaperConfig) -> list[dict]:
     for radius_m in cfg.robustness_radii_m:
         for kind in ("symmetric", "cvt"):
             off = paper_formation(kind, n, radius_m)
-            w, _ = estimator_weights(off, kind)
+            w, _ = estimator_weights(off, kind, centred=False)  # the paper's Remark
             if kind == "cvt":
                 w = w - w.mean(axis=0)  # sigma_c = mean of the readings folds -b/N into W
             norms, weak_gain = np.linalg.norm(w, axis=-1), np.abs(w @ weak)
@@ -67,7 +67,8 @@ def robustness(cfg: PaperConfig) -> list[dict]:
                 std = np.concatenate([np.full((1, trials, n), 0.1), std]).reshape(-1, n)
                 res = simulate(off, sigma2(), SIGMA2_START_ENU, eps=EPS, gamma=GAMMA,
                                iterations=cfg.iterations_sigma2, trials=std.shape[0],
-                               noise_std=std, method=kind, rotate=rotate, seed=NOISE_SEED)
+                               noise_std=std, method=kind, rotate=rotate, seed=NOISE_SEED,
+                               sigma_c="remark")
                 dist = res.distance_to_source_m()[-cfg.tail:].mean(axis=0).reshape(n + 1, trials)
                 for j in range(-1, n):
                     d = dist[j + 1]

@@ -81,10 +81,16 @@ def test_cvt_estimator_with_mean_reading_has_the_documented_bias(seed, n, centre
     offsets = rng.normal(size=(n, 3)) + rng.normal(size=3)  # r_bar far from zero
     m = offsets.T @ offsets
     assume(np.linalg.cond(m) < 1e3)
+    centred_offsets = offsets - offsets.mean(axis=0)
+    assume(np.linalg.cond(centred_offsets.T @ centred_offsets) < 1e3)
     positions = centre + offsets
-    est = gradient(positions, _linear(a, grad, positions), centre, method="cvt")
+    # the paper's Remark: uncentred M with sigma_c = mean (the default, centred, is exact)
+    paper = estimator_weights(offsets, "cvt", centred=False)
+    est = gradient_batch(None, _linear(a, grad, positions), weights=paper)
     r_bar = offsets.sum(axis=0)
     expected = grad - np.linalg.solve(m, r_bar) * (r_bar @ grad) / n
+    centred = gradient(positions, _linear(a, grad, positions), centre, method="cvt")
+    np.testing.assert_allclose(centred, grad, atol=1e-7 * (1 + np.abs(grad).max() + abs(a)))
     np.testing.assert_allclose(est, expected, atol=1e-7 * (1 + np.abs(grad).max() + abs(a)))
 
 

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
-from estimator import GeometryError, gradient
+from estimator import GeometryError, estimator_weights, gradient, gradient_batch
 from estimator.robust import REASONS, RobustGradientEstimator, weighted_gradient
 from formation import cvt_sphere
 from sitl_mock.fields import sigma2
@@ -35,8 +35,12 @@ def test_equal_weights_weighted_mean_is_theorem_2(seed, n, radius):
     centre = rng.uniform(-30, 30, 3)
     values = rng.normal(0, 1, n)
     ours = weighted_gradient(off, values, centre="weighted_mean")
-    theirs = gradient(centre + off, values, centre, method="cvt")
+    # the paper's Remark (uncentred M, sigma_c = mean of the readings)
+    theirs = gradient_batch(None, values, weights=estimator_weights(off, "cvt", centred=False))
     assert np.allclose(ours, theirs, rtol=1e-9, atol=1e-12)
+    # the default Theorem 2 without sigma_c is least squares with an intercept: the "fit" mode
+    fit = weighted_gradient(off, values, centre="fit")
+    assert np.allclose(fit, gradient(centre + off, values, centre, method="cvt"), rtol=1e-9, atol=1e-12)
 
 
 @settings(max_examples=40, deadline=None)

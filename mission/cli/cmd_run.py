@@ -47,7 +47,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="formation start, ENU m (default: 25 m from the source)")
     parser.add_argument("--eps", type=positive_float, default=None,
                         help="step gain (default 1/(2 A lambda_max(S)) of the field; paper: 1)")
-    parser.add_argument("--gamma", type=positive_float, default=1.0, help="largest step, m (default 1; paper 0.1)")
+    parser.add_argument("--gamma", type=positive_float, default=None,
+                        help="largest step, m (default 1 for the gradient seeker, 20 for newton/model; paper 0.1)")
+    parser.add_argument("--seeker", choices=("gradient", "newton", "model"), default="model",
+                        help="how the centre moves: a log-quadratic model fit in a trust region (default), "
+                             "a Newton trust-region step, or the paper's gradient ascent (docs/seekers.md)")
     parser.add_argument("--estimator", choices=("cvt", "symmetric", "robust"), default=None,
                         help="gradient estimator (default: the formation's)")
     parser.add_argument("--max-iterations", type=int, default=300)
@@ -108,6 +112,8 @@ def _mission_setup(args):
         start = np.asarray(args.start, dtype=float)
     eps = args.eps if args.eps is not None else default_eps(field)
     ports = fleet_ports(args.n, args.personality)
+    if args.gamma is None:
+        args.gamma = 1.0 if args.seeker == "gradient" else 20.0
     plan = embedded_plan(args.n, ports, personality=args.personality, formation=args.formation,
                          radius_m=radius_m, start_enu_m=start, eps=eps, gamma_m=args.gamma,
                          estimator=args.estimator, max_iterations=args.max_iterations,
@@ -115,6 +121,7 @@ def _mission_setup(args):
     plan = plan_with_outs(plan, getattr(args, "out", None))
     if getattr(args, "zenoh_listen", None):  # reachable by `swarmseek watch` / `ctl`
         plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
+    plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, seeker=args.seeker))
     return plan, ports, field, source, start, eps
 
 
@@ -154,7 +161,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
                   field_model=repr(fleet.field), sensor_response=args.sensor_response,
                   source_enu=source, start_enu=start, noise=args.noise,
                   clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
-                  eps=eps, gamma_m=args.gamma, seed=args.seed)
+                  eps=eps, gamma_m=args.gamma, seeker=args.seeker, seed=args.seed)
         co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=None if args.no_tlog else log_dir / "tlogs")
         if world is not None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from estimator.seekers import SEEKERS as _SEEKERS
 from formation.geodesy import geodetic_to_enu
 from mission.core.plan_checks import Checker, check_connection, polygon_area, show_value
 from mission.core.plan_types import (ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
@@ -126,6 +127,7 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
         eps=c.number(t, "eps", p, d.eps, low=0, low_open=True),
         gamma_m=c.number(t, "gamma_m", p, d.gamma_m, low=0, low_open=True, high=100),
         estimator=c.string(t, "estimator", p, d.estimator, choices=_ESTIMATORS),
+        seeker=c.string(t, "seeker", p, d.seeker, choices=_SEEKERS),
         rate_hz=c.number(t, "rate_hz", p, d.rate_hz, low=0, low_open=True, high=50),
         max_iterations=c.number(t, "max_iterations", p, d.max_iterations, low=1, integer=True),
         convergence_tol_m=c.number(t, "convergence_tol_m", p, d.convergence_tol_m, low=0, low_open=True),

@@ -81,6 +81,9 @@ class SeekingPlan:
         Largest centre move per iteration (paper: 0.1).
     estimator : str
         ``cvt`` (Theorem 2 on the actual positions), ``symmetric`` (eq. 3) or ``robust``.
+    seeker : str
+        ``gradient`` (the paper's ``eps * grad`` capped by ``gamma_m``), ``newton`` or ``model``
+        (``estimator.seekers``; their trust region is capped by ``gamma_m`` too: give it 10-20 m).
     rate_hz : float
         Highest estimation rate (iterations per second of mission clock).
     max_iterations : int
@@ -105,6 +108,7 @@ class SeekingPlan:
     eps: float = 1.0
     gamma_m: float = 0.1
     estimator: str = "cvt"
+    seeker: str = "gradient"
     rate_hz: float = 2.0
     max_iterations: int = 300
     convergence_tol_m: float = 0.5

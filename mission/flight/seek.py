@@ -8,8 +8,10 @@ One iteration (design choice: *move, settle, then estimate*):
    after the arrival, then takes the estimation instant ``t = now`` and each vehicle's reading
    nearest ``t`` within ``reading_window_s``, with the position where it was taken;
 3. gradient from those actual positions about their centroid (Theorem 2, ``method="cvt"``; or
-   eq. 3, or the robust estimator), ``seek_step(eps, gamma)`` from the commanded centre, the
-   safety envelope's ``clamp_centre``;
+   eq. 3, or the robust estimator), ``seek_step(eps, gamma)`` from the commanded centre (the
+   plan's ``seeker = "gradient"``; ``"newton"``/``"model"``: the seeker of
+   :mod:`estimator.seekers` proposes the next centre from the readings and their positions,
+   capped at ``gamma``), the safety envelope's ``clamp_centre``;
 4. the convergence monitor sees the new centre; the iteration is logged.
 
 Why not estimate on the fly at a fixed rate: the centre moves by at most ``gamma`` per
@@ -40,7 +42,40 @@ from mission.flight.retire import (
 )
 from mission.flight.state import MissionError
 
-__all__ = ["seek", "make_estimator"]
+__all__ = ["seek", "make_estimator", "make_seeker"]
+
+
+def make_seeker(kind: str):
+    """The plan's seeker (``[seeking] seeker``): None for ``gradient`` (the loop's own paper step,
+    with the plan's estimator), else a :class:`_MissionSeeker` around :mod:`estimator.seekers`."""
+    return None if kind == "gradient" else _MissionSeeker(kind)
+
+
+class _MissionSeeker:
+    """One mission's seeker (K = 1): readings in, the next centre out, capped at ``gamma_m``;
+    the safety envelope's ``clamp_centre`` is applied by the caller."""
+
+    def __init__(self, kind: str):
+        from estimator.seekers import make_seeker as _make
+
+        self.seeker = _make(kind)
+
+    def step(self, centre, positions, values, gamma_m: float) -> np.ndarray:
+        """The next centre; the same centre (hold) if the seeker cannot propose one, with ``self.failure`` set."""
+        from estimator.seekers import cap_move
+
+        c = np.asarray(centre, dtype=float)[None]
+        self.failure = None
+        try:
+            new = self.seeker.propose(c, np.asarray(positions, dtype=float)[None],
+                                      np.asarray(values, dtype=float)[None])
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            self.failure = f"seeker {self.seeker.name} proposed no centre ({exc}); holding"
+            return c[0]
+        if not np.all(np.isfinite(new)):
+            self.failure = f"seeker {self.seeker.name} proposed a non-finite centre; holding"
+            return c[0]
+        return cap_move(c, new, gamma_m)[0]
 
 
 def make_estimator(kind: str, n: int):
@@ -114,6 +149,7 @@ class _Seek:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
         self.est_kind = sk.estimator
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
+        self.seeker = make_seeker(sk.seeker)
         self.watch = make_watch(co, self.est_kind, self.sysids)
         self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m)
         self.centre = np.asarray(co.centre_enu, dtype=float).copy()
@@ -276,7 +312,14 @@ class _Seek:
         from estimator import seek_step
 
         co, sk = self.co, self.sk
-        new_centre = self._clamped(seek_step(self.centre, grad, sk.eps, sk.gamma_m))
+        if self.seeker is None:  # the paper's step with the plan's estimator (robust included)
+            proposed = seek_step(self.centre, grad, sk.eps, sk.gamma_m)
+        else:
+            proposed = self.seeker.step(self.centre, [aligned[s].position_enu_m for s in used],
+                                        [aligned[s].value for s in used], sk.gamma_m)
+            if self.seeker.failure:
+                co.event(f"iteration {k + 1}: {self.seeker.failure}", level="warning")
+        new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))
         converged = self.monitor.update(new_centre)
         co.state.record_iteration(k + 1, grad, step_m, self.monitor.estimate_enu, self.monitor.spread_m)

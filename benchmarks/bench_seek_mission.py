@@ -1,0 +1,128 @@
+"""Whole missions per seeker in lock-step: time to the source against the straight-line limit.
+
+Flies the default ``swarmseek run`` mission (8 mock PX4 vehicles, CVT radius 4 m, sigma_2,
+noise 0.01, start 25 m from the source) once per seeker and seed in this process on the
+lock-step clock (:func:`mission.cli.cmd_run.run_embedded`), and reads each mission log:
+
+* ``t_1m_s``: seek time (from the start of the seek phase) of the first iteration from which
+  on the centroid of the vehicles' actual reading positions stays within 1 m of the source;
+* ``ratio``: ``t_1m_s`` over the straight-line limit ``|start - source| / max_speed_m_s``;
+* seek time and iterations until the convergence test passed, the final error of the estimated
+  source, the readings used, the distance flown by the centre and per vehicle (from the
+  iteration records' positions: mean and max over vehicles);
+* ``model_t_1m_s``: the offline time model (:class:`experiments.offline_seek.StopAndGo`) applied
+  to the same mission's centre moves, to check the model against the whole mission.
+
+Usage::
+
+    python benchmarks/bench_seek_mission.py                    # seeds 11-13, all seekers
+    python benchmarks/bench_seek_mission.py --seeds 0,11 --seekers model --json out.json
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+__all__ = ["main", "mission_measures"]
+
+
+def _records(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
+def mission_measures(log_path: Path, max_speed_m_s: float = 3.0, tol_m: float = 1.0) -> dict:
+    """The measures of one mission log (module docstring)."""
+    from experiments.offline_seek import StopAndGo
+
+    recs = _records(log_path)
+    source = np.asarray(next(r for r in recs if r["type"] == "truth")["source_enu"], dtype=float)
+    t_seek = next(r["t_s"] for r in recs if r["type"] == "phase" and r.get("phase") == "seek")
+    its = [r for r in recs if r["type"] == "iteration"]
+    t = np.array([r["t_s"] - t_seek for r in its])
+    dist = np.array([np.linalg.norm(np.asarray(r["centroid_enu"]) - source) for r in its])
+    out_ = dist > tol_m
+    first_in = int(len(its) - np.argmax(out_[::-1])) if out_.any() else 0
+    stays = first_in < len(its)
+    centres = np.array([its[0]["centre_enu"]] + [r["new_centre_enu"] for r in its])
+    moves = np.diff(centres, axis=0)
+    model_t = np.concatenate([[0.0], np.cumsum(StopAndGo(max_speed_m_s=max_speed_m_s).iteration_s(moves))])
+    straight = float(np.linalg.norm(np.asarray(its[0]["centre_enu"]) - source)) / max_speed_m_s
+    pos = {s: np.array([r["positions_enu"][s] for r in its if r["positions_enu"].get(s) is not None])
+           for s in its[0]["positions_enu"]}
+    per_vehicle = [float(np.linalg.norm(np.diff(p, axis=0), axis=-1).sum()) for p in pos.values() if len(p) > 1]
+    summary = next((r for r in recs if r["type"] == "summary"), {})
+    truth = next(r for r in recs if r["type"] == "truth")
+    return {
+        "t_1m_s": float(t[first_in]) if stays else None,
+        "ratio": float(t[first_in]) / straight if stays else None,
+        "model_t_1m_s": float(model_t[first_in]) if stays else None,
+        "straight_s": straight,
+        "iterations_1m": first_in + 1 if stays else None,
+        "iterations": len(its),
+        "seek_time_s": float(its[-1]["t_s"] - t_seek),
+        "error_m": truth.get("error_m"),
+        "readings": int(sum(len(r["readings"]) for r in its)),
+        "centre_flown_m": float(np.linalg.norm(moves, axis=-1).sum()),
+        "vehicle_flown_m_mean": float(np.mean(per_vehicle)) if per_vehicle else None,
+        "vehicle_flown_m_max": float(np.max(per_vehicle)) if per_vehicle else None,
+        "outcome": summary.get("outcome"),
+    }
+
+
+def fly(seeker: str, seed: int, log_dir: Path) -> dict:
+    """One default mission with ``seeker`` and ``seed``; its measures."""
+    from mission.cli.cmd_run import configure, run_embedded
+    from mission.telemetry.display import Display
+
+    ap = argparse.ArgumentParser()
+    configure(ap)
+    args = ap.parse_args(["--seeker", seeker, "--seed", str(seed), "--json", "--no-tlog", "--log-dir", str(log_dir)])
+    result = run_embedded(args, display=Display(quiet=True))
+    row = mission_measures(Path(result.log_path))
+    row.update(seeker=seeker, seed=seed, outcome=result.outcome, error_m=result.error_m,
+               mission_seek_time_s=result.seek_time_s)
+    return row
+
+
+def _fmt(row: dict) -> str:
+    def f(x, spec=".1f"):
+        return "-" if x is None else format(x, spec)
+
+    return (f"| {row['seeker']} | {row['seed']} | {row['outcome']} | {f(row['t_1m_s'])} | {f(row['straight_s'])} "
+            f"| {f(row['ratio'], '.2f')} | {f(row['model_t_1m_s'])} | {row['iterations_1m']} | {f(row['mission_seek_time_s'])} "
+            f"| {row['iterations']} | {f(row['error_m'], '.2f')} | {row['readings']} | {f(row['centre_flown_m'])} "
+            f"| {f(row['vehicle_flown_m_mean'])} / {f(row['vehicle_flown_m_max'])} |")
+
+
+def main(argv=None) -> int:
+    """Fly the missions; print one markdown row each (and ``--json`` the rows)."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", default="11,12,13")
+    ap.add_argument("--seekers", default="gradient,newton,model")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    print("| seeker | seed | outcome | time to stay within 1 m, s | straight line, s | ratio | time model, s "
+          "| iterations to 1 m | seek time, s | iterations | error, m | readings | centre flown, m "
+          "| vehicle flown, m (mean / max) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seeker in args.seekers.split(","):
+            for seed in (int(s) for s in args.seeds.split(",")):
+                row = fly(seeker, seed, Path(tmp) / f"{seeker}-{seed}")
+                rows.append(row)
+                print(_fmt(row), flush=True)
+    if args.json is not None:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,177 @@
+"""Seekers compared offline: success, time to the source, distance, readings (no assertions).
+
+Vectorised over trials (:func:`experiments.offline_seek.simulate_seeker`): the default
+mission's formation (8-vehicle CVT, radius 4 m), each trial with a uniformly random formation
+orientation and a start 10-50 m from the source (uniform distance, uniform heading, elevation
+within +-15 degrees: the fence's altitude band), perfect tracking, Gaussian reading noise. The
+gradient seeker uses the mission's ``eps = 1 / (2 A lambda_max(S))`` and ``gamma = 1 m`` (the
+default ``swarmseek run``); newton and model a trust region capped at ``gamma = 20 m``.
+
+Per seeker, field and noise:
+
+* success: the centre gets within 1 m of the source and stays there until the end of the
+  budget (``--iterations``), with a Wilson 95 % interval;
+* time to get and stay within 1 m (mission time from :class:`~experiments.offline_seek.StopAndGo`:
+  fly at the ramp's speed limits, settle, read), median and 90th percentile over successes;
+* the ratio of that time to the straight-line limit ``distance / max_speed_m_s`` (3 m/s);
+* distance flown by the centre until then (each vehicle flies the same path: rigid formation,
+  perfect tracking) and the number of readings (N per iteration);
+* the final distance to the source (median over successes, and median over all trials: where
+  nothing succeeds, which seeker gets closer).
+
+Noise levels: 0 and "realistic" = 1 % of the field's peak (0.01 for sigma_2, the default
+``swarmseek run --noise``; 1.0 for sigma_1; 0.01 for the plumes, whose peak is about 1). Fields
+(``--fields``): any name :func:`sitl_mock.fields.make_field` knows, with its default parameters:
+the paper's sigma_1 and sigma_2, ``plume`` (steady Gaussian plume, wind 3 m/s) and
+``intermittent`` (puffs: a reading is patchy in time; read at the mission time the time model
+gives). On a plume the starts are downwind (within 10 degrees of the wind axis), as in
+``swarmseek run``; the gradient seeker's ``eps`` is the field's ``default_eps``
+(:func:`mission.sim.embedded.default_eps`).
+
+Usage::
+
+    python benchmarks/bench_seekers.py                         # 400 trials per cell
+    python benchmarks/bench_seekers.py --trials 100 --fields sigma2 --json out.json
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+__all__ = ["main", "wilson", "measure"]
+
+_MAX_SPEED_M_S = 3.0
+
+
+def wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion."""
+    if trials == 0:
+        return 0.0, 1.0
+    p = successes / trials
+    den = 1 + z * z / trials
+    mid = (p + z * z / (2 * trials)) / den
+    half = z * np.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / den
+    return float(max(0.0, mid - half)), float(min(1.0, mid + half))
+
+
+def _starts(source: np.ndarray, trials: int, rng, downwind=None) -> tuple[np.ndarray, np.ndarray]:
+    dist = rng.uniform(10.0, 50.0, trials)
+    heading = rng.uniform(0, 2 * np.pi, trials)
+    if downwind is not None:  # plumes: downwind of the source (within 10 degrees), as swarmseek run
+        heading = np.arctan2(downwind[1], downwind[0]) + np.deg2rad(rng.uniform(-10.0, 10.0, trials))
+    elev = np.deg2rad(rng.uniform(-15.0, 15.0, trials))
+    u = np.stack([np.cos(elev) * np.cos(heading), np.cos(elev) * np.sin(heading), np.sin(elev)], axis=1)
+    return source + dist[:, None] * u, dist
+
+
+def measure(run, start_dist_m: np.ndarray, n: int, time_model, tol_m: float = 1.0) -> dict:
+    """The measures of one batch (module docstring) from a :class:`SeekRun`."""
+    d = run.distance_m()  # (T + 1, K)
+    t_count, k = d.shape
+    out_ = d > tol_m
+    ever_out = out_.any(axis=0)
+    last_out = np.where(ever_out, t_count - 1 - np.argmax(out_[::-1], axis=0), -1)
+    ok = ~out_[-1]
+    entered = np.minimum(last_out + 1, t_count - 1)
+    moves = run.moves()
+    times = np.concatenate([np.zeros((1, k)), np.cumsum(time_model.iteration_s(moves), axis=0)])
+    path = np.concatenate([np.zeros((1, k)), np.cumsum(np.linalg.norm(moves, axis=-1), axis=0)])
+    cols = np.arange(k)
+    t_in, flown = times[entered, cols], path[entered, cols]
+    ratio = t_in / (start_dist_m / _MAX_SPEED_M_S)
+    lo, hi = wilson(int(ok.sum()), k)
+
+    def q(x, p):
+        return float(np.percentile(x[ok], p)) if ok.any() else float("nan")
+
+    return {"trials": k, "success": float(ok.mean()), "success_ci95": [lo, hi],
+            "time_s_median": q(t_in, 50), "time_s_p90": q(t_in, 90),
+            "ratio_median": q(ratio, 50), "ratio_p90": q(ratio, 90),
+            "flown_m_median": q(flown, 50), "straight_m_median": q(start_dist_m, 50),
+            "readings_median": q(entered * n, 50), "final_error_m_median": q(d[-1], 50),
+            "final_distance_m_median_all": float(np.median(d[-1]))}
+
+
+def _seeker(name: str, field):
+    from estimator.seekers import make_seeker
+    from mission.sim.embedded import default_eps
+
+    if name == "gradient":
+        return make_seeker("gradient", eps=default_eps(field)), 1.0
+    return make_seeker(name), 20.0
+
+
+def _field_and_noise(name: str, source: np.ndarray, level: str):
+    from sitl_mock.fields import make_field
+
+    field = make_field(name, source)
+    steady = getattr(field, "steady", field)  # the intermittent plume's ensemble mean
+    peak = float(steady.value(field.source_enu()))
+    return field, (0.0 if level == "0" else 0.01 * peak)
+
+
+def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, iterations: int, seed: int) -> dict:
+    """One table cell: ``trials`` runs of a seeker on a field at a noise level."""
+    import formation
+    from experiments.offline_seek import StopAndGo, simulate_seeker
+
+    rng = np.random.default_rng(seed)
+    source = np.array([0.0, 0.0, 15.0])
+    field, noise = _field_and_noise(field_name, source, noise_level)
+    from mission.sim.embedded import downwind_en
+
+    starts, dist = _starts(field.source_enu(), trials, rng, downwind_en(field))
+    seeker, gamma = _seeker(seeker_name, field)
+    offsets = formation.cvt_sphere(8, 4.0, seed=0)
+    t0 = time.perf_counter()
+    run = simulate_seeker(offsets, field, starts, seeker, gamma_m=gamma, iterations=iterations,
+                          noise_std=noise, rotate=True, seed=seed + 1)
+    row = measure(run, dist, offsets.shape[0], StopAndGo())
+    row.update(seeker=seeker_name, field=field_name, noise=noise, wall_s=time.perf_counter() - t0)
+    return row
+
+
+def _fmt(row: dict) -> str:
+    lo, hi = row["success_ci95"]
+    return (f"| {row['seeker']} | {row['field']} | {row['noise']:g} | {row['success']:.2f} ({lo:.2f}-{hi:.2f}) "
+            f"| {row['time_s_median']:.1f} / {row['time_s_p90']:.1f} | {row['ratio_median']:.2f} / {row['ratio_p90']:.2f} "
+            f"| {row['flown_m_median']:.1f} ({row['straight_m_median']:.1f}) | {row['readings_median']:.0f} "
+            f"| {row['final_error_m_median']:.3f} | {row['final_distance_m_median_all']:.2f} |")
+
+
+def main(argv=None) -> int:
+    """Run the table; prints markdown rows (and ``--json`` the rows)."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=400)
+    ap.add_argument("--iterations", type=int, default=150)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seekers", default="gradient,newton,model")
+    ap.add_argument("--fields", default="sigma1,sigma2")
+    ap.add_argument("--noise", default="0,realistic", help="noise levels: 0 and/or realistic (1 %% of the peak)")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    print("| seeker | field | noise | success (95 % CI) | time to stay within 1 m, s (median / p90) "
+          "| ratio to straight line (median / p90) | centre flown, m (straight) | readings | final error, m "
+          "| final distance, all trials, m |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    rows = []
+    for field_name in args.fields.split(","):
+        for level in args.noise.split(","):
+            for name in args.seekers.split(","):
+                row = run_cell(name, field_name, level, args.trials, args.iterations, args.seed)
+                rows.append(row)
+                print(_fmt(row), flush=True)
+    if args.json is not None:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

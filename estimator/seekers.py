@@ -1,0 +1,247 @@
+"""Seekers: readings in, next formation centre out (pure numpy, batched over trials).
+
+Every seeker has the same small interface (:class:`Seeker`): ``propose(centre, positions,
+values)`` takes the commanded centres ``(K, 3)``, where each reading was actually taken
+``(K, N, 3)`` and the readings ``(K, N)``, and returns the next centres ``(K, 3)``. The caller
+applies the step cap (``gamma_m``, :func:`cap_move`) and the safety envelope afterwards; a
+seeker never sees them. ``K`` is the number of independent trials (1 in the mission).
+
+* ``"gradient"`` (:class:`GradientSeeker`): the paper's gradient ascent, ``c + eps g`` with
+  ``g`` Theorem 2 (centred least squares) about the centroid of the readings' positions.
+* ``"newton"`` (:class:`NewtonSeeker`): a second-order seeker. The Hessian and gradient of the
+  field are fitted (quadratic least squares) to the readings of the current and the previous
+  iteration (a CVT of N = 8 alone gives 8 readings for 10 coefficients); a Newton step
+  ``-H^-1 g`` where ``H`` is negative definite, else a gradient step, both inside a trust region
+  whose radius doubles after a step that did what the model predicted and halves after one
+  that made things worse.
+* ``"model"`` (:class:`ModelSeeker`): fits a quadratic in ``log`` of the readings (exact for a
+  Gaussian source) to the last ``window`` iterations' readings from all vehicles and steps to
+  the fitted maximum when the fit's uncertainty on it is small, else along the fitted gradient
+  by the trust radius (same trust region).
+
+The maths and the failure modes are in ``docs/seekers.md``.
+"""
+from __future__ import annotations
+
+from collections import deque
+from typing import Protocol
+
+import numpy as np
+
+from estimator.gradient import DEFAULT_MAX_CONDITION, estimator_weights
+from estimator.seek_quadratic import fit_quadratic
+
+__all__ = ["SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker", "ModelSeeker", "make_seeker", "cap_move"]
+
+#: Seeker names accepted by :func:`make_seeker` (and by the plan's ``[seeking] seeker``).
+SEEKERS = ("gradient", "newton", "model")
+
+
+class Seeker(Protocol):
+    """Readings in, next centre out."""
+
+    name: str
+
+    def propose(self, centre, positions, values) -> np.ndarray:
+        """Next centres ``(K, 3)`` from the centres ``(K, 3)``, positions ``(K, N, 3)``, readings ``(K, N)``."""
+
+    def reset(self) -> None:
+        """Forget everything seen (a new run)."""
+
+
+def cap_move(centre, new_centre, gamma_m: float) -> np.ndarray:
+    """``new_centre`` with the move from ``centre`` scaled down to at most ``gamma_m`` (direction kept)."""
+    c = np.asarray(centre, dtype=float)
+    move = np.asarray(new_centre, dtype=float) - c
+    length = np.linalg.norm(move, axis=-1, keepdims=True)
+    over = length > gamma_m
+    return c + move * np.where(over, gamma_m / np.where(over, length, 1.0), 1.0)
+
+
+def _inputs(centre, positions, values):
+    c = np.atleast_2d(np.asarray(centre, dtype=float))
+    p = np.asarray(positions, dtype=float)
+    v = np.asarray(values, dtype=float)
+    if p.ndim == 2:
+        p, v = p[None], v[None]
+    if c.shape[-1] != 3 or p.shape[:1] != c.shape[:1] or p.shape[-1] != 3 or v.shape != p.shape[:2]:
+        raise ValueError(f"expected centre (K,3), positions (K,N,3), values (K,N); got {c.shape}, {p.shape}, {v.shape}")
+    if not (np.all(np.isfinite(c)) and np.all(np.isfinite(p)) and np.all(np.isfinite(v))):
+        raise ValueError("centre, positions and values must be finite")
+    return c, p, v
+
+
+class GradientSeeker:
+    """The paper's gradient ascent: ``c + eps g_hat`` (the cap ``gamma`` is applied by the caller).
+
+    Parameters
+    ----------
+    eps : float
+        Step gain (metres per signal unit per metre).
+    method : {"cvt", "symmetric"}
+        Theorem 2 (centred least squares about the readings' centroid) or eq. (3).
+    """
+
+    name = "gradient"
+
+    def __init__(self, eps: float = 1.0, method: str = "cvt", max_condition: float = DEFAULT_MAX_CONDITION):
+        if not (np.isfinite(eps) and eps > 0):
+            raise ValueError(f"eps must be a positive finite number, got {eps!r}")
+        self.eps = float(eps)
+        self.method = method
+        self.max_condition = float(max_condition)
+
+    def reset(self) -> None:
+        """Nothing to forget: the paper's step is memoryless."""
+
+    def propose(self, centre, positions, values) -> np.ndarray:
+        """``c + eps g`` per trial, ``g`` estimated about the centroid of ``positions``."""
+        c, p, v = _inputs(centre, positions, values)
+        off = p - p.mean(axis=1, keepdims=True)
+        w, _ = estimator_weights(off, self.method, self.max_condition)
+        g = np.einsum("kn,kni->ki", v, w)
+        return c + self.eps * g
+
+
+class _TrustRegionSeeker:
+    """Quadratic model of a window of readings, stepped inside an adaptive trust region."""
+
+    name = "quadratic"
+    log = False
+    use_uncertainty = False
+
+    def __init__(self, window: int, radius_m: float = 5.0, min_radius_m: float = 0.25,
+                 max_radius_m: float = 20.0, confidence: float = 1.0, confident_m: float = 0.5,
+                 merge_m: float = 1.0, shrink: bool = True):
+        if int(window) != window or window < 1:
+            raise ValueError(f"window must be an integer >= 1, got {window!r}")
+        if not (0 < min_radius_m <= radius_m <= max_radius_m and np.isfinite(max_radius_m)):
+            raise ValueError("need 0 < min_radius_m <= radius_m <= max_radius_m (finite)")
+        self.window = int(window)
+        self.radius0_m, self.min_radius_m, self.max_radius_m = float(radius_m), float(min_radius_m), float(max_radius_m)
+        self.confidence, self.confident_m = float(confidence), float(confident_m)
+        self.merge_m = float(merge_m)
+        self.shrink = bool(shrink)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the window and the trust region."""
+        self._buf: deque = deque(maxlen=self.window)
+        self.radius_m = None
+        self._prev = None  # (centre, predicted gain, hit the radius, well inside it)
+        self.last_fit = None
+        self.last_newton = None
+
+    def _window(self, c, p, v):
+        """The window's readings; an iteration whose centre is within ``merge_m`` of the last
+        kept one joins it (at most ``4 N`` readings kept there) instead of pushing an older
+        position out: readings all about one point cannot show the trace of ``H``."""
+        if self._buf:
+            c_last, p_last, v_last = self._buf[-1]
+            if np.all(np.linalg.norm(c - c_last, axis=-1) <= self.merge_m):
+                keep = 4 * p.shape[1]
+                self._buf[-1] = (c_last, np.concatenate([p_last, p], axis=1)[:, -keep:],
+                                 np.concatenate([v_last, v], axis=1)[:, -keep:])
+            else:
+                self._buf.append((c, p, v))
+        else:
+            self._buf.append((c, p, v))
+        pos = np.concatenate([b[1] for b in self._buf], axis=1)
+        val = np.concatenate([b[2] for b in self._buf], axis=1)
+        return pos, val, np.ones(val.shape, dtype=bool)
+
+    def _update_radius(self, fit, c) -> None:
+        if self._prev is None:
+            return
+        c_old, pred, hit, inside = self._prev
+        # the outcome of the last step as the current fit sees it: the fitted value here minus
+        # the fitted value at the previous centre (both from the readings about them)
+        actual = -fit.predicted_gain(c_old - c)
+        with np.errstate(invalid="ignore"):
+            noise = 2.0 * np.sqrt(2.0) * fit.value_std
+            noise = np.where(np.isfinite(noise), noise, np.inf)
+            rho = np.where(pred > 0, actual / np.where(pred > 0, pred, 1.0), 0.0)
+        worse = (actual < -noise) | ((rho < 0.25) & (pred > noise))
+        good = ~worse & (rho > 0.5) & hit & (actual > noise)
+        shrink = worse | inside  # a step well inside the region: the region need not be that large
+        r = np.where(shrink, self.radius_m / 2.0, np.where(good, self.radius_m * 2.0, self.radius_m))
+        self.radius_m = np.clip(r, self.min_radius_m, self.max_radius_m)
+
+    def _newton_ok(self, fit) -> np.ndarray:
+        ok = fit.concave & np.all(np.isfinite(fit.newton), axis=-1)
+        if self.use_uncertainty:
+            length = np.linalg.norm(np.where(ok[:, None], fit.newton, 0.0), axis=-1)
+            ok &= fit.newton_std_m <= np.maximum(self.confidence * length, self.confident_m)
+        return ok
+
+    @staticmethod
+    def _uphill(fit, r):
+        """Cauchy step: up the fitted gradient to the model's maximum along it, at most ``r``."""
+        g = fit.grad
+        g2 = np.einsum("ki,ki->k", g, g)
+        curv = np.einsum("ki,kij,kj->k", g, fit.hessian, g)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(curv < 0, g2 / np.where(curv < 0, -curv, 1.0), np.inf)  # metres per unit g
+            length = np.minimum(r, t * np.sqrt(g2))
+            return g * np.where(g2 > 0, length / np.sqrt(np.where(g2 > 0, g2, 1.0)), 0.0)[:, None]
+
+    def propose(self, centre, positions, values) -> np.ndarray:
+        """Fit, adapt the trust radius from the last step's outcome, step (class docstring)."""
+        c, p, v = _inputs(centre, positions, values)
+        if self.radius_m is None or np.shape(self.radius_m) != (c.shape[0],):
+            self.radius_m = np.full(c.shape[0], self.radius0_m)
+        fit = fit_quadratic(*self._window(c, p, v), c, self.log)
+        self._update_radius(fit, c)
+        ok = self._newton_ok(fit)
+        r = self.radius_m
+        newton = np.where(ok[:, None], fit.newton, 0.0)
+        p_len2 = np.sum(newton**2, axis=-1)
+        std2 = np.where(ok, np.nan_to_num(fit.newton_std_m, posinf=1e150), 0.0) ** 2
+        if self.use_uncertainty and self.shrink:  # shrink a step that is mostly noise: |p|^2 / (|p|^2 + std^2)
+            newton = newton * (p_len2 / np.maximum(p_len2 + std2, 1e-300))[:, None]
+        n_len = np.linalg.norm(newton, axis=-1)
+        newton = newton * np.minimum(1.0, r / np.maximum(n_len, 1e-300))[:, None]
+        step = np.where(ok[:, None], newton, self._uphill(fit, r))
+        length = np.linalg.norm(step, axis=-1)
+        hit = length >= r * (1 - 1e-9)
+        self._prev = (c, fit.predicted_gain(step), hit, length < r / 4.0)
+        self.last_fit, self.last_newton = fit, ok
+        return c + step
+
+
+class NewtonSeeker(_TrustRegionSeeker):
+    """Second-order seeker: quadratic fit of the readings of the last ``window`` (2) iterations,
+    Newton steps where the fitted Hessian is negative definite, gradient steps elsewhere, all
+    inside the trust region (radius ``radius_m``, halved/doubled within ``[min, max]``)."""
+
+    name = "newton"
+    log = False
+    use_uncertainty = False
+
+    def __init__(self, window: int = 2, **kwargs):
+        super().__init__(window, **kwargs)
+
+
+class ModelSeeker(_TrustRegionSeeker):
+    """Model-based seeker: quadratic in ``log`` of the readings over the last ``window`` (6)
+    iterations; steps to the fitted maximum when its RMS uncertainty is at most
+    ``max(confidence * |step|, confident_m)``, else up the fitted gradient by the trust radius."""
+
+    name = "model"
+    log = True
+    use_uncertainty = True
+
+    def __init__(self, window: int = 6, **kwargs):
+        super().__init__(window, **kwargs)
+
+
+def make_seeker(name: str, *, eps: float = 1.0, method: str = "cvt", **kwargs) -> Seeker:
+    """A seeker by name (:data:`SEEKERS`); ``eps``/``method`` go to the gradient seeker, the
+    other keywords (``window``, ``radius_m``, ...) to the trust-region seekers."""
+    if name == "gradient":
+        return GradientSeeker(eps=eps, method=method)
+    if name == "newton":
+        return NewtonSeeker(**kwargs)
+    if name == "model":
+        return ModelSeeker(**kwargs)
+    raise ValueError(f"unknown seeker {name!r}; expected one of {', '.join(SEEKERS)}")

@@ -1,0 +1,155 @@
+"""Offline source seeking with any seeker, and the mission's stop-and-go time model.
+
+:func:`simulate_seeker` runs ``K`` independent trials at once (perfect tracking: each robot
+reads exactly at ``centre + offset_i``, with Gaussian noise), the seeker proposing each next
+centre (:mod:`estimator.seekers`) and the cap ``gamma_m`` applied outside it, as the mission
+does. :class:`StopAndGo` turns each iteration's centre move into mission time.
+
+The time model (what ``mission.flight.seek`` does per iteration): the ramp moves every setpoint
+to its slot about the new centre at ``max_speed_m_s`` horizontally and at most
+``max_vertical_speed_m_s`` vertically (``mission.flight.targets``), so the move takes
+``max(|m| / v, |m_z| / v_z)``; then the vehicles settle to within ``arrival_tol_m`` and a reading
+taken after the arrival comes in (``settle_s`` plus ``lag_s_per_m`` per metre of move: a longer
+move ends at a higher speed, so the tracking lag to catch up is longer); iterations are at least
+``1 / rate_hz`` apart. The constants were read off the iteration records of lock-step missions
+of the default plan (moves of 0-10 m: 0.5 s for no move, 1.6 s for 1 m, 3.2-3.4 s for 5 m, 5.0 s
+for 10 m); ``benchmarks/bench_seek_mission.py`` prints the model's time beside each mission's
+measured one (``docs/seekers.md`` has the check).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from estimator.seekers import cap_move
+
+__all__ = ["StopAndGo", "SeekRun", "simulate_seeker"]
+
+
+@dataclass(frozen=True)
+class StopAndGo:
+    """Mission time of one seek iteration from its centre move (module docstring).
+
+    Attributes
+    ----------
+    max_speed_m_s, max_vertical_speed_m_s : float
+        The ramp's speed limits (plan ``max_speed_m_s``; vertical 1 m/s).
+    settle_s : float
+        Settling within ``arrival_tol_m`` and the first reading after arrival, for a zero move.
+    lag_s_per_m : float
+        Extra settling per metre of move.
+    max_settle_s : float
+        Cap of the per-metre settling term (the vehicles reach their cruise speed).
+    far_s_per_m : float
+        Settling per metre beyond that (a longer move leaves the formation a little more spread).
+    rate_hz : float
+        Plan ``rate_hz``: estimates at least ``1 / rate_hz`` apart.
+    """
+
+    max_speed_m_s: float = 3.0
+    max_vertical_speed_m_s: float = 1.0
+    settle_s: float = 0.45
+    lag_s_per_m: float = 0.8
+    max_settle_s: float = 1.25
+    far_s_per_m: float = 0.04
+    rate_hz: float = 2.0
+
+    def iteration_s(self, move_m) -> np.ndarray:
+        """Time of iterations whose centre moves are ``move_m`` (..., 3)."""
+        m = np.asarray(move_m, dtype=float)
+        length = np.linalg.norm(m, axis=-1)
+        fly = np.maximum(length / self.max_speed_m_s, np.abs(m[..., 2]) / self.max_vertical_speed_m_s)
+        settle = np.minimum(self.settle_s + self.lag_s_per_m * length, self.max_settle_s) + self.far_s_per_m * length
+        return np.maximum(fly + settle, 1.0 / self.rate_hz)
+
+
+@dataclass(frozen=True)
+class SeekRun:
+    """A batch of offline seeking runs.
+
+    Attributes
+    ----------
+    centres : ndarray, shape (T + 1, K, 3)
+        Commanded centre before each iteration and after the last.
+    offsets : ndarray, shape (K, N, 3)
+        Each trial's formation offsets.
+    source_enu : ndarray, shape (3,)
+    """
+
+    centres: np.ndarray
+    offsets: np.ndarray
+    source_enu: np.ndarray
+
+    def distance_m(self) -> np.ndarray:
+        """Distance of the centre to the source, (T + 1, K)."""
+        return np.linalg.norm(self.centres - self.source_enu, axis=-1)
+
+    def moves(self) -> np.ndarray:
+        """Centre moves per iteration, (T, K, 3)."""
+        return np.diff(self.centres, axis=0)
+
+
+def _rotated(offsets: np.ndarray, trials: int, rng) -> np.ndarray:
+    rot = Rotation.random(trials, random_state=rng).as_matrix()
+    return np.einsum("kij,nj->kni", rot, offsets)
+
+
+def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations: int,
+                    noise_std: float = 0.0, rotate: bool = True, seed: int = 0,
+                    time_model: StopAndGo | None = None, trial_time_offset_s: float = 1.0e4) -> SeekRun:
+    """Run ``K = len(start)`` trials of ``seeker`` on ``field`` (module docstring).
+
+    Parameters
+    ----------
+    offsets : array_like, shape (N, 3)
+        Formation offsets (rigid), metres.
+    field : Field
+        ``value(points)`` and ``source_enu()`` (:mod:`sitl_mock.fields`).
+    start : array_like, shape (K, 3)
+        Initial centres.
+    seeker : estimator.seekers.Seeker
+        Reset before the run.
+    gamma_m : float
+        Largest centre move per iteration (the cap outside the seeker).
+    iterations : int
+        Iterations ``T``.
+    noise_std : float
+        Reading noise standard deviation.
+    rotate : bool
+        A uniformly random orientation of the formation per trial.
+    seed : int
+        Seed of the rotations and the noise.
+    time_model : StopAndGo, optional
+        Mission time of each iteration (default ``StopAndGo()``): a time-dependent field
+        (``field.time_dependent``, the intermittent plume) is read at the mission time of the
+        iteration plus ``trial * trial_time_offset_s`` (independent realisations per trial).
+
+    Returns
+    -------
+    SeekRun
+    """
+    c0 = np.asarray(start, dtype=float)
+    if c0.ndim != 2 or c0.shape[1] != 3:
+        raise ValueError(f"start must have shape (K, 3), got {c0.shape}")
+    if not (np.isfinite(gamma_m) and gamma_m > 0) or int(iterations) < 1 or noise_std < 0:
+        raise ValueError("need gamma_m > 0, iterations >= 1 and noise_std >= 0")
+    rng = np.random.default_rng(seed)
+    k = c0.shape[0]
+    off = np.asarray(offsets, dtype=float)
+    trial_off = _rotated(off, k, rng) if rotate else np.broadcast_to(off, (k,) + off.shape).copy()
+    seeker.reset()
+    model = time_model or StopAndGo()
+    timed = bool(getattr(field, "time_dependent", False))
+    now_s = np.arange(k)[:, None] * float(trial_time_offset_s)
+    centres = np.empty((int(iterations) + 1, k, 3))
+    centres[0] = c0
+    for t in range(int(iterations)):
+        pos = centres[t][:, None, :] + trial_off
+        vals = field.value(pos, now_s) if timed else field.value(pos)
+        if noise_std > 0:
+            vals = vals + rng.standard_normal(vals.shape) * noise_std
+        centres[t + 1] = cap_move(centres[t], seeker.propose(centres[t], pos, vals), gamma_m)
+        now_s = now_s + model.iteration_s(centres[t + 1] - centres[t])[:, None]
+    return SeekRun(centres, trial_off, np.asarray(field.source_enu(), dtype=float))
