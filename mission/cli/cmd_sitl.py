@@ -21,6 +21,9 @@ from sitl_mock.cli_args import int_in_range, origin_geodetic, positive_float, so
 
 __all__ = ["configure", "main"]
 
+#: a formation (hence a plan) needs at least this many vehicles
+_MIN_MISSION_VEHICLES = 4
+
 
 def _param(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
@@ -86,14 +89,17 @@ def _commands(fleet, args, plan: Path) -> list[str]:
     return lines
 
 
-def _report(fleet, args, plan: Path) -> None:
+def _report(fleet, args, plan: Path | None) -> None:
     print(f"{len(fleet.vehicles)} {args.flavour} SITL instances (run dir {fleet.run_dir}):")
     for v in fleet.vehicles:
         print(f"  sysid {v.sysid:3d}  instance {v.instance:3d}  pid {v.pid:7d}  ground station {v.connection}"
               f"  sensor {v.sensor_connection}  home {v.home[0]:.7f},{v.home[1]:.7f},{v.home[2]:g}")
-    print(f"plan: {plan}")
+    if plan is None:
+        print(f"no plan written: a mission needs at least {_MIN_MISSION_VEHICLES} vehicles")
+    else:
+        print(f"plan: {plan}")
     print("run, in other terminals:")
-    for line in _commands(fleet, args, plan):
+    for line in _commands(fleet, args, plan or args.plan_out):
         print(f"  {line}")
     print(f"ready: {len(fleet.vehicles)} vehicles up; Ctrl-C or SIGTERM stops them", flush=True)
 
@@ -126,8 +132,10 @@ def main(args: argparse.Namespace) -> int:
         print(f"starting {cfg.n} {cfg.flavour} SITL instances from {fleet.sitl_dir} ...", flush=True)
         try:
             with fleet:
-                plan = fleet.write_plan(args.plan_out, fleet=args.fleet,
-                                        zenoh_endpoint=f"tcp/127.0.0.1:{args.zenoh_port}").resolve()
+                plan = None
+                if cfg.n >= _MIN_MISSION_VEHICLES:
+                    plan = fleet.write_plan(args.plan_out, fleet=args.fleet,
+                                            zenoh_endpoint=f"tcp/127.0.0.1:{args.zenoh_port}").resolve()
                 _report(fleet, args, plan)
                 try:
                     status = _serve(fleet)
