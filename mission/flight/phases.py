@@ -18,6 +18,7 @@ from formation.geodesy import geodetic_to_enu
 from mission.flight.motion import retried, setpoint_stream
 from mission.flight.return_clear import fly_clear, fly_return
 from mission.flight.state import MissionError
+from mission.flight.takeoff_loss import laggards, lose_failed
 from mission.flight.layers import shared_layers
 from mission.flight.targets import assign_slots
 
@@ -90,7 +91,11 @@ async def takeoff(co) -> None:
         v = co.vehicles[sysid]
         home = co.home_enu[sysid]
         rel_alt = co.layer_alt_m[sysid] - home[2]
-        await retried(co, lambda v=v: v.takeoff(rel_alt), f"takeoff of vehicle {sysid}")
+        try:
+            await retried(co, lambda v=v: v.takeoff(rel_alt), f"takeoff of vehicle {sysid}")
+        except MissionError as exc:
+            lose_failed(co, sysid, str(exc))
+            continue
         co.state.set_airborne(sysid, "taking off")
         co.event(f"vehicle {sysid} taking off to {rel_alt:.1f} m above home", sysid=sysid)
         waits.append(asyncio.ensure_future(_hold_after_climb(co, sysid, home, co.layer_alt_m[sysid])))
@@ -110,7 +115,10 @@ async def _hold_after_climb(co, sysid, home, layer_alt):
         p = co.telemetry_position(sysid)
         return p is not None and abs(float(p[2]) - layer_alt) < 0.6
 
-    await co.wait_until(_near, 60.0 + 2.0 * layer_alt, f"vehicle {sysid} to climb to {layer_alt:.1f} m")
+    try:
+        await co.wait_until(_near, 60.0 + 2.0 * layer_alt, f"vehicle {sysid} to climb to {layer_alt:.1f} m")
+    except MissionError as exc:
+        lose_failed(co, sysid, str(exc))
     if sysid in co.lost:
         return
     if sysid not in co.ramp.sysids:
@@ -132,9 +140,22 @@ async def assemble(co) -> None:
         raise MissionError(f"vehicles {sorted(co.lost)} lost before the formation was assembled: "
                            f"{len(sysids)} left, a formation needs 4")
     centre = plan.seeking.start_point()
-    # the layered legs, re-planned around lost vehicles still flying (e.g. one lost in takeoff)
-    await fly_clear(co, sysids, {s: centre + co.slot_offsets[s] for s in sysids},
-                    plan.seeking.arrival_tol_m, what="assembly")
+    # the layered legs, re-planned around lost vehicles still flying (e.g. one lost in takeoff);
+    # a vehicle that cannot reach its slot in time is lost, the others go on (if 4 are left)
+    goals = {s: centre + co.slot_offsets[s] for s in sysids}
+    try:
+        await fly_clear(co, sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
+    except MissionError as exc:
+        late = laggards(co, sysids, plan.seeking.arrival_tol_m)
+        if not late:
+            raise
+        for s in late:
+            lose_failed(co, s, str(exc))
+        sysids = [s for s in sysids if s not in co.lost]
+        if len(sysids) < 4:
+            raise MissionError(f"vehicles {sorted(co.lost)} lost during the assembly: {len(sysids)} left, "
+                               "a formation needs 4") from None
+        await fly_clear(co, sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
     co.state.move_centre(centre)
     for s in sysids:
         co.state.set_status(s, "in formation")
