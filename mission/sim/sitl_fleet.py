@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import signal
 import subprocess
 import tempfile
@@ -126,9 +127,17 @@ class SitlVehicle:
     work_dir: Path
 
 
-def _pdeathsig() -> None:  # runs in the child between fork and exec
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+def _pdeathsig_setter():
+    """A function for ``preexec_fn``: SIGTERM to the child when the launching thread dies.
+
+    libc's ``prctl`` is looked up here, in the parent: the child (between fork and exec) only
+    calls it. None where there is no ``prctl`` (not Linux).
+    """
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    return functools.partial(prctl, _PR_SET_PDEATHSIG, int(signal.SIGTERM))
 
 
 class SitlFleet:
@@ -148,6 +157,7 @@ class SitlFleet:
         self._tmp: tempfile.TemporaryDirectory | None = None
         self._procs: list[subprocess.Popen] = []
         self._specs: list[InstanceSpec] = []
+        self._preexec = _pdeathsig_setter()
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> SitlFleet:
@@ -197,7 +207,7 @@ class SitlFleet:
         try:
             proc = subprocess.Popen(spec.argv, cwd=spec.work_dir, env=spec.env, stdout=log,
                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                    start_new_session=True, preexec_fn=_pdeathsig)
+                                    start_new_session=True, preexec_fn=self._preexec)
         except OSError as exc:
             raise SitlSetupError(f"cannot start {spec.argv[0]}: {exc}") from None
         finally:
