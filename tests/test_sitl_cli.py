@@ -119,3 +119,30 @@ def test_px4_fleet_starts_prints_and_stops_cleanly_on_sigterm(tmp_path):
             proc.wait()
     assert all(_gone(pid) for pid in pids), pids
     assert not [i for i in instances if Path(f"/tmp/px4_lock-{i}").exists() or Path(f"/tmp/px4-sock-{i}").exists()]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_killed_launcher_leaves_no_orphan(tmp_path):
+    """SIGKILL (no clean-up possible): each instance still gets SIGTERM (PR_SET_PDEATHSIG) and exits."""
+    require_sitl("px4")
+    from mission.sim.sitl_launch import px4_instance_free
+    from mission.sim.sitl_procs import cleanup_px4_files
+
+    proc = subprocess.Popen([sys.executable, "-m", "mission", "sitl", "--flavour", "px4", "--n", "1", "--free-layout",
+                             "--plan-out", str(tmp_path / "plan.toml")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        out = _read_until(proc, r"^ready: 1 vehicles up", 90.0)
+        assert "no plan written: a mission needs at least 4 vehicles" in out
+        instance, pid = (int(x) for x in re.search(r"instance +(\d+) +pid +(\d+)", out).groups())
+        assert not _gone(pid)
+    finally:
+        proc.kill()
+        proc.wait()
+    deadline = time.monotonic() + 20.0
+    while not _gone(pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _gone(pid), f"PX4 instance {instance} (pid {pid}) outlived its killed launcher"
+    assert px4_instance_free(instance)
+    cleanup_px4_files([instance])  # PX4 leaves its socket file when nobody cleans up after it
