@@ -155,10 +155,12 @@ def pick_layout(flavour: str, n: int, *, tries: int = 200, rng: random.Random | 
         raise SitlSetupError(f"PX4 SITL runs at most {PX4_MAX_INSTANCES} instances per host, asked for {n}")
     for _ in range(tries):
         if flavour == "px4":
-            first = rng.randrange(0, PX4_MAX_INSTANCES - n + 1)
+            # the lowest free block of instance numbers (fleets pack, leaving room for others)
+            firsts = [f for f in range(PX4_MAX_INSTANCES - n + 1) if all(px4_instance_free(f + j) for j in range(n))]
+            if not firsts:
+                break
+            first = firsts[0]
             offset = rng.randrange(1000, 45000)
-            if not all(px4_instance_free(first + j) for j in range(n)):
-                continue
         else:
             first = rng.randrange(0, 100)
             offset = rng.randrange(0, 40000 - 10 * (first + n))
@@ -234,6 +236,7 @@ def instance_specs(cfg, sitl_dir: Path, run_dir: Path) -> list[InstanceSpec]:
     """
     homes = spread_homes(cfg.home or DEFAULT_HOMES[cfg.flavour], cfg.n, cfg.spacing_m)
     specs = []
+    run_dir.mkdir(parents=True, exist_ok=True)
     if cfg.flavour == "px4":
         if cfg.first_instance + cfg.n > PX4_MAX_INSTANCES:
             raise SitlSetupError(f"PX4 instances {cfg.first_instance}..{cfg.first_instance + cfg.n - 1}: "
