@@ -22,6 +22,7 @@ link-loss timeouts by it) and the plan's wall-clock quantities are scaled by it
 """
 from __future__ import annotations
 
+import json
 import socket
 import subprocess
 import sys
@@ -88,7 +89,6 @@ def _final_states(gcs_port: int, sysids, timeout_s: float = 20.0) -> dict:
 @pytest.mark.timeout(420)
 def test_px4_sih_mission_finds_the_source_and_lands(tmp_path):
     sitl_dir = require_sitl("px4")
-    from mission.cli import main as cli_main
     from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
     from mission.sim.sitl_mission import fly_sitl_mission
 
@@ -115,8 +115,6 @@ def test_px4_sih_mission_finds_the_source_and_lands(tmp_path):
     audit = subprocess.run([sys.executable, "-m", "mission", "audit", str(tmp_path / "logs"), "--json"],
                            capture_output=True, text=True, timeout=120)
     assert audit.returncode == 0, audit.stdout[-3000:] + audit.stderr[-2000:]
-    import json
     report = json.loads(audit.stdout)
     assert report["ok"] and sorted(int(s) for s in report["per_vehicle"]) == [v.sysid for v in fleet.vehicles]
     assert report["setpoints_checked"] > 0
-    assert cli_main  # imported for parity with other e2e tests

@@ -91,21 +91,31 @@ async def takeoff(co) -> None:
         v = co.vehicles[sysid]
         home = co.home_enu[sysid]
         rel_alt = co.layer_alt_m[sysid] - home[2]
+        held = {}
+
+        def _takeoff(v=v, held=held):
+            # PX4's takeoff holds where the vehicle is at this instant (no await in between): the
+            # ramp must start there, not at the home, or its first setpoint jumps by the GPS drift
+            held["xy"] = v.position_enu_m()
+            return v.takeoff(rel_alt)
+
         try:
-            await retried(co, lambda v=v: v.takeoff(rel_alt), f"takeoff of vehicle {sysid}")
+            await retried(co, _takeoff, f"takeoff of vehicle {sysid}")
         except MissionError as exc:
             lose_failed(co, sysid, str(exc))
             continue
         co.state.set_airborne(sysid, "taking off")
         co.event(f"vehicle {sysid} taking off to {rel_alt:.1f} m above home", sysid=sysid)
-        waits.append(asyncio.ensure_future(_hold_after_climb(co, sysid, home, co.layer_alt_m[sysid])))
+        start = home if held.get("xy") is None else held["xy"]
+        waits.append(asyncio.ensure_future(_hold_after_climb(co, sysid, start, co.layer_alt_m[sysid])))
     await asyncio.gather(*waits)
 
 
-async def _hold_after_climb(co, sysid, home, layer_alt):
-    """Wait until the vehicle is near its layer, then give it a setpoint there."""
+async def _hold_after_climb(co, sysid, start, layer_alt):
+    """Wait until the vehicle is near its layer, then give it a setpoint there (above ``start``:
+    the home, or for PX4 the point its takeoff held)."""
     v = co.vehicles[sysid]
-    target = np.array([home[0], home[1], layer_alt])
+    target = np.array([start[0], start[1], layer_alt])
     if v.flavour == "px4":
         co.ramp.add(sysid, target)  # PX4 offboard: setpoints must keep streaming from now on
 

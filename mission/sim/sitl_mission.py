@@ -5,8 +5,10 @@ Used by the real-SITL end-to-end tests and ``benchmarks/bench_sitl.py``. Blockin
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -68,7 +70,8 @@ def _wait_rusage(proc: subprocess.Popen, timeout_s: float) -> float:
             proc.returncode = os.waitstatus_to_exitcode(status)
             return usage.ru_utime + usage.ru_stime
         if time.monotonic() > deadline:
-            os.killpg(proc.pid, 9)
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
         time.sleep(0.1)
 
 
