@@ -34,9 +34,12 @@ __all__ = ["InstanceSpec", "DEFAULT_HOMES", "DEFAULT_PARAMS", "PX4_API_STREAMS_O
 
 #: flavour -> default home of the fleet's first vehicle (lat_deg, lon_deg, alt_m)
 DEFAULT_HOMES = {"px4": (47.397742, 8.545594, 489.4), "ardupilot": (-35.363261, 149.165230, 584.0)}
-#: parameters set on every instance: GCS-loss failsafe on (land), flight logs off
+#: parameters set on every instance: GCS-loss failsafe on (land), flight logs off. PX4's offboard
+#: loss action stays its default (hold, re-engaged by the coordinator's watchdog): a stall of the
+#: ground station longer than COM_OF_LOSS_T (1 s) on a busy host must not land the fleet; the
+#: data-link loss (COM_DL_LOSS_T, 10 s: the ground station is gone) lands it.
 DEFAULT_PARAMS = {
-    "px4": {"NAV_DLL_ACT": 3, "COM_OBL_RC_ACT": 4, "SDLOG_MODE": -1},
+    "px4": {"NAV_DLL_ACT": 3, "SDLOG_MODE": -1},
     "ardupilot": {"FS_GCS_ENABLE": 5, "LOG_BACKEND_TYPE": 0},
 }
 #: PX4 instances 10 and above share API port 14549: at most 10 per host
