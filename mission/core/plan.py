@@ -23,6 +23,7 @@ from mission.core.plan_sections import (
     parse_formation,
     parse_geofence,
     parse_origin,
+    parse_preflight,
     parse_security,
     parse_seeking,
     parse_vehicles,
@@ -33,6 +34,7 @@ from mission.core.plan_types import (
     FormationPlan,
     GeofencePlan,
     Plan,
+    PreflightPlan,
     PlanError,
     SeekingPlan,
     VehiclePlan,
@@ -47,6 +49,7 @@ __all__ = [
     "VehiclePlan",
     "FaultsPlan",
     "FormationPlan",
+    "PreflightPlan",
     "SeekingPlan",
     "GeofencePlan",
     "ZenohPlan",
@@ -111,7 +114,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     c.unknown(doc, ("version", "fleet", "origin", "vehicles", "formation", "seeking", "geofence",
                     "zenoh", "security", "max_speed_m_s", "min_separation_m", "takeoff_alt_m", "return",
                     "stagger_s", "setpoint_rate_hz", "heartbeat_timeout_s", "min_battery_pct",
-                    "faults"), "")
+                    "faults", "preflight"), "")
     version = doc.get("version")
     if version is None:
         c.bad("version", f"required (this program reads version = {PLAN_VERSION})")
@@ -136,6 +139,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     )
     geofence = parse_geofence(c, doc, origin)
     faults = parse_faults(c, doc)
+    preflight = parse_preflight(c, doc)
     zen = parse_zenoh(c, doc, Path(base_dir) if base_dir is not None else None)
     security = parse_security(c, doc, Path(base_dir) if base_dir is not None else None)
     _check_across_sections(c, vehicles, formation, seeking, geofence, top)
@@ -143,6 +147,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
         raise PlanError(c.problems, source)
     return Plan(fleet=fleet, origin=origin, vehicles=tuple(vehicles), formation=formation,
                 seeking=seeking, geofence=geofence, zenoh=zen, security=security, version=PLAN_VERSION, faults=faults,
+                preflight=preflight,
                 **top)
 
 

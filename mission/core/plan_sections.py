@@ -1,5 +1,5 @@
 """Parsers of the plan's sections (``[origin]``, ``[[vehicles]]``, ``[formation]``, ``[seeking]``,
-``[geofence]``, ``[faults]``, ``[security]``).
+``[geofence]``, ``[faults]``, ``[security]``, ``[preflight]``).
 
 Each takes the :class:`~mission.core.plan_checks.Checker` that collects problems and the decoded
 TOML document, records every invalid key of its section and returns the section's value (None
@@ -12,7 +12,8 @@ from pathlib import Path
 
 from formation.geodesy import geodetic_to_enu
 from mission.core.plan_checks import Checker, check_connection, polygon_area, show_value
-from mission.core.plan_types import FaultsPlan, FormationPlan, GeofencePlan, SeekingPlan, VehiclePlan
+from mission.core.plan_types import (FaultsPlan, FormationPlan, GeofencePlan, PreflightPlan, SeekingPlan,
+                                     VehiclePlan)
 from mission.core.signing_config import SigningConfig, signing_config_from_table
 from mission.core.signing_keys import SigningError
 
@@ -25,6 +26,7 @@ __all__ = [
     "parse_seeking",
     "parse_geofence",
     "parse_security",
+    "parse_preflight",
 ]
 
 _FORMATIONS = ("cvt", "symmetric")
@@ -196,3 +198,18 @@ def parse_security(c: Checker, doc: dict, base_dir: Path | None) -> SigningConfi
         for key, why in exc.problems:
             c.bad(key, why)
         return None
+
+
+def parse_preflight(c: Checker, doc: dict) -> PreflightPlan:
+    """``[preflight]``: autopilot readiness timeout and failsafe requirement (defaults when absent)."""
+    t = c.table(doc, "preflight")
+    c.unknown(t, ("autopilot_ready_timeout_s", "require_gcs_failsafe"), "preflight")
+    d = PreflightPlan()
+    timeout = c.number(t, "autopilot_ready_timeout_s", "preflight", d.autopilot_ready_timeout_s,
+                       low=1.0, high=3600.0)
+    require = t.get("require_gcs_failsafe", d.require_gcs_failsafe)
+    if not isinstance(require, bool):
+        c.bad("preflight.require_gcs_failsafe", f"must be true or false, got {show_value(require)}")
+        require = d.require_gcs_failsafe
+    return PreflightPlan(autopilot_ready_timeout_s=d.autopilot_ready_timeout_s if timeout is None else timeout,
+                         require_gcs_failsafe=require)

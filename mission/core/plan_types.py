@@ -17,6 +17,7 @@ __all__ = [
     "PlanError",
     "VehiclePlan",
     "FaultsPlan",
+    "PreflightPlan",
     "FormationPlan",
     "SeekingPlan",
     "GeofencePlan",
@@ -162,6 +163,27 @@ class FaultsPlan:
 
 
 @dataclass(frozen=True)
+class PreflightPlan:
+    """Preflight (``[preflight]``): the autopilots' own readiness and their failsafe parameters.
+
+    Attributes
+    ----------
+    autopilot_ready_timeout_s : float
+        How long (mission clock) preflight waits for every autopilot's own pre-arm state to be
+        ready (SYS_STATUS health, EKF / estimator position), and arming is retried while the
+        autopilot refuses (``PreArm: Need Position Estimate``); default 120 (ArduCopter SITL
+        needs about 40 s after boot at speed-up 1).
+    require_gcs_failsafe : bool
+        True: a vehicle whose failsafe parameters would let it hover forever when the ground
+        station dies (ArduPilot ``FS_GCS_ENABLE = 0``; PX4 ``NAV_DLL_ACT = 0`` with an offboard
+        loss action that only holds) is not ready (``fly`` refuses); False (default): a warning.
+    """
+
+    autopilot_ready_timeout_s: float = 120.0
+    require_gcs_failsafe: bool = False
+
+
+@dataclass(frozen=True)
 class Plan:
     """A validated mission plan (see the module docstring)."""
 
@@ -183,6 +205,7 @@ class Plan:
     min_battery_pct: float = 30.0
     version: int = PLAN_VERSION
     faults: FaultsPlan = FaultsPlan()
+    preflight: PreflightPlan = PreflightPlan()
 
 
 def replace_plan(plan: Plan, **sections) -> Plan:

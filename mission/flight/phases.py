@@ -16,6 +16,7 @@ import numpy as np
 
 from formation.geodesy import geodetic_to_enu
 from mission.flight.motion import retried, setpoint_stream
+from mission.flight.readiness_autopilot import arm_and_takeoff
 from mission.flight.return_clear import fly_clear, fly_return
 from mission.flight.state import MissionError
 from mission.flight.layers import shared_layers
@@ -90,7 +91,7 @@ async def takeoff(co) -> None:
         v = co.vehicles[sysid]
         home = co.home_enu[sysid]
         rel_alt = co.layer_alt_m[sysid] - home[2]
-        await retried(co, lambda v=v: v.takeoff(rel_alt), f"takeoff of vehicle {sysid}")
+        await arm_and_takeoff(co, sysid, v, rel_alt)  # arming refusals retried, mode re-checked
         co.state.set_airborne(sysid, "taking off")
         co.event(f"vehicle {sysid} taking off to {rel_alt:.1f} m above home", sysid=sysid)
         waits.append(asyncio.ensure_future(_hold_after_climb(co, sysid, home, co.layer_alt_m[sysid])))
