@@ -56,7 +56,9 @@ async def wait_autopilots_ready(co, timeout_s: float) -> None:
     autopilot is ready; then set the ``autopilot`` check of each vehicle's readiness."""
     clock = co.clock
     start = clock.time()
-    vehicles = dict(co.vehicles)
+    # a vehicle that already failed another check is not waited for (its autopilot is still judged)
+    failed = {s for s in co.vehicles if (r := co.readiness.get(s)) is not None and not r.ready}
+    vehicles = {s: v for s, v in co.vehicles.items() if s not in failed}
     last_progress = start
     last_probe: dict[int, float] = {}
     probes: set = set()
@@ -82,13 +84,16 @@ async def wait_autopilots_ready(co, timeout_s: float) -> None:
     waited_s = clock.time() - start
     if not waiting and vehicles:
         co.event(f"preflight: every autopilot is ready (waited {waited_s:.1f} s)", waited_s=waited_s)
-    for s in vehicles:
+    now = clock.time()
+    waiting.update({s: p for s in failed if (p := autopilot_problems(co.vehicles[s], now))})
+    for s in co.vehicles:
         r = co.readiness.get(s)
         if r is None:
             continue
         r.checks["autopilot"] = s not in waiting
         if s in waiting:
-            r.problems.append(f"autopilot not ready after {timeout_s:.0f} s: " + "; ".join(waiting[s]))
+            waited = f"after {timeout_s:.0f} s" if s not in failed else "(not waited for)"
+            r.problems.append(f"autopilot not ready {waited}: " + "; ".join(waiting[s]))
         co.state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
 
 
