@@ -263,3 +263,10 @@ def test_arming_gives_up_at_the_timeout():
     with pytest.raises(MissionError, match=r"takeoff of vehicle 3 failed \(arming refused for 5 s\)"):
         asyncio.run(arm_and_takeoff(co, 3, v, 10.0))
     assert 5.0 <= co.clock.t <= 7.0
+
+
+def test_dry_run_ready_timeout_option_is_checked(capsys):
+    from mission.cli import main as cli_main
+
+    assert cli_main(["dry-run", "--plan", "mission/examples/sitl_plan.toml", "--ready-timeout", "-1"]) == 2
+    assert "--ready-timeout must be >= 0, got -1" in capsys.readouterr().err
