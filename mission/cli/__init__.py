@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "audit": ("mission.cli.cmd_audit", "check from the .tlog files that no setpoint broke the fence, speed or separation"),
     "paper": ("experiments.paper", "regenerate the paper's table and figures from our own geometry"),
     "simulate": ("experiments.cmd_simulate", "offline source-seeking simulation (perfect tracking, no MAVLink)"),
+    "sitl": ("mission.cli.cmd_sitl", "start a fleet of real PX4 SIH or ArduCopter SITL autopilots until interrupted"),
     "mock": ("sitl_mock.cli", "run a fleet of mock autopilots until interrupted"),
     "sensor": ("sitl_mock.virtual_sensor", "publish readings for a real autopilot's position over zenoh"),
 }

@@ -19,6 +19,7 @@ from mission.flight.motion import retried, setpoint_stream
 from mission.flight.readiness_autopilot import arm_and_takeoff
 from mission.flight.return_clear import fly_clear, fly_return
 from mission.flight.state import MissionError
+from mission.flight.takeoff_loss import laggards, lose_failed
 from mission.flight.layers import shared_layers
 from mission.flight.targets import assign_slots
 
@@ -91,17 +92,30 @@ async def takeoff(co) -> None:
         v = co.vehicles[sysid]
         home = co.home_enu[sysid]
         rel_alt = co.layer_alt_m[sysid] - home[2]
-        await arm_and_takeoff(co, sysid, v, rel_alt)  # arming refusals retried, mode re-checked
+        held = {}
+
+        def _note_start(v=v, held=held):
+            # PX4's takeoff holds where the vehicle is at this instant (no await in between): the
+            # ramp must start there, not at the home, or its first setpoint jumps by the GPS drift
+            held["xy"] = v.position_enu_m()
+
+        try:  # arming refusals retried with the autopilot's words, ArduPilot's mode re-checked
+            await arm_and_takeoff(co, sysid, v, rel_alt, before_takeoff=_note_start)
+        except MissionError as exc:
+            lose_failed(co, sysid, str(exc))
+            continue
         co.state.set_airborne(sysid, "taking off")
         co.event(f"vehicle {sysid} taking off to {rel_alt:.1f} m above home", sysid=sysid)
-        waits.append(asyncio.ensure_future(_hold_after_climb(co, sysid, home, co.layer_alt_m[sysid])))
+        start = home if held.get("xy") is None else held["xy"]
+        waits.append(asyncio.ensure_future(_hold_after_climb(co, sysid, start, co.layer_alt_m[sysid])))
     await asyncio.gather(*waits)
 
 
-async def _hold_after_climb(co, sysid, home, layer_alt):
-    """Wait until the vehicle is near its layer, then give it a setpoint there."""
+async def _hold_after_climb(co, sysid, start, layer_alt):
+    """Wait until the vehicle is near its layer, then give it a setpoint there (above ``start``:
+    the home, or for PX4 the point its takeoff held)."""
     v = co.vehicles[sysid]
-    target = np.array([home[0], home[1], layer_alt])
+    target = np.array([start[0], start[1], layer_alt])
     if v.flavour == "px4":
         co.ramp.add(sysid, target)  # PX4 offboard: setpoints must keep streaming from now on
 
@@ -111,7 +125,10 @@ async def _hold_after_climb(co, sysid, home, layer_alt):
         p = co.telemetry_position(sysid)
         return p is not None and abs(float(p[2]) - layer_alt) < 0.6
 
-    await co.wait_until(_near, 60.0 + 2.0 * layer_alt, f"vehicle {sysid} to climb to {layer_alt:.1f} m")
+    try:
+        await co.wait_until(_near, 60.0 + 2.0 * layer_alt, f"vehicle {sysid} to climb to {layer_alt:.1f} m")
+    except MissionError as exc:
+        lose_failed(co, sysid, str(exc))
     if sysid in co.lost:
         return
     if sysid not in co.ramp.sysids:
@@ -133,9 +150,22 @@ async def assemble(co) -> None:
         raise MissionError(f"vehicles {sorted(co.lost)} lost before the formation was assembled: "
                            f"{len(sysids)} left, a formation needs 4")
     centre = plan.seeking.start_point()
-    # the layered legs, re-planned around lost vehicles still flying (e.g. one lost in takeoff)
-    await fly_clear(co, sysids, {s: centre + co.slot_offsets[s] for s in sysids},
-                    plan.seeking.arrival_tol_m, what="assembly")
+    # the layered legs, re-planned around lost vehicles still flying (e.g. one lost in takeoff);
+    # a vehicle that cannot reach its slot in time is lost, the others go on (if 4 are left)
+    goals = {s: centre + co.slot_offsets[s] for s in sysids}
+    try:
+        await fly_clear(co, sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
+    except MissionError as exc:
+        late = laggards(co, sysids, plan.seeking.arrival_tol_m)
+        if not late:
+            raise
+        for s in late:
+            lose_failed(co, s, str(exc))
+        sysids = [s for s in sysids if s not in co.lost]
+        if len(sysids) < 4:
+            raise MissionError(f"vehicles {sorted(co.lost)} lost during the assembly: {len(sysids)} left, "
+                               "a formation needs 4") from None
+        await fly_clear(co, sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
     co.state.move_centre(centre)
     for s in sysids:
         co.state.set_status(s, "in formation")

@@ -105,7 +105,7 @@ async def _confirm_mode(co, v, mode: str) -> None:
         await v.wait_for(lambda st: st.mode == mode, _MODE_CONFIRM_S, f"mode {mode} in its heartbeat")
 
 
-async def _ardupilot_takeoff(co, v, rel_alt_m: float) -> None:
+async def _ardupilot_takeoff(co, v, rel_alt_m: float, before_takeoff) -> None:
     """GUIDED (confirmed), arm, GUIDED again if the RC changed it, takeoff at once."""
     await _confirm_mode(co, v, "GUIDED")
     await v.arm()
@@ -113,11 +113,15 @@ async def _ardupilot_takeoff(co, v, rel_alt_m: float) -> None:
         co.event(f"vehicle {v.sysid}: mode {v.state.mode} after arming; setting GUIDED again",
                  level="warning", sysid=v.sysid)
         await v.set_mode("GUIDED")
+    before_takeoff()
     await v.command_long(_M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, float(rel_alt_m), timeout_s=2.0)
 
 
-async def arm_and_takeoff(co, sysid: int, v, rel_alt_m: float) -> None:
+async def arm_and_takeoff(co, sysid: int, v, rel_alt_m: float, before_takeoff=lambda: None) -> None:
     """Arm vehicle ``v`` and command its takeoff to ``rel_alt_m`` above home.
+
+    ``before_takeoff()`` is called right before the takeoff command of each attempt (PX4: right
+    before ``v.takeoff``, which starts holding where the vehicle is), with no await in between.
 
     Arming refusals are retried (every second) until ``[preflight] autopilot_ready_timeout_s``
     after the first attempt, each new reason shown (and logged) with the autopilot's own words;
@@ -135,8 +139,9 @@ async def arm_and_takeoff(co, sysid: int, v, rel_alt_m: float) -> None:
     while True:
         try:
             if v.flavour == "ardupilot":
-                await _ardupilot_takeoff(co, v, rel_alt_m)
+                await _ardupilot_takeoff(co, v, rel_alt_m, before_takeoff)
             else:
+                before_takeoff()
                 await v.takeoff(rel_alt_m)
             return
         except Exception as exc:  # noqa: BLE001 - CommandError, LinkError: retried or reported
@@ -145,8 +150,8 @@ async def arm_and_takeoff(co, sysid: int, v, rel_alt_m: float) -> None:
             other += not refused
             now = co.clock.time()
             if other >= _MAX_OTHER_FAILURES or now >= deadline:
-                why = f"arming refused for {timeout_s:.0f} s" if refused else f"{other} failed attempts"
-                raise MissionError(f"takeoff of vehicle {sysid} failed ({why}): {exc}") from None
+                why = f"(arming refused for {timeout_s:.0f} s)" if refused else f"after {other} rounds of retries"
+                raise MissionError(f"takeoff of vehicle {sysid} failed {why}: {exc}") from None
             says = getattr(getattr(v, "prearm", None), "autopilot_says", lambda _t: None)(now)
             reason = says or str(exc)
             if reason != shown:

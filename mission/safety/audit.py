@@ -70,6 +70,9 @@ class AuditReport:
     ----------
     log_dir : str
     tlogs : list of str
+        The audited tlogs: those of the plan's vehicles.
+    ignored_tlogs : list of str
+        Tlogs of system ids that are not planned vehicles (listed, not audited or counted).
     setpoints_checked : int
         Position setpoints checked against the fence and band.
     setpoints_skipped : int
@@ -101,6 +104,7 @@ class AuditReport:
 
     log_dir: str
     tlogs: list
+    ignored_tlogs: list = field(default_factory=list)
     setpoints_checked: int = 0
     setpoints_skipped: int = 0
     per_vehicle: dict = field(default_factory=dict)
@@ -149,6 +153,9 @@ class AuditReport:
             f"  separation: {self.separation_instants_checked} pair-instants, {self.separation_segments_checked} "
             f"pair-path segments; min {sep} (limit {lim.get('min_separation_m')} - {lim.get('separation_tol_m')} m)",
         ]
+        if self.ignored_tlogs:
+            names = ", ".join(Path(p).name for p in self.ignored_tlogs)
+            lines.insert(1, f"  ignored {len(self.ignored_tlogs)} tlog(s) of system ids not in the plan: {names}")
         if self.ok:
             lines.append("  OK: no violation")
         else:
@@ -309,7 +316,12 @@ def audit_mission(log_dir, *, gcs_sysid: int = 255, fence_tol_m: float = 0.01, s
     if not by_sysid:
         raise AuditError(f"{log_dir}: no .tlog files (in tlogs/ or the directory itself; was --no-tlog used?)")
     plan = load_plan_limits(log_dir)
-    report = AuditReport(log_dir=str(log_dir), tlogs=[str(p) for ps in by_sysid.values() for p in ps])
+    ignored = {s: ps for s, ps in by_sysid.items() if plan["sysids"] is not None and s not in plan["sysids"]}
+    by_sysid = {s: ps for s, ps in by_sysid.items() if s not in ignored}
+    if not by_sysid:
+        raise AuditError(f"{log_dir}: no .tlog of a planned vehicle (system ids {sorted(plan['sysids'])})")
+    report = AuditReport(log_dir=str(log_dir), tlogs=[str(p) for ps in by_sysid.values() for p in ps],
+                         ignored_tlogs=[str(p) for ps in ignored.values() for p in ps])
     report.limits = {
         "max_speed_m_s": plan["max_speed_m_s"], "min_separation_m": plan["min_separation_m"],
         "min_alt_m": plan["min_alt_m"], "max_alt_m": plan["max_alt_m"],

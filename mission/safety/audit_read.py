@@ -155,6 +155,8 @@ def load_plan_limits(log_dir: Path) -> dict:
             "max_alt_m": float(gf["max_alt_m"]),
             "max_speed_m_s": float(plan["max_speed_m_s"]),
             "min_separation_m": float(plan["min_separation_m"]),
+            # the plan's vehicles: only their tlogs are audited (None: an old log without them)
+            "sysids": (frozenset(int(v["sysid"]) for v in plan["vehicles"]) if "vehicles" in plan else None),
         }
     except (KeyError, TypeError, ValueError) as exc:
         raise AuditError(f"{path}: the plan record lacks the safety limits: {type(exc).__name__}: {exc}") from None

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import signal
 import subprocess
 import tempfile
@@ -31,6 +32,7 @@ from pathlib import Path
 from mission.sim.sitl_launch import (
     DEFAULT_HOMES,
     DEFAULT_PARAMS,
+    PX4_MAX_INSTANCES,
     InstanceSpec,
     instance_specs,
     pick_layout,
@@ -96,6 +98,10 @@ class SitlFleetConfig:
             raise SitlSetupError("first_instance and port_offset must be >= 0")
         if not self.speedup > 0 or not self.spacing_m >= 0 or not self.ready_timeout_s > 0:
             raise SitlSetupError("speedup and ready_timeout_s must be > 0, spacing_m >= 0")
+        if self.flavour == "px4" and self.first_instance + self.n > PX4_MAX_INSTANCES:
+            raise SitlSetupError(f"PX4 SITL: instances {self.first_instance}..{self.first_instance + self.n - 1} "
+                                 f"asked for; instance numbers must stay below {PX4_MAX_INSTANCES} "
+                                 f"(PX4 gives every instance from 10 on the same API port)")
 
     def all_params(self) -> dict:
         """The flavour's default parameters updated with :attr:`params`."""
@@ -121,9 +127,17 @@ class SitlVehicle:
     work_dir: Path
 
 
-def _pdeathsig() -> None:  # runs in the child between fork and exec
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+def _pdeathsig_setter():
+    """A function for ``preexec_fn``: SIGTERM to the child when the launching thread dies.
+
+    libc's ``prctl`` is looked up here, in the parent: the child (between fork and exec) only
+    calls it. None where there is no ``prctl`` (not Linux).
+    """
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    return functools.partial(prctl, _PR_SET_PDEATHSIG, int(signal.SIGTERM))
 
 
 class SitlFleet:
@@ -143,6 +157,7 @@ class SitlFleet:
         self._tmp: tempfile.TemporaryDirectory | None = None
         self._procs: list[subprocess.Popen] = []
         self._specs: list[InstanceSpec] = []
+        self._preexec = _pdeathsig_setter()
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> SitlFleet:
@@ -179,13 +194,20 @@ class SitlFleet:
             groups.setdefault(spec.ready_connection, []).append(spec.sysid)
         wait_ready(groups, timeout_s=cfg.ready_timeout_s, check_alive=self.check_alive,
                    request_streams=cfg.flavour == "ardupilot")
+        for spec in self._specs:
+            for argv in spec.setup_commands:
+                done = subprocess.run(argv, cwd=spec.work_dir, env=spec.env, capture_output=True, text=True,
+                                      timeout=10.0, check=False)
+                if done.returncode != 0:
+                    raise SitlSetupError(f"SITL instance {spec.instance}: {' '.join(argv[1:])} failed: "
+                                         f"{(done.stdout + done.stderr).strip()[-300:]}")
 
     def _launch(self, spec: InstanceSpec) -> None:
         log = open(spec.work_dir / "sitl.log", "wb")  # noqa: SIM115 - closed right after Popen
         try:
             proc = subprocess.Popen(spec.argv, cwd=spec.work_dir, env=spec.env, stdout=log,
                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                    start_new_session=True, preexec_fn=_pdeathsig)
+                                    start_new_session=True, preexec_fn=self._preexec)
         except OSError as exc:
             raise SitlSetupError(f"cannot start {spec.argv[0]}: {exc}") from None
         finally:
@@ -225,7 +247,11 @@ class SitlFleet:
         return [p.pid for p in self._procs]
 
     def write_plan(self, path: str | Path, **options) -> Path:
-        """Write a ready-to-fly plan for this fleet (see :func:`mission.sim.sitl_plan.write_plan`)."""
+        """Write a ready-to-fly plan for this fleet (see :func:`mission.sim.sitl_plan.write_plan`).
+
+        Wall-clock quantities are scaled for the fleet's speed-up unless ``speedup`` is given.
+        """
+        options.setdefault("speedup", self.config.speedup)
         return write_plan(path, self.vehicles, self.origin, flavour=self.config.flavour, **options)
 
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 from mission.sim.sitl_settings import SitlSetupError
 
-__all__ = ["InstanceSpec", "DEFAULT_HOMES", "DEFAULT_PARAMS", "PX4_MAX_INSTANCES", "instance_specs",
+__all__ = ["InstanceSpec", "DEFAULT_HOMES", "DEFAULT_PARAMS", "PX4_API_STREAMS_OFF", "PX4_MAX_INSTANCES", "instance_specs",
            "pick_layout", "px4_instance_free", "spread_homes"]
 
 #: flavour -> default home of the fleet's first vehicle (lat_deg, lon_deg, alt_m)
@@ -41,6 +41,11 @@ DEFAULT_PARAMS = {
 }
 #: PX4 instances 10 and above share API port 14549: at most 10 per host
 PX4_MAX_INSTANCES = 10
+#: PX4's API link is an "onboard" mode link: ~400 messages/s at real time (x the speed-up). A
+#: ground station uses none of these; the launcher turns them off once the instance is ready
+#: (``mavlink stream -r 0``), so a sped-up fleet sends no more than a real-time one.
+PX4_API_STREAMS_OFF = ("ATTITUDE", "HIGHRES_IMU", "ATTITUDE_QUATERNION", "ODOMETRY", "ALTITUDE",
+                       "DISTANCE_SENSOR", "ATTITUDE_TARGET", "SERVO_OUTPUT_RAW_0", "VFR_HUD")
 _PX4_LOCAL_PORTS = (14580, 14540, 14280, 14030, 13030, 13280, 18570, 19450, 19410)
 _AP_BASE_PORT = 5760
 
@@ -71,6 +76,8 @@ class InstanceSpec:
         Complete environment of the process.
     work_dir : Path
         Working directory (parameters, logs, ``sitl.log``).
+    setup_commands : list of list of str
+        Commands run once the instance is ready (PX4: streams of the API link turned off).
     """
 
     index: int
@@ -83,6 +90,7 @@ class InstanceSpec:
     argv: list[str] = field(repr=False)
     env: dict = field(repr=False)
     work_dir: Path
+    setup_commands: list = field(default_factory=list, repr=False)
 
 
 def spread_homes(home: tuple[float, float, float], n: int, spacing_m: float) -> list[tuple[float, float, float]]:
@@ -147,10 +155,12 @@ def pick_layout(flavour: str, n: int, *, tries: int = 200, rng: random.Random | 
         raise SitlSetupError(f"PX4 SITL runs at most {PX4_MAX_INSTANCES} instances per host, asked for {n}")
     for _ in range(tries):
         if flavour == "px4":
-            first = rng.randrange(0, PX4_MAX_INSTANCES - n + 1)
+            # the lowest free block of instance numbers (fleets pack, leaving room for others)
+            firsts = [f for f in range(PX4_MAX_INSTANCES - n + 1) if all(px4_instance_free(f + j) for j in range(n))]
+            if not firsts:
+                break
+            first = firsts[0]
             offset = rng.randrange(1000, 45000)
-            if not all(px4_instance_free(first + j) for j in range(n)):
-                continue
         else:
             first = rng.randrange(0, 100)
             offset = rng.randrange(0, 40000 - 10 * (first + n))
@@ -195,11 +205,14 @@ def _px4_spec(j: int, inst: int, home, cfg, sitl_dir: Path, run_dir: Path, bin_d
     if cfg.speedup != 1.0:
         env["PX4_SIM_SPEED_FACTOR"] = f"{cfg.speedup:g}"
     argv = [str(bin_dir / "px4"), "-i", str(inst), "-d", "-w", str(wd), str(sitl_dir / "etc")]
+    api_local = str(14580 + inst + off)
+    setup = [[str(bin_dir / "px4-mavlink"), "--instance", str(inst), "stream", "-u", api_local, "-s", name, "-r", "0"]
+             for name in PX4_API_STREAMS_OFF]
     return InstanceSpec(index=j, instance=inst, sysid=inst + 1, home=home,
                         connection=f"udpin:127.0.0.1:{14540 + inst + off}",
                         sensor_connection=f"udpin:127.0.0.1:{14030 + inst + off}",
                         ready_connection=f"udpin:127.0.0.1:{14550 + off}",
-                        argv=argv, env=env, work_dir=wd)
+                        argv=argv, env=env, work_dir=wd, setup_commands=setup)
 
 
 def _ap_spec(j: int, inst: int, home, cfg, sitl_dir: Path, run_dir: Path, param_file: Path) -> InstanceSpec:
@@ -223,6 +236,7 @@ def instance_specs(cfg, sitl_dir: Path, run_dir: Path) -> list[InstanceSpec]:
     """
     homes = spread_homes(cfg.home or DEFAULT_HOMES[cfg.flavour], cfg.n, cfg.spacing_m)
     specs = []
+    run_dir.mkdir(parents=True, exist_ok=True)
     if cfg.flavour == "px4":
         if cfg.first_instance + cfg.n > PX4_MAX_INSTANCES:
             raise SitlSetupError(f"PX4 instances {cfg.first_instance}..{cfg.first_instance + cfg.n - 1}: "

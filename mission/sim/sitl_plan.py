@@ -15,7 +15,7 @@ from pathlib import Path
 
 from mission.core.plan import load_plan
 
-__all__ = ["plan_document", "write_plan", "to_toml"]
+__all__ = ["plan_document", "scale_for_speedup", "write_plan", "to_toml"]
 
 _BASE = {
     "version": 1, "fleet": "sitl", "max_speed_m_s": 3.0, "min_separation_m": 1.5, "takeoff_alt_m": 10.0,
@@ -31,8 +31,29 @@ _BASE = {
 }
 
 
+def scale_for_speedup(doc: dict, speedup: float) -> dict:
+    """Scale a plan's wall-clock quantities for a SITL running ``speedup`` times real time.
+
+    The ground station measures everything in wall time; the vehicles live in simulated time.
+    At speed-up ``S`` a vehicle flying ``v`` m/s (simulated) covers ``S v`` m per wall second,
+    so the setpoint speed limit, the seeking rate and the setpoint rate are multiplied by ``S``
+    and the takeoff stagger and reading window divided by ``S``: the mission the vehicles fly
+    (speeds, iterations per simulated second, readings per iteration) is the real-time one.
+    """
+    if speedup == 1.0:
+        return doc
+    doc["max_speed_m_s"] = round(doc["max_speed_m_s"] * speedup, 6)
+    doc["stagger_s"] = round(doc["stagger_s"] / speedup, 6)
+    doc["setpoint_rate_hz"] = round(min(doc["setpoint_rate_hz"] * speedup, 50.0), 6)
+    seeking = doc["seeking"]
+    seeking["rate_hz"] = round(seeking["rate_hz"] * speedup, 6)
+    seeking["reading_window_s"] = round(seeking["reading_window_s"] / speedup, 6)
+    return doc
+
+
 def plan_document(vehicles, origin, *, flavour: str, fleet: str = "sitl",
-                  zenoh_endpoint: str = "tcp/127.0.0.1:7447", overrides: dict | None = None) -> dict:
+                  zenoh_endpoint: str = "tcp/127.0.0.1:7447", overrides: dict | None = None,
+                  speedup: float = 1.0) -> dict:
     """The plan as a TOML-ready mapping.
 
     Parameters
@@ -48,7 +69,10 @@ def plan_document(vehicles, origin, *, flavour: str, fleet: str = "sitl",
     zenoh_endpoint : str
         The coordinator listens here; sensors connect to it.
     overrides : dict, optional
-        Keys replacing the defaults; a dict value updates that section.
+        Keys replacing the defaults; a dict value updates that section (applied before the
+        speed-up scaling: give real-time values).
+    speedup : float
+        The SITL's speed-up (see :func:`scale_for_speedup`).
     """
     doc = copy.deepcopy(_BASE)
     doc["fleet"] = fleet
@@ -57,6 +81,7 @@ def plan_document(vehicles, origin, *, flavour: str, fleet: str = "sitl",
             doc[key].update(value)
         else:
             doc[key] = value
+    scale_for_speedup(doc, speedup)
     doc["origin"] = {"lat_deg": float(origin[0]), "lon_deg": float(origin[1]), "alt_m": float(origin[2])}
     prefix = "px4-" if flavour == "px4" else "copter"
     doc["vehicles"] = [{"id": f"{prefix}{v.sysid}", "sysid": int(v.sysid), "connection": v.connection}
