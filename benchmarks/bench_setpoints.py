@@ -73,7 +73,7 @@ def _rss_mb() -> float:
 
 def _free_port_base(span: int) -> int:
     for _ in range(500):
-        base = random.randint(20000, 40000 - span)
+        base = random.randint(20000, 32000 - span)  # below the ephemeral range (32768+)
         try:
             for port in range(base, base + span):
                 with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

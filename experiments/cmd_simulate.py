@@ -1,7 +1,16 @@
 """``swarmseek simulate``: one offline source-seeking run (perfect tracking, no MAVLink).
 
-Prints the final distance to the source, the final gradient estimation error, the convergence
-test's verdict and the estimated source; ``--json`` prints the same as one JSON object.
+Uses the mission's convergence test (:func:`estimator.convergence_scan`, the same maths as the
+:class:`estimator.ConvergenceMonitor` that ends a mission's seek) and reports two different
+things, each with its own distance to the true source:
+
+* where a mission with these settings would stop: the first iteration at which the test passes,
+  the estimated source there (the mean of the window's centres, what a mission reports) and the
+  centre's own position there;
+* where the run is after all ``--iterations`` (it goes on past convergence unless
+  ``--stop-at-convergence``): the centre, and the test over the last window.
+
+``--json`` prints the same as one JSON object.
 """
 from __future__ import annotations
 
@@ -13,7 +22,7 @@ import numpy as np
 
 from sitl_mock.cli_args import nonnegative_float, positive_float
 
-__all__ = ["configure", "main", "run"]
+__all__ = ["configure", "main", "run", "report_lines"]
 
 _DEFAULT_STARTS = {"sigma1": "10,50,10", "sigma2": "20,-20,5"}
 
@@ -62,6 +71,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="convergence test window, iterations")
     parser.add_argument("--tol", type=positive_float, default=1.0,
                         help="convergence test tolerance, m")
+    parser.add_argument("--stop-at-convergence", action="store_true",
+                        help="end the run where the convergence test first passes, as a mission does")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -75,9 +86,8 @@ def run(args: argparse.Namespace) -> dict:
         convergence window below 8.
     """
     import formation
-    from estimator import convergence_scan
     from sitl_mock.fields import make_field
-    from experiments.offline import simulate
+    from experiments.offline import convergence_report, simulate
 
     if args.formation == "symmetric":
         offsets = formation.symmetric_cylinder(args.n, args.radius)
@@ -88,23 +98,15 @@ def run(args: argparse.Namespace) -> dict:
     field = make_field(args.field)
     res = simulate(offsets, field, start, eps=args.eps, gamma=args.gamma,
                    iterations=args.iterations, noise_std=args.noise, method=method, seed=args.seed)
-    dist = res.distance_to_source_m()[:, 0]
-    first, est, spread = convergence_scan(res.centres, window=args.window, tol_m=args.tol)
-    converged = bool(first[0] >= 0)
-    return {
+    out = {
         "field": args.field, "formation": args.formation, "method": method, "n": args.n,
         "radius_m": args.radius, "noise_std": args.noise, "eps": args.eps, "gamma_m": args.gamma,
         "iterations": args.iterations, "seed": args.seed, "start_enu": start.tolist(),
-        "source_enu": res.source_enu.tolist(),
-        "final_centre_enu": res.centres[-1, 0].tolist(),
-        "final_distance_m": float(dist[-1]),
-        "final_gradient_error": float(res.error_norm()[-1, 0]),
-        "converged": converged,
-        "converged_at_iteration": int(first[0]) if converged else None,
-        "estimated_source_enu": est[0].tolist() if converged else None,
-        "estimate_error_m": float(np.linalg.norm(est[0] - res.source_enu)) if converged else None,
-        "estimate_spread_m": float(spread[0]) if converged else None,
+        "source_enu": res.source_enu.tolist(), "window": args.window, "tol_m": args.tol,
     }
+    out.update(convergence_report(res, window=args.window, tol_m=args.tol,
+                                  stop_at_convergence=args.stop_at_convergence))
+    return out
 
 
 def main(args: argparse.Namespace) -> int:
@@ -117,16 +119,32 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out))
         return 0
-    c = np.round(out["final_centre_enu"], 3).tolist()
     print(f"{out['field']}, {out['n']} robots, {out['formation']} formation (D = {out['radius_m']:g} m), "
           f"estimator {out['method']}, noise {out['noise_std']:g}, start {out['start_enu']}")
-    print(f"after {out['iterations']} iterations: centre {c}, "
-          f"distance to source {out['final_distance_m']:.3f} m, "
-          f"gradient error {out['final_gradient_error']:.3g}")
-    if out["converged"]:
-        e = np.round(out["estimated_source_enu"], 3).tolist()
-        print(f"converged at iteration {out['converged_at_iteration']}: estimated source {e} "
-              f"(error {out['estimate_error_m']:.3f} m, spread {out['estimate_spread_m']:.3f} m)")
-    else:
-        print("not converged (convergence test never passed); estimated source: none")
+    for line in report_lines(out):
+        print(line)
     return 0
+
+
+def report_lines(out: dict) -> list[str]:
+    """The human-readable result of :func:`run`: the stop a mission would make, then the run's end."""
+    r3 = lambda v: np.round(v, 3).tolist()  # noqa: E731
+    test = f"convergence test (the mission's: window {out['window']} iterations, tolerance {out['tol_m']:g} m)"
+    lines = []
+    if out["converged"]:
+        lines += [f"{test} passed at iteration {out['converged_at_iteration']}: a mission would stop there",
+                  f"  estimated source {r3(out['estimated_source_enu'])} (mean of the window's centres, spread "
+                  f"{out['estimate_spread_m']:.3f} m): {out['estimate_error_m']:.3f} m from the true source",
+                  f"  centre there {r3(out['centre_at_convergence_enu'])}: "
+                  f"{out['centre_at_convergence_distance_m']:.3f} m from the true source"]
+    else:
+        lines.append(f"{test} never passed: not converged, no estimated source")
+    goes_on = " (the run goes on past convergence)" if out["converged"] and not out["stopped_at_convergence"] else ""
+    lines.append(f"after {out['final_iteration']} iterations{goes_on}: centre {r3(out['final_centre_enu'])}, "
+                 f"{out['final_distance_m']:.3f} m from the true source, gradient error "
+                 f"{out['final_gradient_error']:.3g}")
+    if goes_on:
+        verdict = "passes" if out["converged_at_end"] else "does not pass"
+        lines.append(f"  the test over the last {out['window']} iterations {verdict}; their mean is "
+                     f"{out['final_window_error_m']:.3f} m from the true source")
+    return lines

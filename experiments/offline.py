@@ -4,6 +4,11 @@ Many independent trials run at once as numpy arrays: every iteration, each trial
 exactly at ``centre + offset_i`` (perfect tracking), read the field with optional Gaussian noise
 (one standard deviation per robot), the centre estimates the gradient with
 :func:`estimator.gradient_batch` and moves with :func:`estimator.seek_step`.
+
+Any field of :mod:`sitl_mock.fields` (or its name, ``make_field(name)``): a time-dependent one
+(``field.time_dependent``, the intermittent plume) is read at ``t = k * iteration_period_s +
+j * trial_time_offset_s`` in iteration ``k`` of trial ``j`` (trials far apart in time see
+independent plume realisations).
 """
 from __future__ import annotations
 
@@ -12,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator import DEFAULT_MAX_CONDITION, estimator_weights, gradient_batch, seek_step
+from estimator import DEFAULT_MAX_CONDITION, convergence_scan, estimator_weights, gradient_batch, seek_step
 
-__all__ = ["OfflineResult", "simulate", "SIGMA_C_MODES"]
+__all__ = ["OfflineResult", "simulate", "convergence_report", "SIGMA_C_MODES"]
 
 #: How the estimator gets the field at the centre: the mean of the readings (paper's Remark)
 #: or the exact value (as in Theorem 2's statement; a simulation-only oracle).
@@ -93,6 +98,8 @@ def simulate(
     rotate: bool = False,
     seed: int = 0,
     max_condition: float = DEFAULT_MAX_CONDITION,
+    iteration_period_s: float = 0.5,
+    trial_time_offset_s: float = 1.0e4,
 ) -> OfflineResult:
     """Simulate ``trials`` independent source-seeking runs at once.
 
@@ -100,9 +107,9 @@ def simulate(
     ----------
     offsets : array_like, shape (N, 3)
         Formation offsets from the centre, metres (N >= 4), kept rigid during the run.
-    field : Field
+    field : Field or str
         Object with ``value(points)``, ``gradient(points)`` and ``source_enu()``
-        (see :mod:`sitl_mock.fields`).
+        (see :mod:`sitl_mock.fields`), or a field name for ``sitl_mock.fields.make_field``.
     start : array_like, shape (3,) or (K, 3)
         Initial centre (common or per trial), ENU metres.
     eps, gamma : float
@@ -124,6 +131,8 @@ def simulate(
         Seed of the noise and rotations (the result is deterministic for a seed).
     max_condition : float
         Passed to the estimator's geometry check.
+    iteration_period_s, trial_time_offset_s : float
+        Time-dependent fields only: simulated time per iteration and between trials.
 
     Returns
     -------
@@ -145,6 +154,12 @@ def simulate(
         raise ValueError(f"trials must be an integer >= 1, got {trials!r}")
     if sigma_c not in SIGMA_C_MODES:
         raise ValueError(f"sigma_c must be one of {SIGMA_C_MODES}, got {sigma_c!r}")
+    if isinstance(field, str):
+        from sitl_mock.fields import make_field
+
+        field = make_field(field)
+    timed = bool(getattr(field, "time_dependent", False))
+    trial_t = np.arange(int(trials))[:, None] * float(trial_time_offset_s)
     n = off.shape[0]
     std = _noise_std(noise_std, n, int(trials))
     c0 = np.asarray(start, dtype=float)
@@ -165,7 +180,8 @@ def simulate(
         if noisy and k % _NOISE_BLOCK == 0:  # draw the noise in blocks: fewer calls, bounded memory
             noise = rng.standard_normal((min(_NOISE_BLOCK, t_count - k), k_count, n)) * std
         c = centres[k]
-        vals = field.value(c[:, None, :] + trial_off)
+        points = c[:, None, :] + trial_off
+        vals = field.value(points, k * iteration_period_s + trial_t) if timed else field.value(points)
         if noisy:
             vals = vals + noise[k % _NOISE_BLOCK]
         readings[k] = vals
@@ -175,3 +191,63 @@ def simulate(
         centres[k + 1] = seek_step(c, g, eps, gamma)
     grad_true[:] = field.gradient(centres[:-1])
     return OfflineResult(centres, grad_est, grad_true, readings, trial_off, field.source_enu())
+
+
+def convergence_report(result: OfflineResult, *, window: int, tol_m: float, trial: int = 0,
+                       stop_at_convergence: bool = False) -> dict:
+    """One trial judged by the mission's convergence test, with every distance named.
+
+    A mission stops at the first iteration where :func:`estimator.convergence_scan` (the
+    :class:`estimator.ConvergenceMonitor` maths) passes and reports the mean of the window's
+    centres; the simulation may go on. The two places are reported separately, each with its
+    distance to the true source, so that "converged" means what a mission means by it.
+
+    Parameters
+    ----------
+    result : OfflineResult
+    window, tol_m : int, float
+        The convergence test's window (iterations) and tolerance (metres).
+    trial : int
+        Which trial of ``result``.
+    stop_at_convergence : bool
+        Treat the run as ended where the test first passes (as a mission does).
+
+    Returns
+    -------
+    dict
+        ``converged``, ``converged_at_iteration``, ``estimated_source_enu``, ``estimate_error_m``,
+        ``estimate_spread_m``, ``centre_at_convergence_enu``, ``centre_at_convergence_distance_m``
+        (None when never converged); ``final_iteration``, ``final_centre_enu``,
+        ``final_distance_m``, ``final_gradient_error``, ``stopped_at_convergence``; and the test
+        over the run's last window: ``converged_at_end``, ``final_window_estimate_enu``,
+        ``final_window_error_m`` (None when the run is shorter than the window).
+    """
+    centres = result.centres[:, trial]
+    source = result.source_enu
+    first, est, spread = convergence_scan(centres[:, None, :], window=window, tol_m=tol_m)
+    k = int(first[0])
+    converged = k >= 0
+    end = k if converged and stop_at_convergence else centres.shape[0] - 1
+    out = {
+        "converged": converged,
+        "converged_at_iteration": k if converged else None,
+        "estimated_source_enu": est[0].tolist() if converged else None,
+        "estimate_error_m": float(np.linalg.norm(est[0] - source)) if converged else None,
+        "estimate_spread_m": float(spread[0]) if converged else None,
+        "centre_at_convergence_enu": centres[k].tolist() if converged else None,
+        "centre_at_convergence_distance_m": float(np.linalg.norm(centres[k] - source)) if converged else None,
+        "stopped_at_convergence": bool(converged and stop_at_convergence),
+        "final_iteration": end,
+        "final_centre_enu": centres[end].tolist(),
+        "final_distance_m": float(np.linalg.norm(centres[end] - source)),
+        "final_gradient_error": float(result.error_norm()[min(end, result.grad_est.shape[0] - 1), trial]),
+    }
+    last = centres[max(0, end + 1 - window):end + 1]
+    if last.shape[0] >= window:
+        ok_end, est_end, _ = convergence_scan(last[:, None, :], window=window, tol_m=tol_m)
+        mean = last.mean(axis=0)
+        out.update(converged_at_end=bool(ok_end[0] >= 0), final_window_estimate_enu=mean.tolist(),
+                   final_window_error_m=float(np.linalg.norm(mean - source)))
+    else:
+        out.update(converged_at_end=None, final_window_estimate_enu=None, final_window_error_m=None)
+    return out

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -255,6 +256,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Run ``swarmseek paper``; print where the outputs went and the key numbers."""
+    from sitl_mock.cli_args import output_dir_problem
+
+    problem = output_dir_problem(args.out, "output directory (--out)")
+    if problem:
+        print(f"swarmseek paper: error: {problem}", file=sys.stderr)
+        return 2
     summary = generate(args.out, quick=args.quick)
     print(f"wrote the paper's table and figures to {args.out} in {summary['elapsed_s']:.1f} s")
     for row in summary["table1"]:

@@ -10,6 +10,8 @@ import sys
 import threading
 
 from sitl_mock.cli_args import (
+    add_field_arguments,
+    field_from_args,
     int_in_range,
     nonnegative_float,
     origin_geodetic,
@@ -38,14 +40,14 @@ def _fault(text: str):
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``mock`` command's arguments to ``parser``."""
     from sitl_mock.ap_modes import PERSONALITY_NAMES
-    from sitl_mock.fields import FIELD_NAMES
     from sitl_mock.zenoh_flags import add_arguments as add_zenoh_security_arguments
 
     parser.add_argument("--vehicles", type=_vehicles, default=4, help="number of vehicles (sysid 1..N)")
     parser.add_argument("--personality", choices=PERSONALITY_NAMES, default="px4")
-    parser.add_argument("--field", choices=FIELD_NAMES, default="sigma1", help="signal field the sensors sample")
-    parser.add_argument("--source", type=source_enu, default=(0.0, 0.0, 0.0), metavar="E,N,U",
-                        help="field source in the mission frame (ENU m)")
+    add_field_arguments(parser, "sigma2")
+    parser.add_argument("--source", type=source_enu, default=None, metavar="E,N,U",
+                        help="field source (plumes: release point) in the mission frame, ENU m "
+                             "(default: the --field-config's, else 0,0,0)")
     parser.add_argument("--origin", type=origin_geodetic, default=None, metavar="LAT,LON,ALT",
                         help="fleet / mission origin")
     parser.add_argument("--speedup", type=positive_float, default=1.0, help="simulated seconds per wall second")
@@ -77,8 +79,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     """Run the fleet; returns the exit status."""
     from sitl_mock.ap_signing import SigningKeyError, read_key_file
-    from sitl_mock.fields import make_field
     from sitl_mock.fleet import DEFAULT_ORIGIN, MockFleet
+    from sitl_mock.sensor_response import set_fleet_response
     from sitl_mock.transport import PortInUseError
     from sitl_mock.zenoh_flags import ZenohFlagError, security_kwargs
 
@@ -87,6 +89,11 @@ def main(args: argparse.Namespace) -> int:
             print(f"swarmseek mock: error: --fault for sysid {sysid} but only {args.vehicles} vehicles",
                   file=sys.stderr)
             return 2
+    try:
+        field_name, field, response = field_from_args(args, args.source)
+    except ValueError as exc:
+        print(f"swarmseek mock: error: {exc}", file=sys.stderr)
+        return 2
     try:
         zenoh_security = security_kwargs(args)
     except ZenohFlagError as exc:
@@ -101,12 +108,13 @@ def main(args: argparse.Namespace) -> int:
             return 2
     try:
         fleet = MockFleet(
-            n=args.vehicles, personality=args.personality, field=make_field(args.field, args.source),
+            n=args.vehicles, personality=args.personality, field=field,
             origin=args.origin or DEFAULT_ORIGIN, speedup=args.speedup, seed=args.seed,
             udp_base_port=args.udp_base_port, udp_bind_base_port=args.udp_bind_base_port,
             tcp_base_port=args.tcp_base_port, fleet_name=args.fleet, sensor_noise_std=args.noise,
             zenoh_listen=args.zenoh_listen or None, zenoh_connect=args.zenoh_connect or None,
             signing_key=signing_key, zenoh_security=zenoh_security)
+        set_fleet_response(fleet, **response)
         for sysid, name, value in args.fault:
             fleet.set_fault(sysid, name, value)
     except ValueError as exc:
@@ -123,7 +131,7 @@ def main(args: argparse.Namespace) -> int:
         return 1
     try:
         print(f"mock fleet {args.fleet!r}: {args.vehicles} x {args.personality}, "
-              f"speedup {args.speedup:g}, origin {fleet.origin}, "
+              f"speedup {args.speedup:g}, origin {fleet.origin}, field {field_name}, "
               f"signing {'on' if signing_key is not None else 'off'}, "
               f"zenoh tls {'on' if 'tls' in zenoh_security else 'off'}, "
               f"zenoh login {'on' if 'username' in zenoh_security else 'off'}", flush=True)

@@ -1,147 +1,50 @@
-"""Simulated scalar signal fields with exact gradients (the simulated world's ground truth).
+"""Simulated scalar signal fields (the simulated world's ground truth), one import for all.
 
 Fields are defined in the mission frame, ENU metres (x east, y north, z up) about the mission
-origin. Every field evaluates many points at once: ``value(points)`` takes ``(..., 3)`` and
-returns ``(...)``; ``gradient(points)`` returns ``(..., 3)``.
+origin, and evaluate many points at once: ``value(points, t_s=0.0)`` takes ``(..., 3)`` and
+returns ``(...)``; ``gradient(points, t_s=0.0)`` returns ``(..., 3)``; ``source_enu()`` is the
+point a seeker should find. Static fields ignore ``t_s``; a field whose ``time_dependent``
+attribute is true (the intermittent plume) reads it as simulated seconds. See ``docs/fields.md``.
 
-The paper's fields (Sec. V): ``sigma_l(r) = A_l exp(-(r - r*)^T S_l (r - r*))`` with
-``A_1 = 100, S_1 = 1e-4 [[100,1,1],[1,1,0],[1,0,10]]`` and
-``A_2 = 1, S_2 = 1e-4 [[20,5,2],[5,20,2],[2,2,100]]``.
+* the paper's Gaussians (Sec. V), :mod:`sitl_mock.fields_gaussian`:
+  ``sigma_l(r) = A_l exp(-(r - r*)^T S_l (r - r*))`` with
+  ``A_1 = 100, S_1 = 1e-4 [[100,1,1],[1,1,0],[1,0,10]]`` and
+  ``A_2 = 1, S_2 = 1e-4 [[20,5,2],[5,20,2],[2,2,100]]``;
+* the steady Gaussian plume with wind and ground reflection, :mod:`sitl_mock.fields_plume`;
+* the intermittent (puff) plume, :mod:`sitl_mock.fields_filament`;
+* several sources: :class:`SumField`, or ``make_field(..., extra_sources=...)``
+  (:mod:`sitl_mock.fields_config`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field as dc_field
-from typing import Protocol, Sequence
-
-import numpy as np
+from sitl_mock.fields_config import (
+    FIELD_NAMES,
+    FIELD_PARAMS,
+    SENSOR_PARAMS,
+    field_from_table,
+    make_field,
+    read_field_table,
+)
+from sitl_mock.fields_filament import FilamentPlume
+from sitl_mock.fields_gaussian import S1, S2, Field, GaussianField, SumField, sigma1, sigma2
+from sitl_mock.fields_plume import STABILITY_CLASSES, GaussianPlume, briggs_sigmas
 
 __all__ = [
     "Field",
     "GaussianField",
     "SumField",
+    "GaussianPlume",
+    "FilamentPlume",
     "S1",
     "S2",
     "sigma1",
     "sigma2",
+    "briggs_sigmas",
+    "STABILITY_CLASSES",
     "FIELD_NAMES",
+    "FIELD_PARAMS",
+    "SENSOR_PARAMS",
     "make_field",
+    "field_from_table",
+    "read_field_table",
 ]
-
-S1 = 1e-4 * np.array([[100.0, 1.0, 1.0], [1.0, 1.0, 0.0], [1.0, 0.0, 10.0]])
-S2 = 1e-4 * np.array([[20.0, 5.0, 2.0], [5.0, 20.0, 2.0], [2.0, 2.0, 100.0]])
-
-
-class Field(Protocol):
-    """What the world, the sensors and the offline simulation need from a field."""
-
-    def value(self, points: np.ndarray) -> np.ndarray: ...
-
-    def gradient(self, points: np.ndarray) -> np.ndarray: ...
-
-    def source_enu(self) -> np.ndarray: ...
-
-
-@dataclass(frozen=True)
-class GaussianField:
-    """Anisotropic Gaussian ``A exp(-(r - r0)^T S (r - r0))``.
-
-    Parameters
-    ----------
-    amplitude : float
-        Peak value ``A`` (> 0) at the source.
-    S : array_like, shape (3, 3)
-        Symmetric positive-definite shape matrix, 1/m^2.
-    source : array_like, shape (3,)
-        Source position ``r0``, ENU metres in the mission frame.
-    """
-
-    amplitude: float
-    S: np.ndarray
-    source: np.ndarray = dc_field(default_factory=lambda: np.zeros(3))
-
-    def __post_init__(self):
-        S = np.asarray(self.S, dtype=float)
-        src = np.asarray(self.source, dtype=float).reshape(3)
-        if S.shape != (3, 3):
-            raise ValueError(f"S must be 3x3, got shape {S.shape}")
-        if not np.allclose(S, S.T):
-            raise ValueError("S must be symmetric")
-        if np.any(np.linalg.eigvalsh(S) <= 0):
-            raise ValueError("S must be positive definite (the field must decay in every direction)")
-        if not (np.isfinite(self.amplitude) and self.amplitude > 0):
-            raise ValueError(f"amplitude must be a positive finite number, got {self.amplitude!r}")
-        object.__setattr__(self, "S", S)
-        object.__setattr__(self, "source", src)
-
-    def value(self, points):
-        d = np.asarray(points, dtype=float) - self.source
-        q = np.einsum("...i,ij,...j->...", d, self.S, d)
-        return self.amplitude * np.exp(-q)
-
-    def gradient(self, points):
-        d = np.asarray(points, dtype=float) - self.source
-        v = self.value(points)
-        return -2.0 * v[..., None] * (d @ self.S)
-
-    def hessian(self, points):
-        """Exact Hessian, shape ``(..., 3, 3)``."""
-        d = np.asarray(points, dtype=float) - self.source
-        v = self.value(points)[..., None, None]
-        sd = d @ self.S
-        return v * (4.0 * sd[..., :, None] * sd[..., None, :] - 2.0 * self.S)
-
-    def source_enu(self):
-        return self.source.copy()
-
-
-@dataclass(frozen=True)
-class SumField:
-    """Sum of several fields (several sources); ``source_enu`` is the global maximum's
-    location, found by quasi-Newton ascent started from each component's source."""
-
-    parts: Sequence[GaussianField]
-
-    def value(self, points):
-        return sum(p.value(points) for p in self.parts)
-
-    def gradient(self, points):
-        return sum(p.gradient(points) for p in self.parts)
-
-    def source_enu(self):
-        from scipy.optimize import minimize
-
-        best, best_v = None, -np.inf
-        for p in self.parts:
-            res = minimize(
-                lambda x: -float(self.value(x)),
-                p.source_enu(),
-                jac=lambda x: -self.gradient(x),
-                method="BFGS",
-                options={"gtol": 1e-12},
-            )
-            v = float(self.value(res.x))
-            if v > best_v:
-                best, best_v = res.x, v
-        return np.asarray(best, dtype=float)
-
-
-def sigma1(source=(0.0, 0.0, 0.0)) -> GaussianField:
-    """The paper's strong, noise-free field: ``A_1 = 100``, ``S_1``."""
-    return GaussianField(100.0, S1, np.asarray(source, dtype=float))
-
-
-def sigma2(source=(0.0, 0.0, 0.0)) -> GaussianField:
-    """The paper's weak field used with noise: ``A_2 = 1``, ``S_2``."""
-    return GaussianField(1.0, S2, np.asarray(source, dtype=float))
-
-
-FIELD_NAMES = ("sigma1", "sigma2")
-
-
-def make_field(name: str, source=(0.0, 0.0, 0.0)) -> GaussianField:
-    """Field by name (``"sigma1"`` or ``"sigma2"``) with its source at ``source`` (ENU m)."""
-    if name == "sigma1":
-        return sigma1(source)
-    if name == "sigma2":
-        return sigma2(source)
-    raise ValueError(f"unknown field {name!r}; known fields: {', '.join(FIELD_NAMES)}")

@@ -1,8 +1,10 @@
 """Simulated signal sensors and their zenoh publication (``docs/interfaces.md``, zenoh section).
 
-:class:`SignalSensor` samples a field at a vehicle's true position with its own Gaussian noise
-and the sensor faults of a :class:`~sitl_mock.faults.FaultSet` (noise override, stuck, bias,
-spikes), and builds the reading dict of schema ``swarmseek.sensor.v1``. :func:`encode_reading`
+:class:`SignalSensor` samples a field at a vehicle's true position and the sample's time, passes
+it through the sensor's response (first-order lag of time constant ``time_constant_s``), adds its
+own Gaussian noise and the sensor faults of a :class:`~sitl_mock.faults.FaultSet` (noise override,
+stuck, bias, spikes), applies the detection floor (a value below ``detection_floor`` reads 0),
+and builds the reading dict of schema ``swarmseek.sensor.v1``. :func:`encode_reading`
 turns it into the UTF-8 JSON payload; :class:`SensorPublisher` puts it on
 ``swarmseek/<fleet>/vehicle/<sysid>/sensor`` (``application/json``, reliable, congestion control
 BLOCK). :func:`zenoh_config` builds a session configuration with explicit endpoints and no
@@ -18,6 +20,7 @@ from typing import TYPE_CHECKING, Iterable, Mapping
 import numpy as np
 
 from sitl_mock.faults import FaultSet
+from sitl_mock.sensor_response import FirstOrderLag
 
 if TYPE_CHECKING:  # pragma: no cover
     import zenoh
@@ -95,6 +98,10 @@ class SignalSensor:
     ----------
     seq : int
         Sequence number of the next reading (starts at 0, +1 per reading).
+    time_constant_s : float
+        First-order lag of the response (0: instantaneous); see :meth:`set_response`.
+    detection_floor : float
+        Readings below it report 0.0 (0: no floor); see :meth:`set_response`.
     """
 
     def __init__(self, field, noise_std: float, rng, faults: FaultSet, fleet: str, sysid: int):
@@ -108,10 +115,36 @@ class SignalSensor:
         self.sysid = _check_sysid(sysid)
         self.seq = 0
         self._last_value: float | None = None
+        self.detection_floor = 0.0
+        self._lag = FirstOrderLag(0.0)
 
-    def true_value(self, position_enu) -> float:
-        """Noise-free field value at ``position_enu`` (mission frame, ENU m)."""
-        return float(self.field.value(np.asarray(position_enu, dtype=float)))
+    def set_response(self, time_constant_s: float = 0.0, detection_floor: float = 0.0) -> None:
+        """Set the sensor's response (both >= 0; 0 turns each off) and restart its lag.
+
+        The lag is :class:`~sitl_mock.sensor_response.FirstOrderLag` (``tau dy/dt = c(t) - y``,
+        first-order hold, exact; the first sample starts the sensor settled, ``y = c``). A
+        sensor whose output (with noise, bias and spikes) is below ``detection_floor`` reports
+        0.0 (a non-detect).
+
+        Raises
+        ------
+        ValueError
+            A value is negative or not finite.
+        """
+        floor = _finite(detection_floor, "detection_floor")
+        if floor < 0.0:
+            raise ValueError(f"detection_floor must be >= 0, got {detection_floor!r}")
+        self._lag = FirstOrderLag(time_constant_s)
+        self.detection_floor = floor
+
+    @property
+    def time_constant_s(self) -> float:
+        """The response's time constant (0: instantaneous)."""
+        return self._lag.time_constant_s
+
+    def true_value(self, position_enu, t_s: float = 0.0) -> float:
+        """Noise-free field value at ``position_enu`` (mission frame, ENU m) and time ``t_s``."""
+        return float(self.field.value(np.asarray(position_enu, dtype=float), t_s))
 
     def sample(self, t_s: float, true_position_enu, lat_deg, lon_deg, alt_m) -> dict:
         """Take one reading.
@@ -147,12 +180,14 @@ class SignalSensor:
             value = self._last_value
         else:
             std = self.noise_std if f.sensor_noise_std is None else float(f.sensor_noise_std)
-            value = self.true_value(pos)
+            value = self._lag(t, self.true_value(pos, t))
             if std > 0.0:
                 value += std * float(self.rng.standard_normal())
             value += float(f.sensor_bias)
             if f.sensor_spike_prob > 0.0 and float(self.rng.random()) < f.sensor_spike_prob:
                 value += float(f.sensor_spike_size) * (1.0 if self.rng.random() < 0.5 else -1.0)
+            if self.detection_floor > 0.0 and value < self.detection_floor:
+                value = 0.0
         self._last_value = value
         reading = {
             "schema": SENSOR_SCHEMA,

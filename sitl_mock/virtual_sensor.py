@@ -20,6 +20,8 @@ import numpy as np
 
 from formation.geodesy import geodetic_to_enu
 from sitl_mock.cli_args import (
+    add_field_arguments,
+    field_from_args,
     nonnegative_float,
     origin_geodetic,
     positive_float,
@@ -27,7 +29,6 @@ from sitl_mock.cli_args import (
     zenoh_endpoint,
 )
 from sitl_mock.faults import FaultSet
-from sitl_mock.fields import FIELD_NAMES, make_field
 from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key, zenoh_config
 from sitl_mock.zenoh_flags import ZenohFlagError, security_kwargs
 from sitl_mock.zenoh_flags import add_arguments as _add_zenoh_security_arguments
@@ -98,10 +99,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--connect", required=True, type=_connection_arg, metavar="CONN",
                         help="pymavlink connection to the autopilot, "
                              "e.g. tcp:127.0.0.1:5762 or udpin:0.0.0.0:14550")
-    parser.add_argument("--field", required=True, choices=FIELD_NAMES, help="simulated signal field")
-    parser.add_argument("--source", type=source_enu, default=(0.0, 0.0, 0.0), metavar="E,N,U",
-                        help="field source in the field frame, metres (default 0,0,0; "
-                             "write --source=-5,2,10 when it starts with a minus)")
+    add_field_arguments(parser, "")  # --field or --field-config is required (checked in main)
+    parser.add_argument("--source", type=source_enu, default=None, metavar="E,N,U",
+                        help="field source (plumes: release point) in the field frame, metres (default: "
+                             "the --field-config's, else 0,0,0; write --source=-5,2,10 when it starts with a minus)")
     parser.add_argument("--origin", required=True, type=origin_geodetic, metavar="LAT,LON,ALT",
                         help="geodetic origin of the field frame (degrees, degrees, metres AMSL)")
     parser.add_argument("--noise", type=nonnegative_float, default=0.0, metavar="STD",
@@ -216,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
     VirtualSensorError
         When the autopilot or zenoh cannot be reached or the link is lost.
     """
-    field = make_field(args.field, args.source)
+    _name, field, response = field_from_args(args, args.source)
     conn = _open_mavlink(args.connect, args.retries)
     session = publisher = None
     try:
@@ -225,6 +226,7 @@ def run(args: argparse.Namespace) -> int:
         session = _open_zenoh(args)
         publisher = SensorPublisher(session, args.fleet, [sysid])
         sensor = SignalSensor(field, args.noise, np.random.default_rng(args.seed), FaultSet(), args.fleet, sysid)
+        sensor.set_response(**response)
         _log(args, f"autopilot sysid {sysid} on {args.connect}; publishing {sensor_key(args.fleet, sysid)} "
                    f"at {args.rate:g} Hz")
         return _loop(args, conn, publisher, sensor, sysid, compid)
@@ -294,9 +296,18 @@ def _wait_for_subscriber(publisher, sysid: int, timeout_s: float) -> bool:
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``swarmseek sensor``: 0 on success, 1 with a one-line message on failure,
     2 when no zenoh endpoint was given or the zenoh TLS / login flags do not fit together."""
+    if not args.field and not args.field_config:
+        print("swarmseek sensor: error: give --field or --field-config", file=sys.stderr)
+        return 2
+    try:
+        field_from_args(args, args.source)
+    except ValueError as exc:
+        print(f"swarmseek sensor: error: {exc}", file=sys.stderr)
+        return 2
     if not args.zenoh_listen and not args.zenoh_connect:
-        print("swarmseek sensor: error: give --zenoh-listen and/or --zenoh-connect "
-              "(zenoh endpoints are always explicit)", file=sys.stderr)
+        print("swarmseek sensor: error: give --zenoh-listen and/or --zenoh-connect, e.g. "
+              "--zenoh-connect tcp/127.0.0.1:7447 for a coordinator flying the sample plan on this "
+              "machine (zenoh endpoints are always explicit)", file=sys.stderr)
         return 2
     try:
         security_kwargs(args)

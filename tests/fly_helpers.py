@@ -8,6 +8,8 @@ from mission.sim.embedded_world import EmbeddedWorld
 from mission.sim.lockstep import VirtualClock, run_lockstep
 from mission.telemetry.mission_log import MissionLog
 
+from invariants import check_never_abandoned
+
 __all__ = ["fly", "run_fleet", "run_with_saboteur"]
 
 
@@ -40,14 +42,29 @@ def run_fleet(fleet, make_main):
     A fleet on a :class:`~mission.sim.lockstep.VirtualClock` runs in lock-step: no fleet thread,
     ``world`` is its :class:`~mission.sim.embedded_world.EmbeddedWorld`. Any other fleet runs
     on its thread against the wall clock and ``world`` is None. The caller stops the fleet.
+
+    When ``make_main`` returns a mission result (or a coordinator), the never-abandon invariant
+    is checked against the fleet (:func:`invariants.check_never_abandoned`).
     """
     lockstep = isinstance(fleet.clock, VirtualClock)
     if not fleet.started:
         fleet.start(thread=not lockstep)
     if not lockstep:
-        return asyncio.run(make_main(None))
-    world = EmbeddedWorld(fleet)
-    return run_lockstep(lambda: make_main(world), fleet.clock, world)
+        result = asyncio.run(make_main(None))
+    else:
+        world = EmbeddedWorld(fleet)
+        result = run_lockstep(lambda: make_main(world), fleet.clock, world)
+    if hasattr(result, "outcome") or hasattr(result, "final_result"):
+        check_never_abandoned(fleet, _log_path(result))
+    return result
+
+
+def _log_path(result):
+    """The mission log of a MissionResult or a Coordinator (None: no log)."""
+    if getattr(result, "log_path", None):
+        return result.log_path
+    log = getattr(result, "log", None)
+    return getattr(log, "path", None)
 
 
 def run_with_saboteur(plan, fleet, log_dir, saboteur=None, coordinators=None):

@@ -92,6 +92,57 @@ def test_ramp_rejects_goal_for_unknown_vehicle():
         ramp.set_goal(7, [0, 0, 0])
 
 
+def test_ramp_settles_then_wakes_on_a_new_goal_or_vehicle():
+    """At its goals, with the batch passed by the envelope, the ramp stops re-sending and re-checking."""
+    from mission.safety.envelope import Geofence, SafetyEnvelope
+
+    class _CountingEnvelope(SafetyEnvelope):
+        calls = 0
+
+        def clamp_setpoints(self, prev, new, dt_s):
+            type(self).calls += 1
+            return super().clamp_setpoints(prev, new, dt_s)
+
+    fence = Geofence(np.array([[-50.0, -50], [50, -50], [50, 50], [-50, 50]]), 2.0, 30.0)
+    env = _CountingEnvelope(fence, max_speed_m_s=5.0, min_separation_m=1.0, formation_radius_m=1.0)
+    st = _Streamer()
+    ramp = TargetRamp(st, _Clock(), 3.0, rate_hz=10, envelope=env, max_vertical_speed_m_s=3.0)
+    ramp.add(1, [0, 0, 10])
+    ramp.add(2, [5, 0, 10])
+    ramp.set_goal(1, [1.0, 0, 10])
+    for _ in range(20):
+        ramp.step(0.1)
+    assert ramp.at_goal(1) and ramp.idle_steps > 0
+    calls, sent, idle = env.calls, len(st.history), ramp.idle_steps
+    for _ in range(10):
+        ramp.step(0.1)
+    assert (env.calls, len(st.history)) == (calls, sent)  # nothing checked or re-sent
+    assert ramp.idle_steps == idle + 10
+    ramp.set_goal(2, [5.0, 0, 10])  # the same goal again: still settled
+    ramp.step(0.1)
+    assert env.calls == calls
+    ramp.set_goal(2, [5.0, 2.0, 10])  # a new goal wakes it
+    for _ in range(20):
+        ramp.step(0.1)
+    assert env.calls > calls and np.allclose(st.targets[2], [5, 2, 10]) and ramp.at_goal(2)
+    calls = env.calls
+    ramp.add(3, [-5, 0, 1.0])  # a new vehicle below the fence floor: checked (and lifted) at once
+    ramp.step(0.1)
+    assert env.calls == calls + 1 and st.targets[3][2] >= 2.0
+
+
+def test_ramp_never_settles_while_the_envelope_holds_a_vehicle_short_of_its_goal():
+    from mission.safety.envelope import Geofence, SafetyEnvelope
+    fence = Geofence(np.array([[-10.0, -10], [10, -10], [10, 10], [-10, 10]]), 2.0, 30.0)
+    env = SafetyEnvelope(fence, max_speed_m_s=5.0, min_separation_m=1.0, formation_radius_m=1.0)
+    ramp = TargetRamp(_Streamer(), _Clock(), 3.0, rate_hz=10, envelope=env)
+    ramp.add(1, [0, 0, 10])
+    ramp.set_goal(1, [50.0, 0, 10])  # outside the fence: clamped at its edge for ever
+    for _ in range(60):
+        ramp.step(0.1)
+    assert ramp.idle_steps == 0 and ramp.setpoint(1)[0] == pytest.approx(10.0, abs=1e-6)
+
+
 # ------------------------------------------------------------------------ layered transfer
 def _simulate_ramp(batches, speed, vspeed, dt=0.05):
     """Positions over time when every vehicle follows ``batches`` with the ramp's speed limits."""

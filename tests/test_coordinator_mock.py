@@ -74,14 +74,17 @@ def test_failed_preflight_aborts_and_arms_nothing(tmp_path, zenoh_elsewhere):
     assert not any(armed)
     by_sysid = {r["sysid"]: r for r in result.readiness}
     assert by_sysid[3]["checks"]["battery"] is False
-    assert all(by_sysid[s]["ready"] for s in (1, 2, 4))
+    # without readings no vehicle is ready to seek (issue 11: [preflight] require_readings)
+    assert all(by_sysid[s]["ready"] != zenoh_elsewhere for s in (1, 2, 4))
     records = read_mission_log(tmp_path / "m.jsonl")
     phases = [r["phase"] for r in records if r["type"] == "phase"]
     assert "takeoff" not in phases and "aborted" in phases
-    warned = [r for r in records if r["type"] == "event" and "no sensor reading accepted" in r.get("message", "")]
+    warned = [r for r in records if r["type"] == "event" and r.get("check") == "readings"
+              and "no sensor reading accepted" in r.get("message", "")]
     if zenoh_elsewhere:
-        assert len(warned) == 1 and warned[0]["sysids"] == [1, 2, 3, 4]
+        assert len(warned) == 1 and "vehicles [1, 2, 3, 4]" in warned[0]["message"]
         assert "TLS handshake or login" in warned[0]["message"]
+        assert "no sensor reading" in result.message and not by_sysid[1]["checks"]["reading"]
     else:
         assert warned == []
 

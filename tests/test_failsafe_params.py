@@ -59,11 +59,17 @@ def _dry_run(tmp_path, personality, params, require):
     fleet, plan = _fleet_and_plan(personality, params, require)
 
     async def main(world):
+        import zenoh
+
+        session = zenoh.open(plan.zenoh.to_config())  # readings are a readiness check too
         log = MissionLog(tmp_path / "d.jsonl", fleet.clock)
         try:
-            return await Coordinator(plan, clock=fleet.clock, zenoh_session=None, log=log).dry_run()
+            co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log)
+            world.store = co.store
+            return await co.dry_run()
         finally:
             log.close()
+            session.close()
     try:
         result = run_fleet(fleet, main)
     finally:

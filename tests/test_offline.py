@@ -135,7 +135,7 @@ def test_simulate_command_text_and_noise(capsys):
                    "--start", "10,-10,3", "--iterations", "300", "--seed", "3"])
     out = capsys.readouterr().out
     assert rc == 0
-    assert "symmetric formation" in out and "distance to source" in out
+    assert "symmetric formation" in out and "m from the true source" in out
 
 
 @pytest.mark.parametrize(

@@ -151,8 +151,17 @@ def test_dry_run_is_not_ready_while_the_ekf_has_no_position(tmp_path):
     fleet, plan = _ardupilot_fleet(tmp_path, ekf_s=40.0, ready_timeout_s=10.0)
 
     async def main(world):
-        co = Coordinator(plan, clock=fleet.clock, zenoh_session=None, log=MissionLog(tmp_path / "d.jsonl", fleet.clock))
-        return await co.dry_run()
+        import zenoh
+
+        session = zenoh.open(plan.zenoh.to_config())
+        log = MissionLog(tmp_path / "d.jsonl", fleet.clock)
+        try:
+            co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log)
+            world.store = co.store
+            return await co.dry_run()
+        finally:
+            log.close()
+            session.close()
     try:
         result = run_fleet(fleet, main)
         armed = [v.armed for v in fleet.vehicles]

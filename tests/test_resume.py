@@ -150,7 +150,7 @@ def test_resume_refuses_a_finished_or_foreign_log(tmp_path):
     done.write_text("\n".join(json.dumps(r) for r in (
         {"t_s": 0, "type": "plan", "plan": _plan_json(plan)},
         {"t_s": 1, "type": "phase", "phase": "done"})) + "\n")
-    with pytest.raises(ResumeError, match="already ended"):
+    with pytest.raises(ResumeError, match="stopped before the takeoff"):
         load_resume_state(done)
 
 

@@ -329,3 +329,17 @@ def test_a_raising_handler_is_counted_and_the_link_goes_on():
     ep._on_datagram(b"".join(ap.encode(m) for m in ap.slow_telemetry()), ("127.0.0.1", 9))
     assert ep.counters["handler_errors"] == 1 and "SYS_STATUS from 3: RuntimeError: boom" in ep.last_handler_error
     assert v.state.landed is True          # EXTENDED_SYS_STATE after the broken one still arrived
+
+
+def test_position_is_converted_once_per_message_and_callers_cannot_corrupt_it():
+    ep, v, ap = _attached()
+    ep._on_datagram(ap.encode(ap.home_position()) + ap.encode(mavlink.MAVLink_local_position_ned_message(0, 1, 2, -10, 0, 0, 0)),
+                    ("127.0.0.1", 9))
+    first = v.position_enu_m()
+    expected = v.frame_map.local_ned_to_mission_enu(1.0, 2.0, -10.0)
+    assert np.allclose(first, expected, atol=1e-12)
+    first += 100.0  # a caller's in-place change must not leak into the next answer
+    assert np.allclose(v.position_enu_m(), expected, atol=1e-12)
+    ep._on_datagram(ap.encode(mavlink.MAVLink_local_position_ned_message(0, 4, -3, -12, 0, 0, 0)), ("127.0.0.1", 9))
+    assert np.allclose(v.position_enu_m(), v.frame_map.local_ned_to_mission_enu(4.0, -3.0, -12.0), atol=1e-12)
+    assert not np.allclose(v.position_enu_m(), expected)

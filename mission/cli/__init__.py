@@ -10,7 +10,7 @@ import argparse
 import importlib
 import sys
 
-__all__ = ["COMMANDS", "build_parser", "main"]
+__all__ = ["COMMANDS", "build_parser", "main", "version_text"]
 
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -18,6 +18,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "fly": ("mission.cli.cmd_fly", "fly the mission against the vehicles named in a plan file"),
     "dry-run": ("mission.cli.cmd_dryrun", "validate a plan, connect and run preflight checks; arms nothing"),
     "resume": ("mission.cli.cmd_resume", "restart a stopped mission from its mission log"),
+    "watch": ("mission.cli.cmd_watch", "the live table of a running mission, over zenoh from anywhere"),
+    "ctl": ("mission.cli.cmd_ctl", "command a running mission over zenoh: pause, continue, abort, land, rtl, return"),
     "plot": ("mission.cli.cmd_plot", "figures of a flown mission from its mission log"),
     "audit": ("mission.cli.cmd_audit", "check from the .tlog files that no setpoint broke the fence, speed or separation"),
     "paper": ("experiments.paper", "regenerate the paper's table and figures from our own geometry"),
@@ -36,9 +38,20 @@ def _load(module_name: str):
     return importlib.import_module(module_name)
 
 
+def version_text() -> str:
+    """``swarmseek X.Y.Z`` from the installed package's metadata (``unknown`` when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"swarmseek {version('swarmseek')}"
+    except PackageNotFoundError:
+        return "swarmseek (version unknown: the package is not installed)"
+
+
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """Build the top-level parser; only the chosen subcommand's module is imported."""
     parser = _Parser(prog="swarmseek", description="Multi-drone 3D source seeking ground station.")
+    parser.add_argument("--version", action="version", version=version_text())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     chosen = None
     if argv:
@@ -51,7 +64,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
             except ImportError as exc:
                 parser.error(f"command {name!r} is not available: {exc}")
             module.configure(p)
-            p.set_defaults(_module=module)
+            p.set_defaults(_module=module, _parser=p)
     return parser
 
 
@@ -60,7 +73,10 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:
         argv = sys.argv[1:]
     parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # after the command: the subcommand's usage and error, not the top level's
+        after_command = args.command in argv and extra[0] in argv[argv.index(args.command) + 1:]
+        (args._parser if after_command else parser).error(f"unrecognized arguments: {' '.join(extra)}")
     if args.command is None:
         parser.print_help()
         return 2

@@ -1,7 +1,10 @@
 """``swarmseek dry-run --plan plan.toml``: validate, connect, run preflight checks; arm nothing.
 
-Prints each vehicle's readiness (every check and why it failed). Exit status: 0 every vehicle
-ready, 1 some not ready or unreachable, 2 invalid plan.
+Prints each mission-wide check (zenoh session, a reading from every sensor, start point and
+formation paths inside the geofence: :mod:`mission.flight.readiness_mission`) and each vehicle's
+readiness (every check and why it failed). Exit status: 0 ready to seek, 1 a check failed (a
+vehicle not ready or unreachable, no readings, zenoh unreachable, start or path outside the
+fence), 2 invalid plan.
 """
 from __future__ import annotations
 
@@ -26,18 +29,38 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "plan's [preflight] autopilot_ready_timeout_s)")
 
 
-async def dry_run(plan, *, clock=None, display=None):
-    """Connect and run preflight; returns the MissionResult (``ready`` / ``not_ready``)."""
+async def dry_run(plan, *, clock=None, display=None, zenoh_session=None):
+    """Connect and run preflight; returns the MissionResult (``ready`` / ``not_ready``).
+
+    The plan's zenoh session is opened as ``fly`` opens it (readings from every sensor are a
+    readiness check), unless ``zenoh_session`` is given (then it is used and not closed); one
+    that cannot be opened fails the ``zenoh`` check with the reason in plain words.
+    """
+    import zenoh
+
     from mission.core.clock import WallClock
+    from mission.core.zenoh_errors import zenoh_open_message
     from mission.flight.coordinator import Coordinator
 
-    co = Coordinator(plan, clock=clock or WallClock(), zenoh_session=None, display=display)
-    return await co.dry_run()
+    session, problem, own = zenoh_session, None, zenoh_session is None
+    if own:
+        try:
+            session = zenoh.open(plan.zenoh.to_config())
+        except zenoh.ZError as exc:
+            problem = zenoh_open_message(exc, plan.zenoh)
+    try:
+        co = Coordinator(plan, clock=clock or WallClock(), zenoh_session=session, display=display)
+        co.zenoh_problem = problem
+        return await co.dry_run()
+    finally:
+        if own and session is not None:
+            session.close()
 
 
 def format_readiness(result) -> list[str]:
     """One line per vehicle: READY / NOT READY, the checks and the problems."""
-    lines = []
+    lines = [f"check {c['name']:<15} {'ok  ' if c['ok'] else 'FAIL'} {c['detail']}"
+             for c in getattr(result, "mission_checks", [])]
     for r in result.readiness:
         checks = " ".join(f"{k}={'ok' if v else 'FAIL'}" for k, v in r.get("checks", {}).items())
         state = "READY    " if r.get("ready") else "NOT READY"

@@ -1,8 +1,9 @@
 """``swarmseek fly --plan plan.toml``: fly the mission against the vehicles named in a plan.
 
 Readings come over zenoh (e.g. one ``swarmseek sensor`` per vehicle) on the plan's endpoints;
-the mission clock is the wall clock. Exit status: 0 converged, 1 not converged or aborted,
-2 invalid plan or options.
+the mission clock is the wall clock. Exit status: 0 converged, 1 not converged or aborted
+(also: not ready to seek, nothing armed), 2 invalid plan or options, 130 / 143 interrupted by
+SIGINT / SIGTERM (the first brings the vehicles home, a second lands them where they are).
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import time
 from pathlib import Path
 
 from mission.core.zenoh_security import ZenohSecurityError
+from mission.link.forward import forwarding, out_address, plan_with_outs
 
 __all__ = ["configure", "main", "fly"]
 
@@ -24,6 +26,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-dir", type=Path, default=None,
                         help="mission log and tlogs go here (default ./swarmseek-logs/fly-TIME)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+    parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
+                        help="forward every vehicle's MAVLink to this client, e.g. QGroundControl on "
+                             "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
 
 
 async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True):
@@ -32,7 +37,9 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
 
     from mission.core.clock import WallClock
     from mission.flight.coordinator import Coordinator
+    from mission.flight.operator_stop import run_until_stopped
     from mission.telemetry.mission_log import MissionLog
+    from mission.telemetry.watch_keys import with_keys
 
     clock = clock or WallClock()
     log = MissionLog(Path(log_dir) / "mission.jsonl", clock)
@@ -41,7 +48,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
         session = zenoh.open(plan.zenoh.to_config())
         co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
-        return await co.run()
+        return await forwarding(co, with_keys(co, display, run_until_stopped(co)))  # --out; keys on a terminal
     finally:
         log.close()
         if session is not None:
@@ -58,20 +65,34 @@ def main(args) -> int:
     except PlanError as exc:
         print(f"swarmseek fly: {exc}", file=sys.stderr)
         return 2
+    plan = plan_with_outs(plan, args.out)
     if not plan.zenoh.listen and not plan.zenoh.connect:
         print("swarmseek fly: the plan's [zenoh] section has no listen or connect endpoint: "
               "no reading could arrive (multicast scouting is off)", file=sys.stderr)
         return 2
+    from mission.cli.paths import output_dir_problem
+
     log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("fly-%Y%m%d-%H%M%S")
+    problem = output_dir_problem(log_dir, "log directory (--log-dir)")
+    if problem:
+        print(f"swarmseek fly: error: {problem}", file=sys.stderr)
+        return 2
     import zenoh
 
     display = Display(quiet=args.json)
     try:
         result = asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog))
-    except (OSError, zenoh.ZError) as exc:
-        print(f"swarmseek fly: cannot open the zenoh session or the log: {exc}", file=sys.stderr)
+    except zenoh.ZError as exc:
+        from mission.core.zenoh_errors import zenoh_open_message
+
+        print(f"swarmseek fly: {zenoh_open_message(exc, plan.zenoh)}; nothing armed", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"swarmseek fly: cannot write the mission log: {exc}", file=sys.stderr)
         return 1
     except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
         print(f"swarmseek fly: zenoh security settings: {exc}", file=sys.stderr)
         return 2
-    return report_result(result, display, args.json)
+    from mission.flight.operator_stop import exit_status
+
+    return exit_status(result, report_result(result, display, args.json))

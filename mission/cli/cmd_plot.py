@@ -1,10 +1,13 @@
 """``swarmseek plot LOG --out DIR``: figures of a flown mission from its mission log.
 
-Writes three PNGs (matplotlib, Agg backend):
+Writes four PNGs (matplotlib, Agg backend), each titled with the run (log directory, fleet,
+seed of an embedded run, outcome, error to the true source when known, the estimate's latitude,
+longitude and altitude AMSL):
 
 ``trajectory_3d.png``   the formation centre during the seek and every vehicle (telemetry, whole
                         mission) in the mission ENU frame, the estimated (and, for embedded
-                        runs, the true) source;
+                        runs, the true) source; equal scales on the three axes;
+``trajectory_top.png``  the same seen from above (east, north), equal scales;
 ``distance.png``        distance of the centre to the estimated source (and to the true one)
                         per iteration;
 ``gradient.png``        the gradient estimate's components and norm per iteration.
@@ -17,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["configure", "main", "plot_mission", "mission_tracks"]
+__all__ = ["configure", "main", "plot_mission", "mission_tracks", "run_title"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -66,25 +69,78 @@ def mission_tracks(records: list[dict]) -> dict:
             "true_source": None if true_source is None else np.asarray(true_source, dtype=float)}
 
 
-def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
-    """Write the three figures; returns their paths.
+def run_title(records: list[dict], log_path: Path) -> str:
+    """The figures' title: which run (log directory, fleet, seed), how it ended, where the estimate is.
 
-    Raises
-    ------
-    FileNotFoundError, ValueError
-        No log, not a mission log, or no seeking iteration in it.
+    Parameters
+    ----------
+    records : list of dict
+        The mission log's records.
+    log_path : Path
+        The log file (its directory names the run).
     """
-    import matplotlib
+    plan = next((r.get("plan") or {} for r in records if r.get("type") == "plan"), {})
+    embedded = next((r for r in records if r.get("type") == "event"
+                     and r.get("message") == "embedded mock fleet"), None)
+    summary = next((r for r in reversed(records) if r.get("type") == "summary"), None) or {}
+    truth = next((r for r in reversed(records) if r.get("type") == "truth"), None) or {}
+    parts = [Path(log_path).resolve().parent.name, f"fleet {plan.get('fleet', '?')}"]
+    if embedded is not None and embedded.get("seed") is not None:
+        parts.append(f"seed {embedded['seed']}")
+    parts.append(summary.get("outcome", "no summary (interrupted?)"))
+    error_m = truth.get("error_m", summary.get("error_m"))
+    if error_m is not None:
+        parts.append(f"error {float(error_m):.2f} m")
+    line = " | ".join(parts)
+    geo = summary.get("estimate_geodetic")
+    if geo:
+        line += (f"\nestimated source {geo['lat_deg']:.7f}, {geo['lon_deg']:.7f}, "
+                 f"{geo['alt_m']:.1f} m AMSL")
+    return line
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from mission.telemetry.mission_log import read_mission_log
+def _equal_3d(ax, points: np.ndarray) -> None:
+    """Equal scales on the three axes of a 3D plot (a sphere looks like a sphere)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    half = max(float(np.max(hi - lo)) / 2.0, 1.0)
+    mid = (lo + hi) / 2.0
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_zlim(mid[2] - half, mid[2] + half)
+    ax.set_box_aspect((1.0, 1.0, 1.0))
 
-    tr = mission_tracks(read_mission_log(log_path))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = []
 
+def _all_points(tr: dict) -> np.ndarray:
+    pts = [tr["centre"]] + [p for p in tr["vehicles"].values() if p.ndim == 2 and len(p)]
+    pts += [x[None, :] for x in (tr["estimate"], tr["true_source"]) if x is not None]
+    return np.concatenate(pts, axis=0)
+
+
+def _plot_top(plt, tr: dict, title: str, path: Path) -> None:
+    """Plan view (east, north), equal scales."""
+    fig, ax = plt.subplots(figsize=(7, 7))
+    for sysid, p in sorted(tr["vehicles"].items(), key=lambda kv: int(kv[0])):
+        ax.plot(p[:, 0], p[:, 1], lw=0.8, alpha=0.6, label=f"vehicle {sysid}")
+    c = tr["centre"]
+    ax.plot(c[:, 0], c[:, 1], "k-", lw=2.0, label="formation centre")
+    ax.plot(c[0, 0], c[0, 1], "ko", ms=5, label="start")
+    if tr["estimate"] is not None:
+        ax.plot(tr["estimate"][0], tr["estimate"][1], "*", color="tab:red", ms=14, label="estimated source")
+    if tr["true_source"] is not None:
+        ax.plot(tr["true_source"][0], tr["true_source"][1], "x", color="tab:green", ms=10, label="true source")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.grid(True, alpha=0.3)
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _plot_3d(plt, tr: dict, title: str, path: Path) -> None:
+    """3D trajectory in the mission ENU frame, equal scales on the three axes."""
     fig = plt.figure(figsize=(8, 7))
     ax = fig.add_subplot(111, projection="3d")
     for sysid, p in sorted(tr["vehicles"].items(), key=lambda kv: int(kv[0])):
@@ -99,12 +155,16 @@ def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
     ax.set_zlabel("up (m)")
-    ax.set_title("Trajectory (mission ENU frame)")
+    _equal_3d(ax, _all_points(tr))
+    ax.set_title(f"Trajectory (mission ENU frame, equal scales)\n{title}", fontsize=9)
     ax.legend(fontsize=7, loc="upper left")
-    paths.append(out_dir / "trajectory_3d.png")
-    fig.savefig(paths[-1], dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
 
+
+def _plot_distance(plt, tr: dict, title: str, path: Path) -> None:
+    """Distance of the centre to the estimated (and true) source per iteration."""
+    c = tr["centre"]
     fig, ax = plt.subplots(figsize=(8, 4))
     iters = np.arange(len(c))
     if tr["estimate"] is not None:
@@ -114,13 +174,16 @@ def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
     ax.set_xlabel("iteration")
     ax.set_ylabel("distance of the centre (m)")
     ax.set_yscale("log")
+    ax.set_title(title, fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    paths.append(out_dir / "distance.png")
     fig.tight_layout()
-    fig.savefig(paths[-1], dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
 
+
+def _plot_gradient(plt, tr: dict, title: str, path: Path) -> None:
+    """The gradient estimate's components and norm per iteration."""
     fig, ax = plt.subplots(figsize=(8, 4))
     g = tr["gradient"]
     for i, name in enumerate(("east", "north", "up")):
@@ -128,18 +191,55 @@ def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
     ax.plot(tr["k"], np.linalg.norm(g, axis=1), "k-", lw=1.5, label="norm")
     ax.set_xlabel("iteration")
     ax.set_ylabel("gradient estimate (signal / m)")
+    ax.set_title(title, fontsize=9)
     ax.grid(True, alpha=0.3)
     ax.legend()
-    paths.append(out_dir / "gradient.png")
     fig.tight_layout()
-    fig.savefig(paths[-1], dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
+    """Write the four figures; returns their paths.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        No log, not a mission log, or no seeking iteration in it.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mission.telemetry.mission_log import read_mission_log
+
+    records = read_mission_log(log_path)
+    tr = mission_tracks(records)
+    title = run_title(records, log_path)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [out_dir / name for name in ("trajectory_3d.png", "trajectory_top.png", "distance.png",
+                                         "gradient.png")]
+    _plot_3d(plt, tr, title, paths[0])
+    _plot_top(plt, tr, f"Seen from above (equal scales)\n{title}", paths[1])
+    _plot_distance(plt, tr, title, paths[2])
+    _plot_gradient(plt, tr, title, paths[3])
     return paths
 
 
 def main(args) -> int:
-    """Plot a mission log; 0 on success, 1 if the log cannot be plotted."""
+    """Plot a mission log; 0 on success, 1 if the log cannot be plotted, 2 if --out cannot be written."""
+    from mission.cli.paths import output_dir_problem
+
     out = args.out or args.log.parent
+    if not args.log.is_file():
+        what = "is a directory, not a mission log" if args.log.is_dir() else "no such file"
+        print(f"swarmseek plot: error: {args.log}: {what}", file=sys.stderr)
+        return 1
+    problem = output_dir_problem(out, "output directory (--out)")
+    if problem:
+        print(f"swarmseek plot: error: {problem}", file=sys.stderr)
+        return 2
     try:
         paths = plot_mission(args.log, out)
     except FileNotFoundError:

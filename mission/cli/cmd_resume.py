@@ -5,8 +5,10 @@ resumed coordinator reconnects, re-engages the vehicles still flying (no new tak
 seeking from the last centre and iteration, appending to the same log (see
 :mod:`mission.flight.resume`). The mission clock is the wall clock: a ``swarmseek run`` log is
 resumable only while its mock fleet still runs, i.e. in-process (the tests do that with
-:func:`resume`). Exit status: 0 converged, 1 not converged / aborted, 2 the log or plan cannot be
-resumed.
+:func:`resume`). A log that ends after the seek (``return``, ``finish``, ``done``, a summary)
+is taken over to bring the vehicles still flying home (outcome ``recovered``). Exit status: 0
+converged, or recovered with every vehicle down or landing; 1 not converged / aborted / a
+vehicle left airborne; 2 the log or plan cannot be resumed; 130 / 143 interrupted (SIGINT / SIGTERM).
 """
 from __future__ import annotations
 
@@ -53,6 +55,7 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
 
     from mission.core.clock import WallClock
     from mission.flight.coordinator import Coordinator
+    from mission.flight.operator_stop import run_until_stopped
     from mission.telemetry.mission_log import MissionLog
     from mission.flight.resume import load_resume_state
 
@@ -65,7 +68,7 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
         session = zenoh.open(state.plan.zenoh.to_config())
         co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=log_path.parent / "tlogs" if tlog else None)
-        return await co.run(resume_state=state)
+        return await run_until_stopped(co, state)
     finally:
         log.close()
         if session is not None:
@@ -78,6 +81,12 @@ def main(args) -> int:
     from mission.core.plan import PlanError, load_plan
     from mission.flight.resume import ResumeError
 
+    from mission.cli.paths import writable_file_problem
+
+    problem = writable_file_problem(args.log, "mission log")
+    if problem:
+        print(f"swarmseek resume: error: {problem}", file=sys.stderr)
+        return 2
     plan = None
     if args.plan is not None:
         try:
@@ -93,10 +102,20 @@ def main(args) -> int:
     except ResumeError as exc:
         print(f"swarmseek resume: {exc}", file=sys.stderr)
         return 2
-    except (OSError, zenoh.ZError) as exc:
-        print(f"swarmseek resume: cannot open the zenoh session or the log: {exc}", file=sys.stderr)
+    except zenoh.ZError as exc:
+        from mission.core.zenoh_errors import clean_zenoh_error
+
+        print(f"swarmseek resume: cannot open the zenoh session: {clean_zenoh_error(exc)}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"swarmseek resume: cannot write the mission log: {exc}", file=sys.stderr)
         return 1
     except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
         print(f"swarmseek resume: zenoh security settings: {exc}", file=sys.stderr)
         return 2
-    return report_result(result, display, args.json)
+    from mission.flight.operator_stop import exit_status
+
+    status = report_result(result, display, args.json)
+    if result.outcome == "recovered" and not result.airborne_left:
+        status = 0
+    return exit_status(result, status)

@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import sys
 import time
 from pathlib import Path
 
+from mission.link.forward import forwarding, out_address, plan_with_outs
+
 import numpy as np
 
-from sitl_mock.cli_args import nonnegative_float, positive_float, source_enu
+from sitl_mock.cli_args import add_field_arguments, field_from_args, nonnegative_float, positive_float, source_enu, zenoh_endpoint
 
 __all__ = ["configure", "main", "run_embedded"]
 
@@ -27,7 +30,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--formation", choices=("cvt", "symmetric"), default="cvt")
     parser.add_argument("--radius", type=positive_float, default=None,
                         help="formation radius D, m (default 4; 1.5 n^(1/3) above 18 vehicles)")
-    parser.add_argument("--field", choices=("sigma1", "sigma2"), default="sigma2")
+    add_field_arguments(parser, "sigma2")
     parser.add_argument("--noise", type=nonnegative_float, default=0.01,
                         help="sensor noise standard deviation, signal units (default 0.01)")
     parser.add_argument("--personality", choices=("px4", "ardupilot"), default="px4")
@@ -53,6 +56,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-dir", type=Path, default=None,
                         help="mission log and tlogs go here (default ./swarmseek-logs/run-TIME)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+    parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
+                        help="forward every vehicle's MAVLink to this client, e.g. QGroundControl on "
+                             "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
+    parser.add_argument("--zenoh-listen", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
+                        help="the ground station also listens here, for `swarmseek watch` / `ctl` (repeatable)")
 
 
 def _check_args(args) -> str | None:
@@ -67,6 +75,10 @@ def _check_args(args) -> str | None:
         return f"--formation symmetric needs an even --n, got {args.n}"
     if args.max_iterations < 1:
         return f"--max-iterations must be >= 1, got {args.max_iterations}"
+    try:
+        field_from_args(args, args.source if args.source is not None else (0.0, 0.0, 20.0))
+    except ValueError as exc:
+        return str(exc)
     return None
 
 
@@ -78,38 +90,46 @@ def _mission_setup(args):
         default_eps,
         default_radius_m,
         default_source_and_start,
+        downwind_en,
         embedded_plan,
         fleet_ports,
     )
-    from sitl_mock.fields import make_field
+    from mission.core.plan import replace_plan
 
     radius_m = args.radius if args.radius is not None else default_radius_m(args.n)
-    d_source, d_start = default_source_and_start(args.seed)
+    d_source, _ = default_source_and_start(args.seed)
     source = d_source if args.source is None else np.asarray(args.source, dtype=float)
+    args.field, field, args.sensor_response = field_from_args(args, source)
+    d_source, d_start = default_source_and_start(args.seed, downwind=downwind_en(field))
     if args.start is None:
         start = source + (d_start - d_source)
         start[2] = max(start[2], FENCE_MIN_ALT_M + radius_m + 1.0)  # the lowest slot 1 m inside the fence
     else:
         start = np.asarray(args.start, dtype=float)
-    field = make_field(args.field, source)
     eps = args.eps if args.eps is not None else default_eps(field)
     ports = fleet_ports(args.n, args.personality)
     plan = embedded_plan(args.n, ports, personality=args.personality, formation=args.formation,
                          radius_m=radius_m, start_enu_m=start, eps=eps, gamma_m=args.gamma,
                          estimator=args.estimator, max_iterations=args.max_iterations,
                          return_behaviour=args.return_behaviour, origin=DEFAULT_ORIGIN)
+    plan = plan_with_outs(plan, getattr(args, "out", None))
+    if getattr(args, "zenoh_listen", None):  # reachable by `swarmseek watch` / `ctl`
+        plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
     return plan, ports, field, source, start, eps
 
 
 def _make_fleet(args, plan, ports, field, clock):
     from mission.sim.embedded import DEFAULT_ORIGIN
     from sitl_mock.fleet import MockFleet
+    from sitl_mock.sensor_response import set_fleet_response
 
-    return MockFleet(n=args.n, personality=args.personality, field=field, origin=DEFAULT_ORIGIN,
+    fleet = MockFleet(n=args.n, personality=args.personality, field=field, origin=DEFAULT_ORIGIN,
                      clock=clock, seed=args.seed, udp_base_port=ports["udp_base_port"],
                      udp_bind_base_port=ports["udp_bind_base_port"], tcp_base_port=ports["tcp_base_port"],
                      fleet_name=plan.fleet, sensor_noise_std=args.noise,
                      zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"])
+    set_fleet_response(fleet, **args.sensor_response)
+    return fleet
 
 
 async def _fly(args, plan, fleet, setup, display, world=None):
@@ -117,8 +137,11 @@ async def _fly(args, plan, fleet, setup, display, world=None):
     import zenoh
 
     from mission.flight.coordinator import Coordinator
+    from mission.flight.operator_stop import run_until_stopped
+    from mission.flight.result import geodetic_point
     from mission.sim.fleet_report import vehicle_rejections
     from mission.telemetry.mission_log import MissionLog
+    from mission.telemetry.watch_keys import with_keys
 
     source, start, eps = setup
     log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("run-%Y%m%d-%H%M%S")
@@ -128,6 +151,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
     try:
         session = zenoh.open(plan.zenoh.to_config())
         log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field,
+                  field_model=repr(fleet.field), sensor_response=args.sensor_response,
                   source_enu=source, start_enu=start, noise=args.noise,
                   clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
                   eps=eps, gamma_m=args.gamma, seed=args.seed)
@@ -135,12 +159,14 @@ async def _fly(args, plan, fleet, setup, display, world=None):
                          tlog_dir=None if args.no_tlog else log_dir / "tlogs")
         if world is not None:
             world.store = co.store
-        result = await co.run()
+        result = await forwarding(co, with_keys(co, display, run_until_stopped(co)))  # --out; keys on a terminal
         result.true_source_enu = [float(x) for x in source]
+        result.true_source_geodetic = geodetic_point(plan.origin, source)
         if result.estimate_enu is not None:
             result.error_m = float(np.linalg.norm(np.asarray(result.estimate_enu) - source))
         result.vehicle_rejections = vehicle_rejections(fleet)
-        log.write("truth", sync=True, source_enu=source, error_m=result.error_m,
+        log.write("truth", sync=True, source_enu=source, source_geodetic=result.true_source_geodetic,
+                  error_m=result.error_m,
                   vehicle_rejections=result.vehicle_rejections)
         return result
     finally:
@@ -184,7 +210,10 @@ def main(args) -> int:
     """Run the embedded mission; 0 if it converged, 1 if not, 2 for bad options."""
     from mission.telemetry.display import Display, report_result
 
-    problem = _check_args(args)
+    from mission.cli.paths import output_dir_problem
+
+    args.log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("run-%Y%m%d-%H%M%S")
+    problem = _check_args(args) or output_dir_problem(args.log_dir, "log directory (--log-dir)")
     if problem:
         print(f"swarmseek run: error: {problem}", file=sys.stderr)
         return 2
@@ -196,7 +225,9 @@ def main(args) -> int:
     except (OSError, zenoh.ZError) as exc:
         print(f"swarmseek run: cannot start the embedded fleet or zenoh: {exc}", file=sys.stderr)
         return 1
-    status = report_result(result, display, args.json)
+    from mission.flight.operator_stop import exit_status
+
+    status = exit_status(result, report_result(result, display, args.json))
     if not args.json and result.log_path:
         print(f"  mission log: {result.log_path}  (swarmseek plot {result.log_path} --out DIR)")
     return status

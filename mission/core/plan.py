@@ -16,10 +16,13 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from mission.core.plan_checks import Checker, show_value
+from mission.core.plan_checks import check_start_in_fence, Checker, show_value
+from mission.core.plan_field import parse_field
 from mission.core.plan_sections import (
     RETURN_BEHAVIOURS,
+    parse_control,
     parse_faults,
+    parse_forward,
     parse_formation,
     parse_geofence,
     parse_origin,
@@ -114,7 +117,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     c.unknown(doc, ("version", "fleet", "origin", "vehicles", "formation", "seeking", "geofence",
                     "zenoh", "security", "max_speed_m_s", "min_separation_m", "takeoff_alt_m", "return",
                     "stagger_s", "setpoint_rate_hz", "heartbeat_timeout_s", "min_battery_pct",
-                    "faults", "preflight"), "")
+                    "faults", "preflight", "field", "control", "forward"), "")
     version = doc.get("version")
     if version is None:
         c.bad("version", f"required (this program reads version = {PLAN_VERSION})")
@@ -142,13 +145,15 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     preflight = parse_preflight(c, doc)
     zen = parse_zenoh(c, doc, Path(base_dir) if base_dir is not None else None)
     security = parse_security(c, doc, Path(base_dir) if base_dir is not None else None)
+    field = parse_field(c, doc)
+    control, forward = parse_control(c, doc), parse_forward(c, doc)
     _check_across_sections(c, vehicles, formation, seeking, geofence, top)
     if c.problems:
         raise PlanError(c.problems, source)
     return Plan(fleet=fleet, origin=origin, vehicles=tuple(vehicles), formation=formation,
                 seeking=seeking, geofence=geofence, zenoh=zen, security=security, version=PLAN_VERSION, faults=faults,
-                preflight=preflight,
-                **top)
+                preflight=preflight, field=field,
+                control=control, forward=forward, **top)
 
 
 def _check_across_sections(c: Checker, vehicles, formation, seeking, geofence, top: dict) -> None:
@@ -169,6 +174,7 @@ def _check_across_sections(c: Checker, vehicles, formation, seeking, geofence, t
         if not geofence.min_alt_m + formation.radius_m <= start[2] <= geofence.max_alt_m - formation.radius_m:
             c.bad("seeking.start_enu_m", f"start altitude {start[2]:.1f} m must leave the formation "
                   f"radius inside the altitude band [{geofence.min_alt_m}, {geofence.max_alt_m}] m")
+        check_start_in_fence(c, formation.radius_m, start, geofence.polygon_en_m)
         if top["takeoff_alt_m"] is not None and not (
                 geofence.min_alt_m <= top["takeoff_alt_m"] <= geofence.max_alt_m):
             c.bad("takeoff_alt_m", f"{top['takeoff_alt_m']} m is outside the geofence altitude band")

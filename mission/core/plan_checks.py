@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Checker", "check_connection", "polygon_area", "join_key", "show_value"]
+__all__ = ["Checker", "check_connection", "check_start_in_fence", "polygon_area", "polygon_margin_m", "join_key",
+           "show_value"]
 
 
 class Checker:
@@ -133,3 +134,34 @@ def polygon_area(points) -> float:
     a = np.asarray(points, dtype=float)
     x, y = a[:, 0], a[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def polygon_margin_m(point_en, points) -> float:
+    """Signed horizontal distance of ``point_en`` to a polygon's boundary: positive inside,
+    negative outside (even-odd rule; (K, 2) vertices, either orientation)."""
+    p = np.asarray(point_en, dtype=float)[:2]
+    a = np.asarray(points, dtype=float)
+    b = np.roll(a, -1, axis=0)
+    inside = False
+    for (x0, y0), (x1, y1) in zip(a, b):
+        if (y0 > p[1]) != (y1 > p[1]) and p[0] < x0 + (p[1] - y0) * (x1 - x0) / (y1 - y0):
+            inside = not inside
+    d = b - a
+    t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-12), 0.0, 1.0)
+    dist = float(np.min(np.linalg.norm(a + t[:, None] * d - p, axis=1)))
+    return dist if inside else -dist
+
+
+def check_start_in_fence(c: Checker, radius_m: float, start_enu, polygon_en_m) -> None:
+    """The seeking start, and the formation of radius ``radius_m`` about it, inside the fence
+    polygon (issue 11: a start outside the geofence is a plan error, not a flight-time surprise)."""
+    if not polygon_en_m or radius_m is None:
+        return
+    margin = polygon_margin_m(start_enu, polygon_en_m)
+    e, n = float(start_enu[0]), float(start_enu[1])
+    if margin < 0:
+        c.bad("seeking.start_enu_m", f"start ({e:.1f}, {n:.1f}) m is outside the geofence polygon "
+              f"({-margin:.1f} m beyond its edge)")
+    elif margin < radius_m:
+        c.bad("seeking.start_enu_m", f"start ({e:.1f}, {n:.1f}) m is {margin:.1f} m from the geofence edge: "
+              f"the formation (radius {radius_m} m) would cross it")

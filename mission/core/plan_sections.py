@@ -12,8 +12,8 @@ from pathlib import Path
 
 from formation.geodesy import geodetic_to_enu
 from mission.core.plan_checks import Checker, check_connection, polygon_area, show_value
-from mission.core.plan_types import (FaultsPlan, FormationPlan, GeofencePlan, PreflightPlan, SeekingPlan,
-                                     VehiclePlan)
+from mission.core.plan_types import (ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
+                                     PreflightPlan, SeekingPlan, VehiclePlan)
 from mission.core.signing_config import SigningConfig, signing_config_from_table
 from mission.core.signing_keys import SigningError
 
@@ -27,6 +27,9 @@ __all__ = [
     "parse_geofence",
     "parse_security",
     "parse_preflight",
+    "parse_control",
+    "parse_forward",
+    "parse_forward_out",
 ]
 
 _FORMATIONS = ("cvt", "symmetric")
@@ -201,9 +204,11 @@ def parse_security(c: Checker, doc: dict, base_dir: Path | None) -> SigningConfi
 
 
 def parse_preflight(c: Checker, doc: dict) -> PreflightPlan:
-    """``[preflight]``: autopilot readiness timeout and failsafe requirement (defaults when absent)."""
+    """``[preflight]``: autopilot readiness timeout and failsafe requirement, sensor readings
+    required before arming (defaults when absent)."""
     t = c.table(doc, "preflight")
-    c.unknown(t, ("autopilot_ready_timeout_s", "require_gcs_failsafe"), "preflight")
+    c.unknown(t, ("autopilot_ready_timeout_s", "require_gcs_failsafe", "require_readings",
+                  "readings_timeout_s"), "preflight")
     d = PreflightPlan()
     timeout = c.number(t, "autopilot_ready_timeout_s", "preflight", d.autopilot_ready_timeout_s,
                        low=1.0, high=3600.0)
@@ -211,5 +216,56 @@ def parse_preflight(c: Checker, doc: dict) -> PreflightPlan:
     if not isinstance(require, bool):
         c.bad("preflight.require_gcs_failsafe", f"must be true or false, got {show_value(require)}")
         require = d.require_gcs_failsafe
+    readings = t.get("require_readings", d.require_readings)
+    if not isinstance(readings, bool):
+        c.bad("preflight.require_readings", f"must be true or false, got {show_value(readings)}")
+        readings = d.require_readings
+    readings_timeout = c.number(t, "readings_timeout_s", "preflight", d.readings_timeout_s, low=0.5, high=600.0)
     return PreflightPlan(autopilot_ready_timeout_s=d.autopilot_ready_timeout_s if timeout is None else timeout,
-                         require_gcs_failsafe=require)
+                         require_gcs_failsafe=require, require_readings=readings,
+                         readings_timeout_s=d.readings_timeout_s if readings_timeout is None else readings_timeout)
+
+
+def parse_control(c: Checker, doc: dict) -> ControlPlan:
+    """``[control]``: operator commands over zenoh (defaults when absent)."""
+    t = c.table(doc, "control")
+    c.unknown(t, ("remote",), "control")
+    remote = t.get("remote", True)
+    if not isinstance(remote, bool):
+        c.bad("control.remote", f"must be true or false, got {show_value(remote)}")
+        remote = True
+    return ControlPlan(remote=remote)
+
+
+def parse_forward_out(text: str) -> tuple[str, int]:
+    """``(host, port)`` of a forward address ``udp:HOST:PORT`` (``udpout:`` accepted too).
+
+    Raises
+    ------
+    ValueError
+        Not of that form, or the port is not in 1..65535.
+    """
+    kind, sep, rest = str(text).partition(":")
+    host, sep2, port = rest.rpartition(":")
+    if kind not in ("udp", "udpout") or not sep or not sep2 or not host:
+        raise ValueError(f"forward address {text!r} must look like udp:HOST:PORT (e.g. udp:127.0.0.1:14550)")
+    if not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"forward address {text!r}: port must be 1..65535")
+    return host, int(port)
+
+
+def parse_forward(c: Checker, doc: dict) -> ForwardPlan:
+    """``[forward]``: MAVLink forwarding to ground-control clients (defaults when absent)."""
+    t = c.table(doc, "forward")
+    c.unknown(t, ("out", "allow_commands"), "forward")
+    allow = t.get("allow_commands", False)
+    if not isinstance(allow, bool):
+        c.bad("forward.allow_commands", f"must be true or false, got {show_value(allow)}")
+        allow = False
+    outs = c.strings(t, "out", "forward")
+    for j, out in enumerate(outs):
+        try:
+            parse_forward_out(out)
+        except ValueError as exc:
+            c.bad(f"forward.out[{j}]", str(exc))
+    return ForwardPlan(out=tuple(outs), allow_commands=allow)

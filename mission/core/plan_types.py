@@ -9,6 +9,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from mission.core.plan_field import FieldPlan
 from mission.core.signing_config import SigningConfig
 from mission.core.zenoh_config import ZenohPlan
 
@@ -18,6 +19,8 @@ __all__ = [
     "VehiclePlan",
     "FaultsPlan",
     "PreflightPlan",
+    "ControlPlan",
+    "ForwardPlan",
     "FormationPlan",
     "SeekingPlan",
     "GeofencePlan",
@@ -177,10 +180,50 @@ class PreflightPlan:
         True: a vehicle whose failsafe parameters would let it hover forever when the ground
         station dies (ArduPilot ``FS_GCS_ENABLE = 0``; PX4 ``NAV_DLL_ACT = 0`` with an offboard
         loss action that only holds) is not ready (``fly`` refuses); False (default): a warning.
+    require_readings : bool
+        True (default): a vehicle whose sensor sent no accepted reading within
+        ``readings_timeout_s`` is not ready to seek (``dry-run`` says so, ``fly`` arms nothing);
+        False: a warning only (a sensor that starts publishing once airborne).
+    readings_timeout_s : float
+        How long (mission clock) preflight waits for a reading from every vehicle (default 10).
     """
 
     autopilot_ready_timeout_s: float = 120.0
     require_gcs_failsafe: bool = False
+    require_readings: bool = True
+    readings_timeout_s: float = 10.0
+
+
+@dataclass(frozen=True)
+class ControlPlan:
+    """Operator commands over zenoh (``[control]``, see ``docs/operator.md``).
+
+    Attributes
+    ----------
+    remote : bool
+        The coordinator answers ``swarmseek ctl`` on ``swarmseek/<fleet>/mission/control`` (default
+        True; who may is the zenoh access control's ``commander_*`` subjects); False: only the
+        terminal's keys command the mission.
+    """
+
+    remote: bool = True
+
+
+@dataclass(frozen=True)
+class ForwardPlan:
+    """MAVLink forwarding to ground-control clients (``[forward]``, see ``docs/operator.md``).
+
+    Attributes
+    ----------
+    out : tuple of str
+        ``udp:HOST:PORT`` addresses every vehicle frame is copied to (``--out`` adds more).
+    allow_commands : bool
+        Frames from those clients are relayed to the vehicles (default False: read-only; they are
+        counted as dropped).
+    """
+
+    out: tuple[str, ...] = ()
+    allow_commands: bool = False
 
 
 @dataclass(frozen=True)
@@ -206,6 +249,9 @@ class Plan:
     version: int = PLAN_VERSION
     faults: FaultsPlan = FaultsPlan()
     preflight: PreflightPlan = PreflightPlan()
+    field: FieldPlan | None = None  # the simulated world's field ([field]); not used to fly
+    control: ControlPlan = ControlPlan()
+    forward: ForwardPlan = ForwardPlan()
 
 
 def replace_plan(plan: Plan, **sections) -> Plan:

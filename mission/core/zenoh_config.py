@@ -67,6 +67,10 @@ class ZenohAclPlan:
         Subjects allowed to put readings.
     monitor_cert_common_names, monitor_usernames : tuple of str
         Subjects allowed to subscribe to the coordinator's state.
+    commander_cert_common_names, commander_usernames : tuple of str
+        Subjects allowed to send operator commands (queries on ``control_key_expr``).
+    control_key_expr : str
+        ``swarmseek/<fleet>/mission/control``.
     """
 
     sensor_key_expr: str
@@ -75,6 +79,9 @@ class ZenohAclPlan:
     sensor_usernames: tuple[str, ...] = ()
     monitor_cert_common_names: tuple[str, ...] = ()
     monitor_usernames: tuple[str, ...] = ()
+    commander_cert_common_names: tuple[str, ...] = ()
+    commander_usernames: tuple[str, ...] = ()
+    control_key_expr: str = ""
 
 
 def acl_config(acl: ZenohAclPlan) -> dict:
@@ -82,7 +89,9 @@ def acl_config(acl: ZenohAclPlan) -> dict:
 
     Rules: sensors may ``put`` readings (ingress) and learn of the coordinator's subscriber
     (egress ``declare_subscriber``); monitors may subscribe to the state (ingress
-    ``declare_subscriber``) and receive it (egress ``put``). Everything else is denied.
+    ``declare_subscriber``) and receive it (egress ``put``); commanders may query the control key
+    (ingress ``query``), learn of its queryable (egress ``declare_queryable``) and get the answer
+    (egress ``reply``). Everything else is denied.
     """
     rules, subjects, policies = [], [], []
     groups = (("sensor", acl.sensor_cert_common_names, acl.sensor_usernames,
@@ -90,8 +99,14 @@ def acl_config(acl: ZenohAclPlan) -> dict:
                 ("egress", "declare_subscriber", acl.sensor_key_expr)]),
               ("monitor", acl.monitor_cert_common_names, acl.monitor_usernames,
                [("ingress", "declare_subscriber", acl.state_key_expr),
-                ("egress", "put", acl.state_key_expr)]))
+                ("egress", "put", acl.state_key_expr)]),
+              ("commander", acl.commander_cert_common_names, acl.commander_usernames,
+               [("ingress", "query", acl.control_key_expr),
+                ("egress", "declare_queryable", acl.control_key_expr),
+                ("egress", "reply", acl.control_key_expr)]))
     for name, cns, users, flows in groups:
+        if not (cns or users):
+            continue
         rule_ids = []
         for flow, message, key_expr in flows:
             rule_id = f"{name}-{flow}-{message}"

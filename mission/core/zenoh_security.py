@@ -165,7 +165,7 @@ def parse_access_control(c: Checker, t: dict, prefix: str, fleet: str | None, *,
     if not t:
         return None
     keys = ("sensor_cert_common_names", "sensor_usernames", "monitor_cert_common_names",
-            "monitor_usernames")
+            "monitor_usernames", "commander_cert_common_names", "commander_usernames")
     c.unknown(t, ("default",) + keys, prefix)
     default = t.get("default", "deny")
     if default != "deny":
@@ -174,10 +174,10 @@ def parse_access_control(c: Checker, t: dict, prefix: str, fleet: str | None, *,
     names = {k: c.strings(t, k, prefix) for k in keys}
     if not names["sensor_cert_common_names"] and not names["sensor_usernames"]:
         c.bad(prefix, "give sensor_cert_common_names or sensor_usernames (else no reading is accepted)")
-    for k in ("sensor_cert_common_names", "monitor_cert_common_names"):
+    for k in ("sensor_cert_common_names", "monitor_cert_common_names", "commander_cert_common_names"):
         if names[k] and not enable_mtls:
             c.bad(f"{prefix}.{k}", "certificate names need [zenoh.tls] enable_mtls = true")
-    for k in ("sensor_usernames", "monitor_usernames"):
+    for k in ("sensor_usernames", "monitor_usernames", "commander_usernames"):
         if names[k] and (auth is None or auth.dictionary_file is None):
             c.bad(f"{prefix}.{k}", "user names need [zenoh.auth] dictionary_file (to authenticate them)")
         elif names[k] and not listen:
@@ -186,7 +186,8 @@ def parse_access_control(c: Checker, t: dict, prefix: str, fleet: str | None, *,
     if fleet is None:
         return None
     return ZenohAclPlan(sensor_key_expr=f"swarmseek/{fleet}/vehicle/*/sensor",
-                        state_key_expr=f"swarmseek/{fleet}/mission/**", **names)
+                        state_key_expr=f"swarmseek/{fleet}/mission/**",
+                        control_key_expr=f"swarmseek/{fleet}/mission/control", **names)
 
 
 def parse_zenoh(c: Checker, doc: dict, base_dir: Path | None) -> ZenohPlan:

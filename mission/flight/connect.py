@@ -193,7 +193,7 @@ async def _check_vehicle(co, sysid: int, v, envelope, timeout_s: float) -> None:
     st = v.state.system_status
     r.checks["armable"] = (not v.state.armed) and st in (None, _MAV_STATE_STANDBY)
     if v.state.armed:
-        r.problems.append("already armed")
+        r.problems.append("already armed (flying from an earlier mission? `swarmseek resume LOG` brings it home)")
     elif not r.checks["armable"]:
         r.problems.append(f"system status {st} (not STANDBY)")
     if home is not None and envelope is not None:
@@ -205,28 +205,10 @@ async def _check_vehicle(co, sysid: int, v, envelope, timeout_s: float) -> None:
     co.state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
 
 
-async def _sensor_check(co, timeout_s: float = 5.0) -> None:
-    """Warn (not fail) about vehicles with no accepted zenoh reading yet.
+async def _sensor_check(co) -> None:
+    """The mission-wide checks: zenoh, a reading from every sensor, start and paths inside the
+    fence (:mod:`mission.flight.readiness_mission`; a missing reading fails the vehicle's
+    readiness unless ``[preflight] require_readings = false``)."""
+    from mission.flight.readiness_mission import check
 
-    zenoh says nothing when a sensor's TLS handshake or login is refused, or when it connects
-    elsewhere: without this, such a mission would take off and only notice in the seek.
-    Not a readiness failure: a sensor may start publishing only once airborne.
-    """
-    if not co.readings_subscribed:
-        return  # no zenoh session (dry run)
-
-    def _missing():
-        return [s for s in sorted(co.vehicles) if co.store.latest(s) is None]
-
-    deadline = co.clock.time() + timeout_s
-    while _missing() and co.clock.time() < deadline:
-        await co.clock.sleep(0.2)
-    missing = _missing()
-    if missing:
-        counts = co.store.counts()
-        rejected = {k: n for k, n in counts["rejected"].items() if n}
-        co.event(f"preflight: no sensor reading accepted from vehicles {missing} within {timeout_s:g} s "
-                 "(sensor not running or not connected to this zenoh session: a refused TLS handshake "
-                 "or login is silent in zenoh; check the sensor's output)"
-                 + (f"; readings rejected so far: {rejected}" if rejected else ""),
-                 level="warning", sysids=missing, readings=counts)
+    await check(co)

@@ -16,10 +16,12 @@ import numpy as np
 from mission.core.clock import cancel_and_wait
 from mission.core.plan import Plan
 from mission.flight import connect as connect_phase
-from mission.flight import phases, seek
+from mission.flight import mission_end, phases, seek
+from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.loss import watch_losses
-from mission.flight.result import MissionResult, mission_result, readiness_result
-from mission.flight.resume import rejoin
+from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
+from mission.flight.readiness_mission import not_ready_message
+from mission.flight.resume import resume_mission
 from mission.flight.state import MissionError, MissionState
 from mission.flight.watchdog import watchdog
 from mission.telemetry.link_report import link_rejections, unknown_sysids
@@ -121,6 +123,12 @@ class Coordinator:
         self._watchdog_task: asyncio.Task | None = None
         self._loss_task: asyncio.Task | None = None
         self.return_on_interrupt = True
+        self.interrupts: list[str] = []  # signals that interrupted the mission (operator_stop)
+        self.final_result: MissionResult | None = None  # set by mission_end.close on every path
+        self.mission_checks: list[dict] = []  # mission-wide preflight checks (readiness_mission)
+        self.land_commanded: set[int] = set()  # vehicles the landing guard commanded to LAND
+        self.control = MissionControl(clock, log)  # operator commands (mission.flight.control)
+        self._control_channel = None
 
     # ----------------------------------------------------------------- resources set by the phases
     def add_endpoint(self, uri: str, endpoint) -> None:
@@ -225,18 +233,24 @@ class Coordinator:
             "centre_enu": self.centre_enu, "gradient": g,
             "gradient_norm": None if g is None else float(np.linalg.norm(g)),
             "estimate_enu": self.estimate_enu, "spread_m": self.spread_m,
+            "estimate_geodetic": geodetic_point(self.plan.origin, self.estimate_enu),
             "distance_flown_m": self.distance_flown_m, "vehicles": self.vehicle_status(),
             "readings": self.store.counts(), "link_rejections": self.link_rejections(),
-            "unknown_sysids": self.unknown_sysids(),
+            "unknown_sysids": self.unknown_sysids(), "control": self.control.snapshot(),
         }
 
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
         deadline = self.clock.time() + timeout_s
         while not predicate():
+            self.control.check(self.phase)  # an operator's stop ends the phase here
             if self.clock.time() > deadline:
                 raise MissionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
             await self.clock.sleep(poll_s)
+
+    def command(self, command: str, sender: str) -> dict:
+        """An operator command (zenoh, terminal key): :func:`mission.flight.control.operator_command`."""
+        return operator_command(self, command, sender, self._state_pub)
 
     # ----------------------------------------------------------------- mission entry points
     def _start_background(self) -> None:
@@ -254,6 +268,8 @@ class Coordinator:
                 self.session, self.plan.fleet, self.snapshot, rate_hz=self.state_rate_hz,
                 on_snapshot=self.display.update if self.display is not None else None)
             self._state_pub.start()
+        if self._control_channel is None:
+            self._control_channel = open_control_channel(self)
 
     async def _stop_background(self) -> None:
         for name in ("_watchdog_task", "_loss_task"):
@@ -266,6 +282,9 @@ class Coordinator:
                 await self.streamer.stop()
             except Exception as exc:  # noqa: BLE001 - stopping must go on; say what failed
                 self.event(f"stopping the setpoint streamer failed: {exc!r}", level="warning")
+        if self._control_channel is not None:
+            await self._control_channel.stop()
+            self._control_channel = None
         if self._state_pub is not None:
             await self._state_pub.stop()
             self._state_pub = None
@@ -294,7 +313,8 @@ class Coordinator:
         finally:
             await self._stop_background()
         result = readiness_result(self.state, self.plan.vehicles, self.store.counts(),
-                                  self.clock.time() - self.state.t_start_s)
+                                  self.clock.time() - self.state.t_start_s,
+                                  mission_checks=self.mission_checks)
         result.link_rejections, result.unknown_sysids = self.link_rejections(), self.unknown_sysids()
         if self.log is not None:
             self.log.write("summary", sync=True, **result.to_json())
@@ -310,7 +330,11 @@ class Coordinator:
             preflight, no takeoff), seek from the state's centre and iteration.
 
         Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
-        False (a ground station that just stops: the vehicles do what their autopilot does).
+        False (a ground station that just stops: the vehicles do what their autopilot does); a
+        second cancellation lands them where they are (:mod:`mission.flight.mission_end`). Every
+        path ends with the never-abandon check (:mod:`mission.flight.landing_guard`) and a
+        ``summary`` record; a cancelled run then raises CancelledError (:attr:`final_result`
+        holds its result).
         """
         if self.log is not None:
             self.log.write("plan", plan=_plan_json(self.plan), resumed=resume_state is not None)
@@ -320,17 +344,14 @@ class Coordinator:
             if resume_state is None:
                 await connect_phase.connect(self, required=True)
                 await connect_phase.preflight(self)
-                not_ready = [r for r in self.readiness.values() if not r.ready]
-                if not_ready:
-                    raise MissionError("preflight failed: " + "; ".join(
-                        f"vehicle {r.sysid}: {', '.join(r.problems)}" for r in not_ready))
+                problem = not_ready_message(self)
+                if problem:
+                    raise MissionError(f"preflight failed: {problem}")
                 await phases.takeoff(self)
                 await phases.assemble(self)
                 outcome, message = await seek.seek(self)
             else:
-                await rejoin(self, resume_state)
-                outcome, message = await seek.seek(self, start_iteration=resume_state.iteration,
-                                                   history=resume_state.centres)
+                outcome, message = await resume_mission(self, resume_state)
             self.set_phase("finish", outcome=outcome)
             self.event(message)
         except MissionError as exc:
@@ -343,22 +364,10 @@ class Coordinator:
             outcome, message = "aborted", f"unexpected error in phase {self.phase}: {type(exc).__name__}: {exc}"
             self.set_phase("aborted", reason=message)
             self.event(message, level="error", traceback=traceback.format_exc())
-        except asyncio.CancelledError:
-            outcome, message = "aborted", "interrupted"
-            self.event("mission interrupted", level="error")
-            if self.return_on_interrupt:
-                await self._return_safely()
-            await self._stop_background()
-            raise
-        try:
-            await self._return_safely()
-        finally:
-            await self._stop_background()
-        result = self.result(outcome, message)
-        self.set_phase("done")
-        if self.log is not None:
-            self.log.write("summary", sync=True, **result.to_json())
-        return result
+        except asyncio.CancelledError:  # Ctrl-C, SIGTERM, a cancelled task: mission_end counts them
+            return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self),
+                                           interrupted=True)
+        return await mission_end.close(self, outcome, message)
 
     async def _return_safely(self) -> None:
         if not self.airborne:
@@ -374,7 +383,8 @@ class Coordinator:
         result = mission_result(self.state, outcome, message, now_s=self.clock.time(),
                                 readings=self.store.counts() | {"last_errors": self.store.last_errors()},
                                 log_path=None if self.log is None else str(self.log.path),
-                                separation_interventions=getattr(self.ramp, "separation_interventions", 0))
+                                separation_interventions=getattr(self.ramp, "separation_interventions", 0),
+                                origin=self.plan.origin)
         result.link_rejections = self.link_rejections()
         result.unknown_sysids = self.unknown_sysids()
         return result

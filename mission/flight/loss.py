@@ -44,9 +44,13 @@ __all__ = ["CORROBORATING_HEARTBEATS", "classify_loss", "reform", "reformed_offs
 #: heartbeats in a row that must report a mode change or a disarm before the vehicle "left"
 CORROBORATING_HEARTBEATS = 2
 
+#: a RTL/LAND mode reported since before the mission engaged the vehicle (ArduPilot stays in RTL
+#: after an RTL landing) is no mode change; it counts only if it lasts this long after engagement
+STALE_MODE_GRACE_S = 3.0
+
 
 def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
-                  seen_armed: bool = True) -> tuple[str, str] | None:
+                  seen_armed: bool = True, engaged_s: float | None = None) -> tuple[str, str] | None:
     """``(reason, detail)`` if ``vehicle`` is lost, else None.
 
     Parameters
@@ -63,6 +67,12 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
     seen_armed : bool
         The vehicle has been seen armed since its takeoff command (a disarmed state before
         that is the arming still on its way, not a vehicle that left).
+    engaged_s : float, optional
+        Mission clock when the mission engaged the vehicle (its takeoff or re-engagement
+        commanded). A RTL/LAND mode reported by heartbeats that began before it is what the
+        vehicle was doing on the ground (ArduPilot stays in RTL after an RTL landing), not a
+        mode change: it counts only once it outlasts :data:`STALE_MODE_GRACE_S` after ``engaged_s``
+        (the vehicle did not take the mission's mode).
 
     Returns
     -------
@@ -79,7 +89,13 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
         return None
     mode = vehicle.state.mode
     if mode in LEFT_MODES.get(vehicle.flavour, ()):
-        detail = f"switched to {mode} by itself (failsafe)"
+        since = getattr(vehicle, "status_since_s", None)
+        if engaged_s is not None and since is not None and since < engaged_s:
+            if now_s - engaged_s < STALE_MODE_GRACE_S:
+                return None  # still reporting the mode it had before the takeoff: not a change
+            detail = f"still in {mode} {now_s - engaged_s:.1f} s after the mission engaged it"
+        else:
+            detail = f"switched to {mode} by itself (failsafe)"
     elif seen_armed and not vehicle.state.armed:
         detail = "disarmed in the air"
     else:
@@ -148,6 +164,7 @@ async def watch_losses(co, period_s: float = 0.1) -> None:
     """
     faults = co.plan.faults
     seen_armed: set[int] = set()
+    engaged_s: dict[int, float] = {}  # when the watch of each vehicle began (its takeoff commanded)
     while True:
         t_before = co.clock.time()
         await co.clock.sleep(period_s)
@@ -172,22 +189,22 @@ async def watch_losses(co, period_s: float = 0.1) -> None:
                 continue  # commanded by the coordinator to land / RTL
             if v.state.armed:
                 seen_armed.add(sysid)
-            loss = await _check(co, sysid, v, sysid in seen_armed)
+            loss = await _check(co, sysid, v, sysid in seen_armed, engaged_s.setdefault(sysid, now))
             if loss is not None:
                 _declare_lost(co, loss)
 
 
-async def _check(co, sysid: int, v, seen_armed: bool) -> VehicleLoss | None:
+async def _check(co, sysid: int, v, seen_armed: bool, engaged_s: float) -> VehicleLoss | None:
     """The loss of ``v`` found now, or None (an unconfirmed "left" asks the vehicle to confirm)."""
     timeout_s = co.plan.faults.link_timeout_s
     now = co.clock.time()
-    found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed)
+    found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s)
     if found is not None and found[0] == "link":
         # let the event loop read whatever is pending before concluding
         await asyncio.sleep(0)
         await asyncio.sleep(0)
         now = co.clock.time()
-        found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed)
+        found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s)
     if found is None:
         return None
     reason, detail = found

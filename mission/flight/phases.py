@@ -178,8 +178,21 @@ async def return_home(co) -> None:
 
     The paths, the descents included, keep ``min_separation_m + OBSTACLE_MARGIN_M`` from lost
     vehicles still flying (:func:`mission.flight.return_clear.fly_return`); a vehicle whose home is
-    obstructed lands beside it.
+    obstructed lands beside it. An operator's ``land`` / ``rtl`` (:mod:`mission.flight.control`)
+    replaces it, also half-way: every airborne vehicle is commanded to LAND / RTL at once.
     """
+    order = co.control.landing
+    if order is None:
+        order = await co.control.unless_landing_ordered(_return_home(co))
+    while order is not None:
+        co.set_phase("return", behaviour=f"{order} (operator)")
+        done = order
+        order = await co.control.unless_landing_ordered(
+            _land_staggered(co, sorted(co.airborne), rtl=order == "rtl", stagger_s=0.0), current=done)
+
+
+async def _return_home(co) -> None:
+    """The mission's own return (:func:`return_home` without an operator's order)."""
     co.set_phase("return", behaviour=co.plan.return_behaviour)
     plan = co.plan
     flying = [s for s in sorted(co.airborne) if co.ramp is not None and s in co.ramp.sysids]
@@ -190,12 +203,23 @@ async def return_home(co) -> None:
                           rtl=plan.return_behaviour == "rtl", land_only=land_here)
 
 
-async def _land_staggered(co, order, rtl: bool, land_only=frozenset()) -> None:
-    """Land (or RTL) ``order`` one after the other; vehicles in ``land_only`` land even with RTL."""
+async def _land_staggered(co, order, rtl: bool, land_only=frozenset(), stagger_s: float | None = None) -> None:
+    """Land (or RTL) ``order`` one after the other (``stagger_s`` apart, default the plan's);
+    vehicles in ``land_only`` land even with RTL."""
     waits = []
+    try:
+        await _command_down(co, order, rtl, land_only, co.plan.stagger_s if stagger_s is None else stagger_s,
+                            waits)
+        await asyncio.gather(*waits)
+    finally:  # cancelled (an operator's land / rtl): no orphan waits
+        for w in waits:
+            w.cancel()
+
+
+async def _command_down(co, order, rtl: bool, land_only, stagger_s: float, waits: list) -> None:
     for i, sysid in enumerate(order):
-        if i:
-            await co.clock.sleep(co.plan.stagger_s)
+        if i and stagger_s > 0:
+            await co.clock.sleep(stagger_s)
         v = co.vehicles[sysid]
         co.state.release(sysid)
         by_rtl = rtl and sysid not in land_only
@@ -209,7 +233,6 @@ async def _land_staggered(co, order, rtl: bool, land_only=frozenset()) -> None:
             co.ramp.remove(sysid)
         co.state.set_status(sysid, "returning" if by_rtl else "landing")
         waits.append(asyncio.ensure_future(_wait_landed(co, sysid)))
-    await asyncio.gather(*waits)
 
 
 async def _wait_landed(co, sysid, timeout_s: float = 180.0) -> None:

@@ -5,7 +5,32 @@ from dataclasses import asdict, dataclass, field
 
 from mission.telemetry.mission_log import dataclass_json
 
-__all__ = ["MissionResult", "mission_result", "readiness_result"]
+__all__ = ["MissionResult", "mission_result", "readiness_result", "geodetic_point"]
+
+
+def geodetic_point(origin, enu) -> dict | None:
+    """A mission-frame point in WGS-84 geodetic coordinates, for the operator.
+
+    Parameters
+    ----------
+    origin : tuple of float
+        The plan's origin ``(lat_deg, lon_deg, alt_m)`` (altitude AMSL, as MAVLink's).
+    enu : array_like, shape (3,), or None
+        East, north, up metres about ``origin``.
+
+    Returns
+    -------
+    dict or None
+        ``{"lat_deg", "lon_deg", "alt_m"}`` (``alt_m`` AMSL, as the origin's; latitude and
+        longitude to 1e-8 degree, about 1 mm), None when ``enu`` or ``origin`` is None.
+    """
+    if enu is None or origin is None:
+        return None
+    from formation.geodesy import enu_to_geodetic
+
+    lat_deg, lon_deg, alt_m = (float(x) for x in enu_to_geodetic([float(v) for v in enu], origin))
+    return {"lat_deg": round(lat_deg, 8), "lon_deg": round(lon_deg, 8), "alt_m": round(alt_m, 3)}
+
 
 @dataclass
 class MissionResult:
@@ -14,11 +39,14 @@ class MissionResult:
     Attributes
     ----------
     outcome : str
-        ``converged``, ``max_iterations``, ``stopped_at_fence``, ``aborted``, ``ready`` or
-        ``not_ready`` (dry run).
+        ``converged``, ``max_iterations``, ``stopped_at_fence``, ``aborted``, ``interrupted``
+        (Ctrl-C, SIGTERM), ``recovered`` (``resume`` of a mission that had ended: the vehicles
+        still flying brought home), ``ready`` or ``not_ready`` (dry run).
     message : str
     estimate_enu : list or None
         Estimated source position (mean of the last ``convergence_window`` centres).
+    estimate_geodetic : dict or None
+        The same in WGS-84: ``lat_deg``, ``lon_deg``, ``alt_m`` (AMSL, like the plan's origin).
     spread_m : float or None
         RMS spread of those centres.
     iterations : int
@@ -41,17 +69,29 @@ class MissionResult:
         :mod:`mission.telemetry.link_report`).
     unknown_sysids : list
         System ids heard on the links that are no vehicle of the plan (ignored).
+    true_source_geodetic : dict or None
+        ``swarmseek run`` only: the true source in WGS-84 (as ``estimate_geodetic``).
     vehicle_rejections : dict
         ``swarmseek run`` only: frames the embedded mock vehicles refused, by sysid then kind
         (non-zero only; :func:`mission.sim.fleet_report.vehicle_rejections`).
     separation_interventions : int
         Vehicle-setpoints the safety envelope held back to keep ``min_separation_m`` (0: none
         needed; per vehicle in the mission log's ``separation enforcement`` events).
+    airborne_left : list
+        Vehicles still airborne with no landing behaviour at the end (the ``airborne_left``
+        record of :mod:`mission.flight.landing_guard`; empty when every vehicle is down or landing).
+    interrupted_by : list
+        The signals (``SIGINT``, ``SIGTERM``) that interrupted the mission, in order
+        (:mod:`mission.flight.operator_stop`).
+    mission_checks : list
+        The mission-wide preflight checks (``name``, ``ok``, ``detail``: zenoh, readings, start
+        and paths inside the fence; :mod:`mission.flight.readiness_mission`).
     """
 
     outcome: str
     message: str = ""
     estimate_enu: list | None = None
+    estimate_geodetic: dict | None = None
     spread_m: float | None = None
     iterations: int = 0
     mission_time_s: float = 0.0
@@ -61,6 +101,7 @@ class MissionResult:
     readings: dict = field(default_factory=dict)
     readiness: list = field(default_factory=list)
     true_source_enu: list | None = None
+    true_source_geodetic: dict | None = None
     error_m: float | None = None
     log_path: str | None = None
     reengaged: dict = field(default_factory=dict)
@@ -72,6 +113,9 @@ class MissionResult:
     unknown_sysids: list = field(default_factory=list)
     vehicle_rejections: dict = field(default_factory=dict)
     separation_interventions: int = 0
+    airborne_left: list = field(default_factory=list)
+    interrupted_by: list = field(default_factory=list)
+    mission_checks: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -84,7 +128,8 @@ class MissionResult:
 
 
 def mission_result(state, outcome: str, message: str, *, now_s: float, readings: dict,
-                   log_path: str | None = None, separation_interventions: int = 0) -> MissionResult:
+                   log_path: str | None = None, separation_interventions: int = 0,
+                   origin=None) -> MissionResult:
     """The :class:`MissionResult` of a mission whose state is ``state`` (:class:`~mission.flight.state.MissionState`).
 
     Parameters
@@ -98,12 +143,15 @@ def mission_result(state, outcome: str, message: str, *, now_s: float, readings:
     log_path : str, optional
     separation_interventions : int
         The ramp's count (:attr:`mission.flight.targets.TargetRamp.separation_interventions`).
+    origin : tuple of float, optional
+        The plan's geodetic origin: gives ``estimate_geodetic``.
     """
     t_end = state.t_seek_end_s or now_s
     est = state.estimate_enu
     return MissionResult(
         outcome=outcome, message=message,
         estimate_enu=None if est is None else [float(x) for x in est],
+        estimate_geodetic=geodetic_point(origin, est),
         spread_m=state.spread_m, iterations=state.iteration,
         mission_time_s=now_s - state.t_start_s,
         seek_time_s=0.0 if state.t_seek_start_s is None else t_end - state.t_seek_start_s,
@@ -119,15 +167,20 @@ def mission_result(state, outcome: str, message: str, *, now_s: float, readings:
         separation_interventions=int(separation_interventions))
 
 
-def readiness_result(state, plan_vehicles, readings: dict, mission_time_s: float) -> MissionResult:
-    """The dry run's result: ``ready`` when every vehicle of the plan passed its preflight, else ``not_ready``."""
+def readiness_result(state, plan_vehicles, readings: dict, mission_time_s: float,
+                     mission_checks=()) -> MissionResult:
+    """The dry run's result: ``ready`` when every vehicle of the plan passed its preflight and
+    every mission-wide check (:mod:`mission.flight.readiness_mission`) passed, else ``not_ready``."""
     ready = list(state.readiness.values())
-    all_ready = len(ready) == len(plan_vehicles) and all(r.ready for r in ready)
+    failed = [c for c in mission_checks if not c["ok"]]
+    all_ready = len(ready) == len(plan_vehicles) and all(r.ready for r in ready) and not failed
     missing = [vp for vp in plan_vehicles if vp.sysid not in state.readiness]
     readiness = [asdict(r) | {"ready": r.ready} for r in ready] + [
         {"sysid": vp.sysid, "id": vp.id, "connection": vp.connection, "ready": False,
          "checks": {"connected": False}, "problems": ["not connected"]} for vp in missing]
+    n_bad = sum(not r["ready"] for r in readiness)
+    why = ([f"{n_bad} vehicle(s) not ready"] if n_bad else []) + [f"{c['name']} failed" for c in failed]
     return MissionResult(outcome="ready" if all_ready else "not_ready",
-                         message="every vehicle is ready" if all_ready else
-                         f"{sum(not r['ready'] for r in readiness)} vehicle(s) not ready",
-                         readiness=readiness, readings=readings, mission_time_s=mission_time_s)
+                         message="every vehicle and the mission are ready to seek" if all_ready else "; ".join(why),
+                         readiness=readiness, readings=readings, mission_time_s=mission_time_s,
+                         mission_checks=[dict(c) for c in mission_checks])

@@ -14,6 +14,12 @@ The resumed coordinator reconnects, and re-engages every vehicle still flying (a
 (their autopilot's failsafe while the ground station was away), are counted as lost and left
 to their autopilot; if fewer than 4 fly, the resumed mission brings the others home. The seek
 goes on from the last centre and iteration, appending to the same log.
+
+A log that ends in any other phase (``finish``, ``return``, ``aborted``, ``done``, or with a
+``summary``: e.g. a ground station stopped during the return, or an operator who stopped
+waiting for the LAND confirmations) is taken over to **bring the vehicles home**: the vehicles
+still flying are re-engaged the same way, then fly the return (outcome ``recovered``); if none
+flies, there is nothing to do (outcome ``recovered``, every vehicle down).
 """
 from __future__ import annotations
 
@@ -41,7 +47,7 @@ from mission.flight.motion import retried, setpoint_stream
 from mission.flight.retire import restore_retired
 from mission.flight.state import MissionError, VehicleLoss
 
-__all__ = ["ResumeError", "ResumeState", "plan_from_json", "load_resume_state", "rejoin"]
+__all__ = ["ResumeError", "ResumeState", "plan_from_json", "load_resume_state", "rejoin", "resume_mission"]
 
 
 class ResumeError(ValueError):
@@ -74,6 +80,10 @@ class ResumeState:
         The ``embedded mock fleet`` event of a ``swarmseek run`` log (source, seed...).
     retired : dict
         Sysid -> the fields of its ``sensor retired`` event (:class:`mission.flight.retire.RetiredSensor`).
+    go_on : bool
+        The seek goes on (the last phase flown was the takeoff, assembly or seek: the ground
+        station stopped there); False (it had reached ``finish`` or ``return``): bring the
+        vehicles still flying home.
     """
 
     plan: Plan
@@ -88,6 +98,7 @@ class ResumeState:
     last_phase: str = ""
     embedded: dict | None = None
     retired: dict = field(default_factory=dict)
+    go_on: bool = True
 
 
 def _tuple_of_tuples(x):
@@ -170,7 +181,7 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
     Raises
     ------
     ResumeError
-        Not a mission log, no plan, already finished, or stopped before the formation existed.
+        Not a mission log, no plan, or stopped before the takeoff (nothing can be flying).
     """
     from mission.telemetry.mission_log import read_mission_log
 
@@ -185,12 +196,14 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
         plan = plan_from_json(plans[0]["plan"])
     phases = [r["phase"] for r in records if r["type"] == "phase"]
     last_phase = phases[-1] if phases else ""
-    if last_phase in ("done", "return", "finish") or any(r["type"] == "summary" for r in records):
-        raise ResumeError(f"{log_path}: the mission already ended (last phase {last_phase!r}); nothing to resume")
+    # the seek goes on when the mission stopped flying it (a crash, an interrupt without return:
+    # the closing "aborted"/"done" phases then follow it); after a finish or a return, bring home
+    flown = [p for p in phases if p not in ("aborted", "done")]
+    go_on = bool(flown) and flown[-1] in ("takeoff", "assemble", "seek")
     slots, layers, lost, retired, kind, embedded = _formation_from_events(records, plan.formation.type)
     if not slots:
-        raise ResumeError(f"{log_path}: stopped before the formation was planned (phase {last_phase!r}); "
-                          "start the mission again")
+        raise ResumeError(f"{log_path}: stopped before the takeoff (phase {last_phase!r}): no vehicle was "
+                          "flown; start the mission again")
     for s in lost:
         slots.pop(s, None)
     for s in retired:
@@ -199,7 +212,7 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
     centre, centres, k, flown = _seek_progress(records, plan)
     return ResumeState(plan=plan, iteration=k, centre_enu=centre, centres=centres, slot_offsets=slots,
                        layer_alt_m=layers, formation_kind=kind, lost=lost, distance_flown_m=flown,
-                       last_phase=last_phase, embedded=embedded, retired=retired)
+                       last_phase=last_phase, embedded=embedded, retired=retired, go_on=go_on)
 
 
 def _formation_from_events(records: list[dict], kind: str):
@@ -270,12 +283,13 @@ async def rejoin(co, state: ResumeState) -> None:
             flying.append(sysid)
     await _reengage(co, flying)
     restore_retired(co, state.retired)
-    co.event(f"resumed at iteration {state.iteration} from centre "
+    co.event(("resumed" if state.go_on else f"taken over to bring the vehicles home (the log ends in phase "
+                                             f"{state.last_phase!r})") + f" at iteration {state.iteration} from centre "
              f"({co.centre_enu[0]:.2f}, {co.centre_enu[1]:.2f}, {co.centre_enu[2]:.2f}) m with vehicles "
              f"{flying}", iteration=state.iteration, centre_enu=co.centre_enu, vehicles=flying,
              lost=sorted(co.lost), retired=sorted(co.retired))
     sensing = [s for s in flying if s not in co.retired]
-    if len(sensing) < 4:
+    if state.go_on and len(sensing) < 4:
         raise MissionError(f"only {len(sensing)} sensing vehicles can be re-engaged ({sensing}); a formation "
                            "needs 4: bringing them home")
     await asyncio.sleep(0)
@@ -319,3 +333,17 @@ async def _reengage(co, flying: list[int]) -> None:
         if want is not None and v.state.mode != want:
             await retried(co, lambda v=v, want=want: v.set_mode(want), f"re-engaging {want} on vehicle {s}")
         co.state.set_status(s, "in formation")
+
+
+async def resume_mission(co, state: ResumeState) -> tuple[str, str]:
+    """Rejoin, then seek on (``state.go_on``) or bring the vehicles home; ``(outcome, message)``."""
+    from mission.flight import seek
+
+    await rejoin(co, state)
+    if state.go_on:
+        return await seek.seek(co, start_iteration=state.iteration, history=state.centres)
+    flying = sorted(co.airborne)
+    if not flying:
+        return "recovered", "no vehicle of the stopped mission is flying: nothing to bring home"
+    return "recovered", (f"the stopped mission (last phase {state.last_phase!r}) left vehicles {flying} "
+                         "flying: bringing them home")

@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from mission.flight.control import OperatorStop
 from mission.flight.loss import reform
 from mission.flight.motion import move_and_wait, parked
+from mission.flight.result import geodetic_point
 from mission.flight.rejoin import (
     clear_goals,
     fly_rotation,
@@ -87,6 +89,7 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     co.state.begin_seek()
     ended = None
     for k in range(int(start_iteration), co.plan.seeking.max_iterations):
+        await co.control.checkpoint(co)  # an operator's pause holds here, a stop ends the seek
         ended = await run.iteration(k)
         if ended is not None:
             break
@@ -174,6 +177,8 @@ class _Seek:
             await move_and_wait(co, goals, sk.arrival_tol_m,
                                 timeout_s=20.0 + 3.0 * sk.gamma_m / co.plan.max_speed_m_s,
                                 what=f"iteration {k + 1}: the formation to settle")
+        except OperatorStop:
+            raise
         except MissionError as exc:
             co.event(f"{exc}; estimating anyway", level="warning")
         t_arrive = co.clock.time()
@@ -192,6 +197,8 @@ class _Seek:
 
         try:
             await co.wait_until(_fresh, max(5.0, 10 * sk.reading_window_s), "fresh readings", poll_s=0.02)
+        except OperatorStop:
+            raise
         except MissionError:
             missing = [s for s in self.sysids if (r := co.store.latest(s)) is None or r.time_s < t_arrive]
             co.event(f"iteration {k + 1}: no fresh reading from vehicles {missing}", level="warning")
@@ -277,6 +284,7 @@ class _Seek:
             everyone = self.sysids + parked(co)
             co.log.write("iteration", k=k + 1, t_estimate_s=t_est, centre_enu=self.centre, centroid_enu=centroid,
                          gradient=grad, new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.estimate_enu,
+                         estimate_geodetic=geodetic_point(co.plan.origin, co.estimate_enu),
                          spread_m=co.spread_m, distance_flown_m=co.distance_flown_m,
                          readings=[aligned[s] for s in used],
                          positions_enu={s: co.telemetry_position(s) for s in everyone},

@@ -109,6 +109,7 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
              "unknown_msgid", "truncated", "unroutable", "send_errors", "duplicate_sysid",
              "handler_errors", *SUSPECT_REASONS, "quarantined", "quarantine_dropped"), 0)
         self.last_handler_error: str | None = None
+        self.forward = None  # mission.link.forward.Forwarder.copy: accepted vehicle frames to GCS clients
         self.counters.update(unsigned=0, bad_signature=0, replayed=0, setup_signing_sent=0,
                              setup_signing_refused=0)
         self.signing = signing

@@ -118,6 +118,8 @@ class EndpointReceiving:
                 self._release_early(sysid, peer)
             if tlogs is not None:
                 tlogs.write(sysid, msg._msgbuf)
+            if self.forward is not None:
+                self.forward(msg._msgbuf)
             if autopilot_hb:
                 self._on_autopilot_heartbeat(sysid, msg, peer)
             elif sysid not in peer_of:

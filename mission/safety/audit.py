@@ -311,7 +311,8 @@ def audit_mission(log_dir, *, gcs_sysid: int = 255, fence_tol_m: float = 0.01, s
     """
     log_dir = Path(log_dir)
     if not log_dir.is_dir():
-        raise AuditError(f"{log_dir}: no such directory")
+        raise AuditError(f"{log_dir}: " + ("not a directory (give the mission's --log-dir)" if log_dir.exists()
+                                           else "no such directory"))
     by_sysid = find_tlogs(log_dir)
     if not by_sysid:
         raise AuditError(f"{log_dir}: no .tlog files (in tlogs/ or the directory itself; was --no-tlog used?)")

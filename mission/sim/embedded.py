@@ -13,7 +13,10 @@ axis) converges fastest without oscillation; for ``sigma_2`` it is 49.9, and 25 
 ``eps ||grad|| ~ 1.1 m``, i.e. steps of about ``gamma = 1 m`` from the start. The paper's
 ``eps = 1`` with ``sigma_2`` (``||grad|| ~ 1e-3..4e-2 /m``) would move the centre by centimetres per
 iteration: thousands of iterations. ``--eps`` and ``--gamma`` override (``--eps 1 --gamma 0.1``
-gives the paper's parameters).
+gives the paper's parameters). Plumes (``--field plume`` / ``intermittent``, ``docs/fields.md``)
+give their own Newton gain across the centreline near the release (``s0^2 / C0``), and the start
+is drawn downwind of the release (within 10 degrees of the wind's axis): upwind of a plume there
+is nothing to climb.
 """
 from __future__ import annotations
 
@@ -32,7 +35,7 @@ from mission.core.plan import (
 )
 
 __all__ = ["DEFAULT_ORIGIN", "FENCE_MIN_ALT_M", "MAX_VEHICLES", "free_port_block", "default_eps", "default_radius_m",
-           "default_source_and_start", "embedded_plan", "fleet_ports"]
+           "default_source_and_start", "downwind_en", "embedded_plan", "fleet_ports"]
 
 DEFAULT_ORIGIN = (45.1885, 5.7245, 212.0)
 #: MAVLink system ids 1..254 (255 is the ground station's own)
@@ -70,7 +73,12 @@ def free_port_block(count: int, step: int = 1, kinds: tuple[str, ...] = ("udp",)
 
 
 def default_eps(field) -> float:
-    """``1 / (2 A lambda_max(S))`` for a Gaussian field (see the module docstring); 1.0 otherwise."""
+    """``1 / (2 A lambda_max(S))`` for a Gaussian field (see the module docstring), the field's
+    ``newton_gain()`` when it has one (plumes), the first part's for a sum; 1.0 otherwise."""
+    if hasattr(field, "newton_gain"):
+        return float(field.newton_gain())
+    if getattr(field, "parts", None):
+        return default_eps(field.parts[0])
     amp = getattr(field, "amplitude", None)
     S = getattr(field, "S", None)
     if amp is None or S is None:
@@ -78,11 +86,29 @@ def default_eps(field) -> float:
     return float(1.0 / (2.0 * amp * np.max(np.linalg.eigvalsh(np.asarray(S, dtype=float)))))
 
 
-def default_source_and_start(seed: int, distance_m: float = 25.0) -> tuple[np.ndarray, np.ndarray]:
-    """Source in the default box and a start ``distance_m`` away horizontally (3 m lower)."""
+def downwind_en(field) -> np.ndarray | None:
+    """The unit (east, north) vector the field's wind blows toward (a sum: its first part's);
+    None for a field without wind."""
+    for f in (field, getattr(field, "steady", None), *(getattr(field, "parts", None) or ())[:1]):
+        if f is not None and getattr(f, "downwind_en", None) is not None:
+            return np.asarray(f.downwind_en, dtype=float)
+        if f is not None and getattr(f, "steady", None) is not None:
+            return np.asarray(f.steady.downwind_en, dtype=float)
+    return None
+
+
+def default_source_and_start(seed: int, distance_m: float = 25.0,
+                             downwind=None) -> tuple[np.ndarray, np.ndarray]:
+    """Source in the default box and a start ``distance_m`` away horizontally (3 m lower).
+
+    With ``downwind`` (a unit (east, north) vector) the start's bearing from the source is
+    within 10 degrees of it (same source and draws as without).
+    """
     rng = np.random.default_rng(seed)
     source = rng.uniform([-20.0, -20.0, 12.0], [20.0, 20.0, 18.0])
     heading = rng.uniform(0.0, 2.0 * np.pi)
+    if downwind is not None:
+        heading = np.arctan2(downwind[1], downwind[0]) + (heading / (2.0 * np.pi) - 0.5) * np.pi / 9.0
     start = source + np.array([distance_m * np.cos(heading), distance_m * np.sin(heading), -3.0])
     return source, start
 

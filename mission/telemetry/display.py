@@ -14,7 +14,7 @@ from typing import IO
 
 from mission.telemetry.link_report import format_rejections
 
-__all__ = ["Display", "format_table", "format_line", "format_summary", "report_result"]
+__all__ = ["Display", "format_table", "format_line", "format_summary", "format_geodetic", "report_result"]
 
 
 def _vec(v, fmt="{:7.2f}") -> str:
@@ -27,6 +27,17 @@ def _num(v, fmt="{:.2f}") -> str:
     return "-" if v is None else fmt.format(float(v))
 
 
+def format_geodetic(geo: dict | None) -> str:
+    """``lat 45.1900123, lon 5.7200456, alt 242.3 m AMSL`` (``-`` when unknown).
+
+    Seven decimals of a degree: about 1 cm of latitude, finer than any estimate.
+    """
+    if not geo:
+        return "-"
+    return (f"lat {float(geo['lat_deg']):.7f}, lon {float(geo['lon_deg']):.7f}, "
+            f"alt {float(geo['alt_m']):.1f} m AMSL")
+
+
 def format_table(state: dict) -> list[str]:
     """The lines of the live table for one state snapshot."""
     lines = [
@@ -36,12 +47,15 @@ def format_table(state: dict) -> list[str]:
         f"estimate {_vec(state.get('estimate_enu'))} m  spread {_num(state.get('spread_m'))} m"
         f"   flown {_num(state.get('distance_flown_m'), '{:.1f}')} m",
     ]
+    if state.get("estimate_geodetic"):
+        lines.append(f"estimate {format_geodetic(state['estimate_geodetic'])}")
     rd = state.get("readings") or {}
     rejected = {k: v for k, v in (rd.get("rejected") or {}).items() if v}
     lines.append(f"readings accepted {rd.get('accepted', 0)}  rejected {rejected or 0}")
     unknown = state.get("unknown_sysids") or []
     lines.append(f"MAVLink rejected {format_rejections(state.get('link_rejections'))}"
                  + (f"  unknown sysids {unknown}" if unknown else ""))
+    lines.extend(_control_lines(state.get("control")))
     lines.append(f"{'sysid':>5} {'id':10} {'flavour':9} {'mode':12} {'armed':5} {'alt_m':>7} "
                  f"{'link_s':>6} {'sp_hz':>6}  status")
     for v in state.get("vehicles", []):
@@ -53,6 +67,16 @@ def format_table(state: dict) -> list[str]:
     return lines
 
 
+def _control_lines(control) -> list[str]:
+    """The operator's commands in force (``swarmseek ctl``, terminal keys), if any."""
+    if not control or not (control.get("paused") or control.get("stop")):
+        return []
+    if control.get("stop"):
+        return [f"OPERATOR {str(control['stop']).upper()} ordered: the mission is ending"]
+    held = "holding the formation" if control.get("holding") else "the formation holds at the end of this iteration"
+    return [f"PAUSED by {control.get('paused_by')}: {held} (continue: key c, or swarmseek ctl FLEET continue)"]
+
+
 def format_line(state: dict) -> str:
     """One plain progress line for one state snapshot."""
     armed = sum(1 for v in state.get("vehicles", []) if v.get("armed"))
@@ -62,7 +86,9 @@ def format_line(state: dict) -> str:
             f"|grad|={_num(state.get('gradient_norm'), '{:.2e}')} "
             f"flown={_num(state.get('distance_flown_m'), '{:.1f}')} m armed={armed}/"
             f"{len(state.get('vehicles', []))}"
-            + (f" mavlink_rejected={format_rejections(rejected)}" if any(rejected.values()) else ""))
+            + (f" mavlink_rejected={format_rejections(rejected)}" if any(rejected.values()) else "")
+            + "".join(f" [{line.split(':')[0].replace('OPERATOR', 'operator')}]"
+                      for line in _control_lines(state.get("control"))))
 
 
 def format_summary(summary: dict) -> list[str]:
@@ -71,9 +97,13 @@ def format_summary(summary: dict) -> list[str]:
     if summary.get("estimate_enu") is not None:
         lines.append(f"  estimated source {_vec(summary['estimate_enu'], '{:.2f}')} m "
                      f"(spread {_num(summary.get('spread_m'))} m) after {summary.get('iterations', 0)} iterations")
+        if summary.get("estimate_geodetic"):
+            lines.append(f"                   {format_geodetic(summary['estimate_geodetic'])}")
     if summary.get("true_source_enu") is not None:
         lines.append(f"  true source      {_vec(summary['true_source_enu'], '{:.2f}')} m, "
                      f"error {_num(summary.get('error_m'))} m")
+        if summary.get("true_source_geodetic"):
+            lines.append(f"                   {format_geodetic(summary['true_source_geodetic'])}")
     lines.append(f"  mission time {_num(summary.get('mission_time_s'), '{:.1f}')} s, seek time "
                  f"{_num(summary.get('seek_time_s'), '{:.1f}')} s, distance flown (centre) "
                  f"{_num(summary.get('distance_flown_m'), '{:.1f}')} m")

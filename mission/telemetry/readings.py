@@ -160,6 +160,7 @@ class ReadingStore:
         self.accepted = 0
         self.subscribers = 0  # open ReadingSubscriber feeds (a lock-step driver reads it)
         self._last_error: dict[str, str] = {}
+        self._key_sysid: dict[str, int] = {}  # valid keys already parsed (see _validate)
 
     @property
     def sysids(self) -> list[int]:
@@ -188,7 +189,12 @@ class ReadingStore:
         return reading
 
     def _validate(self, key: str, payload) -> Reading:
-        key_sysid = sysid_from_key(str(key), self.fleet)
+        key = str(key)
+        key_sysid = self._key_sysid.get(key)
+        if key_sysid is None:
+            key_sysid = sysid_from_key(key, self.fleet)
+            if key_sysid in self._history and len(self._key_sysid) < 256:
+                self._key_sysid[key] = key_sysid  # the mission's own keys only: a flood stays bounded
         doc = decode_reading(payload)
         if doc["fleet"] != self.fleet:
             raise ReadingRejected("wrong_fleet", f"fleet {doc['fleet'][:40]!r}, expected {self.fleet!r}")

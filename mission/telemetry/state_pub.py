@@ -57,10 +57,15 @@ class StatePublisher:
                 state_key(fleet), encoding=zenoh.Encoding.APPLICATION_JSON,
                 congestion_control=zenoh.CongestionControl.DROP)
 
-    def publish_now(self) -> dict:
-        """Take a snapshot, hand it to ``on_snapshot`` and publish it; returns it."""
+    def publish_now(self, final: bool = False) -> dict:
+        """Take a snapshot, hand it to ``on_snapshot`` and publish it; returns it.
+
+        ``final``: the last one (the coordinator is stopping), marked ``"final": true`` so that a
+        watcher knows the mission ended."""
         state = dict(self.snapshot())
         state["schema"] = STATE_SCHEMA
+        if final:
+            state["final"] = True
         if self.on_snapshot is not None:
             self.on_snapshot(state)
         if self._pub is not None:
@@ -85,7 +90,7 @@ class StatePublisher:
         """Stop the task, publish a last snapshot, undeclare the publisher."""
         await cancel_and_wait(self._task)
         self._task = None
-        self.publish_now()
+        self.publish_now(final=True)
         if self._pub is not None:
             try:
                 self._pub.undeclare()

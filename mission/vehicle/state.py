@@ -266,9 +266,15 @@ class VehicleTelemetry:
         From LOCAL_POSITION_NED when fresh and the home is known, else GLOBAL_POSITION_INT.
         """
         st = self.state
-        if st.position_ned_m is not None and self.frame_map is not None and not self._local_stale():
-            n, e, d = st.position_ned_m
-            return self.frame_map.local_ned_to_mission_enu(n, e, d)
+        ned, fmap = st.position_ned_m, self.frame_map
+        if ned is not None and fmap is not None and not self._local_stale():
+            # a reading check and the display ask for it far more often than it changes
+            # (LOCAL_POSITION_NED at 5 Hz): converted once per message (a new array) and frame map
+            cached = self._enu_cache
+            if cached is None or cached[0] is not ned or cached[1] is not fmap:
+                n, e, d = ned
+                cached = self._enu_cache = (ned, fmap, fmap.local_ned_to_mission_enu(n, e, d))
+            return cached[2].copy()
         if st.lat_deg is None:
             return None
         return geodetic_to_enu(st.lat_deg, st.lon_deg, st.alt_m, self.mission_origin)

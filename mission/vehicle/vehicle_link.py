@@ -121,6 +121,7 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
         self.setpoints_sent = 0
         self._home_local = (0.0, 0.0, 0.0)
         self._local_s: float | None = None
+        self._enu_cache: tuple | None = None  # (position_ned_m, frame_map, enu): see position_enu_m
         self._last_rx_s = clock.time()
         self._t0 = time.monotonic()
         self._acks: dict[int, asyncio.Queue] = {}

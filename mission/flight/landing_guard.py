@@ -1,0 +1,172 @@
+"""Never abandon an airborne vehicle: the invariant every mission path ends with.
+
+Every vehicle this ground station engaged (took off, re-engaged at a resume, or lost on the way)
+ends the mission
+
+* **down**: disarmed (landed), or
+* **landing**: armed under a landing behaviour of its autopilot, confirmed by its own heartbeat
+  (RTL / SMART_RTL / LAND, PX4 ``AUTO.RTL`` / ``AUTO.LAND``: :data:`mission.flight.modes.LEFT_MODES`), or
+* **reported**: still airborne (armed in another mode, or not heard any more while it was):
+  the operator is told loudly (standard error and an ``airborne_left`` record in the mission log:
+  which vehicles, where, in which mode, and what to do).
+
+:func:`secure` runs at the end of :meth:`mission.flight.coordinator.Coordinator.run` on every
+path (converged, aborted, exception, interrupted once or twice): a vehicle still armed and
+flying in OFFBOARD/GUIDED or a hold mode is first commanded to LAND (released from the setpoint
+stream so the watchdog does not re-engage it) and given ``confirm_timeout_s`` to report LAND.
+:func:`land_now` is the emergency of a second interrupt: LAND for every airborne vehicle at
+once, where it is (no return flight). See ``docs/faults.md``.
+"""
+from __future__ import annotations
+
+import asyncio
+import sys
+
+import numpy as np
+
+from mission.flight.modes import LEFT_MODES
+
+__all__ = ["ADVICE", "engaged_vehicles", "verdict", "secure", "land_now", "report_airborne"]
+
+#: what the operator should do about a vehicle left airborne
+ADVICE = ("take manual control (RC) or command LAND/RTL from another ground station "
+          "(QGroundControl, MAVProxy), or run `swarmseek resume LOG` to bring them home")
+
+
+def engaged_vehicles(co) -> list[int]:
+    """Vehicles this ground station engaged: airborne, released (landing / RTL) or lost."""
+    return sorted(set(co.airborne) | set(co.released) | set(co.lost))
+
+
+def verdict(v, link_timeout_s: float) -> tuple[str, str]:
+    """``(kind, detail)`` of a vehicle now: ``down``, ``landing``, ``airborne`` or ``unheard``.
+
+    ``unheard``: no frame for ``link_timeout_s`` while its last known state was armed and not
+    under a landing mode (its last state is in ``detail``).
+    """
+    if v is None:
+        return "unheard", "not connected to this ground station: its state is unknown"
+    st = v.state
+    age = float(v.link_age_s())
+    landing_mode = st.mode in LEFT_MODES.get(v.flavour, ())
+    if not st.armed:
+        return "down", "disarmed" + (f" (last heard {age:.1f} s ago)" if age > link_timeout_s else "")
+    if landing_mode and st.landed is True:
+        return "down", f"landed under {st.mode}, disarming"
+    if landing_mode:
+        return "landing", f"under {st.mode}" + (f" (last heard {age:.1f} s ago)" if age > link_timeout_s else "")
+    if age > link_timeout_s:
+        return "unheard", f"not heard for {age:.1f} s; last seen armed in {st.mode}"
+    return "airborne", f"armed in {st.mode}"
+
+
+def _where(co, sysid: int, v) -> dict:
+    """Where a vehicle is (or was last heard): mission ENU, latitude, longitude, altitude."""
+    out: dict = {"sysid": sysid, "id": co.ids.get(sysid)}
+    if v is None:
+        return out
+    st = v.state
+    pos = co.telemetry_position(sysid)
+    out.update(mode=st.mode, armed=bool(st.armed), last_heard_s_ago=round(float(v.link_age_s()), 1),
+               position_enu=None if pos is None else [round(float(x), 2) for x in np.asarray(pos, float)],
+               lat_deg=st.lat_deg, lon_deg=st.lon_deg, alt_amsl_m=st.alt_m, relative_alt_m=st.relative_alt_m)
+    return out
+
+
+def report_airborne(co, entries: list[dict], why: str) -> None:
+    """Tell the operator loudly: standard error, an ``airborne_left`` log record, an error event."""
+    who = [e["sysid"] for e in entries]
+    lines = [f"swarmseek: WARNING: vehicles {who} are still AIRBORNE and no ground station flies them ({why}):"]
+    for e in entries:
+        lat, lon, alt = e.get("lat_deg"), e.get("lon_deg"), e.get("alt_amsl_m")
+        where = (f"lat {lat:.7f} lon {lon:.7f} alt {alt:.1f} m AMSL" if None not in (lat, lon, alt)
+                 else "position unknown")
+        lines.append(f"  vehicle {e['sysid']} ({e.get('id')}): {e.get('state', '')}; {where}; "
+                     f"ENU {e.get('position_enu')}")
+    lines.append(f"  what to do: {ADVICE}")
+    print("\n".join(lines), file=sys.stderr, flush=True)
+    if co.log is not None:
+        co.log.write("airborne_left", sync=True, vehicles=entries, reason=why, advice=ADVICE)
+    co.event(f"vehicles {who} left AIRBORNE: {why}; {ADVICE}", level="error", sysids=who)
+
+
+async def _command_land(co, sysid: int, v, timeout_s: float) -> str | None:
+    """Release ``sysid`` from the stream and command LAND; the error text, or None."""
+    co.state.release(sysid, "landing (end of mission)")
+    if co.ramp is not None and sysid in co.ramp.sysids:
+        co.ramp.remove(sysid)
+    try:
+        await asyncio.wait_for(v.land(), timeout=timeout_s)
+    except (asyncio.TimeoutError, OSError, RuntimeError, ValueError) as exc:
+        return f"{type(exc).__name__}: {exc}"
+    return None
+
+
+async def land_now(co, timeout_s: float = 5.0) -> list[int]:
+    """Emergency LAND of every engaged vehicle still armed outside a landing mode, all at once.
+
+    Returns the vehicles commanded. No return flight, no stagger: each descends where it is.
+    """
+    timeout = co.plan.faults.link_timeout_s
+    done = co.land_commanded  # LAND accepted here: not sent twice
+    todo = [s for s in engaged_vehicles(co)
+            if s not in done and verdict(co.vehicles.get(s), timeout)[0] == "airborne"]
+    if not todo:
+        return []
+    co.event(f"LANDING vehicles {todo} where they are, now", level="error", sysids=todo)
+    errors = await asyncio.gather(*(_command_land(co, s, co.vehicles[s], timeout_s) for s in todo))
+    for s, err in zip(todo, errors):
+        if err is not None:
+            co.event(f"vehicle {s}: LAND command failed: {err}", level="error", sysid=s)
+        else:
+            done.add(s)
+    return todo
+
+
+async def secure(co, why: str, confirm_timeout_s: float = 5.0,
+                 land: bool = True) -> tuple[list[dict], bool]:
+    """Enforce the invariant at the end of a mission.
+
+    Returns the ``airborne_left`` entries (empty: none left airborne) and whether a
+    cancellation cut the wait short (it is handled here: the caller decides what follows).
+
+    Parameters
+    ----------
+    co : Coordinator
+    why : str
+        How the mission ended (in the report).
+    confirm_timeout_s : float
+        Mission-clock seconds a vehicle commanded to LAND here has to report LAND.
+    land : bool
+        Command LAND to the vehicles still flying (False: a ground station told to just stop,
+        ``Coordinator.return_on_interrupt = False``: they are only reported).
+
+    A cancellation (the operator insists) stops the wait: what is not confirmed by then is
+    reported.
+    """
+    timeout = co.plan.faults.link_timeout_s
+    cancelled = False
+    try:
+        if land:
+            await land_now(co, confirm_timeout_s)
+        commanded = co.land_commanded  # here or by an earlier land_now
+        deadline = co.clock.time() + confirm_timeout_s
+        while co.clock.time() < deadline and any(
+                verdict(co.vehicles.get(s), timeout)[0] == "airborne" for s in commanded):
+            await co.clock.sleep(0.2)
+    except asyncio.CancelledError:
+        cancelled = True
+        task = asyncio.current_task()
+        if task is not None and task.cancelling():
+            task.uncancel()
+    entries = []
+    for s in engaged_vehicles(co):
+        v = co.vehicles.get(s)
+        kind, detail = verdict(v, timeout)
+        if kind in ("airborne", "unheard"):
+            entries.append(_where(co, s, v) | {"state": detail})
+        elif kind == "landing":
+            co.event(f"vehicle {s} ends the mission {detail}, confirmed by its autopilot", sysid=s)
+    if entries:
+        report_airborne(co, entries, why)
+    return entries, cancelled

@@ -1,0 +1,180 @@
+"""Ready to seek, not only ready to fly: the mission-wide preflight checks (issue 11).
+
+Run at the end of the preflight (:func:`mission.flight.connect.preflight`), after each vehicle's
+own checks; ``swarmseek dry-run`` prints each of them, ``fly`` arms nothing when one fails
+(:func:`not_ready_message`):
+
+``zenoh``
+    the zenoh session is open (``dry-run`` opens one as ``fly`` does; an endpoint that cannot be
+    reached is named here, in plain words).
+``readings``
+    every vehicle's sensor sent an accepted reading within ``[preflight] readings_timeout_s``
+    (per vehicle: the ``reading`` check of its readiness). With ``[preflight] require_readings
+    = false`` a missing reading is a warning only.
+``start_in_fence``
+    the seeking start, and the formation about it (its radius), inside the geofence.
+``path_in_fence``
+    every vehicle's path to its slot (climb over its home to its altitude layer, across at the
+    layer, down to the slot) inside the geofence.
+
+The checks are kept as a list of ``{"name", "ok", "detail"}`` on the coordinator
+(``co.mission_checks``) and go into the dry run's result (``mission_checks``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from formation.geodesy import geodetic_to_enu
+
+__all__ = ["check", "not_ready_message", "path_problems"]
+
+
+def _record(co, name: str, ok: bool, detail: str) -> None:
+    co.mission_checks.append({"name": name, "ok": bool(ok), "detail": detail})
+    co.event(f"preflight: {name} " + ("ok" if ok else "FAIL") + f": {detail}",
+             level="info" if ok else "warning", check=name, ok=bool(ok))
+
+
+async def check(co) -> None:
+    """Run the mission-wide checks (module docstring); record each on ``co.mission_checks``."""
+    co.mission_checks = []
+    await _readings_check(co)  # first: it gives the zenoh connections time to come up
+    _zenoh_check(co)
+    checks = co.mission_checks
+    checks.insert(0, checks.pop())  # reported first
+    _fence_checks(co)
+
+
+def _zenoh_check(co) -> None:
+    problem = getattr(co, "zenoh_problem", None)
+    if problem or co.session is None:
+        _record(co, "zenoh", False, problem or "no zenoh session: no reading can arrive")
+        return
+    z = co.plan.zenoh
+    try:
+        info = co.session.info
+        n_peers = len(list(info.peers_zid())) + len(list(info.routers_zid()))
+    except Exception as exc:  # noqa: BLE001 - a closed session, a test double: said, not fatal
+        _record(co, "zenoh", False, f"the zenoh session does not answer: {exc}")
+        return
+    if z.connect and n_peers == 0:
+        _record(co, "zenoh", False, f"session open, but nothing reached at {', '.join(z.connect)} (mode {z.mode}): "
+                "is the zenoh router or the sensors' listener running, and is the address right?")
+        return
+    _record(co, "zenoh", True, f"session open, {n_peers} zenoh peer(s)/router(s) connected"
+            + (f", connecting to {', '.join(z.connect)}" if z.connect else "")
+            + (f", listening on {', '.join(z.listen)}" if z.listen else ""))
+
+
+async def _readings_check(co) -> None:
+    """Wait for a reading from every connected vehicle; per-vehicle ``reading`` check."""
+    pre = co.plan.preflight
+    if not co.readings_subscribed:
+        _record(co, "readings", False, "not subscribed to the readings (no zenoh session)")
+        return
+
+    def _missing():
+        return [s for s in sorted(co.vehicles) if co.store.latest(s) is None]
+
+    deadline = co.clock.time() + pre.readings_timeout_s
+    while _missing() and co.clock.time() < deadline:
+        await co.clock.sleep(0.2)
+    missing = _missing()
+    counts = co.store.counts()
+    rejected = {k: n for k, n in counts["rejected"].items() if n}
+    if not missing:
+        _record(co, "readings", True, f"a reading from each of the {len(co.vehicles)} vehicles")
+        return
+    detail = (f"no sensor reading accepted from vehicles {missing} within {pre.readings_timeout_s:g} s "
+              "(sensor not running, or not connected to this zenoh network: a refused TLS handshake or "
+              "login is silent in zenoh; check the sensor's output)"
+              + (f"; readings rejected so far: {rejected}" if rejected else ""))
+    if not pre.require_readings:
+        _record(co, "readings", True, "WARNING (preflight.require_readings = false): " + detail)
+        return
+    _record(co, "readings", False, detail + "; set [preflight] require_readings = false to fly anyway")
+    for s in missing:
+        r = co.readiness.get(s)
+        if r is not None:
+            r.checks["reading"] = False
+            r.problems.append(f"no sensor reading within {pre.readings_timeout_s:g} s")
+            co.state.set_readiness(r, "not ready: " + "; ".join(r.problems))
+
+
+def _fence_checks(co) -> None:
+    from mission.safety.envelope import Geofence
+
+    plan = co.plan
+    if not plan.geofence.polygon_en_m:
+        _record(co, "start_in_fence", True, "no geofence polygon in the plan: nothing to check")
+        return
+    try:
+        fence = Geofence(np.asarray(plan.geofence.polygon_en_m, dtype=float), plan.geofence.min_alt_m,
+                         plan.geofence.max_alt_m)
+    except ValueError as exc:
+        _record(co, "start_in_fence", False, f"the geofence cannot be built: {exc}")
+        return
+    start = plan.seeking.start_point()
+    margin = float(fence.distance_inside(start))
+    radius = plan.formation.radius_m
+    where = f"start ({start[0]:.1f}, {start[1]:.1f}, {start[2]:.1f}) m"
+    if margin < 0:
+        _record(co, "start_in_fence", False, f"{where} is outside the geofence ({-margin:.1f} m beyond it)")
+    elif margin < radius:
+        _record(co, "start_in_fence", False, f"{where} is {margin:.1f} m inside the geofence: the formation "
+                f"(radius {radius} m) would cross it")
+    else:
+        _record(co, "start_in_fence", True, f"{where} and the formation (radius {radius} m) inside the geofence")
+    problems = path_problems(co, fence)
+    if problems is None:
+        _record(co, "path_in_fence", False, "not checked: no home position of every vehicle")
+    else:
+        _record(co, "path_in_fence", not problems, "; ".join(problems) if problems else
+                "every vehicle's path to its slot (climb, across at its layer, down) inside the geofence")
+
+
+def path_problems(co, fence) -> list[str] | None:
+    """Vehicles whose path to their slot at the start leaves ``fence`` (None: homes unknown)."""
+    from mission.flight.layers import shared_layers
+    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import assign_slots
+
+    plan = co.plan
+    sysids = sorted(co.vehicles)
+    homes = []
+    for s in sysids:
+        home = co.vehicles[s].state.home
+        if home is None:
+            return None
+        homes.append(geodetic_to_enu(home[0], home[1], home[2], plan.origin))
+    if len(sysids) < 4:
+        return [f"only {len(sysids)} vehicles connected: a formation needs 4"]
+    homes = np.asarray(homes, dtype=float)
+    offsets = formation_offsets(plan.formation.type, len(sysids), plan.formation.radius_m, plan.formation.seed)
+    slots_all = plan.seeking.start_point() + offsets
+    perm = assign_slots(np.column_stack([homes[:, :2], np.zeros(len(sysids))]),
+                        np.column_stack([slots_all[:, :2], np.zeros(len(sysids))]))
+    slots = slots_all[np.asarray(perm)]
+    base = float(np.max(homes[:, 2])) + plan.takeoff_alt_m
+    try:
+        layers = shared_layers(homes, slots, base, plan.geofence.max_alt_m - 0.5, plan.min_separation_m)
+    except ValueError as exc:
+        return [f"no altitude layers for the takeoff: {exc}"]
+    out = []
+    floor = plan.geofence.min_alt_m + 0.01
+    for i, s in enumerate(sysids):
+        h, g, z = homes[i], slots[i], float(layers[i])
+        legs = [(np.array([h[0], h[1], max(floor, h[2])]), np.array([h[0], h[1], z])),
+                (np.array([h[0], h[1], z]), np.array([g[0], g[1], z])),
+                (np.array([g[0], g[1], z]), g)]
+        if not all(bool(fence.segment_inside(a, b)) for a, b in legs):
+            out.append(f"vehicle {s}: its path from home ({h[0]:.1f}, {h[1]:.1f}) m at layer {z:.1f} m to its "
+                       f"slot ({g[0]:.1f}, {g[1]:.1f}, {g[2]:.1f}) m leaves the geofence")
+    return out
+
+
+def not_ready_message(co) -> str | None:
+    """Why ``fly`` must not arm (vehicles not ready, a mission check failed), or None."""
+    parts = [f"vehicle {r.sysid}: {', '.join(r.problems)}" for r in co.readiness.values() if not r.ready]
+    parts += [f"{c['name']}: {c['detail']}" for c in getattr(co, "mission_checks", []) if not c["ok"]]
+    return ("not ready to seek, nothing armed: " + "; ".join(parts)) if parts else None

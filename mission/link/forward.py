@@ -1,0 +1,199 @@
+"""MAVLink forwarding to ground-control clients (QGroundControl, MAVProxy), like MAVProxy's ``--out``.
+
+Every frame the mission's endpoints accept from a vehicle (the frames that go to its ``.tlog``:
+forged or unplanned ones never do) is copied, byte for byte, to each ``udp:HOST:PORT`` of the
+plan's ``[forward] out`` and of ``--out``. Frames a client sends back (to the forwarding
+socket's address, as QGroundControl and MAVProxy do) are **dropped and counted** unless the plan
+says ``[forward] allow_commands = true``; then a message addressed to a vehicle of the mission
+(``target_system``; 0: every vehicle) is sent to it by the ground station, re-packed with the
+ground station's own system id and signing, like any of its commands. Messages with no target
+(the client's HEARTBEAT, ...) are never relayed.
+
+Sockets are non-blocking; clients are read by an event-loop reader (never blocking the loop);
+a frame a socket cannot take is counted in ``send_errors``, never waited for.
+"""
+from __future__ import annotations
+
+import asyncio
+import socket
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from mission.core.clock import cancel_and_wait
+from mission.core.plan_sections import parse_forward_out
+
+__all__ = ["Forwarder", "COUNTERS", "forwarding", "out_address", "plan_with_outs"]
+
+COUNTERS = ("frames_out", "bytes_out", "send_errors", "client_frames", "relayed",
+            "dropped_read_only", "dropped_no_target", "dropped_bad")
+
+
+class Forwarder:
+    """Copies vehicle frames to UDP clients; relays their commands only when allowed.
+
+    Parameters
+    ----------
+    outs : iterable of str
+        ``udp:HOST:PORT`` addresses (ValueError for any other form).
+    allow_commands : bool
+        Relay the clients' messages addressed to the vehicles (default False: read-only).
+    vehicle_sysids : iterable of int
+        The mission's vehicles (a client's message for any other system id is dropped).
+    on_first_drop : callable, optional
+        ``on_first_drop(text)`` once, at the first client frame dropped as read-only (tell the operator).
+    """
+
+    def __init__(self, outs, allow_commands: bool = False, vehicle_sysids=(), on_first_drop=None):
+        self.outs = [str(o) for o in outs]
+        self.addresses = [parse_forward_out(o) for o in self.outs]
+        self.allow_commands = bool(allow_commands)
+        self.vehicle_sysids = frozenset(int(s) for s in vehicle_sysids)
+        self.counters = dict.fromkeys(COUNTERS, 0)
+        self.on_first_drop = on_first_drop
+        self._socks: list[socket.socket] = []
+        self._parsers: list = []
+        self._endpoints: list = []
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._follow_task: asyncio.Task | None = None
+        for _host, _port in self.addresses:
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.setblocking(False)
+            sock.bind(("0.0.0.0", 0))
+            self._socks.append(sock)
+            parser = mavlink.MAVLink(None)
+            parser.robust_parsing = True
+            self._parsers.append(parser)
+
+    # ------------------------------------------------------------------ vehicles -> clients
+    def copy(self, frame: bytes) -> None:
+        """Send one vehicle frame to every client (the endpoints' ``forward`` hook)."""
+        c = self.counters
+        for sock, address in zip(self._socks, self.addresses):
+            try:
+                sock.sendto(frame, address)
+            except OSError:  # full buffer, unreachable: the vehicle side never waits
+                c["send_errors"] += 1
+                continue
+            c["frames_out"] += 1
+            c["bytes_out"] += len(frame)
+
+    def attach(self, endpoint) -> None:
+        """Forward what ``endpoint`` (a :class:`~mission.link.endpoint.MavEndpoint`) accepts."""
+        if endpoint not in self._endpoints:
+            endpoint.forward = self.copy
+            self._endpoints.append(endpoint)
+
+    # ------------------------------------------------------------------ clients -> vehicles
+    def _on_client(self, i: int) -> None:
+        sock = self._socks[i]
+        while True:
+            try:
+                data, _peer = sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:  # e.g. ICMP port unreachable reported on the socket: the client is gone
+                self.counters["send_errors"] += 1
+                return
+            for msg in self._parsers[i].parse_buffer(data) or ():
+                self._from_client(msg)
+
+    def _from_client(self, msg) -> None:
+        c = self.counters
+        if msg.get_type() in ("BAD_DATA", "UNKNOWN_MSG"):
+            c["dropped_bad"] += 1
+            return
+        c["client_frames"] += 1
+        if not self.allow_commands:
+            c["dropped_read_only"] += 1
+            if c["dropped_read_only"] == 1 and self.on_first_drop is not None:
+                self.on_first_drop(f"a forward client sent {msg.get_type()} (sysid {msg.get_srcSystem()}): "
+                                   "dropped, the forward is read-only ([forward] allow_commands = false); "
+                                   "further drops are counted")
+            return
+        target = getattr(msg, "target_system", None)
+        if target is None or (target and target not in self.vehicle_sysids):
+            c["dropped_no_target"] += 1
+            return
+        targets = sorted(self.vehicle_sysids) if target == 0 else [target]
+        for sysid in targets:
+            endpoint = next((ep for ep in self._endpoints if sysid in ep.sysids_seen()), None)
+            if endpoint is not None and endpoint.send(sysid, msg):
+                c["relayed"] += 1
+            else:
+                c["dropped_no_target"] += 1
+
+    # ------------------------------------------------------------------ life cycle
+    def start(self, endpoints=None, period_s: float = 0.2) -> None:
+        """Read the clients on the running loop; with ``endpoints`` (a callable returning the
+        mission's endpoints), attach every endpoint it lists, now and as they appear."""
+        self._loop = asyncio.get_running_loop()
+        for i, sock in enumerate(self._socks):
+            self._loop.add_reader(sock.fileno(), self._on_client, i)
+        if endpoints is not None:
+            self._follow_task = self._loop.create_task(self._follow(endpoints, period_s))
+
+    async def _follow(self, endpoints, period_s: float) -> None:
+        while True:
+            for endpoint in list(endpoints()):
+                self.attach(endpoint)
+            await asyncio.sleep(period_s)
+
+    async def close(self) -> None:
+        """Stop forwarding: detach from the endpoints, close the sockets."""
+        await cancel_and_wait(self._follow_task)
+        self._follow_task = None
+        for endpoint in self._endpoints:
+            endpoint.forward = None
+        for sock in self._socks:
+            if self._loop is not None and not self._loop.is_closed():
+                self._loop.remove_reader(sock.fileno())
+            sock.close()
+        self._socks = []
+
+    def summary(self) -> str:
+        """One line for the operator: where, how much, and what was dropped."""
+        c = self.counters
+        mode = "commands relayed" if self.allow_commands else "read-only"
+        return (f"MAVLink forwarded to {', '.join(self.outs)} ({mode}): {c['frames_out']} frames; client "
+                f"frames {c['client_frames']}, relayed {c['relayed']}, dropped {c['dropped_read_only']} "
+                f"(read-only) + {c['dropped_no_target']} (no vehicle target) + {c['dropped_bad']} (malformed); "
+                f"send errors {c['send_errors']}")
+
+
+def out_address(text: str) -> str:
+    """argparse type of ``--out``: ``udp:HOST:PORT`` (ArgumentTypeError otherwise)."""
+    import argparse
+
+    try:
+        parse_forward_out(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def plan_with_outs(plan, outs):
+    """``plan`` with ``outs`` (``--out``) added to its ``[forward] out``."""
+    from dataclasses import replace
+
+    if not outs:
+        return plan
+    return replace(plan, forward=replace(plan.forward, out=tuple(plan.forward.out) + tuple(outs)))
+
+
+async def forwarding(co, work):
+    """Await ``work`` (the coordinator ``co``'s run) while the plan's ``[forward]`` runs; the
+    start and the counts at the end are events of the mission (its log, the display)."""
+    fwd = co.plan.forward
+    if not fwd.out:
+        return await work
+    forwarder = Forwarder(fwd.out, fwd.allow_commands, [v.sysid for v in co.plan.vehicles],
+                          on_first_drop=lambda text: co.event(text, level="warning"))
+    forwarder.start(lambda: co.endpoints.values())
+    co.event(f"forwarding MAVLink to {', '.join(fwd.out)} "
+             f"({'commands relayed' if fwd.allow_commands else 'read-only: client frames dropped'})",
+             forward_out=list(fwd.out), allow_commands=fwd.allow_commands)
+    try:
+        return await work
+    finally:
+        await forwarder.close()
+        co.event(forwarder.summary(), forward=dict(forwarder.counters))
