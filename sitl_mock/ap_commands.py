@@ -123,6 +123,19 @@ def _cmd_takeoff(ap, p, t_s, msg):
     return _ACCEPTED
 
 
+def _cmd_run_prearm_checks(ap, p, t_s, msg):
+    """ArduPilot: run the pre-arm checks for the current mode, report a failure as ``PreArm:``."""
+    if ap.personality.name != "ardupilot":
+        ap.counters["cmd_unsupported"] += 1
+        return _UNSUPPORTED
+    if ap.mc.armed:
+        return ap.personality.reject_result
+    problem = ap_flight.arming_problem(ap, t_s, ap.mode_name, check_mode=False)
+    if problem is not None:
+        ap.statustext(f"PreArm: {problem}", _M.MAV_SEVERITY_CRITICAL)
+    return _ACCEPTED
+
+
 def _cmd_land(ap, p, t_s, msg):
     return _change_to(ap, ap.personality.land_mode, t_s)
 
@@ -280,6 +293,7 @@ COMMANDS = {
     _M.MAV_CMD_DO_CHANGE_SPEED: _cmd_change_speed,
     _M.MAV_CMD_CONDITION_YAW: _cmd_condition_yaw,
     _M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: _cmd_reboot,
+    _M.MAV_CMD_RUN_PREARM_CHECKS: _cmd_run_prearm_checks,
 }
 
 _STREAM_GROUPS = {

@@ -22,6 +22,7 @@ import math
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from sitl_mock.ap_flight_state import FlightState, Setpoint, airborne, is_ardupilot
+from sitl_mock.ap_prearm import announce_prearm, ekf_problem
 from sitl_mock.ap_setpoints import apply_setpoint, handle_setpoint, setpoint_echo
 
 __all__ = ["FlightState", "Setpoint", "apply_params", "arming_problem", "arm", "disarm",
@@ -75,6 +76,10 @@ def arming_problem(ap, t_s: float, mode_name: str, check_mode: bool = True) -> s
         return None
     if not ap.position_ready(t_s):
         return "position estimate not ready"
+    if is_ardupilot(ap):  # the EKF may not use the GPS yet (for the modes that need a position)
+        problem = ekf_problem(ap, t_s, mode_name)
+        if problem is not None:
+            return problem
     if battery_level(ap) > 0:
         return "battery low"
     if check_mode and mode_name not in ap.personality.arming_modes:
@@ -91,7 +96,7 @@ def arm(ap, t_s: float, forced: bool = False) -> int:
         return mavlink2.MAV_RESULT_ACCEPTED
     problem = None if forced and not ap.mc.crashed else arming_problem(ap, t_s, ap.mode_name)
     if problem is not None:
-        prefix = "PreArm: " if is_ardupilot(ap) else "Arming denied: "
+        prefix = "Arm: " if is_ardupilot(ap) else "Arming denied: "  # as ArduCopter 4.7 says it
         ap.statustext(prefix + problem, mavlink2.MAV_SEVERITY_CRITICAL)
         return ap.personality.reject_result
     ap.mc.arm()
@@ -215,6 +220,8 @@ def update(ap, t_s: float) -> None:
     if fs.takeoff_alt_m is not None and b == "guided" and _reached_alt(ap, fs.takeoff_alt_m):
         fs.takeoff_alt_m = None
     _auto_disarm(ap, t_s, b)
+    if is_ardupilot(ap) and not mc.armed:
+        announce_prearm(ap, t_s, arming_problem(ap, t_s, ap.mode_name, check_mode=False))
 
 
 def _reached_alt(ap, alt_m: float) -> bool:

@@ -50,6 +50,7 @@ class FlightState:
     fence_breached: bool = False
     mission_target_ned: np.ndarray | None = None
     mission_alt_m: float = 0.0
+    prearm_report_s: float | None = None
 
 
 def is_ardupilot(ap) -> bool:

@@ -174,6 +174,9 @@ def ardupilot_param_specs(sysid: int, dyn) -> list[ParamSpec]:
         ParamSpec("BATT_CRT_MAH", 500.0, _REAL32, 0.0, 1_000_000.0),
         ParamSpec("BATT_FS_LOW_ACT", 2, _INT8, 0, 7),
         ParamSpec("BATT_FS_CRT_ACT", 1, _INT8, 0, 7),
+        # mock only (no such ArduPilot parameter): seconds after the GPS fix until the EKF uses
+        # it; arming in GUIDED is refused "Need Position Estimate" meanwhile (sitl_mock.ap_prearm)
+        ParamSpec("SIM_EKF_GPS_S", 0.0, _REAL32, 0.0, 600.0),
     ]
 
 

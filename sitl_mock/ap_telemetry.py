@@ -12,6 +12,8 @@ from typing import Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from sitl_mock.ap_prearm import build_ekf_status_report
+
 __all__ = ["DEFAULT_RATES_HZ", "MAX_RATE_HZ", "MAX_INTERVAL_US", "MessageScheduler", "TelemetrySource",
            "BUILDERS", "build_message", "SENSORS_PRESENT"]
 
@@ -288,6 +290,7 @@ BUILDERS = {
     mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: _gps_global_origin,
     mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT: _mission_current,
     mavlink2.MAVLINK_MSG_ID_VFR_HUD: _vfr_hud,
+    mavlink2.MAVLINK_MSG_ID_EKF_STATUS_REPORT: build_ekf_status_report,
 }
 
 

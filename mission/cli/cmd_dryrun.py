@@ -24,6 +24,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--verbose", action="store_true", help="show phases and events as they happen")
     parser.add_argument("--timeout", type=float, default=15.0,
                         help="seconds to wait for each vehicle's heartbeat (default 15)")
+    parser.add_argument("--ready-timeout", type=float, default=None, metavar="S",
+                        help="seconds to wait for the autopilots' own pre-arm readiness (default: the "
+                             "plan's [preflight] autopilot_ready_timeout_s)")
 
 
 async def dry_run(plan, *, clock=None, display=None, zenoh_session=None):
@@ -64,6 +67,7 @@ def format_readiness(result) -> list[str]:
         why = "" if r.get("ready") else "  <- " + "; ".join(r.get("problems", []))
         lines.append(f"vehicle {r['sysid']:>3} {r.get('id', ''):<10} {r.get('connection', ''):<28} "
                      f"{state} {checks}{why}")
+        lines.extend(f"    warning: {w}" for w in r.get("warnings", []))
     lines.append(f"{result.outcome}: {result.message}")
     return lines
 
@@ -84,6 +88,12 @@ def main(args) -> int:
         print(f"swarmseek dry-run: --timeout must be > 0, got {args.timeout}", file=sys.stderr)
         return 2
     plan = dataclasses.replace(plan, heartbeat_timeout_s=args.timeout)
+    if args.ready_timeout is not None:
+        if not args.ready_timeout >= 0:
+            print(f"swarmseek dry-run: --ready-timeout must be >= 0, got {args.ready_timeout}", file=sys.stderr)
+            return 2
+        plan = dataclasses.replace(plan, preflight=dataclasses.replace(
+            plan.preflight, autopilot_ready_timeout_s=args.ready_timeout))
     display = Display(quiet=args.json, tty=False, min_interval_s=float("inf")) if args.verbose else None
     result = asyncio.run(dry_run(plan, display=display))
     if args.json:

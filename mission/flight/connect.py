@@ -80,6 +80,7 @@ async def _open(co, uri: str, vehicles: list, registry, problems: list[str]) -> 
 
 async def _attach(co, vp, problems: list[str]) -> None:
     """Attach vehicle ``vp`` to its endpoint (heartbeat, autopilot version, telemetry rates)."""
+    from mission.vehicle.prearm import extra_rates_hz
     from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, VehicleLink
 
     ep = co.endpoints.get(vp.connection)
@@ -100,7 +101,7 @@ async def _attach(co, vp, problems: list[str]) -> None:
     except Exception as exc:  # noqa: BLE001 - optional information
         co.event(f"vehicle {vp.sysid}: no AUTOPILOT_VERSION ({exc})", level="warning")
     try:  # only the telemetry the mission needs (CPU at N = 100+); refusals are not fatal
-        refused = await v.set_message_rates(DEFAULT_RATES_HZ, strict=False)
+        refused = await v.set_message_rates(DEFAULT_RATES_HZ | extra_rates_hz(v.flavour), strict=False)
     except Exception as exc:  # noqa: BLE001 - the autopilot's default rates still work
         refused = {"*": str(exc)}
     if refused:
@@ -134,7 +135,9 @@ def _duplicate_uids(co) -> str | None:
 
 # ---------------------------------------------------------------------------------- preflight
 async def preflight(co, timeout_s: float = 30.0) -> None:
-    """Check every connected vehicle: heartbeat, position estimate, home, battery, armable, fence."""
+    """Check every connected vehicle: heartbeat, position estimate, home, battery, armable, fence,
+    its ground-station-loss failsafe (:mod:`mission.flight.failsafe_params`) and the autopilot's own
+    pre-arm state (:mod:`mission.flight.readiness_autopilot`, waited for)."""
     co.set_phase("preflight")
     plan = co.plan
     envelope = None
@@ -144,11 +147,16 @@ async def preflight(co, timeout_s: float = 30.0) -> None:
         raise MissionError(f"preflight: the safety envelope cannot be built: {exc}") from None
 
     await asyncio.gather(*(_check_vehicle(co, s, v, envelope, timeout_s) for s, v in co.vehicles.items()))
+    from mission.flight.failsafe_params import check_failsafe_params
+    from mission.flight.readiness_autopilot import wait_autopilots_ready
+
+    await check_failsafe_params(co)
+    await wait_autopilots_ready(co, plan.preflight.autopilot_ready_timeout_s)
     await _sensor_check(co)
     for sysid in sorted(co.readiness):
         r = co.readiness[sysid]
         co.event(f"vehicle {sysid} ({r.id}): " + ("ready" if r.ready else "NOT READY: " + "; ".join(r.problems)),
-                 level="info" if r.ready else "warning", sysid=sysid, checks=r.checks)
+                 level="info" if r.ready else "warning", sysid=sysid, checks=r.checks, warnings=r.warnings)
     co.use_envelope(envelope)
 
 

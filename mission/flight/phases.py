@@ -16,6 +16,7 @@ import numpy as np
 
 from formation.geodesy import geodetic_to_enu
 from mission.flight.motion import retried, setpoint_stream
+from mission.flight.readiness_autopilot import arm_and_takeoff
 from mission.flight.return_clear import fly_clear, fly_return
 from mission.flight.state import MissionError
 from mission.flight.takeoff_loss import laggards, lose_failed
@@ -93,14 +94,13 @@ async def takeoff(co) -> None:
         rel_alt = co.layer_alt_m[sysid] - home[2]
         held = {}
 
-        def _takeoff(v=v, held=held):
+        def _note_start(v=v, held=held):
             # PX4's takeoff holds where the vehicle is at this instant (no await in between): the
             # ramp must start there, not at the home, or its first setpoint jumps by the GPS drift
             held["xy"] = v.position_enu_m()
-            return v.takeoff(rel_alt)
 
-        try:
-            await retried(co, _takeoff, f"takeoff of vehicle {sysid}")
+        try:  # arming refusals retried with the autopilot's words, ArduPilot's mode re-checked
+            await arm_and_takeoff(co, sysid, v, rel_alt, before_takeoff=_note_start)
         except MissionError as exc:
             lose_failed(co, sysid, str(exc))
             continue

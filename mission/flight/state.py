@@ -31,6 +31,8 @@ class VehicleReadiness:
     checks: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)
     flavour: str | None = None
+    #: findings that do not make the vehicle unready (e.g. a failsafe that would only hover)
+    warnings: list = field(default_factory=list)
 
     @property
     def ready(self) -> bool:

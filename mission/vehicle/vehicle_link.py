@@ -27,6 +27,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from formation.geodesy import enu_to_geodetic
 from mission.link.endpoint import LinkError, MavEndpoint
 from mission.vehicle.frames import MissionToLocal
+from mission.vehicle.prearm import PrearmStatus
+from mission.vehicle.prearm_params import ParamCache
 from mission.vehicle.state import CommandError, VehicleState, VehicleTelemetry, command_name
 from mission.vehicle.vehicle_commands import VehicleCommands
 
@@ -49,6 +51,17 @@ _HOLD_RATE_HZ = 10.0
 _SP_LOCAL = _M.MAVLink_set_position_target_local_ned_message
 
 
+def _chained(first, second):
+    """A message handler calling ``first`` (if any) then ``second``."""
+    if first is None:
+        return second
+
+    def both(msg):
+        first(msg)
+        second(msg)
+    return both
+
+
 class VehicleLink(VehicleCommands, VehicleTelemetry):
     """A vehicle (one system id) on an endpoint. Create with :meth:`create`.
 
@@ -66,6 +79,10 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
         ``"local_ned"`` (SET_POSITION_TARGET_LOCAL_NED) or ``"global_int"``.
     statustexts : collections.deque
         The last STATUSTEXT messages as ``(clock_s, severity, text)``.
+    prearm : mission.vehicle.prearm.PrearmStatus
+        The autopilot's own pre-arm state (SYS_STATUS bits, EKF / estimator flags, refusal texts).
+    params : mission.vehicle.prearm_params.ParamCache
+        Parameter values heard (PARAM_VALUE), read with :func:`mission.vehicle.prearm_params.read_params`.
     errors : list of LinkError
         Link problems reported by the endpoint (e.g. duplicate system id).
     rejected : dict of str to int
@@ -126,6 +143,11 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
             _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._on_version,
             _M.MAVLINK_MSG_ID_STATUSTEXT: self._on_statustext,
         }
+        self.prearm = PrearmStatus(self.flavour)
+        self.params = ParamCache(self.flavour)
+        extra = {**self.prearm.handlers(clock), _M.MAVLINK_MSG_ID_PARAM_VALUE: self.params.on_param_value}
+        for msg_id, fn in extra.items():
+            self._handlers[msg_id] = _chained(self._handlers.get(msg_id), fn)
         self._on_heartbeat(heartbeat)
 
     @classmethod

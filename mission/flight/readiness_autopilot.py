@@ -1,0 +1,162 @@
+"""The autopilots' own readiness: waited for in preflight, and arming retried while it is refused.
+
+* :func:`wait_autopilots_ready` (preflight, also ``dry-run``): waits until every connected
+  vehicle's autopilot says it is ready (:class:`mission.vehicle.prearm.PrearmStatus`: SYS_STATUS
+  health and pre-arm bits, EKF / estimator position flags), at most
+  ``[preflight] autopilot_ready_timeout_s``, printing progress every few seconds; records the
+  ``autopilot`` check of each vehicle's readiness with the autopilot's own words.
+* :func:`arm_and_takeoff` (takeoff): arms and takes off one vehicle. An arming refusal (e.g.
+  ArduCopter's ``Arm: Need Position Estimate``) is shown to the operator and retried until the
+  same timeout; ArduPilot's mode is set, confirmed by a heartbeat, and checked again right after
+  arming (the RC input can force STABILIZE a few seconds after boot), and the takeoff command
+  follows the arming at once (ArduCopter disarms when no takeoff follows within about 10 s).
+"""
+from __future__ import annotations
+
+import asyncio
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from mission.flight.state import MissionError
+
+__all__ = ["autopilot_problems", "wait_autopilots_ready", "arm_and_takeoff"]
+
+_M = mavlink
+_PROGRESS_EVERY_S = 5.0
+_PROBE_EVERY_S = 10.0
+_POLL_S = 0.25
+_MODE_CONFIRM_S = 3.0
+#: failures that are not arming refusals (no ACK, link errors) tolerated per takeoff
+_MAX_OTHER_FAILURES = 3
+
+
+def autopilot_problems(v, now_s: float) -> list[str]:
+    """Why vehicle ``v``'s autopilot is not ready to arm (empty: ready); [] for links without a
+    pre-arm status (test doubles)."""
+    status = getattr(v, "prearm", None)
+    return [] if status is None else status.problems(now_s)
+
+
+async def _probe(v) -> None:
+    """Ask an ArduPilot autopilot to run its pre-arm checks now (it reports failures as
+    ``PreArm:`` STATUSTEXTs); any answer is fine, nothing is armed."""
+    try:
+        await v.command_long(_M.MAV_CMD_RUN_PREARM_CHECKS, timeout_s=1.0, retries=0,
+                             accept=tuple(_M.enums["MAV_RESULT"]))
+    except Exception:  # noqa: BLE001 - a probe only: its failure changes nothing, the wait goes on
+        return
+
+
+def _summary(waiting: dict[int, list[str]]) -> str:
+    return "; ".join(f"vehicle {s}: {p[0]}" for s, p in sorted(waiting.items()))
+
+
+async def wait_autopilots_ready(co, timeout_s: float) -> None:
+    """Wait (at most ``timeout_s`` mission-clock seconds) until every connected vehicle's
+    autopilot is ready; then set the ``autopilot`` check of each vehicle's readiness."""
+    clock = co.clock
+    start = clock.time()
+    # a vehicle that already failed another check is not waited for (its autopilot is still judged)
+    failed = {s for s in co.vehicles if (r := co.readiness.get(s)) is not None and not r.ready}
+    vehicles = {s: v for s, v in co.vehicles.items() if s not in failed}
+    last_progress = start
+    last_probe: dict[int, float] = {}
+    probes: set = set()
+    while True:
+        now = clock.time()
+        waiting = {s: p for s, v in vehicles.items() if (p := autopilot_problems(v, now))}
+        if not waiting or now - start >= timeout_s:
+            break
+        for s in waiting:
+            v = vehicles[s]
+            if v.flavour == "ardupilot" and now - last_probe.get(s, -1e18) >= _PROBE_EVERY_S:
+                last_probe[s] = now
+                task = asyncio.ensure_future(_probe(v))
+                probes.add(task)
+                task.add_done_callback(probes.discard)
+        if now - last_progress >= _PROGRESS_EVERY_S:
+            last_progress = now
+            co.event(f"preflight: waiting for the autopilots' own readiness ({now - start:.0f} of "
+                     f"{timeout_s:.0f} s): {_summary(waiting)}", waiting=sorted(waiting))
+        await clock.sleep(_POLL_S)
+    for task in list(probes):
+        task.cancel()
+    waited_s = clock.time() - start
+    if not waiting and vehicles:
+        co.event(f"preflight: every autopilot is ready (waited {waited_s:.1f} s)", waited_s=waited_s)
+    now = clock.time()
+    waiting.update({s: p for s in failed if (p := autopilot_problems(co.vehicles[s], now))})
+    for s in co.vehicles:
+        r = co.readiness.get(s)
+        if r is None:
+            continue
+        r.checks["autopilot"] = s not in waiting
+        if s in waiting:
+            waited = f"after {timeout_s:.0f} s" if s not in failed else "(not waited for)"
+            r.problems.append(f"autopilot not ready {waited}: " + "; ".join(waiting[s]))
+        co.state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
+
+
+async def _confirm_mode(co, v, mode: str) -> None:
+    """Set ``mode`` and wait for a heartbeat that reports it (CommandError if none does)."""
+    await v.set_mode(mode)
+    if v.state.mode != mode:
+        v.request_heartbeat(min_interval_s=0.0)
+        await v.wait_for(lambda st: st.mode == mode, _MODE_CONFIRM_S, f"mode {mode} in its heartbeat")
+
+
+async def _ardupilot_takeoff(co, v, rel_alt_m: float, before_takeoff) -> None:
+    """GUIDED (confirmed), arm, GUIDED again if the RC changed it, takeoff at once."""
+    await _confirm_mode(co, v, "GUIDED")
+    await v.arm()
+    if v.state.mode != "GUIDED":
+        co.event(f"vehicle {v.sysid}: mode {v.state.mode} after arming; setting GUIDED again",
+                 level="warning", sysid=v.sysid)
+        await v.set_mode("GUIDED")
+    before_takeoff()
+    await v.command_long(_M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, float(rel_alt_m), timeout_s=2.0)
+
+
+async def arm_and_takeoff(co, sysid: int, v, rel_alt_m: float, before_takeoff=lambda: None) -> None:
+    """Arm vehicle ``v`` and command its takeoff to ``rel_alt_m`` above home.
+
+    ``before_takeoff()`` is called right before the takeoff command of each attempt (PX4: right
+    before ``v.takeoff``, which starts holding where the vehicle is), with no await in between.
+
+    Arming refusals are retried (every second) until ``[preflight] autopilot_ready_timeout_s``
+    after the first attempt, each new reason shown (and logged) with the autopilot's own words;
+    other failures (no ACK, link errors) are retried :data:`_MAX_OTHER_FAILURES` times.
+
+    Raises
+    ------
+    MissionError
+        Still refused at the timeout, or too many other failures.
+    """
+    timeout_s = co.plan.preflight.autopilot_ready_timeout_s
+    deadline = co.clock.time() + timeout_s
+    other = 0
+    shown: str | None = None
+    while True:
+        try:
+            if v.flavour == "ardupilot":
+                await _ardupilot_takeoff(co, v, rel_alt_m, before_takeoff)
+            else:
+                before_takeoff()
+                await v.takeoff(rel_alt_m)
+            return
+        except Exception as exc:  # noqa: BLE001 - CommandError, LinkError: retried or reported
+            refused = getattr(exc, "command", None) == _M.MAV_CMD_COMPONENT_ARM_DISARM \
+                and getattr(exc, "result", None) is not None
+            other += not refused
+            now = co.clock.time()
+            if other >= _MAX_OTHER_FAILURES or now >= deadline:
+                why = f"(arming refused for {timeout_s:.0f} s)" if refused else f"after {other} rounds of retries"
+                raise MissionError(f"takeoff of vehicle {sysid} failed {why}: {exc}") from None
+            says = getattr(getattr(v, "prearm", None), "autopilot_says", lambda _t: None)(now)
+            reason = says or str(exc)
+            if reason != shown:
+                shown = reason
+                co.event(f"vehicle {sysid}: {'arming refused' if refused else 'takeoff failed'}: {reason}; "
+                         f"retrying for up to {deadline - now:.0f} s", level="warning", sysid=sysid,
+                         autopilot_says=says)
+            await co.clock.sleep(1.0 if refused else 0.5)
