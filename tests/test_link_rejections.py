@@ -231,3 +231,44 @@ def test_swarmseek_run_json_has_the_rejection_fields(tmp_path, capsys):
     assert summary["vehicle_rejections"] == {}
     truth = next(r for r in read_mission_log(tmp_path / "mission.jsonl") if r["type"] == "truth")
     assert truth["vehicle_rejections"] == {}
+
+
+def test_steady_refused_traffic_is_reported_at_doubling_intervals():
+    """A companion's forwarded frames refused every second: reported at 1, 2, 4 ... s, up to 60 s;
+    a new kind is reported at once and resets the interval."""
+    from mission.flight.watchdog import _RejectionReport
+
+    class _Co:
+        status_period_s = 1.0
+
+        def __init__(self):
+            self.t, self.counts, self.events = 0.0, {"unplanned_sysid": 0}, []
+            self.clock = self
+
+        def time(self):
+            return self.t
+
+        def link_rejections(self):
+            return dict(self.counts)
+
+        def unknown_sysids(self):
+            return [255]
+
+        def event(self, message, level="info", **fields):
+            self.events.append((self.t, message))
+
+    co = _Co()
+    report = _RejectionReport(co)
+    for step in range(400):  # 200 s, 2 checks a second, 1 refused frame a second
+        co.t = step * 0.5
+        if step % 2 == 0:
+            co.counts["unplanned_sysid"] += 1
+        if step == 300:
+            co.counts["bad_signature"] = 1
+        report.check()
+    times = [t for t, m in co.events if m.startswith("MAVLink frames rejected")]
+    gaps = np.diff(times)
+    assert list(gaps[:6]) == [1.0, 2.0, 4.0, 8.0, 16.0, 32.0]
+    assert max(gaps) <= 60.0
+    assert 150.0 in times and "bad_signature" in dict(co.events)[150.0]  # a new kind: at once
+    assert sum(1 for t, m in co.events if "not in the plan" in m) == 1

@@ -47,26 +47,36 @@ async def watchdog(co, period_s: float = 0.1) -> None:
 
 class _RejectionReport:
     """A warning event when the links refuse frames: at once for the first, then at most once a
-    status period (``co.status_period_s``), with the increase by kind and the totals."""
+    status period (``co.status_period_s``), with the increase by kind and the totals.
+
+    Steady refused traffic of kinds already reported (e.g. a companion computer's system id 255
+    that the autopilot forwards, every second) is reported at doubling intervals, up to
+    :attr:`MAX_PERIOD_S`; a new kind, or a new unknown system id, resets the interval. The totals
+    are always in the live display, the state publication and the summary.
+    """
+
+    MAX_PERIOD_S = 60.0
 
     def __init__(self, co) -> None:
         self.co = co
         self.reported: dict[str, int] = {}
         self.unknown: list[int] = []
         self.next_s = co.clock.time()
+        self.period_s = float(co.status_period_s)
 
     def check(self) -> None:
         """Report what grew since the last report, if a report is due."""
         co = self.co
-        if co.clock.time() < self.next_s:
-            return
         now, unknown = co.link_rejections(), co.unknown_sysids()
         grew = rejection_increase(self.reported, now)
         new_ids = [s for s in unknown if s not in self.unknown]
-        if not grew and not new_ids:
+        new_kinds = [k for k in grew if not self.reported.get(k)]
+        if not (new_kinds or new_ids) and (not grew or co.clock.time() < self.next_s):
             return
+        self.period_s = (float(co.status_period_s) if new_kinds or new_ids
+                         else min(self.period_s * 2.0, max(self.MAX_PERIOD_S, float(co.status_period_s))))
         self.reported, self.unknown = now, unknown
-        self.next_s = co.clock.time() + co.status_period_s
+        self.next_s = co.clock.time() + self.period_s
         if grew:
             co.event(f"MAVLink frames rejected: {format_rejections(grew)} (totals {format_rejections(now)})",
                      level="warning", link_rejections=now, increase=grew)
