@@ -78,7 +78,7 @@ def arming_problem(ap, t_s: float, mode_name: str, check_mode: bool = True) -> s
     if battery_level(ap) > 0:
         return "battery low"
     if check_mode and mode_name not in ap.personality.arming_modes:
-        return f"mode {mode_name} does not allow arming"
+        return f"{mode_name} mode not armable"  # ArduCopter 4.7: "Arm: RTL mode not armable"
     if check_mode and mode_name == "OFFBOARD" and \
             t_s - ap.flight.last_setpoint_s > ap.params["COM_OF_LOSS_T"]:
         return "offboard setpoints not streaming"
@@ -91,7 +91,7 @@ def arm(ap, t_s: float, forced: bool = False) -> int:
         return mavlink2.MAV_RESULT_ACCEPTED
     problem = None if forced and not ap.mc.crashed else arming_problem(ap, t_s, ap.mode_name)
     if problem is not None:
-        prefix = "PreArm: " if is_ardupilot(ap) else "Arming denied: "
+        prefix = "Arm: " if is_ardupilot(ap) else "Arming denied: "  # as ArduCopter 4.7 says it
         ap.statustext(prefix + problem, mavlink2.MAV_SEVERITY_CRITICAL)
         return ap.personality.reject_result
     ap.mc.arm()
