@@ -8,10 +8,9 @@ Needs ``SWARMSEEK_ARDUPILOT_SITL`` (skipped without it; a failure under CI=true)
 from __future__ import annotations
 
 import pytest
-from sitl_support import require_sitl
-
 from conformance.check import check_conformance
 from conformance.compare import EVENT_ORDER
+from sitl_support import require_sitl
 
 FLAVOUR = "ardupilot"
 

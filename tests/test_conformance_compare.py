@@ -6,10 +6,9 @@ from __future__ import annotations
 import copy
 
 import pytest
-
+from conformance.check import DOC_PATH
 from conformance.compare import compare
 from conformance.known import KNOWN_DIFFERENCES, documented_keys
-from conformance.check import DOC_PATH
 from conformance.targets import observe_mock
 
 

@@ -9,7 +9,7 @@ from conformance.compare import compare
 from conformance.known import KNOWN_DIFFERENCES, documented_keys
 from conformance.targets import observe_mock, observe_sitl
 
-__all__ = ["check_conformance", "DOC_PATH"]
+__all__ = ["DOC_PATH", "check_conformance"]
 
 DOC_PATH = Path(__file__).resolve().parents[2] / "docs" / "interfaces.md"
 _LOG = logging.getLogger("conformance")

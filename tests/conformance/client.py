@@ -14,7 +14,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 
-__all__ = ["Observation", "Client", "ConformanceError"]
+__all__ = ["Client", "ConformanceError", "Observation"]
 
 _LOG = logging.getLogger("conformance")
 _GCS_SYSID = 246
@@ -86,7 +86,9 @@ class Client:
 
     def __init__(self, uri: str, sysid: int, flavour: str, wall_scale: float = 1.0):
         os.environ.setdefault("MAVLINK20", "1")
-        from pymavlink import mavutil  # after MAVLINK20: MAVLink 2 (mission_type, extensions)
+        from pymavlink import (
+            mavutil,  # after MAVLINK20: MAVLink 2 (mission_type, extensions)
+        )
         self.mavutil = mavutil
         self.conn = mavutil.mavlink_connection(uri, source_system=_GCS_SYSID, source_component=_GCS_COMPID,
                                                dialect="ardupilotmega", autoreconnect=False)

@@ -17,7 +17,8 @@ accepted differences (docs/interfaces.md, section "Mock vs real SITL"). The tole
 * rates: every rate the coordinator asks for within a factor :data:`RATE_FACTOR` of the SITL's
   (``rate:<NAME>``).
 * STATUSTEXT: the refusal of arming in the return mode matches the SITL's pattern
-  (:data:`REFUSAL_PATTERNS`) (``text:arm_in_rtl``).
+  (:data:`REFUSAL_PATTERNS`) (``text:arm_in_rtl``); the texts about modes while the unknown
+  mode is asked for are identical (``text:mode_invalid``).
 * state changes: the same order (``events:order``) and durations within a factor
   :data:`DURATION_FACTOR` plus :data:`DURATION_SLACK_S` (``duration:<name>``).
 * the position target is reached in both (``target:reached``).
@@ -27,8 +28,17 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-__all__ = ["Difference", "compare", "WATCHED_MESSAGES", "COORDINATOR_MESSAGES", "RATE_FACTOR",
-           "DURATION_FACTOR", "DURATION_SLACK_S", "EVENT_ORDER", "REFUSAL_PATTERNS"]
+__all__ = [
+    "COORDINATOR_MESSAGES",
+    "DURATION_FACTOR",
+    "DURATION_SLACK_S",
+    "EVENT_ORDER",
+    "RATE_FACTOR",
+    "REFUSAL_PATTERNS",
+    "WATCHED_MESSAGES",
+    "Difference",
+    "compare",
+]
 
 #: Messages mission.vehicle.vehicle_link handles (AUTOPILOT_VERSION only comes on request).
 COORDINATOR_MESSAGES = ("HEARTBEAT", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "SYS_STATUS",
@@ -51,6 +61,7 @@ EVENT_ORDER = ("armed", "above_1m", "takeoff_alt", "target_reached", "rtl_under_
 _DURATIONS = {"arm_to_1m": ("armed", "above_1m"), "1m_to_takeoff_alt": ("above_1m", "takeoff_alt"),
               "land_to_disarmed": ("land_commanded", "disarmed_after_land")}
 #: The real autopilot's text when arming is refused in its return mode (what the mock must match).
+_MODE_TEXT = re.compile("mode", re.IGNORECASE)
 REFUSAL_PATTERNS = {"ardupilot": r"^Arm: RTL mode not armable$", "px4": r"^Arming denied: "}
 
 
@@ -135,11 +146,15 @@ def _texts(obs, step: str) -> list[str]:
 
 
 def _compare_texts(mock, sitl) -> list[Difference]:
+    diffs = []
     pattern = re.compile(REFUSAL_PATTERNS[sitl.flavour])
     a, b = _texts(mock, "arm_in_rtl"), _texts(sitl, "arm_in_rtl")
     if any(pattern.search(t) for t in a) != any(pattern.search(t) for t in b):
-        return [Difference("text:arm_in_rtl", a, b)]
-    return []
+        diffs.append(Difference("text:arm_in_rtl", a, b))
+    a, b = ([t for t in _texts(obs, "modes") if _MODE_TEXT.search(t)] for obs in (mock, sitl))
+    if a != b:
+        diffs.append(Difference("text:mode_invalid", a, b))
+    return diffs
 
 
 def _compare_events(mock: dict, sitl: dict) -> list[Difference]:

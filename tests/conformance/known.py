@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["KNOWN_DIFFERENCES", "documented_keys", "DOC_SECTION"]
+__all__ = ["DOC_SECTION", "KNOWN_DIFFERENCES", "documented_keys"]
 
 #: flavour -> {difference key: why it is acceptable}
 KNOWN_DIFFERENCES = {

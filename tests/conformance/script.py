@@ -27,7 +27,7 @@ import math
 
 from conformance.client import Client, ConformanceError, Observation
 
-__all__ = ["run_script", "FLAVOUR", "COORDINATOR_RATES_HZ", "UNSUPPORTED_COMMANDS"]
+__all__ = ["COORDINATOR_RATES_HZ", "FLAVOUR", "UNSUPPORTED_COMMANDS", "run_script"]
 
 #: What the coordinator asks for (mission.vehicle.vehicle_link.DEFAULT_RATES_HZ, copied on purpose).
 COORDINATOR_RATES_HZ = {"LOCAL_POSITION_NED": 5.0, "GLOBAL_POSITION_INT": 1.0, "SYS_STATUS": 1.0,
@@ -58,6 +58,7 @@ _LOG = logging.getLogger("conformance")
 _TAKEOFF_ALT_M = 5.0
 _TARGET_OFFSET_NE_M = (6.0, 4.0)
 _TARGET_REACHED_M = 1.5
+_TARGET_TIMEOUT_S = 40.0  # autopilot seconds
 
 
 def run_script(uri: str, sysid: int, flavour: str, *, param_names=(), wall_scale: float = 1.0) -> Observation:
@@ -245,12 +246,12 @@ def _position_target(c: Client) -> None:
             c.send_local_target(*target)
             c.pump(0.1)
         c.set_mode("mode_offboard", *FLAVOUR["px4"]["modes"]["offboard"])
-    best_m = start_m
-    for sent_wall in range(600):
+    best_m, start_s = start_m, c.boot_s
+    for sent_wall in range(int(600 * c.wall_scale)):  # at most 60 s (scaled) of wall time
         c.send_local_target(*target)
-        c.pump(0.1)
+        c.pump(0.1 / c.wall_scale)
         best_m = min(best_m, distance())
-        if best_m < _TARGET_REACHED_M:
+        if best_m < _TARGET_REACHED_M or c.boot_s - start_s > _TARGET_TIMEOUT_S:
             break
     c.obs.modes["during_target"] = c.custom_mode
     c.obs.details["target"] = {"start_m": round(start_m, 1), "closest_m": round(best_m, 2),

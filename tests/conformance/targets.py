@@ -12,7 +12,7 @@ import socket
 
 from conformance.script import run_script
 
-__all__ = ["observe_mock", "observe_sitl", "mock_param_names", "MOCK_SPEEDUP", "SITL_SPEEDUP"]
+__all__ = ["MOCK_SPEEDUP", "SITL_SPEEDUP", "mock_param_names", "observe_mock", "observe_sitl"]
 
 #: The mock runs this much faster than real time (its SimClock; telemetry carries its time).
 MOCK_SPEEDUP = 4.0
