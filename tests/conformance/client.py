@@ -197,6 +197,10 @@ class Client:
             self._next_heartbeat_wall_s = now + 1.0
             self.conn.mav.heartbeat_send(self.m.MAV_TYPE_GCS, self.m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
 
+    def settle(self, wall_s: float) -> None:
+        """Receive (and record) for ``wall_s`` wall seconds, not scaled: a pause, not a timeout."""
+        self.pump(wall_s / self.wall_scale)
+
     def wait(self, predicate, wall_s: float, what: str, *, kind: str | None = None):
         """Receive until ``predicate(msg)`` holds for a message (of type ``kind``), or raise."""
         def until(msg):
@@ -213,7 +217,7 @@ class Client:
 
     def window_rates(self, autopilot_s: float, wall_s: float) -> dict:
         """Message rates (per autopilot second) over a window of ``autopilot_s`` autopilot seconds."""
-        self.pump(0.3)
+        self.settle(0.3)
         self._window = Counter()
         start = self.boot_s
         self.wait_state(lambda: self.boot_s - start >= autopilot_s, wall_s, "the rate window")
@@ -247,12 +251,12 @@ class Client:
                   wall_s, f"custom_mode {custom_mode}", kind="HEARTBEAT")
         self.obs.modes[name] = custom_mode
 
-    def read_param(self, name: str | None, param_id: str, wall_s: float = 4.0):
+    def read_param(self, name: str | None, param_id: str, wall_s: float = 4.0, *, scaled: bool = True):
         """PARAM_REQUEST_READ by name; record ``(id, value, type)`` or None under ``name`` (if given)."""
         answer = None
         for _ in range(2):
             self.conn.mav.param_request_read_send(self.sysid, 1, param_id.encode(), -1)
-            msg = self.pump(wall_s / 2, lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == param_id)
+            msg = self.pump(wall_s / 2 / (1.0 if scaled else self.wall_scale), lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == param_id)
             if msg is not None:
                 answer = self._param_answer(msg)
                 break

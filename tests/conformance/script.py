@@ -120,7 +120,7 @@ def _parameters(c: Client, param_names) -> None:
     if answer is not None:  # compared as "the vehicle's own system id", not the number
         c.obs.params["sysid"] = (answer[0], "own" if answer[1] == c.sysid else answer[1], answer[2])
     c.read_param("gcs_failsafe", spec["failsafe_param"])
-    c.read_param("unknown", "NO_SUCH_PARAM", wall_s=2.0)
+    c.read_param("unknown", "NO_SUCH_PARAM", wall_s=2.0, scaled=False)  # an answer takes ms
     name, value, ptype = spec["return_alt"]
     c.set_param("set_return_alt", name, value, ptype)
     c.read_param("read_back_return_alt", name)
@@ -179,14 +179,14 @@ def _modes_and_refusals(c: Client) -> None:
     spec = FLAVOUR[c.obs.flavour]
     c.step = "modes"
     c.set_mode("mode_invalid", *spec["modes"]["invalid"])
-    c.pump(1.0)
+    c.settle(1.0)
     c.obs.modes["after_invalid"] = c.custom_mode
     c.set_mode("mode_rtl_disarmed", *spec["modes"]["rtl"])
     if c.obs.acks["mode_rtl_disarmed"] == c.m.MAV_RESULT_ACCEPTED:
         c.wait_mode("rtl_disarmed", spec["custom"]["rtl"], 10.0)
         c.step = "arm_in_rtl"
         c.command("arm_in_rtl", c.m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-        c.pump(1.0)
+        c.settle(1.0)
     c.step = "unsupported"
     for name, cmd in UNSUPPORTED_COMMANDS.items():
         c.command(name, cmd)
@@ -208,7 +208,7 @@ def _arm_and_takeoff(c: Client) -> None:
             break
         if len(attempts) > 60:
             raise ConformanceError(f"arming refused {len(attempts)} times: {c.obs.statustexts[-3:]}")
-        c.pump(2.0)
+        c.settle(2.0)
     c.obs.details["arm_refusals"] = len(attempts) - 1
     c.obs.details["arm_wait_s"] = round(c.boot_s - start_s, 1)
     c.wait_state(lambda: c.armed, 10.0, "the armed flag")
@@ -244,12 +244,12 @@ def _position_target(c: Client) -> None:
     if c.obs.flavour == "px4":  # OFFBOARD needs a stream before and while it is entered
         for _ in range(10):
             c.send_local_target(*target)
-            c.pump(0.1)
+            c.settle(0.1)
         c.set_mode("mode_offboard", *FLAVOUR["px4"]["modes"]["offboard"])
     best_m, start_s = start_m, c.boot_s
     for sent_wall in range(int(600 * c.wall_scale)):  # at most 60 s (scaled) of wall time
         c.send_local_target(*target)
-        c.pump(0.1 / c.wall_scale)
+        c.settle(0.1)
         best_m = min(best_m, distance())
         if best_m < _TARGET_REACHED_M or c.boot_s - start_s > _TARGET_TIMEOUT_S:
             break
@@ -280,5 +280,5 @@ def _rtl_then_land(c: Client) -> None:
     c.event("land_commanded")
     c.wait_state(lambda: not c.armed, 120.0, "landed and disarmed")
     c.event("disarmed_after_land")
-    c.pump(2.0)
+    c.settle(2.0)
     c.obs.details["landed_state_at_end"] = c.landed_state
