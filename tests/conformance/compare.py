@@ -19,8 +19,10 @@ accepted differences (docs/interfaces.md, section "Mock vs real SITL"). The tole
 * STATUSTEXT: the refusal of arming in the return mode matches the SITL's pattern
   (:data:`REFUSAL_PATTERNS`) (``text:arm_in_rtl``); the texts about modes while the unknown
   mode is asked for are identical (``text:mode_invalid``).
-* state changes: the same order (``events:order``) and durations within a factor
-  :data:`DURATION_FACTOR` plus :data:`DURATION_SLACK_S` (``duration:<name>``).
+* state changes: the same order (``events:order``), the same sequence of EXTENDED_SYS_STATE
+  landed states (on ground, taking off, in air, landing, on ground: ``events:landed_states``) and
+  durations within a factor :data:`DURATION_FACTOR` plus :data:`DURATION_SLACK_S`
+  (``duration:<name>``).
 * the position target is reached in both (``target:reached``).
 """
 from __future__ import annotations
@@ -59,6 +61,7 @@ DURATION_SLACK_S = 3.0
 EVENT_ORDER = ("armed", "above_1m", "takeoff_alt", "target_reached", "rtl_under_way", "land_commanded",
                "disarmed_after_land")
 _DURATIONS = {"arm_to_1m": ("armed", "above_1m"), "1m_to_takeoff_alt": ("above_1m", "takeoff_alt"),
+              "land_to_landed": ("land_commanded", "landed"),
               "land_to_disarmed": ("land_commanded", "disarmed_after_land")}
 #: The real autopilot's text when arming is refused in its return mode (what the mock must match).
 _MODE_TEXT = re.compile("mode", re.IGNORECASE)
@@ -165,7 +168,13 @@ def _compare_events(mock: dict, sitl: dict) -> list[Difference]:
     if order["mock"] != list(EVENT_ORDER) or order["sitl"] != list(EVENT_ORDER) or not all(sorted_ok.values()):
         diffs.append(Difference("events:order", order["mock"], order["sitl"]))
         return diffs
+    states = {name: [n for n in sorted(ev, key=ev.get) if n.startswith("landed_state_") or n == "landed"]
+              for name, ev in (("mock", mock), ("sitl", sitl))}
+    if states["mock"] != states["sitl"]:
+        diffs.append(Difference("events:landed_states", states["mock"], states["sitl"]))
     for name, (start, end) in _DURATIONS.items():
+        if not all(k in ev for k in (start, end) for ev in (mock, sitl)):
+            continue  # a missing state change is reported by events:landed_states
         a, b = mock[end] - mock[start], sitl[end] - sitl[start]
         lo, hi = min(a, b), max(a, b)
         if hi > DURATION_FACTOR * lo + DURATION_SLACK_S:
