@@ -9,7 +9,7 @@
 3. a mission round trip: MISSION_COUNT / MISSION_REQUEST(_INT) / MISSION_ITEM_INT / MISSION_ACK
    upload of three waypoints, then MISSION_REQUEST_LIST download and comparison;
 4. modes: a mode number the autopilot does not have; the return mode while disarmed and an arm
-   attempt in it (refused); unsupported commands;
+   attempt in it (refused); unsupported commands; MAV_CMD_NAV_TAKEOFF while disarmed;
 5. the position mode (ArduPilot GUIDED, PX4 AUTO.LOITER), arming (retried while pre-arm checks
    refuse, every refusal recorded), takeoff with MAV_CMD_NAV_TAKEOFF (ArduPilot in GUIDED, PX4
    AUTO.TAKEOFF);
@@ -158,12 +158,12 @@ def _mission_round_trip(c: Client) -> None:
         sent.add((msg.get_type(), msg.seq))
     c.obs.details["mission_upload"] = {"ack": ack, "requests": sorted(sent)}
     c.step = "mission_download"
-    c.conn.mav.mission_request_list_send(c.sysid, 1, 0)
-    count = c.wait(lambda m: True, 10.0, "MISSION_COUNT", kind="MISSION_COUNT").count
+    count = _ask(c, lambda: c.conn.mav.mission_request_list_send(c.sysid, 1, 0), lambda m: True,
+                 "MISSION_COUNT").count
     got = []
     for seq in range(count):
-        c.conn.mav.mission_request_int_send(c.sysid, 1, seq, 0)
-        item = c.wait(lambda m, s=seq: m.seq == s, 10.0, f"MISSION_ITEM_INT {seq}", kind="MISSION_ITEM_INT")
+        item = _ask(c, lambda s=seq: c.conn.mav.mission_request_int_send(c.sysid, 1, s, 0),
+                    lambda m, s=seq: m.seq == s, "MISSION_ITEM_INT")
         got.append((item.seq, item.frame, item.command, item.x, item.y, round(item.z, 2)))
     c.conn.mav.mission_ack_send(c.sysid, 1, c.m.MAV_MISSION_ACCEPTED, 0)
     # item 0 may be the home (ArduPilot): compare the waypoints after it, positions within 2e-7 deg
@@ -173,6 +173,16 @@ def _mission_round_trip(c: Client) -> None:
     c.obs.details["mission_download"] = {"count": count, "waypoints_match": match,
                                          "frames": [g[1] for g in got[1:]],
                                          "item0_command": got[0][2] if got else None}
+
+
+def _ask(c: Client, send, predicate, kind: str, tries: int = 5, wall_s: float = 2.0):
+    """Send a mission-protocol request and wait for its answer, resent on timeout as the protocol does."""
+    for _ in range(tries):
+        send()
+        msg = c.pump(wall_s, lambda m: m.get_type() == kind and predicate(m))
+        if msg is not None:
+            return msg
+    raise ConformanceError(f"step {c.step}: no {kind} after {tries} requests")
 
 
 def _modes_and_refusals(c: Client) -> None:
@@ -193,6 +203,14 @@ def _modes_and_refusals(c: Client) -> None:
     c.step = "modes"
     c.set_mode("mode_hold", *spec["modes"]["hold"])
     c.wait_mode("hold", spec["custom"]["hold"], 10.0)
+    c.step = "takeoff_disarmed"  # refused by ArduCopter (not armed); PX4 switches to AUTO.TAKEOFF
+    c.command("takeoff_disarmed", c.m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan,
+              _takeoff_param7(c))
+    c.settle(1.0)
+    c.obs.modes["after_takeoff_disarmed"] = c.custom_mode
+    c.step = "modes"
+    c.set_mode("mode_hold_again", *spec["modes"]["hold"])
+    c.wait_mode("hold_again", spec["custom"]["hold"], 10.0)
 
 
 def _arm_and_takeoff(c: Client) -> None:
@@ -214,16 +232,22 @@ def _arm_and_takeoff(c: Client) -> None:
     c.wait_state(lambda: c.armed, 10.0, "the armed flag")
     c.step = "takeoff"
     if c.obs.flavour == "ardupilot":
-        c.command("takeoff", c.m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, _TAKEOFF_ALT_M)
+        c.command("takeoff", c.m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, _takeoff_param7(c))
     else:
-        home_amsl_m = c.last["HOME_POSITION"].altitude / 1000.0
         c.command("takeoff", c.m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan,
-                  home_amsl_m + _TAKEOFF_ALT_M)
+                  _takeoff_param7(c))
         c.wait_mode("takeoff", FLAVOUR["px4"]["custom"]["takeoff"], 10.0)
     c.wait_state(lambda: _rel_alt_m(c) > 1.0, 60.0, "1 m above home")
     c.event("above_1m")
     c.wait_state(lambda: _rel_alt_m(c) > _TAKEOFF_ALT_M - 1.0, 60.0, "the takeoff altitude")
     c.event("takeoff_alt")
+
+
+def _takeoff_param7(c: Client) -> float:
+    """NAV_TAKEOFF param 7: ArduCopter metres above home, PX4 metres AMSL."""
+    if c.obs.flavour == "ardupilot":
+        return _TAKEOFF_ALT_M
+    return c.last["HOME_POSITION"].altitude / 1000.0 + _TAKEOFF_ALT_M
 
 
 def _rel_alt_m(c: Client) -> float:
