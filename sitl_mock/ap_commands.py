@@ -69,7 +69,10 @@ def _set_mode(ap, base_mode, p2, p3, t_s: float) -> int:
         return _DENIED
     name = ap.personality.mode_from_command(base_mode, p2, p3)
     if not name:
-        ap.statustext("Unsupported mode", _M.MAV_SEVERITY_WARNING)
+        if ap.personality.name == "ardupilot":
+            ap.statustext(f"No such mode {int(p2)}", _M.MAV_SEVERITY_WARNING)  # as ArduCopter 4.7
+        elif name is not None:  # PX4 says nothing about an unknown main mode (it ACKs it ACCEPTED)
+            ap.statustext("Unsupported mode", _M.MAV_SEVERITY_WARNING)
         return ap.personality.unknown_mode_result if name is None else ap.personality.reject_result
     problem = ap_flight.mode_change_problem(ap, name, t_s)
     if problem is not None:

@@ -7,7 +7,7 @@ parameters ask for:
 * offboard loss (PX4): no setpoint for ``COM_OF_LOSS_T`` s in OFFBOARD -> ``COM_OBL_RC_ACT``
   (3 Return, 4 Land, otherwise Hold: the mock has no RC for the position-mode fallbacks);
 * GCS loss: no GCS heartbeat for ``FS_GCS_TIMEOUT`` (ArduPilot, heartbeats from
-  ``SYSID_MYGCS``) or ``COM_DL_LOSS_T`` (PX4, any MAV_TYPE_GCS) -> ``FS_GCS_ENABLE`` /
+  ``MAV_GCS_SYSID``) or ``COM_DL_LOSS_T`` (PX4, any MAV_TYPE_GCS) -> ``FS_GCS_ENABLE`` /
   ``NAV_DLL_ACT``; only after a GCS has been heard once;
 * low battery: ArduPilot ``BATT_LOW_MAH`` / ``BATT_CRT_MAH`` -> ``BATT_FS_LOW_ACT`` /
   ``BATT_FS_CRT_ACT``; PX4 ``BAT_CRIT_THR`` / ``BAT_EMERGEN_THR`` -> ``COM_LOW_BAT_ACT``;

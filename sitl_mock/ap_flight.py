@@ -83,7 +83,7 @@ def arming_problem(ap, t_s: float, mode_name: str, check_mode: bool = True) -> s
     if battery_level(ap) > 0:
         return "battery low"
     if check_mode and mode_name not in ap.personality.arming_modes:
-        return f"mode {mode_name} does not allow arming"
+        return f"{mode_name} mode not armable"  # ArduCopter 4.7: "Arm: RTL mode not armable"
     if check_mode and mode_name == "OFFBOARD" and \
             t_s - ap.flight.last_setpoint_s > ap.params["COM_OF_LOSS_T"]:
         return "offboard setpoints not streaming"

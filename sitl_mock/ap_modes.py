@@ -123,7 +123,7 @@ class ArduPilotPersonality(Personality):
         mavlink2.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET | \
         mavlink2.MAV_PROTOCOL_CAPABILITY_COMPASS_CALIBRATION
     param_bytewise = False
-    sysid_param = "SYSID_THISMAV"
+    sysid_param = "MAV_SYSID"
     boot_mode, land_mode, rtl_mode, hold_mode = "STABILIZE", "LAND", "RTL", "LOITER"
     takeoff_mode, mission_mode = "GUIDED", "AUTO"
 

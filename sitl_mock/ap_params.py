@@ -152,8 +152,8 @@ def ardupilot_param_specs(sysid: int, dyn) -> list[ParamSpec]:
     20 % / 10 % of capacity (ArduPilot ships them disabled) so that the low-battery fault acts.
     """
     return [
-        ParamSpec("SYSID_THISMAV", sysid, _INT16, 1, 255),
-        ParamSpec("SYSID_MYGCS", 255, _INT16, 1, 255),
+        ParamSpec("MAV_SYSID", sysid, _INT16, 1, 255),  # SYSID_THISMAV before 4.7
+        ParamSpec("MAV_GCS_SYSID", 255, _INT16, 1, 255),  # SYSID_MYGCS before 4.7
         ParamSpec("FS_GCS_ENABLE", 0, _INT8, 0, 7),
         ParamSpec("FS_GCS_TIMEOUT", 5.0, _REAL32, 2.0, 120.0),
         ParamSpec("GUID_TIMEOUT", 3.0, _REAL32, 0.1, 5.0),
@@ -165,8 +165,8 @@ def ardupilot_param_specs(sysid: int, dyn) -> list[ParamSpec]:
         ParamSpec("WPNAV_SPEED_UP", round(dyn.max_speed_up_m_s * 100.0), _REAL32, 10.0, 1000.0),
         ParamSpec("WPNAV_SPEED_DN", round(dyn.max_speed_down_m_s * 100.0), _REAL32, 10.0, 500.0),
         ParamSpec("WPNAV_RADIUS", 200.0, _REAL32, 5.0, 1000.0),
-        ParamSpec("LAND_SPEED", round(dyn.land_speed_m_s * 100.0), _REAL32, 30.0, 200.0),
-        ParamSpec("RTL_ALT", 1500.0, _REAL32, 200.0, 300000.0),
+        ParamSpec("LAND_SPEED", round(dyn.land_speed_m_s * 100.0), _INT16, 30.0, 200.0),
+        ParamSpec("RTL_ALT", 1500, _INT32, 200, 300000),
         ParamSpec("DISARM_DELAY", 10, _INT8, 0, 127),
         ParamSpec("ARMING_CHECK", 1, _INT32, 0, 2 ** 20),
         ParamSpec("BATT_CAPACITY", 5000, _INT32, 0, 1_000_000),

@@ -56,9 +56,9 @@ def dispatch(ap, msg, t_s: float) -> None:
 
 
 def _on_heartbeat(ap, msg, t_s: float) -> None:
-    """Note the time of the GCS's heartbeat (ArduPilot: SYSID_MYGCS; PX4: a GCS type)."""
+    """Note the time of the GCS's heartbeat (ArduPilot: MAV_GCS_SYSID; PX4: a GCS type)."""
     if ap.personality.name == "ardupilot":
-        is_gcs = msg.get_srcSystem() == ap.params["SYSID_MYGCS"]
+        is_gcs = msg.get_srcSystem() == ap.params["MAV_GCS_SYSID"]
     else:
         is_gcs = msg.type == _MAV_TYPE_GCS
     if is_gcs:

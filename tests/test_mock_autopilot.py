@@ -381,7 +381,7 @@ def test_global_setpoint_relative_alt_is_followed():
 
 def test_sysid_param_takes_effect_after_reboot():
     h = Harness("ardupilot")
-    h.send(h.gcs.param_set_encode(1, 1, b"SYSID_THISMAV", 7.0, mav.MAV_PARAM_TYPE_INT16))
+    h.send(h.gcs.param_set_encode(1, 1, b"MAV_SYSID", 7.0, mav.MAV_PARAM_TYPE_INT16))
     h.run(1.0)
     assert {m.get_srcSystem() for m in h.received if m.get_type() == "HEARTBEAT"} == {1}
     assert h.command(mav.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1) == mav.MAV_RESULT_ACCEPTED

@@ -1,0 +1,1 @@
+"""Mock conformance: one scripted pymavlink session run against the mock and real SITL, compared."""
