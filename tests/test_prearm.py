@@ -73,6 +73,22 @@ def test_status_px4_estimator_flags_only_when_sent():
     assert EKF_NEEDED & 0x33F == EKF_NEEDED and EKF_NEEDED & 0xA7 != EKF_NEEDED  # measured on the SITL
 
 
+def test_px4_sih_state_as_measured_is_ready_with_a_warning_for_its_missing_rc():
+    """PX4 v1.16 SIH: ESTIMATOR_STATUS flags 0x3ff (CONST_POS_MODE among them) and an RC receiver
+    present, enabled and unhealthy; it arms and flies offboard, so neither blocks."""
+    rc = mav.MAV_SYS_STATUS_SENSOR_RC_RECEIVER
+    st = PrearmStatus("px4")
+    st.on_sys_status(_sys_status(_PREARM | _GPS | rc, _PREARM | _GPS))
+    st.on_estimator_status(mav.MAVLink_estimator_status_message(0, 0x3FF, 0, 0, 0, 0, 0, 0, 0, 0))
+    assert st.problems(0.0) == []
+    assert len(st.notes()) == 1 and "RC_RECEIVER unhealthy" in st.notes()[0]
+    st.on_estimator_status(mav.MAVLink_estimator_status_message(0, 0x3FF & ~mav.ESTIMATOR_POS_HORIZ_ABS,
+                                                                0, 0, 0, 0, 0, 0, 0, 0))
+    assert len(st.problems(0.0)) == 1 and "estimator has no usable position" in st.problems(0.0)[0]
+    st.on_sys_status(_sys_status(_PREARM | _GPS | rc, _PREARM | rc))  # GPS unhealthy: blocks
+    assert any("unhealthy sensors: GPS" in p for p in st.problems(0.0))
+
+
 # --------------------------------------------------------------------------- the mock
 def _texts(h) -> list[str]:
     return [m.text for m in h.received if m.get_type() == "STATUSTEXT"]

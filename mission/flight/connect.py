@@ -190,6 +190,11 @@ async def _check_vehicle(co, sysid: int, v, envelope, timeout_s: float) -> None:
         co.event(f"vehicle {sysid}: battery level not reported; not checked", level="warning")
     elif not r.checks["battery"]:
         r.problems.append(f"battery {batt:.0f} % below {co.plan.min_battery_pct:.0f} %")
+    # an autopilot still booting reports UNINIT/BOOT/CALIBRATING for a while (PX4 SIH just after
+    # start): waited for like the position, within the same deadline
+    while (not v.state.armed and v.state.system_status not in (None, _MAV_STATE_STANDBY)
+           and co.clock.time() < deadline):
+        await co.clock.sleep(0.2)
     st = v.state.system_status
     r.checks["armable"] = (not v.state.armed) and st in (None, _MAV_STATE_STANDBY)
     if v.state.armed:

@@ -18,6 +18,7 @@ from formation.geodesy import geodetic_to_enu
 from mission.flight.motion import retried, setpoint_stream
 from mission.flight.readiness_autopilot import arm_and_takeoff
 from mission.flight.return_clear import fly_clear, fly_return
+from mission.flight.control import OperatorStop
 from mission.flight.state import MissionError
 from mission.flight.takeoff_loss import laggards, lose_failed
 from mission.flight.layers import shared_layers
@@ -101,6 +102,8 @@ async def takeoff(co) -> None:
 
         try:  # arming refusals retried with the autopilot's words, ArduPilot's mode re-checked
             await arm_and_takeoff(co, sysid, v, rel_alt, before_takeoff=_note_start)
+        except OperatorStop:
+            raise  # the operator ended the mission: nobody failed
         except MissionError as exc:
             lose_failed(co, sysid, str(exc))
             continue
@@ -127,6 +130,8 @@ async def _hold_after_climb(co, sysid, start, layer_alt):
 
     try:
         await co.wait_until(_near, 60.0 + 2.0 * layer_alt, f"vehicle {sysid} to climb to {layer_alt:.1f} m")
+    except OperatorStop:
+        raise
     except MissionError as exc:
         lose_failed(co, sysid, str(exc))
     if sysid in co.lost:
@@ -155,6 +160,8 @@ async def assemble(co) -> None:
     goals = {s: centre + co.slot_offsets[s] for s in sysids}
     try:
         await fly_clear(co, sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
+    except OperatorStop:
+        raise  # the operator ended the mission: nobody failed
     except MissionError as exc:
         late = laggards(co, sysids, plan.seeking.arrival_tol_m)
         if not late:

@@ -91,6 +91,9 @@ async def wait_autopilots_ready(co, timeout_s: float) -> None:
         if r is None:
             continue
         r.checks["autopilot"] = s not in waiting
+        status = getattr(co.vehicles[s], "prearm", None)
+        if status is not None:
+            r.warnings.extend(n for n in status.notes() if n not in r.warnings)
         if s in waiting:
             waited = f"after {timeout_s:.0f} s" if s not in failed else "(not waited for)"
             r.problems.append(f"autopilot not ready {waited}: " + "; ".join(waiting[s]))

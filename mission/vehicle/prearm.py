@@ -33,7 +33,13 @@ _EKF_BAD = _M.EKF_CONST_POS_MODE | _M.EKF_UNINITIALIZED | _M.EKF_GPS_GLITCHING
 #: ESTIMATOR_STATUS flags PX4 needs for position control
 ESTIMATOR_NEEDED = (_M.ESTIMATOR_ATTITUDE | _M.ESTIMATOR_VELOCITY_HORIZ | _M.ESTIMATOR_POS_HORIZ_ABS
                     | _M.ESTIMATOR_POS_VERT_ABS)
-_ESTIMATOR_BAD = _M.ESTIMATOR_CONST_POS_MODE | _M.ESTIMATOR_GPS_GLITCH | _M.ESTIMATOR_ACCEL_ERROR
+#: (not CONST_POS_MODE: PX4 v1.16 SIH reports it together with POS_HORIZ_ABS, flags 0x3ff, and
+#: arms and flies offboard; POS_HORIZ_ABS, required above, is what position control needs)
+_ESTIMATOR_BAD = _M.ESTIMATOR_GPS_GLITCH | _M.ESTIMATOR_ACCEL_ERROR
+#: sensors whose bad health the autopilot itself may fly with: no RC receiver (an offboard / guided
+#: mission without a pilot; PX4 SITL reports it present, enabled and unhealthy). Reported, not
+#: blocking: the autopilot's own PREARM_CHECK bit and its refusals decide.
+_NOT_BLOCKING = _M.MAV_SYS_STATUS_SENSOR_RC_RECEIVER
 #: STATUSTEXT prefixes of pre-arm / arming refusals (ArduPilot "PreArm:", "Arm:"; PX4 "Preflight Fail:",
 #: "Arming denied")
 PREARM_TEXT_PREFIXES = ("PreArm:", "Arm:", "Preflight Fail", "Preflight fail", "Arming denied")
@@ -128,6 +134,14 @@ class PrearmStatus:
             return None
         return self.last_refusal[1]
 
+    def notes(self) -> list[str]:
+        """What the autopilot reports unhealthy but flies with (:data:`_NOT_BLOCKING`): warnings."""
+        if self.health is None:
+            return []
+        bad = (self.enabled or 0) & ~self.health & _NOT_BLOCKING
+        return [f"{', '.join(sensor_names(bad))} unhealthy (no RC link? the autopilot's own failsafes "
+                "decide; see docs/field-checklist.md)"] if bad else []
+
     def problems(self, now_s: float | None = None) -> list[str]:
         """Why the autopilot is not ready to arm, as far as its telemetry says (empty: ready).
 
@@ -140,7 +154,7 @@ class PrearmStatus:
             bad = (self.enabled or 0) & ~self.health
             if bad & PREARM_BIT:
                 out.append("the autopilot's pre-arm checks fail (SYS_STATUS PREARM_CHECK unhealthy)")
-            other = bad & ~PREARM_BIT
+            other = bad & ~PREARM_BIT & ~_NOT_BLOCKING
             if other:
                 out.append("unhealthy sensors: " + ", ".join(sensor_names(other)))
         if self.flavour == "ardupilot" and self.ekf_flags is None:
