@@ -67,12 +67,15 @@ def _free_tcp_port() -> int:
 
 
 def _final_states(gcs_port: int, sysids, timeout_s: float = 20.0) -> dict:
-    """sysid -> (armed, relative_alt_m), heard from PX4 on its GCS link."""
+    """sysid -> (armed, relative_alt_m), heard from PX4 on its GCS link: the latest of each, read
+    until every vehicle reports disarmed (PX4 disarms COM_DISARM_LAND seconds after it detects
+    the landing) or ``timeout_s``."""
     conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", source_system=253)
     states: dict = {s: {} for s in sysids}
     deadline = time.monotonic() + timeout_s
     try:
-        while time.monotonic() < deadline and not all(len(v) == 2 for v in states.values()):
+        while time.monotonic() < deadline and not all(len(v) == 2 and v["armed"] is False
+                                                      for v in states.values()):
             msg = conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT"], blocking=True, timeout=0.5)
             if msg is None or msg.get_srcSystem() not in states or msg.get_srcComponent() != 1:
                 continue
