@@ -27,7 +27,6 @@ KNOWN_DIFFERENCES = {
         "message:MISSION_REQUEST": "same cause as mission:request_kind",
         "message:MISSION_CURRENT": "PX4 streams it by default; the mock streams only what the coordinator "
                                    "and the tests use (it can be enabled with SET_MESSAGE_INTERVAL)",
-        "message:VFR_HUD": "as message:MISSION_CURRENT",
         "message:SYSTEM_TIME": "PX4 streams it by default; the mock has no clock-sync message (nothing in "
                                "swarmseek reads it)",
     },
