@@ -14,6 +14,7 @@ reaches it as soon as the limit allows.
 from __future__ import annotations
 
 import asyncio
+import math
 import collections
 
 import numpy as np
@@ -99,8 +100,9 @@ class SetpointStreamer:
         track = self._tracks.get(sysid)
         if track is None:
             raise KeyError(f"vehicle {sysid} is not in this streamer (known: {sorted(self._tracks)})")
-        e, n, u = (float(v) for v in position_enu_m)
-        if not (np.isfinite(e) and np.isfinite(n) and np.isfinite(u)):
+        e, n, u = position_enu_m
+        e, n, u = float(e), float(n), float(u)
+        if not (math.isfinite(e) and math.isfinite(n) and math.isfinite(u)):
             raise ValueError(f"vehicle {sysid}: setpoint must be finite, got {(e, n, u)}")
         track.target = (e, n, u)
         track.yaw = None if yaw_rad is None else float(yaw_rad)
