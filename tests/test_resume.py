@@ -159,3 +159,26 @@ def test_plan_round_trips_through_the_log():
 
     plan = embedded_plan(5, {"udp_base_port": 15000, "zenoh_port": 7447}, formation="cvt", eps=49.9)
     assert plan_from_json(_plan_json(plan)) == plan
+
+
+def test_resumed_plan_keeps_the_operator_sections():
+    """[control], [forward] and [preflight] come back from the log: a resumed mission is commanded,
+    forwarded and read-only exactly as the mission it takes over."""
+    import json
+
+    from mission.flight.coordinator import _plan_json
+    from mission.telemetry.mission_log import to_jsonable
+
+    plan = embedded_plan(5, {"udp_base_port": 15000, "zenoh_port": 7447}, formation="cvt", eps=49.9)
+    plan = dataclasses.replace(
+        plan, control=dataclasses.replace(plan.control, remote=False),
+        forward=dataclasses.replace(plan.forward, out=("udp:127.0.0.1:14550", "udp:10.0.0.2:14551"),
+                                    allow_commands=True),
+        preflight=dataclasses.replace(plan.preflight, require_readings=False, readings_timeout_s=30.0))
+    record = json.loads(json.dumps(to_jsonable(_plan_json(plan))))  # as written in mission.jsonl
+    back = plan_from_json(record)
+    assert (back.control, back.forward, back.preflight) == (plan.control, plan.forward, plan.preflight)
+    for key in ("control", "forward", "preflight"):  # a log written before these sections existed
+        record.pop(key)
+    old = plan_from_json(record)
+    assert old.control.remote is True and old.forward.out == () and not old.forward.allow_commands

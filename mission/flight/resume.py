@@ -39,6 +39,7 @@ from mission.core.plan import (
     VehiclePlan,
     ZenohPlan,
 )
+from mission.core.plan_types import ControlPlan, ForwardPlan, PreflightPlan
 from mission.core.signing_config import SigningConfig
 from mission.core.signing_keys import SigningError
 from mission.flight.connect import build_envelope, connect
@@ -129,11 +130,20 @@ def plan_from_json(d: dict) -> Plan:
                     formation=FormationPlan(**d["formation"]), seeking=SeekingPlan(**sk),
                     geofence=GeofencePlan(**gf), zenoh=ZenohPlan(**zn),
                     faults=FaultsPlan(**d.get("faults", {})), security=_signing_from_json(d.get("security")),
-                    **top)
+                    preflight=PreflightPlan(**d.get("preflight", {})), control=ControlPlan(**d.get("control", {})),
+                    forward=_forward_from_json(d.get("forward")), **top)
     except ResumeError:
         raise
     except (KeyError, TypeError, ValueError) as exc:
         raise ResumeError(f"the log's plan record cannot be read back: {type(exc).__name__}: {exc}") from None
+
+
+def _forward_from_json(fwd: dict | None) -> ForwardPlan:
+    """The ``[forward]`` of a ``plan`` record (older logs have none: the default, read-only and off)."""
+    if not fwd:
+        return ForwardPlan()
+    return ForwardPlan(out=tuple(str(o) for o in fwd.get("out") or ()),
+                       allow_commands=bool(fwd.get("allow_commands", False)))
 
 
 def _signing_from_json(sec: dict | None) -> SigningConfig | None:
