@@ -56,6 +56,8 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     from mission.core.clock import WallClock
     from mission.flight.coordinator import Coordinator
     from mission.flight.operator_stop import run_until_stopped
+    from mission.link.forward import forwarding
+    from mission.telemetry.watch_keys import with_keys
     from mission.telemetry.mission_log import MissionLog
     from mission.flight.resume import load_resume_state
 
@@ -68,7 +70,7 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
         session = zenoh.open(state.plan.zenoh.to_config())
         co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=log_path.parent / "tlogs" if tlog else None)
-        return await run_until_stopped(co, state)
+        return await forwarding(co, with_keys(co, display, run_until_stopped(co, state)))  # as fly
     finally:
         log.close()
         if session is not None:
