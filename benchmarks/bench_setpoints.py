@@ -47,7 +47,6 @@ import collections
 import json
 import os
 import queue as queue_mod
-import random
 import socket
 import subprocess
 import sys
@@ -57,6 +56,8 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from mission.sim.embedded import free_port_block  # noqa: E402 - after the path set-up
 
 STACKS = ("bare-pymavlink", "swarmseek", "swarmseek-polled", "swarmseek-shared", "swarmseek-shared-polled",
           "mavsdk", "mavsdk-shared")
@@ -69,19 +70,6 @@ def _rss_mb() -> float:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024.0
     return float("nan")
-
-
-def _free_port_base(span: int) -> int:
-    for _ in range(500):
-        base = random.randint(20000, 32000 - span)  # below the ephemeral range (32768+)
-        try:
-            for port in range(base, base + span):
-                with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-                    s.bind(("127.0.0.1", port))
-        except OSError:
-            continue
-        return base
-    raise RuntimeError("no free UDP port range")
 
 
 def _stdin_commands(loop, queue) -> None:
@@ -342,7 +330,7 @@ def _expect(proc, prefix: str, timeout_s: float) -> str:
 def run_case(stack: str, n: int, rate_hz: float, duration_s: float, warmup_s: float,
              extra_load: str | None = None) -> dict:
     """One benchmark case in fresh processes; returns the combined measurements."""
-    port_base = _free_port_base(n + 1)
+    port_base = free_port_block(n + 1)  # UDP, below the ephemeral range
     shared = "-shared" in stack or stack == "bare-pymavlink"
     vehicles = _spawn(["--role", "vehicles", "--n", str(n), "--port-base", str(port_base)]
                       + (["--shared"] if shared else []))

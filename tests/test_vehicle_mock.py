@@ -4,8 +4,6 @@ style), with homes several metres apart."""
 from __future__ import annotations
 
 import asyncio
-import random
-import socket
 
 import numpy as np
 import pytest
@@ -13,27 +11,13 @@ import pytest
 import sitl_mock.clock as clock_mod
 import sitl_mock.fleet as fleet_mod
 from mission.link.endpoint import MavEndpoint, SysidRegistry
+from mission.sim.embedded import free_port_block
 from mission.link.poller import UdpPoller
 from mission.vehicle.streamer import SetpointStreamer
 from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, VehicleLink
 
 SPEEDUP = 4.0
 HOMES_ENU = [(0.0, 0.0, 0.0), (12.0, -7.0, 0.0)]
-
-
-def _free_port_base(span: int) -> int:
-    """A random port base whose UDP and TCP ports base..base+span are all free right now."""
-    for _ in range(200):
-        base = random.randint(20000, 40000 - span)
-        try:
-            for port in range(base, base + span):
-                for kind in (socket.SOCK_DGRAM, socket.SOCK_STREAM):
-                    with socket.socket(socket.AF_INET, kind) as s:
-                        s.bind(("127.0.0.1", port))
-        except OSError:
-            continue
-        return base
-    raise RuntimeError("no free port range")
 
 
 async def _fly(fleet, clock, transport: str, tmp_path) -> dict:
@@ -91,7 +75,7 @@ async def _fly(fleet, clock, transport: str, tmp_path) -> dict:
 @pytest.mark.slow
 @pytest.mark.parametrize("personality, transport", [("ardupilot", "tcp"), ("px4", "udp-polled")])
 def test_takeoff_setpoints_land_against_mock_fleet(personality, transport, tmp_path):
-    base = _free_port_base(60)
+    base = free_port_block(60, kinds=("udp", "tcp"))
     clock = clock_mod.SimClock(SPEEDUP)
     fleet = fleet_mod.MockFleet(n=2, personality=personality, clock=clock, home_offsets_enu=HOMES_ENU,
                                 udp_base_port=base, udp_bind_base_port=base + 10, tcp_base_port=base + 20,

@@ -45,8 +45,12 @@ FENCE_MIN_ALT_M = 2.0
 
 
 def free_port_block(count: int, step: int = 1, kinds: tuple[str, ...] = ("udp",), lo: int = 20000,
-                    hi: int = 60000, tries: int = 200) -> int:
+                    hi: int = 32000, tries: int = 200) -> int:
     """A base port such that ``base + step * i`` (i < count) are free for every kind in ``kinds``.
+
+    The default range ends below Linux's ephemeral range (32768-60999): a port found free there
+    can be taken a moment later by any socket bound to port 0 (a fake vehicle's, a zenoh
+    client's), which made benchmarks fail with "Address already in use" on a busy host.
 
     Raises
     ------

@@ -7,10 +7,8 @@ does the same with one real SITL instance started through :mod:`mission.sim.sitl
 """
 from __future__ import annotations
 
-import random
-import socket
-
 from conformance.script import run_script
+from mission.sim.embedded import free_port_block
 
 __all__ = ["MOCK_SPEEDUP", "SITL_SPEEDUP", "mock_param_names", "observe_mock", "observe_sitl"]
 
@@ -20,21 +18,6 @@ MOCK_SPEEDUP = 4.0
 #: PX4 SIH keeps lock-step real time (PX4_SIM_SPEED_FACTOR also scales PX4's own timeouts,
 #: but on a loaded 2-core host it lags behind and the estimator then complains), so 1.
 SITL_SPEEDUP = {"ardupilot": 4.0, "px4": 1.0}
-
-
-def _free_port_base(span: int) -> int:
-    """A random port base whose UDP and TCP ports base..base+span are all free right now."""
-    for _ in range(200):
-        base = random.randint(20000, 40000 - span)
-        try:
-            for port in range(base, base + span):
-                for kind in (socket.SOCK_DGRAM, socket.SOCK_STREAM):
-                    with socket.socket(socket.AF_INET, kind) as s:
-                        s.bind(("127.0.0.1", port))
-        except OSError:
-            continue
-        return base
-    raise RuntimeError("no free port range")
 
 
 def mock_param_names(flavour: str) -> list[str]:
@@ -49,7 +32,7 @@ def observe_mock(flavour: str, *, speedup: float = MOCK_SPEEDUP):
     """Run the script against one mock vehicle of personality ``flavour``."""
     import sitl_mock.clock as clock_mod
     import sitl_mock.fleet as fleet_mod
-    base = _free_port_base(30)
+    base = free_port_block(30, kinds=("udp", "tcp"))
     fleet = fleet_mod.MockFleet(n=1, personality=flavour, clock=clock_mod.SimClock(speedup),
                                 udp_base_port=base, udp_bind_base_port=base + 10, tcp_base_port=base + 20,
                                 zenoh=False)
