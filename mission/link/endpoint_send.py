@@ -58,18 +58,25 @@ class EndpointSending:
         if self._transport.send(peer, frame):  # not _send_frame: the key must not go to the tlog
             self.counters["setup_signing_sent"] += 1
 
+    def _route(self, sysid: int):
+        """The address ``sysid`` is pinned to, else the transport's default; None (counted
+        ``unroutable``) when there is neither."""
+        peer = self._peer_of.get(sysid)
+        if peer is None:
+            peer = self._transport.default_peer()
+            if peer is None:
+                self.counters["unroutable"] += 1
+        return peer
+
     def send(self, sysid: int, msg) -> bool:
         """Encode ``msg`` and send it to the address ``sysid`` is pinned to (its first autopilot HEARTBEAT's).
 
         Non-blocking. Returns False (and counts ``unroutable``) when ``sysid`` was never heard
         and the transport has no default destination.
         """
-        peer = self._peer_of.get(sysid)
+        peer = self._route(sysid)
         if peer is None:
-            peer = self._transport.default_peer()
-            if peer is None:
-                self.counters["unroutable"] += 1
-                return False
+            return False
         enc = self._encoder(peer)
         frame = msg.pack(enc)
         enc.seq = (enc.seq + 1) & 0xFF
@@ -84,12 +91,9 @@ class EndpointSending:
         order, e.g. ``MAVLink_set_position_target_local_ned_message.unpacker.pack(...)``.
         Same routing, counting and logging as :meth:`send`.
         """
-        peer = self._peer_of.get(sysid)
+        peer = self._route(sysid)
         if peer is None:
-            peer = self._transport.default_peer()
-            if peer is None:
-                self.counters["unroutable"] += 1
-                return False
+            return False
         enc = self._encoder(peer)
         seq = enc.seq
         enc.seq = (seq + 1) & 0xFF
