@@ -199,3 +199,11 @@ def test_an_unknown_option_before_the_command_is_a_top_level_error(capsys):
         cli_main(["--bogus", "run"])
     err = capsys.readouterr().err
     assert exc.value.code == 2 and "swarmseek: error: unrecognized arguments: --bogus" in err
+
+
+@pytest.mark.parametrize("argv", [["ctl", "f", "pause", "--timeout-s", "0"], ["ctl", "f", "pause", "--timeout-s", "nan"],
+                                  ["watch", "f", "--wait-s", "-1"]])
+def test_ctl_and_watch_refuse_a_non_positive_time(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        build_args(argv)
+    assert exc.value.code == 2 and "expected a positive number" in capsys.readouterr().err

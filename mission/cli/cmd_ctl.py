@@ -13,6 +13,7 @@ import json
 import sys
 
 from mission.cli.cmd_watch import add_zenoh_options, open_zenoh
+from sitl_mock.cli_args import positive_float
 
 __all__ = ["configure", "main"]
 
@@ -25,7 +26,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("command", choices=COMMANDS, help="what the mission should do")
     parser.add_argument("--sender", default=None, metavar="ID",
                         help="who sends it, for the mission log (default USER@HOST)")
-    parser.add_argument("--timeout-s", type=float, default=5.0, metavar="S",
+    parser.add_argument("--timeout-s", type=positive_float, default=5.0, metavar="S",
                         help="wait this long for the coordinator's answer (default 5)")
     parser.add_argument("--json", action="store_true", help="print the acknowledgement as JSON")
     add_zenoh_options(parser)
@@ -40,9 +41,6 @@ def main(args) -> int:
     problem = check_sender(sender)
     if problem:
         print(f"swarmseek ctl: --sender: {problem}", file=sys.stderr)
-        return 2
-    if not args.timeout_s > 0:
-        print(f"swarmseek ctl: --timeout-s must be > 0, got {args.timeout_s}", file=sys.stderr)
         return 2
     session, problem, status = open_zenoh(args, "swarmseek ctl", args.timeout_s)
     if session is None:

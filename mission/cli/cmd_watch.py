@@ -12,6 +12,8 @@ import json
 import sys
 import time
 
+from sitl_mock.cli_args import positive_float
+
 __all__ = ["configure", "main", "add_zenoh_options", "open_zenoh"]
 
 
@@ -67,7 +69,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("fleet", help="the mission's fleet name (the plan's fleet; 'swarmseek' for run)")
     add_zenoh_options(parser)
     parser.add_argument("--json", action="store_true", help="print every snapshot as one JSON line")
-    parser.add_argument("--wait-s", type=float, default=None, metavar="S",
+    parser.add_argument("--wait-s", type=positive_float, default=None, metavar="S",
                         help="give up (status 3) when no state arrives within S wall seconds (default: wait)")
 
 
@@ -99,9 +101,6 @@ def main(args) -> int:
     from mission.telemetry.display import Display
     from mission.telemetry.watch import StateWatcher
 
-    if args.wait_s is not None and not args.wait_s > 0:
-        print(f"swarmseek watch: --wait-s must be > 0, got {args.wait_s}", file=sys.stderr)
-        return 2
     session, problem, status = open_zenoh(args, "swarmseek watch", args.wait_s)
     if session is None:
         print(problem, file=sys.stderr)
