@@ -303,6 +303,10 @@ class MockAutopilot:
             mc.gps_glitch_ned_m = np.array((glitch, 0.0, 0.0))
         if faults.battery_low and mc.battery_remaining > 0.06:
             mc.battery_remaining = 0.06
+        if faults.max_climb_m_s is not None:
+            mc.params.max_speed_up_m_s = faults.max_climb_m_s
+        if faults.max_speed_h_m_s is not None:
+            mc.params.max_speed_h_m_s = faults.max_speed_h_m_s
         if self.home is None and self.position_ready(t_s):
             self.home = self._origin
             self.home_ned = np.zeros(3)

@@ -37,6 +37,10 @@ class FaultSet:
         Offset (metres, north) added to the reported position (not the true one).
     battery_low : bool
         Battery drops to a critical level (autopilot failsafe as its personality does).
+    max_climb_m_s, max_speed_h_m_s : float or None
+        Override the vehicle's climb / horizontal speed limit (a weak motor, a position
+        controller that does not follow): 0 means it cannot climb / cannot move horizontally.
+        It can still descend and land.
     """
 
     sensor_noise_std: float | None = None
@@ -52,6 +56,8 @@ class FaultSet:
     crashed: bool = False
     gps_glitch_m: float = 0.0
     battery_low: bool = False
+    max_climb_m_s: float | None = None
+    max_speed_h_m_s: float | None = None
 
     def set(self, name: str, value) -> None:
         """Set one fault by name, converting and checking the value."""
@@ -75,7 +81,7 @@ class FaultSet:
             raise ValueError(f"fault {name}: must be finite, got {value!r}")
         if name.startswith("loss_") and not 0.0 <= v <= 1.0:
             raise ValueError(f"fault {name}: a probability in [0, 1], got {v}")
-        if (name.startswith("latency_") or name == "sensor_noise_std") and v < 0:
+        if (name.startswith(("latency_", "max_")) or name == "sensor_noise_std") and v < 0:
             raise ValueError(f"fault {name}: must be >= 0, got {v}")
         if name == "sensor_spike_prob" and not 0.0 <= v <= 1.0:
             raise ValueError(f"fault {name}: a probability in [0, 1], got {v}")

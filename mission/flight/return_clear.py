@@ -74,7 +74,7 @@ async def _fly(co, sysids, plan: ClearPlan, tol_m: float, names: tuple[str, str,
             if s not in co.lost:
                 co.status[s] = f"{co.phase}: {name}"
         await move_and_wait(co, {s: row[i] for i, s in enumerate(sysids)}, tol_m,
-                            what=f"the vehicles to reach their {name}")
+                            what=f"the vehicles to reach their '{name}' waypoints of the {co.phase}")
     return frozenset(co.lost) == lost_before
 
 
