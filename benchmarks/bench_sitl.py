@@ -26,6 +26,7 @@ SEEKING = {"eps": 50.0, "gamma_m": 1.0, "convergence_window": 10, "convergence_t
 
 
 def main() -> int:
+    from estimator.seekers import SEEKERS
     from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
     from mission.sim.sitl_mission import fly_sitl_mission
 
@@ -33,22 +34,30 @@ def main() -> int:
     parser.add_argument("--flavour", choices=("px4", "ardupilot"), default="px4")
     parser.add_argument("--n", type=int, default=4)
     parser.add_argument("--speedup", type=float, default=1.0)
+    parser.add_argument("--seeker", choices=SEEKERS, default="gradient",
+                        help="the plan's [seeking] seeker (default gradient, the paper's)")
+    parser.add_argument("--gamma", type=float, default=None, metavar="M",
+                        help="the plan's gamma_m (default 1 m for gradient, 20 m otherwise, as swarmseek run)")
     args = parser.parse_args()
+    seeking = dict(SEEKING, seeker=args.seeker,
+                   gamma_m=args.gamma if args.gamma is not None else (1.0 if args.seeker == "gradient" else 20.0))
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         zenoh = f"tcp/127.0.0.1:{s.getsockname()[1]}"
     cfg = SitlFleetConfig(flavour=args.flavour, n=args.n, speedup=args.speedup).free()
     with tempfile.TemporaryDirectory(prefix="bench-sitl-") as tmp, SitlFleet(cfg) as fleet:
-        plan = fleet.write_plan(Path(tmp) / "plan.toml", zenoh_endpoint=zenoh, overrides={"seeking": SEEKING})
+        plan = fleet.write_plan(Path(tmp) / "plan.toml", zenoh_endpoint=zenoh, overrides={"seeking": seeking})
         res = fly_sitl_mission(fleet, plan, Path(tmp) / "logs", SOURCE, zenoh=zenoh, timeout_s=900.0)
     summary = res.summary or {}
     est = summary.get("estimate_enu")
     wall = res.wall_s
     out = {
-        "flavour": args.flavour, "n": args.n, "speedup": args.speedup, "returncode": res.returncode,
+        "flavour": args.flavour, "n": args.n, "speedup": args.speedup, "seeker": args.seeker,
+        "gamma_m": seeking["gamma_m"], "returncode": res.returncode,
         "outcome": summary.get("outcome"), "iterations": summary.get("iterations"),
         "error_m": None if est is None else round(float(np.linalg.norm(np.subtract(est, SOURCE))), 3),
-        "mission_time_s": summary.get("mission_time_s"), "fly_wall_s": round(wall, 1),
+        "mission_time_s": summary.get("mission_time_s"), "seek_time_s": summary.get("seek_time_s"),
+        "fly_wall_s": round(wall, 1),
         "cpu_s": res.cpu_s,
         "cpu_share_of_one_core": {"fly": round(res.cpu_s["fly"] / wall, 3),
                                   "sensors_total": round(res.cpu_s["sensors"] / wall, 3),

@@ -127,3 +127,22 @@ def test_plan_for_a_sped_up_fleet_loads_and_is_scaled(tmp_path):
     with pytest.raises(ValueError, match="radius_m"):
         write_plan(tmp_path / "bad.toml", vehicles, origin, flavour="px4", overrides={"formation": {"radius_m": -1.0}})
     assert not (tmp_path / "bad.toml").exists()
+
+
+@pytest.mark.parametrize("seeker, gamma_m", [("model", 20.0), ("newton", 20.0), ("gradient", 1.0)])
+def test_swarmseek_sitl_writes_its_seeker_into_the_plan(tmp_path, seeker, gamma_m):
+    import argparse
+
+    from mission.cli import cmd_sitl
+    from mission.sim.sitl_plan import seeker_settings
+
+    parser = argparse.ArgumentParser()
+    cmd_sitl.configure(parser)
+    assert parser.parse_args(["--flavour", "px4"]).seeker == "model"  # the default, measured on real firmware
+    args = parser.parse_args(["--flavour", "px4", "--seeker", seeker])
+    vehicles = [SimpleNamespace(sysid=i + 1, connection=f"udpin:127.0.0.1:{20000 + i}") for i in range(4)]
+    plan = load_plan(write_plan(tmp_path / "p.toml", vehicles, (47.397742, 8.545594, 489.4), flavour="px4",
+                                overrides={"seeking": seeker_settings(args.seeker)}))
+    assert (plan.seeking.seeker, plan.seeking.gamma_m) == (seeker, gamma_m)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--flavour", "px4", "--seeker", "bogus"])

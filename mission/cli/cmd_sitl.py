@@ -17,6 +17,8 @@ import sys
 import threading
 from pathlib import Path
 
+from estimator.seekers import SEEKERS
+from mission.sim.sitl_plan import seeker_settings
 from sitl_mock.cli_args import int_in_range, origin_geodetic, positive_float, source_enu
 
 __all__ = ["configure", "main"]
@@ -56,6 +58,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speedup", type=positive_float, default=1.0, help="simulation speed-up (default 1)")
     parser.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                         help="extra autopilot parameter (repeatable)")
+    parser.add_argument("--seeker", choices=SEEKERS, default="model",
+                        help="the written plan's [seeking] seeker (default model, gamma_m 20 m; "
+                             "gradient = the paper's method, gamma_m 1 m); measured on real PX4 and "
+                             "ArduCopter SITL in docs/sitl.md")
     parser.add_argument("--run-dir", type=Path, default=None, metavar="DIR",
                         help="keep the instances' working dirs here (default: a temporary dir, deleted)")
     parser.add_argument("--ready-timeout", type=positive_float, default=120.0, metavar="S",
@@ -135,7 +141,8 @@ def main(args: argparse.Namespace) -> int:
                 plan = None
                 if cfg.n >= _MIN_MISSION_VEHICLES:
                     plan = fleet.write_plan(args.plan_out, fleet=args.fleet,
-                                            zenoh_endpoint=f"tcp/127.0.0.1:{args.zenoh_port}").resolve()
+                                            zenoh_endpoint=f"tcp/127.0.0.1:{args.zenoh_port}",
+                                            overrides={"seeking": seeker_settings(args.seeker)}).resolve()
                 _report(fleet, args, plan)
                 try:
                     status = _serve(fleet)

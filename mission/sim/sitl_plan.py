@@ -15,7 +15,7 @@ from pathlib import Path
 
 from mission.core.plan import load_plan
 
-__all__ = ["plan_document", "scale_for_speedup", "write_plan", "to_toml"]
+__all__ = ["plan_document", "scale_for_speedup", "seeker_settings", "write_plan", "to_toml"]
 
 _BASE = {
     "version": 1, "fleet": "sitl", "max_speed_m_s": 3.0, "min_separation_m": 1.5, "takeoff_alt_m": 10.0,
@@ -29,6 +29,13 @@ _BASE = {
     "geofence": {"polygon_enu_m": [[-60.0, -60.0], [60.0, -60.0], [60.0, 60.0], [-60.0, 60.0]],
                  "min_alt_m": 3.0, "max_alt_m": 40.0},
 }
+
+
+def seeker_settings(seeker: str) -> dict:
+    """The ``[seeking]`` keys for ``seeker``: the paper's ``gradient`` keeps the sample plan's
+    ``gamma_m = 1`` (with its ``eps``); the trust-region seekers get ``gamma_m = 20`` m, as
+    ``swarmseek run`` (their step is bounded by their own trust region, not by ``eps``)."""
+    return {"seeker": seeker, "gamma_m": 1.0 if seeker == "gradient" else 20.0}
 
 
 def scale_for_speedup(doc: dict, speedup: float) -> dict:
