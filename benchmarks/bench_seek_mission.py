@@ -10,8 +10,11 @@ lock-step clock (:func:`mission.cli.cmd_run.run_embedded`), and reads each missi
 * seek time and iterations until the convergence test passed, the final error of the estimated
   source, the readings used, the distance flown by the centre and per vehicle (from the
   iteration records' positions: mean and max over vehicles);
+* ``end_centroid_m``: the last iteration's centroid to the source (where the formation is when
+  the seek ends; with ``moving`` sampling the commanded centre can lead it);
 * ``model_t_1m_s``: the offline time model (:class:`experiments.offline_seek.StopAndGo`) applied
-  to the same mission's centre moves, to check the model against the whole mission.
+  to the same mission's centre moves, to check the model against the whole mission (stop and go
+  only: ``-`` for ``moving`` sampling, ``--sampling``, :mod:`mission.flight.seek_moving`).
 
 Usage::
 
@@ -74,6 +77,7 @@ def mission_measures(log_path: Path, max_speed_m_s: float = 3.0, tol_m: float = 
         "vehicle_flown_m_mean": float(np.mean(per_vehicle)) if per_vehicle else None,
         "vehicle_flown_m_max": float(np.max(per_vehicle)) if per_vehicle else None,
         "outcome": summary.get("outcome"),
+        "end_centroid_m": float(dist[-1]) if len(dist) else None,
     }
 
 
@@ -88,6 +92,8 @@ def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", ex
                           "--log-dir", str(log_dir), *extra])
     result = run_embedded(args, display=Display(quiet=True))
     row = mission_measures(Path(result.log_path))
+    if sampling == "moving":
+        row["model_t_1m_s"] = None  # the time model is stop and go's
     row.update(seeker=seeker, seed=seed, sampling=sampling, outcome=result.outcome, error_m=result.error_m,
                mission_seek_time_s=result.seek_time_s)
     return row
@@ -100,7 +106,7 @@ def _fmt(row: dict) -> str:
     return (f"| {row['seeker']} | {row['sampling']} | {row['seed']} | {row['outcome']} | {f(row['t_1m_s'])} | {f(row['straight_s'])} "
             f"| {f(row['ratio'], '.2f')} | {f(row['model_t_1m_s'])} | {row['iterations_1m']} | {f(row['mission_seek_time_s'])} "
             f"| {row['iterations']} | {f(row['error_m'], '.2f')} | {row['readings']} | {f(row['centre_flown_m'])} "
-            f"| {f(row['vehicle_flown_m_mean'])} / {f(row['vehicle_flown_m_max'])} |")
+            f"| {f(row['vehicle_flown_m_mean'])} / {f(row['vehicle_flown_m_max'])} | {f(row['end_centroid_m'], '.2f')} |")
 
 
 def main(argv=None) -> int:
@@ -115,8 +121,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print("| seeker | sampling | seed | outcome | time to stay within 1 m, s | straight line, s | ratio | time model, s "
           "| iterations to 1 m | seek time, s | iterations | error, m | readings | centre flown, m "
-          "| vehicle flown, m (mean / max) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| vehicle flown, m (mean / max) | last centroid to source, m |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seeker in args.seekers.split(","):
