@@ -2,7 +2,8 @@
 
 With no options: 8 PX4-personality mock vehicles, CVT formation of radius 4 m, the paper's
 ``sigma_2`` source somewhere in a box, the formation starting 25 m away, 10x speed-up (see
-:mod:`mission.sim.embedded` for the defaults and the choice of ``eps``). Shows live progress, writes
+:mod:`mission.sim.embedded` for the defaults and the choice of ``eps``), the ``model`` seeker sampling
+while moving (:mod:`mission.flight.seek_moving`). Shows live progress, writes
 the mission log (and one ``.tlog`` per vehicle) under ``--log-dir``; exits 0 when the mission
 converged, 1 otherwise.
 """
@@ -55,10 +56,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sampling", choices=("stop_and_go", "moving"), default=None,
                         help="stop_and_go: fly to each new centre, settle, read, estimate; moving: estimate "
                              "while flying from every reading since the last estimate (newton/model only; "
-                             "default: stop_and_go; docs/seekers.md)")
+                             "default: moving for those, stop_and_go for gradient; docs/seekers.md)")
     parser.add_argument("--replan-fraction", type=positive_float, default=None, metavar="F",
                         help="with --sampling moving: re-plan once this fraction of a move is flown (0-1, "
                              "default 0.5)")
+    parser.add_argument("--sensor-lag", type=nonnegative_float, default=None, metavar="S",
+                        help="the mission's knowledge of the sensor's time constant, s: with --sampling moving "
+                             "a reading is placed where its vehicle was S earlier (default: the simulated "
+                             "sensor's --sensor-tau)")
     parser.add_argument("--estimator", choices=("cvt", "symmetric", "robust"), default=None,
                         help="gradient estimator (default: the formation's)")
     parser.add_argument("--max-iterations", type=int, default=300)
@@ -140,11 +145,15 @@ def _mission_setup(args):
 def _seeking_options(args) -> dict:
     """The ``[seeking]`` keys the ``run`` options set: the seeker, its sampling and re-plan fraction."""
     sampling = getattr(args, "sampling", None)
-    if sampling is None:
-        sampling = "stop_and_go"
+    if sampling is None:  # moving pays for the seekers that can use it (docs/seekers.md)
+        sampling = "stop_and_go" if args.seeker == "gradient" else "moving"
     out = {"seeker": args.seeker, "sampling": sampling}
     if getattr(args, "replan_fraction", None) is not None:
         out["replan_fraction"] = args.replan_fraction
+    lag_s = getattr(args, "sensor_lag", None)
+    if lag_s is None:  # the operator knows the sensor: the simulated one's time constant
+        lag_s = (getattr(args, "sensor_response", None) or {}).get("time_constant_s", 0.0)
+    out["sensor_lag_s"] = float(lag_s)
     return out
 
 

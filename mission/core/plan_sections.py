@@ -130,6 +130,7 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
         seeker=c.string(t, "seeker", p, d.seeker, choices=_SEEKERS),
         sampling=c.string(t, "sampling", p, d.sampling, choices=SAMPLINGS),
         replan_fraction=c.number(t, "replan_fraction", p, d.replan_fraction, low=0, low_open=True, high=1),
+        sensor_lag_s=c.number(t, "sensor_lag_s", p, d.sensor_lag_s, low=0, high=60),
         rate_hz=c.number(t, "rate_hz", p, d.rate_hz, low=0, low_open=True, high=50),
         max_iterations=c.number(t, "max_iterations", p, d.max_iterations, low=1, integer=True),
         convergence_tol_m=c.number(t, "convergence_tol_m", p, d.convergence_tol_m, low=0, low_open=True),

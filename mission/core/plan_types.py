@@ -95,6 +95,10 @@ class SeekingPlan:
     replan_fraction : float
         With ``moving`` sampling: the next estimate is made once the formation has covered this
         fraction of its move (or is within ``arrival_tol_m`` of its slots' centroid).
+    sensor_lag_s : float
+        The sensor's response time constant (its datasheet's; 0: instantaneous). With ``moving``
+        sampling each reading goes to the seeker at the position its vehicle had this long before
+        (a lagged sensor moving reads the field where it was).
     rate_hz : float
         Highest estimation rate (iterations per second of mission clock).
     max_iterations : int
@@ -122,6 +126,7 @@ class SeekingPlan:
     seeker: str = "gradient"
     sampling: str = "stop_and_go"
     replan_fraction: float = 0.5
+    sensor_lag_s: float = 0.0
     rate_hz: float = 2.0
     max_iterations: int = 300
     convergence_tol_m: float = 0.5

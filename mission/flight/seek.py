@@ -321,6 +321,11 @@ class _Seek:
         taken since the last estimate, with the positions and times where they were taken."""
         return [aligned[s] for s in used] if self.samples is None else self.samples
 
+    def _seeker_positions(self, readings: list):
+        """Where the seeker takes ``readings`` to be: where they were taken, or (moving sampling with
+        ``sensor_lag_s``) where their vehicles were that long before."""
+        return [r.position_enu_m for r in readings] if self.samples is None else self.moving.positions_enu
+
     def _step(self, k, t_est, aligned, used, centroid, grad, retiring) -> tuple[str, str] | None:
         """Move the centre up the gradient, log the iteration; ``(outcome, message)`` when the seek ends."""
         from estimator import seek_step
@@ -330,7 +335,7 @@ class _Seek:
         if self.seeker is None:  # the paper's step with the plan's estimator (robust included)
             proposed = seek_step(self.centre, grad, sk.eps, sk.gamma_m)
         else:
-            proposed = self.seeker.step(self.centre, [r.position_enu_m for r in readings],
+            proposed = self.seeker.step(self.centre, self._seeker_positions(readings),
                                         [r.value for r in readings], sk.gamma_m)
             if self.seeker.failure:
                 co.event(f"iteration {k + 1}: {self.seeker.failure}", level="warning")

@@ -15,6 +15,15 @@ With ``moving`` sampling (the ``newton`` and ``model`` seekers only), one iterat
    each vehicle's reading nearest the estimation instant still gives the logged gradient and
    centroid and feeds the robust estimator's watch, as in stop and go.
 
+**Sensor lag.** A sensor with a first-order response ``tau dy/dt = c - y`` carried at a steady
+velocity through a locally linear field reads, once its transient has died out,
+``y(t) = c(x(t - tau))``: the concentration where it was ``tau`` earlier. Readings taken while
+moving are then shifted along the path by ``v tau`` (1.5 m at 3 m/s for ``tau = 0.5 s``), and the
+fitted maximum with them. With ``[seeking] sensor_lag_s = tau`` (the sensor's time constant, from
+its datasheet) each reading is given to the seeker at the position its vehicle had ``tau`` before
+it was taken (interpolated in the vehicle's reading history); the mission log keeps the real
+positions. ``docs/seekers.md`` has the numbers.
+
 The next centre is proposed from the commanded centre (the goal of the move in flight), capped at
 ``gamma_m`` and clamped by the safety envelope as in stop and go, so the commanded centre leads
 the formation by at most ``(1 - replan_fraction)`` of a move plus one capped step. Why the model
@@ -30,7 +39,7 @@ from mission.flight.rejoin import clear_goals, fly_rotation
 from mission.flight.retire import formation_goals
 from mission.flight.state import MissionError
 
-__all__ = ["MovingSampling", "moving_sampling"]
+__all__ = ["MovingSampling", "lagged_positions", "moving_sampling"]
 
 
 class MovingSampling:
@@ -42,19 +51,27 @@ class MovingSampling:
         The mission (ramp, store, clock, telemetry, events).
     replan_fraction : float
         Fraction of a move, in ``(0, 1]``, covered before the next estimate.
+    sensor_lag_s : float
+        The sensor's response time constant (>= 0): readings go to the seeker where their
+        vehicle was this long before they were taken (module docstring).
 
     Raises
     ------
     ValueError
-        ``replan_fraction`` outside ``(0, 1]``.
+        ``replan_fraction`` outside ``(0, 1]``, or a negative or non-finite ``sensor_lag_s``.
     """
 
-    def __init__(self, co, replan_fraction: float):
+    def __init__(self, co, replan_fraction: float, sensor_lag_s: float = 0.0):
         f = float(replan_fraction)
         if not 0.0 < f <= 1.0:
             raise ValueError(f"replan_fraction must be in (0, 1], got {replan_fraction!r}")
+        lag = float(sensor_lag_s)
+        if not (np.isfinite(lag) and lag >= 0.0):
+            raise ValueError(f"sensor_lag_s must be a finite number >= 0, got {sensor_lag_s!r}")
         self.co = co
         self.fraction = f
+        self.sensor_lag_s = lag
+        self.positions_enu = np.zeros((0, 3))  # where the seeker takes the collected readings to be
         self.last_used_s: dict[int, float] = {}  # per vehicle: time of the newest reading the seeker had
         self.t_collected_s = co.clock.time()     # readings of a vehicle new to the seeker start here
 
@@ -127,17 +144,34 @@ class MovingSampling:
         """Every reading taken since the last one the seeker had from each vehicle, oldest first per vehicle.
 
         Each reading keeps the position and time where it was taken
-        (:class:`mission.telemetry.readings.Reading`); none is given twice.
+        (:class:`mission.telemetry.readings.Reading`); none is given twice. ``positions_enu``
+        becomes where the seeker takes them to be: those positions, or with ``sensor_lag_s`` the
+        vehicle's position that long before each reading.
         """
-        out = []
+        out, positions = [], []
         for s in sysids:
             since_s = self._since_s(s)
-            new = [r for r in self.co.store.history(s) if r.time_s > since_s]
+            hist = self.co.store.history(s)
+            new = [r for r in hist if r.time_s > since_s]
             if new:
                 self.last_used_s[s] = new[-1].time_s
             out.extend(new)
+            positions.extend(lagged_positions(hist, new, self.sensor_lag_s))
         self.t_collected_s = self.co.clock.time()
+        self.positions_enu = np.asarray(positions, dtype=float).reshape(-1, 3)
         return out
+
+
+def lagged_positions(history: list, readings: list, lag_s: float) -> list[np.ndarray]:
+    """Where one vehicle was ``lag_s`` before each of ``readings`` (linear in its reading ``history``,
+    oldest first; the first position before the history starts); the readings' own positions for
+    ``lag_s = 0``."""
+    if lag_s <= 0.0 or not readings:
+        return [r.position_enu_m for r in readings]
+    t_s = np.array([r.time_s for r in history])
+    pos = np.array([r.position_enu_m for r in history], dtype=float)
+    back_s = np.array([r.time_s for r in readings]) - lag_s
+    return list(np.stack([np.interp(back_s, t_s, pos[:, i]) for i in range(3)], axis=-1))
 
 
 def moving_sampling(co, sk, gradient_seeker: bool) -> MovingSampling | None:
@@ -152,4 +186,4 @@ def moving_sampling(co, sk, gradient_seeker: bool) -> MovingSampling | None:
         co.event('sampling = "moving" needs the newton or model seeker; the gradient seeker samples '
                  "stop and go", level="warning")
         return None
-    return MovingSampling(co, sk.replan_fraction)
+    return MovingSampling(co, sk.replan_fraction, getattr(sk, "sensor_lag_s", 0.0))
