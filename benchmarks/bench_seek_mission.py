@@ -104,7 +104,7 @@ def _fmt(row: dict) -> str:
         return "-" if x is None else format(x, spec)
 
     return (f"| {row['seeker']} | {row['sampling']} | {row['seed']} | {row['outcome']} | {f(row['t_1m_s'])} | {f(row['straight_s'])} "
-            f"| {f(row['ratio'], '.2f')} | {f(row['model_t_1m_s'])} | {row['iterations_1m']} | {f(row['mission_seek_time_s'])} "
+            f"| {f(row['ratio'], '.2f')} | {f(row['model_t_1m_s'])} | {f(row['iterations_1m'], 'd')} | {f(row['mission_seek_time_s'])} "
             f"| {row['iterations']} | {f(row['error_m'], '.2f')} | {row['readings']} | {f(row['centre_flown_m'])} "
             f"| {f(row['vehicle_flown_m_mean'])} / {f(row['vehicle_flown_m_max'])} | {f(row['end_centroid_m'], '.2f')} |")
 
