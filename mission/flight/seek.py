@@ -316,26 +316,23 @@ class _Seek:
             co.event(clamp.message, level="warning")
         return np.asarray(clamp.centre_enu, dtype=float)
 
-    def _seeker_readings(self, aligned: dict, used: list[int]) -> list:
-        """The readings of this iteration: each vehicle's aligned one, or (moving sampling) every one
-        taken since the last estimate, with the positions and times where they were taken."""
-        return [aligned[s] for s in used] if self.samples is None else self.samples
-
-    def _seeker_positions(self, readings: list):
-        """Where the seeker takes ``readings`` to be: where they were taken, or (moving sampling with
-        ``sensor_lag_s``) where their vehicles were that long before."""
-        return [r.position_enu_m for r in readings] if self.samples is None else self.moving.positions_enu
+    def _seeker_inputs(self, aligned: dict, used: list[int]) -> tuple[list, list]:
+        """This iteration's readings (logged) and where the seeker takes them to be: each vehicle's aligned
+        one, or every one since the last estimate (:meth:`~mission.flight.seek_moving.MovingSampling.collect`)."""
+        if self.samples is None:
+            return [aligned[s] for s in used], [aligned[s].position_enu_m for s in used]
+        return self.samples, self.moving.positions_enu
 
     def _step(self, k, t_est, aligned, used, centroid, grad, retiring) -> tuple[str, str] | None:
         """Move the centre up the gradient, log the iteration; ``(outcome, message)`` when the seek ends."""
         from estimator import seek_step
 
         co, sk = self.co, self.sk
-        readings = self._seeker_readings(aligned, used)
+        readings, positions = self._seeker_inputs(aligned, used)
         if self.seeker is None:  # the paper's step with the plan's estimator (robust included)
             proposed = seek_step(self.centre, grad, sk.eps, sk.gamma_m)
         else:
-            proposed = self.seeker.step(self.centre, self._seeker_positions(readings),
+            proposed = self.seeker.step(self.centre, positions,
                                         [r.value for r in readings], sk.gamma_m)
             if self.seeker.failure:
                 co.event(f"iteration {k + 1}: {self.seeker.failure}", level="warning")
