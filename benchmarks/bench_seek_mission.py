@@ -10,13 +10,17 @@ lock-step clock (:func:`mission.cli.cmd_run.run_embedded`), and reads each missi
 * seek time and iterations until the convergence test passed, the final error of the estimated
   source, the readings used, the distance flown by the centre and per vehicle (from the
   iteration records' positions: mean and max over vehicles);
+* ``end_centroid_m``: the last iteration's centroid to the source (where the formation is when
+  the seek ends; with ``moving`` sampling the commanded centre can lead it);
 * ``model_t_1m_s``: the offline time model (:class:`experiments.offline_seek.StopAndGo`) applied
-  to the same mission's centre moves, to check the model against the whole mission.
+  to the same mission's centre moves, to check the model against the whole mission (stop and go
+  only: ``-`` for ``moving`` sampling, ``--sampling``, :mod:`mission.flight.seek_moving`).
 
 Usage::
 
     python benchmarks/bench_seek_mission.py                    # seeds 11-13, all seekers
     python benchmarks/bench_seek_mission.py --seeds 0,11 --seekers model --json out.json
+    python benchmarks/bench_seek_mission.py --seeds 0,11,12,13 --seekers model --sampling stop_and_go,moving
 """
 from __future__ import annotations
 
@@ -73,20 +77,24 @@ def mission_measures(log_path: Path, max_speed_m_s: float = 3.0, tol_m: float = 
         "vehicle_flown_m_mean": float(np.mean(per_vehicle)) if per_vehicle else None,
         "vehicle_flown_m_max": float(np.max(per_vehicle)) if per_vehicle else None,
         "outcome": summary.get("outcome"),
+        "end_centroid_m": float(dist[-1]) if len(dist) else None,
     }
 
 
-def fly(seeker: str, seed: int, log_dir: Path) -> dict:
-    """One default mission with ``seeker`` and ``seed``; its measures."""
+def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", extra=()) -> dict:
+    """One default mission with ``seeker``, ``seed`` and ``sampling`` (plus ``run`` options ``extra``); its measures."""
     from mission.cli.cmd_run import configure, run_embedded
     from mission.telemetry.display import Display
 
     ap = argparse.ArgumentParser()
     configure(ap)
-    args = ap.parse_args(["--seeker", seeker, "--seed", str(seed), "--json", "--no-tlog", "--log-dir", str(log_dir)])
+    args = ap.parse_args(["--seeker", seeker, "--seed", str(seed), "--sampling", sampling, "--json", "--no-tlog",
+                          "--log-dir", str(log_dir), *extra])
     result = run_embedded(args, display=Display(quiet=True))
     row = mission_measures(Path(result.log_path))
-    row.update(seeker=seeker, seed=seed, outcome=result.outcome, error_m=result.error_m,
+    if sampling == "moving":
+        row["model_t_1m_s"] = None  # the time model is stop and go's
+    row.update(seeker=seeker, seed=seed, sampling=sampling, outcome=result.outcome, error_m=result.error_m,
                mission_seek_time_s=result.seek_time_s)
     return row
 
@@ -95,10 +103,10 @@ def _fmt(row: dict) -> str:
     def f(x, spec=".1f"):
         return "-" if x is None else format(x, spec)
 
-    return (f"| {row['seeker']} | {row['seed']} | {row['outcome']} | {f(row['t_1m_s'])} | {f(row['straight_s'])} "
-            f"| {f(row['ratio'], '.2f')} | {f(row['model_t_1m_s'])} | {row['iterations_1m']} | {f(row['mission_seek_time_s'])} "
+    return (f"| {row['seeker']} | {row['sampling']} | {row['seed']} | {row['outcome']} | {f(row['t_1m_s'])} | {f(row['straight_s'])} "
+            f"| {f(row['ratio'], '.2f')} | {f(row['model_t_1m_s'])} | {f(row['iterations_1m'], 'd')} | {f(row['mission_seek_time_s'])} "
             f"| {row['iterations']} | {f(row['error_m'], '.2f')} | {row['readings']} | {f(row['centre_flown_m'])} "
-            f"| {f(row['vehicle_flown_m_mean'])} / {f(row['vehicle_flown_m_max'])} |")
+            f"| {f(row['vehicle_flown_m_mean'])} / {f(row['vehicle_flown_m_max'])} | {f(row['end_centroid_m'], '.2f')} |")
 
 
 def main(argv=None) -> int:
@@ -106,19 +114,25 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="11,12,13")
     ap.add_argument("--seekers", default="gradient,newton,model")
+    ap.add_argument("--sampling", default="stop_and_go",
+                    help="comma-separated: stop_and_go, moving (the gradient seeker is flown stop and go only)")
+    ap.add_argument("--run-args", default="", help="extra `swarmseek run` options, e.g. '--sensor-tau 0.5'")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
-    print("| seeker | seed | outcome | time to stay within 1 m, s | straight line, s | ratio | time model, s "
+    print("| seeker | sampling | seed | outcome | time to stay within 1 m, s | straight line, s | ratio | time model, s "
           "| iterations to 1 m | seek time, s | iterations | error, m | readings | centre flown, m "
-          "| vehicle flown, m (mean / max) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| vehicle flown, m (mean / max) | last centroid to source, m |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seeker in args.seekers.split(","):
-            for seed in (int(s) for s in args.seeds.split(",")):
-                row = fly(seeker, seed, Path(tmp) / f"{seeker}-{seed}")
-                rows.append(row)
-                print(_fmt(row), flush=True)
+            for sampling in args.sampling.split(","):
+                if sampling == "moving" and seeker == "gradient":
+                    continue
+                for seed in (int(s) for s in args.seeds.split(",")):
+                    row = fly(seeker, seed, Path(tmp) / f"{seeker}-{sampling}-{seed}", sampling, args.run_args.split())
+                    rows.append(row)
+                    print(_fmt(row), flush=True)
     if args.json is not None:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0

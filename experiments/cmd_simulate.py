@@ -69,6 +69,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="how the centre moves (docs/seekers.md): the paper's gradient ascent "
                              "(default), Newton trust-region, or the log-quadratic model; newton and "
                              "model take --gamma as their largest step (give e.g. 20)")
+    parser.add_argument("--sampling", choices=("stop_and_go", "moving"), default="stop_and_go",
+                        help="stop_and_go (default) or moving: newton/model re-plan while the formation flies "
+                             "at 3 m/s, from every reading since the last estimate (experiments.offline_moving; "
+                             "docs/seekers.md)")
     parser.add_argument("--iterations", type=_positive(int), default=3000)
     parser.add_argument("--seed", type=int, default=0, help="noise and CVT seed")
     parser.add_argument("--window", type=_positive(int), default=400,
@@ -101,7 +105,13 @@ def run(args: argparse.Namespace) -> dict:
     start = args.start if args.start is not None else _vector3(_DEFAULT_STARTS[args.field])
     field = make_field(args.field)
     seeker = getattr(args, "seeker", "gradient")
-    if seeker == "gradient":
+    sampling = getattr(args, "sampling", "stop_and_go")
+    if sampling == "moving" and seeker == "gradient":
+        raise ValueError("--sampling moving needs --seeker model or newton (the paper's gradient seeker samples "
+                         "stop and go)")
+    if sampling == "moving":
+        res = _simulate_moving(args, offsets, field, start)
+    elif seeker == "gradient":
         res = simulate(offsets, field, start, eps=args.eps, gamma=args.gamma,
                        iterations=args.iterations, noise_std=args.noise, method=method, seed=args.seed)
     else:
@@ -110,10 +120,14 @@ def run(args: argparse.Namespace) -> dict:
         "field": args.field, "formation": args.formation, "method": method, "n": args.n,
         "radius_m": args.radius, "noise_std": args.noise, "eps": args.eps, "gamma_m": args.gamma,
         "iterations": args.iterations, "seed": args.seed, "start_enu": start.tolist(), "seeker": seeker,
+        "sampling": sampling,
         "source_enu": np.asarray(res.source_enu, dtype=float).tolist(), "window": args.window, "tol_m": args.tol,
     }
     out.update(convergence_report(res, window=args.window, tol_m=args.tol,
                                   stop_at_convergence=args.stop_at_convergence))
+    if sampling == "moving":  # mission time of the kinematic model, which the stop-and-go runs do not have
+        t_1m = float(res.moving.time_within_s(1.0)[0])
+        out["time_within_1m_s"] = t_1m if np.isfinite(t_1m) else None
     return out
 
 
@@ -141,6 +155,17 @@ def _simulate_seeker(args, offsets, field, start) -> _SeekerRun:
     return _SeekerRun(run.centres, field.source_enu())
 
 
+def _simulate_moving(args, offsets, field, start) -> _SeekerRun:
+    """One run of a newton/model seeker sampling while moving (:mod:`experiments.offline_moving`)."""
+    from experiments.offline_moving import simulate_moving
+
+    moving = simulate_moving(offsets, field, np.asarray(start, dtype=float)[None], args.seeker, gamma_m=args.gamma,
+                             iterations=args.iterations, noise_std=args.noise, rotate=False, seed=args.seed)
+    run = _SeekerRun(moving.centres, field.source_enu())
+    run.moving = moving
+    return run
+
+
 def main(args: argparse.Namespace) -> int:
     """Run ``swarmseek simulate``; 0 on success, 2 on bad arguments."""
     try:
@@ -155,6 +180,10 @@ def main(args: argparse.Namespace) -> int:
           f"estimator {out['method']}, seeker {out['seeker']}, noise {out['noise_std']:g}, start {out['start_enu']}")
     for line in report_lines(out):
         print(line)
+    if out["sampling"] == "moving":
+        t_1m = out["time_within_1m_s"]
+        print("sampling while moving: " + ("the formation never stayed within 1 m" if t_1m is None else
+                                           f"the formation within 1 m from {t_1m:.1f} s of mission time on"))
     return 0
 
 

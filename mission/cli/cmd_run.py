@@ -2,7 +2,8 @@
 
 With no options: 8 PX4-personality mock vehicles, CVT formation of radius 4 m, the paper's
 ``sigma_2`` source somewhere in a box, the formation starting 25 m away, 10x speed-up (see
-:mod:`mission.sim.embedded` for the defaults and the choice of ``eps``). Shows live progress, writes
+:mod:`mission.sim.embedded` for the defaults and the choice of ``eps``), the ``model`` seeker sampling
+while moving (:mod:`mission.flight.seek_moving`). Shows live progress, writes
 the mission log (and one ``.tlog`` per vehicle) under ``--log-dir``; exits 0 when the mission
 converged, 1 otherwise.
 """
@@ -52,6 +53,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeker", choices=("gradient", "newton", "model"), default="model",
                         help="how the centre moves: a log-quadratic model fit in a trust region (default), "
                              "a Newton trust-region step, or the paper's gradient ascent (docs/seekers.md)")
+    parser.add_argument("--sampling", choices=("stop_and_go", "moving"), default=None,
+                        help="stop_and_go: fly to each new centre, settle, read, estimate; moving: estimate "
+                             "while flying from every reading since the last estimate (newton/model only; "
+                             "default: moving for those, stop_and_go for gradient; docs/seekers.md)")
+    parser.add_argument("--replan-fraction", type=positive_float, default=None, metavar="F",
+                        help="with --sampling moving: re-plan once this fraction of a move is flown (0-1, "
+                             "default 0.5)")
+    parser.add_argument("--sensor-lag", type=nonnegative_float, default=None, metavar="S",
+                        help="the mission's knowledge of the sensor's time constant, s: with --sampling moving "
+                             "a reading is placed where its vehicle was S earlier (default: the simulated "
+                             "sensor's --sensor-tau)")
     parser.add_argument("--estimator", choices=("cvt", "symmetric", "robust"), default=None,
                         help="gradient estimator (default: the formation's)")
     parser.add_argument("--max-iterations", type=int, default=300)
@@ -77,6 +89,11 @@ def _check_args(args) -> str | None:
                 f"got {args.n}")
     if args.formation == "symmetric" and args.n % 2:
         return f"--formation symmetric needs an even --n, got {args.n}"
+    if getattr(args, "sampling", None) == "moving" and args.seeker == "gradient":
+        return ("--sampling moving needs --seeker model or newton: the paper's gradient seeker estimates from "
+                "the formation's shape at rest (Theorem 2) and samples stop and go")
+    if getattr(args, "replan_fraction", None) is not None and not 0 < args.replan_fraction <= 1:
+        return f"--replan-fraction must be in (0, 1], got {args.replan_fraction:g}"
     if args.max_iterations < 1:
         return f"--max-iterations must be >= 1, got {args.max_iterations}"
     try:
@@ -121,8 +138,23 @@ def _mission_setup(args):
     plan = plan_with_outs(plan, getattr(args, "out", None))
     if getattr(args, "zenoh_listen", None):  # reachable by `swarmseek watch` / `ctl`
         plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
-    plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, seeker=args.seeker))
+    plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, **_seeking_options(args)))
     return plan, ports, field, source, start, eps
+
+
+def _seeking_options(args) -> dict:
+    """The ``[seeking]`` keys the ``run`` options set: the seeker, its sampling and re-plan fraction."""
+    sampling = getattr(args, "sampling", None)
+    if sampling is None:  # moving pays for the seekers that can use it (docs/seekers.md)
+        sampling = "stop_and_go" if args.seeker == "gradient" else "moving"
+    out = {"seeker": args.seeker, "sampling": sampling}
+    if getattr(args, "replan_fraction", None) is not None:
+        out["replan_fraction"] = args.replan_fraction
+    lag_s = getattr(args, "sensor_lag", None)
+    if lag_s is None:  # the operator knows the sensor: the simulated one's time constant
+        lag_s = (getattr(args, "sensor_response", None) or {}).get("time_constant_s", 0.0)
+    out["sensor_lag_s"] = float(lag_s)
+    return out
 
 
 def _make_fleet(args, plan, ports, field, clock):
@@ -161,7 +193,7 @@ async def _fly(args, plan, fleet, setup, display, world=None):
                   field_model=repr(fleet.field), sensor_response=args.sensor_response,
                   source_enu=source, start_enu=start, noise=args.noise,
                   clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
-                  eps=eps, gamma_m=args.gamma, seeker=args.seeker, seed=args.seed)
+                  eps=eps, gamma_m=args.gamma, seeker=args.seeker, sampling=plan.seeking.sampling, seed=args.seed)
         co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=None if args.no_tlog else log_dir / "tlogs")
         if world is not None:

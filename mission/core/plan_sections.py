@@ -13,7 +13,7 @@ from pathlib import Path
 from estimator.seekers import SEEKERS as _SEEKERS
 from formation.geodesy import geodetic_to_enu
 from mission.core.plan_checks import Checker, check_connection, polygon_area, show_value
-from mission.core.plan_types import (ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
+from mission.core.plan_types import (SAMPLINGS, ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
                                      PreflightPlan, SeekingPlan, VehiclePlan)
 from mission.core.signing_config import SigningConfig, signing_config_from_table
 from mission.core.signing_keys import SigningError
@@ -128,6 +128,9 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
         gamma_m=c.number(t, "gamma_m", p, d.gamma_m, low=0, low_open=True, high=100),
         estimator=c.string(t, "estimator", p, d.estimator, choices=_ESTIMATORS),
         seeker=c.string(t, "seeker", p, d.seeker, choices=_SEEKERS),
+        sampling=c.string(t, "sampling", p, d.sampling, choices=SAMPLINGS),
+        replan_fraction=c.number(t, "replan_fraction", p, d.replan_fraction, low=0, low_open=True, high=1),
+        sensor_lag_s=c.number(t, "sensor_lag_s", p, d.sensor_lag_s, low=0, high=60),
         rate_hz=c.number(t, "rate_hz", p, d.rate_hz, low=0, low_open=True, high=50),
         max_iterations=c.number(t, "max_iterations", p, d.max_iterations, low=1, integer=True),
         convergence_tol_m=c.number(t, "convergence_tol_m", p, d.convergence_tol_m, low=0, low_open=True),
@@ -140,6 +143,10 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
                                       low=0, low_open=True),
     )
     start = c.point(t, "start_enu_m", p, 3)
+    if vals["sampling"] == "moving" and vals["seeker"] == "gradient":
+        c.bad(f"{p}.sampling", 'sampling = "moving" needs seeker = "model" or "newton": the paper\'s gradient '
+              "seeker estimates from the formation's shape at rest (Theorem 2), so it samples stop and go")
+        vals["sampling"] = None
     if None in vals.values():
         return None
     return SeekingPlan(start_enu_m=start, **vals)

@@ -15,6 +15,7 @@ from mission.core.zenoh_config import ZenohPlan
 
 __all__ = [
     "PLAN_VERSION",
+    "SAMPLINGS",
     "PlanError",
     "VehiclePlan",
     "FaultsPlan",
@@ -30,6 +31,8 @@ __all__ = [
 ]
 
 PLAN_VERSION = 1
+#: values of ``[seeking] sampling`` (:class:`SeekingPlan`)
+SAMPLINGS = ("stop_and_go", "moving")
 
 
 class PlanError(ValueError):
@@ -84,6 +87,18 @@ class SeekingPlan:
     seeker : str
         ``gradient`` (the paper's ``eps * grad`` capped by ``gamma_m``), ``newton`` or ``model``
         (``estimator.seekers``; their trust region is capped by ``gamma_m`` too: give it 10-20 m).
+    sampling : str
+        ``stop_and_go`` (fly to the new centre, settle, read, estimate) or ``moving`` (the
+        seeker gets every reading taken since the last estimate, along the path, and the next
+        estimate is made while the formation flies: :mod:`mission.flight.seek_moving`; for the
+        ``newton`` and ``model`` seekers only).
+    replan_fraction : float
+        With ``moving`` sampling: the next estimate is made once the formation has covered this
+        fraction of its move (or is within ``arrival_tol_m`` of its slots' centroid).
+    sensor_lag_s : float
+        The sensor's response time constant (its datasheet's; 0: instantaneous). With ``moving``
+        sampling each reading goes to the seeker at the position its vehicle had this long before
+        (a lagged sensor moving reads the field where it was).
     rate_hz : float
         Highest estimation rate (iterations per second of mission clock).
     max_iterations : int
@@ -109,6 +124,9 @@ class SeekingPlan:
     gamma_m: float = 0.1
     estimator: str = "cvt"
     seeker: str = "gradient"
+    sampling: str = "stop_and_go"
+    replan_fraction: float = 0.5
+    sensor_lag_s: float = 0.0
     rate_hz: float = 2.0
     max_iterations: int = 300
     convergence_tol_m: float = 0.5

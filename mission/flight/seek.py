@@ -14,11 +14,11 @@ One iteration (design choice: *move, settle, then estimate*):
    capped at ``gamma``), the safety envelope's ``clamp_centre``;
 4. the convergence monitor sees the new centre; the iteration is logged.
 
-Why not estimate on the fly at a fixed rate: the centre moves by at most ``gamma`` per
-iteration, so arrival takes about ``gamma / max_speed`` plus the autopilot's settling, a second
-or so; estimating while the vehicles are still flying would use readings whose positions are
-right (Theorem 2 uses the actual positions) but a formation distorted by tracking lag, which
-raises ``cond(M)`` and the noise of the estimate for no gain in mission time that matters.
+Stop and go is the default because Theorem 2 needs the formation's shape: estimating while the
+vehicles fly uses a formation distorted by tracking lag (``cond(M)`` and the noise grow). The
+``newton`` and ``model`` seekers fit readings taken anywhere: with ``[seeking] sampling =
+"moving"`` steps 1-2 are replaced by :mod:`mission.flight.seek_moving` (re-plan once the move is
+partly covered; the seeker gets every reading since the last estimate, where it was taken).
 """
 from __future__ import annotations
 
@@ -40,6 +40,7 @@ from mission.flight.retire import (
     make_watch,
     retire_sensor,
 )
+from mission.flight.seek_moving import moving_sampling
 from mission.flight.state import MissionError
 
 __all__ = ["seek", "make_estimator", "make_seeker"]
@@ -150,6 +151,8 @@ class _Seek:
         self.est_kind = sk.estimator
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
         self.seeker = make_seeker(sk.seeker)
+        self.moving = moving_sampling(co, sk, self.seeker is None)
+        self.samples = None  # with moving sampling: the readings the seeker gets this iteration
         self.watch = make_watch(co, self.est_kind, self.sysids)
         self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m)
         self.centre = np.asarray(co.centre_enu, dtype=float).copy()
@@ -203,7 +206,10 @@ class _Seek:
         return None
 
     async def _move(self, k: int) -> float:
-        """Fly the formation to its slots about the centre and settle; the arrival time."""
+        """Fly the formation to its slots about the centre and settle; the arrival time (moving
+        sampling: set the goals and return once the move is covered enough, :mod:`mission.flight.seek_moving`)."""
+        if self.moving is not None:
+            return await self.moving.move(self, k)
         co, sk = self.co, self.sk
         before = {s: co.slot_offsets[s].copy() for s in self.sysids}
         clear_goals(co, self.centre, self.sysids)  # a few ms at most: slots clear of lost vehicles still flying
@@ -225,6 +231,8 @@ class _Seek:
 
     async def _wait_readings(self, k: int, t_arrive: float) -> None:
         """Wait for a reading taken after the arrival from every vehicle (a warning after a while)."""
+        if self.moving is not None:
+            return await self.moving.wait_readings(self, k, t_arrive)
         co, sk = self.co, self.sk
 
         def _fresh():
@@ -270,6 +278,7 @@ class _Seek:
                 raise MissionError(f"no gradient estimate for {self.failures} iterations (last: {exc})") from None
             return None
         self.failures = 0
+        self.samples = None if self.moving is None else self.moving.collect(used)
         retiring = None if self.watch is None else self.watch.update(self.estimate, used, k + 1, co.clock.time())
         return t_est, aligned, used, centroid, grad, retiring
 
@@ -307,16 +316,24 @@ class _Seek:
             co.event(clamp.message, level="warning")
         return np.asarray(clamp.centre_enu, dtype=float)
 
+    def _seeker_inputs(self, aligned: dict, used: list[int]) -> tuple[list, list]:
+        """This iteration's readings (logged) and where the seeker takes them to be: each vehicle's aligned
+        one, or every one since the last estimate (:meth:`~mission.flight.seek_moving.MovingSampling.collect`)."""
+        if self.samples is None:
+            return [aligned[s] for s in used], [aligned[s].position_enu_m for s in used]
+        return self.samples, self.moving.positions_enu
+
     def _step(self, k, t_est, aligned, used, centroid, grad, retiring) -> tuple[str, str] | None:
         """Move the centre up the gradient, log the iteration; ``(outcome, message)`` when the seek ends."""
         from estimator import seek_step
 
         co, sk = self.co, self.sk
+        readings, positions = self._seeker_inputs(aligned, used)
         if self.seeker is None:  # the paper's step with the plan's estimator (robust included)
             proposed = seek_step(self.centre, grad, sk.eps, sk.gamma_m)
         else:
-            proposed = self.seeker.step(self.centre, [aligned[s].position_enu_m for s in used],
-                                        [aligned[s].value for s in used], sk.gamma_m)
+            proposed = self.seeker.step(self.centre, positions,
+                                        [r.value for r in readings], sk.gamma_m)
             if self.seeker.failure:
                 co.event(f"iteration {k + 1}: {self.seeker.failure}", level="warning")
         new_centre = self._clamped(proposed)
@@ -329,7 +346,7 @@ class _Seek:
                          gradient=grad, new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.estimate_enu,
                          estimate_geodetic=geodetic_point(co.plan.origin, co.estimate_enu),
                          spread_m=co.spread_m, distance_flown_m=co.distance_flown_m,
-                         readings=[aligned[s] for s in used],
+                         readings=readings,
                          positions_enu={s: co.telemetry_position(s) for s in everyone},
                          setpoints_enu={s: co.ramp.setpoint(s) for s in everyone},
                          suspects=_suspects(self.estimate, used), status=co.vehicle_status())
