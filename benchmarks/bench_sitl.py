@@ -38,8 +38,10 @@ def main() -> int:
                         help="the plan's [seeking] seeker (default gradient, the paper's)")
     parser.add_argument("--gamma", type=float, default=None, metavar="M",
                         help="the plan's gamma_m (default 1 m for gradient, 20 m otherwise, as swarmseek run)")
+    parser.add_argument("--sampling", choices=("stop_and_go", "moving"), default="stop_and_go",
+                        help="the plan's [seeking] sampling (moving: newton/model only)")
     args = parser.parse_args()
-    seeking = dict(SEEKING, seeker=args.seeker,
+    seeking = dict(SEEKING, seeker=args.seeker, sampling=args.sampling,
                    gamma_m=args.gamma if args.gamma is not None else (1.0 if args.seeker == "gradient" else 20.0))
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -53,7 +55,7 @@ def main() -> int:
     wall = res.wall_s
     out = {
         "flavour": args.flavour, "n": args.n, "speedup": args.speedup, "seeker": args.seeker,
-        "gamma_m": seeking["gamma_m"], "returncode": res.returncode,
+        "sampling": args.sampling, "gamma_m": seeking["gamma_m"], "returncode": res.returncode,
         "outcome": summary.get("outcome"), "iterations": summary.get("iterations"),
         "error_m": None if est is None else round(float(np.linalg.norm(np.subtract(est, SOURCE))), 3),
         "mission_time_s": summary.get("mission_time_s"), "seek_time_s": summary.get("seek_time_s"),
