@@ -34,7 +34,7 @@ from estimator.seek_quadratic import fit_quadratic
 __all__ = ["SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker", "ModelSeeker", "make_seeker", "cap_move"]
 
 #: Seeker names accepted by :func:`make_seeker` (and by the plan's ``[seeking] seeker``).
-SEEKERS = ("gradient", "newton", "model")
+SEEKERS = ("gradient", "newton", "model", "plume")
 
 
 class Seeker(Protocol):
@@ -244,4 +244,8 @@ def make_seeker(name: str, *, eps: float = 1.0, method: str = "cvt", **kwargs) -
         return NewtonSeeker(**kwargs)
     if name == "model":
         return ModelSeeker(**kwargs)
+    if name == "plume":
+        from estimator.seek_plume import PlumeSeeker
+
+        return PlumeSeeker(**kwargs)
     raise ValueError(f"unknown seeker {name!r}; expected one of {', '.join(SEEKERS)}")
