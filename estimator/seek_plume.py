@@ -40,6 +40,7 @@ from collections import deque
 
 import numpy as np
 
+from estimator.seek_inputs import seeker_inputs
 from estimator.seek_quadratic import fit_quadratic
 from estimator.seek_signal import SignalFloor
 
@@ -122,6 +123,7 @@ class PlumeSeeker:
         """Forget everything (a new run)."""
         self.floor.reset()
         self._k = None
+        self.arrival = None
         self._buf: deque = deque(maxlen=self.window)
 
     def _init_state(self, c: np.ndarray) -> None:
@@ -141,6 +143,7 @@ class PlumeSeeker:
         self.estimate = c.copy()
         self.upwind_sum = np.zeros((k, 3))
         self.signal = np.zeros(k, dtype=bool)
+        self.arrival = None
         self.detected = np.zeros(k, dtype=bool)
 
     # ------------------------------------------------------------------ geometry
@@ -183,9 +186,7 @@ class PlumeSeeker:
     # ------------------------------------------------------------------ the step
     def propose(self, centre, positions, values) -> np.ndarray:
         """Next centres ``(K, 3)`` from centres ``(K, 3)``, positions ``(K, N, 3)``, readings ``(K, N)``."""
-        from estimator.seekers import _inputs
-
-        c, p, v = _inputs(centre, positions, values)
+        c, p, v = seeker_inputs(centre, positions, values)
         if self._k != c.shape[0]:
             self.reset()
             self._init_state(c)
@@ -193,6 +194,7 @@ class PlumeSeeker:
         sig = det.any(axis=1)
         self.signal = sig
         self.detected |= sig
+        self.arrival = None  # set below: holding with a detection (the convergence test's signal)
         self._buf.append((p, v, det))
         pw, vw, dw = (np.concatenate([b[i] for b in self._buf], axis=1) for i in range(3))
         fit = fit_quadratic(pw, vw, dw & (vw > 0), c, log=True)
@@ -212,6 +214,7 @@ class PlumeSeeker:
         tracking = (self.phase == _COARSE) | (self.phase == _FINE)
         out = np.where(tracking[:, None], np.where(sig[:, None], target, c), c)
         out = np.where((self.phase == _HOLD)[:, None], self.estimate, out)
+        self.arrival = (self.phase == _HOLD) & sig
         return np.where((self.phase == _ACQUIRE)[:, None], cast, out)
 
     def _track(self, c, p, v, axis, up, sig) -> np.ndarray:

@@ -14,7 +14,7 @@ A reading is a **detection** when it exceeds
 
     threshold = b + max(sigmas * sigma, rel_peak * (peak - b))
 
-with ``peak`` the highest reading in the history: noise-relative (``sigmas``, default 4), and
+with ``peak`` the highest reading in the history: noise-relative (``sigmas``, default 3), and
 relative to the strongest signal seen (``rel_peak``, default 0.02) so that without noise the
 plume's far Gaussian tails (1e-10 above the background) do not count. An iteration has a
 signal when at least one reading is a detection.
@@ -31,7 +31,7 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["SignalFloor"]
+__all__ = ["SignalFloor", "ArrivalSignal"]
 
 _Z05, _Z25 = 1.6449, 0.6745
 
@@ -49,9 +49,9 @@ class SignalFloor:
         Iterations of readings kept (>= 1).
     """
 
-    def __init__(self, sigmas: float = 4.0, rel_peak: float = 0.02, history: int = 40):
-        if not (np.isfinite(sigmas) and sigmas > 0):
-            raise ValueError(f"sigmas must be a positive finite number, got {sigmas!r}")
+    def __init__(self, sigmas: float = 3.0, rel_peak: float = 0.02, history: int = 40):
+        if not (np.isfinite(sigmas) and sigmas >= 0):
+            raise ValueError(f"sigmas must be a finite number >= 0, got {sigmas!r}")
         if not (np.isfinite(rel_peak) and 0 <= rel_peak < 1):
             raise ValueError(f"rel_peak must be in [0, 1), got {rel_peak!r}")
         if int(history) != history or history < 1:
@@ -94,3 +94,52 @@ class SignalFloor:
         """:meth:`update` and whether each trial's iteration has a detection, ``(K,)`` (a bool for ``(N,)``)."""
         det = self.update(values)
         return bool(det.any()) if det.ndim == 1 else det.any(axis=1)
+
+
+class ArrivalSignal:
+    """Whether an iteration's readings look like arrival at a source rather than background.
+
+    The statistic is the iteration's **mean** reading ``m`` (over the formation's vehicles);
+    with ``b`` and ``P`` the lowest and highest ``m`` seen so far in the run, the iteration
+    has a signal when ``m >= b + rel_range * (P - b)``. At a smooth field's maximum every
+    vehicle reads near the highest level seen (``m`` near ``P``); standing still in a patchy
+    plume, most iterations read the background between puffs (``m`` near ``b``), and a puff on
+    one or two vehicles lifts the mean much less than the whole formation in the plume.
+    The convergence test (:class:`estimator.seeking.ConvergenceMonitor`, criterion 3) asks for
+    a signal in a fraction of its window.
+
+    Parameters
+    ----------
+    rel_range : float
+        In (0, 1): the fraction of the range of means seen above which an iteration counts.
+    """
+
+    def __init__(self, rel_range: float = 0.5):
+        if not (np.isfinite(rel_range) and 0 < rel_range < 1):
+            raise ValueError(f"rel_range must be in (0, 1), got {rel_range!r}")
+        self.rel_range = float(rel_range)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the range seen."""
+        self.low = self.high = None
+
+    def signal(self, values) -> np.ndarray:
+        """Add one iteration's readings ``(K, N)`` (or ``(N,)``); whether each has a signal, ``(K,)`` (or a bool).
+
+        Raises
+        ------
+        ValueError
+            Not 1-D/2-D, empty, or not finite.
+        """
+        v = np.asarray(values, dtype=float)
+        one = v.ndim == 1
+        v = v[None] if one else v
+        if v.ndim != 2 or v.shape[1] == 0 or not np.all(np.isfinite(v)):
+            raise ValueError(f"values must be finite readings of shape (K, N) or (N,), got shape {np.shape(values)}")
+        m = v.mean(axis=1)
+        if self.low is None or self.low.shape != m.shape:
+            self.low, self.high = m.copy(), m.copy()
+        self.low, self.high = np.minimum(self.low, m), np.maximum(self.high, m)
+        out = m >= self.low + self.rel_range * (self.high - self.low)
+        return bool(out[0]) if one else out

@@ -24,6 +24,17 @@ from sitl_mock.cli_args import add_field_arguments, field_from_args, nonnegative
 __all__ = ["configure", "main", "run_embedded"]
 
 
+def _degrees(text: str) -> float:
+    """A direction in degrees, [0, 360] (argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected degrees in [0, 360], got {text!r}") from None
+    if not 0.0 <= v <= 360.0:
+        raise argparse.ArgumentTypeError(f"expected degrees in [0, 360], got {text!r}")
+    return v
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``run`` options."""
     parser.add_argument("--n", type=int, default=8, help="number of vehicles (4..254; default 8)")
@@ -48,10 +59,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eps", type=positive_float, default=None,
                         help="step gain (default 1/(2 A lambda_max(S)) of the field; paper: 1)")
     parser.add_argument("--gamma", type=positive_float, default=None,
-                        help="largest step, m (default 1 for the gradient seeker, 20 for newton/model; paper 0.1)")
-    parser.add_argument("--seeker", choices=("gradient", "newton", "model"), default="model",
+                        help="largest step, m (default 1 for the gradient seeker, 20 for the others; paper 0.1)")
+    parser.add_argument("--seeker", choices=("gradient", "newton", "model", "plume"), default="model",
                         help="how the centre moves: a log-quadratic model fit in a trust region (default), "
-                             "a Newton trust-region step, or the paper's gradient ascent (docs/seekers.md)")
+                             "a Newton trust-region step, the paper's gradient ascent, or the plume seeker "
+                             "(surge up the plume, cast when lost; for --field plume/intermittent) (docs/seekers.md)")
+    parser.add_argument("--seek-wind-from", type=_degrees, default=None, metavar="DEG",
+                        help="the wind direction the ground station gives the plume seeker (where it comes "
+                             "from, degrees clockwise from north, e.g. the --wind-from of the simulated plume: "
+                             "an anemometer); default: the seeker estimates the plume's axis")
     parser.add_argument("--estimator", choices=("cvt", "symmetric", "robust"), default=None,
                         help="gradient estimator (default: the formation's)")
     parser.add_argument("--max-iterations", type=int, default=300)
@@ -121,7 +137,8 @@ def _mission_setup(args):
     plan = plan_with_outs(plan, getattr(args, "out", None))
     if getattr(args, "zenoh_listen", None):  # reachable by `swarmseek watch` / `ctl`
         plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
-    plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, seeker=args.seeker))
+    plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, seeker=args.seeker,
+                                                                 wind_from_deg=getattr(args, "seek_wind_from", None)))
     return plan, ports, field, source, start, eps
 
 

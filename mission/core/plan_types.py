@@ -82,8 +82,15 @@ class SeekingPlan:
     estimator : str
         ``cvt`` (Theorem 2 on the actual positions), ``symmetric`` (eq. 3) or ``robust``.
     seeker : str
-        ``gradient`` (the paper's ``eps * grad`` capped by ``gamma_m``), ``newton`` or ``model``
-        (``estimator.seekers``; their trust region is capped by ``gamma_m`` too: give it 10-20 m).
+        ``gradient`` (the paper's ``eps * grad`` capped by ``gamma_m``), ``newton``, ``model`` or
+        ``plume`` (``estimator.seekers``; their steps are capped by ``gamma_m`` too: give it 10-20 m).
+    wind_from_deg : float or None
+        Wind direction for the ``plume`` seeker (where it comes FROM, degrees clockwise from north:
+        an anemometer or the vehicles' wind estimate); None: the seeker estimates the plume's axis.
+    min_signal_fraction : float
+        Convergence needs a signal in at least this fraction of the window's iterations
+        (``estimator.seeking``, criterion 3; 0 turns it off): the ``plume`` seeker's "holding
+        with a detection", else ``estimator.seek_signal.ArrivalSignal`` on the readings.
     rate_hz : float
         Highest estimation rate (iterations per second of mission clock).
     max_iterations : int
@@ -109,6 +116,8 @@ class SeekingPlan:
     gamma_m: float = 0.1
     estimator: str = "cvt"
     seeker: str = "gradient"
+    wind_from_deg: float | None = None
+    min_signal_fraction: float = 1.0
     rate_hz: float = 2.0
     max_iterations: int = 300
     convergence_tol_m: float = 0.5

@@ -45,27 +45,29 @@ from mission.flight.state import MissionError
 __all__ = ["seek", "make_estimator", "make_seeker"]
 
 
-def make_seeker(kind: str):
+def make_seeker(kind: str, wind_from_deg: float | None = None):
     """The plan's seeker (``[seeking] seeker``): None for ``gradient`` (the loop's own paper step,
-    with the plan's estimator), else a :class:`_MissionSeeker` around :mod:`estimator.seekers`."""
-    return None if kind == "gradient" else _MissionSeeker(kind)
+    with the plan's estimator), else a :class:`_MissionSeeker` around :mod:`estimator.seekers`
+    (``wind_from_deg``, the plan's, goes to the ``plume`` seeker)."""
+    return None if kind == "gradient" else _MissionSeeker(kind, wind_from_deg)
 
 
 class _MissionSeeker:
     """One mission's seeker (K = 1): readings in, the next centre out, capped at ``gamma_m``;
     the safety envelope's ``clamp_centre`` is applied by the caller."""
 
-    def __init__(self, kind: str):
+    def __init__(self, kind: str, wind_from_deg: float | None = None):
         from estimator.seekers import make_seeker as _make
 
-        self.seeker = _make(kind)
+        self.seeker = _make(kind, **({"wind_from_deg": wind_from_deg} if kind == "plume" else {}))
+        self.arrival = None  # the seeker's own convergence signal after a step (None: it has none)
 
     def step(self, centre, positions, values, gamma_m: float) -> np.ndarray:
         """The next centre; the same centre (hold) if the seeker cannot propose one, with ``self.failure`` set."""
         from estimator.seekers import cap_move
 
         c = np.asarray(centre, dtype=float)[None]
-        self.failure = None
+        self.failure = self.arrival = None
         try:
             new = self.seeker.propose(c, np.asarray(positions, dtype=float)[None],
                                       np.asarray(values, dtype=float)[None])
@@ -75,6 +77,8 @@ class _MissionSeeker:
         if not np.all(np.isfinite(new)):
             self.failure = f"seeker {self.seeker.name} proposed a non-finite centre; holding"
             return c[0]
+        own = getattr(self.seeker, "arrival", None)
+        self.arrival = None if own is None else bool(own[0])
         return cap_move(c, new, gamma_m)[0]
 
 
@@ -137,6 +141,7 @@ class _Seek:
 
     def __init__(self, co, history=()):
         from estimator import ConvergenceMonitor
+        from estimator.seek_signal import ArrivalSignal
 
         self.co = co
         self.sk = sk = co.plan.seeking
@@ -149,9 +154,11 @@ class _Seek:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
         self.est_kind = sk.estimator
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
-        self.seeker = make_seeker(sk.seeker)
+        self.seeker = make_seeker(sk.seeker, sk.wind_from_deg)
         self.watch = make_watch(co, self.est_kind, self.sysids)
-        self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m)
+        self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
+                                          min_signal_fraction=sk.min_signal_fraction)
+        self.arrival = ArrivalSignal()  # the convergence test's signal when the seeker has none
         self.centre = np.asarray(co.centre_enu, dtype=float).copy()
         for c in history:
             self.monitor.update(np.asarray(c, dtype=float))
@@ -321,7 +328,9 @@ class _Seek:
                 co.event(f"iteration {k + 1}: {self.seeker.failure}", level="warning")
         new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))
-        converged = self.monitor.update(new_centre)
+        own = None if self.seeker is None else self.seeker.arrival
+        signal = self.arrival.signal([aligned[s].value for s in used])
+        converged = self.monitor.update(new_centre, signal if own is None else own)
         co.state.record_iteration(k + 1, grad, step_m, self.monitor.estimate_enu, self.monitor.spread_m)
         if co.log is not None:
             everyone = self.sysids + parked(co)
