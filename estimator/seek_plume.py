@@ -95,7 +95,8 @@ class PlumeSeeker:
                  pass_m: float = 2.0, back_m: float = 3.0, drop: float = 0.3, cast_m: float = 4.0,
                  cast_growth: float = 1.5, cast_max_m: float = 30.0, cast_drift_m: float = 1.0,
                  lost_iterations: int = 3, hold_lost_iterations: int = 8, window: int = 16,
-                 max_shift_m: float = 3.0, on_axis_m: float = 0.75, quiet: int = 1,
+                 max_shift_m: float = 3.0, on_axis_m: float = 0.75, quiet: int = 1, hold_fraction: float = 0.7,
+                 blob_ratio: float = 0.1,
                  sigmas: float = 3.0):
         self.wind_from_deg = None if wind_from_deg is None else float(wind_from_deg)
         self._down = None if wind_from_deg is None else downwind_from_deg(wind_from_deg)
@@ -104,6 +105,12 @@ class PlumeSeeker:
                         ("on_axis_m", on_axis_m)):
             setattr(self, name, _positive(name, v))
         self.cast_drift_m = _positive("cast_drift_m", cast_drift_m, allow_zero=True)
+        if not 0 <= hold_fraction < 1:
+            raise ValueError(f"hold_fraction must be in [0, 1), got {hold_fraction!r}")
+        self.hold_fraction = float(hold_fraction)
+        if not 0 <= blob_ratio <= 1:
+            raise ValueError(f"blob_ratio must be in [0, 1], got {blob_ratio!r}")
+        self.blob_ratio = float(blob_ratio)
         if not 0 < drop < 1:
             raise ValueError(f"drop must be in (0, 1), got {drop!r}")
         if not (np.isfinite(cast_growth) and cast_growth >= 1):
@@ -140,6 +147,8 @@ class PlumeSeeker:
         self.coarse_pos = c.copy()
         self.lows = np.zeros(k, dtype=int)
         self.nose_hits = np.zeros(k, dtype=int)
+        self.nose_quiet = np.ones(k, dtype=bool)
+        self.peak = np.full(k, -np.inf)
         self.estimate = c.copy()
         self.upwind_sum = np.zeros((k, 3))
         self.signal = np.zeros(k, dtype=bool)
@@ -214,8 +223,24 @@ class PlumeSeeker:
         tracking = (self.phase == _COARSE) | (self.phase == _FINE)
         out = np.where(tracking[:, None], np.where(sig[:, None], target, c), c)
         out = np.where((self.phase == _HOLD)[:, None], self.estimate, out)
-        self.arrival = (self.phase == _HOLD) & sig
-        return np.where((self.phase == _ACQUIRE)[:, None], cast, out)
+        out = np.where((self.phase == _ACQUIRE)[:, None], cast, out)
+        blob, peak = self._blob(c, pw, vw)
+        self.arrival = ((self.phase == _HOLD) & sig & self.nose_quiet) | (blob & (np.linalg.norm(peak - c, axis=1) < 0.5))
+        return np.where(blob[:, None], peak, out)
+
+    def _blob(self, c, pw, vw):
+        """Not a plume: where no plume has been passed yet (searching, or a first pass) and the
+        log-quadratic fit of all the window's readings has a confident maximum that is no more
+        elongated than ``1 : blob_ratio`` (a plume's is 1 : 50 and more), that maximum (the
+        ``model`` seeker's step): a smooth source such as the paper's sigma_2."""
+        fit = fit_quadratic(pw, vw, vw > 0, c, log=True)
+        lam = np.linalg.eigvalsh(fit.hessian)
+        p = np.where(fit.concave[:, None], np.nan_to_num(fit.newton), 0.0)
+        length = np.linalg.norm(p, axis=1)
+        ok = fit.concave & (lam[:, -1] <= self.blob_ratio * lam[:, 0]) & (fit.used >= 16)
+        ok &= fit.newton_std_m <= np.maximum(length, 0.5)
+        ok &= (self.phase == _ACQUIRE) | (self.phase == _COARSE)
+        return ok, c + p
 
     def _track(self, c, p, v, axis, up, sig) -> np.ndarray:
         """Best points, pass detection and the surge target (module doc, steps 4-5)."""
@@ -243,17 +268,20 @@ class PlumeSeeker:
         far = np.einsum("ki,ki->k", c, up) > ref + 3.0 * self.pass_m  # the whole formation well upwind of it
         passed = (coarse | fine) & ((self.lows >= self.quiet) | far)
         self.lows = np.where(passed, 0, self.lows)
-        to_fine, to_hold = passed & coarse, passed & fine
+        self.peak = np.maximum(self.peak, v.max(axis=1))
+        weak = self.best_v < self.hold_fraction * self.peak  # not where the strongest readings were: search on
+        to_fine, to_hold, again = passed & coarse, passed & fine & ~weak, passed & fine & weak
         self.coarse_s = np.where(to_fine, self.best_s, self.coarse_s)
         self.coarse_pos = np.where(to_fine[:, None], self.best_pos, self.coarse_pos)
         self.estimate = np.where(to_hold[:, None], np.where(known[:, None], self.best_pos, self.coarse_pos),
                                  self.estimate)
-        hits = (self.phase == _HOLD) & sig & (nose_v > self.drop * v.max(axis=1))
+        self.nose_quiet = ~(nose_v > self.drop * v.max(axis=1))
+        hits = (self.phase == _HOLD) & sig & ~self.nose_quiet
         self.nose_hits = np.where(hits, self.nose_hits + 1, self.nose_hits)
         resume = self.nose_hits >= 2  # holding, but the most upwind vehicle still reads the plume
         self.nose_hits = np.where(resume | to_hold, 0, self.nose_hits)
-        self.best_v = np.where(resume, -np.inf, self.best_v)
-        self.phase = np.select([to_fine, to_hold, resume], [_FINE, _HOLD, _COARSE], self.phase)
+        self.best_v = np.where(resume | again, -np.inf, self.best_v)
+        self.phase = np.select([to_fine, to_hold, resume | again], [_FINE, _HOLD, _COARSE], self.phase)
         self.best_v = np.where(to_fine, -np.inf, self.best_v)
         step = np.where(self.phase == _FINE, self.probe_m, self.surge_m)
         s_next = np.where(to_fine, self.coarse_s - self.back_m, nose_s + step)
