@@ -278,7 +278,8 @@ class PlumeSeeker:
         self.nose_quiet = ~(nose_v > self.drop * v.max(axis=1))
         hits = (self.phase == _HOLD) & sig & ~self.nose_quiet
         self.nose_hits = np.where(hits, self.nose_hits + 1, self.nose_hits)
-        resume = self.nose_hits >= 2  # holding, but the most upwind vehicle still reads the plume
+        stronger = (self.phase == _HOLD) & (self.hold_fraction * v.max(axis=1) > self.best_v)
+        resume = (self.nose_hits >= 2) | stronger  # holding, but upwind or stronger readings: not the source
         self.nose_hits = np.where(resume | to_hold, 0, self.nose_hits)
         self.best_v = np.where(resume | again, -np.inf, self.best_v)
         self.phase = np.select([to_fine, to_hold, resume | again], [_FINE, _HOLD, _COARSE], self.phase)
