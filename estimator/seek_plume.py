@@ -27,7 +27,9 @@ Per iteration:
    best point and approaches again with steps of ``probe_m``; the second pass's best point (its
    along-wind position refined by a parabola through log-readings) is the estimate.
 5. **Hold**: the centre goes to the estimate and stays; the signal lost for
-   ``hold_lost_iterations`` -> cast again.
+   ``hold_lost_iterations``, the nose reading the plume, or a reading stronger than the held
+   best -> search again. :attr:`arrival` (the convergence test's signal) is "holding, with a
+   detection, the nose quiet and the strongest reading steady" (a patchy plume's never is).
 6. **Cast** (signal lost): zig-zag across the wind about the last place with a detection,
    legs of ``cast_m`` growing by ``cast_growth`` each pair (at most ``cast_max_m``), alternately
    above and below, drifting ``cast_drift_m`` downwind per leg (a plume widens downwind).
@@ -85,6 +87,19 @@ class PlumeSeeker:
         Iterations of readings in the axis fit.
     max_shift_m : float
         Largest correction toward the fitted axis per iteration.
+    on_axis_m : float
+        The nose counts as on the axis within this distance of it.
+    quiet : int
+        Low on-axis nose readings in a row that end a pass.
+    hold_fraction : float
+        Hold only at a best reading at least this fraction of the strongest seen; leave the hold
+        when a reading beats the held best by ``1 / hold_fraction``.
+    blob_ratio : float
+        Fields with a maximum no more elongated than ``1 : blob_ratio`` are sought as smooth
+        sources (step to the fitted maximum), until a plume has been passed.
+    steady_tol : float
+        The convergence signal (:attr:`arrival`) needs the formation's strongest reading to change
+        by at most this fraction (plus 3 noise standard deviations) from the last iteration.
     sigmas : float
         Detection threshold, noise standard deviations above the background.
     """
@@ -96,7 +111,7 @@ class PlumeSeeker:
                  cast_growth: float = 1.5, cast_max_m: float = 30.0, cast_drift_m: float = 1.0,
                  lost_iterations: int = 3, hold_lost_iterations: int = 8, window: int = 16,
                  max_shift_m: float = 3.0, on_axis_m: float = 0.75, quiet: int = 1, hold_fraction: float = 0.7,
-                 blob_ratio: float = 0.1,
+                 blob_ratio: float = 0.1, steady_tol: float = 0.3,
                  sigmas: float = 3.0):
         self.wind_from_deg = None if wind_from_deg is None else float(wind_from_deg)
         self._down = None if wind_from_deg is None else downwind_from_deg(wind_from_deg)
@@ -111,6 +126,7 @@ class PlumeSeeker:
         if not 0 <= blob_ratio <= 1:
             raise ValueError(f"blob_ratio must be in [0, 1], got {blob_ratio!r}")
         self.blob_ratio = float(blob_ratio)
+        self.steady_tol = _positive("steady_tol", steady_tol)
         if not 0 < drop < 1:
             raise ValueError(f"drop must be in (0, 1), got {drop!r}")
         if not (np.isfinite(cast_growth) and cast_growth >= 1):
@@ -149,6 +165,7 @@ class PlumeSeeker:
         self.nose_hits = np.zeros(k, dtype=int)
         self.nose_quiet = np.ones(k, dtype=bool)
         self.peak = np.full(k, -np.inf)
+        self.prev_max = np.full(k, np.inf)
         self.estimate = c.copy()
         self.upwind_sum = np.zeros((k, 3))
         self.signal = np.zeros(k, dtype=bool)
@@ -225,7 +242,12 @@ class PlumeSeeker:
         out = np.where((self.phase == _HOLD)[:, None], self.estimate, out)
         out = np.where((self.phase == _ACQUIRE)[:, None], cast, out)
         blob, peak = self._blob(c, pw, vw)
-        self.arrival = ((self.phase == _HOLD) & sig & self.nose_quiet) | (blob & (np.linalg.norm(peak - c, axis=1) < 0.5))
+        vmax = v.max(axis=1)
+        steady = np.abs(vmax - self.prev_max) <= self.steady_tol * np.maximum(vmax, self.prev_max) \
+            + 3.0 * self.floor.noise_std  # a patchy plume's readings never settle: no arrival there
+        self.prev_max = vmax
+        holding = (self.phase == _HOLD) & sig & self.nose_quiet & steady
+        self.arrival = holding | (blob & (np.linalg.norm(peak - c, axis=1) < 0.5))
         return np.where(blob[:, None], peak, out)
 
     def _blob(self, c, pw, vw):

@@ -9,10 +9,12 @@ One iteration (design choice: *move, settle, then estimate*):
    nearest ``t`` within ``reading_window_s``, with the position where it was taken;
 3. gradient from those actual positions about their centroid (Theorem 2, ``method="cvt"``; or
    eq. 3, or the robust estimator), ``seek_step(eps, gamma)`` from the commanded centre (the
-   plan's ``seeker = "gradient"``; ``"newton"``/``"model"``: the seeker of
+   plan's ``seeker = "gradient"``; ``"newton"``/``"model"``/``"plume"``: the seeker of
    :mod:`estimator.seekers` proposes the next centre from the readings and their positions,
    capped at ``gamma``), the safety envelope's ``clamp_centre``;
-4. the convergence monitor sees the new centre; the iteration is logged.
+4. the convergence monitor sees the new centre and the iteration's signal (the ``plume`` seeker's
+   own, else :class:`estimator.seek_signal.ArrivalSignal` on the readings: standing still at the
+   background is not arrival); the iteration is logged.
 
 Why not estimate on the fly at a fixed rate: the centre moves by at most ``gamma`` per
 iteration, so arrival takes about ``gamma / max_speed`` plus the autopilot's settling, a second
