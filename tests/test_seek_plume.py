@@ -173,3 +173,21 @@ def test_mission_hook_gives_the_plume_seekers_signal():
     new = hook.step(centre, centre + _OFF, field.value(centre + _OFF), 20.0)
     assert np.all(np.isfinite(new)) and np.linalg.norm(new - centre) <= 20.0 + 1e-9
     assert hook.failure is None and hook.arrival is False  # searching, not holding
+
+
+@pytest.mark.slow
+def test_plume_seeker_mission_on_a_plume(tmp_path, capsys):
+    """``swarmseek run --field plume --seeker plume --seek-wind-from 270`` (lock-step, seed 0):
+    converged within 1 m of the release; every setpoint inside the envelope (audit)."""
+    import json
+
+    from mission.cli import main as cli_main
+    from mission.safety.audit import audit_mission
+
+    log_dir = tmp_path / "plume"
+    code = cli_main(["run", "--field", "plume", "--seeker", "plume", "--seek-wind-from", "270", "--json",
+                     "--max-iterations", "80", "--log-dir", str(log_dir)])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["outcome"] == "converged", out["message"]
+    assert out["error_m"] < 1.0
+    assert audit_mission(log_dir).ok
