@@ -22,11 +22,13 @@ Per seeker, field and noise:
 Noise levels: 0 and "realistic" = 1 % of the field's peak (0.01 for sigma_2, the default
 ``swarmseek run --noise``; 1.0 for sigma_1; 0.01 for the plumes, whose peak is about 1). Fields
 (``--fields``): any name :func:`sitl_mock.fields.make_field` knows, with its default parameters:
-the paper's sigma_1 and sigma_2, ``plume`` (steady Gaussian plume, wind 3 m/s) and
+the paper's sigma_1 and sigma_2, ``plume`` (steady Gaussian plume, wind 2 m/s) and
 ``intermittent`` (puffs: a reading is patchy in time; read at the mission time the time model
 gives). On a plume the starts are downwind (within 10 degrees of the wind axis), as in
 ``swarmseek run``; the gradient seeker's ``eps`` is the field's ``default_eps``
-(:func:`mission.sim.embedded.default_eps`).
+(:func:`mission.sim.embedded.default_eps`). Seekers (``--seekers``): ``gradient``, ``newton``,
+``model``, ``plume`` (the plume's axis estimated from the readings) and ``plume-wind`` (the
+plume seeker given the field's wind direction; on a field without wind it is ``plume``).
 
 Usage::
 
@@ -99,12 +101,24 @@ def measure(run, start_dist_m: np.ndarray, n: int, time_model, tol_m: float = 1.
             "final_distance_m_median_all": float(np.median(d[-1]))}
 
 
+def _wind_from_deg(field):
+    """The field's wind direction (a plume's, or an intermittent plume's steady mean's); None without wind."""
+    for f in (field, getattr(field, "steady", None), *(getattr(field, "parts", None) or ())[:1]):
+        if f is not None and getattr(f, "wind_from_deg", None) is not None:
+            return float(f.wind_from_deg)
+        if f is not None and getattr(getattr(f, "steady", None), "wind_from_deg", None) is not None:
+            return float(f.steady.wind_from_deg)
+    return None
+
+
 def _seeker(name: str, field):
     from estimator.seekers import make_seeker
     from mission.sim.embedded import default_eps
 
     if name == "gradient":
         return make_seeker("gradient", eps=default_eps(field)), 1.0
+    if name == "plume-wind":  # the plume seeker given the wind direction (an anemometer)
+        return make_seeker("plume", wind_from_deg=_wind_from_deg(field)), 20.0
     return make_seeker(name), 20.0
 
 
@@ -152,7 +166,8 @@ def main(argv=None) -> int:
     ap.add_argument("--trials", type=int, default=400)
     ap.add_argument("--iterations", type=int, default=150)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--seekers", default="gradient,newton,model")
+    ap.add_argument("--seekers", default="gradient,newton,model,plume,plume-wind",
+                    help="seekers (estimator.seekers.SEEKERS) and plume-wind: the plume seeker given the wind")
     ap.add_argument("--fields", default="sigma1,sigma2")
     ap.add_argument("--noise", default="0,realistic", help="noise levels: 0 and/or realistic (1 %% of the peak)")
     ap.add_argument("--json", type=Path, default=None)

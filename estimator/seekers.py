@@ -18,6 +18,10 @@ seeker never sees them. ``K`` is the number of independent trials (1 in the miss
   Gaussian source) to the last ``window`` iterations' readings from all vehicles and steps to
   the fitted maximum when the fit's uncertainty on it is small, else along the fitted gradient
   by the trust radius (same trust region).
+* ``"plume"`` (:class:`~estimator.seek_plume.PlumeSeeker`): for wind-advected plumes: surge up
+  the plume's axis with the most upwind vehicle on it while the signal is there, cast across
+  the wind when it is lost, hold at the point where that vehicle read the most before the
+  plume ended upwind (``wind_from_deg`` given, or the axis estimated from the readings).
 
 The maths and the failure modes are in ``docs/seekers.md``.
 """
@@ -29,12 +33,15 @@ from typing import Protocol
 import numpy as np
 
 from estimator.gradient import DEFAULT_MAX_CONDITION, estimator_weights
+from estimator.seek_inputs import seeker_inputs as _inputs
+from estimator.seek_plume import PlumeSeeker
 from estimator.seek_quadratic import fit_quadratic
 
-__all__ = ["SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker", "ModelSeeker", "make_seeker", "cap_move"]
+__all__ = ["SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker", "ModelSeeker", "PlumeSeeker", "make_seeker",
+           "cap_move"]
 
 #: Seeker names accepted by :func:`make_seeker` (and by the plan's ``[seeking] seeker``).
-SEEKERS = ("gradient", "newton", "model")
+SEEKERS = ("gradient", "newton", "model", "plume")
 
 
 class Seeker(Protocol):
@@ -56,19 +63,6 @@ def cap_move(centre, new_centre, gamma_m: float) -> np.ndarray:
     length = np.linalg.norm(move, axis=-1, keepdims=True)
     over = length > gamma_m
     return c + move * np.where(over, gamma_m / np.where(over, length, 1.0), 1.0)
-
-
-def _inputs(centre, positions, values):
-    c = np.atleast_2d(np.asarray(centre, dtype=float))
-    p = np.asarray(positions, dtype=float)
-    v = np.asarray(values, dtype=float)
-    if p.ndim == 2:
-        p, v = p[None], v[None]
-    if c.shape[-1] != 3 or p.shape[:1] != c.shape[:1] or p.shape[-1] != 3 or v.shape != p.shape[:2]:
-        raise ValueError(f"expected centre (K,3), positions (K,N,3), values (K,N); got {c.shape}, {p.shape}, {v.shape}")
-    if not (np.all(np.isfinite(c)) and np.all(np.isfinite(p)) and np.all(np.isfinite(v))):
-        raise ValueError("centre, positions and values must be finite")
-    return c, p, v
 
 
 class GradientSeeker:
@@ -237,11 +231,13 @@ class ModelSeeker(_TrustRegionSeeker):
 
 def make_seeker(name: str, *, eps: float = 1.0, method: str = "cvt", **kwargs) -> Seeker:
     """A seeker by name (:data:`SEEKERS`); ``eps``/``method`` go to the gradient seeker, the
-    other keywords (``window``, ``radius_m``, ...) to the trust-region seekers."""
+    other keywords (``window``, ``radius_m``, ...; ``wind_from_deg``, ... for ``plume``) to the others."""
     if name == "gradient":
         return GradientSeeker(eps=eps, method=method)
     if name == "newton":
         return NewtonSeeker(**kwargs)
     if name == "model":
         return ModelSeeker(**kwargs)
+    if name == "plume":
+        return PlumeSeeker(**kwargs)
     raise ValueError(f"unknown seeker {name!r}; expected one of {', '.join(SEEKERS)}")

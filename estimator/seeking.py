@@ -28,6 +28,13 @@ The test therefore looks at the last ``window`` centres ``c_1..c_W`` (``W - 1`` 
 A slow but steady drift (constant or growing steps, straight path) fails 2 whatever its speed.
 The estimated source is the mean of the window's centres, reported with the spread.
 
+3. **Signal** (optional, ``min_signal_fraction > 0``): at least that fraction of the window's
+   iterations had a detection (:class:`estimator.seek_signal.SignalFloor`: a reading above the
+   noise floor the readings themselves show). On a plume, standing still at the background
+   (between the puffs of an intermittent plume, or beside a narrow plume) satisfies 1 and 2: the
+   estimated gradient is noise and the centre hardly moves. Centres given without a signal (the
+   start, a resumed seek's history) count as having one.
+
 Limitation (physics, not code): where the true gradient is far below the noise of its
 estimate, the centre performs a random walk that this test cannot tell from wandering about the
 source; choose ``tol_m`` below that random walk's spread (about ``gamma * sqrt(W / 6)``) or
@@ -106,6 +113,8 @@ class ConvergenceVerdict:
         ``sqrt(sum s_j^2)``: the net progress a random walk of the same steps would make.
     remaining_m : float
         Predicted remaining travel under geometric decay (``inf`` if not decaying).
+    signal_fraction : float
+        Fraction of the window's iterations with a detection (1.0 when no signal is given).
     """
 
     converged: bool
@@ -115,9 +124,12 @@ class ConvergenceVerdict:
     path_m: float
     walk_m: float
     remaining_m: float
+    signal_fraction: float = 1.0
 
 
-def _check_params(window: int, tol_m: float, drift_factor: float) -> None:
+def _check_params(window: int, tol_m: float, drift_factor: float, min_signal_fraction: float = 0.0) -> None:
+    if not (np.isfinite(min_signal_fraction) and 0.0 <= min_signal_fraction <= 1.0):
+        raise ValueError(f"min_signal_fraction must be in [0, 1], got {min_signal_fraction!r}")
     if int(window) != window or window < 8:
         raise ValueError(f"window must be an integer >= 8, got {window!r}")
     if not (np.isfinite(tol_m) and tol_m > 0):
@@ -162,15 +174,19 @@ def _verdict_mask(spread, net, path, walk, remaining, tol_m, drift_factor):
     return (spread <= tol_m) & (undirected | decaying)
 
 
-def convergence_scan(centres, window: int = 400, tol_m: float = 1.0, drift_factor: float = 0.5):
+def convergence_scan(centres, window: int = 400, tol_m: float = 1.0, drift_factor: float = 0.5,
+                     signal=None, min_signal_fraction: float = 0.0):
     """Apply the convergence test to whole trajectories (vectorised, same maths as the monitor).
 
     Parameters
     ----------
     centres : array_like, shape (T, ..., 3)
         Centres over iterations (axis 0), any number of trials after it.
-    window, tol_m, drift_factor
+    window, tol_m, drift_factor, min_signal_fraction
         As :class:`ConvergenceMonitor`.
+    signal : array_like of bool, shape (T, ...), optional
+        Whether the iteration that led to each centre had a detection (index 0, the start:
+        True); None: every one (criterion 3 off).
 
     Returns
     -------
@@ -181,7 +197,7 @@ def convergence_scan(centres, window: int = 400, tol_m: float = 1.0, drift_facto
     spread_m : ndarray, shape (...)
         Spread at ``first``; NaN where never converged.
     """
-    _check_params(window, tol_m, drift_factor)
+    _check_params(window, tol_m, drift_factor, min_signal_fraction)
     c = np.asarray(centres, dtype=float)
     if c.ndim < 2 or c.shape[-1] != 3:
         raise ValueError(f"centres must have shape (T, ..., 3), got {c.shape}")
@@ -190,6 +206,10 @@ def convergence_scan(centres, window: int = 400, tol_m: float = 1.0, drift_facto
         return (np.full(lead, -1), np.full(lead + (3,), np.nan), np.full(lead, np.nan))
     mean, spread, net, path, walk, remaining = _sliding_stats(c, window)
     ok = _verdict_mask(spread, net, path, walk, remaining, tol_m, drift_factor)
+    if signal is not None:
+        sig = np.broadcast_to(np.asarray(signal, dtype=float), c.shape[:-1])
+        csum = np.concatenate([np.zeros_like(sig[:1]), np.cumsum(sig, axis=0)])
+        ok = ok & ((csum[window:] - csum[:-window]) / window >= min_signal_fraction - 1e-12)
     any_ok = ok.any(axis=0)
     idx = np.argmax(ok, axis=0)
     first = np.where(any_ok, idx + window - 1, -1)
@@ -212,6 +232,8 @@ class ConvergenceMonitor:
     drift_factor : float
         The window counts as undirected when its net progress is <= this times the progress of
         a random walk made of the same steps.
+    min_signal_fraction : float
+        Criterion 3: at least this fraction of the window's iterations had a detection (0: off).
 
     Examples
     --------
@@ -222,8 +244,11 @@ class ConvergenceMonitor:
     (True, [1.0, 2.0, 3.0])
     """
 
-    def __init__(self, window: int = 400, tol_m: float = 1.0, drift_factor: float = 0.5):
-        _check_params(window, tol_m, drift_factor)
+    def __init__(self, window: int = 400, tol_m: float = 1.0, drift_factor: float = 0.5,
+                 min_signal_fraction: float = 0.0):
+        _check_params(window, tol_m, drift_factor, min_signal_fraction)
+        self.min_signal_fraction = float(min_signal_fraction)
+        self._signals: deque[bool] = deque(maxlen=int(window))
         self.window = int(window)
         self.tol_m = float(tol_m)
         self.drift_factor = float(drift_factor)
@@ -239,11 +264,13 @@ class ConvergenceMonitor:
     def reset(self) -> None:
         """Forget every centre seen."""
         self._centres.clear()
+        self._signals.clear()
         self._iterations = 0
         self._verdict = None
 
-    def update(self, centre) -> bool:
-        """Record the newest centre; return whether the run has converged.
+    def update(self, centre, signal: bool | None = None) -> bool:
+        """Record the newest centre (and whether the iteration that led to it had a detection;
+        None: counts as yes); return whether the run has converged.
 
         Raises
         ------
@@ -254,6 +281,7 @@ class ConvergenceMonitor:
         if c.shape != (3,) or not np.all(np.isfinite(c)):
             raise ValueError(f"centre must be a finite 3-vector, got {centre!r}")
         self._centres.append(c.copy())
+        self._signals.append(True if signal is None else bool(signal))
         self._iterations += 1
         if len(self._centres) < self.window:
             self._verdict = None
@@ -261,9 +289,11 @@ class ConvergenceMonitor:
         arr = np.asarray(self._centres)[:, None, :]
         stats = [x[-1, 0] for x in _sliding_stats(arr, self.window)]
         mean, spread, net, path, walk, remaining = stats
+        fraction = float(np.mean(self._signals))
         ok = bool(_verdict_mask(spread, net, path, walk, remaining, self.tol_m, self.drift_factor))
+        ok = ok and fraction >= self.min_signal_fraction - 1e-12
         self._verdict = ConvergenceVerdict(
-            ok, mean.copy(), float(spread), float(net), float(path), float(walk), float(remaining)
+            ok, mean.copy(), float(spread), float(net), float(path), float(walk), float(remaining), fraction
         )
         return ok
 

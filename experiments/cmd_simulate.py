@@ -50,6 +50,23 @@ def _positive(kind):
     return parse
 
 
+def _seekers() -> tuple[str, ...]:
+    from estimator.seekers import SEEKERS
+
+    return SEEKERS
+
+
+def _fraction(text: str) -> float:
+    """A number in [0, 1] (argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
+    return v
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``simulate`` command's arguments."""
     parser.add_argument("--n", type=_positive(int), default=8, help="number of robots (default 8)")
@@ -65,10 +82,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eps", type=positive_float, default=1.0, help="step size (default 1)")
     parser.add_argument("--gamma", type=positive_float, default=0.1,
                         help="largest centre move per iteration, m (default 0.1)")
-    parser.add_argument("--seeker", choices=("gradient", "newton", "model"), default="gradient",
+    parser.add_argument("--seeker", choices=_seekers(), default="gradient",
                         help="how the centre moves (docs/seekers.md): the paper's gradient ascent "
-                             "(default), Newton trust-region, or the log-quadratic model; newton and "
-                             "model take --gamma as their largest step (give e.g. 20)")
+                             "(default), Newton trust-region, the log-quadratic model, or the plume "
+                             "seeker (surge/cast); all but gradient take --gamma as their largest step (give e.g. 20)")
+    parser.add_argument("--seek-wind-from", type=float, default=None, metavar="DEG",
+                        help="wind direction the plume seeker is given (where it comes from, degrees from "
+                             "north); default: it estimates the plume's axis")
+    parser.add_argument("--min-signal-fraction", type=_fraction, default=1.0,
+                        help="convergence criterion 3 for the seekers but gradient: a signal in at least this "
+                             "fraction of the window (default 1, as a plan; 0: off; docs/seekers.md)")
     parser.add_argument("--sampling", choices=("stop_and_go", "moving"), default="stop_and_go",
                         help="stop_and_go (default) or moving: newton/model re-plan while the formation flies "
                              "at 3 m/s, from every reading since the last estimate (experiments.offline_moving; "
@@ -106,9 +129,9 @@ def run(args: argparse.Namespace) -> dict:
     field = make_field(args.field)
     seeker = getattr(args, "seeker", "gradient")
     sampling = getattr(args, "sampling", "stop_and_go")
-    if sampling == "moving" and seeker == "gradient":
-        raise ValueError("--sampling moving needs --seeker model or newton (the paper's gradient seeker samples "
-                         "stop and go)")
+    if sampling == "moving" and seeker not in ("model", "newton"):
+        raise ValueError(f"--sampling moving needs --seeker model or newton, got {seeker} (the paper's gradient "
+                         "seeker and the plume seeker sample stop and go)")
     if sampling == "moving":
         res = _simulate_moving(args, offsets, field, start)
     elif seeker == "gradient":
@@ -124,7 +147,8 @@ def run(args: argparse.Namespace) -> dict:
         "source_enu": np.asarray(res.source_enu, dtype=float).tolist(), "window": args.window, "tol_m": args.tol,
     }
     out.update(convergence_report(res, window=args.window, tol_m=args.tol,
-                                  stop_at_convergence=args.stop_at_convergence))
+                                  stop_at_convergence=args.stop_at_convergence,
+                                  min_signal_fraction=getattr(args, "min_signal_fraction", 0.0)))
     if sampling == "moving":  # mission time of the kinematic model, which the stop-and-go runs do not have
         t_1m = float(res.moving.time_within_s(1.0)[0])
         out["time_within_1m_s"] = t_1m if np.isfinite(t_1m) else None
@@ -135,8 +159,9 @@ class _SeekerRun:
     """A newton/model seeker's run in the shape :func:`experiments.offline.convergence_report` reads
     (its gradient error is not comparable with the paper's estimator: NaN)."""
 
-    def __init__(self, centres, source_enu):
+    def __init__(self, centres, source_enu, signal=None):
         self.centres = centres
+        self.signal = signal
         self.source_enu = np.asarray(source_enu, dtype=float)
         self.grad_est = np.zeros((centres.shape[0] - 1,) + centres.shape[1:])
 
@@ -149,10 +174,11 @@ def _simulate_seeker(args, offsets, field, start) -> _SeekerRun:
     from estimator.seekers import make_seeker
     from experiments.offline_seek import simulate_seeker
 
-    run = simulate_seeker(offsets, field, np.asarray(start, dtype=float)[None], make_seeker(args.seeker),
+    kw = {"wind_from_deg": getattr(args, "seek_wind_from", None)} if args.seeker == "plume" else {}
+    run = simulate_seeker(offsets, field, np.asarray(start, dtype=float)[None], make_seeker(args.seeker, **kw),
                           gamma_m=args.gamma, iterations=args.iterations, noise_std=args.noise,
                           rotate=False, seed=args.seed)
-    return _SeekerRun(run.centres, field.source_enu())
+    return _SeekerRun(run.centres, field.source_enu(), run.signal)
 
 
 def _simulate_moving(args, offsets, field, start) -> _SeekerRun:

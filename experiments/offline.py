@@ -201,7 +201,7 @@ def simulate(
 
 
 def convergence_report(result: OfflineResult, *, window: int, tol_m: float, trial: int = 0,
-                       stop_at_convergence: bool = False) -> dict:
+                       stop_at_convergence: bool = False, min_signal_fraction: float = 0.0) -> dict:
     """One trial judged by the mission's convergence test, with every distance named.
 
     A mission stops at the first iteration where :func:`estimator.convergence_scan` (the
@@ -218,6 +218,9 @@ def convergence_report(result: OfflineResult, *, window: int, tol_m: float, tria
         Which trial of ``result``.
     stop_at_convergence : bool
         Treat the run as ended where the test first passes (as a mission does).
+    min_signal_fraction : float
+        The test's criterion 3 on ``result.signal`` (a seeker's run has it, as the mission
+        computes it; a run without it is judged on the centres alone).
 
     Returns
     -------
@@ -231,7 +234,10 @@ def convergence_report(result: OfflineResult, *, window: int, tol_m: float, tria
     """
     centres = result.centres[:, trial]
     source = result.source_enu
-    first, est, spread = convergence_scan(centres[:, None, :], window=window, tol_m=tol_m)
+    sig = getattr(result, "signal", None)
+    sig = None if sig is None else np.asarray(sig)[:, trial, None]
+    first, est, spread = convergence_scan(centres[:, None, :], window=window, tol_m=tol_m, signal=sig,
+                                          min_signal_fraction=min_signal_fraction)
     k = int(first[0])
     converged = k >= 0
     end = k if converged and stop_at_convergence else centres.shape[0] - 1
@@ -251,7 +257,9 @@ def convergence_report(result: OfflineResult, *, window: int, tol_m: float, tria
     }
     last = centres[max(0, end + 1 - window):end + 1]
     if last.shape[0] >= window:
-        ok_end, est_end, _ = convergence_scan(last[:, None, :], window=window, tol_m=tol_m)
+        sig_end = None if sig is None else sig[max(0, end + 1 - window):end + 1]
+        ok_end, est_end, _ = convergence_scan(last[:, None, :], window=window, tol_m=tol_m, signal=sig_end,
+                                              min_signal_fraction=min_signal_fraction)
         mean = last.mean(axis=0)
         out.update(converged_at_end=bool(ok_end[0] >= 0), final_window_estimate_enu=mean.tolist(),
                    final_window_error_m=float(np.linalg.norm(mean - source)))

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from estimator.seek_signal import ArrivalSignal
 from estimator.seekers import cap_move
 
 __all__ = ["StopAndGo", "SeekRun", "simulate_seeker"]
@@ -76,11 +77,16 @@ class SeekRun:
     offsets : ndarray, shape (K, N, 3)
         Each trial's formation offsets.
     source_enu : ndarray, shape (3,)
+    signal : ndarray of bool, shape (T + 1, K)
+        The convergence test's signal for the iteration that led to each centre, as the mission
+        computes it: the seeker's own ``arrival`` if it has one, else
+        :class:`estimator.seek_signal.ArrivalSignal` on the noisy readings (index 0, the start: True).
     """
 
     centres: np.ndarray
     offsets: np.ndarray
     source_enu: np.ndarray
+    signal: np.ndarray | None = None
 
     def distance_m(self) -> np.ndarray:
         """Distance of the centre to the source, (T + 1, K)."""
@@ -145,11 +151,16 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
     now_s = np.arange(k)[:, None] * float(trial_time_offset_s)
     centres = np.empty((int(iterations) + 1, k, 3))
     centres[0] = c0
+    arrival = ArrivalSignal()
+    signal = np.ones((int(iterations) + 1, k), dtype=bool)
     for t in range(int(iterations)):
         pos = centres[t][:, None, :] + trial_off
         vals = field.value(pos, now_s) if timed else field.value(pos)
         if noise_std > 0:
             vals = vals + rng.standard_normal(vals.shape) * noise_std
         centres[t + 1] = cap_move(centres[t], seeker.propose(centres[t], pos, vals), gamma_m)
+        own = getattr(seeker, "arrival", None)  # a seeker that knows (plume: holding with a detection)
+        generic = arrival.signal(vals)  # kept up to date either way, as in the mission
+        signal[t + 1] = generic if own is None else own
         now_s = now_s + model.iteration_s(centres[t + 1] - centres[t])[:, None]
-    return SeekRun(centres, trial_off, np.asarray(field.source_enu(), dtype=float))
+    return SeekRun(centres, trial_off, np.asarray(field.source_enu(), dtype=float), signal)

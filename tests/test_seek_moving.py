@@ -128,6 +128,7 @@ def test_plan_selects_moving_sampling(doc):
 @pytest.mark.parametrize("changes, key, why", [
     ({"sampling": "sometimes"}, "seeking.sampling", "must be one of stop_and_go, moving, got 'sometimes'"),
     ({"seeker": "gradient", "sampling": "moving"}, "seeking.sampling", 'needs seeker = "model" or "newton"'),
+    ({"seeker": "plume", "sampling": "moving"}, "seeking.sampling", 'needs seeker = "model" or "newton"'),
     ({"seeker": "model", "replan_fraction": 0.0}, "seeking.replan_fraction", "must be > 0"),
     ({"seeker": "model", "replan_fraction": 1.5}, "seeking.replan_fraction", "must be <= 1"),
     ({"seeker": "model", "sensor_lag_s": -1.0}, "seeking.sensor_lag_s", "must be >= 0"),
@@ -153,6 +154,8 @@ def test_run_cli_selects_sampling():
     assert _seeking_options(_args())["sampling"] == "moving"                       # run's default seeker: model
     assert _seeking_options(_args("--seeker", "newton"))["sampling"] == "moving"
     assert _seeking_options(_args("--seeker", "gradient"))["sampling"] == "stop_and_go"
+    plume = _seeking_options(_args("--seeker", "plume", "--seek-wind-from", "270"))
+    assert (plume["sampling"], plume["wind_from_deg"]) == ("stop_and_go", 270.0)
     assert _seeking_options(_args("--sampling", "stop_and_go"))["sampling"] == "stop_and_go"
     opts = _seeking_options(_args("--replan-fraction", "0.7", "--sensor-lag", "0.2"))
     assert (opts["replan_fraction"], opts["sensor_lag_s"]) == (0.7, 0.2)
@@ -161,6 +164,7 @@ def test_run_cli_selects_sampling():
 
 def test_run_cli_rejects_moving_gradient_and_bad_fraction(capsys):
     assert "needs --seeker model or newton" in _check_args(_args("--sampling", "moving", "--seeker", "gradient"))
+    assert "got plume" in _check_args(_args("--sampling", "moving", "--seeker", "plume"))
     assert "--replan-fraction must be in (0, 1]" in _check_args(_args("--replan-fraction", "1.5"))
     assert cli_main(["run", "--sampling", "moving", "--seeker", "gradient"]) == 2
     assert "needs --seeker model or newton" in capsys.readouterr().err

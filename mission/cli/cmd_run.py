@@ -25,6 +25,17 @@ from sitl_mock.cli_args import add_field_arguments, field_from_args, nonnegative
 __all__ = ["configure", "main", "run_embedded"]
 
 
+def _degrees(text: str) -> float:
+    """A direction in degrees, [0, 360] (argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected degrees in [0, 360], got {text!r}") from None
+    if not 0.0 <= v <= 360.0:
+        raise argparse.ArgumentTypeError(f"expected degrees in [0, 360], got {text!r}")
+    return v
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``run`` options."""
     parser.add_argument("--n", type=int, default=8, help="number of vehicles (4..254; default 8)")
@@ -49,14 +60,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eps", type=positive_float, default=None,
                         help="step gain (default 1/(2 A lambda_max(S)) of the field; paper: 1)")
     parser.add_argument("--gamma", type=positive_float, default=None,
-                        help="largest step, m (default 1 for the gradient seeker, 20 for newton/model; paper 0.1)")
-    parser.add_argument("--seeker", choices=("gradient", "newton", "model"), default="model",
+                        help="largest step, m (default 1 for the gradient seeker, 20 for the others; paper 0.1)")
+    parser.add_argument("--seeker", choices=("gradient", "newton", "model", "plume"), default="model",
                         help="how the centre moves: a log-quadratic model fit in a trust region (default), "
-                             "a Newton trust-region step, or the paper's gradient ascent (docs/seekers.md)")
+                             "a Newton trust-region step, the paper's gradient ascent, or the plume seeker "
+                             "(surge up the plume, cast when lost; for --field plume/intermittent) (docs/seekers.md)")
+    parser.add_argument("--seek-wind-from", type=_degrees, default=None, metavar="DEG",
+                        help="the wind direction the ground station gives the plume seeker (where it comes "
+                             "from, degrees clockwise from north, e.g. the --wind-from of the simulated plume: "
+                             "an anemometer); default: the seeker estimates the plume's axis")
     parser.add_argument("--sampling", choices=("stop_and_go", "moving"), default=None,
                         help="stop_and_go: fly to each new centre, settle, read, estimate; moving: estimate "
                              "while flying from every reading since the last estimate (newton/model only; "
-                             "default: moving for those, stop_and_go for gradient; docs/seekers.md)")
+                             "default: moving for those, stop_and_go for gradient and plume; docs/seekers.md)")
     parser.add_argument("--replan-fraction", type=positive_float, default=None, metavar="F",
                         help="with --sampling moving: re-plan once this fraction of a move is flown (0-1, "
                              "default 0.5)")
@@ -89,9 +105,10 @@ def _check_args(args) -> str | None:
                 f"got {args.n}")
     if args.formation == "symmetric" and args.n % 2:
         return f"--formation symmetric needs an even --n, got {args.n}"
-    if getattr(args, "sampling", None) == "moving" and args.seeker == "gradient":
-        return ("--sampling moving needs --seeker model or newton: the paper's gradient seeker estimates from "
-                "the formation's shape at rest (Theorem 2) and samples stop and go")
+    if getattr(args, "sampling", None) == "moving" and args.seeker not in ("model", "newton"):
+        return (f"--sampling moving needs --seeker model or newton, got {args.seeker}: the paper's gradient seeker "
+                "estimates from the formation's shape at rest (Theorem 2) and the plume seeker compares readings "
+                "taken at rest; both sample stop and go")
     if getattr(args, "replan_fraction", None) is not None and not 0 < args.replan_fraction <= 1:
         return f"--replan-fraction must be in (0, 1], got {args.replan_fraction:g}"
     if args.max_iterations < 1:
@@ -146,8 +163,8 @@ def _seeking_options(args) -> dict:
     """The ``[seeking]`` keys the ``run`` options set: the seeker, its sampling and re-plan fraction."""
     sampling = getattr(args, "sampling", None)
     if sampling is None:  # moving pays for the seekers that can use it (docs/seekers.md)
-        sampling = "stop_and_go" if args.seeker == "gradient" else "moving"
-    out = {"seeker": args.seeker, "sampling": sampling}
+        sampling = "moving" if args.seeker in ("model", "newton") else "stop_and_go"
+    out = {"seeker": args.seeker, "sampling": sampling, "wind_from_deg": getattr(args, "seek_wind_from", None)}
     if getattr(args, "replan_fraction", None) is not None:
         out["replan_fraction"] = args.replan_fraction
     lag_s = getattr(args, "sensor_lag", None)

@@ -141,15 +141,18 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
         max_reading_age_s=c.number(t, "max_reading_age_s", p, d.max_reading_age_s, low=0, low_open=True),
         max_position_error_m=c.number(t, "max_position_error_m", p, d.max_position_error_m,
                                       low=0, low_open=True),
+        min_signal_fraction=c.number(t, "min_signal_fraction", p, d.min_signal_fraction, low=0, high=1),
     )
     start = c.point(t, "start_enu_m", p, 3)
-    if vals["sampling"] == "moving" and vals["seeker"] == "gradient":
+    if vals["sampling"] == "moving" and vals["seeker"] not in ("model", "newton"):
         c.bad(f"{p}.sampling", 'sampling = "moving" needs seeker = "model" or "newton": the paper\'s gradient '
-              "seeker estimates from the formation's shape at rest (Theorem 2), so it samples stop and go")
+              "seeker estimates from the formation's shape at rest (Theorem 2) and the plume seeker's passes "
+              "compare readings taken at rest, so they sample stop and go")
         vals["sampling"] = None
+    wind = c.number(t, "wind_from_deg", p, None, low=0, high=360)  # None: not given (or invalid, reported)
     if None in vals.values():
         return None
-    return SeekingPlan(start_enu_m=start, **vals)
+    return SeekingPlan(start_enu_m=start, wind_from_deg=wind, **vals)
 
 
 def parse_geofence(c: Checker, doc: dict, origin) -> GeofencePlan | None:

@@ -85,8 +85,8 @@ class SeekingPlan:
     estimator : str
         ``cvt`` (Theorem 2 on the actual positions), ``symmetric`` (eq. 3) or ``robust``.
     seeker : str
-        ``gradient`` (the paper's ``eps * grad`` capped by ``gamma_m``), ``newton`` or ``model``
-        (``estimator.seekers``; their trust region is capped by ``gamma_m`` too: give it 10-20 m).
+        ``gradient`` (the paper's ``eps * grad`` capped by ``gamma_m``), ``newton``, ``model`` or
+        ``plume`` (``estimator.seekers``; their steps are capped by ``gamma_m`` too: give it 10-20 m).
     sampling : str
         ``stop_and_go`` (fly to the new centre, settle, read, estimate) or ``moving`` (the
         seeker gets every reading taken since the last estimate, along the path, and the next
@@ -99,6 +99,13 @@ class SeekingPlan:
         The sensor's response time constant (its datasheet's; 0: instantaneous). With ``moving``
         sampling each reading goes to the seeker at the position its vehicle had this long before
         (a lagged sensor moving reads the field where it was).
+    wind_from_deg : float or None
+        Wind direction for the ``plume`` seeker (where it comes FROM, degrees clockwise from north:
+        an anemometer or the vehicles' wind estimate); None: the seeker estimates the plume's axis.
+    min_signal_fraction : float
+        Convergence needs a signal in at least this fraction of the window's iterations
+        (``estimator.seeking``, criterion 3; 0 turns it off): the ``plume`` seeker's "holding
+        with a detection", else ``estimator.seek_signal.ArrivalSignal`` on the readings.
     rate_hz : float
         Highest estimation rate (iterations per second of mission clock).
     max_iterations : int
@@ -127,6 +134,8 @@ class SeekingPlan:
     sampling: str = "stop_and_go"
     replan_fraction: float = 0.5
     sensor_lag_s: float = 0.0
+    wind_from_deg: float | None = None
+    min_signal_fraction: float = 1.0
     rate_hz: float = 2.0
     max_iterations: int = 300
     convergence_tol_m: float = 0.5

@@ -9,10 +9,12 @@ One iteration (design choice: *move, settle, then estimate*):
    nearest ``t`` within ``reading_window_s``, with the position where it was taken;
 3. gradient from those actual positions about their centroid (Theorem 2, ``method="cvt"``; or
    eq. 3, or the robust estimator), ``seek_step(eps, gamma)`` from the commanded centre (the
-   plan's ``seeker = "gradient"``; ``"newton"``/``"model"``: the seeker of
+   plan's ``seeker = "gradient"``; ``"newton"``/``"model"``/``"plume"``: the seeker of
    :mod:`estimator.seekers` proposes the next centre from the readings and their positions,
    capped at ``gamma``), the safety envelope's ``clamp_centre``;
-4. the convergence monitor sees the new centre; the iteration is logged.
+4. the convergence monitor sees the new centre and the iteration's signal (the ``plume`` seeker's
+   own, else :class:`estimator.seek_signal.ArrivalSignal` on the readings: standing still at the
+   background is not arrival); the iteration is logged.
 
 Stop and go is the default because Theorem 2 needs the formation's shape: estimating while the
 vehicles fly uses a formation distorted by tracking lag (``cond(M)`` and the noise grow). The
@@ -46,27 +48,29 @@ from mission.flight.state import MissionError
 __all__ = ["seek", "make_estimator", "make_seeker"]
 
 
-def make_seeker(kind: str):
+def make_seeker(kind: str, wind_from_deg: float | None = None):
     """The plan's seeker (``[seeking] seeker``): None for ``gradient`` (the loop's own paper step,
-    with the plan's estimator), else a :class:`_MissionSeeker` around :mod:`estimator.seekers`."""
-    return None if kind == "gradient" else _MissionSeeker(kind)
+    with the plan's estimator), else a :class:`_MissionSeeker` around :mod:`estimator.seekers`
+    (``wind_from_deg``, the plan's, goes to the ``plume`` seeker)."""
+    return None if kind == "gradient" else _MissionSeeker(kind, wind_from_deg)
 
 
 class _MissionSeeker:
     """One mission's seeker (K = 1): readings in, the next centre out, capped at ``gamma_m``;
     the safety envelope's ``clamp_centre`` is applied by the caller."""
 
-    def __init__(self, kind: str):
+    def __init__(self, kind: str, wind_from_deg: float | None = None):
         from estimator.seekers import make_seeker as _make
 
-        self.seeker = _make(kind)
+        self.seeker = _make(kind, **({"wind_from_deg": wind_from_deg} if kind == "plume" else {}))
+        self.arrival = None  # the seeker's own convergence signal after a step (None: it has none)
 
     def step(self, centre, positions, values, gamma_m: float) -> np.ndarray:
         """The next centre; the same centre (hold) if the seeker cannot propose one, with ``self.failure`` set."""
         from estimator.seekers import cap_move
 
         c = np.asarray(centre, dtype=float)[None]
-        self.failure = None
+        self.failure = self.arrival = None
         try:
             new = self.seeker.propose(c, np.asarray(positions, dtype=float)[None],
                                       np.asarray(values, dtype=float)[None])
@@ -76,6 +80,8 @@ class _MissionSeeker:
         if not np.all(np.isfinite(new)):
             self.failure = f"seeker {self.seeker.name} proposed a non-finite centre; holding"
             return c[0]
+        own = getattr(self.seeker, "arrival", None)
+        self.arrival = None if own is None else bool(own[0])
         return cap_move(c, new, gamma_m)[0]
 
 
@@ -138,6 +144,7 @@ class _Seek:
 
     def __init__(self, co, history=()):
         from estimator import ConvergenceMonitor
+        from estimator.seek_signal import ArrivalSignal
 
         self.co = co
         self.sk = sk = co.plan.seeking
@@ -150,11 +157,13 @@ class _Seek:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
         self.est_kind = sk.estimator
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
-        self.seeker = make_seeker(sk.seeker)
-        self.moving = moving_sampling(co, sk, self.seeker is None)
+        self.seeker = make_seeker(sk.seeker, sk.wind_from_deg)
+        self.moving = moving_sampling(co, sk, sk.seeker not in ("newton", "model"))
         self.samples = None  # with moving sampling: the readings the seeker gets this iteration
         self.watch = make_watch(co, self.est_kind, self.sysids)
-        self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m)
+        self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
+                                          min_signal_fraction=sk.min_signal_fraction)
+        self.arrival = ArrivalSignal()  # the convergence test's signal when the seeker has none
         self.centre = np.asarray(co.centre_enu, dtype=float).copy()
         for c in history:
             self.monitor.update(np.asarray(c, dtype=float))
@@ -338,7 +347,9 @@ class _Seek:
                 co.event(f"iteration {k + 1}: {self.seeker.failure}", level="warning")
         new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))
-        converged = self.monitor.update(new_centre)
+        own = None if self.seeker is None else self.seeker.arrival
+        signal = self.arrival.signal([aligned[s].value for s in used])
+        converged = self.monitor.update(new_centre, signal if own is None else own)
         co.state.record_iteration(k + 1, grad, step_m, self.monitor.estimate_enu, self.monitor.spread_m)
         if co.log is not None:
             everyone = self.sysids + parked(co)
