@@ -129,8 +129,9 @@ def test_plan_for_a_sped_up_fleet_loads_and_is_scaled(tmp_path):
     assert not (tmp_path / "bad.toml").exists()
 
 
-@pytest.mark.parametrize("seeker, gamma_m", [("model", 20.0), ("newton", 20.0), ("gradient", 1.0)])
-def test_swarmseek_sitl_writes_its_seeker_into_the_plan(tmp_path, seeker, gamma_m):
+@pytest.mark.parametrize("seeker, gamma_m, sampling", [("model", 20.0, "moving"), ("newton", 20.0, "moving"),
+                                                       ("plume", 20.0, "stop_and_go"), ("gradient", 1.0, "stop_and_go")])
+def test_swarmseek_sitl_writes_its_seeker_into_the_plan(tmp_path, seeker, gamma_m, sampling):
     import argparse
 
     from mission.cli import cmd_sitl
@@ -143,6 +144,6 @@ def test_swarmseek_sitl_writes_its_seeker_into_the_plan(tmp_path, seeker, gamma_
     vehicles = [SimpleNamespace(sysid=i + 1, connection=f"udpin:127.0.0.1:{20000 + i}") for i in range(4)]
     plan = load_plan(write_plan(tmp_path / "p.toml", vehicles, (47.397742, 8.545594, 489.4), flavour="px4",
                                 overrides={"seeking": seeker_settings(args.seeker)}))
-    assert (plan.seeking.seeker, plan.seeking.gamma_m) == (seeker, gamma_m)
+    assert (plan.seeking.seeker, plan.seeking.gamma_m, plan.seeking.sampling) == (seeker, gamma_m, sampling)
     with pytest.raises(SystemExit):
         parser.parse_args(["--flavour", "px4", "--seeker", "bogus"])

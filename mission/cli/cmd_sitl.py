@@ -59,7 +59,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                         help="extra autopilot parameter (repeatable)")
     parser.add_argument("--seeker", choices=SEEKERS, default="model",
-                        help="the written plan's [seeking] seeker (default model, gamma_m 20 m; "
+                        help="the written plan's [seeking] seeker (default model, gamma_m 20 m, sampling while moving; "
                              "gradient = the paper's method, gamma_m 1 m); measured on real PX4 and "
                              "ArduCopter SITL in docs/sitl.md")
     parser.add_argument("--run-dir", type=Path, default=None, metavar="DIR",

@@ -33,9 +33,12 @@ _BASE = {
 
 def seeker_settings(seeker: str) -> dict:
     """The ``[seeking]`` keys for ``seeker``: the paper's ``gradient`` keeps the sample plan's
-    ``gamma_m = 1`` (with its ``eps``); the trust-region seekers get ``gamma_m = 20`` m, as
-    ``swarmseek run`` (their step is bounded by their own trust region, not by ``eps``)."""
-    return {"seeker": seeker, "gamma_m": 1.0 if seeker == "gradient" else 20.0}
+    ``gamma_m = 1`` (with its ``eps``) and samples stop and go; the other seekers get
+    ``gamma_m = 20`` m, as ``swarmseek run`` (their step is bounded by their own trust region or
+    passes, not by ``eps``), and ``newton``/``model`` sample while moving (measured on real PX4
+    and ArduCopter, docs/sitl.md)."""
+    return {"seeker": seeker, "gamma_m": 1.0 if seeker == "gradient" else 20.0,
+            "sampling": "moving" if seeker in ("newton", "model") else "stop_and_go"}
 
 
 def scale_for_speedup(doc: dict, speedup: float) -> dict:
