@@ -191,3 +191,19 @@ def test_plume_seeker_mission_on_a_plume(tmp_path, capsys):
     assert code == 0 and out["outcome"] == "converged", out["message"]
     assert out["error_m"] < 1.0
     assert audit_mission(log_dir).ok
+
+
+@pytest.mark.parametrize("argv, seeker", [
+    ([], "model"), (["--field", "sigma1"], "model"), (["--field", "plume"], "plume"),
+    (["--field", "intermittent"], "plume"), (["--field", "plume", "--seeker", "model"], "model"),
+])
+def test_run_default_seeker_follows_the_field(argv, seeker):
+    import argparse
+
+    from mission.cli.cmd_run import _seeking_options, configure
+
+    parser = argparse.ArgumentParser()
+    configure(parser)
+    opts = _seeking_options(parser.parse_args(argv))
+    assert opts["seeker"] == seeker
+    assert opts["sampling"] == ("stop_and_go" if seeker == "plume" else "moving")

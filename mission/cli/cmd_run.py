@@ -61,10 +61,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="step gain (default 1/(2 A lambda_max(S)) of the field; paper: 1)")
     parser.add_argument("--gamma", type=positive_float, default=None,
                         help="largest step, m (default 1 for the gradient seeker, 20 for the others; paper 0.1)")
-    parser.add_argument("--seeker", choices=("gradient", "newton", "model", "plume"), default="model",
+    parser.add_argument("--seeker", choices=("gradient", "newton", "model", "plume"), default=None,
                         help="how the centre moves: a log-quadratic model fit in a trust region (default), "
                              "a Newton trust-region step, the paper's gradient ascent, or the plume seeker "
-                             "(surge up the plume, cast when lost; for --field plume/intermittent) (docs/seekers.md)")
+                             "(surge up the plume, cast when lost; the default with --field plume/intermittent) "
+                             "(docs/seekers.md)")
     parser.add_argument("--seek-wind-from", type=_degrees, default=None, metavar="DEG",
                         help="the wind direction the ground station gives the plume seeker (where it comes "
                              "from, degrees clockwise from north, e.g. the --wind-from of the simulated plume: "
@@ -95,9 +96,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="the ground station also listens here, for `swarmseek watch` / `ctl` (repeatable)")
 
 
+def _resolve_seeker(args) -> str:
+    """``--seeker``, or when not given the best measured for the field (README, "Seeking faster"):
+    ``plume`` for ``--field plume``/``intermittent``, else ``model``."""
+    if args.seeker is None:
+        args.seeker = "plume" if getattr(args, "field", None) in ("plume", "intermittent") else "model"
+    return args.seeker
+
+
 def _check_args(args) -> str | None:
     from mission.sim.embedded import MAX_VEHICLES
 
+    _resolve_seeker(args)
     if args.n < 4:
         return f"--n must be at least 4 (a formation needs 4 vehicles), got {args.n}"
     if args.n > MAX_VEHICLES:
@@ -161,6 +171,7 @@ def _mission_setup(args):
 
 def _seeking_options(args) -> dict:
     """The ``[seeking]`` keys the ``run`` options set: the seeker, its sampling and re-plan fraction."""
+    _resolve_seeker(args)
     sampling = getattr(args, "sampling", None)
     if sampling is None:  # moving pays for the seekers that can use it (docs/seekers.md)
         sampling = "moving" if args.seeker in ("model", "newton") else "stop_and_go"
