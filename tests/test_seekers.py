@@ -162,13 +162,13 @@ def test_bench_measures_and_wilson():
 
 
 def test_plan_key_and_cli_flags(tmp_path):
-    from mission.cli.cmd_run import configure
+    from mission.cli.cmd_run import _resolve_seeker, configure
     from mission.core.plan import load_plan
     from mission.core.plan_types import PlanError
 
     ap = argparse.ArgumentParser()
     configure(ap)
-    assert ap.parse_args([]).seeker == "model"
+    assert _resolve_seeker(ap.parse_args([])) == "model"
     assert ap.parse_args(["--seeker", "gradient"]).seeker == "gradient"
     with pytest.raises(SystemExit) as exc:
         ap.parse_args(["--seeker", "simplex"])

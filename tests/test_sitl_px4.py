@@ -39,6 +39,7 @@ from pymavlink import mavutil
 from sitl_support import require_sitl
 
 _SPEEDUP = 3.0
+_ON_GROUND = 1  # MAV_LANDED_STATE_ON_GROUND
 _N = 4
 _SOURCE = (6.0, 12.0, 13.0)
 _START = (0.0, 20.0, 15.0)
@@ -74,22 +75,30 @@ def _free_tcp_port() -> int:
 
 
 def _final_states(gcs_port: int, sysids, timeout_s: float = 20.0) -> dict:
-    """sysid -> (armed, relative_alt_m), heard from PX4 on its GCS link: the latest of each, read
-    until every vehicle reports disarmed (PX4 disarms COM_DISARM_LAND seconds after it detects
-    the landing) or ``timeout_s``."""
+    """sysid -> {"armed", "alt" (relative, m), "landed_state"}, heard from PX4 on its GCS link: the
+    latest of each, read until every vehicle reports disarmed and on the ground (PX4 disarms
+    COM_DISARM_LAND seconds after it detects the landing) or ``timeout_s``."""
     conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", source_system=253)
     states: dict = {s: {} for s in sysids}
     deadline = time.monotonic() + timeout_s
+
+    def _done():
+        return all(v.get("armed") is False and v.get("landed_state") == _ON_GROUND and "alt" in v
+                   for v in states.values())
+
     try:
-        while time.monotonic() < deadline and not all(len(v) == 2 and v["armed"] is False
-                                                      for v in states.values()):
-            msg = conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT"], blocking=True, timeout=0.5)
+        while time.monotonic() < deadline and not _done():
+            msg = conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT", "EXTENDED_SYS_STATE"],
+                                  blocking=True, timeout=0.5)
             if msg is None or msg.get_srcSystem() not in states or msg.get_srcComponent() != 1:
                 continue
+            state = states[msg.get_srcSystem()]
             if msg.get_type() == "HEARTBEAT":
-                states[msg.get_srcSystem()]["armed"] = bool(msg.base_mode & 128)
+                state["armed"] = bool(msg.base_mode & 128)
+            elif msg.get_type() == "EXTENDED_SYS_STATE":
+                state["landed_state"] = msg.landed_state
             else:
-                states[msg.get_srcSystem()]["alt"] = msg.relative_alt / 1000.0
+                state["alt"] = msg.relative_alt / 1000.0
     finally:
         conn.close()
     return states
@@ -122,7 +131,11 @@ def test_px4_sih_mission_finds_the_source_and_lands(tmp_path):
     assert np.linalg.norm(estimate - offline_estimate) <= tolerance_m, (estimate, offline_estimate)
     for sysid, state in final.items():
         assert state.get("armed") is False, (sysid, state)
-        assert abs(state.get("alt", 99.0)) < 1.0, (sysid, state)
+        assert state.get("landed_state") == _ON_GROUND, (sysid, state)  # PX4's own land detector
+        # and near its home's height: PX4 SIH's altitude estimate drifts on the ground (1.1 m seen
+        # once, with the land detector saying on the ground), so this only rules out a vehicle
+        # disarmed in the air
+        assert abs(state.get("alt", 99.0)) < 2.0, (sysid, state)
     tlogs = sorted(p.name for p in (tmp_path / "logs" / "tlogs").glob("vehicle-*.tlog"))
     assert tlogs == [f"vehicle-{v.sysid}.tlog" for v in fleet.vehicles], tlogs
     audit = subprocess.run([sys.executable, "-m", "mission", "audit", str(tmp_path / "logs"), "--json"],
