@@ -15,6 +15,7 @@ from __future__ import annotations
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.link.endpoint_registry import LinkError
+from mission.link.fast_decode import decode_single_frame
 
 __all__ = ["EndpointReceiving", "SUSPECT_REASONS"]
 
@@ -56,7 +57,16 @@ class EndpointReceiving:
         return parser
 
     def _on_datagram(self, data: bytes, peer) -> None:
-        """Transport callback: one UDP datagram (whole frames; a partial tail is counted)."""
+        """Transport callback: one UDP datagram (whole frames; a partial tail is counted).
+
+        A datagram of exactly one valid frame of a fixed-layout message (nearly all telemetry)
+        is decoded by :func:`~mission.link.fast_decode.decode_single_frame` into the message
+        pymavlink would return; anything else goes through pymavlink's parser.
+        """
+        msg = decode_single_frame(data)
+        if msg is not None:
+            self._deliver((msg,), peer, len(data))
+            return
         parser = self._datagram_parser
         msgs = parser.parse_buffer(data)
         if parser.buf_len():
