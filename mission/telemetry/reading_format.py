@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+from math import isfinite
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,6 +68,16 @@ class Reading:
     value: float
     position_enu_m: np.ndarray
     received_s: float
+
+    @classmethod
+    def accepted(cls, sysid: int, seq: int, time_s: float, lat_deg: float, lon_deg: float, alt_m: float,
+                 value: float, position_enu_m: np.ndarray, received_s: float) -> "Reading":
+        """The same reading as ``Reading(...)`` with these fields, built without the frozen
+        ``__init__``'s nine ``object.__setattr__`` calls (the reading store makes one per sample)."""
+        reading = object.__new__(cls)
+        reading.__dict__.update(sysid=sysid, seq=seq, time_s=time_s, lat_deg=lat_deg, lon_deg=lon_deg,
+                                alt_m=alt_m, value=value, position_enu_m=position_enu_m, received_s=received_s)
+        return reading
 
     def to_json(self) -> dict:
         """A JSON-friendly dict (for the mission log)."""
@@ -149,6 +160,33 @@ def decode_reading(payload: bytes | str) -> dict:
         raise ReadingRejected("malformed", f"expected a JSON object, got {type(doc).__name__}")
     if doc.get("schema") != SCHEMA:
         raise ReadingRejected("wrong_schema", f"schema {str(doc.get('schema'))[:40]!r}, expected {SCHEMA!r}")
+    out = _typical_fields(doc)
+    if out is None:
+        out = _checked_fields(doc)
+    if not (-90.0 <= out["lat_deg"] <= 90.0 and -180.0 <= out["lon_deg"] <= 180.0):
+        raise ReadingRejected("malformed", "latitude/longitude out of range")
+    return out
+
+
+def _typical_fields(doc: dict) -> dict | None:
+    """The schema's fields of ``doc`` when each already has its exact type (str, int, finite
+    float), as every well-behaved sender writes them; None otherwise (:func:`_checked_fields`
+    then converts or names the first bad field). Same result as :func:`_checked_fields`."""
+    try:
+        schema, fleet, sysid, seq = doc["schema"], doc["fleet"], doc["sysid"], doc["seq"]
+        time_s, lat, lon, alt, value = doc["time_s"], doc["lat_deg"], doc["lon_deg"], doc["alt_m"], doc["value"]
+    except KeyError:
+        return None
+    if (type(fleet) is str and type(sysid) is int and type(seq) is int and type(time_s) is float
+            and type(lat) is float and type(lon) is float and type(alt) is float and type(value) is float
+            and isfinite(time_s) and isfinite(lat) and isfinite(lon) and isfinite(alt) and isfinite(value)):
+        return {"schema": schema, "fleet": fleet, "sysid": sysid, "seq": seq, "time_s": time_s,
+                "lat_deg": lat, "lon_deg": lon, "alt_m": alt, "value": value}
+    return None
+
+
+def _checked_fields(doc: dict) -> dict:
+    """The schema's fields of ``doc``, converted to their types (``ReadingRejected`` on the first bad one)."""
     out: dict = {}
     for name, kind in _FIELDS.items():
         if name not in doc:
@@ -174,6 +212,4 @@ def decode_reading(payload: bytes | str) -> dict:
             if not math.isfinite(v):
                 raise ReadingRejected("not_finite", f"field {name!r} is {v}")
         out[name] = v
-    if not (-90.0 <= out["lat_deg"] <= 90.0 and -180.0 <= out["lon_deg"] <= 180.0):
-        raise ReadingRejected("malformed", "latitude/longitude out of range")
     return out
