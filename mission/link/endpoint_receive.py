@@ -99,23 +99,28 @@ class EndpointReceiving:
         tlogs = self.tlogs
         peer_of = self._peer_of
         handlers = self._handlers
+        pins = self._pins
+        verifier = self.verifier
         for msg in msgs:
             # not msg.id: BAD_DATA / UNKNOWN inherit id 0 (HEARTBEAT) and messages with a
             # field named "id" (BATTERY_STATUS...) shadow the class attribute
-            msg_id = msg._header.msgId
+            header = msg._header
+            msg_id = header.msgId
             if msg_id == _MSG_BAD:
                 counters["bad_crc" if "CRC" in msg.reason else "malformed"] += 1
                 continue
-            if self.verifier is not None and self._refused_by_signing(msg, msg_id, peer):
+            if verifier is not None and self._refused_by_signing(msg, msg_id, peer):
                 continue
             counters["frames_in"] += 1
             if msg_id == _MSG_UNKNOWN:  # CRC not checkable (no CRC_EXTRA): never in a vehicle's tlog
                 counters["unknown_msgid"] += 1
                 self._quarantine_frame(msg.get_msgbuf())
                 continue
-            sysid = msg._header.srcSystem
+            sysid = header.srcSystem
             autopilot_hb = msg_id == _MSG_HEARTBEAT and _is_autopilot_heartbeat(msg)
-            refused = self._screen(sysid, msg, peer, autopilot_hb)
+            pin = pins.get(sysid)
+            # a pinned vehicle's own address (nearly every frame) passes _screen: not asked
+            refused = None if pin is not None and pin[0] == peer else self._screen(sysid, msg, peer, autopilot_hb)
             if refused is not None:
                 if refused == "unverified" and self._hold_early(sysid, msg._msgbuf, peer):
                     continue
