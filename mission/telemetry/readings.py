@@ -215,14 +215,16 @@ class ReadingStore:
         if self.telemetry_position is not None:
             tel = self.telemetry_position(sysid)
             if tel is not None:
-                tel_e_m, tel_n_m, tel_u_m = np.asarray(tel, dtype=float).tolist()
+                if type(tel) is not np.ndarray or tel.dtype != np.float64:
+                    tel = np.asarray(tel, dtype=float)
+                tel_e_m, tel_n_m, tel_u_m = tel.tolist()
                 # plain floats: a 3-vector's norm costs more in numpy than the rest of the check
                 err = math.sqrt((east_m - tel_e_m) ** 2 + (north_m - tel_n_m) ** 2 + (up_m - tel_u_m) ** 2)
                 if err > self.max_position_error_m:
                     raise ReadingRejected("position_far", f"sysid {sysid}: reading position {err:.1f} m "
                                           f"from telemetry (max {self.max_position_error_m} m)")
-        reading = Reading.accepted(sysid, doc["seq"], t, doc["lat_deg"], doc["lon_deg"], doc["alt_m"], doc["value"],
-                                   pos, now)
+        seq = doc["seq"]
+        reading = Reading.accepted(sysid, seq, t, doc["lat_deg"], doc["lon_deg"], doc["alt_m"], doc["value"], pos, now)
         with self._lock:
             hist = self._history.get(sysid)
             if hist is None:
@@ -230,11 +232,11 @@ class ReadingStore:
             last = self._last_seq.get(sysid)
             if last is not None:
                 last_seq, last_t = last
-                if reading.seq == last_seq:
-                    raise ReadingRejected("duplicate", f"sysid {sysid}: seq {reading.seq} again")
-                if reading.seq < last_seq and t < last_t + self.seq_reset_after_s:
-                    raise ReadingRejected("old_seq", f"sysid {sysid}: seq {reading.seq} after {last_seq}")
-            self._last_seq[sysid] = (reading.seq, t)
+                if seq == last_seq:
+                    raise ReadingRejected("duplicate", f"sysid {sysid}: seq {seq} again")
+                if seq < last_seq and t < last_t + self.seq_reset_after_s:
+                    raise ReadingRejected("old_seq", f"sysid {sysid}: seq {seq} after {last_seq}")
+            self._last_seq[sysid] = (seq, t)
             if hist and t < hist[-1].time_s:
                 items = list(hist)
                 items.insert(bisect.bisect([r.time_s for r in items], t), reading)
