@@ -73,7 +73,7 @@ class _EnuConverter:
     fraction of the cost on a single point: :func:`math.radians` is numpy's ``radians`` (one
     multiplication by the same double pi / 180), :func:`math.sin` and :func:`math.cos` are the
     C library's, which numpy's float64 ``sin`` and ``cos`` call; ``hypot`` stays numpy's (it
-    differs from :func:`math.hypot` in the last bit). ``tests/test_readings.py`` checks the
+    differs from :func:`math.hypot` in the last bit). ``tests/test_reading_fast_paths.py`` checks the
     bit equality with :func:`formation.geodesy.geodetic_to_enu` on random points.
 
     Parameters
