@@ -15,6 +15,7 @@ from __future__ import annotations
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.link.endpoint_registry import LinkError
+from mission.link.fast_decode import decode_single_frame
 
 __all__ = ["EndpointReceiving", "SUSPECT_REASONS"]
 
@@ -56,7 +57,16 @@ class EndpointReceiving:
         return parser
 
     def _on_datagram(self, data: bytes, peer) -> None:
-        """Transport callback: one UDP datagram (whole frames; a partial tail is counted)."""
+        """Transport callback: one UDP datagram (whole frames; a partial tail is counted).
+
+        A datagram of exactly one valid frame of a fixed-layout message (nearly all telemetry)
+        is decoded by :func:`~mission.link.fast_decode.decode_single_frame` into the message
+        pymavlink would return; anything else goes through pymavlink's parser.
+        """
+        msg = decode_single_frame(data)
+        if msg is not None:
+            self._deliver((msg,), peer, len(data))
+            return
         parser = self._datagram_parser
         msgs = parser.parse_buffer(data)
         if parser.buf_len():
@@ -89,23 +99,28 @@ class EndpointReceiving:
         tlogs = self.tlogs
         peer_of = self._peer_of
         handlers = self._handlers
+        pins = self._pins
+        verifier = self.verifier
         for msg in msgs:
             # not msg.id: BAD_DATA / UNKNOWN inherit id 0 (HEARTBEAT) and messages with a
             # field named "id" (BATTERY_STATUS...) shadow the class attribute
-            msg_id = msg._header.msgId
+            header = msg._header
+            msg_id = header.msgId
             if msg_id == _MSG_BAD:
                 counters["bad_crc" if "CRC" in msg.reason else "malformed"] += 1
                 continue
-            if self.verifier is not None and self._refused_by_signing(msg, msg_id, peer):
+            if verifier is not None and self._refused_by_signing(msg, msg_id, peer):
                 continue
             counters["frames_in"] += 1
             if msg_id == _MSG_UNKNOWN:  # CRC not checkable (no CRC_EXTRA): never in a vehicle's tlog
                 counters["unknown_msgid"] += 1
                 self._quarantine_frame(msg.get_msgbuf())
                 continue
-            sysid = msg._header.srcSystem
+            sysid = header.srcSystem
             autopilot_hb = msg_id == _MSG_HEARTBEAT and _is_autopilot_heartbeat(msg)
-            refused = self._screen(sysid, msg, peer, autopilot_hb)
+            pin = pins.get(sysid)
+            # a pinned vehicle's own address (nearly every frame) passes _screen: not asked
+            refused = None if pin is not None and pin[0] == peer else self._screen(sysid, msg, peer, autopilot_hb)
             if refused is not None:
                 if refused == "unverified" and self._hold_early(sysid, msg._msgbuf, peer):
                     continue

@@ -23,11 +23,15 @@ _AUTOPILOT_INVALID = mavlink.MAV_AUTOPILOT_INVALID
 _TYPE_GCS = mavlink.MAV_TYPE_GCS
 
 
+#: CRC_EXTRA values as the one-byte strings the CRC takes (not rebuilt for every frame)
+_EXTRA_BYTES = tuple(bytes((k,)) for k in range(256))
+
+
 def _crc16(frame: bytes, crc_extra: int) -> int:
     """MAVLink CRC of a frame without its magic byte, then ``crc_extra`` (fastcrc when available)."""
     fast = mavcrc.mcrf4xx
     if fast is not None:
-        return fast(bytes((crc_extra,)), fast(memoryview(frame)[1:], 0xFFFF))
+        return fast(_EXTRA_BYTES[crc_extra], fast(memoryview(frame)[1:], 0xFFFF))
     crc = mavcrc.x25crc(frame[1:])
     crc.accumulate(bytes((crc_extra,)))
     return crc.crc
@@ -91,10 +95,14 @@ class EndpointSending:
         order, e.g. ``MAVLink_set_position_target_local_ned_message.unpacker.pack(...)``.
         Same routing, counting and logging as :meth:`send`.
         """
-        peer = self._route(sysid)
+        peer = self._peer_of.get(sysid)   # the pinned address (nearly always there): no _route call
         if peer is None:
-            return False
-        enc = self._encoder(peer)
+            peer = self._route(sysid)
+            if peer is None:
+                return False
+        enc = self._encoders.get(peer)
+        if enc is None:
+            enc = self._encoder(peer)
         seq = enc.seq
         enc.seq = (seq + 1) & 0xFF
         body = payload.rstrip(b"\x00") or b"\x00"

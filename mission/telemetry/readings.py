@@ -68,10 +68,13 @@ class _EnuConverter:
 
     The origin's ECEF position, the sines and cosines of its latitude and longitude and the
     WGS-84 axes are kept once; each call is ``pymap3d.geodetic2ecef`` and ``pymap3d.uvw2enu``
-    written out on plain floats, with the same operations in the same order (numpy's
-    ``radians``, ``sin``, ``cos`` and ``hypot`` where pymap3d uses them), so the result is
+    written out on plain floats, with the same operations in the same order, so the result is
     bit-identical to theirs (and to :func:`formation.geodesy.geodetic_to_enu`'s maths) at a
-    fraction of the cost on a single point.
+    fraction of the cost on a single point: :func:`math.radians` is numpy's ``radians`` (one
+    multiplication by the same double pi / 180), :func:`math.sin` and :func:`math.cos` are the
+    C library's, which numpy's float64 ``sin`` and ``cos`` call; ``hypot`` stays numpy's (it
+    differs from :func:`math.hypot` in the last bit). ``tests/test_reading_fast_paths.py`` checks the
+    bit equality with :func:`formation.geodesy.geodetic_to_enu` on random points.
 
     Parameters
     ----------
@@ -92,9 +95,9 @@ class _EnuConverter:
 
     def ecef_m(self, lat_deg, lon_deg, alt_m) -> tuple[float, float, float]:
         """``pymap3d.geodetic2ecef`` (WGS-84, degrees) of one point, as plain floats."""
-        lat_rad, lon_rad = np.radians(lat_deg), np.radians(lon_deg)
-        cos_lat, sin_lat = float(np.cos(lat_rad)), float(np.sin(lat_rad))
-        cos_lon, sin_lon = float(np.cos(lon_rad)), float(np.sin(lon_rad))
+        lat_rad, lon_rad = math.radians(lat_deg), math.radians(lon_deg)
+        cos_lat, sin_lat = math.cos(lat_rad), math.sin(lat_rad)
+        cos_lon, sin_lon = math.cos(lon_rad), math.sin(lon_rad)
         n_m = self._a2_m2 / float(np.hypot(self._a_m * cos_lat, self._b_m * sin_lat))
         return ((n_m + alt_m) * cos_lat * cos_lon, (n_m + alt_m) * cos_lat * sin_lon,
                 (n_m * self._ba2 + alt_m) * sin_lat)
@@ -212,15 +215,16 @@ class ReadingStore:
         if self.telemetry_position is not None:
             tel = self.telemetry_position(sysid)
             if tel is not None:
-                tel_e_m, tel_n_m, tel_u_m = np.asarray(tel, dtype=float).tolist()
+                if type(tel) is not np.ndarray or tel.dtype != np.float64:
+                    tel = np.asarray(tel, dtype=float)
+                tel_e_m, tel_n_m, tel_u_m = tel.tolist()
                 # plain floats: a 3-vector's norm costs more in numpy than the rest of the check
                 err = math.sqrt((east_m - tel_e_m) ** 2 + (north_m - tel_n_m) ** 2 + (up_m - tel_u_m) ** 2)
                 if err > self.max_position_error_m:
                     raise ReadingRejected("position_far", f"sysid {sysid}: reading position {err:.1f} m "
                                           f"from telemetry (max {self.max_position_error_m} m)")
-        reading = Reading(sysid=sysid, seq=doc["seq"], time_s=t, lat_deg=doc["lat_deg"],
-                          lon_deg=doc["lon_deg"], alt_m=doc["alt_m"], value=doc["value"],
-                          position_enu_m=pos, received_s=now)
+        seq = doc["seq"]
+        reading = Reading.accepted(sysid, seq, t, doc["lat_deg"], doc["lon_deg"], doc["alt_m"], doc["value"], pos, now)
         with self._lock:
             hist = self._history.get(sysid)
             if hist is None:
@@ -228,11 +232,11 @@ class ReadingStore:
             last = self._last_seq.get(sysid)
             if last is not None:
                 last_seq, last_t = last
-                if reading.seq == last_seq:
-                    raise ReadingRejected("duplicate", f"sysid {sysid}: seq {reading.seq} again")
-                if reading.seq < last_seq and t < last_t + self.seq_reset_after_s:
-                    raise ReadingRejected("old_seq", f"sysid {sysid}: seq {reading.seq} after {last_seq}")
-            self._last_seq[sysid] = (reading.seq, t)
+                if seq == last_seq:
+                    raise ReadingRejected("duplicate", f"sysid {sysid}: seq {seq} again")
+                if seq < last_seq and t < last_t + self.seq_reset_after_s:
+                    raise ReadingRejected("old_seq", f"sysid {sysid}: seq {seq} after {last_seq}")
+            self._last_seq[sysid] = (seq, t)
             if hist and t < hist[-1].time_s:
                 items = list(hist)
                 items.insert(bisect.bisect([r.time_s for r in items], t), reading)

@@ -176,12 +176,14 @@ class VehicleTelemetry:
 
     def _on_local_position(self, msg) -> None:
         st = self.state
-        if not all(math.isfinite(v) and abs(v) < _MAX_LOCAL_M for v in (msg.x, msg.y, msg.z)) \
-                or not all(math.isfinite(v) for v in (msg.vx, msg.vy, msg.vz)):
+        x, y, z, vx, vy, vz = msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz
+        # abs(v) < _MAX_LOCAL_M is False for NaN and infinities: finite and plausible in one test
+        if not (abs(x) < _MAX_LOCAL_M and abs(y) < _MAX_LOCAL_M and abs(z) < _MAX_LOCAL_M
+                and math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz)):
             self._reject(msg, f"non-finite or absurd position/velocity {msg.x}, {msg.y}, {msg.z}")
             return
-        st.position_ned_m = np.array([msg.x, msg.y, msg.z])
-        st.velocity_ned_m_s = np.array([msg.vx, msg.vy, msg.vz])
+        st.position_ned_m = np.array([x, y, z])
+        st.velocity_ned_m_s = np.array([vx, vy, vz])
         if st.home is not None:   # kept current between (slower) GLOBAL_POSITION_INT messages
             st.relative_alt_m = self._home_local[2] - msg.z
         self._local_s = self.clock.time()

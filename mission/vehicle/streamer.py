@@ -100,6 +100,8 @@ class SetpointStreamer:
         track = self._tracks.get(sysid)
         if track is None:
             raise KeyError(f"vehicle {sysid} is not in this streamer (known: {sorted(self._tracks)})")
+        if type(position_enu_m) is np.ndarray and position_enu_m.shape == (3,):
+            position_enu_m = position_enu_m.tolist()  # the ramp's rows: one call, not three numpy scalars
         e, n, u = position_enu_m
         e, n, u = float(e), float(n), float(u)
         if not (math.isfinite(e) and math.isfinite(n) and math.isfinite(u)):
