@@ -28,7 +28,9 @@ gives). On a plume the starts are downwind (within 10 degrees of the wind axis),
 ``swarmseek run``; the gradient seeker's ``eps`` is the field's ``default_eps``
 (:func:`mission.sim.embedded.default_eps`). Seekers (``--seekers``): ``gradient``, ``newton``,
 ``model``, ``plume`` (the plume's axis estimated from the readings) and ``plume-wind`` (the
-plume seeker given the field's wind direction; on a field without wind it is ``plume``).
+plume seeker given the field's wind direction; on a field without wind it is ``plume``),
+``plume-patchy`` and ``plume-patchy-wind`` (the intermittent-plume variant,
+:class:`estimator.seek_hits.HitEdgeSeeker`, without / with the wind).
 
 Usage::
 
@@ -119,6 +121,9 @@ def _seeker(name: str, field):
         return make_seeker("gradient", eps=default_eps(field)), 1.0
     if name == "plume-wind":  # the plume seeker given the wind direction (an anemometer)
         return make_seeker("plume", wind_from_deg=_wind_from_deg(field)), 20.0
+    if name in ("plume-patchy", "plume-patchy-wind"):  # intermittent plumes: the hit cloud's upwind edge
+        wind = _wind_from_deg(field) if name.endswith("wind") else None
+        return make_seeker("plume", patchy=True, wind_from_deg=wind), 20.0
     return make_seeker(name), 20.0
 
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from estimator.gradient import DEFAULT_MAX_CONDITION, estimator_weights
 from estimator.seek_inputs import seeker_inputs as _inputs
+from estimator.seek_hits import HitEdgeSeeker
 from estimator.seek_plume import PlumeSeeker
 from estimator.seek_quadratic import fit_quadratic
 
@@ -231,7 +232,8 @@ class ModelSeeker(_TrustRegionSeeker):
 
 def make_seeker(name: str, *, eps: float = 1.0, method: str = "cvt", **kwargs) -> Seeker:
     """A seeker by name (:data:`SEEKERS`); ``eps``/``method`` go to the gradient seeker, the
-    other keywords (``window``, ``radius_m``, ...; ``wind_from_deg``, ... for ``plume``) to the others."""
+    other keywords (``window``, ``radius_m``, ...; ``wind_from_deg``, ... for ``plume``) to the others;
+    ``plume`` with ``patchy=True``: :class:`~estimator.seek_hits.HitEdgeSeeker` (intermittent plumes)."""
     if name == "gradient":
         return GradientSeeker(eps=eps, method=method)
     if name == "newton":
@@ -239,5 +241,7 @@ def make_seeker(name: str, *, eps: float = 1.0, method: str = "cvt", **kwargs) -
     if name == "model":
         return ModelSeeker(**kwargs)
     if name == "plume":
+        if kwargs.pop("patchy", False):  # intermittent plumes: the hit cloud's upwind edge
+            return HitEdgeSeeker(**kwargs)
         return PlumeSeeker(**kwargs)
     raise ValueError(f"unknown seeker {name!r}; expected one of {', '.join(SEEKERS)}")
