@@ -207,3 +207,39 @@ def test_run_default_seeker_follows_the_field(argv, seeker):
     opts = _seeking_options(parser.parse_args(argv))
     assert opts["seeker"] == seeker
     assert opts["sampling"] == ("stop_and_go" if seeker == "plume" else "moving")
+
+
+@pytest.mark.parametrize("argv, mode", [
+    (["--field", "plume"], "steady"), (["--field", "intermittent"], "intermittent"),
+    (["--field", "intermittent", "--plume-mode", "steady"], "steady"), ([], "steady"),
+])
+def test_plume_mode_follows_the_field_and_reaches_the_seeker(argv, mode):
+    import argparse
+
+    from estimator.seek_hits import HitEdgeSeeker
+    from estimator.seek_plume import PlumeSeeker
+    from mission.cli.cmd_run import _seeking_options, configure
+    from mission.flight.seek import make_seeker as mission_seeker
+
+    parser = argparse.ArgumentParser()
+    configure(parser)
+    opts = _seeking_options(parser.parse_args(argv))
+    assert opts["plume_mode"] == mode
+    seeker = mission_seeker("plume", 270.0, opts["plume_mode"]).seeker
+    assert isinstance(seeker, HitEdgeSeeker if mode == "intermittent" else PlumeSeeker)
+
+
+def test_plan_plume_mode_is_checked():
+    import tomllib
+    from pathlib import Path
+
+    from mission.core.plan import parse_plan
+    from mission.core.plan_types import PlanError
+
+    doc = tomllib.loads((Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml").read_text())
+    assert parse_plan(doc).seeking.plume_mode == "steady"
+    doc["seeking"].update(seeker="plume", plume_mode="intermittent")
+    assert parse_plan(doc).seeking.plume_mode == "intermittent"
+    doc["seeking"]["plume_mode"] = "puffy"
+    with pytest.raises(PlanError, match="plume_mode"):
+        parse_plan(doc)

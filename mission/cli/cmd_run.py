@@ -66,6 +66,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "a Newton trust-region step, the paper's gradient ascent, or the plume seeker "
                              "(surge up the plume, cast when lost; the default with --field plume/intermittent) "
                              "(docs/seekers.md)")
+    parser.add_argument("--plume-mode", choices=("steady", "intermittent"), default=None,
+                        help="the plume seeker's variant: steady (surge, cast, passes, hold) or intermittent "
+                             "(follow the upwind edge of the detections; default with --field intermittent)")
     parser.add_argument("--seek-wind-from", type=_degrees, default=None, metavar="DEG",
                         help="the wind direction the ground station gives the plume seeker (where it comes "
                              "from, degrees clockwise from north, e.g. the --wind-from of the simulated plume: "
@@ -175,7 +178,10 @@ def _seeking_options(args) -> dict:
     sampling = getattr(args, "sampling", None)
     if sampling is None:  # moving pays for the seekers that can use it (docs/seekers.md)
         sampling = "moving" if args.seeker in ("model", "newton") else "stop_and_go"
-    out = {"seeker": args.seeker, "sampling": sampling, "wind_from_deg": getattr(args, "seek_wind_from", None)}
+    mode = getattr(args, "plume_mode", None) or ("intermittent" if getattr(args, "field", None) == "intermittent"
+                                                  else "steady")
+    out = {"seeker": args.seeker, "sampling": sampling, "wind_from_deg": getattr(args, "seek_wind_from", None),
+           "plume_mode": mode}
     if getattr(args, "replan_fraction", None) is not None:
         out["replan_fraction"] = args.replan_fraction
     lag_s = getattr(args, "sensor_lag", None)

@@ -13,7 +13,7 @@ from pathlib import Path
 from estimator.seekers import SEEKERS as _SEEKERS
 from formation.geodesy import geodetic_to_enu
 from mission.core.plan_checks import Checker, check_connection, polygon_area, show_value
-from mission.core.plan_types import (SAMPLINGS, ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
+from mission.core.plan_types import (PLUME_MODES, SAMPLINGS, ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
                                      PreflightPlan, SeekingPlan, VehiclePlan)
 from mission.core.signing_config import SigningConfig, signing_config_from_table
 from mission.core.signing_keys import SigningError
@@ -129,6 +129,7 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
         estimator=c.string(t, "estimator", p, d.estimator, choices=_ESTIMATORS),
         seeker=c.string(t, "seeker", p, d.seeker, choices=_SEEKERS),
         sampling=c.string(t, "sampling", p, d.sampling, choices=SAMPLINGS),
+        plume_mode=c.string(t, "plume_mode", p, d.plume_mode, choices=PLUME_MODES),
         replan_fraction=c.number(t, "replan_fraction", p, d.replan_fraction, low=0, low_open=True, high=1),
         sensor_lag_s=c.number(t, "sensor_lag_s", p, d.sensor_lag_s, low=0, high=60),
         rate_hz=c.number(t, "rate_hz", p, d.rate_hz, low=0, low_open=True, high=50),

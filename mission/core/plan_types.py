@@ -16,6 +16,7 @@ from mission.core.zenoh_config import ZenohPlan
 __all__ = [
     "PLAN_VERSION",
     "SAMPLINGS",
+    "PLUME_MODES",
     "PlanError",
     "VehiclePlan",
     "FaultsPlan",
@@ -33,6 +34,8 @@ __all__ = [
 PLAN_VERSION = 1
 #: values of ``[seeking] sampling`` (:class:`SeekingPlan`)
 SAMPLINGS = ("stop_and_go", "moving")
+#: variants of the ``plume`` seeker (``[seeking] plume_mode``)
+PLUME_MODES = ("steady", "intermittent")
 
 
 class PlanError(ValueError):
@@ -102,6 +105,10 @@ class SeekingPlan:
     wind_from_deg : float or None
         Wind direction for the ``plume`` seeker (where it comes FROM, degrees clockwise from north:
         an anemometer or the vehicles' wind estimate); None: the seeker estimates the plume's axis.
+    plume_mode : str
+        The ``plume`` seeker's variant: ``steady`` (surge up the axis, cast, two passes, hold) or
+        ``intermittent`` (puffs: follow the upwind edge of the cloud of detections,
+        ``estimator.seek_hits``).
     min_signal_fraction : float
         Convergence needs a signal in at least this fraction of the window's iterations
         (``estimator.seeking``, criterion 3; 0 turns it off): the ``plume`` seeker's "holding
@@ -135,6 +142,7 @@ class SeekingPlan:
     replan_fraction: float = 0.5
     sensor_lag_s: float = 0.0
     wind_from_deg: float | None = None
+    plume_mode: str = "steady"
     min_signal_fraction: float = 1.0
     rate_hz: float = 2.0
     max_iterations: int = 300

@@ -48,21 +48,22 @@ from mission.flight.state import MissionError
 __all__ = ["seek", "make_estimator", "make_seeker"]
 
 
-def make_seeker(kind: str, wind_from_deg: float | None = None):
+def make_seeker(kind: str, wind_from_deg: float | None = None, plume_mode: str = "steady"):
     """The plan's seeker (``[seeking] seeker``): None for ``gradient`` (the loop's own paper step,
     with the plan's estimator), else a :class:`_MissionSeeker` around :mod:`estimator.seekers`
-    (``wind_from_deg``, the plan's, goes to the ``plume`` seeker)."""
-    return None if kind == "gradient" else _MissionSeeker(kind, wind_from_deg)
+    (``wind_from_deg`` and ``plume_mode``, the plan's, go to the ``plume`` seeker)."""
+    return None if kind == "gradient" else _MissionSeeker(kind, wind_from_deg, plume_mode)
 
 
 class _MissionSeeker:
     """One mission's seeker (K = 1): readings in, the next centre out, capped at ``gamma_m``;
     the safety envelope's ``clamp_centre`` is applied by the caller."""
 
-    def __init__(self, kind: str, wind_from_deg: float | None = None):
+    def __init__(self, kind: str, wind_from_deg: float | None = None, plume_mode: str = "steady"):
         from estimator.seekers import make_seeker as _make
 
-        self.seeker = _make(kind, **({"wind_from_deg": wind_from_deg} if kind == "plume" else {}))
+        plume = {"wind_from_deg": wind_from_deg, "patchy": plume_mode == "intermittent"}
+        self.seeker = _make(kind, **(plume if kind == "plume" else {}))
         self.arrival = None  # the seeker's own convergence signal after a step (None: it has none)
 
     def step(self, centre, positions, values, gamma_m: float) -> np.ndarray:
@@ -157,7 +158,7 @@ class _Seek:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
         self.est_kind = sk.estimator
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
-        self.seeker = make_seeker(sk.seeker, sk.wind_from_deg)
+        self.seeker = make_seeker(sk.seeker, sk.wind_from_deg, sk.plume_mode)
         self.moving = moving_sampling(co, sk, sk.seeker not in ("newton", "model"))
         self.samples = None  # with moving sampling: the readings the seeker gets this iteration
         self.watch = make_watch(co, self.est_kind, self.sysids)
