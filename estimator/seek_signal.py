@@ -36,6 +36,22 @@ __all__ = ["SignalFloor", "ArrivalSignal"]
 _Z05, _Z25 = 1.6449, 0.6745
 
 
+
+def _readings(values) -> tuple[np.ndarray, bool]:
+    """``values`` as ``(K, N)`` floats and whether they came as one trial's ``(N,)``.
+
+    Raises
+    ------
+    ValueError
+        Not 1-D/2-D, empty, or not finite.
+    """
+    v = np.asarray(values, dtype=float)
+    one = v.ndim == 1
+    v = v[None] if one else v
+    if v.ndim != 2 or v.shape[1] == 0 or not np.all(np.isfinite(v)):
+        raise ValueError(f"values must be finite readings of shape (K, N) or (N,), got shape {np.shape(values)}")
+    return v, one
+
 class SignalFloor:
     """Background, noise and detections of ``K`` trials' readings (module docstring).
 
@@ -72,11 +88,7 @@ class SignalFloor:
         ValueError
             Not 1-D/2-D, empty, or not finite.
         """
-        v = np.asarray(values, dtype=float)
-        one = v.ndim == 1
-        v = v[None] if one else v
-        if v.ndim != 2 or v.shape[1] == 0 or not np.all(np.isfinite(v)):
-            raise ValueError(f"values must be finite readings of shape (K, N) or (N,), got shape {np.shape(values)}")
+        v, one = _readings(values)
         if self._buf and self._buf[-1].shape[0] != v.shape[0]:
             self.reset()
         self._buf.append(v)
@@ -132,11 +144,7 @@ class ArrivalSignal:
         ValueError
             Not 1-D/2-D, empty, or not finite.
         """
-        v = np.asarray(values, dtype=float)
-        one = v.ndim == 1
-        v = v[None] if one else v
-        if v.ndim != 2 or v.shape[1] == 0 or not np.all(np.isfinite(v)):
-            raise ValueError(f"values must be finite readings of shape (K, N) or (N,), got shape {np.shape(values)}")
+        v, one = _readings(values)
         m = v.mean(axis=1)
         if self.low is None or self.low.shape != m.shape:
             self.low, self.high = m.copy(), m.copy()

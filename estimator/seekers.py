@@ -38,11 +38,15 @@ from estimator.seek_hits import HitEdgeSeeker
 from estimator.seek_plume import PlumeSeeker
 from estimator.seek_quadratic import fit_quadratic
 
-__all__ = ["SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker", "ModelSeeker", "PlumeSeeker", "make_seeker",
+__all__ = ["SEEKERS", "MOVING_SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker", "ModelSeeker", "PlumeSeeker", "make_seeker",
            "cap_move"]
 
 #: Seeker names accepted by :func:`make_seeker` (and by the plan's ``[seeking] seeker``).
 SEEKERS = ("gradient", "newton", "model", "plume")
+#: Seekers that can use readings taken anywhere, so can sample while moving (``[seeking] sampling
+#: = "moving"``); the paper's gradient needs the formation's shape at rest (Theorem 2) and the
+#: plume seeker compares readings taken at rest.
+MOVING_SEEKERS = ("newton", "model")
 
 
 class Seeker(Protocol):

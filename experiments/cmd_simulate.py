@@ -20,7 +20,8 @@ import sys
 
 import numpy as np
 
-from sitl_mock.cli_args import nonnegative_float, positive_float
+from estimator.seekers import MOVING_SEEKERS
+from sitl_mock.cli_args import float_in_range, nonnegative_float, positive_float
 
 __all__ = ["configure", "main", "run", "report_lines"]
 
@@ -56,17 +57,6 @@ def _seekers() -> tuple[str, ...]:
     return SEEKERS
 
 
-def _fraction(text: str) -> float:
-    """A number in [0, 1] (argparse type)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not 0.0 <= v <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
-    return v
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``simulate`` command's arguments."""
     parser.add_argument("--n", type=_positive(int), default=8, help="number of robots (default 8)")
@@ -86,10 +76,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="how the centre moves (docs/seekers.md): the paper's gradient ascent "
                              "(default), Newton trust-region, the log-quadratic model, or the plume "
                              "seeker (surge/cast); all but gradient take --gamma as their largest step (give e.g. 20)")
-    parser.add_argument("--seek-wind-from", type=float, default=None, metavar="DEG",
+    parser.add_argument("--seek-wind-from", type=float_in_range(0.0, 360.0), default=None,
+                        metavar="DEG",
                         help="wind direction the plume seeker is given (where it comes from, degrees from "
                              "north); default: it estimates the plume's axis")
-    parser.add_argument("--min-signal-fraction", type=_fraction, default=1.0,
+    parser.add_argument("--min-signal-fraction", type=float_in_range(0.0, 1.0), default=1.0,
                         help="convergence criterion 3 for the seekers but gradient: a signal in at least this "
                              "fraction of the window (default 1, as a plan; 0: off; docs/seekers.md)")
     parser.add_argument("--sampling", choices=("stop_and_go", "moving"), default="stop_and_go",
@@ -129,7 +120,7 @@ def run(args: argparse.Namespace) -> dict:
     field = make_field(args.field)
     seeker = getattr(args, "seeker", "gradient")
     sampling = getattr(args, "sampling", "stop_and_go")
-    if sampling == "moving" and seeker not in ("model", "newton"):
+    if sampling == "moving" and seeker not in MOVING_SEEKERS:
         raise ValueError(f"--sampling moving needs --seeker model or newton, got {seeker} (the paper's gradient "
                          "seeker and the plume seeker sample stop and go)")
     if sampling == "moving":

@@ -11,6 +11,7 @@ import tempfile
 from pathlib import Path
 
 __all__ = [
+    "float_in_range",
     "floats",
     "source_enu",
     "origin_geodetic",
@@ -82,6 +83,18 @@ def int_in_range(lo: int, hi: int | None, what: str):
         if v < lo or (hi is not None and v > hi):
             bound = f"{lo}..{hi}" if hi is not None else f">= {lo}"
             raise argparse.ArgumentTypeError(f"{what} must be {bound}, got {v}")
+        return v
+
+    return _parse
+
+
+def float_in_range(lo: float, hi: float):
+    """An argument type for a number in ``[lo, hi]`` (NaN and infinities refused)."""
+
+    def _parse(text: str) -> float:
+        v = _number(text)
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"expected a number in [{lo:g}, {hi:g}], got {text!r}")
         return v
 
     return _parse

@@ -103,7 +103,7 @@ def test_accepted_builds_the_same_frozen_reading():
 
 
 # ---------------------------------------------------------------------- orjson against json
-orjson = pytest.importorskip("orjson")
+import orjson  # noqa: E402 - a dependency (pyproject.toml): a missing one must fail, not skip
 _NUMBER = st.from_regex(r"\A-?(0|[1-9][0-9]{0,24})(\.[0-9]{1,24})?([eE][+-]?[0-9]{1,3})?\Z")
 _JSON_VALUES = st.recursive(
     # integers within 64 bits: beyond, orjson reads floats (test_orjson_reads_every_json_number...)

@@ -243,3 +243,24 @@ def test_plan_plume_mode_is_checked():
     doc["seeking"]["plume_mode"] = "puffy"
     with pytest.raises(PlanError, match="plume_mode"):
         parse_plan(doc)
+
+
+@pytest.mark.parametrize("command", ["run", "simulate"])
+@pytest.mark.parametrize("value", ["nan", "inf", "-1", "400", "north"])
+def test_bad_seek_wind_from_is_a_usage_error(command, value, capsys):
+    from mission.cli import main as cli_main
+
+    with pytest.raises(SystemExit) as info:
+        cli_main([command, "--seek-wind-from", value])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--seek-wind-from" in err and "expected a number" in err and "Traceback" not in err
+
+
+def test_simulate_min_signal_fraction_in_unit_interval(capsys):
+    from mission.cli import main as cli_main
+
+    with pytest.raises(SystemExit) as info:
+        cli_main(["simulate", "--min-signal-fraction", "1.5"])
+    assert info.value.code == 2
+    assert "expected a number in [0, 1], got '1.5'" in capsys.readouterr().err

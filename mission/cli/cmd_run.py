@@ -16,24 +16,14 @@ import sys
 import time
 from pathlib import Path
 
+from estimator.seekers import MOVING_SEEKERS
 from mission.link.forward import forwarding, out_address, plan_with_outs
 
 import numpy as np
 
-from sitl_mock.cli_args import add_field_arguments, field_from_args, nonnegative_float, positive_float, source_enu, zenoh_endpoint
+from sitl_mock.cli_args import add_field_arguments, field_from_args, float_in_range, nonnegative_float, positive_float, source_enu, zenoh_endpoint
 
 __all__ = ["configure", "main", "run_embedded"]
-
-
-def _degrees(text: str) -> float:
-    """A direction in degrees, [0, 360] (argparse type)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected degrees in [0, 360], got {text!r}") from None
-    if not 0.0 <= v <= 360.0:
-        raise argparse.ArgumentTypeError(f"expected degrees in [0, 360], got {text!r}")
-    return v
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -69,7 +59,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plume-mode", choices=("steady", "intermittent"), default=None,
                         help="the plume seeker's variant: steady (surge, cast, passes, hold) or intermittent "
                              "(follow the upwind edge of the detections; default with --field intermittent)")
-    parser.add_argument("--seek-wind-from", type=_degrees, default=None, metavar="DEG",
+    parser.add_argument("--seek-wind-from", type=float_in_range(0.0, 360.0), default=None, metavar="DEG",
                         help="the wind direction the ground station gives the plume seeker (where it comes "
                              "from, degrees clockwise from north, e.g. the --wind-from of the simulated plume: "
                              "an anemometer); default: the seeker estimates the plume's axis")
@@ -118,7 +108,7 @@ def _check_args(args) -> str | None:
                 f"got {args.n}")
     if args.formation == "symmetric" and args.n % 2:
         return f"--formation symmetric needs an even --n, got {args.n}"
-    if getattr(args, "sampling", None) == "moving" and args.seeker not in ("model", "newton"):
+    if getattr(args, "sampling", None) == "moving" and args.seeker not in MOVING_SEEKERS:
         return (f"--sampling moving needs --seeker model or newton, got {args.seeker}: the paper's gradient seeker "
                 "estimates from the formation's shape at rest (Theorem 2) and the plume seeker compares readings "
                 "taken at rest; both sample stop and go")
@@ -177,7 +167,7 @@ def _seeking_options(args) -> dict:
     _resolve_seeker(args)
     sampling = getattr(args, "sampling", None)
     if sampling is None:  # moving pays for the seekers that can use it (docs/seekers.md)
-        sampling = "moving" if args.seeker in ("model", "newton") else "stop_and_go"
+        sampling = "moving" if args.seeker in MOVING_SEEKERS else "stop_and_go"
     mode = getattr(args, "plume_mode", None) or ("intermittent" if getattr(args, "field", None) == "intermittent"
                                                   else "steady")
     out = {"seeker": args.seeker, "sampling": sampling, "wind_from_deg": getattr(args, "seek_wind_from", None),

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from estimator.seekers import SEEKERS as _SEEKERS
+from estimator.seekers import MOVING_SEEKERS, SEEKERS as _SEEKERS
 from formation.geodesy import geodetic_to_enu
 from mission.core.plan_checks import Checker, check_connection, polygon_area, show_value
 from mission.core.plan_types import (PLUME_MODES, SAMPLINGS, ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
@@ -145,7 +145,7 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
         min_signal_fraction=c.number(t, "min_signal_fraction", p, d.min_signal_fraction, low=0, high=1),
     )
     start = c.point(t, "start_enu_m", p, 3)
-    if vals["sampling"] == "moving" and vals["seeker"] not in ("model", "newton"):
+    if vals["sampling"] == "moving" and vals["seeker"] not in MOVING_SEEKERS:
         c.bad(f"{p}.sampling", 'sampling = "moving" needs seeker = "model" or "newton": the paper\'s gradient '
               "seeker estimates from the formation's shape at rest (Theorem 2) and the plume seeker's passes "
               "compare readings taken at rest, so they sample stop and go")

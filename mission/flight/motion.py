@@ -19,7 +19,7 @@ from mission.flight.obstacles import obstacles, plan_clear_transfer
 from mission.flight.state import MissionError
 from mission.flight.targets import TargetRamp
 
-__all__ = ["fly_timed", "keep_out", "move_and_wait", "parked", "retried", "setpoint_stream", "transfer_to"]
+__all__ = ["fly_timed", "keep_out", "move_and_wait", "paced", "parked", "retried", "setpoint_stream", "transfer_to"]
 
 
 def setpoint_stream(co, vehicles: list) -> None:
@@ -37,6 +37,16 @@ def setpoint_stream(co, vehicles: list) -> None:
     ramp = TargetRamp(streamer, co.clock, plan.max_speed_m_s, rate_hz=min(plan.setpoint_rate_hz, 10.0),
                       envelope=co.envelope, on_violation=lambda m: co.event(m, level="warning"))
     co.use_setpoints(streamer, ramp)
+
+
+async def paced(clock, period_s: float, last_s: float) -> float:
+    """The clock's time now, returned after waiting out what is left of ``period_s`` since
+    ``last_s`` (the seek loop's ``1 / rate_hz`` between estimates)."""
+    t_s = clock.time()
+    wait_s = period_s - (t_s - last_s)
+    if wait_s > 0:
+        await clock.sleep(wait_s)
+    return t_s
 
 
 async def retried(co, action, what: str, attempts: int = 3):

@@ -28,7 +28,7 @@ import numpy as np
 
 from mission.flight.control import OperatorStop
 from mission.flight.loss import reform
-from mission.flight.motion import move_and_wait, parked
+from mission.flight.motion import move_and_wait, paced, parked
 from mission.flight.result import geodetic_point
 from mission.flight.rejoin import (
     clear_goals,
@@ -159,7 +159,7 @@ class _Seek:
         self.est_kind = sk.estimator
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
         self.seeker = make_seeker(sk.seeker, sk.wind_from_deg, sk.plume_mode)
-        self.moving = moving_sampling(co, sk, sk.seeker not in ("newton", "model"))
+        self.moving = moving_sampling(co, sk)
         self.samples = None  # with moving sampling: the readings the seeker gets this iteration
         self.watch = make_watch(co, self.est_kind, self.sysids)
         self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
@@ -233,11 +233,7 @@ class _Seek:
             raise
         except MissionError as exc:
             co.event(f"{exc}; estimating anyway", level="warning")
-        t_arrive = co.clock.time()
-        wait_s = self.period_s - (t_arrive - self.last_estimate_t)
-        if wait_s > 0:
-            await co.clock.sleep(wait_s)
-        return t_arrive
+        return await paced(co.clock, self.period_s, self.last_estimate_t)
 
     async def _wait_readings(self, k: int, t_arrive: float) -> None:
         """Wait for a reading taken after the arrival from every vehicle (a warning after a while)."""

@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from mission.flight.control import OperatorStop
+from mission.flight.motion import paced
 from mission.flight.rejoin import clear_goals, fly_rotation
 from mission.flight.retire import formation_goals
 from mission.flight.state import MissionError
@@ -118,11 +119,7 @@ class MovingSampling:
             raise
         except MissionError as exc:
             co.event(f"{exc}; estimating anyway", level="warning")
-        t_s = co.clock.time()
-        wait_s = run.period_s - (t_s - run.last_estimate_t)
-        if wait_s > 0:
-            await co.clock.sleep(wait_s)
-        return t_s
+        return await paced(co.clock, run.period_s, run.last_estimate_t)
 
     async def wait_readings(self, run, k: int, t_s: float) -> None:
         """Wait for a reading taken at or after ``t_s`` from every sensing vehicle (a warning after a while)."""
@@ -174,16 +171,18 @@ def lagged_positions(history: list, readings: list, lag_s: float) -> list[np.nda
     return list(np.stack([np.interp(back_s, t_s, pos[:, i]) for i in range(3)], axis=-1))
 
 
-def moving_sampling(co, sk, gradient_seeker: bool) -> MovingSampling | None:
+def moving_sampling(co, sk) -> MovingSampling | None:
     """A :class:`MovingSampling` for the plan's ``[seeking] sampling = "moving"``, else None.
 
-    The paper's gradient seeker always samples stop and go (a plan cannot ask otherwise; a plan
-    built in code that does gets a warning and stop and go).
+    Only :data:`estimator.seekers.MOVING_SEEKERS` sample while moving (a plan cannot ask
+    otherwise; a plan built in code that does gets a warning and stop and go).
     """
+    from estimator.seekers import MOVING_SEEKERS
+
     if getattr(sk, "sampling", "stop_and_go") != "moving":
         return None
-    if gradient_seeker:
-        co.event('sampling = "moving" needs the newton or model seeker; the gradient seeker samples '
+    if sk.seeker not in MOVING_SEEKERS:
+        co.event(f'sampling = "moving" needs the newton or model seeker; the {sk.seeker} seeker samples '
                  "stop and go", level="warning")
         return None
     return MovingSampling(co, sk.replan_fraction, getattr(sk, "sensor_lag_s", 0.0))

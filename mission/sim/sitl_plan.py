@@ -13,6 +13,7 @@ import copy
 import os
 from pathlib import Path
 
+from estimator.seekers import MOVING_SEEKERS
 from mission.core.plan import load_plan
 
 __all__ = ["plan_document", "scale_for_speedup", "seeker_settings", "write_plan", "to_toml"]
@@ -38,7 +39,7 @@ def seeker_settings(seeker: str) -> dict:
     passes, not by ``eps``), and ``newton``/``model`` sample while moving (measured on real PX4
     and ArduCopter, docs/sitl.md)."""
     return {"seeker": seeker, "gamma_m": 1.0 if seeker == "gradient" else 20.0,
-            "sampling": "moving" if seeker in ("newton", "model") else "stop_and_go"}
+            "sampling": "moving" if seeker in MOVING_SEEKERS else "stop_and_go"}
 
 
 def scale_for_speedup(doc: dict, speedup: float) -> dict:
