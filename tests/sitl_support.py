@@ -7,14 +7,17 @@ failure instead, so CI can never pass by skipping the real autopilots.
 """
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 from mission.sim.sitl_settings import SitlSetupError, resolve_sitl_dir
 
-__all__ = ["in_ci", "require_sitl"]
+__all__ = ["in_ci", "require_sitl", "audit_failure_context"]
 
 
 def in_ci() -> bool:
@@ -31,3 +34,38 @@ def require_sitl(flavour: str) -> Path:
         if in_ci():
             pytest.fail(f"{message} (CI=true: a skipped SITL test is a failure)", pytrace=False)
         pytest.skip(message)
+
+
+def audit_failure_context(log_dir: Path) -> str:
+    """For a failed audit: each listed violation with the mission phase and iteration it fell in.
+
+    A real-SITL run that breaks the audit is rare and its logs go with the test's temporary
+    folder, so the assertion message carries where in the mission each violation happened.
+    """
+    audit = subprocess.run([sys.executable, "-m", "mission", "audit", str(log_dir), "--json"],
+                           capture_output=True, text=True, timeout=300)
+    try:
+        violations = json.loads(audit.stdout)["violations"]
+    except (ValueError, KeyError, TypeError):
+        return f"(audit --json unreadable: {audit.stderr[-500:]})"
+    marks = []
+    with open(Path(log_dir) / "mission.jsonl", encoding="utf-8") as f:
+        for line in f:
+            try:
+                r = json.loads(line)
+            except ValueError:
+                continue
+            if r.get("type") == "phase":
+                marks.append((r["t_s"], "phase", r.get("phase")))
+            elif r.get("type") == "iteration":
+                marks.append((r["t_s"], "iteration", r.get("k")))
+    start = marks[0][0] if marks else 0.0
+    lines = []
+    for v in violations[:20]:
+        t_s = float(v["t_s"])
+        before = [m for m in marks if m[0] <= t_s]
+        phase = next((m[2] for m in reversed(before) if m[1] == "phase"), "?")
+        k = next((m[2] for m in reversed(before) if m[1] == "iteration"), "-")
+        lines.append(f"{v['kind']} at {t_s - start:.2f} s after the first phase, vehicles {v.get('sysids')}: "
+                     f"{v.get('detail')} (phase {phase}, iteration {k})")
+    return "\n".join(lines) or "(no violation listed)"

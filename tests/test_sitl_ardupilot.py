@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sitl_support import require_sitl
+from sitl_support import audit_failure_context, require_sitl
 
 _N = 4
 _RADIUS_M = 2.0
@@ -179,4 +179,5 @@ def test_ardupilot_sitl_mission(tmp_path):
     assert all(f'"vehicle {s} landed"' in log for s in final), "a vehicle's landing is not in the log"
     assert out["readings"]["accepted"] > 0
     audit = subprocess.run(_cli("audit", str(tmp_path / "logs")), capture_output=True, text=True, timeout=300)
-    assert audit.returncode == 0, audit.stdout[-3000:] + audit.stderr[-2000:]
+    assert audit.returncode == 0, (audit.stdout[-3000:] + audit.stderr[-2000:] + "\n"
+                                   + audit_failure_context(tmp_path / "logs"))

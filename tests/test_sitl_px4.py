@@ -36,7 +36,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from sitl_support import require_sitl
+from sitl_support import audit_failure_context, require_sitl
 
 _SPEEDUP = 3.0
 _ON_GROUND = 1  # MAV_LANDED_STATE_ON_GROUND
@@ -140,7 +140,8 @@ def test_px4_sih_mission_finds_the_source_and_lands(tmp_path):
     assert tlogs == [f"vehicle-{v.sysid}.tlog" for v in fleet.vehicles], tlogs
     audit = subprocess.run([sys.executable, "-m", "mission", "audit", str(tmp_path / "logs"), "--json"],
                            capture_output=True, text=True, timeout=120)
-    assert audit.returncode == 0, audit.stdout[-3000:] + audit.stderr[-2000:]
+    assert audit.returncode == 0, (audit.stdout[-3000:] + audit.stderr[-2000:] + "\n"
+                                   + audit_failure_context(tmp_path / "logs"))
     report = json.loads(audit.stdout)
     assert report["ok"] and sorted(int(s) for s in report["per_vehicle"]) == [v.sysid for v in fleet.vehicles]
     assert report["setpoints_checked"] > 0
