@@ -4,7 +4,7 @@ Prints each mission-wide check (zenoh session, a reading from every sensor, star
 formation paths inside the geofence: :mod:`mission.flight.readiness_mission`) and each vehicle's
 readiness (every check and why it failed). Exit status: 0 ready to seek, 1 a check failed (a
 vehicle not ready or unreachable, no readings, zenoh unreachable, start or path outside the
-fence), 2 invalid plan.
+fence), 2 invalid plan (also: a ``[forward] out`` host name that does not resolve, as ``fly``).
 """
 from __future__ import annotations
 
@@ -83,6 +83,13 @@ def main(args) -> int:
         plan = load_plan(args.plan)
     except PlanError as exc:
         print(f"swarmseek dry-run: {exc}", file=sys.stderr)
+        return 2
+    from mission.link.forward import ForwardAddressError, resolve_outs
+
+    try:  # fly resolves these once before connecting and refuses to start when one fails: so does dry-run
+        resolve_outs(plan.forward.out)
+    except ForwardAddressError as exc:
+        print(f"swarmseek dry-run: error: {exc} (fly would refuse to start)", file=sys.stderr)
         return 2
     if not args.timeout > 0:
         print(f"swarmseek dry-run: --timeout must be > 0, got {args.timeout}", file=sys.stderr)
