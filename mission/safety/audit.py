@@ -182,7 +182,7 @@ class AuditReport:
         if self.ok:
             lines.append("  OK: no violation")
         elif self.clean:
-            lines.append("  NOT OK: no violation among what was checked, but the audit is incomplete (above)")
+            lines.append("  NOT OK: the audit is incomplete (above); what was checked broke no rule")
         else:
             counts = ", ".join(f"{k} {v}" for k, v in sorted(self.violation_counts.items()) if v)
             lines.append(f"  VIOLATIONS: {counts}")
