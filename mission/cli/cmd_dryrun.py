@@ -14,6 +14,15 @@ import json
 import sys
 from pathlib import Path
 
+import zenoh
+
+# the mission's modules are imported with the command, before any event loop starts: a first import
+# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+from mission.core.clock import WallClock
+from mission.core.zenoh_errors import zenoh_open_message
+from mission.core.zenoh_open import open_session
+from mission.flight.coordinator import Coordinator
+
 __all__ = ["configure", "main", "dry_run", "format_readiness"]
 
 
@@ -36,16 +45,10 @@ async def dry_run(plan, *, clock=None, display=None, zenoh_session=None):
     readiness check), unless ``zenoh_session`` is given (then it is used and not closed); one
     that cannot be opened fails the ``zenoh`` check with the reason in plain words.
     """
-    import zenoh
-
-    from mission.core.clock import WallClock
-    from mission.core.zenoh_errors import zenoh_open_message
-    from mission.flight.coordinator import Coordinator
-
     session, problem, own = zenoh_session, None, zenoh_session is None
     if own:
         try:
-            session = zenoh.open(plan.zenoh.to_config())
+            session = await open_session(plan.zenoh)  # off the loop
         except zenoh.ZError as exc:
             problem = zenoh_open_message(exc, plan.zenoh)
     try:

@@ -13,6 +13,14 @@ import sys
 from pathlib import Path
 
 from mission.core.zenoh_security import ZenohSecurityError
+# the mission's modules are imported with the command, before any event loop starts: a first import
+# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+from mission.core.clock import WallClock
+from mission.core.zenoh_open import open_session
+from mission.flight.coordinator import Coordinator
+from mission.flight.operator_stop import run_until_stopped
+from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.watch_keys import with_keys
 from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
 
 __all__ = ["configure", "main", "fly"]
@@ -36,19 +44,11 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
     ``forward_addresses``: the plan's ``[forward] out`` resolved before the loop started
     (:func:`mission.link.forward.resolve_outs`; any missing are resolved before connecting).
     """
-    import zenoh
-
-    from mission.core.clock import WallClock
-    from mission.flight.coordinator import Coordinator
-    from mission.flight.operator_stop import run_until_stopped
-    from mission.telemetry.mission_log import MissionLog
-    from mission.telemetry.watch_keys import with_keys
-
     clock = clock or WallClock()
     log = MissionLog(Path(log_dir) / "mission.jsonl", clock)
     session = None
     try:
-        session = zenoh.open(plan.zenoh.to_config())
+        session = await open_session(plan.zenoh)  # off the loop
         co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
         return await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal

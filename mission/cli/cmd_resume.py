@@ -18,7 +18,16 @@ import sys
 from pathlib import Path
 
 from mission.core.zenoh_security import ZenohSecurityError
-from mission.link.forward import ForwardAddressError
+from mission.link.forward import ForwardAddressError, forwarding
+# the mission's modules are imported with the command, before any event loop starts: a first import
+# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+from mission.core.clock import WallClock
+from mission.core.zenoh_open import open_session
+from mission.flight.coordinator import Coordinator
+from mission.flight.operator_stop import run_until_stopped
+from mission.flight.resume import load_resume_state
+from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.watch_keys import with_keys
 
 __all__ = ["configure", "main", "resume"]
 
@@ -56,23 +65,13 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     mission.flight.resume.ResumeError
         The log cannot be resumed.
     """
-    import zenoh
-
-    from mission.core.clock import WallClock
-    from mission.flight.coordinator import Coordinator
-    from mission.flight.operator_stop import run_until_stopped
-    from mission.link.forward import forwarding
-    from mission.telemetry.watch_keys import with_keys
-    from mission.telemetry.mission_log import MissionLog
-    from mission.flight.resume import load_resume_state
-
     log_path = Path(log_path)
     state = load_resume_state(log_path, plan)
     clock = clock or WallClock()
     log = MissionLog(log_path, clock)
     session = None
     try:
-        session = zenoh.open(state.plan.zenoh.to_config())
+        session = await open_session(state.plan.zenoh)  # off the loop
         co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=log_path.parent / "tlogs" if tlog else None)
         return await forwarding(co, with_keys(co, display, run_until_stopped(co, state)),  # as fly

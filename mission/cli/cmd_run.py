@@ -17,6 +17,15 @@ from pathlib import Path
 
 from estimator.seekers import MOVING_SEEKERS
 from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
+# the mission's modules are imported with the command, before any event loop starts: a first import
+# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+from mission.core.zenoh_open import open_session
+from mission.flight.coordinator import Coordinator
+from mission.flight.operator_stop import run_until_stopped
+from mission.flight.result import geodetic_point
+from mission.sim.fleet_report import vehicle_rejections
+from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.watch_keys import with_keys
 
 import numpy as np
 
@@ -197,21 +206,12 @@ def _make_fleet(args, plan, ports, field, clock):
 async def _fly(args, plan, fleet, setup, display, world=None):
     """Fly ``plan`` against the started ``fleet`` (``args.log_dir`` created, ``args.forward_addresses``
     resolved: :func:`main`); returns the MissionResult."""
-    import zenoh
-
-    from mission.flight.coordinator import Coordinator
-    from mission.flight.operator_stop import run_until_stopped
-    from mission.flight.result import geodetic_point
-    from mission.sim.fleet_report import vehicle_rejections
-    from mission.telemetry.mission_log import MissionLog
-    from mission.telemetry.watch_keys import with_keys
-
     source, start, eps = setup
     log_dir = Path(args.log_dir)
     session = None
     log = MissionLog(log_dir / "mission.jsonl", fleet.clock)
     try:
-        session = zenoh.open(plan.zenoh.to_config())
+        session = await open_session(plan.zenoh)  # off the loop
         log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field,
                   field_model=repr(fleet.field), sensor_response=args.sensor_response,
                   source_enu=source, start_enu=start, noise=args.noise,
