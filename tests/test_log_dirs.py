@@ -69,3 +69,22 @@ def test_run_and_fly_exit_2_on_a_log_dir_of_another_mission(tmp_path, capsys, co
     assert cli_main(argv + ["--log-dir", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert f"swarmseek {command}: error:" in err and "already holds a mission log" in err and "Traceback" not in err
+
+
+def test_fly_says_where_its_log_is_at_the_start_and_in_the_summary(tmp_path, capsys):
+    """``fly`` against vehicles that are not there (nothing listens on the plan's ports): it
+    gives up after the heartbeat timeout, and says where its log is first and last, as ``run``."""
+    import socket
+
+    from test_cli import _write_plan
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    plan = _write_plan(tmp_path / "p.toml", heartbeat_timeout_s=0.5, zenoh__listen=[f"tcp/127.0.0.1:{port}"])
+    log = tmp_path / "log" / "mission.jsonl"
+    assert cli_main(["fly", "--plan", str(plan), "--log-dir", str(log.parent)]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"swarmseek fly: mission log: {log}"
+    assert lines[-1].startswith(f"  mission log: {log}  (swarmseek plot {log} --out DIR")
+    assert log.is_file() and '"type":"summary"' in log.read_text()

@@ -66,7 +66,8 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
         The log cannot be resumed.
     """
     log_path = Path(log_path)
-    state = load_resume_state(log_path, plan)
+    # reading a whole mission log is file I/O of any size: off the loop (in the executor)
+    state = await asyncio.get_running_loop().run_in_executor(None, load_resume_state, log_path, plan)
     clock = clock or WallClock()
     log = MissionLog(log_path, clock)
     session = None
