@@ -256,9 +256,9 @@ def run_embedded(args, display=None):
 
     plan, ports, field, source, start, eps = _mission_setup(args)
     if getattr(args, "log_dir", None) is None:
-        from mission.cli.paths import new_log_dir
+        from mission.cli.paths import DEFAULT_LOG_ROOT, new_log_dir
 
-        args.log_dir = new_log_dir(Path("swarmseek-logs"), "run")
+        args.log_dir = new_log_dir(DEFAULT_LOG_ROOT, "run")
     if plan.forward.out and getattr(args, "forward_addresses", None) is None:
         args.forward_addresses = resolve_outs(plan.forward.out)  # once, before the loop (ForwardAddressError)
     realtime = args.realtime or args.speedup is not None
