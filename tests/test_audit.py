@@ -160,7 +160,9 @@ def test_a_vehicle_that_left_setpoints_no_longer_holds_its_last_one(tmp_path, he
 
 def test_velocity_only_setpoints_are_skipped(tmp_path):
     report = audit_mission(_write_log(tmp_path, {1: ((0, 0, 0), [(1.0, 900, 0, 10)])}, mask=0x7 | 0x1C0 | 0xC00))
-    assert report.ok and report.setpoints_skipped == 1 and report.setpoints_checked == 0
+    assert report.clean and report.setpoints_skipped == 1 and report.setpoints_checked == 0
+    # nothing was checked: the audit says so instead of passing (exit status 3)
+    assert not report.ok and report.exit_status == 3 and "nothing was checked" in report.incomplete[0]
 
 
 def test_setpoint_before_home_is_reported(tmp_path):

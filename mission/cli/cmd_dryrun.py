@@ -4,7 +4,7 @@ Prints each mission-wide check (zenoh session, a reading from every sensor, star
 formation paths inside the geofence: :mod:`mission.flight.readiness_mission`) and each vehicle's
 readiness (every check and why it failed). Exit status: 0 ready to seek, 1 a check failed (a
 vehicle not ready or unreachable, no readings, zenoh unreachable, start or path outside the
-fence), 2 invalid plan.
+fence), 2 invalid plan (also: a ``[forward] out`` host name that does not resolve, as ``fly``).
 """
 from __future__ import annotations
 
@@ -13,6 +13,15 @@ import asyncio
 import json
 import sys
 from pathlib import Path
+
+import zenoh
+
+# the mission's modules are imported with the command, before any event loop starts: a first import
+# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+from mission.core.clock import WallClock
+from mission.core.zenoh_errors import zenoh_open_message
+from mission.core.zenoh_open import open_session
+from mission.flight.coordinator import Coordinator
 
 __all__ = ["configure", "main", "dry_run", "format_readiness"]
 
@@ -36,16 +45,10 @@ async def dry_run(plan, *, clock=None, display=None, zenoh_session=None):
     readiness check), unless ``zenoh_session`` is given (then it is used and not closed); one
     that cannot be opened fails the ``zenoh`` check with the reason in plain words.
     """
-    import zenoh
-
-    from mission.core.clock import WallClock
-    from mission.core.zenoh_errors import zenoh_open_message
-    from mission.flight.coordinator import Coordinator
-
     session, problem, own = zenoh_session, None, zenoh_session is None
     if own:
         try:
-            session = zenoh.open(plan.zenoh.to_config())
+            session = await open_session(plan.zenoh)  # off the loop
         except zenoh.ZError as exc:
             problem = zenoh_open_message(exc, plan.zenoh)
     try:
@@ -83,6 +86,13 @@ def main(args) -> int:
         plan = load_plan(args.plan)
     except PlanError as exc:
         print(f"swarmseek dry-run: {exc}", file=sys.stderr)
+        return 2
+    from mission.link.forward import ForwardAddressError, resolve_outs
+
+    try:  # fly resolves these once before connecting and refuses to start when one fails: so does dry-run
+        resolve_outs(plan.forward.out)
+    except ForwardAddressError as exc:
+        print(f"swarmseek dry-run: error: {exc} (fly would refuse to start)", file=sys.stderr)
         return 2
     if not args.timeout > 0:
         print(f"swarmseek dry-run: --timeout must be > 0, got {args.timeout}", file=sys.stderr)

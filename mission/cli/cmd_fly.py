@@ -10,11 +10,18 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
-import time
 from pathlib import Path
 
 from mission.core.zenoh_security import ZenohSecurityError
-from mission.link.forward import forwarding, out_address, plan_with_outs
+# the mission's modules are imported with the command, before any event loop starts: a first import
+# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+from mission.core.clock import WallClock
+from mission.core.zenoh_open import open_session
+from mission.flight.coordinator import Coordinator
+from mission.flight.operator_stop import run_until_stopped
+from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.watch_keys import with_keys
+from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
 
 __all__ = ["configure", "main", "fly"]
 
@@ -31,24 +38,21 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
 
 
-async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True):
-    """Open the plan's zenoh session, fly the mission, close; returns the MissionResult."""
-    import zenoh
+async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True, forward_addresses=None):
+    """Open the plan's zenoh session, fly the mission, close; returns the MissionResult.
 
-    from mission.core.clock import WallClock
-    from mission.flight.coordinator import Coordinator
-    from mission.flight.operator_stop import run_until_stopped
-    from mission.telemetry.mission_log import MissionLog
-    from mission.telemetry.watch_keys import with_keys
-
+    ``forward_addresses``: the plan's ``[forward] out`` resolved before the loop started
+    (:func:`mission.link.forward.resolve_outs`; any missing are resolved before connecting).
+    """
     clock = clock or WallClock()
     log = MissionLog(Path(log_dir) / "mission.jsonl", clock)
     session = None
     try:
-        session = zenoh.open(plan.zenoh.to_config())
+        session = await open_session(plan.zenoh)  # off the loop
         co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
-        return await forwarding(co, with_keys(co, display, run_until_stopped(co)))  # --out; keys on a terminal
+        return await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal
+                                forward_addresses)
     finally:
         log.close()
         if session is not None:
@@ -70,18 +74,24 @@ def main(args) -> int:
         print("swarmseek fly: the plan's [zenoh] section has no listen or connect endpoint: "
               "no reading could arrive (multicast scouting is off)", file=sys.stderr)
         return 2
-    from mission.cli.paths import output_dir_problem
+    from mission.cli.paths import announce_log, mission_log_dir, summary_log_line
 
-    log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("fly-%Y%m%d-%H%M%S")
-    problem = output_dir_problem(log_dir, "log directory (--log-dir)")
+    try:
+        addresses = resolve_outs(plan.forward.out)  # once, before any vehicle is contacted
+    except ForwardAddressError as exc:
+        print(f"swarmseek fly: error: {exc}; nothing armed", file=sys.stderr)
+        return 2
+    log_dir, problem = mission_log_dir(args.log_dir, "fly")
     if problem:
         print(f"swarmseek fly: error: {problem}", file=sys.stderr)
         return 2
     import zenoh
 
+    announce_log("fly", log_dir / "mission.jsonl", args.json)
     display = Display(quiet=args.json)
     try:
-        result = asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog))
+        result = asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog,
+                                 forward_addresses=addresses))
     except zenoh.ZError as exc:
         from mission.core.zenoh_errors import zenoh_open_message
 
@@ -95,4 +105,6 @@ def main(args) -> int:
         return 2
     from mission.flight.operator_stop import exit_status
 
-    return exit_status(result, report_result(result, display, args.json))
+    status = exit_status(result, report_result(result, display, args.json))
+    summary_log_line(log_dir / "mission.jsonl", args.json)
+    return status

@@ -18,6 +18,16 @@ import sys
 from pathlib import Path
 
 from mission.core.zenoh_security import ZenohSecurityError
+from mission.link.forward import ForwardAddressError, forwarding
+# the mission's modules are imported with the command, before any event loop starts: a first import
+# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+from mission.core.clock import WallClock
+from mission.core.zenoh_open import open_session
+from mission.flight.coordinator import Coordinator
+from mission.flight.operator_stop import run_until_stopped
+from mission.flight.resume import load_resume_state
+from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.watch_keys import with_keys
 
 __all__ = ["configure", "main", "resume"]
 
@@ -31,7 +41,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
 
 
-async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: bool = True):
+async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: bool = True,
+                 forward_addresses=None):
     """Resume the mission of ``log_path``; returns the MissionResult.
 
     Parameters
@@ -45,32 +56,27 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     display : mission.telemetry.display.Display, optional
     tlog : bool
         Write ``.tlog`` files next to the log (``tlogs/``, appended).
+    forward_addresses : dict, optional
+        The plan's ``[forward] out`` resolved before the loop started
+        (:func:`mission.link.forward.resolve_outs`; any missing are resolved before connecting).
 
     Raises
     ------
     mission.flight.resume.ResumeError
         The log cannot be resumed.
     """
-    import zenoh
-
-    from mission.core.clock import WallClock
-    from mission.flight.coordinator import Coordinator
-    from mission.flight.operator_stop import run_until_stopped
-    from mission.link.forward import forwarding
-    from mission.telemetry.watch_keys import with_keys
-    from mission.telemetry.mission_log import MissionLog
-    from mission.flight.resume import load_resume_state
-
     log_path = Path(log_path)
-    state = load_resume_state(log_path, plan)
+    # reading a whole mission log is file I/O of any size: off the loop (in the executor)
+    state = await asyncio.get_running_loop().run_in_executor(None, load_resume_state, log_path, plan)
     clock = clock or WallClock()
     log = MissionLog(log_path, clock)
     session = None
     try:
-        session = zenoh.open(state.plan.zenoh.to_config())
+        session = await open_session(state.plan.zenoh)  # off the loop
         co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
                          tlog_dir=log_path.parent / "tlogs" if tlog else None)
-        return await forwarding(co, with_keys(co, display, run_until_stopped(co, state)))  # as fly
+        return await forwarding(co, with_keys(co, display, run_until_stopped(co, state)),  # as fly
+                                forward_addresses)
     finally:
         log.close()
         if session is not None:
@@ -96,11 +102,23 @@ def main(args) -> int:
         except PlanError as exc:
             print(f"swarmseek resume: {exc}", file=sys.stderr)
             return 2
+    try:
+        addresses = _forward_addresses(args.log, plan)
+    except ResumeError as exc:
+        print(f"swarmseek resume: {exc}", file=sys.stderr)
+        return 2
+    except ForwardAddressError as exc:
+        print(f"swarmseek resume: error: {exc}; nothing re-engaged", file=sys.stderr)
+        return 2
     import zenoh
 
+    from mission.cli.paths import announce_log, summary_log_line
+
+    announce_log("resume", args.log, args.json)
     display = Display(quiet=args.json)
     try:
-        result = asyncio.run(resume(args.log, plan=plan, display=display, tlog=not args.no_tlog))
+        result = asyncio.run(resume(args.log, plan=plan, display=display, tlog=not args.no_tlog,
+                                    forward_addresses=addresses))
     except ResumeError as exc:
         print(f"swarmseek resume: {exc}", file=sys.stderr)
         return 2
@@ -120,4 +138,33 @@ def main(args) -> int:
     status = report_result(result, display, args.json)
     if result.outcome == "recovered" and not result.airborne_left:
         status = 0
+    summary_log_line(args.log, args.json)
     return exit_status(result, status)
+
+
+def _forward_addresses(log_path: Path, plan) -> dict:
+    """The ``[forward] out`` of the plan the resumed mission flies (``plan``, else the log's), each
+    host resolved once, before the event loop starts (a log without a plan record: none here,
+    :func:`resume` then says why it cannot be resumed).
+
+    Raises
+    ------
+    mission.flight.resume.ResumeError
+        The log cannot be read, or its plan record is malformed.
+    mission.link.forward.ForwardAddressError
+        An address that is invalid or does not resolve.
+    """
+    from mission.flight.resume import ResumeError, plan_from_json
+    from mission.link.forward import resolve_outs
+    from mission.telemetry.mission_log import iter_mission_log
+
+    if plan is None:
+        try:
+            record = next((r for r in iter_mission_log(log_path)
+                           if r.get("type") == "plan" and not r.get("dry_run")), None)
+        except (OSError, ValueError) as exc:
+            raise ResumeError(f"cannot read {log_path}: {exc}") from None
+        if record is None:
+            return {}
+        plan = plan_from_json(record.get("plan") or {})
+    return resolve_outs(plan.forward.out)

@@ -13,11 +13,19 @@ import argparse
 import asyncio
 import dataclasses
 import sys
-import time
 from pathlib import Path
 
 from estimator.seekers import MOVING_SEEKERS
-from mission.link.forward import forwarding, out_address, plan_with_outs
+from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
+# the mission's modules are imported with the command, before any event loop starts: a first import
+# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+from mission.core.zenoh_open import open_session
+from mission.flight.coordinator import Coordinator
+from mission.flight.operator_stop import run_until_stopped
+from mission.flight.result import geodetic_point
+from mission.sim.fleet_report import vehicle_rejections
+from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.watch_keys import with_keys
 
 import numpy as np
 
@@ -196,23 +204,14 @@ def _make_fleet(args, plan, ports, field, clock):
 
 
 async def _fly(args, plan, fleet, setup, display, world=None):
-    """Fly ``plan`` against the started ``fleet``; returns the MissionResult."""
-    import zenoh
-
-    from mission.flight.coordinator import Coordinator
-    from mission.flight.operator_stop import run_until_stopped
-    from mission.flight.result import geodetic_point
-    from mission.sim.fleet_report import vehicle_rejections
-    from mission.telemetry.mission_log import MissionLog
-    from mission.telemetry.watch_keys import with_keys
-
+    """Fly ``plan`` against the started ``fleet`` (``args.log_dir`` created, ``args.forward_addresses``
+    resolved: :func:`main`); returns the MissionResult."""
     source, start, eps = setup
-    log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("run-%Y%m%d-%H%M%S")
-    log_dir.mkdir(parents=True, exist_ok=True)
+    log_dir = Path(args.log_dir)
     session = None
     log = MissionLog(log_dir / "mission.jsonl", fleet.clock)
     try:
-        session = zenoh.open(plan.zenoh.to_config())
+        session = await open_session(plan.zenoh)  # off the loop
         log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field,
                   field_model=repr(fleet.field), sensor_response=args.sensor_response,
                   source_enu=source, start_enu=start, noise=args.noise,
@@ -222,7 +221,8 @@ async def _fly(args, plan, fleet, setup, display, world=None):
                          tlog_dir=None if args.no_tlog else log_dir / "tlogs")
         if world is not None:
             world.store = co.store
-        result = await forwarding(co, with_keys(co, display, run_until_stopped(co)))  # --out; keys on a terminal
+        result = await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal
+                                  getattr(args, "forward_addresses", None))
         result.true_source_enu = [float(x) for x in source]
         result.true_source_geodetic = geodetic_point(plan.origin, source)
         if result.estimate_enu is not None:
@@ -241,6 +241,10 @@ async def _fly(args, plan, fleet, setup, display, world=None):
 def run_embedded(args, display=None):
     """Start the mock fleet, fly the mission, stop everything; returns the MissionResult.
 
+    ``args`` as :func:`main` leaves them: with ``log_dir`` (created by
+    :func:`mission.cli.paths.mission_log_dir` when None) and, for ``--out``, ``forward_addresses``
+    (:func:`mission.link.forward.resolve_outs`, resolved before any loop starts).
+
     Lock-step by default (:mod:`mission.sim.lockstep`): one simulated clock for the fleet and
     the ground station, as fast as the CPU allows, reproducible for a seed. With
     ``args.realtime`` (or a ``--speedup``) the fleet runs on its own thread against the wall
@@ -251,6 +255,12 @@ def run_embedded(args, display=None):
     from sitl_mock.clock import SimClock
 
     plan, ports, field, source, start, eps = _mission_setup(args)
+    if getattr(args, "log_dir", None) is None:
+        from mission.cli.paths import DEFAULT_LOG_ROOT, new_log_dir
+
+        args.log_dir = new_log_dir(DEFAULT_LOG_ROOT, "run")
+    if plan.forward.out and getattr(args, "forward_addresses", None) is None:
+        args.forward_addresses = resolve_outs(plan.forward.out)  # once, before the loop (ForwardAddressError)
     realtime = args.realtime or args.speedup is not None
     clock = SimClock(args.speedup or 1.0) if realtime else VirtualClock()
     fleet = _make_fleet(args, plan, ports, field, clock)
@@ -269,19 +279,31 @@ def run_embedded(args, display=None):
         fleet.stop()
 
 
+def _resolve_outs(args) -> str | None:
+    """Resolve every ``--out`` host once, before anything starts (``args.forward_addresses``);
+    the reason when one is invalid or does not resolve."""
+    try:
+        args.forward_addresses = resolve_outs(getattr(args, "out", None) or ())
+    except ForwardAddressError as exc:
+        return str(exc)
+    return None
+
+
 def main(args) -> int:
     """Run the embedded mission; 0 if it converged, 1 if not, 2 for bad options."""
     from mission.telemetry.display import Display, report_result
 
-    from mission.cli.paths import output_dir_problem
+    from mission.cli.paths import announce_log, mission_log_dir, summary_log_line
 
-    args.log_dir = args.log_dir or Path("swarmseek-logs") / time.strftime("run-%Y%m%d-%H%M%S")
-    problem = _check_args(args) or output_dir_problem(args.log_dir, "log directory (--log-dir)")
+    problem = _check_args(args) or _resolve_outs(args)
+    if not problem:
+        args.log_dir, problem = mission_log_dir(args.log_dir, "run")
     if problem:
         print(f"swarmseek run: error: {problem}", file=sys.stderr)
         return 2
     import zenoh
 
+    announce_log("run", args.log_dir / "mission.jsonl", args.json)
     display = Display(quiet=args.json)
     try:
         result = run_embedded(args, display=display)
@@ -291,6 +313,6 @@ def main(args) -> int:
     from mission.flight.operator_stop import exit_status
 
     status = exit_status(result, report_result(result, display, args.json))
-    if not args.json and result.log_path:
-        print(f"  mission log: {result.log_path}  (swarmseek plot {result.log_path} --out DIR)")
+    if result.log_path:
+        summary_log_line(Path(result.log_path), args.json)
     return status

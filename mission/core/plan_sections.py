@@ -264,7 +264,27 @@ def parse_forward_out(text: str) -> tuple[str, int]:
         raise ValueError(f"forward address {text!r} must look like udp:HOST:PORT (e.g. udp:127.0.0.1:14550)")
     if not port.isdigit() or not 1 <= int(port) <= 65535:
         raise ValueError(f"forward address {text!r}: port must be 1..65535")
+    problem = _forward_host_problem(host)
+    if problem:
+        raise ValueError(f"forward address {text!r}: {problem}")
     return host, int(port)
+
+
+def _forward_host_problem(host: str) -> str | None:
+    """Why ``host`` is neither a dotted IPv4 address nor a host name (None when it is one)."""
+    import ipaddress
+
+    if all(ch.isdigit() or ch == "." for ch in host):  # meant as an address: exactly a.b.c.d, each 0..255
+        try:
+            ipaddress.IPv4Address(host)
+        except ValueError:
+            return f"{host!r} is not an IPv4 address (four numbers 0..255, e.g. 192.168.1.10)"
+        return None
+    labels = host.rstrip(".").split(".")
+    if len(host) > 253 or not all(0 < len(lab) <= 63 and lab.replace("-", "").replace("_", "").isalnum() and lab.isascii()
+                                  and not lab.startswith("-") and not lab.endswith("-") for lab in labels):
+        return f"{host!r} is not an IPv4 address or a host name (letters, digits, '-', '_' and '.')"
+    return None
 
 
 def parse_forward(c: Checker, doc: dict) -> ForwardPlan:

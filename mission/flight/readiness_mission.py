@@ -42,7 +42,13 @@ async def check(co) -> None:
     _zenoh_check(co)
     checks = co.mission_checks
     checks.insert(0, checks.pop())  # reported first
-    _fence_checks(co)
+    offsets = None
+    if len(co.vehicles) >= 4 and co.plan.geofence.polygon_en_m:  # the slots of path_problems, off the loop
+        from mission.flight.phases import solve_formation
+
+        f = co.plan.formation
+        offsets = await solve_formation(f.type, len(co.vehicles), f.radius_m, f.seed)
+    _fence_checks(co, offsets)
 
 
 def _zenoh_check(co) -> None:
@@ -101,7 +107,7 @@ async def _readings_check(co) -> None:
             co.state.set_readiness(r, "not ready: " + "; ".join(r.problems))
 
 
-def _fence_checks(co) -> None:
+def _fence_checks(co, offsets=None) -> None:
     from mission.safety.envelope import Geofence
 
     plan = co.plan
@@ -125,7 +131,7 @@ def _fence_checks(co) -> None:
                 f"(radius {radius} m) would cross it")
     else:
         _record(co, "start_in_fence", True, f"{where} and the formation (radius {radius} m) inside the geofence")
-    problems = path_problems(co, fence)
+    problems = path_problems(co, fence, offsets)
     if problems is None:
         _record(co, "path_in_fence", False, "not checked: no home position of every vehicle")
     else:
@@ -133,8 +139,12 @@ def _fence_checks(co) -> None:
                 "every vehicle's path to its slot (climb, across at its layer, down) inside the geofence")
 
 
-def path_problems(co, fence) -> list[str] | None:
-    """Vehicles whose path to their slot at the start leaves ``fence`` (None: homes unknown)."""
+def path_problems(co, fence, offsets=None) -> list[str] | None:
+    """Vehicles whose path to their slot at the start leaves ``fence`` (None: homes unknown).
+
+    ``offsets``: the formation's slot offsets, solved off the event loop
+    (:func:`mission.flight.phases.solve_formation`); solved here when not given or not one per vehicle.
+    """
     from mission.flight.layers import shared_layers
     from mission.flight.phases import formation_offsets
     from mission.flight.targets import assign_slots
@@ -150,7 +160,8 @@ def path_problems(co, fence) -> list[str] | None:
     if len(sysids) < 4:
         return [f"only {len(sysids)} vehicles connected: a formation needs 4"]
     homes = np.asarray(homes, dtype=float)
-    offsets = formation_offsets(plan.formation.type, len(sysids), plan.formation.radius_m, plan.formation.seed)
+    if offsets is None or len(offsets) != len(sysids):
+        offsets = formation_offsets(plan.formation.type, len(sysids), plan.formation.radius_m, plan.formation.seed)
     slots_all = plan.seeking.start_point() + offsets
     perm = assign_slots(np.column_stack([homes[:, :2], np.zeros(len(sysids))]),
                         np.column_stack([slots_all[:, :2], np.zeros(len(sysids))]))

@@ -10,7 +10,12 @@ ground station's own system id and signing, like any of its commands. Messages w
 (the client's HEARTBEAT, ...) are never relayed.
 
 Sockets are non-blocking; clients are read by an event-loop reader (never blocking the loop);
-a frame a socket cannot take is counted in ``send_errors``, never waited for.
+a frame a socket cannot take is counted in ``send_errors``, never waited for. Host names are
+resolved **once**, before the mission connects to any vehicle (:func:`resolve_outs`, called by
+``run``, ``fly``, ``resume`` and ``dry-run`` before their event loop starts: a name that does
+not resolve is an invalid option, exit status 2, nothing armed); the :class:`Forwarder` sends to
+numeric addresses only, so no frame ever waits on a DNS lookup (a ``sendto`` to a host name
+resolves it on every call, inside the event loop).
 """
 from __future__ import annotations
 
@@ -22,10 +27,62 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from mission.core.clock import cancel_and_wait
 from mission.core.plan_sections import parse_forward_out
 
-__all__ = ["Forwarder", "COUNTERS", "forwarding", "out_address", "plan_with_outs"]
+__all__ = ["Forwarder", "COUNTERS", "ForwardAddressError", "forwarding", "out_address", "plan_with_outs",
+           "resolve_out", "resolve_outs"]
 
 COUNTERS = ("frames_out", "bytes_out", "send_errors", "client_frames", "relayed",
             "dropped_read_only", "dropped_no_target", "dropped_bad")
+
+
+class ForwardAddressError(ValueError):
+    """A forward address that is invalid or whose host name does not resolve (one line, for the operator)."""
+
+
+def resolve_out(text: str, numeric_only: bool = False) -> tuple[str, int]:
+    """The numeric ``(IPv4, port)`` of the forward address ``text`` (``udp:HOST:PORT``).
+
+    Parameters
+    ----------
+    text : str
+        ``udp:HOST:PORT``; HOST an IPv4 address or a host name.
+    numeric_only : bool
+        Refuse a host name instead of resolving it (no DNS lookup: safe inside an event loop).
+
+    Returns
+    -------
+    tuple of (str, int)
+
+    Raises
+    ------
+    ForwardAddressError
+        Not of that form, a port out of 1..65535, an invalid IPv4 address, or a name that does
+        not resolve (to an IPv4 address: the forward sockets are IPv4).
+    """
+    try:
+        host, port = parse_forward_out(text)
+    except ValueError as exc:
+        raise ForwardAddressError(str(exc)) from None
+    flags = socket.AI_NUMERICHOST if numeric_only else 0
+    try:
+        info = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM, 0, flags)
+    except (socket.gaierror, UnicodeError) as exc:
+        why = ("a host name: resolve it first (resolve_outs)" if numeric_only
+               else f"the host name does not resolve to an IPv4 address ({getattr(exc, 'strerror', None) or exc})")
+        raise ForwardAddressError(f"forward address {text!r}: {why}") from None
+    return info[0][4][0], int(info[0][4][1])
+
+
+def resolve_outs(outs) -> dict[str, tuple[str, int]]:
+    """``{address text: (IPv4, port)}`` for every forward address of ``outs``, each resolved once.
+
+    Blocking (DNS): call it before the event loop starts, or in a worker thread.
+
+    Raises
+    ------
+    ForwardAddressError
+        The first address that is invalid or does not resolve.
+    """
+    return {str(out): resolve_out(str(out)) for out in outs}
 
 
 class Forwarder:
@@ -35,6 +92,9 @@ class Forwarder:
     ----------
     outs : iterable of str
         ``udp:HOST:PORT`` addresses (ValueError for any other form).
+    addresses : dict, optional
+        ``{out: (IPv4, port)}`` from :func:`resolve_outs`; without it every HOST must be a
+        numeric IPv4 address (a host name is a :class:`ForwardAddressError`, never looked up here).
     allow_commands : bool
         Relay the clients' messages addressed to the vehicles (default False: read-only).
     vehicle_sysids : iterable of int
@@ -43,9 +103,11 @@ class Forwarder:
         ``on_first_drop(text)`` once, at the first client frame dropped as read-only (tell the operator).
     """
 
-    def __init__(self, outs, allow_commands: bool = False, vehicle_sysids=(), on_first_drop=None):
+    def __init__(self, outs, allow_commands: bool = False, vehicle_sysids=(), on_first_drop=None,
+                 addresses: dict | None = None):
         self.outs = [str(o) for o in outs]
-        self.addresses = [parse_forward_out(o) for o in self.outs]
+        addresses = addresses or {}
+        self.addresses = [addresses[o] if o in addresses else resolve_out(o, numeric_only=True) for o in self.outs]
         self.allow_commands = bool(allow_commands)
         self.vehicle_sysids = frozenset(int(s) for s in vehicle_sysids)
         self.counters = dict.fromkeys(COUNTERS, 0)
@@ -180,14 +242,25 @@ def plan_with_outs(plan, outs):
     return replace(plan, forward=replace(plan.forward, out=tuple(plan.forward.out) + tuple(outs)))
 
 
-async def forwarding(co, work):
+async def forwarding(co, work, addresses: dict | None = None):
     """Await ``work`` (the coordinator ``co``'s run) while the plan's ``[forward]`` runs; the
-    start and the counts at the end are events of the mission (its log, the display)."""
+    start and the counts at the end are events of the mission (its log, the display).
+
+    ``addresses``: the forward addresses resolved before the loop started (:func:`resolve_outs`);
+    any missing are resolved in a worker thread here, before ``work`` starts (so before any
+    vehicle is contacted: a :class:`ForwardAddressError` then leaves ``work`` never started).
+    """
     fwd = co.plan.forward
     if not fwd.out:
         return await work
+    missing = [o for o in fwd.out if o not in (addresses or {})]
+    try:
+        resolved = {**(addresses or {}), **(await asyncio.to_thread(resolve_outs, missing) if missing else {})}
+    except BaseException:
+        work.close()  # never started: no "coroutine was never awaited"
+        raise
     forwarder = Forwarder(fwd.out, fwd.allow_commands, [v.sysid for v in co.plan.vehicles],
-                          on_first_drop=lambda text: co.event(text, level="warning"))
+                          on_first_drop=lambda text: co.event(text, level="warning"), addresses=resolved)
     forwarder.start(lambda: co.endpoints.values())
     co.event(f"forwarding MAVLink to {', '.join(fwd.out)} "
              f"({'commands relayed' if fwd.allow_commands else 'read-only: client frames dropped'})",

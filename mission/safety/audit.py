@@ -32,6 +32,13 @@ frame with :mod:`formation.geodesy` only.
   failsafe, RTL, LAND), whichever comes first; a longer gap ends a track and a later setpoint
   starts a new one (no path is drawn across a gap).
 
+**Completeness.** A clean report vouches for the whole mission only if the audit saw it whole;
+it is *incomplete* (``AuditReport.incomplete``: the reasons; ``swarmseek audit`` exit status 3)
+when no setpoint was checked (e.g. the wrong ``gcs_sysid``), when a planned vehicle's tlog is
+missing or empty, or when the log's plan and the tlogs disagree: setpoints sent to a system id
+not in the plan, several missions' plan records in one ``mission.jsonl`` (a resume's own plan
+record, ``resumed: true``, is not another mission), or plan records with different vehicles.
+
 **Clock.** The tlog stamps are written by :class:`mission.link.tlog.TlogSet` with the mission clock's
 ``time()`` (``links.py`` passes ``clock.time``): on the simulated timeline when the mission
 embeds the mock fleet (a :class:`sitl_mock.clock.SimClock` at 10x: stamps advance 10 s per wall
@@ -100,6 +107,9 @@ class AuditReport:
         Up to 200 listed per kind.
     violation_counts : dict
         kind -> count (all of them).
+    incomplete : list of str
+        Why the audit cannot vouch for the whole mission (empty: it can); see the module's
+        "Completeness".
     """
 
     log_dir: str
@@ -118,11 +128,22 @@ class AuditReport:
     limits: dict = field(default_factory=dict)
     violations: list = field(default_factory=list)
     violation_counts: dict = field(default_factory=dict)
+    incomplete: list = field(default_factory=list)
+
+    @property
+    def clean(self) -> bool:
+        """True when no checked setpoint broke a rule."""
+        return not any(self.violation_counts.values())
 
     @property
     def ok(self) -> bool:
-        """True when nothing was violated."""
-        return not any(self.violation_counts.values())
+        """True when nothing was violated and the audit saw the whole mission."""
+        return self.clean and not self.incomplete
+
+    @property
+    def exit_status(self) -> int:
+        """``swarmseek audit``'s status: 0 ok, 1 violations, 3 incomplete (and no violation)."""
+        return 1 if not self.clean else 3 if self.incomplete else 0
 
     def add(self, violation: AuditViolation) -> None:
         """Count a violation (and list it, up to 200 per kind)."""
@@ -135,6 +156,7 @@ class AuditReport:
         """JSON-ready dictionary (non-finite numbers as None, strict JSON)."""
         d = asdict(self)
         d["ok"] = self.ok
+        d["exit_status"] = self.exit_status
         d["violations"] = [dict(asdict(v), sysids=list(v.sysids)) for v in self.violations]
         return _finite(d)
 
@@ -156,8 +178,11 @@ class AuditReport:
         if self.ignored_tlogs:
             names = ", ".join(Path(p).name for p in self.ignored_tlogs)
             lines.insert(1, f"  ignored {len(self.ignored_tlogs)} tlog(s) of system ids not in the plan: {names}")
+        lines.extend(f"  INCOMPLETE: {why}" for why in self.incomplete)
         if self.ok:
             lines.append("  OK: no violation")
+        elif self.clean:
+            lines.append("  NOT OK: the audit is incomplete (above); what was checked broke no rule")
         else:
             counts = ", ".join(f"{k} {v}" for k, v in sorted(self.violation_counts.items()) if v)
             lines.append(f"  VIOLATIONS: {counts}")
@@ -276,6 +301,46 @@ def _check_pair(report, a, b, tracks_a, tracks_b, min_sep_m, tol_m, stale_after_
                                           f"(minimum {min_sep_m:g} m)"))
 
 
+def _check_options(gcs_sysid, fence_tol_m, stamp_jitter_s, speed_window_s, separation_tol_m, stale_after_s):
+    """AuditError for an option out of its range (the CLI shows the message)."""
+    if isinstance(gcs_sysid, bool) or not isinstance(gcs_sysid, int) or not 1 <= gcs_sysid <= 255:
+        raise AuditError(f"gcs_sysid must be a MAVLink system id 1..255, got {gcs_sysid!r}")
+    for name, value, positive in (("fence_tol_m", fence_tol_m, False), ("stamp_jitter_s", stamp_jitter_s, False),
+                                  ("separation_tol_m", separation_tol_m, False),
+                                  ("speed_window_s", speed_window_s, True), ("stale_after_s", stale_after_s, True)):
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise AuditError(f"{name} must be a number, got {value!r}") from None
+        if not math.isfinite(v) or v < 0 or (positive and v == 0):
+            raise AuditError(f"{name} must be a finite number {'> 0' if positive else '>= 0'}, got {value!r}")
+
+
+def _completeness(report, plan, by_sysid, ignored, gcs_sysid) -> None:
+    """Add to ``report.incomplete`` every reason the audit cannot vouch for the whole mission
+    (after the checks: ``report.setpoints_checked`` is final)."""
+    if plan["missions"] > 1:
+        report.incomplete.append(f"the mission log holds {plan['missions']} missions' plan records (two missions "
+                                 "in one directory?): the tlogs cannot be matched to one plan")
+    if len(plan["plan_sysid_sets"]) > 1:
+        sets = "; ".join(", ".join(str(s) for s in group) for group in plan["plan_sysid_sets"])
+        report.incomplete.append(f"the log's plan records name different vehicles ({sets})")
+    for sysid in sorted(plan["sysids"] or ()):
+        if sysid not in by_sysid:
+            report.incomplete.append(f"vehicle {sysid} of the plan has no tlog")
+        elif all(Path(p).stat().st_size == 0 for p in by_sysid[sysid]):
+            report.incomplete.append(f"vehicle {sysid} of the plan has an empty tlog")
+    for sysid, paths in sorted(ignored.items()):
+        if sysid == gcs_sysid:  # the ground station's own id is never a vehicle
+            continue
+        sent = len(read_vehicle_setpoints(paths, sysid, plan["origin"], gcs_sysid).t_s)
+        if sent:
+            report.incomplete.append(f"{sent} setpoint(s) were sent to system id {sysid}, which is not in the plan")
+    if report.setpoints_checked == 0:
+        report.incomplete.append(f"no position setpoint sent by system id {gcs_sysid} was found: nothing was "
+                                 "checked (the ground station's system id is 255 unless the plan says otherwise)")
+
+
 def audit_mission(log_dir, *, gcs_sysid: int = 255, fence_tol_m: float = 0.01, stamp_jitter_s: float = 0.01,
                   speed_window_s: float = 1.0, separation_tol_m: float = 0.01,
                   stale_after_s: float = 1.0) -> AuditReport:
@@ -307,8 +372,9 @@ def audit_mission(log_dir, *, gcs_sysid: int = 255, fence_tol_m: float = 0.01, s
     Raises
     ------
     AuditError
-        Missing directory, no tlogs, no or unreadable plan, undecodable tlog.
+        An option out of range, missing directory, no tlogs, no or unreadable plan, undecodable tlog.
     """
+    _check_options(gcs_sysid, fence_tol_m, stamp_jitter_s, speed_window_s, separation_tol_m, stale_after_s)
     log_dir = Path(log_dir)
     if not log_dir.is_dir():
         raise AuditError(f"{log_dir}: " + ("not a directory (give the mission's --log-dir)" if log_dir.exists()
@@ -355,4 +421,5 @@ def audit_mission(log_dir, *, gcs_sysid: int = 255, fence_tol_m: float = 0.01, s
             (a, ta), (b, tb) = vehicles[i], vehicles[j]
             _check_pair(report, a, b, ta, tb, plan["min_separation_m"], separation_tol_m, stale_after_s)
     report.violations.sort(key=lambda v: (v.t_s, v.kind))
+    _completeness(report, plan, by_sysid, ignored, gcs_sysid)
     return report

@@ -127,7 +127,9 @@ def load_plan_limits(log_dir: Path) -> dict:
     -------
     dict
         ``origin``, ``polygon_en_m`` (K, 2), ``min_alt_m``, ``max_alt_m``, ``max_speed_m_s``,
-        ``min_separation_m``.
+        ``min_separation_m``, ``sysids`` (the planned vehicles; None in an old log), ``missions``
+        (plan records not written by a resume: more than one is several missions in one
+        directory) and ``plan_sysid_sets`` (the distinct vehicle sets of all plan records).
 
     Raises
     ------
@@ -145,7 +147,23 @@ def load_plan_limits(log_dir: Path) -> dict:
         raise AuditError(f"{path}: cannot be read: {exc}") from None
     if not plans:
         raise AuditError(f"{path}: no plan record (was the mission flown?)")
-    plan = plans[0].get("plan")
+    out = _limits_of(path, plans[0].get("plan"))
+    # a resume appends its own plan record (``resumed``: true); any other is another mission
+    out["missions"] = sum(1 for r in plans if not r.get("resumed"))
+    out["plan_sysid_sets"] = sorted({s for s in (_plan_sysids(r.get("plan")) for r in plans) if s is not None})
+    return out
+
+
+def _plan_sysids(plan) -> tuple | None:
+    """The sorted system ids of a ``plan`` record's vehicles (None: no or malformed vehicle list)."""
+    try:
+        return tuple(sorted(int(v["sysid"]) for v in plan["vehicles"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _limits_of(path: Path, plan) -> dict:
+    """The safety limits of one ``plan`` record (see :func:`load_plan_limits`)."""
     try:
         gf = plan["geofence"]
         out = {
