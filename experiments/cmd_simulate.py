@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 from estimator.seekers import MOVING_SEEKERS
-from sitl_mock.cli_args import float_in_range, nonnegative_float, positive_float
+from sitl_mock.cli_args import float_in_range, int_in_range, nonnegative_float, positive_float
 
 __all__ = ["configure", "main", "run", "report_lines"]
 
@@ -88,7 +88,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "at 3 m/s, from every reading since the last estimate (experiments.offline_moving; "
                              "docs/seekers.md)")
     parser.add_argument("--iterations", type=_positive(int), default=3000)
-    parser.add_argument("--seed", type=int, default=0, help="noise and CVT seed")
+    parser.add_argument("--seed", type=int_in_range(0, None, "--seed"), default=0, help="noise and CVT seed")
     parser.add_argument("--window", type=_positive(int), default=400,
                         help="convergence test window, iterations")
     parser.add_argument("--tol", type=positive_float, default=1.0,

@@ -51,7 +51,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--origin", type=origin_geodetic, default=None, metavar="LAT,LON,ALT",
                         help="fleet / mission origin")
     parser.add_argument("--speedup", type=positive_float, default=1.0, help="simulated seconds per wall second")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int_in_range(0, None, "--seed"), default=0,
+                        help="seed of the fleet's noise and faults, an integer >= 0 (default 0)")
     parser.add_argument("--udp-base-port", type=_port, default=14540,
                         help="vehicle i streams to 127.0.0.1:BASE+i (0 disables UDP)")
     parser.add_argument("--udp-bind-base-port", type=_port, default=None,
