@@ -22,7 +22,7 @@ from mission.link.forward import forwarding, out_address, plan_with_outs
 import numpy as np
 
 from sitl_mock.cli_args import (add_field_arguments, field_from_args, float_in_range, int_in_range, nonnegative_float,
-                                positive_float, source_enu, zenoh_endpoint)
+                                path_arg, positive_float, source_enu, zenoh_endpoint)
 
 __all__ = ["configure", "main", "run_embedded"]
 
@@ -80,7 +80,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-iterations", type=int, default=300)
     parser.add_argument("--return", dest="return_behaviour", choices=("land", "rtl"), default="land")
     parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
-    parser.add_argument("--log-dir", type=Path, default=None,
+    parser.add_argument("--log-dir", type=path_arg, default=None,
                         help="mission log and tlogs go here (default ./swarmseek-logs/run-TIME)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
     parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
@@ -124,6 +124,7 @@ def _check_args(args) -> str | None:
         field_from_args(args, args.source if args.source is not None else (0.0, 0.0, 20.0))
     except ValueError as exc:
         return str(exc)
+    _warn_ignored_options(args)  # valid options: say which of them this mission does not use
     return None
 
 
@@ -318,7 +319,6 @@ def main(args) -> int:
     if problem:
         print(f"swarmseek run: error: {problem}", file=sys.stderr)
         return 2
-    _warn_ignored_options(args)
     import zenoh
 
     display = Display(quiet=args.json)
