@@ -71,14 +71,14 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 def _check_fleet_argument(args: argparse.Namespace) -> None:
     """Every command's fleet name (``ctl``/``watch`` FLEET, ``--fleet`` of ``sitl``, ``mock`` and
     ``sensor``) through the one rule of :mod:`mission.core.fleet_name`: a usage error (exit 2)."""
-    from mission.core.fleet_name import fleet_name_problem
+    from mission.core.fleet_name import check_fleet_name
 
     fleet = getattr(args, "fleet", None)
     if fleet is not None:
-        problem = fleet_name_problem(fleet)
-        if problem:
-            shown = repr(fleet) if len(repr(fleet)) <= 40 else repr(fleet)[:37] + "..."
-            args._parser.error(f"fleet name {shown} {problem}")
+        try:
+            check_fleet_name(fleet)
+        except ValueError as exc:
+            args._parser.error(str(exc))
 
 
 def main(argv: list[str] | None = None) -> int:
