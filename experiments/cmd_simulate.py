@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> dict:
     from sitl_mock.fields import make_field
     from experiments.offline import convergence_report, simulate
 
-    problem = inapplicable_option(args)
+    problem = _inapplicable_option(args)
     if problem:
         raise ValueError(problem)
     if getattr(args, "eps", None) is None:
@@ -154,7 +154,7 @@ def run(args: argparse.Namespace) -> dict:
     return out
 
 
-def inapplicable_option(args: argparse.Namespace) -> str | None:
+def _inapplicable_option(args: argparse.Namespace) -> str | None:
     """Why an option given cannot apply to this run's seeker (refused, never ignored), or None:
     ``--seek-wind-from`` is the plume seeker's, ``--method`` the gradient seeker's estimator."""
     seeker = getattr(args, "seeker", "gradient")
@@ -166,7 +166,7 @@ def inapplicable_option(args: argparse.Namespace) -> str | None:
     return None
 
 
-def ignored_option_warnings(args: argparse.Namespace) -> list[str]:
+def _ignored_option_warnings(args: argparse.Namespace) -> list[str]:
     """Warnings for harmless options this run does not use: ``--eps`` with a seeker other than
     gradient (its step is bounded by ``--gamma``), ``--min-signal-fraction`` where the runs have no
     signal test (the gradient seeker, or sampling while moving)."""
@@ -220,7 +220,7 @@ def _simulate_moving(args, offsets, field, start) -> _SeekerRun:
 
 def main(args: argparse.Namespace) -> int:
     """Run ``swarmseek simulate``; 0 on success, 2 on bad arguments."""
-    for warning in ignored_option_warnings(args):
+    for warning in _ignored_option_warnings(args):
         print(f"swarmseek simulate: warning: {warning}", file=sys.stderr)
     try:
         out = run(args)
