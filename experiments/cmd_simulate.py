@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 from estimator.seekers import MOVING_SEEKERS
-from sitl_mock.cli_args import float_in_range, nonnegative_float, positive_float
+from sitl_mock.cli_args import float_in_range, int_in_range, nonnegative_float, positive_float
 
 __all__ = ["configure", "main", "run", "report_lines"]
 
@@ -69,7 +69,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="reading noise standard deviation (signal units)")
     parser.add_argument("--start", type=_vector3, default=None, metavar="E,N,U",
                         help="initial centre, ENU metres (default: sigma1 10,50,10; sigma2 20,-20,5)")
-    parser.add_argument("--eps", type=positive_float, default=1.0, help="step size (default 1)")
+    parser.add_argument("--eps", type=positive_float, default=None,
+                        help="the gradient seeker's step size (default 1)")
     parser.add_argument("--gamma", type=positive_float, default=0.1,
                         help="largest centre move per iteration, m (default 0.1)")
     parser.add_argument("--seeker", choices=_seekers(), default="gradient",
@@ -80,7 +81,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         metavar="DEG",
                         help="wind direction the plume seeker is given (where it comes from, degrees from "
                              "north); default: it estimates the plume's axis")
-    parser.add_argument("--min-signal-fraction", type=float_in_range(0.0, 1.0), default=1.0,
+    parser.add_argument("--min-signal-fraction", type=float_in_range(0.0, 1.0), default=None,
                         help="convergence criterion 3 for the seekers but gradient: a signal in at least this "
                              "fraction of the window (default 1, as a plan; 0: off; docs/seekers.md)")
     parser.add_argument("--sampling", choices=("stop_and_go", "moving"), default="stop_and_go",
@@ -88,7 +89,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "at 3 m/s, from every reading since the last estimate (experiments.offline_moving; "
                              "docs/seekers.md)")
     parser.add_argument("--iterations", type=_positive(int), default=3000)
-    parser.add_argument("--seed", type=int, default=0, help="noise and CVT seed")
+    parser.add_argument("--seed", type=int_in_range(0, None, "--seed"), default=0, help="noise and CVT seed")
     parser.add_argument("--window", type=_positive(int), default=400,
                         help="convergence test window, iterations")
     parser.add_argument("--tol", type=positive_float, default=1.0,
@@ -111,6 +112,13 @@ def run(args: argparse.Namespace) -> dict:
     from sitl_mock.fields import make_field
     from experiments.offline import convergence_report, simulate
 
+    problem = _inapplicable_option(args)
+    if problem:
+        raise ValueError(problem)
+    if getattr(args, "eps", None) is None:
+        args.eps = 1.0
+    if getattr(args, "min_signal_fraction", None) is None:
+        args.min_signal_fraction = 1.0
     if args.formation == "symmetric":
         offsets = formation.symmetric_cylinder(args.n, args.radius)
     else:
@@ -143,6 +151,33 @@ def run(args: argparse.Namespace) -> dict:
     if sampling == "moving":  # mission time of the kinematic model, which the stop-and-go runs do not have
         t_1m = float(res.moving.time_within_s(1.0)[0])
         out["time_within_1m_s"] = t_1m if np.isfinite(t_1m) else None
+    return out
+
+
+def _inapplicable_option(args: argparse.Namespace) -> str | None:
+    """Why an option given cannot apply to this run's seeker (refused, never ignored), or None:
+    ``--seek-wind-from`` is the plume seeker's, ``--method`` the gradient seeker's estimator."""
+    seeker = getattr(args, "seeker", "gradient")
+    if getattr(args, "seek_wind_from", None) is not None and seeker != "plume":
+        return f"--seek-wind-from applies to the plume seeker only (--seeker plume); this run's seeker is {seeker}"
+    if getattr(args, "method", None) is not None and seeker != "gradient":
+        return (f"--method (the gradient estimator) applies to the gradient seeker only; the {seeker} seeker "
+                "fits its own model to the readings")
+    return None
+
+
+def _ignored_option_warnings(args: argparse.Namespace) -> list[str]:
+    """Warnings for harmless options this run does not use: ``--eps`` with a seeker other than
+    gradient (its step is bounded by ``--gamma``), ``--min-signal-fraction`` where the runs have no
+    signal test (the gradient seeker, or sampling while moving)."""
+    seeker = getattr(args, "seeker", "gradient")
+    out = []
+    if getattr(args, "eps", None) is not None and seeker != "gradient":
+        out.append(f"--eps is the gradient seeker's step size; the {seeker} seeker does not use it")
+    if getattr(args, "min_signal_fraction", None) is not None and (
+            seeker == "gradient" or getattr(args, "sampling", "stop_and_go") == "moving"):
+        out.append("--min-signal-fraction is a criterion of the stop-and-go newton, model and plume runs; "
+                   "this run does not use it")
     return out
 
 
@@ -185,6 +220,8 @@ def _simulate_moving(args, offsets, field, start) -> _SeekerRun:
 
 def main(args: argparse.Namespace) -> int:
     """Run ``swarmseek simulate``; 0 on success, 2 on bad arguments."""
+    for warning in _ignored_option_warnings(args):
+        print(f"swarmseek simulate: warning: {warning}", file=sys.stderr)
     try:
         out = run(args)
     except ValueError as exc:

@@ -48,6 +48,7 @@ from experiments.paper_setup import (
     cvt_formation,
     paper_formation,
 )
+from sitl_mock.cli_args import path_arg
 from sitl_mock.fields import sigma1, sigma2
 
 __all__ = [
@@ -255,7 +256,7 @@ def generate(out_dir, quick: bool = False) -> dict:
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``paper`` command's arguments."""
-    parser.add_argument("--out", default="paper-out", metavar="DIR",
+    parser.add_argument("--out", type=path_arg, default="paper-out", metavar="DIR",
                         help="output folder (created if missing; default: %(default)s)")
     parser.add_argument("--quick", action="store_true",
                         help="small runs (seconds) that still write every file")

@@ -15,6 +15,7 @@ from sitl_mock.cli_args import (
     int_in_range,
     nonnegative_float,
     origin_geodetic,
+    path_arg,
     positive_float,
     source_enu,
     zenoh_endpoint,
@@ -51,7 +52,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--origin", type=origin_geodetic, default=None, metavar="LAT,LON,ALT",
                         help="fleet / mission origin")
     parser.add_argument("--speedup", type=positive_float, default=1.0, help="simulated seconds per wall second")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int_in_range(0, None, "--seed"), default=0,
+                        help="seed of the fleet's noise and faults, an integer >= 0 (default 0)")
     parser.add_argument("--udp-base-port", type=_port, default=14540,
                         help="vehicle i streams to 127.0.0.1:BASE+i (0 disables UDP)")
     parser.add_argument("--udp-bind-base-port", type=_port, default=None,
@@ -68,7 +70,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", type=nonnegative_float, default=0.0, help="sensor noise standard deviation")
     parser.add_argument("--fault", type=_fault, action="append", default=[], metavar="SYSID:NAME=VALUE",
                         help="inject a fault, e.g. 2:loss_uplink=0.2 (repeatable)")
-    parser.add_argument("--signing-key-file", default=None, metavar="PATH",
+    parser.add_argument("--signing-key-file", type=path_arg, default=None, metavar="PATH",
                         help="MAVLink 2 signing key file (64 hex characters, 32 raw bytes or a "
                              "one-line passphrase, not world-readable): every vehicle signs and "
                              "rejects unsigned or replayed commands")

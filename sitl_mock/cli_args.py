@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import tempfile
 from pathlib import Path
 
@@ -20,7 +21,13 @@ __all__ = [
     "int_in_range",
     "zenoh_endpoint",
     "output_dir_problem",
+    "path_arg",
+    "path_problem",
 ]
+
+#: longest path and path component the file systems we run on accept (Linux PATH_MAX, NAME_MAX)
+_PATH_MAX_BYTES = 4095
+_NAME_MAX_BYTES = 255
 
 
 def floats(text: str, n: int, what: str) -> tuple[float, ...]:
@@ -46,6 +53,32 @@ def origin_geodetic(text: str) -> tuple[float, ...]:
         raise argparse.ArgumentTypeError(
             f"origin latitude must be in [-90, 90] and longitude in [-180, 180], got {text!r}")
     return lat, lon, alt
+
+
+def path_problem(text: str) -> str | None:
+    """Why ``text`` cannot name a file at all (empty, a NUL byte, not encodable for the file
+    system, a name or a path too long), or None: checked before any ``Path`` method, which would
+    raise instead of answering."""
+    if not text:
+        return "expected a path, got ''"
+    if "\x00" in text:
+        return f"a path cannot hold a NUL byte, got {text[:60]!r}"
+    try:
+        raw = os.fsencode(text)
+    except UnicodeError:
+        return f"the path {text[:60]!r} cannot be encoded for the file system"
+    if len(raw) > _PATH_MAX_BYTES or any(len(part) > _NAME_MAX_BYTES for part in raw.split(b"/")):
+        return (f"the path {text[:40]!r}... is too long (at most {_NAME_MAX_BYTES} bytes a name, "
+                f"{_PATH_MAX_BYTES} in all)")
+    return None
+
+
+def path_arg(text: str) -> Path:
+    """A file or directory path that can be asked about (see :func:`path_problem`)."""
+    problem = path_problem(text)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return Path(text)
 
 
 def _number(text: str) -> float:
@@ -131,7 +164,7 @@ def add_field_arguments(parser: argparse.ArgumentParser, default: str) -> None:
     g.add_argument("--field", choices=FIELD_NAMES, default=None,
                    help=(f"signal field the sensors sample (default {default}, or the --field-config's type)"
                          if default else "signal field the sensors sample (or give --field-config)"))
-    g.add_argument("--field-config", default=None, metavar="PATH",
+    g.add_argument("--field-config", type=path_arg, default=None, metavar="PATH",
                    help="TOML file (e.g. the mission plan) whose [field] table gives the field; flags override it")
     g.add_argument("--extra-source", type=source_enu, action="append", default=[], metavar="E,N,U",
                    help="another source of the same kind (multi-source field; repeatable)")
@@ -226,7 +259,7 @@ def output_dir_problem(path: Path, what: str) -> str | None:
         None when the directory exists and is writable, else a one-line reason.
     """
     path = Path(path)
-    if path.exists() and not path.is_dir():
+    if os.path.exists(path) and not os.path.isdir(path):  # os.path: False, not OSError, for a name too long
         return f"the {what} {str(path)!r} exists and is not a directory"
     try:
         path.mkdir(parents=True, exist_ok=True)

@@ -53,8 +53,13 @@ def _finite(value, name: str) -> float:
 
 
 def _check_fleet(fleet: str) -> str:
-    if not isinstance(fleet, str) or not fleet or any(c in fleet for c in "/*$?# "):
-        raise ValueError(f"fleet name must be a non-empty string without / * $ ? # or spaces, got {fleet!r}")
+    """The world's own guard on a fleet name (it may not import the ground station's rule,
+    ``mission.core.fleet_name``, which every command line applies first); the same verdict for
+    every name, by ``tests/test_fleet_names.py``."""
+    if (not isinstance(fleet, str) or not 0 < len(fleet) <= 64 or any(c in fleet for c in "/*$?#")
+            or any(c.isspace() or not c.isprintable() for c in fleet) or fleet.startswith("@")):
+        raise ValueError(f"fleet name must be 1-64 printable characters without / * $ ? #, whitespace "
+                         f"or a leading @, got {fleet!r}")
     return fleet
 
 

@@ -22,6 +22,11 @@ class ZenohFlagError(ValueError):
 
 
 def _existing_file(text: str) -> str:
+    from sitl_mock.cli_args import path_problem
+
+    problem = path_problem(text)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
     if not Path(text).is_file():
         raise argparse.ArgumentTypeError(f"file not found: {text}")
     return text
@@ -61,6 +66,7 @@ def read_password_file(path: str | Path) -> str:
 
 
 def _password_file_arg(text: str) -> str:
+    _existing_file(text)
     try:
         read_password_file(text)  # check now (argparse error); read again when used
     except ZenohFlagError as exc:

@@ -68,6 +68,19 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _check_fleet_argument(args: argparse.Namespace) -> None:
+    """Every command's fleet name (``ctl``/``watch`` FLEET, ``--fleet`` of ``sitl``, ``mock`` and
+    ``sensor``) through the one rule of :mod:`mission.core.fleet_name`: a usage error (exit 2)."""
+    from mission.core.fleet_name import check_fleet_name
+
+    fleet = getattr(args, "fleet", None)
+    if fleet is not None:
+        try:
+            check_fleet_name(fleet)
+        except ValueError as exc:
+            args._parser.error(str(exc))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``swarmseek`` console command."""
     if argv is None:
@@ -80,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    _check_fleet_argument(args)
     try:
         return int(args._module.main(args) or 0)
     except KeyboardInterrupt:

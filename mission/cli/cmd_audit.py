@@ -22,7 +22,9 @@ __all__ = ["configure", "main"]
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``audit`` arguments."""
-    parser.add_argument("log_dir", metavar="LOG_DIR", help="a mission's --log-dir (mission.jsonl and tlogs/)")
+    from sitl_mock.cli_args import path_arg  # a path that cannot even be asked about: a usage error
+
+    parser.add_argument("log_dir", type=path_arg, metavar="LOG_DIR", help="a mission's --log-dir (mission.jsonl and tlogs/)")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.add_argument("--gcs-sysid", type=int_in_range(1, 255, "--gcs-sysid"), default=255,
                         help="system id of the ground station, 1..255 (255)")

@@ -22,18 +22,19 @@ from mission.core.clock import WallClock
 from mission.core.zenoh_errors import zenoh_open_message
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
+from sitl_mock.cli_args import nonnegative_float, path_arg, positive_float
 
 __all__ = ["configure", "main", "dry_run", "format_readiness"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``dry-run`` options."""
-    parser.add_argument("--plan", type=Path, required=True, help="mission plan (TOML)")
+    parser.add_argument("--plan", type=path_arg, required=True, help="mission plan (TOML)")
     parser.add_argument("--json", action="store_true", help="print the readiness report as JSON")
     parser.add_argument("--verbose", action="store_true", help="show phases and events as they happen")
-    parser.add_argument("--timeout", type=float, default=15.0,
+    parser.add_argument("--timeout", type=positive_float, default=15.0,
                         help="seconds to wait for each vehicle's heartbeat (default 15)")
-    parser.add_argument("--ready-timeout", type=float, default=None, metavar="S",
+    parser.add_argument("--ready-timeout", type=nonnegative_float, default=None, metavar="S",
                         help="seconds to wait for the autopilots' own pre-arm readiness (default: the "
                              "plan's [preflight] autopilot_ready_timeout_s)")
 

@@ -22,15 +22,16 @@ from mission.flight.operator_stop import run_until_stopped
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.watch_keys import with_keys
 from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
+from sitl_mock.cli_args import path_arg
 
 __all__ = ["configure", "main", "fly"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``fly`` options."""
-    parser.add_argument("--plan", type=Path, required=True, help="mission plan (TOML)")
+    parser.add_argument("--plan", type=path_arg, required=True, help="mission plan (TOML)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
-    parser.add_argument("--log-dir", type=Path, default=None,
+    parser.add_argument("--log-dir", type=path_arg, default=None,
                         help="mission log and tlogs go here (default ./swarmseek-logs/fly-TIME)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
     parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",

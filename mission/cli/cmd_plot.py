@@ -20,13 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
+from sitl_mock.cli_args import path_arg
+
 __all__ = ["configure", "main", "plot_mission", "mission_tracks", "run_title"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``plot`` options."""
-    parser.add_argument("log", type=Path, help="mission log (mission.jsonl)")
-    parser.add_argument("--out", type=Path, default=None, help="output directory (default: next to the log)")
+    parser.add_argument("log", type=path_arg, help="mission log (mission.jsonl)")
+    parser.add_argument("--out", type=path_arg, default=None, help="output directory (default: next to the log)")
 
 
 def mission_tracks(records: list[dict]) -> dict:

@@ -28,14 +28,15 @@ from mission.flight.operator_stop import run_until_stopped
 from mission.flight.resume import load_resume_state
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.watch_keys import with_keys
+from sitl_mock.cli_args import path_arg
 
 __all__ = ["configure", "main", "resume"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``resume`` options."""
-    parser.add_argument("log", type=Path, help="mission.jsonl of the stopped mission")
-    parser.add_argument("--plan", type=Path, default=None,
+    parser.add_argument("log", type=path_arg, help="mission.jsonl of the stopped mission")
+    parser.add_argument("--plan", type=path_arg, default=None,
                         help="plan file (default: the plan recorded in the log)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")

@@ -29,7 +29,8 @@ from mission.telemetry.watch_keys import with_keys
 
 import numpy as np
 
-from sitl_mock.cli_args import add_field_arguments, field_from_args, float_in_range, nonnegative_float, positive_float, source_enu, zenoh_endpoint
+from sitl_mock.cli_args import (add_field_arguments, field_from_args, float_in_range, int_in_range, nonnegative_float,
+                                path_arg, positive_float, source_enu, zenoh_endpoint)
 
 __all__ = ["configure", "main", "run_embedded"]
 
@@ -50,7 +51,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speedup", type=positive_float, default=None,
                         help="with the wall clock: simulated seconds per wall second (implies --realtime; "
                              "the default lock-step clock runs as fast as the CPU allows)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the source position, noise, fleet")
+    parser.add_argument("--seed", type=int_in_range(0, None, "--seed"), default=0, help="seed of the source position, noise, fleet")
     parser.add_argument("--source", type=source_enu, default=None, metavar="E,N,U",
                         help="source position, ENU m (default: drawn from the seed in a box)")
     parser.add_argument("--start", type=source_enu, default=None, metavar="E,N,U",
@@ -87,7 +88,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-iterations", type=int, default=300)
     parser.add_argument("--return", dest="return_behaviour", choices=("land", "rtl"), default="land")
     parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
-    parser.add_argument("--log-dir", type=Path, default=None,
+    parser.add_argument("--log-dir", type=path_arg, default=None,
                         help="mission log and tlogs go here (default ./swarmseek-logs/run-TIME)")
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
     parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
@@ -124,11 +125,52 @@ def _check_args(args) -> str | None:
         return f"--replan-fraction must be in (0, 1], got {args.replan_fraction:g}"
     if args.max_iterations < 1:
         return f"--max-iterations must be >= 1, got {args.max_iterations}"
+    problem = _inapplicable_option(args)
+    if problem:
+        return problem
     try:
         field_from_args(args, args.source if args.source is not None else (0.0, 0.0, 20.0))
     except ValueError as exc:
         return str(exc)
+    _warn_ignored_options(args)  # valid options: say which of them this mission does not use
     return None
+
+
+def _sampling(args) -> str:
+    """``--sampling``, or the seeker's default: moving for newton/model, stop and go otherwise."""
+    if getattr(args, "sampling", None) is not None:
+        return args.sampling
+    return "moving" if _resolve_seeker(args) in MOVING_SEEKERS else "stop_and_go"
+
+
+def _inapplicable_option(args) -> str | None:
+    """Why an option given cannot apply to this mission's seeker or sampling (docs/seekers.md,
+    "Options that do not apply"), or None. An option of another seeker or sampling mode asks
+    for a behaviour the mission would not have: refused, never ignored."""
+    seeker, sampling = _resolve_seeker(args), _sampling(args)
+    if seeker != "plume":
+        for flag, dest in (("--plume-mode", "plume_mode"), ("--seek-wind-from", "seek_wind_from")):
+            if getattr(args, dest, None) is not None:
+                return (f"{flag} applies to the plume seeker only (--seeker plume, the default with --field "
+                        f"plume/intermittent); this mission's seeker is {seeker}")
+    if sampling != "moving":
+        for flag, dest in (("--replan-fraction", "replan_fraction"), ("--sensor-lag", "sensor_lag")):
+            if getattr(args, dest, None) is not None:
+                return (f"{flag} applies to sampling while moving only (--sampling moving, the default of "
+                        f"the model and newton seekers); this mission samples {sampling} ({seeker} seeker)")
+    return None
+
+
+def _warn_ignored_options(args, prog: str = "swarmseek run") -> list[str]:
+    """Print (once, on stderr) a warning for each harmless option this mission does not use:
+    ``--eps`` is the step gain of the gradient seeker only. Returns the warnings."""
+    warnings = []
+    if getattr(args, "eps", None) is not None and _resolve_seeker(args) != "gradient":
+        warnings.append(f"{prog}: warning: --eps is the gradient seeker's step gain; the {args.seeker} seeker "
+                        "does not use it (its step is bounded by --gamma)")
+    for line in warnings:
+        print(line, file=sys.stderr)
+    return warnings
 
 
 def _mission_setup(args):
@@ -172,10 +214,7 @@ def _mission_setup(args):
 
 def _seeking_options(args) -> dict:
     """The ``[seeking]`` keys the ``run`` options set: the seeker, its sampling and re-plan fraction."""
-    _resolve_seeker(args)
-    sampling = getattr(args, "sampling", None)
-    if sampling is None:  # moving pays for the seekers that can use it (docs/seekers.md)
-        sampling = "moving" if args.seeker in MOVING_SEEKERS else "stop_and_go"
+    sampling = _sampling(args)  # moving pays for the seekers that can use it (docs/seekers.md)
     mode = getattr(args, "plume_mode", None) or ("intermittent" if getattr(args, "field", None) == "intermittent"
                                                   else "steady")
     out = {"seeker": args.seeker, "sampling": sampling, "wind_from_deg": getattr(args, "seek_wind_from", None),

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from estimator.seekers import SEEKERS
 from mission.sim.sitl_plan import seeker_settings
-from sitl_mock.cli_args import int_in_range, origin_geodetic, positive_float, source_enu
+from sitl_mock.cli_args import int_in_range, origin_geodetic, path_arg, positive_float, source_enu
 
 __all__ = ["configure", "main"]
 
@@ -42,16 +42,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``sitl`` arguments."""
     parser.add_argument("--flavour", required=True, choices=("px4", "ardupilot"), help="PX4 SIH or ArduCopter SITL")
     parser.add_argument("--n", type=int_in_range(1, 254, "--n"), default=4, help="number of vehicles (default 4)")
-    parser.add_argument("--sitl-dir", default=None, metavar="DIR",
+    parser.add_argument("--sitl-dir", type=path_arg, default=None, metavar="DIR",
                         help="SITL folder (default: $SWARMSEEK_PX4_SITL or $SWARMSEEK_ARDUPILOT_SITL)")
-    parser.add_argument("--plan-out", type=Path, default=Path("sitl-plan.toml"), metavar="FILE",
+    parser.add_argument("--plan-out", type=path_arg, default=Path("sitl-plan.toml"), metavar="FILE",
                         help="where to write the ready-to-fly plan (default sitl-plan.toml)")
-    parser.add_argument("--first-instance", type=int_in_range(0, 250, "--first-instance"), default=0,
+    parser.add_argument("--first-instance", type=int_in_range(0, 250, "--first-instance"), default=None,
                         help="instance number of the first vehicle (system id = instance + 1)")
-    parser.add_argument("--port-offset", type=int_in_range(0, 45000, "--port-offset"), default=0,
+    parser.add_argument("--port-offset", type=int_in_range(0, 45000, "--port-offset"), default=None,
                         help="PX4: PX4_PORT_OFFSET; ArduPilot: base port 5760 + offset (default 0)")
     parser.add_argument("--free-layout", action="store_true",
-                        help="pick free instance numbers and a free port offset (ignores the two options above)")
+                        help="pick free instance numbers and a free port offset (not with the two options above)")
     parser.add_argument("--spacing", type=positive_float, default=4.0, metavar="M", help="homes M metres apart (east)")
     parser.add_argument("--home", type=origin_geodetic, default=None, metavar="LAT,LON,ALT",
                         help="home of the first vehicle (default: the flavour's usual SITL home)")
@@ -62,7 +62,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="the written plan's [seeking] seeker (default model, gamma_m 20 m, sampling while moving; "
                              "gradient = the paper's method, gamma_m 1 m); measured on real PX4 and "
                              "ArduCopter SITL in docs/sitl.md")
-    parser.add_argument("--run-dir", type=Path, default=None, metavar="DIR",
+    parser.add_argument("--run-dir", type=path_arg, default=None, metavar="DIR",
                         help="keep the instances' working dirs here (default: a temporary dir, deleted)")
     parser.add_argument("--ready-timeout", type=positive_float, default=120.0, metavar="S",
                         help="seconds to wait until every instance is ready (default 120)")
@@ -77,7 +77,7 @@ def _config(args: argparse.Namespace):
     from mission.sim.sitl_fleet import SitlFleetConfig
 
     cfg = SitlFleetConfig(flavour=args.flavour, n=args.n, sitl_dir=args.sitl_dir,
-                          first_instance=args.first_instance, port_offset=args.port_offset,
+                          first_instance=args.first_instance or 0, port_offset=args.port_offset or 0,
                           spacing_m=args.spacing, home=args.home, speedup=args.speedup,
                           params=dict(args.param), run_dir=args.run_dir, ready_timeout_s=args.ready_timeout)
     return cfg.free() if args.free_layout else cfg
@@ -128,6 +128,10 @@ def main(args: argparse.Namespace) -> int:
     """Start the fleet, print how to fly it, serve until Ctrl-C/SIGTERM, stop everything."""
     from mission.sim.sitl_fleet import SitlFleet, SitlSetupError, sigterm_as_interrupt
 
+    if args.free_layout and (args.first_instance is not None or args.port_offset is not None):
+        print("swarmseek sitl: error: --free-layout picks the instance numbers and the port offset itself: "
+              "give it or --first-instance/--port-offset, not both", file=sys.stderr)
+        return 2
     with sigterm_as_interrupt():
         try:
             cfg = _config(args)

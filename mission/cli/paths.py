@@ -112,9 +112,9 @@ def writable_file_problem(path: Path, what: str) -> str | None:
         None when writable; else a one-line reason (a missing file is left to the caller).
     """
     path = Path(path)
-    if not path.exists():
+    if not os.path.exists(path):  # os.path: False, not OSError, for a name too long
         return None
-    if path.is_dir():
+    if os.path.isdir(path):
         return f"the {what} {str(path)!r} is a directory, not a file"
     if not os.access(path, os.W_OK):
         return f"cannot write to the {what} {str(path)!r}: permission denied"

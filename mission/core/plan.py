@@ -16,6 +16,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
+from mission.core.fleet_name import fleet_name_problem
 from mission.core.plan_checks import check_start_in_fence, Checker, show_value
 from mission.core.plan_field import parse_field
 from mission.core.plan_sections import (
@@ -124,8 +125,8 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     elif isinstance(version, bool) or version != PLAN_VERSION:
         c.bad("version", f"unsupported version {show_value(version)}; this program reads version = {PLAN_VERSION}")
     fleet = c.string(doc, "fleet", "", required=True)
-    if fleet is not None and any(ch in fleet for ch in "/*$?# "):
-        c.bad("fleet", f"must not contain '/', '*', '$', '?', '#' or spaces (a zenoh key chunk), got {fleet!r}")
+    if fleet is not None and fleet_name_problem(fleet):
+        c.bad("fleet", f"{fleet_name_problem(fleet)}, got {show_value(fleet)}")
     origin = parse_origin(c, doc)
     vehicles = parse_vehicles(c, doc)
     formation = parse_formation(c, doc)

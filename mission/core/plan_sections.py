@@ -12,7 +12,7 @@ from pathlib import Path
 
 from estimator.seekers import MOVING_SEEKERS, SEEKERS as _SEEKERS
 from formation.geodesy import geodetic_to_enu
-from mission.core.plan_checks import Checker, check_connection, polygon_area, show_value
+from mission.core.plan_checks import Checker, check_connection, join_key, polygon_area, show_value
 from mission.core.plan_types import (PLUME_MODES, SAMPLINGS, ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
                                      PreflightPlan, SeekingPlan, VehiclePlan)
 from mission.core.signing_config import SigningConfig, signing_config_from_table
@@ -151,9 +151,33 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
               "compare readings taken at rest, so they sample stop and go")
         vals["sampling"] = None
     wind = c.number(t, "wind_from_deg", p, None, low=0, high=360)  # None: not given (or invalid, reported)
+    _check_keys_apply(c, t, vals["seeker"], vals["sampling"])
     if None in vals.values():
         return None
     return SeekingPlan(start_enu_m=start, wind_from_deg=wind, **vals)
+
+
+#: [seeking] keys of one seeker or sampling mode: (key, what it needs, does it apply?(seeker, sampling))
+_SEEKING_KEYS_OF = (
+    ("plume_mode", 'seeker = "plume"', lambda seeker, sampling: seeker == "plume"),
+    ("wind_from_deg", 'seeker = "plume"', lambda seeker, sampling: seeker == "plume"),
+    ("replan_fraction", 'sampling = "moving"', lambda seeker, sampling: sampling == "moving"),
+    ("sensor_lag_s", 'sampling = "moving"', lambda seeker, sampling: sampling == "moving"),
+)
+
+
+def _check_keys_apply(c: Checker, t: dict, seeker: str | None, sampling: str | None) -> None:
+    """A ``[seeking]`` key written for another seeker or sampling mode is refused, never ignored
+    (docs/seekers.md, "Options that do not apply"); a key already reported invalid is not
+    reported twice."""
+    if seeker is None or sampling is None:
+        return
+    reported = {key for key, _ in c.problems}
+    for key, needs, applies in _SEEKING_KEYS_OF:
+        path = join_key("seeking", key)
+        if key in t and path not in reported and not applies(seeker, sampling):
+            c.bad(path, f"applies only with {needs}; this plan has seeker = {seeker!r}, sampling = {sampling!r}"
+                        " (remove the key)")
 
 
 def parse_geofence(c: Checker, doc: dict, origin) -> GeofencePlan | None:
