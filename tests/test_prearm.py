@@ -294,4 +294,4 @@ def test_dry_run_ready_timeout_option_is_checked(capsys):
     from mission.cli import main as cli_main
 
     assert cli_main(["dry-run", "--plan", "mission/examples/sitl_plan.toml", "--ready-timeout", "-1"]) == 2
-    assert "--ready-timeout must be >= 0, got -1" in capsys.readouterr().err
+    assert "--ready-timeout: expected a number >= 0, got '-1'" in capsys.readouterr().err
