@@ -293,5 +293,7 @@ def test_arming_gives_up_at_the_timeout():
 def test_dry_run_ready_timeout_option_is_checked(capsys):
     from mission.cli import main as cli_main
 
-    assert cli_main(["dry-run", "--plan", "mission/examples/sitl_plan.toml", "--ready-timeout", "-1"]) == 2
+    with pytest.raises(SystemExit) as exit_info:  # refused by argparse (the option's type)
+        cli_main(["dry-run", "--plan", "mission/examples/sitl_plan.toml", "--ready-timeout", "-1"])
+    assert exit_info.value.code == 2
     assert "--ready-timeout: expected a number >= 0, got '-1'" in capsys.readouterr().err
