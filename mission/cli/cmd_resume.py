@@ -118,6 +118,6 @@ def main(args) -> int:
     from mission.flight.operator_stop import exit_status
 
     status = report_result(result, display, args.json)
-    if result.outcome == "recovered" and not result.airborne_left:
+    if result.outcome == "recovered" and not result.airborne_left and not result.still_armed:
         status = 0
     return exit_status(result, status)

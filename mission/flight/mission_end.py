@@ -100,6 +100,7 @@ async def close(co, outcome: str, message: str, *, interrupted: bool = False):
         await co._stop_background()
     result = co.result(outcome, message)
     result.airborne_left = left
+    result.still_armed = list(co.still_armed)
     result.interrupted_by = list(getattr(co, "interrupts", ()) or ())
     co.final_result = result
     co.set_phase("done")
