@@ -83,7 +83,7 @@ async def close(co, outcome: str, message: str, *, interrupted: bool = False):
     if interrupted:
         _uncancel()
         interrupts = 1
-        co.set_phase("aborted", reason=message)
+        co.set_phase("aborted", reason=message, returning=bool(co.return_on_interrupt))
         co.event(f"mission {message}: " + ("returning every vehicle (interrupt again to LAND them where "
                                            "they are)" if co.return_on_interrupt else
                                            "the ground station stops; the vehicles do what their autopilots do"),
