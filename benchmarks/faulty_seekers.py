@@ -144,9 +144,10 @@ def run_seeker(fault, variant, seeker, trials, iterations, tail, radius_m, seed,
             c = trial.step(t, c, y, faulty, gamma)
             dist[t] = np.linalg.norm(c - field.source_enu())
         final[k] = dist[-tail:].mean()
-        retired_right += trial.retired == faulty
-        retired_wrong += trial.retired >= 0 and trial.retired != faulty
-        if trial.retired == faulty:
+        right = fault != "none" and trial.retired == faulty  # with no fault, any retirement is of a healthy robot
+        retired_right += right
+        retired_wrong += trial.retired >= 0 and not right
+        if right:
             when.append(trial.retired_at)
         healthy_frac.append(trial.healthy_excluded / iterations)
     med = float(np.median(when)) if when else float("nan")
