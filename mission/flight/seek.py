@@ -313,7 +313,7 @@ class _Seek:
             self.co.event(f"iteration {k + 1}: sensors {sorted(self.check.newly_excluded)} excluded as faulty: "
                           f"their readings left out, the {self.sk.seeker} seeker's memory reset", level="warning",
                           sysids=sorted(self.check.newly_excluded))
-        alt = self.check.gradient(self.est_kind, positions, values, centroid, used)
+        alt = self.check.gradient(positions, values, used)
         return grad if alt is None else alt
 
     async def _enough(self, k: int, aligned: dict) -> bool:
@@ -373,8 +373,8 @@ class _Seek:
         new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))
         own = None if self.seeker is None else self.seeker.arrival
-        excluded = set() if self.check is None else self.check.excluded
-        signal = self.arrival.signal([aligned[s].value for s in used if s not in excluded])
+        dropped = set() if self.check is None else self.check.dropped
+        signal = self.arrival.signal([aligned[s].value for s in used if s not in dropped])
         converged = self.monitor.update(new_centre, signal if own is None else own)
         co.state.record_iteration(k + 1, grad, step_m, self.monitor.estimate_enu, self.monitor.spread_m)
         if co.log is not None:

@@ -108,7 +108,7 @@ class SensorCheck:
         mask = np.array([r.sysid not in drop for r in readings], dtype=bool)
         return [r for r, m in zip(readings, mask) if m], pos[mask]
 
-    def gradient(self, estimate_kind: str, positions, values, centroid, used: list[int]):
+    def gradient(self, positions, values, used: list[int]):
         """The paper's step's gradient without the :attr:`dropped` sensors (Theorem 2 on the others),
         or None (none dropped, the estimate is the robust one, or fewer than 4 left)."""
         import estimator
