@@ -19,10 +19,18 @@ named with the right reason at the end, and how often a healthy robot was named;
 retiring one, how often the faulty robot was retired, when, and how often a healthy one was.
 The target line gives 95 % bootstrap intervals (trials resampled in pairs).
 
+With ``--seeker newton|model|plume`` the same faults are flown by that seeker instead of the
+paper's gradient step (``benchmarks/faulty_seekers.py``: one seeker per trial, steps capped at
+``--gamma``, 20 m by default as in ``swarmseek run``), with all readings, with the mission's
+faulty-sensor detection (the excluded sensors' readings left out) and with detection plus
+retirement.
+
 Run::
 
     python benchmarks/bench_faulty_sensor.py            # 100 trials x 5000 iterations (~20 min)
     python benchmarks/bench_faulty_sensor.py --quick    # 20 x 1500, a smoke run
+    python benchmarks/bench_faulty_sensor.py --seeker model   # 40 trials x 200 iterations, D = 4 m, noise 0.01
+                                                              # (run's); --quick: 16 x 120
 """
 from __future__ import annotations
 
@@ -214,23 +222,38 @@ def _ratio_ci(a, b, seed, resamples=2000):
 def main(argv=None) -> int:
     """Print the table; returns 0."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--trials", type=int, default=100)
-    ap.add_argument("--iterations", type=int, default=5000)
-    ap.add_argument("--tail", type=int, default=1000, help="final iterations averaged per trial")
-    ap.add_argument("--radius", type=float, default=1.0, help="formation radius D (m)")
+    ap.add_argument("--trials", type=int, default=None, help="default 100 (gradient), 40 (other seekers)")
+    ap.add_argument("--iterations", type=int, default=None, help="default 5000 (gradient), 200 (other seekers)")
+    ap.add_argument("--tail", type=int, default=None,
+                    help="final iterations averaged per trial (default 1000 (gradient), 50 (other seekers))")
+    ap.add_argument("--seeker", choices=("gradient", "newton", "model", "plume"), default="gradient",
+                    help="the paper's gradient step (the estimators' table) or another seeker (its variants' table)")
+    ap.add_argument("--gamma", type=float, default=None,
+                    help="largest step, m (default 0.1, the paper's, for gradient; 20, run's, for the others)")
+    ap.add_argument("--radius", type=float, default=None,
+                    help="formation radius D (m; default 1, the paper's, for gradient; 4, run's, for the others)")
     ap.add_argument("--seed", type=int, default=7)
-    ap.add_argument("--noise", type=float, default=NOISE,
-                    help="sensor noise std (signal units); the faults scale with it (5x, 10x, bias 5x, spikes 50x)")
+    ap.add_argument("--noise", type=float, default=None,
+                    help="sensor noise std (signal units; default 0.1, the paper's, for gradient; 0.01, run's, for "
+                         "the others); the faults scale with it (5x, 10x, bias 5x, spikes 50x)")
     ap.add_argument("--quick", action="store_true", help="20 trials x 1500 iterations")
     ap.add_argument("--faults", default=",".join(FAULTS))
     ap.add_argument("--estimators", default=",".join(ESTIMATORS),
                     help=f"comma-separated subset of: {', '.join(ESTIMATORS + (ORACLE,))}")
     args = ap.parse_args(argv)
+    paper = args.seeker == "gradient"
+    args.noise = (NOISE if paper else 0.01) if args.noise is None else args.noise
+    args.radius = (1.0 if paper else 4.0) if args.radius is None else args.radius
     if not (np.isfinite(args.noise) and args.noise > 0):
         ap.error(f"--noise must be a positive number, got {args.noise}")
+    faults = [f for f in args.faults.split(",") if f]
+    if args.seeker != "gradient":
+        return _seeker_table(args, faults)
     if args.quick:
         args.trials, args.iterations, args.tail = 20, 1500, 300
-    faults = [f for f in args.faults.split(",") if f]
+    args.trials, args.iterations, args.tail = (args.trials or 100, args.iterations or 5000, args.tail or 1000)
+    if args.gamma is not None and args.gamma != GAMMA:
+        ap.error("--gamma applies to --seeker newton/model/plume (the gradient table uses the paper's 0.1)")
     ests = [e for e in args.estimators.split(",") if e]
     print(f"sigma_2, N = {N}, D = {args.radius:g} m, eps = {EPS:g}, gamma = {GAMMA:g}, start {START_ENU}, "
           f"noise {args.noise:g}; {args.trials} trials x {args.iterations} iterations, final error = mean "
@@ -287,6 +310,42 @@ def main(argv=None) -> int:
               f"Thm 2 {base.mean():.3f} +- {base.std():.3f} m: mean {rob.mean() / base.mean() - 1:+.1%} "
               f"(95 % CI {m_lo:+.1%} .. {m_hi:+.1%}), std {rob.std() / base.std() - 1:+.1%} "
               f"(95 % CI {s_lo:+.1%} .. {s_hi:+.1%}) (target: both within 10 %)")
+    return 0
+
+
+def _seeker_table(args, faults) -> int:
+    """``--seeker newton|model|plume``: the faults flown by that seeker, per variant (faulty_seekers)."""
+    from faulty_seekers import VARIANTS, run_seeker  # noqa: E402 (next to this script)
+
+    if args.quick:
+        args.trials, args.iterations, args.tail = 16, 120, 30
+    trials, iterations, tail = args.trials or 40, args.iterations or 200, args.tail or 50
+    gamma = 20.0 if args.gamma is None else args.gamma
+    print(f"sigma_2, seeker {args.seeker}, N = {N}, D = {args.radius:g} m, gamma = {gamma:g} m, start {START_ENU}, "
+          f"noise {args.noise:g}; {trials} trials x {iterations} iterations, final error = mean ||c - r*|| over "
+          f"the last {tail}; faulty robot = trial mod {N}, random rotation per trial")
+    results = {}
+    for fault in faults:
+        for var in VARIANTS:
+            t0 = time.perf_counter()
+            results[fault, var] = run_seeker(fault, var, args.seeker, trials, iterations, tail, args.radius,
+                                             args.seed, args.noise, gamma, START_ENU)
+            final = results[fault, var][0]
+            print(f"  ... {fault:10s} {var:14s} {final.mean():.3f} +- {final.std():.3f} m "
+                  f"({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+    print("\n| fault | " + " | ".join(VARIANTS) + " |")
+    print("|---|" + "---|" * len(VARIANTS))
+    for fault in faults:
+        cells = [f"{results[fault, v][0].mean():.2f} +- {results[fault, v][0].std():.2f}" for v in VARIANTS]
+        print(f"| {fault} | " + " | ".join(cells) + " |")
+    print("\n| fault | detect+retire: faulty robot retired | healthy robot retired | retired at (median "
+          "iteration) | detect: iterations with a healthy robot excluded |")
+    print("|---|---|---|---|---|")
+    for fault in faults:
+        right, wrong, med, _ = results[fault, "detect+retire"][1]
+        frac = results[fault, "detect"][1][3]
+        print(f"| {fault} | {'-' if fault == 'none' else f'{right:.0%}'} | {wrong:.0%} | "
+              f"{'-' if np.isnan(med) else f'{med:.0f}'} | {frac:.1%} |")
     return 0
 
 

@@ -70,9 +70,15 @@ def worst_spike(d, p, active, abs_tol, var, med_d, k_mad: float, warm: bool):
         At most one True per formation.
     """
     valid = active & np.isfinite(d)
+    if not np.any(valid):
+        # no determined prediction error (e.g. exactly 4 sensors in the fit: each reading is
+        # needed by the fit, ``1 - h = 0``): nothing can be called a spike
+        return np.zeros(np.shape(d), dtype=bool)
     if not warm:
-        # too little history: compare with the other sensors' prediction errors
-        da = np.where(valid, d, np.nan)
+        # too little history: compare with the other sensors' prediction errors; a formation
+        # of the batch with none determined gets zeros (its ``valid`` is all False, so it scores 0)
+        some = np.any(valid, axis=-1, keepdims=True)
+        da = np.where(valid, d, np.where(some, np.nan, 0.0))
         med = np.nanmedian(da, axis=-1, keepdims=True)
         mad = np.nanmedian(np.abs(da - med), axis=-1, keepdims=True)
         scale = np.maximum(MAD_TO_STD * mad, np.sqrt(np.median(var, axis=-1, keepdims=True) + p))
@@ -122,13 +128,20 @@ def biased_mask(var, p_mean, med_d, loo, code, k: int, k_bias: float, bias_min_s
     std_d = np.sqrt(var + p_mean)
     se = 1.2533 * std_d / np.sqrt(k)
     med = med_d
-    inv_var = 1.0 / np.maximum(std_d**2, np.finfo(float).tiny)
+    # a sensor whose prediction errors were never determined (zero variance: every reading needed
+    # by the fit, as with exactly 4 sensors in it) carries no information: weight 0, not 1 / 0
+    known = std_d**2 > 0
+    inv_var = np.where(known, 1.0 / np.where(known, std_d**2, 1.0), 0.0)
     cols = loo  # loo[..., j, i]: effect on d_j of reading i
     num = np.einsum("...j,...j,...ji->...i", inv_var, med, cols)
     den = np.einsum("...j,...ji,...ji->...i", inv_var, cols, cols)
-    b = num / np.maximum(den, np.finfo(float).tiny)
+    # a sensor with (almost) no leverage on the errors (``den`` ~ 0: e.g. excluded with exactly
+    # 4 sensors left in the fit) explains nothing: its bias is undetermined, taken as 0
+    scale = np.max(den, axis=-1, keepdims=True)
+    lever = den > 1e-12 * np.maximum(scale, np.finfo(float).tiny)
+    b = np.where(lever, num / np.where(lever, den, 1.0), 0.0)
     energy = np.einsum("...j,...j->...", inv_var, med**2)[..., None]
-    explained = b**2 * den / np.maximum(energy, np.finfo(float).tiny)
+    explained = np.where(lever, num * b, 0.0) / np.maximum(energy, np.finfo(float).tiny)
     significant = (np.abs(b) > k_bias * se) & (np.abs(b) > bias_min_std * std_d)
     # what one bias leaves unexplained must be noise, or small next to the bias: not
     # structure of its own size (strong curvature across the formation looks like that)

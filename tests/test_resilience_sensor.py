@@ -115,13 +115,21 @@ def test_watch_never_leaves_fewer_than_four_sensors():
     ("robust", FaultsPlan(), (), True),
     ("robust", FaultsPlan(retire_after=3, retire_min_noise_ratio=2.0), (), True),
     ("robust", FaultsPlan(faulty_sensor="keep"), (), False),
-    ("cvt", FaultsPlan(), (), False),
-    ("symmetric", FaultsPlan(), (), False),
+    ("robust", FaultsPlan(faulty_sensor="off"), (), False),
+    ("cvt", FaultsPlan(), (), True),                 # the detector runs whatever the estimator
+    ("symmetric", FaultsPlan(), (), True),
+    ("cvt", FaultsPlan(faulty_sensor="off"), (), False),
     ("robust", FaultsPlan(), (6,), False),           # one parking place: the centre
 ])
-def test_watch_only_for_robust_retire_and_a_free_centre(kind, faults, retired, made):
+def test_watch_for_retire_and_a_free_centre_whatever_the_estimator(kind, faults, retired, made):
+    from mission.flight.seek import make_estimator
+    from mission.flight.sensor_check import make_check
+
     co = _co(faults, retired)
-    watch = make_watch(co, kind, [s for s in range(1, 9) if s not in retired])
+    sysids = [s for s in range(1, 9) if s not in retired]
+    check = make_check(faults, make_estimator(kind, len(sysids)), sysids)
+    assert (check is None) == (faults.faulty_sensor == "off")
+    watch = make_watch(co, check, sysids)
     assert (watch is not None) == made
     if made:
         assert watch.rule.after_updates == faults.retire_after

@@ -5,9 +5,11 @@ resumed coordinator reconnects, re-engages the vehicles still flying (no new tak
 seeking from the last centre and iteration, appending to the same log (see
 :mod:`mission.flight.resume`). The mission clock is the wall clock: a ``swarmseek run`` log is
 resumable only while its mock fleet still runs, i.e. in-process (the tests do that with
-:func:`resume`). A log that ends after the seek (``return``, ``finish``, ``done``, a summary)
-is taken over to bring the vehicles still flying home (outcome ``recovered``). Exit status: 0
-converged, or recovered with every vehicle down or landing; 1 not converged / aborted / a
+:func:`resume`). Only a log cut in the takeoff, assembly or seek (or stopped there by a ground station told to
+just stop) seeks on; every other ending (finished, returning, aborted, interrupted with the
+return: :mod:`mission.flight.resume_endings`) is taken over to bring the vehicles still flying home
+(outcome ``recovered``). Exit status: 0 converged, or recovered with every vehicle down or landing
+and none left armed; 1 not converged / aborted / a
 vehicle left airborne; 2 the log or plan cannot be resumed; 130 / 143 interrupted (SIGINT / SIGTERM).
 """
 from __future__ import annotations
@@ -137,7 +139,7 @@ def main(args) -> int:
     from mission.flight.operator_stop import exit_status
 
     status = report_result(result, display, args.json)
-    if result.outcome == "recovered" and not result.airborne_left:
+    if result.outcome == "recovered" and not result.airborne_left and not result.still_armed:
         status = 0
     summary_log_line(args.log, args.json)
     return exit_status(result, status)

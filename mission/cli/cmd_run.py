@@ -85,6 +85,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "sensor's --sensor-tau)")
     parser.add_argument("--estimator", choices=("cvt", "symmetric", "robust"), default=None,
                         help="gradient estimator (default: the formation's)")
+    parser.add_argument("--faulty-sensor", choices=("retire", "keep", "off"), default="retire",
+                        help="faulty-sensor handling, with every seeker and estimator: the robust estimator's "
+                             "detection leaves a stuck/biased/spiking sensor's readings out of the seeker's input; "
+                             "retire (default): a sensor named stuck or noisy for 20 iterations is retired (its "
+                             "vehicle parked at the formation centre); keep: detection only; off: none (docs/faults.md)")
     parser.add_argument("--max-iterations", type=int, default=300)
     parser.add_argument("--return", dest="return_behaviour", choices=("land", "rtl"), default="land")
     parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
@@ -206,6 +211,8 @@ def _mission_setup(args):
                          estimator=args.estimator, max_iterations=args.max_iterations,
                          return_behaviour=args.return_behaviour, origin=DEFAULT_ORIGIN)
     plan = plan_with_outs(plan, getattr(args, "out", None))
+    faulty = getattr(args, "faulty_sensor", None) or plan.faults.faulty_sensor
+    plan = dataclasses.replace(plan, faults=dataclasses.replace(plan.faults, faulty_sensor=faulty))
     if getattr(args, "zenoh_listen", None):  # reachable by `swarmseek watch` / `ctl`
         plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
     plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, **_seeking_options(args)))

@@ -37,7 +37,7 @@ _FORMATIONS = ("cvt", "symmetric")
 _ESTIMATORS = ("cvt", "symmetric", "robust")
 #: values of the top-level ``return`` key
 RETURN_BEHAVIOURS = ("land", "rtl")
-_FAULTY_SENSOR = ("retire", "keep")
+_FAULTY_SENSOR = ("retire", "keep", "off")
 
 
 def parse_faults(c: Checker, doc: dict) -> FaultsPlan:

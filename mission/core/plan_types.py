@@ -184,12 +184,15 @@ class FaultsPlan:
     link_timeout_s : float
         A vehicle silent for this long (mission clock) is lost (default 1.0; detection within
         ``link_timeout_s`` + 0.1 s).
-    faulty_sensor : {"retire", "keep"}
-        With the ``robust`` estimator: a sensor it names for one of the reasons of
+    faulty_sensor : {"retire", "keep", "off"}
+        Whatever the estimator and the seeker, the robust estimator's fault detection
+        (:mod:`mission.flight.sensor_check`) leaves the readings of the sensors it excludes (stuck,
+        biased, a spike) out of the seeker's input; a sensor it names for one of the reasons of
         :class:`estimator.retire.SensorRetirement` (stuck; noisy at 3x the median) for
         ``retire_after`` consecutive iterations is retired, its vehicle parked at the
         formation centre and the others re-formed (``retire``, the default,
-        :mod:`mission.flight.retire`); ``keep``: the vehicle keeps its slot, its sensor down-weighted.
+        :mod:`mission.flight.retire`); ``keep``: detection only, the vehicle keeps its slot;
+        ``off``: no detection (the plan's estimator alone, every reading to the seeker).
     retire_after : int
         Consecutive iterations a sensor must be named before it is retired (default 20).
     retire_min_noise_ratio : float

@@ -127,6 +127,7 @@ class Coordinator:
         self.final_result: MissionResult | None = None  # set by mission_end.close on every path
         self.mission_checks: list[dict] = []  # mission-wide preflight checks (readiness_mission)
         self.land_commanded: set[int] = set()  # vehicles the landing guard commanded to LAND
+        self.still_armed: list[dict] = []  # vehicles still armed, though down or landing, at the end
         self.control = MissionControl(clock, log)  # operator commands (mission.flight.control)
         self._control_channel = None
 

@@ -26,7 +26,14 @@ import numpy as np
 
 from mission.flight.modes import LEFT_MODES
 
-__all__ = ["ADVICE", "engaged_vehicles", "verdict", "secure", "land_now", "report_airborne"]
+__all__ = ["ADVICE", "DISARM_TIMEOUT_S", "DISARM_COMMAND_AFTER_S", "await_disarm", "engaged_vehicles", "verdict",
+           "secure", "land_now", "report_airborne", "report_still_armed", "still_armed"]
+
+#: mission-clock seconds the end of a mission waits for the landed (or landing) vehicles to disarm
+DISARM_TIMEOUT_S = 15.0
+#: a vehicle its autopilot reports on the ground (``MAV_LANDED_STATE_ON_GROUND``) but still armed this
+#: long is sent a disarm command (PX4 ``COM_DISARM_LAND`` is 2 s by default, ArduPilot disarms on touchdown)
+DISARM_COMMAND_AFTER_S = 4.0
 
 #: what the operator should do about a vehicle left airborne
 ADVICE = ("take manual control (RC) or command LAND/RTL from another ground station "
@@ -90,6 +97,74 @@ def report_airborne(co, entries: list[dict], why: str) -> None:
     co.event(f"vehicles {who} left AIRBORNE: {why}; {ADVICE}", level="error", sysids=who)
 
 
+def report_still_armed(co, entries: list[dict], why: str) -> None:
+    """Tell the operator loudly which vehicles are still armed at the end (landed or landing):
+    standard error, a ``still_armed`` log record, an error event."""
+    who = [e["sysid"] for e in entries]
+    lines = [f"swarmseek: WARNING: vehicles {who} are still ARMED at the end of the mission ({why}):"]
+    lines += [f"  vehicle {e['sysid']} ({e.get('id')}): {e.get('state', '')}; ENU {e.get('position_enu')}"
+              for e in entries]
+    lines.append("  what to do: keep clear of the propellers; disarm them (RC kill switch, or DISARM from "
+                 "QGroundControl / MAVProxy) before approaching")
+    print("\n".join(lines), file=sys.stderr, flush=True)
+    if co.log is not None:
+        co.log.write("still_armed", sync=True, vehicles=entries, reason=why)
+    co.event(f"vehicles {who} still ARMED at the end of the mission: {why}", level="error", sysids=who)
+
+
+async def _send_disarm(co, sysid: int, v, timeout_s: float = 5.0) -> None:
+    """A (non-forced) disarm command to a vehicle its autopilot reports on the ground; failures are events."""
+    co.event(f"vehicle {sysid} is on the ground but still armed: sending DISARM", level="warning", sysid=sysid)
+    try:
+        await asyncio.wait_for(v.disarm(), timeout=timeout_s)
+    except (asyncio.TimeoutError, OSError, RuntimeError, ValueError) as exc:
+        co.event(f"vehicle {sysid}: DISARM failed: {type(exc).__name__}: {exc}", level="error", sysid=sysid)
+
+
+async def await_disarm(co, timeout_s: float = DISARM_TIMEOUT_S,
+                       command_after_s: float = DISARM_COMMAND_AFTER_S) -> list[dict]:
+    """Wait until every engaged vehicle that is down or landing has disarmed; the ones still armed.
+
+    A vehicle its autopilot reports on the ground (landed state) but still armed for
+    ``command_after_s`` (its own auto-disarm did not come) is sent one disarm command. Vehicles
+    left airborne or unheard are not waited for (:func:`secure` reports them). Returns the
+    ``still_armed`` entries (where, mode, state) after ``timeout_s`` of mission clock.
+    """
+    link_timeout = co.plan.faults.link_timeout_s
+
+    def _armed() -> list[int]:
+        return [e["sysid"] for e in still_armed(co, link_timeout)]
+
+    grounded: dict[int, float] = {}
+    sent: set[int] = set()
+    deadline = co.clock.time() + timeout_s
+    while (armed := _armed()) and co.clock.time() < deadline:
+        now = co.clock.time()
+        for s in armed:
+            if co.vehicles[s].state.landed is True:
+                grounded.setdefault(s, now)
+            else:
+                grounded.pop(s, None)
+        due = [s for s in armed if s not in sent and s in grounded and now - grounded[s] >= command_after_s]
+        sent.update(due)
+        await asyncio.gather(*(_send_disarm(co, s, co.vehicles[s]) for s in due))
+        await co.clock.sleep(0.2)
+    return still_armed(co, link_timeout)
+
+
+def still_armed(co, link_timeout_s: float) -> list[dict]:
+    """Engaged vehicles heard armed while down or landing (not airborne, not unheard): where, and why."""
+    out = []
+    for s in engaged_vehicles(co):
+        v = co.vehicles.get(s)
+        if v is None or not v.state.armed:
+            continue
+        kind, detail = verdict(v, link_timeout_s)
+        if kind in ("down", "landing"):
+            out.append(_where(co, s, v) | {"state": detail})
+    return out
+
+
 async def _command_land(co, sysid: int, v, timeout_s: float) -> str | None:
     """Release ``sysid`` from the stream and command LAND; the error text, or None."""
     co.state.release(sysid, "landing (end of mission)")
@@ -128,7 +203,9 @@ async def secure(co, why: str, confirm_timeout_s: float = 5.0,
     """Enforce the invariant at the end of a mission.
 
     Returns the ``airborne_left`` entries (empty: none left airborne) and whether a
-    cancellation cut the wait short (it is handled here: the caller decides what follows).
+    cancellation cut the wait short (it is handled here: the caller decides what follows). The
+    vehicles still armed though down or landing, after :func:`await_disarm`, are reported
+    (:func:`report_still_armed`) and kept in ``co.still_armed`` (the summary's ``still_armed``).
 
     Parameters
     ----------
@@ -154,6 +231,8 @@ async def secure(co, why: str, confirm_timeout_s: float = 5.0,
         while co.clock.time() < deadline and any(
                 verdict(co.vehicles.get(s), timeout)[0] == "airborne" for s in commanded):
             await co.clock.sleep(0.2)
+        if land:
+            await await_disarm(co)
     except asyncio.CancelledError:
         cancelled = True
         task = asyncio.current_task()
@@ -169,4 +248,8 @@ async def secure(co, why: str, confirm_timeout_s: float = 5.0,
             co.event(f"vehicle {s} ends the mission {detail}, confirmed by its autopilot", sysid=s)
     if entries:
         report_airborne(co, entries, why)
+    armed = still_armed(co, timeout)
+    if armed:
+        report_still_armed(co, armed, why)
+    co.still_armed = armed
     return entries, cancelled

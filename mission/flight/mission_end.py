@@ -83,7 +83,7 @@ async def close(co, outcome: str, message: str, *, interrupted: bool = False):
     if interrupted:
         _uncancel()
         interrupts = 1
-        co.set_phase("aborted", reason=message)
+        co.set_phase("aborted", reason=message, returning=bool(co.return_on_interrupt))
         co.event(f"mission {message}: " + ("returning every vehicle (interrupt again to LAND them where "
                                            "they are)" if co.return_on_interrupt else
                                            "the ground station stops; the vehicles do what their autopilots do"),
@@ -100,6 +100,7 @@ async def close(co, outcome: str, message: str, *, interrupted: bool = False):
         await co._stop_background()
     result = co.result(outcome, message)
     result.airborne_left = left
+    result.still_armed = list(co.still_armed)
     result.interrupted_by = list(getattr(co, "interrupts", ()) or ())
     co.final_result = result
     co.set_phase("done")

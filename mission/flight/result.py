@@ -80,6 +80,9 @@ class MissionResult:
     airborne_left : list
         Vehicles still airborne with no landing behaviour at the end (the ``airborne_left``
         record of :mod:`mission.flight.landing_guard`; empty when every vehicle is down or landing).
+    still_armed : list
+        Vehicles still armed at the end though landed or landing (after the wait for their disarm,
+        :func:`mission.flight.landing_guard.await_disarm`); the mission is then not ``ok`` (exit 1).
     interrupted_by : list
         The signals (``SIGINT``, ``SIGTERM``) that interrupted the mission, in order
         (:mod:`mission.flight.operator_stop`).
@@ -114,13 +117,15 @@ class MissionResult:
     vehicle_rejections: dict = field(default_factory=dict)
     separation_interventions: int = 0
     airborne_left: list = field(default_factory=list)
+    still_armed: list = field(default_factory=list)
     interrupted_by: list = field(default_factory=list)
     mission_checks: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
-        """The mission reached its goal (converged), or the dry run found every vehicle ready."""
-        return self.outcome in ("converged", "ready")
+        """The mission reached its goal (converged) with every vehicle disarmed, or the dry run found
+        every vehicle ready."""
+        return self.outcome in ("converged", "ready") and not self.still_armed
 
     def to_json(self) -> dict:
         """JSON-friendly dict (through :func:`~mission.telemetry.mission_log.dataclass_json`: no secret)."""

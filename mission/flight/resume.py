@@ -15,11 +15,13 @@ The resumed coordinator reconnects, and re-engages every vehicle still flying (a
 to their autopilot; if fewer than 4 fly, the resumed mission brings the others home. The seek
 goes on from the last centre and iteration, appending to the same log.
 
-A log that ends in any other phase (``finish``, ``return``, ``aborted``, ``done``, or with a
-``summary``: e.g. a ground station stopped during the return, or an operator who stopped
-waiting for the LAND confirmations) is taken over to **bring the vehicles home**: the vehicles
-still flying are re-engaged the same way, then fly the return (outcome ``recovered``); if none
-flies, there is nothing to do (outcome ``recovered``, every vehicle down).
+The seek goes on only for a log cut in the takeoff, assembly or seek (a ground station killed or
+crashed there) or stopped there by an interrupt of a ground station told to just stop; every other
+ending (finished, returning, aborted by an error or an operator's stop, interrupted with the
+return: :mod:`mission.flight.resume_endings`, the table in docs/faults.md) is taken over to
+**bring the vehicles home**: the vehicles still flying are re-engaged the same way, then fly the
+return (outcome ``recovered``); if none flies, there is nothing to do (outcome ``recovered``,
+every vehicle down).
 """
 from __future__ import annotations
 
@@ -45,6 +47,7 @@ from mission.core.signing_keys import SigningError
 from mission.flight.connect import build_envelope, connect
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.motion import retried, setpoint_stream
+from mission.flight.resume_endings import classify_ending
 from mission.flight.retire import restore_retired
 from mission.flight.state import MissionError, VehicleLoss
 
@@ -82,9 +85,11 @@ class ResumeState:
     retired : dict
         Sysid -> the fields of its ``sensor retired`` event (:class:`mission.flight.retire.RetiredSensor`).
     go_on : bool
-        The seek goes on (the last phase flown was the takeoff, assembly or seek: the ground
-        station stopped there); False (it had reached ``finish`` or ``return``): bring the
-        vehicles still flying home.
+        The seek goes on (the log was cut in the takeoff, assembly or seek, or a ground station
+        told to just stop was interrupted there); False (finished, returning, aborted,
+        interrupted with the return): bring the vehicles still flying home.
+    ending : str
+        How the log ends (:data:`mission.flight.resume_endings.ENDINGS`).
     """
 
     plan: Plan
@@ -100,6 +105,7 @@ class ResumeState:
     embedded: dict | None = None
     retired: dict = field(default_factory=dict)
     go_on: bool = True
+    ending: str = "cut"
 
 
 def _tuple_of_tuples(x):
@@ -206,10 +212,10 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
         plan = plan_from_json(plans[0]["plan"])
     phases = [r["phase"] for r in records if r["type"] == "phase"]
     last_phase = phases[-1] if phases else ""
-    # the seek goes on when the mission stopped flying it (a crash, an interrupt without return:
-    # the closing "aborted"/"done" phases then follow it); after a finish or a return, bring home
-    flown = [p for p in phases if p not in ("aborted", "done")]
-    go_on = bool(flown) and flown[-1] in ("takeoff", "assemble", "seek")
+    # the seek goes on only when the mission stopped flying it without deciding to end (killed,
+    # crashed, a ground station told to just stop); any other ending brings the vehicles home
+    ending = classify_ending(records)
+    go_on = ending.go_on
     slots, layers, lost, retired, kind, embedded = _formation_from_events(records, plan.formation.type)
     if not slots:
         raise ResumeError(f"{log_path}: stopped before the takeoff (phase {last_phase!r}): no vehicle was "
@@ -222,7 +228,8 @@ def load_resume_state(log_path: str | Path, plan: Plan | None = None) -> ResumeS
     centre, centres, k, flown = _seek_progress(records, plan)
     return ResumeState(plan=plan, iteration=k, centre_enu=centre, centres=centres, slot_offsets=slots,
                        layer_alt_m=layers, formation_kind=kind, lost=lost, distance_flown_m=flown,
-                       last_phase=last_phase, embedded=embedded, retired=retired, go_on=go_on)
+                       last_phase=last_phase, embedded=embedded, retired=retired, go_on=go_on,
+                       ending=ending.name)
 
 
 def _formation_from_events(records: list[dict], kind: str):
@@ -293,8 +300,8 @@ async def rejoin(co, state: ResumeState) -> None:
             flying.append(sysid)
     await _reengage(co, flying)
     restore_retired(co, state.retired)
-    co.event(("resumed" if state.go_on else f"taken over to bring the vehicles home (the log ends in phase "
-                                             f"{state.last_phase!r})") + f" at iteration {state.iteration} from centre "
+    co.event(("resumed" if state.go_on else f"taken over to bring the vehicles home (the log ends "
+                                             f"{state.ending} in phase {state.last_phase!r})") + f" at iteration {state.iteration} from centre "
              f"({co.centre_enu[0]:.2f}, {co.centre_enu[1]:.2f}, {co.centre_enu[2]:.2f}) m with vehicles "
              f"{flying}", iteration=state.iteration, centre_enu=co.centre_enu, vehicles=flying,
              lost=sorted(co.lost), retired=sorted(co.retired))
@@ -355,5 +362,5 @@ async def resume_mission(co, state: ResumeState) -> tuple[str, str]:
     flying = sorted(co.airborne)
     if not flying:
         return "recovered", "no vehicle of the stopped mission is flying: nothing to bring home"
-    return "recovered", (f"the stopped mission (last phase {state.last_phase!r}) left vehicles {flying} "
-                         "flying: bringing them home")
+    return "recovered", (f"the stopped mission ({state.ending}, last phase {state.last_phase!r}) left vehicles "
+                         f"{flying} flying: bringing them home")

@@ -1,7 +1,8 @@
 """Retiring a faulty sensor during the seek: park its vehicle at the centre, re-form the others.
 
-With the ``robust`` estimator and ``[faults] faulty_sensor = "retire"`` (the default), the seek
-feeds the estimator's suspect codes and noise estimates to
+With ``[faults] faulty_sensor = "retire"`` (the default), whatever the estimator and the seeker,
+the seek feeds the faulty-sensor detector's (:mod:`mission.flight.sensor_check`: the robust
+estimator's) suspect codes and noise estimates to
 :class:`estimator.retire.SensorRetirement` after every iteration (:class:`SensorWatch`). A sensor
 named for one of the rule's reasons (by default ``stuck``, or ``noisy`` at 3x the median noise
 estimate or more) for ``[faults] retire_after`` consecutive iterations, while at least 4 sensing
@@ -103,7 +104,7 @@ class SensorWatch:
         Parameters
         ----------
         estimate
-            The seek's robust estimator function (:func:`mission.flight.seek.make_estimator`), with
+            The seek's faulty-sensor detector (:class:`mission.flight.sensor_check.SensorCheck`), with
             ``suspect_codes()`` and ``noise_std()``.
         used : list of int
             Sysids of the readings of that update, in the estimator's order.
@@ -127,16 +128,17 @@ class SensorWatch:
                              iteration=int(iteration), named_for=int(streaks[idx]) + 1, retired_s=float(now_s))
 
 
-def make_watch(co, est_kind: str, sysids: list[int]) -> SensorWatch | None:
+def make_watch(co, check, sysids: list[int]) -> SensorWatch | None:
     """A :class:`SensorWatch` for the seek, or None.
 
-    None when the estimator is not robust, with ``faulty_sensor = "keep"``, or while a vehicle is
-    already parked: the centre is the one place known to be clear of every slot, so at most one
-    sensor is retired at a time (a second faulty sensor is handled by the estimator's weights,
-    as with ``keep``).
+    ``check`` is the seek's faulty-sensor detector (:class:`mission.flight.sensor_check.SensorCheck`,
+    whatever the estimator and the seeker; None with ``faulty_sensor = "off"``). None without a
+    detector, with ``faulty_sensor = "keep"``, or while a vehicle is already parked: the centre is
+    the one place known to be clear of every slot, so at most one sensor is retired at a time (a
+    second faulty sensor is only left out of the seeker's input while it is excluded, as with ``keep``).
     """
     faults = co.plan.faults
-    if (est_kind != "robust" or getattr(faults, "faulty_sensor", "retire") != "retire" or len(sysids) < 4
+    if (check is None or getattr(faults, "faulty_sensor", "retire") != "retire" or len(sysids) < 4
             or parked(co)):
         return None
     return SensorWatch(sysids, getattr(faults, "retire_after", 20),

@@ -43,6 +43,7 @@ from mission.flight.retire import (
     retire_sensor,
 )
 from mission.flight.seek_moving import moving_sampling
+from mission.flight.sensor_check import make_check
 from mission.flight.state import MissionError
 
 __all__ = ["seek", "make_estimator", "make_seeker"]
@@ -65,6 +66,10 @@ class _MissionSeeker:
         plume = {"wind_from_deg": wind_from_deg, "patchy": plume_mode == "intermittent"}
         self.seeker = _make(kind, **(plume if kind == "plume" else {}))
         self.arrival = None  # the seeker's own convergence signal after a step (None: it has none)
+
+    def reset(self) -> None:
+        """Forget the readings seen (a sensor among them turned out faulty)."""
+        self.seeker.reset()
 
     def step(self, centre, positions, values, gamma_m: float) -> np.ndarray:
         """The next centre; the same centre (hold) if the seeker cannot propose one, with ``self.failure`` set."""
@@ -98,6 +103,7 @@ def make_estimator(kind: str, n: int):
         def _robust(positions, values, centre):
             return np.asarray(robust.update(np.asarray(positions) - centre, np.asarray(values)), dtype=float)
 
+        _robust.robust = robust  # the faulty-sensor detector shares it (mission.flight.sensor_check)
         _robust.suspects = lambda: list(robust.suspects)
         _robust.suspect_codes = lambda: robust.suspect_codes
         _robust.noise_std = lambda: robust.noise_std_estimates
@@ -122,8 +128,10 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     others home). After a loss the formation is re-formed for the survivors
     (:func:`mission.flight.loss.reform`) before the next iteration; a returning vehicle is re-admitted
     (``[faults] readmit = true``, :func:`mission.flight.rejoin.readmit`); every iteration's slots are
-    rotated clear of lost vehicles still flying (:func:`mission.flight.rejoin.clear_goals`). With the
-    robust estimator, a sensor it keeps naming is retired: its vehicle is parked at the centre,
+    rotated clear of lost vehicles still flying (:func:`mission.flight.rejoin.clear_goals`). Whatever the
+    seeker, the faulty-sensor detector (:mod:`mission.flight.sensor_check`) keeps the readings of the
+    sensors it excludes out of the seeker's input, and a sensor it keeps naming is retired
+    (``faulty_sensor = "retire"``, the default): its vehicle is parked at the centre,
     its readings ignored, the others re-formed (:mod:`mission.flight.retire`); only sensing vehicles
     count towards the 4.
     """
@@ -161,7 +169,8 @@ class _Seek:
         self.seeker = make_seeker(sk.seeker, sk.wind_from_deg, sk.plume_mode)
         self.moving = moving_sampling(co, sk)
         self.samples = None  # with moving sampling: the readings the seeker gets this iteration
-        self.watch = make_watch(co, self.est_kind, self.sysids)
+        self.check = make_check(co.plan.faults, self.estimate, self.sysids)
+        self.watch = make_watch(co, self.check, self.sysids)
         self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
                                           min_signal_fraction=sk.min_signal_fraction)
         self.arrival = ArrivalSignal()  # the convergence test's signal when the seeker has none
@@ -180,7 +189,8 @@ class _Seek:
         if symmetric_to_cvt and self.co.formation_kind == "cvt" and self.est_kind == "symmetric":
             self.est_kind = "cvt"
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
-        self.watch = make_watch(self.co, self.est_kind, self.sysids)
+        self.check = make_check(self.co.plan.faults, self.estimate, self.sysids)
+        self.watch = make_watch(self.co, self.check, self.sysids)
 
     async def iteration(self, k: int) -> tuple[str, str] | None:
         """One iteration: re-form, move, readings, estimate, step; ``(outcome, message)`` when it ends."""
@@ -284,9 +294,27 @@ class _Seek:
                 raise MissionError(f"no gradient estimate for {self.failures} iterations (last: {exc})") from None
             return None
         self.failures = 0
+        grad = self._checked(k, used, positions, values, centroid, grad)
         self.samples = None if self.moving is None else self.moving.collect(used)
-        retiring = None if self.watch is None else self.watch.update(self.estimate, used, k + 1, co.clock.time())
+        retiring = None if self.watch is None else self.watch.update(self.check, used, k + 1, co.clock.time())
         return t_est, aligned, used, centroid, grad, retiring
+
+    def _checked(self, k: int, used: list[int], positions, values, centroid, grad) -> np.ndarray:
+        """Feed the faulty-sensor detector; the gradient without its excluded sensors (the paper's step
+        with a non-robust estimator: Theorem 2 on the others), else ``grad``."""
+        if self.check is None:
+            return grad
+        self.check.update(used, positions, values, centroid)
+        if self.check.failure and not self.check.shared and len(used) == len(self.check.sysids):
+            self.co.event(f"iteration {k + 1}: faulty-sensor check not updated: {self.check.failure}",
+                          level="warning")
+        if self.check.newly_excluded and self.seeker is not None:
+            self.seeker.reset()
+            self.co.event(f"iteration {k + 1}: sensors {sorted(self.check.newly_excluded)} excluded as faulty: "
+                          f"their readings left out, the {self.sk.seeker} seeker's memory reset", level="warning",
+                          sysids=sorted(self.check.newly_excluded))
+        alt = self.check.gradient(positions, values, used)
+        return grad if alt is None else alt
 
     async def _enough(self, k: int, aligned: dict) -> bool:
         """At least 4 aligned readings (all of them for the robust estimator); else warn and wait."""
@@ -335,17 +363,18 @@ class _Seek:
 
         co, sk = self.co, self.sk
         readings, positions = self._seeker_inputs(aligned, used)
+        kept, positions = (readings, positions) if self.check is None else self.check.keep(readings, positions)
         if self.seeker is None:  # the paper's step with the plan's estimator (robust included)
             proposed = seek_step(self.centre, grad, sk.eps, sk.gamma_m)
         else:
-            proposed = self.seeker.step(self.centre, positions,
-                                        [r.value for r in readings], sk.gamma_m)
+            proposed = self.seeker.step(self.centre, positions, [r.value for r in kept], sk.gamma_m)
             if self.seeker.failure:
                 co.event(f"iteration {k + 1}: {self.seeker.failure}", level="warning")
         new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))
         own = None if self.seeker is None else self.seeker.arrival
-        signal = self.arrival.signal([aligned[s].value for s in used])
+        dropped = set() if self.check is None else self.check.dropped
+        signal = self.arrival.signal([aligned[s].value for s in used if s not in dropped])
         converged = self.monitor.update(new_centre, signal if own is None else own)
         co.state.record_iteration(k + 1, grad, step_m, self.monitor.estimate_enu, self.monitor.spread_m)
         if co.log is not None:
@@ -357,7 +386,7 @@ class _Seek:
                          readings=readings,
                          positions_enu={s: co.telemetry_position(s) for s in everyone},
                          setpoints_enu={s: co.ramp.setpoint(s) for s in everyone},
-                         suspects=_suspects(self.estimate, used), status=co.vehicle_status())
+                         suspects=_suspects(self.check or self.estimate, used), status=co.vehicle_status())
         self.centre = new_centre
         co.state.move_centre(new_centre)
         return self._ended(k, converged)
@@ -380,12 +409,13 @@ class _Seek:
 
 
 def _suspects(estimate, used: list[int]) -> list[dict] | None:
-    """The robust estimator's suspect sensors as ``{sysid, reason, excluded, noise_std}`` (None otherwise)."""
+    """The faulty-sensor detector's (or the robust estimator's) suspect sensors as ``{sysid, reason, excluded, noise_std}`` (None otherwise)."""
     get = getattr(estimate, "suspects", None)
     if get is None:
         return None
+    order = getattr(estimate, "sysids", used)  # the detector's sensors are its sysids
     try:
-        return [{"sysid": used[s.index], "reason": s.reason, "excluded": bool(s.excluded),
+        return [{"sysid": order[s.index], "reason": s.reason, "excluded": bool(s.excluded),
                  "noise_std": float(s.noise_std)} for s in get()]
     except (AttributeError, IndexError, ValueError):
         return None

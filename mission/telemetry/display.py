@@ -119,6 +119,9 @@ def format_summary(summary: dict) -> list[str]:
     for sysid, counts in (summary.get("vehicle_rejections") or {}).items():
         if any(counts.values()):
             lines.append(f"  frames rejected by vehicle {sysid}: {format_rejections(counts)}")
+    if summary.get("still_armed"):
+        lines.append(f"  STILL ARMED at the end: vehicles {[e.get('sysid') for e in summary['still_armed']]} "
+                     "(landed or landing; disarm them before approaching)")
     for x in summary.get("retired") or ():
         lines.append(f"  sensor of vehicle {x.get('sysid')} retired after iteration {x.get('iteration')} "
                      f"({x.get('reason')}, {_num(x.get('ratio'), '{:.1f}')}x the median noise): parked at the centre")
