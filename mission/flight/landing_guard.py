@@ -29,8 +29,12 @@ from mission.flight.modes import LEFT_MODES
 __all__ = ["ADVICE", "DISARM_TIMEOUT_S", "DISARM_COMMAND_AFTER_S", "await_disarm", "engaged_vehicles", "verdict",
            "secure", "land_now", "report_airborne", "report_still_armed", "still_armed"]
 
-#: mission-clock seconds the end of a mission waits for the landed (or landing) vehicles to disarm
+#: mission-clock seconds the end of a mission waits for the landed (or landing) vehicles to disarm, plus
+#: the time the highest of them needs to descend at ``SLOWEST_LAND_SPEED_M_S``
 DISARM_TIMEOUT_S = 15.0
+#: the slowest landing descent of a supported autopilot (ArduPilot ``LAND_SPEED`` 50 cm/s; PX4
+#: ``MPC_LAND_SPEED`` 0.7 m/s): a vehicle LANDed where it is, high up, is waited for to the ground
+SLOWEST_LAND_SPEED_M_S = 0.5
 #: a vehicle its autopilot reports on the ground (``MAV_LANDED_STATE_ON_GROUND``) but still armed this
 #: long is sent a disarm command (PX4 ``COM_DISARM_LAND`` is 2 s by default, ArduPilot disarms on touchdown)
 DISARM_COMMAND_AFTER_S = 4.0
@@ -128,7 +132,9 @@ async def await_disarm(co, timeout_s: float = DISARM_TIMEOUT_S,
     A vehicle its autopilot reports on the ground (landed state) but still armed for
     ``command_after_s`` (its own auto-disarm did not come) is sent one disarm command. Vehicles
     left airborne or unheard are not waited for (:func:`secure` reports them). Returns the
-    ``still_armed`` entries (where, mode, state) after ``timeout_s`` of mission clock.
+    ``still_armed`` entries (where, mode, state) after ``timeout_s`` of mission clock plus the
+    time the highest of them needs to descend at ``SLOWEST_LAND_SPEED_M_S`` (a vehicle LANDed where
+    it is, 12 m up, is waited for to the ground: 24 s more).
     """
     link_timeout = co.plan.faults.link_timeout_s
 
@@ -137,7 +143,9 @@ async def await_disarm(co, timeout_s: float = DISARM_TIMEOUT_S,
 
     grounded: dict[int, float] = {}
     sent: set[int] = set()
-    deadline = co.clock.time() + timeout_s
+    heights_m = [co.vehicles[s].state.relative_alt_m for s in _armed()]
+    descent_s = max([h / SLOWEST_LAND_SPEED_M_S for h in heights_m if h is not None and h > 0], default=0.0)
+    deadline = co.clock.time() + timeout_s + descent_s
     while (armed := _armed()) and co.clock.time() < deadline:
         now = co.clock.time()
         for s in armed:
@@ -246,6 +254,8 @@ async def secure(co, why: str, confirm_timeout_s: float = 5.0,
             entries.append(_where(co, s, v) | {"state": detail})
         elif kind == "landing":
             co.event(f"vehicle {s} ends the mission {detail}, confirmed by its autopilot", sysid=s)
+        else:
+            co.state.set_landed(s)  # down (a no-op if already said): the log says it landed
     if entries:
         report_airborne(co, entries, why)
     armed = still_armed(co, timeout)
