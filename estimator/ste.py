@@ -18,7 +18,8 @@ likelihoods are :mod:`estimator.ste_model`. Per iteration:
    ``a = sqrt(1 - h^2)``: the cloud's mean and covariance are kept) with a small floor.
 4. **Report**: :attr:`estimate_enu` the posterior mean release point and :attr:`region95_m` the
    radius about it holding 95 % of the weight; :attr:`arrival` (the convergence signal) is
-   ``region95_m <= region_m``.
+   ``region95_m <= region_m`` with no collapse in the last ``memory`` iterations (a posterior
+   just re-seeded from a few readings can be tight and wrong).
 5. **Move**: while the region is larger than ``exploit_m`` (default ``region_m``), the candidate (stay; ``step`` up/down
    wind, across it, up/down; toward the posterior mean) whose formation readings carry the most
    expected information about the particles (the mutual information of each vehicle's hit / miss,
@@ -169,6 +170,7 @@ class SteSeeker:
         self.collapses = np.zeros(k, dtype=int)
         self.collapsed = np.zeros(k, dtype=bool)
         self.hits = np.zeros(k, dtype=int)
+        self.since_collapse = np.full(k, self.memory + 1)
         self.iterations = 0
         self._buf: list = []
         self._seed_prior(np.arange(k), c)
@@ -208,6 +210,7 @@ class SteSeeker:
         collapsed = (-best > self.collapse_nats) & (v.shape[1] >= 4)
         self.logw = self.logw + self.temper * ll.sum(axis=2)
         self.collapsed = collapsed
+        self.since_collapse = np.where(collapsed, 0, self.since_collapse + 1)
         if collapsed.any():
             idx = np.flatnonzero(collapsed)
             self.collapses[idx] += 1
@@ -257,7 +260,7 @@ class SteSeeker:
         at = np.minimum(np.argmax(cum >= 0.95, axis=1), self.particles - 1)
         self.estimate_enu = mean
         self.region95_m = np.take_along_axis(d, np.take_along_axis(order, at[:, None], 1), 1)[:, 0]
-        self.arrival = self.region95_m <= self.region_m
+        self.arrival = (self.region95_m <= self.region_m) & (self.since_collapse > self.memory)
 
     # ------------------------------------------------------------------ the move
     def _p_hit(self, parts: np.ndarray, pts: np.ndarray) -> np.ndarray:

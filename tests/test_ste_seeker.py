@@ -89,6 +89,7 @@ def test_collapse_reseeds_about_the_formation_and_is_counted():
     pos2 = c2[:, None, :] + OFFSETS[None]
     nxt = seeker.propose(c2, pos2, np.full((1, 8), 1.0e4))  # no particle can explain these readings
     assert seeker.collapses[0] == 1 and seeker.collapsed[0]
+    assert not seeker.arrival[0]  # a re-seeded posterior does not report arrival
     assert np.all(np.isfinite(nxt)) and np.all(np.isfinite(seeker.estimate_enu))
     horizontal = np.linalg.norm(seeker.parts[0, :, :2] - c2[0, :2], axis=1)
     assert np.all(horizontal <= seeker.prior_radius_m + 1.0)  # re-seeded about the new centre
