@@ -30,12 +30,22 @@ gives). On a plume the starts are downwind (within 10 degrees of the wind axis),
 ``model``, ``plume`` (the plume's axis estimated from the readings) and ``plume-wind`` (the
 plume seeker given the field's wind direction; on a field without wind it is ``plume``),
 ``plume-patchy`` and ``plume-patchy-wind`` (the intermittent-plume variant,
-:class:`estimator.seek_hits.HitEdgeSeeker`, without / with the wind).
+:class:`estimator.seek_hits.HitEdgeSeeker`, without / with the wind); ``ste``, ``ste-wind``,
+``ste-patchy``, ``ste-patchy-wind`` (:class:`estimator.ste.SteSeeker` with the steady or the
+intermittent likelihood, without / with the wind; ``--ste-args key=value,...`` sets its other
+keywords). A seeker that reports a posterior (``estimate_enu`` and ``region95_m``: ``ste``) adds
+columns: its estimate within 1 m at the end, the estimate's median error and region radius, the
+calibration (the source inside the reported 95 % region, Wilson interval), the fraction converged
+(region within ``region_m``) and the posterior collapses. ``--cpu 8,50`` prints each seeker's
+CPU time per ``propose`` (one trial) instead of the table.
 
 Usage::
 
     python benchmarks/bench_seekers.py                         # 400 trials per cell
     python benchmarks/bench_seekers.py --trials 100 --fields sigma2 --json out.json
+    python benchmarks/bench_seekers.py --trials 50 --iterations 120 --fields plume,intermittent \
+        --noise realistic --seekers ste,ste-wind,ste-patchy,ste-patchy-wind
+    python benchmarks/bench_seekers.py --cpu 8,50 --fields plume --seekers ste-wind
 """
 from __future__ import annotations
 
