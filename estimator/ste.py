@@ -264,6 +264,7 @@ class SteSeeker:
 
     # ------------------------------------------------------------------ the move
     def _p_hit(self, parts: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """Each particle's probability of a hit at ``pts`` (K, M, 3): ``(K, P, M)`` (the move's outcome model)."""
         mu, g = plume_mean(parts, pts, **self.model)
         if self.patchy:
             return hit_probability(mu, g, **self.patchy_kw)
