@@ -30,12 +30,22 @@ gives). On a plume the starts are downwind (within 10 degrees of the wind axis),
 ``model``, ``plume`` (the plume's axis estimated from the readings) and ``plume-wind`` (the
 plume seeker given the field's wind direction; on a field without wind it is ``plume``),
 ``plume-patchy`` and ``plume-patchy-wind`` (the intermittent-plume variant,
-:class:`estimator.seek_hits.HitEdgeSeeker`, without / with the wind).
+:class:`estimator.seek_hits.HitEdgeSeeker`, without / with the wind); ``ste``, ``ste-wind``,
+``ste-patchy``, ``ste-patchy-wind`` (:class:`estimator.ste.SteSeeker` with the steady or the
+intermittent likelihood, without / with the wind; ``--ste-args key=value,...`` sets its other
+keywords). A seeker that reports a posterior (``estimate_enu`` and ``region95_m``: ``ste``) adds
+columns: its estimate within 1 m at the end, the estimate's median error and region radius, the
+calibration (the source inside the reported 95 % region, Wilson interval), the fraction converged
+(region within ``region_m``) and the posterior collapses. ``--cpu 8,50`` prints each seeker's
+CPU time per ``propose`` (one trial) instead of the table.
 
 Usage::
 
     python benchmarks/bench_seekers.py                         # 400 trials per cell
     python benchmarks/bench_seekers.py --trials 100 --fields sigma2 --json out.json
+    python benchmarks/bench_seekers.py --trials 50 --iterations 120 --fields plume,intermittent \
+        --noise realistic --seekers ste,ste-wind,ste-patchy,ste-patchy-wind
+    python benchmarks/bench_seekers.py --cpu 8,50 --fields plume --seekers ste-wind
 """
 from __future__ import annotations
 
@@ -113,7 +123,16 @@ def _wind_from_deg(field):
     return None
 
 
-def _seeker(name: str, field):
+def _ste_kwargs(text: str | None) -> dict:
+    """``"exploit_m=1,temper=0.5"`` -> keyword arguments of the ``ste`` seeker (numbers)."""
+    out = {}
+    for item in filter(None, (text or "").split(",")):
+        key, _, value = item.partition("=")
+        out[key.strip()] = float(value) if "." in value or "e" in value else int(value)
+    return out
+
+
+def _seeker(name: str, field, ste_args: str | None = None):
     from estimator.seekers import make_seeker
     from mission.sim.embedded import default_eps
 
@@ -124,7 +143,54 @@ def _seeker(name: str, field):
     if name in ("plume-patchy", "plume-patchy-wind"):  # intermittent plumes: the hit cloud's upwind edge
         wind = _wind_from_deg(field) if name.endswith("wind") else None
         return make_seeker("plume", patchy=True, wind_from_deg=wind), 20.0
+    if name.startswith("ste"):  # source-term estimation: ste, ste-wind, ste-patchy, ste-patchy-wind
+        wind = _wind_from_deg(field) if name.endswith("wind") else None
+        return make_seeker("ste", patchy="patchy" in name, wind_from_deg=wind, **_ste_kwargs(ste_args)), 20.0
     return make_seeker(name), 20.0
+
+
+def _posterior_row(seeker, source: np.ndarray, tol_m: float = 1.0) -> dict:
+    """A seeker's own estimate at the end (``ste``: posterior mean and 95 % region); {} without one."""
+    est, region = getattr(seeker, "estimate_enu", None), getattr(seeker, "region95_m", None)
+    if est is None or region is None:
+        return {}
+    err = np.linalg.norm(est - source, axis=1)
+    inside = err <= region
+    lo, hi = wilson(int(inside.sum()), len(err))
+    ok = err <= tol_m
+    return {"estimate_success": float(ok.mean()), "estimate_success_ci95": list(wilson(int(ok.sum()), len(err))),
+            "estimate_error_m_median": float(np.median(err)), "region95_m_median": float(np.median(region)),
+            "calibration": float(inside.mean()), "calibration_ci95": [lo, hi],
+            "converged": float(np.mean(region <= getattr(seeker, "region_m", tol_m))),
+            "collapses": int(np.sum(getattr(seeker, "collapses", 0)))}
+
+
+def update_ms(seeker_name: str, field_name: str, n: int, iterations: int = 40, seed: int = 0,
+              ste_args: str | None = None) -> float:
+    """Median CPU time (ms, ``time.process_time``) of one ``propose`` with one trial (K = 1) of
+    ``n`` vehicles (CVT of radius 4 m) on a field, along a run from 25 m downwind."""
+    import formation
+    from mission.sim.embedded import downwind_en
+
+    source = np.array([0.0, 0.0, 15.0])
+    field, noise = _field_and_noise(field_name, source, "realistic")
+    seeker, gamma = _seeker(seeker_name, field, ste_args)
+    seeker.reset()
+    dw = downwind_en(field)
+    c = source + (np.array([25.0 * dw[0], 25.0 * dw[1], -2.0]) if dw is not None else np.array([25.0, 0.0, -2.0]))
+    off = formation.cvt_sphere(n, 4.0, seed=0)
+    rng = np.random.default_rng(seed)
+    from estimator.seekers import cap_move
+
+    times, t_s = [], 0.0
+    for _ in range(iterations):
+        pos = c[None] + off
+        vals = field.value(pos, t_s) + noise * rng.standard_normal(n)
+        t0 = time.process_time()
+        nxt = seeker.propose(c[None], pos[None], vals[None])
+        times.append(time.process_time() - t0)
+        c, t_s = cap_move(c[None], nxt, gamma)[0], t_s + 1.0
+    return 1e3 * float(np.median(times))
 
 
 def _field_and_noise(name: str, source: np.ndarray, level: str):
@@ -136,7 +202,8 @@ def _field_and_noise(name: str, source: np.ndarray, level: str):
     return field, (0.0 if level == "0" else 0.01 * peak)
 
 
-def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, iterations: int, seed: int) -> dict:
+def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, iterations: int, seed: int,
+             ste_args: str | None = None) -> dict:
     """One table cell: ``trials`` runs of a seeker on a field at a noise level."""
     import formation
     from experiments.offline_seek import StopAndGo, simulate_seeker
@@ -147,22 +214,29 @@ def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, i
     from mission.sim.embedded import downwind_en
 
     starts, dist = _starts(field.source_enu(), trials, rng, downwind_en(field))
-    seeker, gamma = _seeker(seeker_name, field)
+    seeker, gamma = _seeker(seeker_name, field, ste_args)
     offsets = formation.cvt_sphere(8, 4.0, seed=0)
     t0 = time.perf_counter()
     run = simulate_seeker(offsets, field, starts, seeker, gamma_m=gamma, iterations=iterations,
                           noise_std=noise, rotate=True, seed=seed + 1)
     row = measure(run, dist, offsets.shape[0], StopAndGo())
+    row.update(_posterior_row(seeker, field.source_enu()))
     row.update(seeker=seeker_name, field=field_name, noise=noise, wall_s=time.perf_counter() - t0)
     return row
 
 
 def _fmt(row: dict) -> str:
     lo, hi = row["success_ci95"]
+    post = ""
+    if "calibration" in row:
+        clo, chi = row["calibration_ci95"]
+        post = (f" estimate within 1 m {row['estimate_success']:.2f}, error {row['estimate_error_m_median']:.2f} m, "
+                f"region95 {row['region95_m_median']:.2f} m, calibration {row['calibration']:.2f} ({clo:.2f}-{chi:.2f}), "
+                f"converged {row['converged']:.2f}, collapses {row['collapses']}, wall {row['wall_s']:.0f} s |")
     return (f"| {row['seeker']} | {row['field']} | {row['noise']:g} | {row['success']:.2f} ({lo:.2f}-{hi:.2f}) "
             f"| {row['time_s_median']:.1f} / {row['time_s_p90']:.1f} | {row['ratio_median']:.2f} / {row['ratio_p90']:.2f} "
             f"| {row['flown_m_median']:.1f} ({row['straight_m_median']:.1f}) | {row['readings_median']:.0f} "
-            f"| {row['final_error_m_median']:.3f} | {row['final_distance_m_median_all']:.2f} |")
+            f"| {row['final_error_m_median']:.3f} | {row['final_distance_m_median_all']:.2f} |" + post)
 
 
 def main(argv=None) -> int:
@@ -176,7 +250,16 @@ def main(argv=None) -> int:
     ap.add_argument("--fields", default="sigma1,sigma2")
     ap.add_argument("--noise", default="0,realistic", help="noise levels: 0 and/or realistic (1 %% of the peak)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--ste-args", default=None, help="keyword arguments of the ste seekers, e.g. exploit_m=1,temper=0.5")
+    ap.add_argument("--cpu", default=None, help="vehicle counts (e.g. 8,50): print each seeker's CPU per update "
+                    "(K = 1, median ms) on each field instead of the table")
     args = ap.parse_args(argv)
+    if args.cpu:
+        for field_name in args.fields.split(","):
+            for name in args.seekers.split(","):
+                for n in (int(x) for x in args.cpu.split(",")):
+                    print(f"{name} {field_name} N={n}: {update_ms(name, field_name, n, ste_args=args.ste_args):.1f} ms per update", flush=True)
+        return 0
     print("| seeker | field | noise | success (95 % CI) | time to stay within 1 m, s (median / p90) "
           "| ratio to straight line (median / p90) | centre flown, m (straight) | readings | final error, m "
           "| final distance, all trials, m |")
@@ -185,7 +268,7 @@ def main(argv=None) -> int:
     for field_name in args.fields.split(","):
         for level in args.noise.split(","):
             for name in args.seekers.split(","):
-                row = run_cell(name, field_name, level, args.trials, args.iterations, args.seed)
+                row = run_cell(name, field_name, level, args.trials, args.iterations, args.seed, args.ste_args)
                 rows.append(row)
                 print(_fmt(row), flush=True)
     if args.json is not None:

@@ -22,6 +22,10 @@ seeker never sees them. ``K`` is the number of independent trials (1 in the miss
   the plume's axis with the most upwind vehicle on it while the signal is there, cast across
   the wind when it is lost, hold at the point where that vehicle read the most before the
   plume ended upwind (``wind_from_deg`` given, or the axis estimated from the readings).
+* ``"ste"`` (:class:`~estimator.ste.SteSeeker`): source-term estimation, a particle filter over
+  the release point, its amplitude and the wind direction fed every reading (hits and misses),
+  moving for information; it reports ``estimate_enu`` with ``region95_m``, the radius of its
+  95 % region (seekers without a posterior have no such attributes).
 
 The maths and the failure modes are in ``docs/seekers.md``.
 """
@@ -37,12 +41,15 @@ from estimator.seek_inputs import seeker_inputs as _inputs
 from estimator.seek_hits import HitEdgeSeeker
 from estimator.seek_plume import PlumeSeeker
 from estimator.seek_quadratic import fit_quadratic
+from estimator.ste import SteSeeker
 
-__all__ = ["SEEKERS", "MOVING_SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker", "ModelSeeker", "PlumeSeeker", "make_seeker",
+__all__ = ["SEEKERS", "OFFLINE_SEEKERS", "MOVING_SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker", "ModelSeeker", "PlumeSeeker", "make_seeker",
            "cap_move"]
 
 #: Seeker names accepted by :func:`make_seeker` (and by the plan's ``[seeking] seeker``).
 SEEKERS = ("gradient", "newton", "model", "plume")
+#: Seekers :func:`make_seeker` also builds that plans and the CLI do not offer yet (offline only).
+OFFLINE_SEEKERS = ("ste",)
 #: Seekers that can use readings taken anywhere, so can sample while moving (``[seeking] sampling
 #: = "moving"``); the paper's gradient needs the formation's shape at rest (Theorem 2) and the
 #: plume seeker compares readings taken at rest.
@@ -248,4 +255,6 @@ def make_seeker(name: str, *, eps: float = 1.0, method: str = "cvt", **kwargs) -
         if kwargs.pop("patchy", False):  # intermittent plumes: the hit cloud's upwind edge
             return HitEdgeSeeker(**kwargs)
         return PlumeSeeker(**kwargs)
-    raise ValueError(f"unknown seeker {name!r}; expected one of {', '.join(SEEKERS)}")
+    if name == "ste":  # source-term estimation: a particle filter (estimator.ste)
+        return SteSeeker(**kwargs)
+    raise ValueError(f"unknown seeker {name!r}; expected one of {', '.join(SEEKERS + OFFLINE_SEEKERS)}")

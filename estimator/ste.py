@@ -1,0 +1,314 @@
+"""``ste``: a source-term-estimation seeker (a particle filter over the release, pure numpy).
+
+Behind the seeker interface (:class:`estimator.seekers.Seeker`, batched over ``K`` trials):
+``propose(centre, positions, values)`` folds every reading of the iteration (each at the
+position where it was taken) into a posterior over the release point (3D), its amplitude and,
+when not given, the wind direction, and returns the next centre. The forward model and the
+likelihoods are :mod:`estimator.ste_model`. Per iteration:
+
+1. **Update**: ``log w += temper * sum_i log L(v_i | particle)`` over the iteration's readings
+   (``temper`` < 1 because the readings of one instant, and of nearby instants, see the same
+   meander: they are not independent, and counting them as such makes the posterior overconfident).
+2. **Collapse**: when even the best particle explains the iteration's readings worse than
+   ``collapse_nats`` per reading on average (every weight effectively zero), the trial's
+   particles are re-seeded from the prior about the current centre and the last ``memory``
+   iterations' readings are applied to them; :attr:`collapses` counts it, :attr:`collapsed` flags it.
+3. **Resample** (systematic) when the effective sample size falls below half the particles, then
+   **roughen** (Liu & West 2001 kernel shrinkage: ``a x + (1 - a) mean + N(0, h^2 cov)``,
+   ``a = sqrt(1 - h^2)``: the cloud's mean and covariance are kept) with a small floor.
+4. **Report**: :attr:`estimate_enu` the posterior mean release point and :attr:`region95_m` the
+   radius about it holding 95 % of the weight; :attr:`arrival` (the convergence signal) is
+   ``region95_m <= region_m`` with no collapse in the last ``memory`` iterations (a posterior
+   just re-seeded from a few readings can be tight and wrong).
+5. **Move**: while the region is larger than ``exploit_m`` (default ``region_m``), the candidate (stay; ``step`` up/down
+   wind, across it, up/down; toward the posterior mean) whose formation readings carry the most
+   expected information about the particles (the mutual information of each vehicle's hit / miss,
+   summed over vehicles, on a resampled subset of the particles: myopic infotaxis, Vergassola et
+   al. 2007); ``step`` is half the region, within ``[min_step_m, max_step_m]``. Once the region is
+   below ``exploit_m``: the posterior mean.
+
+The caller caps the move (``gamma_m``) and applies the safety envelope, as for every seeker.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from estimator.seek_inputs import seeker_inputs
+from estimator.ste_model import BRIGGS_RURAL, hit_probability, loglik_patchy, loglik_steady, plume_mean
+from scipy.special import ndtr
+
+__all__ = ["SteSeeker"]
+
+_FLOOR = np.array([0.03, 0.03, 0.03, 0.01, 0.003])  # roughening floor (m, m, m, log A, rad)
+
+
+def _positive(name: str, value, allow_zero: bool = False) -> float:
+    v = float(value)
+    if not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise ValueError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {value!r}")
+    return v
+
+
+def _entropy2(p: np.ndarray) -> np.ndarray:
+    """Binary entropy (nats) of probabilities ``p``."""
+    p = np.clip(p, 1e-12, 1.0 - 1e-12)
+    return -(p * np.log(p) + (1.0 - p) * np.log1p(-p))
+
+
+def _systematic(w: np.ndarray, count: int, u: np.ndarray) -> np.ndarray:
+    """Systematic resampling indices ``(K, count)`` from weights ``(K, P)`` and offsets ``u`` in [0, 1) (K,)."""
+    k, p = w.shape
+    cdf = np.cumsum(w, axis=1)
+    cdf = cdf / cdf[:, -1:] + np.arange(k)[:, None]  # rows made disjoint: one searchsorted for all
+    grid = (u[:, None] + np.arange(count)[None, :]) / count + np.arange(k)[:, None]
+    flat = np.searchsorted(cdf.ravel(), grid.ravel()).reshape(k, count) - p * np.arange(k)[:, None]
+    return np.clip(flat, 0, p - 1)
+
+
+class SteSeeker:
+    """Particle-filter source-term estimation with an information-seeking move (module docstring).
+
+    Parameters
+    ----------
+    wind_from_deg : float or None
+        The wind's direction (where it comes from, degrees clockwise from north); None: estimated
+        (uniform prior).
+    wind_std_deg : float
+        Prior standard deviation about a given ``wind_from_deg``.
+    patchy : bool
+        The intermittent-plume likelihood (hits and misses) instead of the steady one.
+    particles : int
+        Particles per trial.
+    prior_radius_m, prior_height_m : float
+        The prior over the release: uniform in a vertical cylinder of this radius and half-height
+        about the first centre (not below ``ground_alt_m``).
+    amplitude_range : (float, float)
+        The prior of ``A`` (the release-point mean), log-uniform.
+    stability, source_radius_m, ground_alt_m :
+        The dispersion model (Briggs class, ``s0``, the ground's ``U``).
+    noise_std, background, detection_floor : float
+        The sensor: noise deviation, background, floor (readings below it report 0); a hit is a
+        reading above ``background + max(3 noise_std, detection_floor)``.
+    rel_error : float
+        Steady likelihood: the model's relative error ``rho``.
+    hit_fraction, hit_shape, hit_log_sd, false_hit : float
+        Patchy likelihood: ``pi0``, ``beta``, ``s`` and ``eps`` (:mod:`estimator.ste_model`).
+    temper : float
+        Exponent of each iteration's likelihood, in (0, 1].
+    region_m : float
+        Convergence: the 95 % region's radius at most this.
+    exploit_m : float or None
+        Below this region radius the centre goes to the posterior mean (None: ``region_m``, i.e.
+        infotaxis until converged).
+    collapse_nats : float
+        Mean deviance per reading of the best particle above which the posterior has collapsed.
+    memory : int
+        Iterations of readings re-applied after a collapse.
+    seed : int
+        Seed of the filter's random numbers (reset re-seeds).
+    """
+
+    name = "ste"
+
+    def __init__(self, wind_from_deg: float | None = None, *, wind_std_deg: float = 10.0, patchy: bool = False,
+                 particles: int = 3000, prior_radius_m: float = 60.0, prior_height_m: float = 15.0,
+                 amplitude_range: tuple = (0.05, 20.0), stability: str = "C", source_radius_m: float = 1.0,
+                 ground_alt_m: float = 0.0, noise_std: float = 0.01, background: float = 0.0,
+                 detection_floor: float = 0.0, rel_error: float = 0.3, hit_fraction: float = 0.6,
+                 hit_shape: float = 0.8, hit_log_sd: float = 1.3, false_hit: float = 0.01, temper: float = 0.35,
+                 region_m: float = 1.0, exploit_m: float | None = None, min_step_m: float = 1.0, max_step_m: float = 8.0,
+                 collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, seed: int = 0):
+        if stability not in BRIGGS_RURAL:
+            raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
+        if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
+            raise ValueError(f"wind_from_deg must be finite, got {wind_from_deg!r}")
+        for name, v in (("particles", particles), ("memory", memory), ("info_particles", info_particles)):
+            if isinstance(v, bool) or int(v) != v or v < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+        lo, hi = (_positive("amplitude_range", a) for a in amplitude_range)
+        if not lo < hi:
+            raise ValueError(f"amplitude_range must be increasing, got {amplitude_range!r}")
+        if not 0 < float(temper) <= 1:
+            raise ValueError(f"temper must be in (0, 1], got {temper!r}")
+        self.patchy, self.particles, self.memory = bool(patchy), int(particles), int(memory)
+        self.wind_from_deg = None if wind_from_deg is None else float(wind_from_deg)
+        self.wind_std_rad = np.deg2rad(_positive("wind_std_deg", wind_std_deg, allow_zero=True))
+        self.info_particles = int(info_particles)
+        self.log_amp = (np.log(lo), np.log(hi))
+        self.model = dict(stability=stability, s0_m=_positive("source_radius_m", source_radius_m),
+                          ground_alt_m=float(ground_alt_m), smooth=self.patchy)
+        self.prior_radius_m = _positive("prior_radius_m", prior_radius_m)
+        self.prior_height_m = _positive("prior_height_m", prior_height_m)
+        noise = _positive("noise_std", noise_std)
+        self.background = _positive("background", background, allow_zero=True)
+        self.threshold = max(3.0 * noise, _positive("detection_floor", detection_floor, allow_zero=True))
+        self.steady_kw = dict(background=self.background, noise_std=noise, rel_error=_positive("rel_error", rel_error))
+        self.patchy_kw = dict(threshold=self.threshold, pi0=_positive("hit_fraction", hit_fraction),
+                              beta=_positive("hit_shape", hit_shape), log_sd=_positive("hit_log_sd", hit_log_sd),
+                              eps=_positive("false_hit", false_hit))
+        self.temper, self.seed = float(temper), int(seed)
+        self.region_m = _positive("region_m", region_m)
+        self.exploit_m = self.region_m if exploit_m is None else _positive("exploit_m", exploit_m)
+        self.min_step_m, self.max_step_m = _positive("min_step_m", min_step_m), _positive("max_step_m", max_step_m)
+        self.collapse_nats = _positive("collapse_nats", collapse_nats)
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forget everything (a new run); the random numbers restart from ``seed``."""
+        self.rng = np.random.default_rng(self.seed)
+        self._k = None
+        self.arrival = None
+        self.estimate_enu = None
+        self.region95_m = None
+
+    def _init_state(self, c: np.ndarray) -> None:
+        k = c.shape[0]
+        self._k = k
+        self.parts = np.empty((k, self.particles, 5))
+        self.logw = np.zeros((k, self.particles))
+        self.collapses = np.zeros(k, dtype=int)
+        self.collapsed = np.zeros(k, dtype=bool)
+        self.hits = np.zeros(k, dtype=int)
+        self.since_collapse = np.full(k, self.memory + 1)
+        self.iterations = 0
+        self._buf: list = []
+        self._seed_prior(np.arange(k), c)
+
+    def _seed_prior(self, idx: np.ndarray, c: np.ndarray) -> None:
+        """Particles of trials ``idx`` drawn from the prior about centres ``c[idx]``, equal weights."""
+        n, p, rng = len(idx), self.particles, self.rng
+        r = self.prior_radius_m * np.sqrt(rng.uniform(0.0, 1.0, (n, p)))
+        phi = rng.uniform(0.0, 2.0 * np.pi, (n, p))
+        ground = self.model["ground_alt_m"] + 0.1
+        z_lo = np.maximum(c[idx, 2] - self.prior_height_m, ground)[:, None]
+        z_hi = np.maximum(c[idx, 2] + self.prior_height_m, ground + 1.0)[:, None]
+        parts = np.stack([c[idx, 0, None] + r * np.cos(phi), c[idx, 1, None] + r * np.sin(phi),
+                          rng.uniform(0.0, 1.0, (n, p)) * (z_hi - z_lo) + z_lo,
+                          rng.uniform(*self.log_amp, (n, p)), self._wind_prior((n, p))], axis=-1)
+        self.parts[idx] = parts
+        self.logw[idx] = -np.log(p)
+
+    def _wind_prior(self, shape) -> np.ndarray:
+        if self.wind_from_deg is None:
+            return self.rng.uniform(-np.pi, np.pi, shape)
+        toward = np.pi / 2.0 - np.deg2rad(self.wind_from_deg + 180.0)  # met "from", clockwise from N -> ENU angle
+        return toward + self.wind_std_rad * self.rng.standard_normal(shape)
+
+    # ------------------------------------------------------------------ the filter
+    def _loglik(self, parts: np.ndarray, p: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Per-reading log-likelihoods ``(K, P, M)`` of readings ``v`` (K, M) at ``p`` (K, M, 3)."""
+        mu, g = plume_mean(parts, p, **self.model)
+        if self.patchy:
+            return loglik_patchy(mu, g, v[:, None, :], background=self.background, **self.patchy_kw)
+        return loglik_steady(mu, v[:, None, :], **self.steady_kw)
+
+    def _update(self, c: np.ndarray, p: np.ndarray, v: np.ndarray) -> None:
+        """Fold the readings in (steps 1-2 of the module docstring)."""
+        ll = self._loglik(self.parts, p, v)
+        best = ll.mean(axis=2).max(axis=1)  # the best particle's mean log-likelihood per reading
+        collapsed = (-best > self.collapse_nats) & (v.shape[1] >= 4)
+        self.logw = self.logw + self.temper * ll.sum(axis=2)
+        self.collapsed = collapsed
+        self.since_collapse = np.where(collapsed, 0, self.since_collapse + 1)
+        if collapsed.any():
+            idx = np.flatnonzero(collapsed)
+            self.collapses[idx] += 1
+            self._seed_prior(idx, c)
+            for bp, bv in self._buf[-self.memory:] + [(p, v)]:
+                self.logw[idx] += self.temper * self._loglik(self.parts[idx], bp[idx], bv[idx]).sum(axis=2)
+        self.logw -= self.logw.max(axis=1, keepdims=True)
+        self.logw -= np.log(np.exp(self.logw).sum(axis=1, keepdims=True))
+        self._buf = (self._buf + [(p, v)])[-self.memory:]
+
+    def _circular(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean ``(K, 5)`` (the angle's circular mean) and deviations ``(K, P, 5)`` (wrapped)."""
+        th = self.parts[..., 4]
+        mean = np.einsum("kp,kpi->ki", w, self.parts)
+        mean[:, 4] = np.arctan2(np.einsum("kp,kp->k", w, np.sin(th)), np.einsum("kp,kp->k", w, np.cos(th)))
+        dev = self.parts - mean[:, None, :]
+        dev[..., 4] = (dev[..., 4] + np.pi) % (2.0 * np.pi) - np.pi
+        return mean, dev
+
+    def _resample(self, h: float = 0.2) -> None:
+        """Systematic resampling where the effective sample size is below half, then Liu-West roughening."""
+        w = np.exp(self.logw)
+        ess = 1.0 / np.sum(w * w, axis=1)
+        idx = np.flatnonzero(ess < 0.5 * self.particles)
+        if idx.size == 0:
+            return
+        pick = _systematic(w[idx], self.particles, self.rng.uniform(0.0, 1.0, idx.size))
+        mean, dev = self._circular(w)
+        cov = np.einsum("kp,kpi,kpj->kij", w, dev, dev)[idx] + np.diag(_FLOOR ** 2)
+        chol = np.linalg.cholesky(cov)
+        a = np.sqrt(1.0 - h * h)
+        chosen = np.take_along_axis(dev[idx], pick[..., None], axis=1)
+        noise = np.einsum("kij,kpj->kpi", chol, self.rng.standard_normal(chosen.shape))
+        new = mean[idx, None, :] + a * chosen + h * noise
+        new[..., 2] = np.maximum(new[..., 2], self.model["ground_alt_m"] + 0.1)
+        new[..., 3] = np.clip(new[..., 3], *self.log_amp)
+        self.parts[idx] = new
+        self.logw[idx] = -np.log(self.particles)
+
+    def _summarise(self) -> None:
+        """Posterior mean release point and the radius about it that holds 95 % of the weight."""
+        w = np.exp(self.logw)
+        mean = np.einsum("kp,kpi->ki", w, self.parts[..., :3])
+        d = np.linalg.norm(self.parts[..., :3] - mean[:, None, :], axis=-1)
+        order = np.argsort(d, axis=1)
+        cum = np.cumsum(np.take_along_axis(w, order, axis=1), axis=1)
+        at = np.minimum(np.argmax(cum >= 0.95, axis=1), self.particles - 1)
+        self.estimate_enu = mean
+        self.region95_m = np.take_along_axis(d, np.take_along_axis(order, at[:, None], 1), 1)[:, 0]
+        self.arrival = (self.region95_m <= self.region_m) & (self.since_collapse > self.memory)
+
+    # ------------------------------------------------------------------ the move
+    def _p_hit(self, parts: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """Each particle's probability of a hit at ``pts`` (K, M, 3): ``(K, P, M)`` (the move's outcome model)."""
+        mu, g = plume_mean(parts, pts, **self.model)
+        if self.patchy:
+            return hit_probability(mu, g, **self.patchy_kw)
+        sd = np.sqrt(self.steady_kw["noise_std"] ** 2 + (self.steady_kw["rel_error"] * mu) ** 2)
+        return ndtr((mu - self.threshold) / sd)
+
+    def _candidates(self, c: np.ndarray) -> np.ndarray:
+        """Candidate centres ``(K, 8, 3)`` (module docstring, step 5)."""
+        w = np.exp(self.logw)
+        th = np.arctan2(np.einsum("kp,kp->k", w, np.sin(self.parts[..., 4])),
+                        np.einsum("kp,kp->k", w, np.cos(self.parts[..., 4])))
+        up = np.stack([-np.cos(th), -np.sin(th), np.zeros_like(th)], axis=1)
+        cross = np.stack([-up[:, 1], up[:, 0], np.zeros_like(th)], axis=1)
+        vert = np.broadcast_to([0.0, 0.0, 1.0], up.shape)
+        step = np.clip(0.5 * self.region95_m, self.min_step_m, self.max_step_m)[:, None]
+        to_mean = self.estimate_enu - c
+        dist = np.linalg.norm(to_mean, axis=1, keepdims=True)
+        toward = c + to_mean * np.minimum(1.0, step / np.maximum(dist, 1e-9))
+        dirs = [np.zeros_like(up), up, -up, cross, -cross, 0.5 * vert, -0.5 * vert]
+        return np.stack([c + step * d for d in dirs] + [toward], axis=1)
+
+    def _next_centre(self, c: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """The candidate with the most expected information, or the posterior mean (step 5)."""
+        k, s = c.shape[0], min(self.info_particles, self.particles)
+        cand = self._candidates(c)
+        w = np.exp(self.logw)
+        pick = _systematic(w, s, self.rng.uniform(0.0, 1.0, k))
+        sub = np.take_along_axis(self.parts, pick[..., None], axis=1)
+        off = p - c[:, None, :]
+        pts = (cand[:, :, None, :] + off[:, None, :, :]).reshape(k, -1, 3)
+        q = self._p_hit(sub, pts)  # (K, S, C * N)
+        info = (_entropy2(q.mean(axis=1)) - _entropy2(q).mean(axis=1)).reshape(k, cand.shape[1], -1).sum(axis=2)
+        best = np.take_along_axis(cand, np.argmax(info, axis=1)[:, None, None], axis=1)[:, 0]
+        return np.where((self.region95_m < self.exploit_m)[:, None], self.estimate_enu, best)
+
+    def propose(self, centre, positions, values) -> np.ndarray:
+        """Next centres ``(K, 3)`` from centres ``(K, 3)``, positions ``(K, N, 3)``, readings ``(K, N)``."""
+        c, p, v = seeker_inputs(centre, positions, values)
+        if self._k != c.shape[0]:
+            self._init_state(c)
+        self.iterations += 1
+        self.hits += np.sum(v - self.background > self.threshold, axis=1)
+        self._update(c, p, v)
+        self._summarise()
+        nxt = self._next_centre(c, p)
+        self._resample()
+        return nxt
