@@ -8,7 +8,9 @@ resumable only while its mock fleet still runs, i.e. in-process (the tests do th
 :func:`resume`). A log that ends after the seek (``return``, ``finish``, ``done``, a summary)
 is taken over to bring the vehicles still flying home (outcome ``recovered``). Exit status: 0
 converged, or recovered with every vehicle down or landing; 1 not converged / aborted / a
-vehicle left airborne; 2 the log or plan cannot be resumed; 130 / 143 interrupted (SIGINT / SIGTERM).
+vehicle left airborne; 2 the log or plan cannot be resumed; 129 / 130 / 141 / 143 stopped by
+SIGHUP / SIGINT / SIGPIPE / SIGTERM, 74 the mission log could not be written (as ``fly``: the
+same stop handlers, :mod:`mission.flight.operator_stop`, and a best-effort terminal).
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
 
 
-async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: bool = True):
+async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: bool = True, terminal=None):
     """Resume the mission of ``log_path``; returns the MissionResult.
 
     Parameters
@@ -45,6 +47,8 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     display : mission.telemetry.display.Display, optional
     tlog : bool
         Write ``.tlog`` files next to the log (``tlogs/``, appended).
+    terminal : mission.telemetry.terminal.Terminal, optional
+        Its losses are told to the mission log.
 
     Raises
     ------
@@ -59,6 +63,7 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     from mission.link.forward import forwarding
     from mission.telemetry.watch_keys import with_keys
     from mission.telemetry.mission_log import MissionLog
+    from mission.telemetry.terminal import told_to
     from mission.flight.resume import load_resume_state
 
     log_path = Path(log_path)
@@ -67,10 +72,11 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     log = MissionLog(log_path, clock)
     session = None
     try:
-        session = zenoh.open(state.plan.zenoh.to_config())
-        co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
-                         tlog_dir=log_path.parent / "tlogs" if tlog else None)
-        return await forwarding(co, with_keys(co, display, run_until_stopped(co, state)))  # as fly
+        with told_to(terminal, log):
+            session = zenoh.open(state.plan.zenoh.to_config())
+            co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
+                             tlog_dir=log_path.parent / "tlogs" if tlog else None)
+            return await forwarding(co, with_keys(co, display, run_until_stopped(co, state)))  # as fly
     finally:
         log.close()
         if session is not None:
@@ -78,7 +84,14 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
 
 
 def main(args) -> int:
-    """Resume the mission of ``args.log``."""
+    """Resume the mission of ``args.log`` (the terminal best effort: :mod:`mission.telemetry.terminal`)."""
+    from mission.telemetry.terminal import best_effort_terminal
+
+    with best_effort_terminal() as terminal:
+        return _main(args, terminal)
+
+
+def _main(args, terminal) -> int:
     from mission.telemetry.display import Display, report_result
     from mission.core.plan import PlanError, load_plan
     from mission.flight.resume import ResumeError
@@ -100,7 +113,8 @@ def main(args) -> int:
 
     display = Display(quiet=args.json)
     try:
-        result = asyncio.run(resume(args.log, plan=plan, display=display, tlog=not args.no_tlog))
+        result = asyncio.run(resume(args.log, plan=plan, display=display, tlog=not args.no_tlog,
+                                    terminal=terminal))
     except ResumeError as exc:
         print(f"swarmseek resume: {exc}", file=sys.stderr)
         return 2
