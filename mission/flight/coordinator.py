@@ -191,9 +191,15 @@ class Coordinator:
         self.event(message, level="error")
 
     def say(self, text: str) -> None:
-        """Show a line above the live display."""
-        if self.display is not None:
+        """Show a line above the live display; a display that fails is turned off (told in the log)."""
+        if self.display is None:
+            return
+        try:
             self.display.message(text)
+        except Exception as exc:  # noqa: BLE001 - the mission never stops for its display
+            self.display = None
+            self.event(f"the live display failed ({type(exc).__name__}: {exc}): it is off for the rest of "
+                       "the mission (this log has everything)", level="error")
 
     def update_odometry(self) -> None:
         """Accumulate each vehicle's flown distance from telemetry."""

@@ -5,7 +5,8 @@ for SIGINT, SIGTERM and SIGHUP on the running event loop (main thread only; else
 keep their default behaviour), and for a SIGPIPE sent by another process (``kill -PIPE``; see
 :mod:`mission.telemetry.terminal`: the SIGPIPE a write to a closed pipe raises is not a stop).
 SIGHUP is what a closed SSH session or terminal sends: the mission's terminal may be gone, so
-everything said about it is best effort (:func:`mission.telemetry.terminal.alert`). A mission log
+everything said about it is best effort (:mod:`mission.telemetry.terminal`); under ``nohup``
+(SIGHUP ignored from the start) it stays ignored. A mission log
 that cannot be written any more (disk full, file size limit...) stops the mission the same way,
 with a loud message on whatever output still works.
 
@@ -94,9 +95,14 @@ async def run_until_stopped(co, resume_state=None):
 
 
 def _install(loop, on_signal) -> list:
-    """``on_signal(sig)`` as the loop's handler of each stop signal it can take; those installed."""
+    """``on_signal(sig)`` as the loop's handler of each stop signal it can take; those installed.
+
+    A SIGHUP ignored when the process started (``nohup``) stays ignored: the operator asked for
+    the mission to outlive the terminal."""
     installed = []
     for sig in _STOP_SIGNALS:
+        if sig == signal.SIGHUP and signal.getsignal(sig) == signal.SIG_IGN:
+            continue
         try:
             loop.add_signal_handler(sig, on_signal, sig)
         except (NotImplementedError, RuntimeError, ValueError):
