@@ -13,7 +13,7 @@ import sys
 __all__ = ["COMMANDS", "build_parser", "main", "version_text"]
 
 #: the commands that fly a mission: SIGPIPE is blocked before anything starts a thread
-#: (:func:`mission.telemetry.terminal.block_sigpipe`; docs/faults.md)
+#: (:func:`mission.telemetry.terminal.sigpipe_blocked`; docs/faults.md)
 FLYING_COMMANDS = ("run", "fly", "resume")
 
 #: subcommand -> (module, one-line help)
@@ -77,9 +77,15 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:
         argv = sys.argv[1:]
     if next((a for a in argv if not a.startswith("-")), None) in FLYING_COMMANDS:
-        from mission.telemetry.terminal import block_sigpipe
+        from mission.telemetry.terminal import sigpipe_blocked
 
-        block_sigpipe()  # before numpy, zenoh... start their threads: they all inherit it
+        with sigpipe_blocked():  # before numpy, zenoh... start their threads: they all inherit it
+            return _main(argv)
+    return _main(argv)
+
+
+def _main(argv: list[str]) -> int:
+    """Parse ``argv`` and run the chosen command; its exit status."""
     parser = build_parser(argv)
     args, extra = parser.parse_known_args(argv)
     if extra:  # after the command: the subcommand's usage and error, not the top level's

@@ -11,7 +11,7 @@ told once to the mission log (:meth:`Terminal.attach_log`), which holds everythi
 would have shown.
 
 SIGPIPE: Python ignores it (a write to a closed pipe raises EPIPE instead). The commands that fly
-also *block* it (:func:`block_sigpipe`) in the main thread before any other thread starts, so in
+also *block* it (:func:`sigpipe_blocked`) in the main thread before any other thread starts, so in
 every thread (numpy's, zenoh's, the mock fleet's): a SIGPIPE that another process sends
 (``kill -PIPE``) then stays pending for :func:`mission.flight.operator_stop.run_until_stopped`,
 which tells it apart from the SIGPIPE a write of this process raises (that one stays pending on
@@ -26,7 +26,8 @@ import sys
 from collections.abc import Iterator
 from typing import IO, Callable
 
-__all__ = ["TerminalStream", "Terminal", "best_effort_terminal", "alert", "told_to", "block_sigpipe"]
+__all__ = ["TerminalStream", "Terminal", "best_effort_terminal", "alert", "told_to", "block_sigpipe",
+           "sigpipe_blocked"]
 
 
 class TerminalStream:
@@ -149,25 +150,36 @@ def best_effort_terminal() -> Iterator[Terminal]:
     saved = sys.stdout, sys.stderr
     term = Terminal(sys.stdout, sys.stderr)
     sys.stdout, sys.stderr = term.out, term.err
-    blocked = block_sigpipe()
     try:
-        yield term
+        with sigpipe_blocked():
+            yield term
     finally:
         term.out.flush()
         term.err.flush()
         sys.stdout, sys.stderr = saved
-        if blocked:  # a SIGPIPE of our own writes still pending is discarded: Python ignores it
+
+
+@contextlib.contextmanager
+def sigpipe_blocked() -> Iterator[bool]:
+    """SIGPIPE blocked (:func:`block_sigpipe`) in this context, unblocked after if blocked here;
+    yields whether it was. A SIGPIPE of our own writes still pending when it is unblocked is
+    discarded: Python ignores SIGPIPE.
+
+    Threads inherit the mask of the thread that starts them: ``swarmseek run``/``fly``/``resume``
+    enter this first thing (:func:`mission.cli.main`), before numpy's and zenoh's threads exist, so
+    that a SIGPIPE sent to the process can only be taken by
+    :func:`mission.flight.operator_stop.run_until_stopped`'s waiter."""
+    blocked = block_sigpipe()
+    try:
+        yield blocked
+    finally:
+        if blocked:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGPIPE])
 
 
 def block_sigpipe() -> bool:
     """Block SIGPIPE in this thread if it is the main one and SIGPIPE is ignored (Python's
-    default); True when blocked here (False: not the main thread, or already blocked).
-
-    Threads inherit the mask of the thread that starts them: ``swarmseek run``/``fly``/``resume``
-    call this first thing (:func:`mission.cli.main`), before numpy's and zenoh's threads exist, so
-    that a SIGPIPE sent to the process can only be taken by
-    :func:`mission.flight.operator_stop.run_until_stopped`'s waiter."""
+    default); True when blocked here (False: not the main thread, or already blocked)."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
