@@ -12,6 +12,10 @@ import sys
 
 __all__ = ["COMMANDS", "build_parser", "main", "version_text"]
 
+#: the commands that fly a mission: SIGPIPE is blocked before anything starts a thread
+#: (:func:`mission.telemetry.terminal.sigpipe_blocked`; docs/faults.md)
+FLYING_COMMANDS = ("run", "fly", "resume")
+
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("mission.cli.cmd_run", "fly the whole source-seeking mission against an embedded mock swarm"),
@@ -85,6 +89,16 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``swarmseek`` console command."""
     if argv is None:
         argv = sys.argv[1:]
+    if next((a for a in argv if not a.startswith("-")), None) in FLYING_COMMANDS:
+        from mission.telemetry.terminal import sigpipe_blocked
+
+        with sigpipe_blocked():  # before numpy, zenoh... start their threads: they all inherit it
+            return _main(argv)
+    return _main(argv)
+
+
+def _main(argv: list[str]) -> int:
+    """Parse ``argv`` and run the chosen command; its exit status."""
     parser = build_parser(argv)
     args, extra = parser.parse_known_args(argv)
     if extra:  # after the command: the subcommand's usage and error, not the top level's

@@ -2,8 +2,11 @@
 
 Readings come over zenoh (e.g. one ``swarmseek sensor`` per vehicle) on the plan's endpoints;
 the mission clock is the wall clock. Exit status: 0 converged, 1 not converged or aborted
-(also: not ready to seek, nothing armed), 2 invalid plan or options, 130 / 143 interrupted by
-SIGINT / SIGTERM (the first brings the vehicles home, a second lands them where they are).
+(also: not ready to seek, nothing armed), 2 invalid plan or options, 129 / 130 / 141 / 143
+stopped by SIGHUP / SIGINT / SIGPIPE sent by another process / SIGTERM (the first brings the
+vehicles home, a second lands them where they are), 74 the mission log could not be written (the
+vehicles were brought home). The terminal is best effort (:mod:`mission.telemetry.terminal`): a
+closed stdout or stderr never stops the mission. See docs/faults.md, "The ground station's own faults".
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
 from mission.flight.operator_stop import run_until_stopped
 from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.terminal import best_effort_terminal, told_to
 from mission.telemetry.watch_keys import with_keys
 from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
 from sitl_mock.cli_args import path_arg
@@ -39,21 +43,24 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
 
 
-async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True, forward_addresses=None):
+async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True, forward_addresses=None,
+              terminal=None):
     """Open the plan's zenoh session, fly the mission, close; returns the MissionResult.
 
     ``forward_addresses``: the plan's ``[forward] out`` resolved before the loop started
     (:func:`mission.link.forward.resolve_outs`; any missing are resolved before connecting).
+    ``terminal``: the :class:`~mission.telemetry.terminal.Terminal` whose losses the mission log tells.
     """
     clock = clock or WallClock()
     log = MissionLog(Path(log_dir) / "mission.jsonl", clock)
     session = None
     try:
-        session = await open_session(plan.zenoh)  # off the loop
-        co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
-                         tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
-        return await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal
-                                forward_addresses)
+        with told_to(terminal, log):
+            session = await open_session(plan.zenoh)  # off the loop
+            co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
+                             tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
+            return await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal
+                                    forward_addresses)
     finally:
         log.close()
         if session is not None:
@@ -61,7 +68,12 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
 
 
 def main(args) -> int:
-    """Load the plan and fly it."""
+    """Load the plan and fly it (the terminal best effort: :mod:`mission.telemetry.terminal`)."""
+    with best_effort_terminal() as terminal:
+        return _main(args, terminal)
+
+
+def _main(args, terminal) -> int:
     from mission.telemetry.display import Display, report_result
     from mission.core.plan import PlanError, load_plan
 
@@ -92,7 +104,7 @@ def main(args) -> int:
     display = Display(quiet=args.json)
     try:
         result = asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog,
-                                 forward_addresses=addresses))
+                                 forward_addresses=addresses, terminal=terminal))
     except zenoh.ZError as exc:
         from mission.core.zenoh_errors import zenoh_open_message
 

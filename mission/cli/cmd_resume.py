@@ -10,7 +10,9 @@ just stop) seeks on; every other ending (finished, returning, aborted, interrupt
 return: :mod:`mission.flight.resume_endings`) is taken over to bring the vehicles still flying home
 (outcome ``recovered``). Exit status: 0 converged, or recovered with every vehicle down or landing
 and none left armed; 1 not converged / aborted / a
-vehicle left airborne; 2 the log or plan cannot be resumed; 130 / 143 interrupted (SIGINT / SIGTERM).
+vehicle left airborne; 2 the log or plan cannot be resumed; 129 / 130 / 141 / 143 stopped by
+SIGHUP / SIGINT / SIGPIPE / SIGTERM, 74 the mission log could not be written (as ``fly``: the
+same stop handlers, :mod:`mission.flight.operator_stop`, and a best-effort terminal).
 """
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ from mission.flight.coordinator import Coordinator
 from mission.flight.operator_stop import run_until_stopped
 from mission.flight.resume import load_resume_state
 from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.terminal import best_effort_terminal, told_to
 from mission.telemetry.watch_keys import with_keys
 from sitl_mock.cli_args import path_arg
 
@@ -45,7 +48,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: bool = True,
-                 forward_addresses=None):
+                 forward_addresses=None, terminal=None):
     """Resume the mission of ``log_path``; returns the MissionResult.
 
     Parameters
@@ -62,6 +65,8 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     forward_addresses : dict, optional
         The plan's ``[forward] out`` resolved before the loop started
         (:func:`mission.link.forward.resolve_outs`; any missing are resolved before connecting).
+    terminal : mission.telemetry.terminal.Terminal, optional
+        Its losses are told to the mission log.
 
     Raises
     ------
@@ -75,11 +80,12 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     log = MissionLog(log_path, clock)
     session = None
     try:
-        session = await open_session(state.plan.zenoh)  # off the loop
-        co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
-                         tlog_dir=log_path.parent / "tlogs" if tlog else None)
-        return await forwarding(co, with_keys(co, display, run_until_stopped(co, state)),  # as fly
-                                forward_addresses)
+        with told_to(terminal, log):
+            session = await open_session(state.plan.zenoh)  # off the loop
+            co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
+                             tlog_dir=log_path.parent / "tlogs" if tlog else None)
+            return await forwarding(co, with_keys(co, display, run_until_stopped(co, state)),  # as fly
+                                    forward_addresses)
     finally:
         log.close()
         if session is not None:
@@ -87,7 +93,12 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
 
 
 def main(args) -> int:
-    """Resume the mission of ``args.log``."""
+    """Resume the mission of ``args.log`` (the terminal best effort: :mod:`mission.telemetry.terminal`)."""
+    with best_effort_terminal() as terminal:
+        return _main(args, terminal)
+
+
+def _main(args, terminal) -> int:
     from mission.telemetry.display import Display, report_result
     from mission.core.plan import PlanError, load_plan
     from mission.flight.resume import ResumeError
@@ -121,7 +132,7 @@ def main(args) -> int:
     display = Display(quiet=args.json)
     try:
         result = asyncio.run(resume(args.log, plan=plan, display=display, tlog=not args.no_tlog,
-                                    forward_addresses=addresses))
+                                    forward_addresses=addresses, terminal=terminal))
     except ResumeError as exc:
         print(f"swarmseek resume: {exc}", file=sys.stderr)
         return 2

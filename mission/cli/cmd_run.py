@@ -5,7 +5,8 @@ With no options: 8 PX4-personality mock vehicles, CVT formation of radius 4 m, t
 :mod:`mission.sim.embedded` for the defaults and the choice of ``eps``), the ``model`` seeker sampling
 while moving (:mod:`mission.flight.seek_moving`). Shows live progress, writes
 the mission log (and one ``.tlog`` per vehicle) under ``--log-dir``; exits 0 when the mission
-converged, 1 otherwise.
+converged, 1 otherwise (stops by a signal or a failing mission log: as ``fly``, 129, 130, 141, 143,
+74). The terminal is best effort (:mod:`mission.telemetry.terminal`).
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from mission.flight.operator_stop import run_until_stopped
 from mission.flight.result import geodetic_point
 from mission.sim.fleet_report import vehicle_rejections
 from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.terminal import best_effort_terminal, told_to
 from mission.telemetry.watch_keys import with_keys
 
 import numpy as np
@@ -249,42 +251,43 @@ def _make_fleet(args, plan, ports, field, clock):
     return fleet
 
 
-async def _fly(args, plan, fleet, setup, display, world=None):
+async def _fly(args, plan, fleet, setup, display, world=None, terminal=None):
     """Fly ``plan`` against the started ``fleet`` (``args.log_dir`` created, ``args.forward_addresses``
-    resolved: :func:`main`); returns the MissionResult."""
+    resolved: :func:`main`); returns the MissionResult (``terminal``: see :func:`mission.cli.cmd_fly.fly`)."""
     source, start, eps = setup
     log_dir = Path(args.log_dir)
     session = None
     log = MissionLog(log_dir / "mission.jsonl", fleet.clock)
     try:
-        session = await open_session(plan.zenoh)  # off the loop
-        log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field,
-                  field_model=repr(fleet.field), sensor_response=args.sensor_response,
-                  source_enu=source, start_enu=start, noise=args.noise,
-                  clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
-                  eps=eps, gamma_m=args.gamma, seeker=args.seeker, sampling=plan.seeking.sampling, seed=args.seed)
-        co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, display=display,
-                         tlog_dir=None if args.no_tlog else log_dir / "tlogs")
-        if world is not None:
-            world.store = co.store
-        result = await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal
-                                  getattr(args, "forward_addresses", None))
-        result.true_source_enu = [float(x) for x in source]
-        result.true_source_geodetic = geodetic_point(plan.origin, source)
-        if result.estimate_enu is not None:
-            result.error_m = float(np.linalg.norm(np.asarray(result.estimate_enu) - source))
-        result.vehicle_rejections = vehicle_rejections(fleet)
-        log.write("truth", sync=True, source_enu=source, source_geodetic=result.true_source_geodetic,
-                  error_m=result.error_m,
-                  vehicle_rejections=result.vehicle_rejections)
-        return result
+        with told_to(terminal, log):
+            session = await open_session(plan.zenoh)  # off the loop
+            log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field,
+                      field_model=repr(fleet.field), sensor_response=args.sensor_response,
+                      source_enu=source, start_enu=start, noise=args.noise,
+                      clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
+                      eps=eps, gamma_m=args.gamma, seeker=args.seeker, sampling=plan.seeking.sampling, seed=args.seed)
+            co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, display=display,
+                             tlog_dir=None if args.no_tlog else log_dir / "tlogs")
+            if world is not None:
+                world.store = co.store
+            result = await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal
+                                      getattr(args, "forward_addresses", None))
+            result.true_source_enu = [float(x) for x in source]
+            result.true_source_geodetic = geodetic_point(plan.origin, source)
+            if result.estimate_enu is not None:
+                result.error_m = float(np.linalg.norm(np.asarray(result.estimate_enu) - source))
+            result.vehicle_rejections = vehicle_rejections(fleet)
+            log.write("truth", sync=True, source_enu=source, source_geodetic=result.true_source_geodetic,
+                      error_m=result.error_m,
+                      vehicle_rejections=result.vehicle_rejections)
+            return result
     finally:
         log.close()
         if session is not None:
             session.close()
 
 
-def run_embedded(args, display=None):
+def run_embedded(args, display=None, terminal=None):
     """Start the mock fleet, fly the mission, stop everything; returns the MissionResult.
 
     ``args`` as :func:`main` leaves them: with ``log_dir`` (created by
@@ -313,9 +316,9 @@ def run_embedded(args, display=None):
     fleet.start(thread=realtime)
     try:
         if realtime:
-            return asyncio.run(_fly(args, plan, fleet, (source, start, eps), display))
+            return asyncio.run(_fly(args, plan, fleet, (source, start, eps), display, terminal=terminal))
         world = EmbeddedWorld(fleet)
-        result = run_lockstep(lambda: _fly(args, plan, fleet, (source, start, eps), display, world),
+        result = run_lockstep(lambda: _fly(args, plan, fleet, (source, start, eps), display, world, terminal),
                               clock, world)
         if world.stalls:
             print(f"swarmseek run: warning: {world.stalls} lock-step waits for zenoh ran out "
@@ -336,7 +339,12 @@ def _resolve_outs(args) -> str | None:
 
 
 def main(args) -> int:
-    """Run the embedded mission; 0 if it converged, 1 if not, 2 for bad options."""
+    """Run the embedded mission; 0 if it converged, 1 if not, 2 for bad options (stops: as ``fly``)."""
+    with best_effort_terminal() as terminal:
+        return _main(args, terminal)
+
+
+def _main(args, terminal) -> int:
     from mission.telemetry.display import Display, report_result
 
     from mission.cli.paths import announce_log, mission_log_dir, summary_log_line
@@ -352,7 +360,7 @@ def main(args) -> int:
     announce_log("run", args.log_dir / "mission.jsonl", args.json)
     display = Display(quiet=args.json)
     try:
-        result = run_embedded(args, display=display)
+        result = run_embedded(args, display=display, terminal=terminal)
     except (OSError, zenoh.ZError) as exc:
         print(f"swarmseek run: cannot start the embedded fleet or zenoh: {exc}", file=sys.stderr)
         return 1

@@ -252,6 +252,6 @@ def open_control_channel(co):
         return None
     from mission.telemetry.control_channel import ControlChannel
 
-    channel = ControlChannel(co.session, co.plan.fleet, co.command)
+    channel = ControlChannel(co.session, co.plan.fleet, co.command, report=co.task_failed)
     channel.start()
     return channel

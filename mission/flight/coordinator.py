@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import numpy as np
 
-from mission.core.clock import cancel_and_wait
+from mission.core.tasks import spawn, stop_watched
 from mission.core.plan import Plan
 from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
@@ -187,10 +187,20 @@ class Coordinator:
             self.log.event(message, level=level, **fields)
         self.say(("" if level == "info" else f"{level.upper()}: ") + message)
 
+    def task_failed(self, message: str) -> None:
+        """A background task failed (:func:`mission.core.tasks.watch_task`): an error event."""
+        self.event(message, level="error")
+
     def say(self, text: str) -> None:
-        """Show a line above the live display."""
-        if self.display is not None:
+        """Show a line above the live display; a display that fails is turned off (told in the log)."""
+        if self.display is None:
+            return
+        try:
             self.display.message(text)
+        except Exception as exc:  # noqa: BLE001 - the mission never stops for its display
+            self.display = None
+            self.event(f"the live display failed ({type(exc).__name__}: {exc}): it is off for the rest of "
+                       "the mission (this log has everything)", level="error")
 
     def update_odometry(self) -> None:
         """Accumulate each vehicle's flown distance from telemetry."""
@@ -258,23 +268,24 @@ class Coordinator:
         from mission.telemetry.state_pub import StatePublisher
 
         if self._watchdog_task is None:
-            self._watchdog_task = asyncio.get_running_loop().create_task(watchdog(self))
+            self._watchdog_task = spawn(watchdog(self), "the watchdog", self.task_failed)
         if self._loss_task is None:
-            self._loss_task = asyncio.get_running_loop().create_task(watch_losses(self))
+            self._loss_task = spawn(watch_losses(self), "the loss detection", self.task_failed)
 
         if self.session is not None and self._subscriber is None:
             self._subscriber = ReadingSubscriber(self.session, self.store)
         if self._state_pub is None:
             self._state_pub = StatePublisher(
                 self.session, self.plan.fleet, self.snapshot, rate_hz=self.state_rate_hz,
-                on_snapshot=self.display.update if self.display is not None else None)
+                on_snapshot=self.display.update if self.display is not None else None,
+                report=self.task_failed)
             self._state_pub.start()
         if self._control_channel is None:
             self._control_channel = open_control_channel(self)
 
     async def _stop_background(self) -> None:
         for name in ("_watchdog_task", "_loss_task"):
-            await cancel_and_wait(getattr(self, name))
+            await stop_watched(getattr(self, name))  # a failure was told when it happened
             setattr(self, name, None)
         if self.ramp is not None:
             await self.ramp.stop()
@@ -284,7 +295,10 @@ class Coordinator:
             except Exception as exc:  # noqa: BLE001 - stopping must go on; say what failed
                 self.event(f"stopping the setpoint streamer failed: {exc!r}", level="warning")
         if self._control_channel is not None:
-            await self._control_channel.stop()
+            try:
+                await self._control_channel.stop()
+            except Exception as exc:  # noqa: BLE001 - e.g. the zenoh session is gone; stopping goes on
+                self.event(f"closing the operator's control channel failed: {exc!r}", level="warning")
             self._control_channel = None
         if self._state_pub is not None:
             await self._state_pub.stop()
@@ -357,18 +371,28 @@ class Coordinator:
             self.event(message)
         except MissionError as exc:
             outcome, message = "aborted", str(exc)
-            self.set_phase("aborted", reason=message)
-            self.event(message, level="error")
+            self._aborting(message)
         except Exception as exc:  # noqa: BLE001 - anything unexpected: still bring the vehicles home
             import traceback
 
             outcome, message = "aborted", f"unexpected error in phase {self.phase}: {type(exc).__name__}: {exc}"
-            self.set_phase("aborted", reason=message)
-            self.event(message, level="error", traceback=traceback.format_exc())
+            self._aborting(message, traceback=traceback.format_exc())
         except asyncio.CancelledError:  # Ctrl-C, SIGTERM, a cancelled task: mission_end counts them
             return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self),
                                            interrupted=True)
         return await mission_end.close(self, outcome, message)
+
+    def _aborting(self, message: str, **fields) -> None:
+        """Enter the ``aborted`` phase and say why; whatever fails in saying it, the mission's end
+        (return, landing, summary: :func:`mission.flight.mission_end.close`) still follows."""
+        try:
+            self.set_phase("aborted", reason=message)
+            self.event(message, level="error", **fields)
+        except Exception as exc:  # noqa: BLE001 - the vehicles come home first; told on stderr
+            from mission.telemetry.terminal import alert
+
+            alert(f"swarmseek: mission aborted ({message}); telling it failed too "
+                  f"({type(exc).__name__}: {exc}); the vehicles are brought home")
 
     async def _return_safely(self) -> None:
         if not self.airborne:

@@ -7,7 +7,7 @@ ends the mission
 * **landing**: armed under a landing behaviour of its autopilot, confirmed by its own heartbeat
   (RTL / SMART_RTL / LAND, PX4 ``AUTO.RTL`` / ``AUTO.LAND``: :data:`mission.flight.modes.LEFT_MODES`), or
 * **reported**: still airborne (armed in another mode, or not heard any more while it was):
-  the operator is told loudly (standard error and an ``airborne_left`` record in the mission log:
+  the operator is told loudly (standard error, else standard output, and an ``airborne_left`` record in the mission log:
   which vehicles, where, in which mode, and what to do).
 
 :func:`secure` runs at the end of :meth:`mission.flight.coordinator.Coordinator.run` on every
@@ -20,11 +20,11 @@ once, where it is (no return flight). See ``docs/faults.md``.
 from __future__ import annotations
 
 import asyncio
-import sys
 
 import numpy as np
 
 from mission.flight.modes import LEFT_MODES
+from mission.telemetry.terminal import alert
 
 __all__ = ["ADVICE", "DISARM_TIMEOUT_S", "DISARM_COMMAND_AFTER_S", "await_disarm", "engaged_vehicles", "verdict",
            "secure", "land_now", "report_airborne", "report_still_armed", "still_armed"]
@@ -95,7 +95,7 @@ def report_airborne(co, entries: list[dict], why: str) -> None:
         lines.append(f"  vehicle {e['sysid']} ({e.get('id')}): {e.get('state', '')}; {where}; "
                      f"ENU {e.get('position_enu')}")
     lines.append(f"  what to do: {ADVICE}")
-    print("\n".join(lines), file=sys.stderr, flush=True)
+    alert("\n".join(lines))  # standard error, else standard output (mission.telemetry.terminal)
     if co.log is not None:
         co.log.write("airborne_left", sync=True, vehicles=entries, reason=why, advice=ADVICE)
     co.event(f"vehicles {who} left AIRBORNE: {why}; {ADVICE}", level="error", sysids=who)

@@ -33,6 +33,7 @@ import functools
 
 import numpy as np
 
+from mission.core.tasks import spawn
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.motion import keep_out, transfer_to
 from mission.flight.obstacles import OBSTACLE_MARGIN_M, clear_offsets, obstacles
@@ -232,7 +233,7 @@ def _declare_lost(co, loss: VehicleLoss) -> None:
              latency_s=round(loss.latency_s, 3), detected_s=loss.detected_s, since_s=loss.since_s)
     v = co.vehicles.get(sysid)
     if v is not None and loss.reason == "left" and v.state.armed and v.state.mode == GUIDED_MODES.get(v.flavour):
-        asyncio.get_running_loop().create_task(_settle_released(co, sysid, v))
+        spawn(_settle_released(co, sysid, v), f"settling released vehicle {sysid}", co.task_failed)
 
 
 async def _settle_released(co, sysid: int, v) -> None:

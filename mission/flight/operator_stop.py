@@ -1,51 +1,85 @@
-"""Ctrl-C and SIGTERM during a mission: told to the operator, counted, never abandoning a vehicle.
+"""Signals and a failing mission log during a mission: told, counted, never abandoning a vehicle.
 
 :func:`run_until_stopped` runs :meth:`~mission.flight.coordinator.Coordinator.run` with handlers
-for SIGINT and SIGTERM on the running event loop (main thread only; elsewhere the signals keep
-their default behaviour). Each signal cancels the mission's task once; what a cancellation does
-depends on how many came before (:mod:`mission.flight.mission_end`): the first brings the
-vehicles home (the plan's ``return``), the second lands them where they are, the third stops
-waiting for the LAND confirmations. The mission log always gets its ``summary``; the result's
-outcome is then ``interrupted`` (unless the mission had ended before the first signal) and
-:func:`exit_status` gives 130 (SIGINT) or 143 (SIGTERM).
+for SIGINT, SIGTERM and SIGHUP on the running event loop (main thread only; elsewhere the signals
+keep their default behaviour), and for a SIGPIPE sent by another process (``kill -PIPE``; see
+:mod:`mission.telemetry.terminal`: the SIGPIPE a write to a closed pipe raises is not a stop).
+SIGHUP is what a closed SSH session or terminal sends: the mission's terminal may be gone, so
+everything said about it is best effort (:mod:`mission.telemetry.terminal`); under ``nohup``
+(SIGHUP ignored from the start) it stays ignored. A mission log
+that cannot be written any more (disk full, file size limit...) stops the mission the same way,
+with a loud message on whatever output still works.
+
+Each stop cancels the mission's task once; what a cancellation does depends on how many came
+before (:mod:`mission.flight.mission_end`): the first brings the vehicles home (the plan's
+``return``), the second lands them where they are, the third stops waiting for the LAND
+confirmations. The mission log always gets its ``summary`` (when it can still be written); the
+result's outcome is then ``interrupted`` (unless the mission had ended before the first stop)
+and :func:`exit_status` gives the status of :data:`SIGNAL_EXIT`.
 """
 from __future__ import annotations
 
 import asyncio
+import os
 import signal
 import sys
+import threading
 
-__all__ = ["run_until_stopped", "exit_status", "SIGNAL_EXIT"]
+from mission.telemetry.terminal import alert
 
-#: exit status of a command stopped by a signal (128 + the signal number, as a shell reports it)
-SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
+__all__ = ["run_until_stopped", "exit_status", "SIGNAL_EXIT", "LOG_FAILURE"]
+
+#: what stopped the mission when its log could not be written (in ``interrupted_by``)
+LOG_FAILURE = "LOG_WRITE_FAILED"
+
+#: exit status of a command stopped by a signal (128 + the signal number, as a shell reports it),
+#: or by its mission log failing (74, ``EX_IOERR`` of sysexits.h)
+SIGNAL_EXIT = {"SIGHUP": 129, "SIGINT": 130, "SIGPIPE": 141, "SIGTERM": 143, LOG_FAILURE: 74}
+
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+#: phases in which the vehicles are already on their way home: a log failure then stops nothing
+_ENDING = ("finish", "aborted", "return", "done")
 
 _TOLD = {1: "stopping the mission: every vehicle returns (Ctrl-C again: LAND them where they are)",
          2: "LANDING every vehicle where it is now (Ctrl-C again: stop waiting for the confirmations)"}
 
 
 async def run_until_stopped(co, resume_state=None):
-    """``co.run(resume_state)`` under SIGINT/SIGTERM handlers; returns the MissionResult.
+    """``co.run(resume_state)`` under the stop handlers; returns the MissionResult.
 
-    A run cut short by a signal still returns its result (:attr:`Coordinator.final_result`,
+    A run cut short by a stop still returns its result (:attr:`Coordinator.final_result`,
     whose ``summary`` record is in the log); a cancellation from anything else propagates.
     """
     loop = asyncio.get_running_loop()
     task = loop.create_task(co.run(resume_state))
+    cancels = []
 
-    def _on_signal(sig: signal.Signals) -> None:
-        co.interrupts.append(sig.name)
-        told = _TOLD.get(len(co.interrupts), "stopping now")
-        print(f"\nswarmseek: {sig.name}: {told}", file=sys.stderr, flush=True)
+    def _stop(name: str) -> None:
+        co.interrupts.append(name)
+        cancels.append(name)
         task.cancel()
 
-    installed = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        try:
-            loop.add_signal_handler(sig, _on_signal, sig)
-        except (NotImplementedError, RuntimeError, ValueError):
-            continue  # not the main thread, or no signals on this platform
-        installed.append(sig)
+    def _on_signal(sig: signal.Signals) -> None:
+        _stop(sig.name)  # told on stderr, best effort (a hung-up terminal: the log says it)
+        print(f"\nswarmseek: {sig.name}: {_TOLD.get(len(cancels), 'stopping now')}", file=sys.stderr, flush=True)
+
+    def _on_log_failure(exc: OSError) -> None:
+        ending = co.phase in _ENDING or bool(cancels)
+        alert(f"swarmseek: ERROR: cannot write the mission log {co.log.path} ({type(exc).__name__}: {exc}); "
+              + ("the vehicles are already on their way home; nothing more is logged" if ending else
+                 "bringing every vehicle home (the plan's return); nothing more is logged"))
+        if ending:
+            co.interrupts.append(LOG_FAILURE)  # for the exit status; the return goes on as it is
+        else:
+            _stop(LOG_FAILURE)
+
+    installed = _install(loop, _on_signal)
+    pipe = _PipeSignals(loop, _on_signal)
+    if co.log is not None:
+        co.log.on_error = _on_log_failure
+        if co.log.error is not None:  # it failed before the mission started: nothing will be armed
+            _on_log_failure(co.log.error)
     try:
         return await task
     except asyncio.CancelledError:
@@ -53,8 +87,64 @@ async def run_until_stopped(co, resume_state=None):
             return co.final_result
         raise
     finally:
+        pipe.stop()
+        if co.log is not None:
+            co.log.on_error = None
         for sig in installed:
             loop.remove_signal_handler(sig)
+
+
+def _install(loop, on_signal) -> list:
+    """``on_signal(sig)`` as the loop's handler of each stop signal it can take; those installed.
+
+    A SIGHUP ignored when the process started (``nohup``) stays ignored: the operator asked for
+    the mission to outlive the terminal."""
+    installed = []
+    for sig in _STOP_SIGNALS:
+        if sig == signal.SIGHUP and signal.getsignal(sig) == signal.SIG_IGN:
+            continue
+        try:
+            loop.add_signal_handler(sig, on_signal, sig)
+        except (NotImplementedError, RuntimeError, ValueError):
+            continue  # not the main thread, or no signals on this platform
+        installed.append(sig)
+    return installed
+
+
+class _PipeSignals:
+    """A SIGPIPE sent by another process, as a stop (``on_signal(SIGPIPE)`` on the loop).
+
+    Only where SIGPIPE is blocked (:func:`mission.telemetry.terminal.best_effort_terminal`): a
+    thread takes the pending SIGPIPEs sent to the process with ``sigwaitinfo`` and keeps those
+    whose sender is another process. A write to a closed pipe or socket raises its SIGPIPE on the
+    writing thread, where it stays pending, unseen (the write fails with EPIPE).
+    """
+
+    def __init__(self, loop, on_signal):
+        self._thread = None
+        self._done = threading.Event()
+        if signal.SIGPIPE not in signal.pthread_sigmask(signal.SIG_BLOCK, []):
+            return
+        self._loop, self._on_signal = loop, on_signal
+        self._thread = threading.Thread(target=self._wait, name="swarmseek-sigpipe", daemon=True)
+        self._thread.start()
+
+    def _wait(self) -> None:
+        while True:
+            info = signal.sigwaitinfo([signal.SIGPIPE])
+            if self._done.is_set():
+                return
+            if info.si_pid != os.getpid():
+                self._loop.call_soon_threadsafe(self._on_signal, signal.SIGPIPE)
+
+    def stop(self) -> None:
+        """Stop the thread (a SIGPIPE to itself wakes it)."""
+        if self._thread is None:
+            return
+        self._done.set()
+        signal.pthread_kill(self._thread.ident, signal.SIGPIPE)
+        self._thread.join(timeout=5.0)
+        self._thread = None
 
 
 def _self_cancelled() -> bool:
@@ -63,7 +153,8 @@ def _self_cancelled() -> bool:
 
 
 def exit_status(result, status: int) -> int:
-    """The command's exit status: ``status`` unless a signal interrupted the mission (130, 143)."""
+    """The command's exit status: ``status`` unless a stop interrupted the mission (:data:`SIGNAL_EXIT`:
+    the first stop's)."""
     signals = getattr(result, "interrupted_by", None)
     if signals:
         return SIGNAL_EXIT.get(signals[0], 130)

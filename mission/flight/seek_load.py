@@ -17,13 +17,14 @@ coordinator does during a seek besides streaming:
 """
 from __future__ import annotations
 
-import asyncio
 import json
 import math
 import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from mission.core.tasks import spawn
 
 __all__ = ["seek_load"]
 
@@ -70,7 +71,7 @@ async def seek_load(vehicles, streamer, clock, *, reading_rate_hz: float = 10.0,
 
     tmp = tempfile.TemporaryDirectory(prefix="swarmseek-seek-load-")
     log = MissionLog(Path(tmp.name) / "mission.jsonl", clock)
-    task = asyncio.ensure_future(readings())
+    task = spawn(readings(), "the synthetic readings of the seek load")
     try:
         await _estimate_forever(store, envelope, ramp, log, clock, centre, offsets, sysids, by_sysid,
                                 estimate_rate_hz)

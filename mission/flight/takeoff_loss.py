@@ -13,6 +13,7 @@ import asyncio
 
 import numpy as np
 
+from mission.core.tasks import spawn
 from mission.flight.state import VehicleLoss
 
 __all__ = ["lose_failed", "laggards"]
@@ -32,7 +33,7 @@ def lose_failed(co, sysid: int, detail: str) -> None:
              level="warning", sysid=sysid, reason="failed", detected_s=now, since_s=now)
     v = co.vehicles.get(sysid)
     if v is not None:
-        asyncio.get_running_loop().create_task(_land_failed(co, sysid, v))
+        spawn(_land_failed(co, sysid, v), f"landing failed vehicle {sysid}", co.task_failed)
 
 
 async def _land_failed(co, sysid: int, v) -> None:

@@ -21,6 +21,7 @@ from typing import Callable
 
 import numpy as np
 
+from mission.core.tasks import spawn
 from mission.core.clock import cancel_and_wait
 from mission.safety.separation import describe_conflicts
 
@@ -300,7 +301,7 @@ class TargetRamp:
     def start(self) -> None:
         """Start the periodic task on the running loop."""
         if self._task is None:
-            self._task = asyncio.get_running_loop().create_task(self._run())
+            self._task = spawn(self._run(), "the target ramp")
 
     async def stop(self) -> None:
         """Stop the task (setpoints stay where they are)."""

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import asyncio
 
+from mission.core.tasks import spawn
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.telemetry.link_report import format_rejections, rejection_increase
 
@@ -42,7 +43,7 @@ async def watchdog(co, period_s: float = 0.1) -> None:
             if not v.state.armed:
                 continue
             co.state.begin_reengaging(sysid)
-            loop.create_task(_reengage(co, sysid, v, want))
+            spawn(_reengage(co, sysid, v, want), f"re-engaging vehicle {sysid}", co.task_failed)
 
 
 class _RejectionReport:

@@ -39,6 +39,7 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from mission.core.tasks import spawn
 from mission.core.clock import cancel_and_wait, wait_on_clock
 from mission.link.transport import open_transport
 from mission.core.uri import DEFAULT_SERIAL_BAUD, ConnectionSpec, parse_connection
@@ -197,7 +198,7 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
             self.registry.release(self)
             raise LinkError(f"cannot open {spec.uri!r}: {exc.strerror or exc}") from exc
         if self.heartbeat_hz > 0:
-            self._housekeeping = asyncio.ensure_future(self._housekeeping_loop())
+            self._housekeeping = spawn(self._housekeeping_loop(), f"the heartbeat of link {self.uri}")
         return self
 
     @property

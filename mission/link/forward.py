@@ -24,6 +24,7 @@ import socket
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from mission.core.tasks import spawn
 from mission.core.clock import cancel_and_wait
 from mission.core.plan_sections import parse_forward_out
 
@@ -192,7 +193,7 @@ class Forwarder:
         for i, sock in enumerate(self._socks):
             self._loop.add_reader(sock.fileno(), self._on_client, i)
         if endpoints is not None:
-            self._follow_task = self._loop.create_task(self._follow(endpoints, period_s))
+            self._follow_task = spawn(self._follow(endpoints, period_s), "the MAVLink forwarding")
 
     async def _follow(self, endpoints, period_s: float) -> None:
         while True:

@@ -20,6 +20,7 @@ import socket
 import termios
 from typing import Callable
 
+from mission.core.tasks import spawn
 from mission.core.clock import cancel_and_wait
 
 __all__ = ["UdpPoller"]
@@ -73,7 +74,7 @@ class UdpPoller:
         self._entries[fd] = (sock, on_datagram)
         self._epoll.register(fd, select.EPOLLIN)
         if self._task is None or self._task.done():
-            self._task = asyncio.ensure_future(self._run())
+            self._task = spawn(self._run(), "the UDP poller")
 
     def unregister(self, sock: socket.socket) -> None:
         """Stop watching ``sock`` (call before closing it)."""

@@ -16,6 +16,8 @@ import socket
 import termios
 import tty
 
+from mission.core.tasks import spawn
+
 __all__ = ["open_transport"]
 
 #: a stream peer that stops reading gets no more frames once this much is queued for it
@@ -189,7 +191,7 @@ class _TcpClientTransport:
 
     async def start(self) -> "_TcpClientTransport":
         await self._connect()
-        self._reconnect_task = asyncio.ensure_future(self._reconnect_loop())
+        self._reconnect_task = spawn(self._reconnect_loop(), f"reconnecting {self._spec.uri}")
         return self
 
     async def _connect(self) -> None:

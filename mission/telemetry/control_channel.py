@@ -18,7 +18,7 @@ import asyncio
 import json
 from typing import Callable
 
-from mission.core.clock import cancel_and_wait
+from mission.core.tasks import spawn, stop_watched
 
 __all__ = ["COMMAND_SCHEMA", "ACK_SCHEMA", "MAX_REQUEST_BYTES", "control_key", "parse_request",
            "ControlChannel"]
@@ -70,9 +70,12 @@ class ControlChannel:
         (``accepted``, ``reason``, ...); called on the event loop's thread.
     poll_s : float
         How often the queue of received queries is looked at (event-loop seconds).
+    report : callable, optional
+        Told (one line) if the answering task fails (:func:`mission.core.tasks.watch_task`).
     """
 
-    def __init__(self, session, fleet: str, submit: Callable[[str, str], dict], poll_s: float = 0.05):
+    def __init__(self, session, fleet: str, submit: Callable[[str, str], dict], poll_s: float = 0.05,
+                 report: Callable[[str], None] | None = None):
         self.fleet = fleet
         self.key = control_key(fleet)
         self.submit = submit
@@ -83,11 +86,12 @@ class ControlChannel:
         self.last_error: str | None = None
         self._queryable = session.declare_queryable(self.key)
         self._task: asyncio.Task | None = None
+        self._report = report
 
     def start(self) -> None:
         """Start answering (a task on the running loop)."""
         if self._task is None:
-            self._task = asyncio.get_running_loop().create_task(self._run())
+            self._task = spawn(self._run(), "answering operator commands (zenoh)", self._report)
 
     async def _run(self) -> None:
         while True:
@@ -128,7 +132,7 @@ class ControlChannel:
 
     async def stop(self) -> None:
         """Stop answering: queries still queued are told the coordinator is shutting down."""
-        await cancel_and_wait(self._task)
+        await stop_watched(self._task)
         self._task = None
         if self._queryable is None:
             return

@@ -17,6 +17,11 @@ One JSON object per line; every record has ``t_s`` (mission clock) and ``type``:
 Each line is flushed (and ``os.fsync``-ed for ``phase``/``summary`` records) as soon as it is
 written, so a crash loses nothing already logged. :func:`read_mission_log` reads a log back,
 ignoring a truncated last line.
+
+A write that fails (disk full, file size limit: Python ignores SIGXFSZ, so the write raises
+``EFBIG``) never raises into the mission: the log keeps the error (:attr:`MissionLog.error`), stops
+writing and calls its ``on_error`` once (:func:`mission.flight.operator_stop.run_until_stopped`
+brings the vehicles home and says so on whatever output still works).
 """
 from __future__ import annotations
 
@@ -24,7 +29,7 @@ import dataclasses
 import json
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from enum import Enum
 from pathlib import Path, PurePath
 from typing import IO
@@ -116,6 +121,14 @@ class MissionLog:
         File to create (parent directories are made); an existing file is appended to.
     clock
         Provides ``time()`` for the ``t_s`` field.
+
+    Attributes
+    ----------
+    error : OSError or None
+        The first write that failed; from then on nothing more is written (``dropped`` counts
+        the records lost).
+    on_error : callable or None
+        Called once with that error.
     """
 
     def __init__(self, path: str | Path, clock):
@@ -124,15 +137,23 @@ class MissionLog:
         self.clock = clock
         self._fh: IO[str] | None = open(self.path, "a", encoding="utf-8")
         self.records = 0
+        self.error: OSError | None = None
+        self.dropped = 0
+        self.on_error: Callable[[OSError], None] | None = None
 
     def write(self, kind: str, sync: bool = False, **fields) -> dict:
         """Write one record of type ``kind`` and flush it; returns the record written."""
         record = {"t_s": round(float(self.clock.time()), 4), "type": kind}
         record.update(to_jsonable(fields))
         if self._fh is None:
+            self.dropped += self.error is not None
             return record
-        self._fh.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
-        self._fh.flush()
+        try:
+            self._fh.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
+            self._fh.flush()
+        except OSError as exc:
+            self._fail(exc)
+            return record
         if sync:
             try:
                 os.fsync(self._fh.fileno())
@@ -140,6 +161,17 @@ class MissionLog:
                 pass
         self.records += 1
         return record
+
+    def _fail(self, exc: OSError) -> None:
+        """The first failed write: stop writing (what is buffered is lost), tell ``on_error``."""
+        self.error, self.dropped = exc, 1
+        fh, self._fh = self._fh, None
+        try:
+            fh.close()
+        except OSError:
+            pass  # the same failure, flushing what was buffered
+        if self.on_error is not None:
+            self.on_error(exc)
 
     def phase(self, name: str, **fields) -> dict:
         """Record the start of a phase (synced to disk)."""
@@ -157,7 +189,10 @@ class MissionLog:
                 os.fsync(self._fh.fileno())
             except OSError:
                 pass
-            self._fh.close()
+            try:
+                self._fh.close()
+            except OSError as exc:  # the last records could not be written
+                self.error = self.error or exc
             self._fh = None
 
     def __enter__(self):

@@ -4,7 +4,9 @@
 (``a``, ``h``, ``l``, ``r``) must be pressed twice within :data:`CONFIRM_S` seconds (a stray key
 never ends a mission). Read without blocking: an asyncio reader on stdin, only when stdin is a
 terminal (put in cbreak mode, restored by :meth:`TerminalKeys.close`); the command goes to the
-coordinator's ``command(command, sender)`` with the sender ``terminal:USER@HOST``.
+coordinator's ``command(command, sender)`` with the sender ``terminal:USER@HOST``. A terminal that
+goes away (end of file, a hung-up SSH session) ends the reading; the mission goes on
+(:mod:`mission.telemetry.terminal`).
 """
 from __future__ import annotations
 
@@ -92,9 +94,15 @@ class TerminalKeys:
 
     def _on_input(self) -> None:
         try:
-            data = os.read(self._fd, 64).decode("utf-8", errors="ignore")
-        except OSError:
+            raw = os.read(self._fd, 64)
+        except BlockingIOError:
             return
+        except OSError:  # EIO: the terminal hung up
+            raw = b""
+        if not raw:  # the terminal is gone: stop reading (an end of file is always "readable")
+            self._loop.remove_reader(self._fd)
+            return
+        data = raw.decode("utf-8", errors="ignore")
         for key in data:
             command, hint = self.decoder.press(key)
             if hint:
@@ -110,7 +118,10 @@ class TerminalKeys:
 
         if self._loop is not None and not self._loop.is_closed():
             self._loop.remove_reader(self._fd)
-        termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
+        try:
+            termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
+        except (termios.error, OSError):
+            pass  # the terminal hung up: nothing left to restore
         self._fd = None
 
 

@@ -19,6 +19,7 @@ import collections
 
 import numpy as np
 
+from mission.core.tasks import spawn
 from mission.core.clock import WallClock, cancel_and_wait
 
 __all__ = ["SetpointStreamer"]
@@ -123,7 +124,7 @@ class SetpointStreamer:
     async def start(self) -> None:
         """Start the streaming task (idempotent)."""
         if self._task is None or self._task.done():
-            self._task = asyncio.ensure_future(self._run())
+            self._task = spawn(self._run(), "the setpoint stream")
 
     async def stop(self) -> None:
         """Stop the streaming task and wait for it."""

@@ -25,6 +25,7 @@ from typing import Callable
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from formation.geodesy import enu_to_geodetic
+from mission.core.tasks import spawn
 from mission.link.endpoint import LinkError, MavEndpoint
 from mission.vehicle.frames import MissionToLocal
 from mission.vehicle.prearm import PrearmStatus
@@ -219,7 +220,7 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
     def _start_hold(self) -> None:
         self._external_send_s = -1e18
         if self._hold_task is None or self._hold_task.done():
-            self._hold_task = asyncio.ensure_future(self._hold_loop())
+            self._hold_task = spawn(self._hold_loop(), f"the takeoff hold stream of vehicle {self.sysid}")
 
     def _stop_hold(self) -> None:
         if self._hold_task is not None:
