@@ -110,7 +110,7 @@ def report_still_armed(co, entries: list[dict], why: str) -> None:
               for e in entries]
     lines.append("  what to do: keep clear of the propellers; disarm them (RC kill switch, or DISARM from "
                  "QGroundControl / MAVProxy) before approaching")
-    print("\n".join(lines), file=sys.stderr, flush=True)
+    alert("\n".join(lines))  # standard error, else standard output (mission.telemetry.terminal)
     if co.log is not None:
         co.log.write("still_armed", sync=True, vehicles=entries, reason=why)
     co.event(f"vehicles {who} still ARMED at the end of the mission: {why}", level="error", sysids=who)
