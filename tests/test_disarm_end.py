@@ -88,3 +88,17 @@ def test_summary_line_names_the_armed_vehicles():
 
     lines = format_summary({"outcome": "converged", "message": "m", "still_armed": [{"sysid": 3}, {"sysid": 5}]})
     assert any("STILL ARMED" in line and "[3, 5]" in line for line in lines)
+
+
+@pytest.mark.parametrize("left, armed, ok", [([], [], True), ([{"sysid": 2}], [], False),
+                                             ([], [{"sysid": 3}], False)])
+def test_a_converged_mission_is_ok_only_with_every_vehicle_down_and_disarmed(left, armed, ok):
+    """Exit status 0 means converged AND nothing left in the air AND nothing still armed (issue 21:
+    ``fly`` exited 0 although its last line said a vehicle was left AIRBORNE)."""
+    from mission.flight.result import MissionResult
+    from mission.telemetry.display import report_result
+
+    result = MissionResult(outcome="converged", message="converged after 9 iterations",
+                           airborne_left=left, still_armed=armed)
+    assert result.ok is ok
+    assert report_result(result, None, True) == (0 if ok else 1)

@@ -1,7 +1,7 @@
 """The ground station's own faults, piece by piece (issue 20): a best-effort terminal, a mission log
 that fails without raising, background tasks whose failure is told, a state publication and a live
 display that never stop a mission. The whole ``fly`` process under these faults:
-``tests/test_gcs_faults.py``."""
+``tests/test_gcs_faults_output.py tests/test_gcs_faults_signals.py``."""
 from __future__ import annotations
 
 import asyncio

@@ -123,9 +123,10 @@ class MissionResult:
 
     @property
     def ok(self) -> bool:
-        """The mission reached its goal (converged) with every vehicle disarmed, or the dry run found
-        every vehicle ready."""
-        return self.outcome in ("converged", "ready") and not self.still_armed
+        """The mission reached its goal (converged) with every vehicle disarmed and none left airborne,
+        or the dry run found every vehicle ready (a script can tell a clean run from one that left a
+        vehicle in the air: exit status 1)."""
+        return self.outcome in ("converged", "ready") and not self.still_armed and not self.airborne_left
 
     def to_json(self) -> dict:
         """JSON-friendly dict (through :func:`~mission.telemetry.mission_log.dataclass_json`: no secret)."""

@@ -1,4 +1,6 @@
-"""The ground station's own faults never abandon a vehicle (issue 20): a ``swarmseek fly`` process
+"""Shared by tests/test_gcs_faults_output.py and tests/test_gcs_faults_signals.py (split in two files
+so that the two pytest-xdist workers each take a part). The ground station's own faults never
+abandon a vehicle (issue 20): a ``swarmseek fly`` process
 whose stdout or stderr is a closed pipe, that gets SIGHUP or a SIGPIPE sent by another process
 mid-seek, whose mission log hits a file size limit, or whose zenoh router dies mid-mission.
 
@@ -20,7 +22,6 @@ import threading
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from mission.sim.embedded import DEFAULT_ORIGIN, fleet_ports, free_port_block
 from sitl_mock.fields import sigma2
@@ -28,8 +29,6 @@ from sitl_mock.fleet import MockFleet
 
 from invariants import abandoned
 from wait_helpers import wait_until
-
-pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCE = np.array([6.0, 4.0, 10.0])
@@ -277,47 +276,3 @@ def _router_gone(m: _Fly) -> None:
     assert any("no fresh reading from vehicles [1, 2, 3, 4]" in e for e in _events(m.log))
 
 
-CASES = {
-    "closed-stdout": (_closed_stdout, False),
-    "closed-stderr": (_closed_stderr_then_sigterm, False),
-    "sighup": (_signal_mid_seek(signal.SIGHUP, 129), False),
-    "sigpipe": (_signal_mid_seek(signal.SIGPIPE, 141), False),
-    "log-size-limit": (_log_size_limit, False),
-    "zenoh-router-gone": (_router_gone, True),
-}
-
-
-@pytest.mark.parametrize("fault", list(CASES))
-def test_fly_survives_its_own_faults(tmp_path, fault):
-    case, routed = CASES[fault]
-    m = _Fly(tmp_path, routed)
-    try:
-        case(m)
-    finally:
-        m.stop()
-
-
-def _ignore_sighup() -> None:  # preexec_fn: what nohup does
-    signal.signal(signal.SIGHUP, signal.SIG_IGN)
-
-
-def test_under_nohup_a_hangup_changes_nothing(tmp_path):
-    """A SIGHUP ignored from the start (``nohup``) stays ignored: the mission flies to its end
-    (``run``, lock-step: its own mock fleet; the stop handlers are those of ``fly``)."""
-    log = tmp_path / "log" / "mission.jsonl"
-    proc = subprocess.Popen([sys.executable, "-m", "mission", "run", "--n", "4", "--json", "--no-tlog",
-                             "--max-iterations", "5", "--log-dir", str(log.parent), "--seed", "1"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
-                            preexec_fn=_ignore_sighup)
-    try:
-        wait_until(lambda: _seeking(log)() or proc.poll() is not None, 150.0, "the seek", poll_s=0.02)
-        proc.send_signal(signal.SIGHUP)
-        out, err = proc.communicate(timeout=150)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    summary = json.loads(out)
-    assert summary["interrupted_by"] == [] and summary["outcome"] in ("converged", "max_iterations"), err[-2000:]
-    assert proc.returncode == (0 if summary["outcome"] == "converged" else 1)
-    assert "SIGHUP" not in err and summary["airborne_left"] == []

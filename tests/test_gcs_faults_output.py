@@ -1,0 +1,58 @@
+"""The ground station's own faults (issue 20), output side: ``swarmseek fly`` with a closed stdout,
+a closed stderr (then SIGTERM), a mission log on a size-limited file system; ``run`` under nohup.
+Helpers and the cases' checks: tests/gcs_fault_support.py."""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from wait_helpers import wait_until
+from gcs_fault_support import _Fly, _closed_stderr_then_sigterm, _closed_stdout, _env, _log_size_limit, _seeking
+
+pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]
+
+CASES = {
+    "closed-stdout": (_closed_stdout, False),
+    "closed-stderr": (_closed_stderr_then_sigterm, False),
+    "log-size-limit": (_log_size_limit, False),
+}
+
+
+@pytest.mark.parametrize("fault", list(CASES))
+def test_fly_survives_its_own_faults(tmp_path, fault):
+    case, routed = CASES[fault]
+    m = _Fly(tmp_path, routed)
+    try:
+        case(m)
+    finally:
+        m.stop()
+
+
+def _ignore_sighup() -> None:  # preexec_fn: what nohup does
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+
+def test_under_nohup_a_hangup_changes_nothing(tmp_path):
+    """A SIGHUP ignored from the start (``nohup``) stays ignored: the mission flies to its end
+    (``run``, lock-step: its own mock fleet; the stop handlers are those of ``fly``)."""
+    log = tmp_path / "log" / "mission.jsonl"
+    proc = subprocess.Popen([sys.executable, "-m", "mission", "run", "--n", "4", "--json", "--no-tlog",
+                             "--max-iterations", "5", "--log-dir", str(log.parent), "--seed", "1"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+                            preexec_fn=_ignore_sighup)
+    try:
+        wait_until(lambda: _seeking(log)() or proc.poll() is not None, 150.0, "the seek", poll_s=0.02)
+        proc.send_signal(signal.SIGHUP)
+        out, err = proc.communicate(timeout=150)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    summary = json.loads(out)
+    assert summary["interrupted_by"] == [] and summary["outcome"] in ("converged", "max_iterations"), err[-2000:]
+    assert proc.returncode == (0 if summary["outcome"] == "converged" else 1)
+    assert "SIGHUP" not in err and summary["airborne_left"] == []
