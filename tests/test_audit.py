@@ -285,3 +285,27 @@ def test_tlogs_of_a_resumed_mission_are_merged(tmp_path):
     assert first.exists() and len(report.tlogs) == 2
     assert report.setpoints_checked == 22 and report.per_vehicle[1]["tracks"] == 1
     assert report.ok, report.format_text()
+
+
+@pytest.mark.parametrize("b_delay_s, flagged", [(0.0002, False), (0.05, True)])
+def test_latest_vs_latest_counts_one_burst_as_sent_together(b_delay_s, flagged):
+    """Two vehicles 1.6 m apart in a line both step 0.9 m along it (synchronous paths never closer
+    than 1.6 m). Sent in one burst (0.2 ms apart) the instant between the two datagrams is no state
+    a vehicle can be in: not a violation. The second datagram 50 ms late (longer than the stamp
+    jitter, e.g. a stalled sender): the first vehicle's new setpoint and the second's old one are
+    0.7 m apart for 50 ms, a violation."""
+    from mission.safety.audit import AuditReport, _check_pair
+    from mission.safety.audit_read import VehicleSetpoints
+
+    t_a = np.array([0.0, 0.1, 0.2])
+    a = VehicleSetpoints(1, t_a, np.array([[0.0, 0, 10], [0.9, 0, 10], [0.9, 0, 10]]))
+    t_b = np.array([0.0, 0.1 + b_delay_s, 0.2 + b_delay_s])
+    b = VehicleSetpoints(2, t_b, np.array([[1.6, 0, 10], [2.5, 0, 10], [2.5, 0, 10]]))
+    report = AuditReport(log_dir="-", tlogs=[])
+    _check_pair(report, a, b, [(0, 3)], [(0, 3)], 1.5, 0.01, 1.0, burst_s=0.01)
+    kinds = [v.kind for v in report.violations]
+    assert bool(kinds) is flagged, report.violations
+    if flagged:
+        assert min(v.value for v in report.violations) == pytest.approx(0.7)
+    else:
+        assert report.min_separation_seen_m > 1.59  # the paths: a is 0.2 ms ahead of b
