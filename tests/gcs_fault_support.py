@@ -138,8 +138,11 @@ def _router(endpoint: str) -> subprocess.Popen:
     return proc
 
 
-def _limit_file_size() -> None:  # preexec_fn of the size-limited case
-    resource.setrlimit(resource.RLIMIT_FSIZE, (FSIZE_LIMIT_B, FSIZE_LIMIT_B))
+def _file_size_limit(limit_b: int):
+    """preexec_fn of the size-limited case: files of at most ``limit_b`` bytes."""
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_b, limit_b))
+    return limit
 
 
 class _Fly:
@@ -204,6 +207,63 @@ class _Fly:
             self.router.wait(timeout=30)
 
 
+class _Run:
+    """``swarmseek run --n 4`` (lock-step, its own embedded mock fleet) in its own process, for the
+    faults whose handling ``run`` shares with ``fly`` (the same terminal, stop handlers and mission
+    log): seconds instead of a minute of wall-clock flight. The fleet lives in that process, so the
+    vehicles' end is read from the mission log: the summary names none left airborne or still
+    armed, and every vehicle's status became ``landed`` (the ground station saw it down)."""
+
+    #: the mission log's size limit of the size-limited case: ``run --n 4 --seed 1 --no-tlog`` writes
+    #: about 42 kB before its first iteration and 176 kB by the end of its seek (220 kB in all)
+    FSIZE_LIMIT_B = 96 * 1024
+
+    def __init__(self, tmp_path: Path, routed: bool = False):
+        assert not routed, "run has no external zenoh router"
+        self.log = tmp_path / "log" / "mission.jsonl"
+        self.proc = None
+        self.out = self.err = None
+
+    def start(self, stdout=None, stderr=None, preexec_fn=None, as_json: bool = True) -> None:
+        """Start ``run``; ``stdout``/``stderr``: a file descriptor (default: a pipe read here)."""
+        fds = {}
+        for name, given in (("stdout", stdout), ("stderr", stderr)):
+            if given is None:
+                r, w = os.pipe()
+                setattr(self, name[3:], _Drain(r))
+                given = w
+            fds[name] = given
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "mission", "run", "--n", str(N), "--seed", "1", "--no-tlog",
+             "--log-dir", str(self.log.parent), *(["--json"] if as_json else [])],
+            stdout=fds["stdout"], stderr=fds["stderr"], env=_env(), cwd=ROOT, preexec_fn=preexec_fn)
+        for fd in fds.values():
+            os.close(fd)
+
+    wait_for = _Fly.wait_for
+
+    def finish(self) -> int:
+        """Wait for ``run`` to exit; every vehicle down, per its summary (the ``--json`` one on stdout
+        when the log could not take it) and, when the log is whole, per its statuses."""
+        status = self.proc.wait(timeout=200)
+        records = _records(self.log)
+        logged = [r for r in records if r["type"] == "summary"]
+        summary = logged[-1] if logged else json.loads(self.out.text())
+        assert summary["airborne_left"] == [] and summary.get("still_armed", []) == [], summary
+        if logged:
+            last = {}
+            for r in records:
+                if r["type"] == "status_change":
+                    last[r["sysid"]] = r["status"]
+            assert last == {s: "landed" for s in range(1, N + 1)}, last
+        return status
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=30)
+
+
 def _summary(log: Path) -> dict:
     summaries = [r for r in _records(log) if r["type"] == "summary"]
     assert len(summaries) == 1, "one summary record"
@@ -254,13 +314,14 @@ def _signal_mid_seek(sig: signal.Signals, status: int):
 
 
 def _log_size_limit(m: _Fly) -> None:
-    m.start(preexec_fn=_limit_file_size)
+    limit_b = getattr(m, "FSIZE_LIMIT_B", FSIZE_LIMIT_B)
+    m.start(preexec_fn=_file_size_limit(limit_b))
     status = m.finish()
     err = m.err.text()
     assert status == 74, err[-2000:]
     assert "cannot write the mission log" in err and "File too large" in err, err[-2000:]
     assert "bringing every vehicle home" in err
-    assert m.log.stat().st_size <= FSIZE_LIMIT_B
+    assert m.log.stat().st_size <= limit_b
     phases = [r["phase"] for r in _records(m.log) if r["type"] == "phase"]
     assert "seek" in phases  # the limit tripped mid-mission, with vehicles in the air
 

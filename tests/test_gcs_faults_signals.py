@@ -7,21 +7,22 @@ import signal
 
 import pytest
 
-from gcs_fault_support import _Fly, _router_gone, _signal_mid_seek
+from gcs_fault_support import _Fly, _Run, _router_gone, _signal_mid_seek
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]
 
+#: fault -> (case, runner, routed): as tests/test_gcs_faults_output.py (``fly`` or lock-step ``run``)
 CASES = {
-    "sighup": (_signal_mid_seek(signal.SIGHUP, 129), False),
-    "sigpipe": (_signal_mid_seek(signal.SIGPIPE, 141), False),
-    "zenoh-router-gone": (_router_gone, True),
+    "sighup": (_signal_mid_seek(signal.SIGHUP, 129), _Fly, False),
+    "sigpipe": (_signal_mid_seek(signal.SIGPIPE, 141), _Run, False),
+    "zenoh-router-gone": (_router_gone, _Fly, True),
 }
 
 
 @pytest.mark.parametrize("fault", list(CASES))
 def test_fly_survives_its_own_faults(tmp_path, fault):
-    case, routed = CASES[fault]
-    m = _Fly(tmp_path, routed)
+    case, runner, routed = CASES[fault]
+    m = runner(tmp_path, routed)
     try:
         case(m)
     finally:
