@@ -96,6 +96,11 @@ class SteSeeker:
         Patchy likelihood: ``pi0``, ``beta``, ``s`` and ``eps`` (:mod:`estimator.ste_model`).
     temper : float
         Exponent of each iteration's likelihood, in (0, 1].
+    corr_length_m : float
+        Readings of one iteration closer than about this see the same puffs and meander: each
+        reading's exponent is ``temper / n_i``, ``n_i = sum_j exp(-d_ij^2 / 2 L^2)`` over the
+        iteration's readings (itself included; 1 for a formation spread wider than ``L``);
+        0: ``temper`` for every reading.
     region_m : float
         Convergence: the 95 % region's radius at most this.
     exploit_m : float or None
@@ -133,7 +138,7 @@ class SteSeeker:
                  ground_alt_m: float = 0.0, noise_std: float = 0.01, background: float = 0.0,
                  detection_floor: float = 0.0, rel_error: float = 0.3, hit_fraction: float = 0.6,
                  hit_shape: float = 0.8, hit_log_sd: float = 1.3, false_hit: float = 0.01, temper: float = 0.35,
-                 region_m: float = 1.0, exploit_m: float | None = None, min_step_m: float = 1.0, max_step_m: float = 8.0,
+                 corr_length_m: float = 1.0, region_m: float = 1.0, exploit_m: float | None = None, min_step_m: float = 1.0, max_step_m: float = 8.0,
                  collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.5,
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
                  seed: int = 0):
@@ -166,6 +171,7 @@ class SteSeeker:
                               beta=_positive("hit_shape", hit_shape), log_sd=_positive("hit_log_sd", hit_log_sd),
                               eps=_positive("false_hit", false_hit))
         self.temper, self.seed = float(temper), int(seed)
+        self.corr_length_m = _positive("corr_length_m", corr_length_m, allow_zero=True)
         self.region_m = _positive("region_m", region_m)
         self.exploit_m = self.region_m if exploit_m is None else _positive("exploit_m", exploit_m)
         self.min_step_m, self.max_step_m = _positive("min_step_m", min_step_m), _positive("max_step_m", max_step_m)
@@ -230,12 +236,20 @@ class SteSeeker:
             return loglik_patchy(mu, g, v[:, None, :], background=self.background, **self.patchy_kw)
         return loglik_steady(mu, v[:, None, :], **self.steady_kw)
 
+    def _tempers(self, p: np.ndarray) -> np.ndarray:
+        """Each reading's likelihood exponent ``(K, M)`` from the positions ``(K, M, 3)`` of one
+        iteration's readings (``temper``, ``corr_length_m``)."""
+        if self.corr_length_m == 0:
+            return np.full(p.shape[:2], self.temper)
+        d2 = np.sum((p[:, :, None, :] - p[:, None, :, :]) ** 2, axis=-1)
+        return self.temper / np.exp(-0.5 * d2 / self.corr_length_m ** 2).sum(axis=2)
+
     def _update(self, c: np.ndarray, p: np.ndarray, v: np.ndarray) -> None:
         """Fold the readings in (steps 1-2 of the module docstring)."""
         ll = self._loglik(self.parts, p, v)
         best = ll.mean(axis=2).max(axis=1)  # the best particle's mean log-likelihood per reading
         collapsed = (-best > self.collapse_nats) & (v.shape[1] >= 4)
-        self.logw = self.logw + self.temper * ll.sum(axis=2)
+        self.logw = self.logw + np.einsum("kpm,km->kp", ll, self._tempers(p))
         self.collapsed = collapsed
         self.since_collapse = np.where(collapsed, 0, self.since_collapse + 1)
         if collapsed.any():
@@ -243,7 +257,8 @@ class SteSeeker:
             self.collapses[idx] += 1
             self._seed_prior(idx, c)
             for bp, bv in self._buf[-self.memory:] + [(p, v)]:
-                self.logw[idx] += self.temper * self._loglik(self.parts[idx], bp[idx], bv[idx]).sum(axis=2)
+                self.logw[idx] += np.einsum("kpm,km->kp", self._loglik(self.parts[idx], bp[idx], bv[idx]),
+                                            self._tempers(bp[idx]))
         self.logw -= self.logw.max(axis=1, keepdims=True)
         self.logw -= np.log(np.exp(self.logw).sum(axis=1, keepdims=True))
         self._buf = (self._buf + [(p, v)])[-self.memory:]
