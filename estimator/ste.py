@@ -6,9 +6,11 @@ position where it was taken) into a posterior over the release point (3D), its a
 when not given, the wind direction, and returns the next centre. The forward model and the
 likelihoods are :mod:`estimator.ste_model`. Per iteration:
 
-1. **Update**: ``log w += temper * sum_i log L(v_i | particle)`` over the iteration's readings
+1. **Update**: ``log w += sum_i (temper / n_i) log L(v_i | particle)`` over the iteration's readings
    (``temper`` < 1 because the readings of one instant, and of nearby instants, see the same
-   meander: they are not independent, and counting them as such makes the posterior overconfident).
+   meander: they are not independent, and counting them as such makes the posterior overconfident;
+   ``n_i`` the number of the iteration's readings within about ``corr_length_m`` of reading ``i``,
+   itself included, so readings that see the same puff share one reading's weight).
 2. **Collapse**: when even the best particle explains the iteration's readings worse than
    ``collapse_nats`` per reading on average (every weight effectively zero), the trial's
    particles are re-seeded from the prior about the current centre and the last ``memory``
@@ -19,13 +21,22 @@ likelihoods are :mod:`estimator.ste_model`. Per iteration:
 4. **Report**: :attr:`estimate_enu` the posterior mean release point and :attr:`region95_m` the
    radius about it holding 95 % of the weight; :attr:`arrival` (the convergence signal) is
    ``region95_m <= region_m`` with no collapse in the last ``memory`` iterations (a posterior
-   just re-seeded from a few readings can be tight and wrong).
+   just re-seeded from a few readings can be tight and wrong) and no :attr:`misfit`: the last
+   ``memory`` iterations' readings scored under the posterior predictive (steady: ``z^2`` of
+   a Gaussian predictive; intermittent: ``-2 log P(hit or miss)``), their total deviance minus
+   its expectation over its deviation if the model held (:attr:`fit_z`) above ``misfit_z`` says
+   the field is not a plume the model can represent (a tight posterior there is tight and wrong).
 5. **Move**: while the region is larger than ``exploit_m`` (default ``region_m``), the candidate (stay; ``step`` up/down
    wind, across it, up/down; toward the posterior mean) whose formation readings carry the most
    expected information about the particles (the mutual information of each vehicle's hit / miss,
    summed over vehicles, on a resampled subset of the particles: myopic infotaxis, Vergassola et
    al. 2007); ``step`` is half the region, within ``[min_step_m, max_step_m]``. Once the region is
-   below ``exploit_m``: the posterior mean.
+   below ``exploit_m``: the posterior mean. With ``casting``, two steps across the wind both ways
+   and the two up-wind diagonals are candidates too.
+6. **Formation**: :attr:`formation_radius_m` ``= radius_gain * region95_m`` within
+   ``[min_radius_m, max_radius_m]`` (wide to find the plume, tight about the release at the end,
+   where the plume is ~1 m across); the move's information is computed for the formation at that
+   radius. A caller that does not honour it (the mission, for now) keeps its own formation.
 
 The caller caps the move (``gamma_m``) and applies the safety envelope, as for every seeker.
 """
