@@ -36,7 +36,11 @@ intermittent likelihood, without / with the wind; ``--ste-args key=value,...`` s
 keywords). A seeker that reports a posterior (``estimate_enu`` and ``region95_m``: ``ste``) adds
 columns: its estimate within 1 m at the end, the estimate's median error and region radius, the
 calibration (the source inside the reported 95 % region, Wilson interval), the fraction converged
-(region within ``region_m``) and the posterior collapses. ``--cpu 8,50`` prints each seeker's
+(region within ``region_m``), the fraction reporting convergence (its ``arrival``: the region, no
+recent collapse and the model check passed), the fraction flagged ``misfit`` with the median
+``fit_z``, and the posterior collapses. A seeker that sizes the formation (``formation_radius_m``:
+``ste``) gets it in the simulation, and the time model counts the vehicles' flights to their new
+slots (:meth:`experiments.offline_seek.SeekRun.iteration_s`). ``--cpu 8,50`` prints each seeker's
 CPU time per ``propose`` (one trial) instead of the table.
 
 Usage::

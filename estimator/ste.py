@@ -149,7 +149,8 @@ class SteSeeker:
                  ground_alt_m: float = 0.0, noise_std: float = 0.01, background: float = 0.0,
                  detection_floor: float = 0.0, rel_error: float = 0.3, hit_fraction: float = 0.6,
                  hit_shape: float = 0.8, hit_log_sd: float = 1.3, false_hit: float = 0.01, temper: float = 0.35,
-                 corr_length_m: float = 1.0, region_m: float = 1.0, exploit_m: float | None = None, min_step_m: float = 1.0, max_step_m: float = 8.0,
+                 corr_length_m: float = 1.0, region_m: float = 1.0, exploit_m: float | None = None,
+                 min_step_m: float = 1.0, max_step_m: float = 8.0,
                  collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.5,
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
                  seed: int = 0):
@@ -188,7 +189,8 @@ class SteSeeker:
         self.min_step_m, self.max_step_m = _positive("min_step_m", min_step_m), _positive("max_step_m", max_step_m)
         self.collapse_nats = _positive("collapse_nats", collapse_nats)
         self.radius_gain = _positive("radius_gain", radius_gain, allow_zero=True)
-        self.min_radius_m, self.max_radius_m = _positive("min_radius_m", min_radius_m), _positive("max_radius_m", max_radius_m)
+        self.min_radius_m = _positive("min_radius_m", min_radius_m)
+        self.max_radius_m = _positive("max_radius_m", max_radius_m)
         if self.min_radius_m > self.max_radius_m:
             raise ValueError(f"min_radius_m {min_radius_m!r} must be at most max_radius_m {max_radius_m!r}")
         self.casting, self.misfit_z = bool(casting), _positive("misfit_z", misfit_z)
