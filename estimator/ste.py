@@ -112,6 +112,10 @@ class SteSeeker:
         reading's exponent is ``temper / n_i``, ``n_i = sum_j exp(-d_ij^2 / 2 L^2)`` over the
         iteration's readings (itself included; 1 for a formation spread wider than ``L``);
         0: ``temper`` for every reading.
+    corr_iterations : int
+        The readings of this many previous iterations near reading ``i`` add to ``n_i`` too (a
+        formation that stays put reads the same meander again within its ~5 s correlation time);
+        0: the iteration's own readings only.
     region_m : float
         Convergence: the 95 % region's radius at most this.
     exploit_m : float or None
@@ -153,7 +157,7 @@ class SteSeeker:
                  min_step_m: float = 1.0, max_step_m: float = 8.0,
                  collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.5,
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
-                 seed: int = 0):
+                 corr_iterations: int = 0, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -184,6 +188,9 @@ class SteSeeker:
                               eps=_positive("false_hit", false_hit))
         self.temper, self.seed = float(temper), int(seed)
         self.corr_length_m = _positive("corr_length_m", corr_length_m, allow_zero=True)
+        if isinstance(corr_iterations, bool) or int(corr_iterations) != corr_iterations or corr_iterations < 0:
+            raise ValueError(f"corr_iterations must be an integer >= 0, got {corr_iterations!r}")
+        self.corr_iterations = int(corr_iterations)
         self.region_m = _positive("region_m", region_m)
         self.exploit_m = self.region_m if exploit_m is None else _positive("exploit_m", exploit_m)
         self.min_step_m, self.max_step_m = _positive("min_step_m", min_step_m), _positive("max_step_m", max_step_m)
@@ -249,12 +256,16 @@ class SteSeeker:
             return loglik_patchy(mu, g, v[:, None, :], background=self.background, **self.patchy_kw)
         return loglik_steady(mu, v[:, None, :], **self.steady_kw)
 
-    def _tempers(self, p: np.ndarray) -> np.ndarray:
+    def _tempers(self, p: np.ndarray, recent: bool = False) -> np.ndarray:
         """Each reading's likelihood exponent ``(K, M)`` from the positions ``(K, M, 3)`` of one
-        iteration's readings (``temper``, ``corr_length_m``)."""
+        iteration's readings (``temper``, ``corr_length_m``); with ``recent``, the readings of the
+        last ``corr_iterations`` iterations near them count too."""
         if self.corr_length_m == 0:
             return np.full(p.shape[:2], self.temper)
-        d2 = np.sum((p[:, :, None, :] - p[:, None, :, :]) ** 2, axis=-1)
+        near = p
+        if recent and self.corr_iterations > 0 and self._buf:
+            near = np.concatenate([p] + [b[0] for b in self._buf[-self.corr_iterations:]], axis=1)
+        d2 = np.sum((p[:, :, None, :] - near[:, None, :, :]) ** 2, axis=-1)
         return self.temper / np.exp(-0.5 * d2 / self.corr_length_m ** 2).sum(axis=2)
 
     def _update(self, c: np.ndarray, p: np.ndarray, v: np.ndarray) -> None:
@@ -262,7 +273,7 @@ class SteSeeker:
         ll = self._loglik(self.parts, p, v)
         best = ll.mean(axis=2).max(axis=1)  # the best particle's mean log-likelihood per reading
         collapsed = (-best > self.collapse_nats) & (v.shape[1] >= 4)
-        self.logw = self.logw + np.einsum("kpm,km->kp", ll, self._tempers(p))
+        self.logw = self.logw + np.einsum("kpm,km->kp", ll, self._tempers(p, recent=True))
         self.collapsed = collapsed
         self.since_collapse = np.where(collapsed, 0, self.since_collapse + 1)
         if collapsed.any():

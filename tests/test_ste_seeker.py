@@ -185,6 +185,12 @@ def test_tempering_is_shared_by_readings_that_see_the_same_puffs():
     clustered = np.zeros((1, 4, 3))  # four readings at one point: one reading's worth between them
     assert np.allclose(seeker._tempers(clustered), 0.1)
     assert np.allclose(SteSeeker(temper=0.4, corr_length_m=0.0)._tempers(clustered), 0.4)
+    again = SteSeeker(temper=0.4, corr_length_m=1.0, corr_iterations=1)
+    again._buf = [(clustered, np.zeros((1, 4)))]  # the last iteration read the same four points
+    assert np.allclose(again._tempers(clustered, recent=True), 0.05)
+    assert np.allclose(again._tempers(spread, recent=True), 0.4, atol=1e-6)  # elsewhere: not shared
+    with pytest.raises(ValueError, match="corr_iterations"):
+        SteSeeker(corr_iterations=-1)
 
 
 def test_deviances_have_the_stated_expectation_when_the_model_holds():
