@@ -36,7 +36,11 @@ intermittent likelihood, without / with the wind; ``--ste-args key=value,...`` s
 keywords). A seeker that reports a posterior (``estimate_enu`` and ``region95_m``: ``ste``) adds
 columns: its estimate within 1 m at the end, the estimate's median error and region radius, the
 calibration (the source inside the reported 95 % region, Wilson interval), the fraction converged
-(region within ``region_m``) and the posterior collapses. ``--cpu 8,50`` prints each seeker's
+(region within ``region_m``), the fraction reporting convergence (its ``arrival``: the region, no
+recent collapse and the model check passed), the fraction flagged ``misfit`` with the median
+``fit_z``, and the posterior collapses. A seeker that sizes the formation (``formation_radius_m``:
+``ste``) gets it in the simulation, and the time model counts the vehicles' flights to their new
+slots (:meth:`experiments.offline_seek.SeekRun.iteration_s`). ``--cpu 8,50`` prints each seeker's
 CPU time per ``propose`` (one trial) instead of the table.
 
 Usage::
@@ -95,7 +99,7 @@ def measure(run, start_dist_m: np.ndarray, n: int, time_model, tol_m: float = 1.
     ok = ~out_[-1]
     entered = np.minimum(last_out + 1, t_count - 1)
     moves = run.moves()
-    times = np.concatenate([np.zeros((1, k)), np.cumsum(time_model.iteration_s(moves), axis=0)])
+    times = np.concatenate([np.zeros((1, k)), np.cumsum(run.iteration_s(time_model), axis=0)])
     path = np.concatenate([np.zeros((1, k)), np.cumsum(np.linalg.norm(moves, axis=-1), axis=0)])
     cols = np.arange(k)
     t_in, flown = times[entered, cols], path[entered, cols]
@@ -162,6 +166,12 @@ def _posterior_row(seeker, source: np.ndarray, tol_m: float = 1.0) -> dict:
             "estimate_error_m_median": float(np.median(err)), "region95_m_median": float(np.median(region)),
             "calibration": float(inside.mean()), "calibration_ci95": [lo, hi],
             "converged": float(np.mean(region <= getattr(seeker, "region_m", tol_m))),
+            "reported_converged": float(np.mean(getattr(seeker, "arrival", None) if getattr(seeker, "arrival", None)
+                                                is not None else region <= tol_m)),
+            "misfit": float(np.mean(getattr(seeker, "misfit", None) if getattr(seeker, "misfit", None) is not None
+                                    else False)),
+            "fit_z_median": float(np.median(getattr(seeker, "fit_z", None))) if getattr(seeker, "fit_z", None)
+            is not None else float("nan"),
             "collapses": int(np.sum(getattr(seeker, "collapses", 0)))}
 
 
@@ -232,7 +242,9 @@ def _fmt(row: dict) -> str:
         clo, chi = row["calibration_ci95"]
         post = (f" estimate within 1 m {row['estimate_success']:.2f}, error {row['estimate_error_m_median']:.2f} m, "
                 f"region95 {row['region95_m_median']:.2f} m, calibration {row['calibration']:.2f} ({clo:.2f}-{chi:.2f}), "
-                f"converged {row['converged']:.2f}, collapses {row['collapses']}, wall {row['wall_s']:.0f} s |")
+                f"converged {row['converged']:.2f}, reported converged {row['reported_converged']:.2f}, "
+                f"misfit {row['misfit']:.2f} (fit z {row['fit_z_median']:.1f}), collapses {row['collapses']}, "
+                f"wall {row['wall_s']:.0f} s |")
     return (f"| {row['seeker']} | {row['field']} | {row['noise']:g} | {row['success']:.2f} ({lo:.2f}-{hi:.2f}) "
             f"| {row['time_s_median']:.1f} / {row['time_s_p90']:.1f} | {row['ratio_median']:.2f} / {row['ratio_p90']:.2f} "
             f"| {row['flown_m_median']:.1f} ({row['straight_m_median']:.1f}) | {row['readings_median']:.0f} "

@@ -6,9 +6,11 @@ position where it was taken) into a posterior over the release point (3D), its a
 when not given, the wind direction, and returns the next centre. The forward model and the
 likelihoods are :mod:`estimator.ste_model`. Per iteration:
 
-1. **Update**: ``log w += temper * sum_i log L(v_i | particle)`` over the iteration's readings
+1. **Update**: ``log w += sum_i (temper / n_i) log L(v_i | particle)`` over the iteration's readings
    (``temper`` < 1 because the readings of one instant, and of nearby instants, see the same
-   meander: they are not independent, and counting them as such makes the posterior overconfident).
+   meander: they are not independent, and counting them as such makes the posterior overconfident;
+   ``n_i`` the number of the iteration's readings within about ``corr_length_m`` of reading ``i``,
+   itself included, so readings that see the same puff share one reading's weight).
 2. **Collapse**: when even the best particle explains the iteration's readings worse than
    ``collapse_nats`` per reading on average (every weight effectively zero), the trial's
    particles are re-seeded from the prior about the current centre and the last ``memory``
@@ -19,13 +21,22 @@ likelihoods are :mod:`estimator.ste_model`. Per iteration:
 4. **Report**: :attr:`estimate_enu` the posterior mean release point and :attr:`region95_m` the
    radius about it holding 95 % of the weight; :attr:`arrival` (the convergence signal) is
    ``region95_m <= region_m`` with no collapse in the last ``memory`` iterations (a posterior
-   just re-seeded from a few readings can be tight and wrong).
+   just re-seeded from a few readings can be tight and wrong) and no :attr:`misfit`: the last
+   ``memory`` iterations' readings scored under the posterior predictive (steady: ``z^2`` of
+   a Gaussian predictive; intermittent: ``-2 log P(hit or miss)``), their total deviance minus
+   its expectation over its deviation if the model held (:attr:`fit_z`) above ``misfit_z`` says
+   the field is not a plume the model can represent (a tight posterior there is tight and wrong).
 5. **Move**: while the region is larger than ``exploit_m`` (default ``region_m``), the candidate (stay; ``step`` up/down
    wind, across it, up/down; toward the posterior mean) whose formation readings carry the most
    expected information about the particles (the mutual information of each vehicle's hit / miss,
    summed over vehicles, on a resampled subset of the particles: myopic infotaxis, Vergassola et
    al. 2007); ``step`` is half the region, within ``[min_step_m, max_step_m]``. Once the region is
-   below ``exploit_m``: the posterior mean.
+   below ``exploit_m``: the posterior mean. With ``casting``, two steps across the wind both ways
+   and the two up-wind diagonals are candidates too.
+6. **Formation**: :attr:`formation_radius_m` ``= radius_gain * region95_m`` within
+   ``[min_radius_m, max_radius_m]`` (wide to find the plume, tight about the release at the end,
+   where the plume is ~1 m across); the move's information is computed for the formation at that
+   radius. A caller that does not honour it (the mission, for now) keeps its own formation.
 
 The caller caps the move (``gamma_m``) and applies the safety envelope, as for every seeker.
 """
@@ -34,7 +45,8 @@ from __future__ import annotations
 import numpy as np
 
 from estimator.seek_inputs import seeker_inputs
-from estimator.ste_model import BRIGGS_RURAL, hit_probability, loglik_patchy, loglik_steady, plume_mean
+from estimator.ste_model import (BRIGGS_RURAL, deviance_patchy, deviance_steady, hit_probability, loglik_patchy,
+                                 loglik_steady, plume_mean)
 from scipy.special import ndtr
 
 __all__ = ["SteSeeker"]
@@ -95,6 +107,15 @@ class SteSeeker:
         Patchy likelihood: ``pi0``, ``beta``, ``s`` and ``eps`` (:mod:`estimator.ste_model`).
     temper : float
         Exponent of each iteration's likelihood, in (0, 1].
+    corr_length_m : float
+        Readings of one iteration closer than about this see the same puffs and meander: each
+        reading's exponent is ``temper / n_i``, ``n_i = sum_j exp(-d_ij^2 / 2 L^2)`` over the
+        iteration's readings (itself included; 1 for a formation spread wider than ``L``);
+        0: ``temper`` for every reading.
+    corr_iterations : int
+        The readings of this many previous iterations near reading ``i`` add to ``n_i`` too (a
+        formation that stays put reads the same meander again within its ~5 s correlation time);
+        0: the iteration's own readings only.
     region_m : float
         Convergence: the 95 % region's radius at most this.
     exploit_m : float or None
@@ -104,6 +125,22 @@ class SteSeeker:
         Mean deviance per reading of the best particle above which the posterior has collapsed.
     memory : int
         Iterations of readings re-applied after a collapse.
+    info_particles : int
+        Particles resampled from the posterior for the move's information and the model check.
+    radius_gain : float
+        The formation's radius (:attr:`formation_radius_m`, which the caller may honour) is
+        ``radius_gain * region95_m`` within ``[min_radius_m, max_radius_m]``: wide while the release
+        is uncertain, tight about it at the end; 0: the seeker does not size the formation
+        (``formation_radius_m`` None).
+    min_radius_m, max_radius_m : float
+        Bounds of the formation radius (the minimum keeps an 8-vehicle CVT's spacing above 1.5 m).
+    casting : bool
+        Add crosswind casts (two steps across the wind, both ways) and up-wind diagonals to the
+        move's candidates.
+    misfit_z : float
+        Model check: the readings of the last ``memory`` iterations are scored under the posterior
+        predictive; their deviance standardised by its expectation and deviation if the model held
+        (:attr:`fit_z`) above this flags :attr:`misfit` and withholds ``arrival``.
     seed : int
         Seed of the filter's random numbers (reset re-seeds).
     """
@@ -116,8 +153,11 @@ class SteSeeker:
                  ground_alt_m: float = 0.0, noise_std: float = 0.01, background: float = 0.0,
                  detection_floor: float = 0.0, rel_error: float = 0.3, hit_fraction: float = 0.6,
                  hit_shape: float = 0.8, hit_log_sd: float = 1.3, false_hit: float = 0.01, temper: float = 0.35,
-                 region_m: float = 1.0, exploit_m: float | None = None, min_step_m: float = 1.0, max_step_m: float = 8.0,
-                 collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, seed: int = 0):
+                 corr_length_m: float = 1.0, region_m: float = 1.0, exploit_m: float | None = None,
+                 min_step_m: float = 1.0, max_step_m: float = 8.0,
+                 collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.5,
+                 min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
+                 corr_iterations: int = 0, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -147,10 +187,20 @@ class SteSeeker:
                               beta=_positive("hit_shape", hit_shape), log_sd=_positive("hit_log_sd", hit_log_sd),
                               eps=_positive("false_hit", false_hit))
         self.temper, self.seed = float(temper), int(seed)
+        self.corr_length_m = _positive("corr_length_m", corr_length_m, allow_zero=True)
+        if isinstance(corr_iterations, bool) or int(corr_iterations) != corr_iterations or corr_iterations < 0:
+            raise ValueError(f"corr_iterations must be an integer >= 0, got {corr_iterations!r}")
+        self.corr_iterations = int(corr_iterations)
         self.region_m = _positive("region_m", region_m)
         self.exploit_m = self.region_m if exploit_m is None else _positive("exploit_m", exploit_m)
         self.min_step_m, self.max_step_m = _positive("min_step_m", min_step_m), _positive("max_step_m", max_step_m)
         self.collapse_nats = _positive("collapse_nats", collapse_nats)
+        self.radius_gain = _positive("radius_gain", radius_gain, allow_zero=True)
+        self.min_radius_m = _positive("min_radius_m", min_radius_m)
+        self.max_radius_m = _positive("max_radius_m", max_radius_m)
+        if self.min_radius_m > self.max_radius_m:
+            raise ValueError(f"min_radius_m {min_radius_m!r} must be at most max_radius_m {max_radius_m!r}")
+        self.casting, self.misfit_z = bool(casting), _positive("misfit_z", misfit_z)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -161,6 +211,9 @@ class SteSeeker:
         self.arrival = None
         self.estimate_enu = None
         self.region95_m = None
+        self.formation_radius_m = None
+        self.fit_z = None
+        self.misfit = None
 
     def _init_state(self, c: np.ndarray) -> None:
         k = c.shape[0]
@@ -203,12 +256,24 @@ class SteSeeker:
             return loglik_patchy(mu, g, v[:, None, :], background=self.background, **self.patchy_kw)
         return loglik_steady(mu, v[:, None, :], **self.steady_kw)
 
+    def _tempers(self, p: np.ndarray, recent: bool = False) -> np.ndarray:
+        """Each reading's likelihood exponent ``(K, M)`` from the positions ``(K, M, 3)`` of one
+        iteration's readings (``temper``, ``corr_length_m``); with ``recent``, the readings of the
+        last ``corr_iterations`` iterations near them count too."""
+        if self.corr_length_m == 0:
+            return np.full(p.shape[:2], self.temper)
+        near = p
+        if recent and self.corr_iterations > 0 and self._buf:
+            near = np.concatenate([p] + [b[0] for b in self._buf[-self.corr_iterations:]], axis=1)
+        d2 = np.sum((p[:, :, None, :] - near[:, None, :, :]) ** 2, axis=-1)
+        return self.temper / np.exp(-0.5 * d2 / self.corr_length_m ** 2).sum(axis=2)
+
     def _update(self, c: np.ndarray, p: np.ndarray, v: np.ndarray) -> None:
         """Fold the readings in (steps 1-2 of the module docstring)."""
         ll = self._loglik(self.parts, p, v)
         best = ll.mean(axis=2).max(axis=1)  # the best particle's mean log-likelihood per reading
         collapsed = (-best > self.collapse_nats) & (v.shape[1] >= 4)
-        self.logw = self.logw + self.temper * ll.sum(axis=2)
+        self.logw = self.logw + np.einsum("kpm,km->kp", ll, self._tempers(p, recent=True))
         self.collapsed = collapsed
         self.since_collapse = np.where(collapsed, 0, self.since_collapse + 1)
         if collapsed.any():
@@ -216,7 +281,8 @@ class SteSeeker:
             self.collapses[idx] += 1
             self._seed_prior(idx, c)
             for bp, bv in self._buf[-self.memory:] + [(p, v)]:
-                self.logw[idx] += self.temper * self._loglik(self.parts[idx], bp[idx], bv[idx]).sum(axis=2)
+                self.logw[idx] += np.einsum("kpm,km->kp", self._loglik(self.parts[idx], bp[idx], bv[idx]),
+                                            self._tempers(bp[idx]))
         self.logw -= self.logw.max(axis=1, keepdims=True)
         self.logw -= np.log(np.exp(self.logw).sum(axis=1, keepdims=True))
         self._buf = (self._buf + [(p, v)])[-self.memory:]
@@ -260,7 +326,31 @@ class SteSeeker:
         at = np.minimum(np.argmax(cum >= 0.95, axis=1), self.particles - 1)
         self.estimate_enu = mean
         self.region95_m = np.take_along_axis(d, np.take_along_axis(order, at[:, None], 1), 1)[:, 0]
-        self.arrival = (self.region95_m <= self.region_m) & (self.since_collapse > self.memory)
+
+    def _check_fit(self, sub: np.ndarray) -> None:
+        """Model check (class docstring, ``misfit_z``) of the buffered readings on the particles ``sub``."""
+        pos = np.concatenate([b[0] for b in self._buf], axis=1)
+        val = np.concatenate([b[1] for b in self._buf], axis=1)
+        mu, g = plume_mean(sub, pos, **self.model)
+        if self.patchy:
+            d, e, var = deviance_patchy(hit_probability(mu, g, **self.patchy_kw).mean(axis=1),
+                                        val - self.background > self.threshold)
+        else:
+            spread = self.steady_kw["noise_std"] ** 2 + self.steady_kw["rel_error"] ** 2 * (mu * mu).mean(axis=1)
+            d, e, var = deviance_steady(mu.mean(axis=1), spread + mu.var(axis=1), val, background=self.background)
+        self.fit_z = (d.sum(axis=1) - e.sum(axis=1)) / np.sqrt(np.maximum(var.sum(axis=1), 1e-12))
+        self.misfit = self.fit_z > self.misfit_z
+        self.arrival = (self.region95_m <= self.region_m) & (self.since_collapse > self.memory) & ~self.misfit
+
+    def _size_formation(self, p: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """Set :attr:`formation_radius_m`; the offsets ``(K, N, 3)`` of the next formation about its centre."""
+        off = p - c[:, None, :]
+        if self.radius_gain == 0 or off.shape[1] < 2:
+            return off
+        radius = np.clip(self.radius_gain * self.region95_m, self.min_radius_m, self.max_radius_m)
+        self.formation_radius_m = radius
+        base = np.linalg.norm(off, axis=-1).mean(axis=1)
+        return off * (radius / np.maximum(base, 1e-9))[:, None, None]
 
     # ------------------------------------------------------------------ the move
     def _p_hit(self, parts: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -272,7 +362,7 @@ class SteSeeker:
         return ndtr((mu - self.threshold) / sd)
 
     def _candidates(self, c: np.ndarray) -> np.ndarray:
-        """Candidate centres ``(K, 8, 3)`` (module docstring, step 5)."""
+        """Candidate centres ``(K, C, 3)``: 8, or 12 with ``casting`` (module docstring, step 5)."""
         w = np.exp(self.logw)
         th = np.arctan2(np.einsum("kp,kp->k", w, np.sin(self.parts[..., 4])),
                         np.einsum("kp,kp->k", w, np.cos(self.parts[..., 4])))
@@ -284,16 +374,21 @@ class SteSeeker:
         dist = np.linalg.norm(to_mean, axis=1, keepdims=True)
         toward = c + to_mean * np.minimum(1.0, step / np.maximum(dist, 1e-9))
         dirs = [np.zeros_like(up), up, -up, cross, -cross, 0.5 * vert, -0.5 * vert]
+        if self.casting:
+            dirs += [2.0 * cross, -2.0 * cross, (up + cross) / np.sqrt(2.0), (up - cross) / np.sqrt(2.0)]
         return np.stack([c + step * d for d in dirs] + [toward], axis=1)
 
-    def _next_centre(self, c: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """The candidate with the most expected information, or the posterior mean (step 5)."""
-        k, s = c.shape[0], min(self.info_particles, self.particles)
+    def _subsample(self) -> np.ndarray:
+        """``info_particles`` particles per trial resampled from the posterior, equal weights."""
+        k, s = self._k, min(self.info_particles, self.particles)
+        pick = _systematic(np.exp(self.logw), s, self.rng.uniform(0.0, 1.0, k))
+        return np.take_along_axis(self.parts, pick[..., None], axis=1)
+
+    def _next_centre(self, c: np.ndarray, off: np.ndarray, sub: np.ndarray) -> np.ndarray:
+        """The candidate with the most expected information for a formation of offsets ``off``,
+        or the posterior mean (step 5)."""
+        k = c.shape[0]
         cand = self._candidates(c)
-        w = np.exp(self.logw)
-        pick = _systematic(w, s, self.rng.uniform(0.0, 1.0, k))
-        sub = np.take_along_axis(self.parts, pick[..., None], axis=1)
-        off = p - c[:, None, :]
         pts = (cand[:, :, None, :] + off[:, None, :, :]).reshape(k, -1, 3)
         q = self._p_hit(sub, pts)  # (K, S, C * N)
         info = (_entropy2(q.mean(axis=1)) - _entropy2(q).mean(axis=1)).reshape(k, cand.shape[1], -1).sum(axis=2)
@@ -309,6 +404,8 @@ class SteSeeker:
         self.hits += np.sum(v - self.background > self.threshold, axis=1)
         self._update(c, p, v)
         self._summarise()
-        nxt = self._next_centre(c, p)
+        sub = self._subsample()
+        self._check_fit(sub)
+        nxt = self._next_centre(c, self._size_formation(p, c), sub)
         self._resample()
         return nxt

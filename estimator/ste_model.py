@@ -31,7 +31,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import erfc, log_ndtr
 
-__all__ = ["BRIGGS_RURAL", "plume_mean", "steady_plume", "loglik_steady", "loglik_patchy", "hit_probability"]
+__all__ = ["BRIGGS_RURAL", "plume_mean", "steady_plume", "loglik_steady", "loglik_patchy", "hit_probability",
+           "deviance_steady", "deviance_patchy"]
 
 #: Briggs (1973) open-country coefficients ``(ay, by, az, bz, pz)``:
 #: ``sigma_y = ay x (1 + by x)^-1/2``, ``sigma_z = az x (1 + bz x)^pz`` (Seinfeld & Pandis table 18.3)
@@ -134,3 +135,21 @@ def loglik_patchy(mu, g, v, *, background: float, threshold: float, pi0: float, 
     hit = np.log(eps + (1.0 - eps) * pi * above * shape)
     miss = np.log(np.maximum(1.0 - p_hit, _TINY))
     return np.where(v - background > threshold, hit, miss)
+
+
+def deviance_steady(mu_pred, var_pred, v, *, background: float) -> tuple:
+    """Per-reading deviance ``z^2`` of steady readings under a Gaussian predictive (mean ``mu_pred``,
+    variance ``var_pred``), with its expectation (1) and variance (2) if the model holds."""
+    d = (v - background - mu_pred) ** 2 / var_pred
+    return d, np.ones_like(d), np.full_like(d, 2.0)
+
+
+def deviance_patchy(p_hit, hit) -> tuple:
+    """Per-reading deviance ``-2 log P(hit or miss)`` of an intermittent plume's readings under the
+    predictive hit probability ``p_hit``, with its expectation ``2 H(p)`` and variance
+    ``4 p (1 - p) logit(p)^2`` if the model holds (``hit`` boolean, same shape)."""
+    p = np.clip(p_hit, 1e-9, 1.0 - 1e-9)
+    d = -2.0 * np.where(hit, np.log(p), np.log1p(-p))
+    e = -2.0 * (p * np.log(p) + (1.0 - p) * np.log1p(-p))
+    var = 4.0 * p * (1.0 - p) * np.log(p / (1.0 - p)) ** 2
+    return d, e, var

@@ -3,7 +3,11 @@
 :func:`simulate_seeker` runs ``K`` independent trials at once (perfect tracking: each robot
 reads exactly at ``centre + offset_i``, with Gaussian noise), the seeker proposing each next
 centre (:mod:`estimator.seekers`) and the cap ``gamma_m`` applied outside it, as the mission
-does. :class:`StopAndGo` turns each iteration's centre move into mission time.
+does. A seeker with a ``formation_radius_m`` attribute (``(K,)`` after each ``propose``; the
+``ste`` seeker) sizes the formation: the next readings are taken with the offsets scaled to that
+mean radius (their directions kept), and the iteration's time is the longest vehicle flight to
+its new slot; every other seeker keeps the given offsets. :class:`StopAndGo` turns each
+iteration's moves into mission time.
 
 The time model (what ``mission.flight.seek`` does per iteration): the ramp moves every setpoint
 to its slot about the new centre at ``max_speed_m_s`` horizontally and at most
@@ -81,12 +85,16 @@ class SeekRun:
         The convergence test's signal for the iteration that led to each centre, as the mission
         computes it: the seeker's own ``arrival`` if it has one, else
         :class:`estimator.seek_signal.ArrivalSignal` on the noisy readings (index 0, the start: True).
+    radii_m : ndarray, shape (T + 1, K), optional
+        The formation's radius about each centre when the seeker sets it (``formation_radius_m``);
+        None: ``offsets`` throughout.
     """
 
     centres: np.ndarray
     offsets: np.ndarray
     source_enu: np.ndarray
     signal: np.ndarray | None = None
+    radii_m: np.ndarray | None = None
 
     def distance_m(self) -> np.ndarray:
         """Distance of the centre to the source, (T + 1, K)."""
@@ -95,6 +103,21 @@ class SeekRun:
     def moves(self) -> np.ndarray:
         """Centre moves per iteration, (T, K, 3)."""
         return np.diff(self.centres, axis=0)
+
+    def iteration_s(self, time_model: StopAndGo) -> np.ndarray:
+        """Mission time of each iteration, (T, K): the centre's move, or with a changing formation
+        radius the longest of the vehicles' flights to their new slots."""
+        if self.radii_m is None:
+            return time_model.iteration_s(self.moves())
+        slots = _scaled(self.offsets, self.radii_m[:, :, None, None])  # (T + 1, K, N, 3)
+        flights = self.moves()[:, :, None, :] + np.diff(slots, axis=0)
+        return time_model.iteration_s(flights).max(axis=-1)
+
+
+def _scaled(offsets: np.ndarray, radius_m) -> np.ndarray:
+    """Offsets ``(K, N, 3)`` scaled so that their mean distance from the centre is ``radius_m``."""
+    base = np.linalg.norm(offsets, axis=-1).mean(axis=-1)[:, None, None]
+    return offsets * (radius_m / np.where(base > 0, base, 1.0))
 
 
 def _rotated(offsets: np.ndarray, trials: int, rng) -> np.ndarray:
@@ -153,8 +176,11 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
     centres[0] = c0
     arrival = ArrivalSignal()
     signal = np.ones((int(iterations) + 1, k), dtype=bool)
+    radii = np.full((int(iterations) + 1, k), np.nan)
+    radii[0] = np.linalg.norm(trial_off, axis=-1).mean(axis=-1)
+    slots = trial_off
     for t in range(int(iterations)):
-        pos = centres[t][:, None, :] + trial_off
+        pos = centres[t][:, None, :] + slots
         vals = field.value(pos, now_s) if timed else field.value(pos)
         if noise_std > 0:
             vals = vals + rng.standard_normal(vals.shape) * noise_std
@@ -162,5 +188,12 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
         own = getattr(seeker, "arrival", None)  # a seeker that knows (plume: holding with a detection)
         generic = arrival.signal(vals)  # kept up to date either way, as in the mission
         signal[t + 1] = generic if own is None else own
-        now_s = now_s + model.iteration_s(centres[t + 1] - centres[t])[:, None]
-    return SeekRun(centres, trial_off, np.asarray(field.source_enu(), dtype=float), signal)
+        radius = getattr(seeker, "formation_radius_m", None)  # a seeker that sizes the formation (ste)
+        radii[t + 1] = radii[t] if radius is None else radius
+        new_slots = slots if radius is None else _scaled(trial_off, radii[t + 1][:, None, None])
+        flights = (centres[t + 1] - centres[t])[:, None, :] + new_slots - slots
+        now_s = now_s + model.iteration_s(flights).max(axis=-1)[:, None]
+        slots = new_slots
+    sized = not np.allclose(radii, radii[0])
+    return SeekRun(centres, trial_off, np.asarray(field.source_enu(), dtype=float), signal,
+                   radii if sized else None)

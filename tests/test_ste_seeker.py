@@ -121,3 +121,112 @@ def test_deterministic_for_a_seed():
         runs.append(seeker.estimate_enu.copy())
     assert np.array_equal(runs[0], runs[1])
     assert not np.array_equal(runs[0], runs[2])
+
+
+class _FixedRadius:
+    """A seeker that stays put and asks for a formation radius; records where it was read."""
+
+    name = "fixed-radius"
+
+    def __init__(self, radius_m):
+        self.radius_m_asked = radius_m
+        self.seen = []
+
+    def reset(self):
+        self.formation_radius_m = None
+        self.seen = []
+
+    def propose(self, centre, positions, values):
+        self.seen.append(np.asarray(positions) - np.asarray(centre)[:, None, :])
+        self.formation_radius_m = np.full(len(centre), self.radius_m_asked)
+        return np.asarray(centre)
+
+
+def test_offline_runner_honours_the_formation_radius_and_times_the_vehicles_flights():
+    from experiments.offline_seek import StopAndGo, simulate_seeker
+
+    field = make_field("plume", SOURCE, background=0.0)
+    starts = np.array([[20.0, 0.0, 15.0], [30.0, 2.0, 14.0]])
+    seeker = _FixedRadius(2.0)
+    run = simulate_seeker(OFFSETS, field, starts, seeker, gamma_m=20.0, iterations=3, seed=1)
+    radii = [np.linalg.norm(off, axis=-1) for off in seeker.seen]
+    assert np.allclose(radii[0], 4.0) and np.allclose(radii[1], 2.0) and np.allclose(radii[2], 2.0)
+    assert np.allclose(run.radii_m[0], 4.0) and np.allclose(run.radii_m[1:], 2.0)
+    t = run.iteration_s(StopAndGo())
+    # the first iteration: no centre move, but every vehicle flies 2 m inward to its new slot
+    assert np.all(t[0] >= StopAndGo().iteration_s(np.array([2.0, 0.0, 0.0])) - 1e-9)
+    assert np.all(t[0] > t[1]) and np.allclose(t[1], StopAndGo().iteration_s(np.zeros(3)))
+    # a seeker that does not size the formation keeps the given offsets and the centre-move time
+    plain = simulate_seeker(OFFSETS, field, starts, make_seeker("model"), gamma_m=20.0, iterations=3, seed=1)
+    assert plain.radii_m is None
+    assert np.allclose(plain.iteration_s(StopAndGo()), StopAndGo().iteration_s(plain.moves()))
+
+
+def test_formation_radius_follows_the_posterior_within_its_bounds():
+    from experiments.offline_seek import simulate_seeker
+
+    field = make_field("plume", SOURCE, background=0.0)
+    seeker = SteSeeker(wind_from_deg=270.0, seed=3, min_radius_m=1.5, max_radius_m=6.0)
+    run = simulate_seeker(OFFSETS, field, np.array([[25.0, 1.0, 13.0]]), seeker, gamma_m=20.0, iterations=60, seed=2)
+    r = run.radii_m[1:, 0]
+    assert np.all((r >= 1.5 - 1e-9) & (r <= 6.0 + 1e-9))
+    assert r[0] == pytest.approx(6.0)  # the prior is wide: the widest formation
+    assert r[-1] < 2.0 and seeker.region95_m[0] < 2.0  # tight about the release at the end
+    assert np.linalg.norm(run.centres[-1, 0] - SOURCE) < 1.0
+    fixed = SteSeeker(wind_from_deg=270.0, radius_gain=0.0)
+    _fly(fixed, field, 2)
+    assert fixed.formation_radius_m is None
+
+
+def test_tempering_is_shared_by_readings_that_see_the_same_puffs():
+    seeker = SteSeeker(temper=0.4, corr_length_m=1.0)
+    spread = (OFFSETS * 4.0)[None]  # 16 m formation: independent readings
+    assert np.allclose(seeker._tempers(spread), 0.4, atol=1e-6)
+    clustered = np.zeros((1, 4, 3))  # four readings at one point: one reading's worth between them
+    assert np.allclose(seeker._tempers(clustered), 0.1)
+    assert np.allclose(SteSeeker(temper=0.4, corr_length_m=0.0)._tempers(clustered), 0.4)
+    again = SteSeeker(temper=0.4, corr_length_m=1.0, corr_iterations=1)
+    again._buf = [(clustered, np.zeros((1, 4)))]  # the last iteration read the same four points
+    assert np.allclose(again._tempers(clustered, recent=True), 0.05)
+    assert np.allclose(again._tempers(spread, recent=True), 0.4, atol=1e-6)  # elsewhere: not shared
+    with pytest.raises(ValueError, match="corr_iterations"):
+        SteSeeker(corr_iterations=-1)
+
+
+def test_deviances_have_the_stated_expectation_when_the_model_holds():
+    from estimator.ste_model import deviance_patchy, deviance_steady
+
+    rng = np.random.default_rng(0)
+    p = rng.uniform(0.01, 0.9, 20000)
+    d, e, var = deviance_patchy(p, rng.uniform(size=p.size) < p)
+    z = (d.sum() - e.sum()) / np.sqrt(var.sum())
+    assert abs(z) < 4.0
+    d_wrong, e_w, var_w = deviance_patchy(p, rng.uniform(size=p.size) < 1.0 - p)  # the hits where misses are due
+    assert (d_wrong.sum() - e_w.sum()) / np.sqrt(var_w.sum()) > 20.0
+    mu = rng.uniform(0.0, 1.0, 5000)
+    d, e, var = deviance_steady(mu, np.full(mu.size, 0.04), mu + 0.2 * rng.standard_normal(mu.size), background=0.0)
+    assert abs((d.sum() - e.sum()) / np.sqrt(var.sum())) < 4.0
+
+
+def test_a_field_the_model_cannot_fit_is_flagged_and_never_reports_arrival():
+    """The paper's sigma_2 (a Gaussian blob, no wind): the plume model misfits it."""
+    from experiments.offline_seek import simulate_seeker
+
+    field = make_field("sigma2", SOURCE)
+    starts = SOURCE + np.array([[20.0, 0.0, 0.0], [0.0, -25.0, 2.0], [-15.0, 15.0, -2.0], [30.0, 10.0, 0.0]])
+    runs = {}
+    for misfit_z in (4.0, 1e9):  # the default check, and none
+        seeker = SteSeeker(seed=4, radius_gain=0.0, casting=False, misfit_z=misfit_z)
+        runs[misfit_z] = simulate_seeker(OFFSETS, field, starts, seeker, gamma_m=20.0, iterations=40,
+                                         noise_std=0.01, seed=3)
+    assert seeker.misfit.shape == (4,) and seeker.fit_z.shape == (4,)
+    assert runs[1e9].signal[1:].any()  # without the check: tight, wrong and "arrived"
+    assert not runs[4.0].signal[1:].any()  # with it: arrival never reported
+    assert np.any(seeker.fit_z > 4.0)
+
+
+def test_the_model_check_passes_where_the_model_holds():
+    field = make_field("plume", SOURCE, background=0.0)
+    seeker = SteSeeker(wind_from_deg=270.0, seed=3)
+    _fly(seeker, field, 40)
+    assert not seeker.misfit[0] and seeker.fit_z[0] < seeker.misfit_z
