@@ -115,6 +115,19 @@ class _Drain(threading.Thread):
         return self.data.decode(errors="replace")
 
 
+def _output_fds(runner, stdout, stderr) -> dict:
+    """The child's ``stdout``/``stderr`` file descriptors: the one given, or the write end of a pipe
+    that ``runner.out`` / ``runner.err`` (a :class:`_Drain`) reads."""
+    fds = {}
+    for name, given in (("stdout", stdout), ("stderr", stderr)):
+        if given is None:
+            r, w = os.pipe()
+            setattr(runner, name[3:], _Drain(r))
+            given = w
+        fds[name] = given
+    return fds
+
+
 def _dead_pipe() -> int:
     """The write end of a pipe whose read end is closed (any write: EPIPE)."""
     r, w = os.pipe()
@@ -169,13 +182,7 @@ class _Fly:
         """Start the fleet and ``fly``; ``stdout``/``stderr``: a file descriptor (default: a pipe read
         here); ``as_json``: ``--json`` (nothing on stdout before the end), else the live display."""
         self.fleet.start()
-        fds = {}
-        for name, given in (("stdout", stdout), ("stderr", stderr)):
-            if given is None:
-                r, w = os.pipe()
-                setattr(self, name[3:], _Drain(r))
-                given = w
-            fds[name] = given
+        fds = _output_fds(self, stdout, stderr)
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "mission", "fly", "--plan", str(self.plan), "--log-dir", str(self.log.parent),
              "--no-tlog", *(["--json"] if as_json else [])], stdout=fds["stdout"], stderr=fds["stderr"], env=_env(), cwd=ROOT,
@@ -226,13 +233,7 @@ class _Run:
 
     def start(self, stdout=None, stderr=None, preexec_fn=None, as_json: bool = True) -> None:
         """Start ``run``; ``stdout``/``stderr``: a file descriptor (default: a pipe read here)."""
-        fds = {}
-        for name, given in (("stdout", stdout), ("stderr", stderr)):
-            if given is None:
-                r, w = os.pipe()
-                setattr(self, name[3:], _Drain(r))
-                given = w
-            fds[name] = given
+        fds = _output_fds(self, stdout, stderr)
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "mission", "run", "--n", str(N), "--seed", "1", "--no-tlog",
              "--log-dir", str(self.log.parent), *(["--json"] if as_json else [])],

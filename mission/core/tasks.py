@@ -11,6 +11,8 @@ import asyncio
 import logging
 from typing import Callable
 
+from mission.core.clock import cancel_and_wait
+
 __all__ = ["watch_task", "spawn", "stop_watched"]
 
 _LOGGER = "swarmseek"
@@ -57,12 +59,7 @@ async def stop_watched(task: asyncio.Future | None) -> None:
     Its cancellation is absorbed; an exception it ended with was told by :func:`watch_task`
     and is not raised again (stopping the mission's background must go on).
     """
-    if task is None:
-        return
-    task.cancel()
     try:
-        await task
-    except asyncio.CancelledError:
-        pass
+        await cancel_and_wait(task)
     except Exception:  # noqa: BLE001 - already told by the task's watch_task callback
         return
