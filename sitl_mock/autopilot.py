@@ -15,9 +15,8 @@ from collections import Counter
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from formation.geodesy import enu_to_ned, geodetic_to_enu
+from formation.geodesy import TangentFrame, enu_to_ned, geodetic_to_enu
 from sitl_mock import ap_failsafe, ap_flight, ap_mission_exec, ap_receive
-from sitl_mock.ap_geo import LocalFrame
 from sitl_mock.ap_signing import VehicleSigning, signing_timestamp
 from sitl_mock.ap_mission import MissionItem, MissionServer
 from sitl_mock.ap_modes import Personality, make_personality
@@ -91,7 +90,7 @@ class MockAutopilot:
         self.params = ParamTable(self.personality.param_specs(self.sysid, multicopter.params),
                                  self.personality.param_bytewise, param_overrides)
         self._origin = tuple(float(v) for v in home)
-        self._frame = LocalFrame(self._origin)
+        self._frame = TangentFrame(self._origin)
         self._outbox: list[bytes] = []
         self.missions = MissionServer(self.mav, self.emit, self._home_item,
                                       self.personality.name == "ardupilot", self.counters)

@@ -1,13 +1,21 @@
-"""formation.geodesy against published reference points and independent closed forms."""
+"""formation.geodesy against published reference points and independent closed forms.
+
+Its scalar :class:`~formation.geodesy.TangentFrame` (the readings' and the mock autopilot's hot
+path) is bit-identical to pymap3d's array maths, on random points and on a grid.
+"""
 import math
 
 import numpy as np
 import pymap3d
 import pytest
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from formation.geodesy import (
     WGS84_A_M,
     WGS84_F,
+    TangentFrame,
     ecef_to_geodetic,
     enu_to_geodetic,
     geodetic_to_ecef,
@@ -96,17 +104,54 @@ def test_enu_round_trip_and_shapes():
     assert geodetic_to_enu(np.zeros((2, 4)) + 45.0, 5.7, 0.0, origin).shape == (2, 4, 3)
 
 
-@pytest.mark.parametrize("origin", [(45.1885, 5.7245, 212.0), (-33.9, 151.2, 40.0), (0.0, 0.0, 0.0),
-                                    (69.6, 18.9, 5.0)])
-def test_the_mock_autopilots_fast_local_frame_agrees_with_pymap3d(origin):
-    """sitl_mock.ap_geo keeps scalar WGS-84 maths for the mock's 50 Hz loop: it must agree."""
-    from sitl_mock.ap_geo import LocalFrame
+_LAT = st.floats(-90, 90)
+_LON = st.floats(-180, 180)
 
-    frame = LocalFrame(origin)
-    rng = np.random.default_rng(7)
-    for north_m, east_m, down_m in rng.uniform(-2000.0, 2000.0, size=(200, 3)):
-        lat, lon, alt = frame.ned_to_geodetic(north_m, east_m, down_m)
-        ref = enu_to_geodetic(np.array([east_m, north_m, -down_m]), origin)
-        back = geodetic_to_enu(lat, lon, alt, origin)
-        assert np.allclose(back, [east_m, north_m, -down_m], atol=1e-3), (back, ref)
-        assert abs(lat - ref[0]) < 1e-8 and abs(lon - ref[1]) < 1e-8 and abs(alt - ref[2]) < 1e-3
+
+@settings(max_examples=1000, deadline=None)
+@given(_LAT, _LON, st.floats(-500, 9000), _LAT, _LON, st.floats(-1000, 1e6), st.booleans())
+def test_tangent_frame_geodetic_to_enu_is_bit_identical_to_pymap3d(lat0, lon0, alt0, lat, lon, alt, near):
+    origin = (lat0, lon0, alt0)
+    if near:   # the mission's case: within a few km of the origin
+        lat, lon = min(90.0, max(-90.0, lat0 + lat * 1e-3)), min(180.0, max(-180.0, lon0 + lon * 1e-3))
+    got = TangentFrame(origin).geodetic_to_enu_m(lat, lon, alt)
+    assert all(type(v) is float for v in got)
+    assert got == tuple(geodetic_to_enu(lat, lon, alt, origin).tolist())
+
+
+@settings(max_examples=1000, deadline=None)
+@given(_LAT, _LON, st.floats(-500, 9000), st.floats(-1e4, 1e4), st.floats(-1e4, 1e4), st.floats(-1e4, 1e6),
+       st.sampled_from([1e-3, 1.0, 1e3]))
+def test_tangent_frame_enu_to_geodetic_is_bit_identical_to_pymap3d(lat0, lon0, alt0, east_m, north_m, up_m, scale):
+    origin = (lat0, lon0, alt0)
+    enu = (east_m * scale, north_m * scale, up_m)
+    got = TangentFrame(origin).enu_to_geodetic(*enu)
+    assert all(type(v) is float for v in got)
+    assert got == tuple(float(v) for v in enu_to_geodetic(np.array(enu), origin))
+
+
+def test_tangent_frame_is_bit_identical_to_pymap3d_on_a_grid():
+    """Origins every 15 degrees (poles included), points up to 20 km out, 0-5 km up and down."""
+    checked = 0
+    for lat0 in np.arange(-90.0, 90.1, 15.0):
+        for lon0 in np.arange(-180.0, 180.1, 45.0):
+            origin = (float(lat0), float(lon0), 212.0)
+            frame = TangentFrame(origin)
+            for east_m in (-20000.0, -150.5, 0.0, 3.25, 20000.0):
+                for north_m in (-20000.0, -7.75, 0.0, 150.5, 20000.0):
+                    for up_m in (-5000.0, 0.0, 42.0, 5000.0):
+                        lat, lon, alt = (float(v) for v in enu_to_geodetic(np.array([east_m, north_m, up_m]), origin))
+                        assert frame.enu_to_geodetic(east_m, north_m, up_m) == (lat, lon, alt), (origin, east_m)
+                        assert frame.ned_to_geodetic(north_m, east_m, -up_m) == (lat, lon, alt)
+                        back = tuple(geodetic_to_enu(lat, lon, alt, origin).tolist())
+                        assert frame.geodetic_to_enu_m(lat, lon, alt) == back
+                        checked += 1
+    assert checked == 13 * 9 * 100
+
+
+def test_tangent_frame_hands_pymap3d_its_special_cases():
+    """The Earth's centre and a point on its axis go to pymap3d's own branches, same answer."""
+    frame = TangentFrame((10.0, 20.0, 0.0))
+    for xyz in ((0.0, 0.0, 0.0), (0.0, 0.0, 6356752.0), (0.0, 0.0, -7000000.0)):
+        ref = tuple(float(v) for v in pymap3d.ecef2geodetic(np.asarray(xyz[0]), np.asarray(xyz[1]), np.asarray(xyz[2])))
+        assert frame.ecef_to_geodetic(*xyz) == ref

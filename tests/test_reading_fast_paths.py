@@ -1,7 +1,5 @@
 """The reading store's fast paths give exactly what the general code gives.
 
-* :class:`~mission.telemetry.readings._EnuConverter` is bit-identical to
-  :func:`formation.geodesy.geodetic_to_enu` (pymap3d) on random points near and far from the origin;
 * ``decode_reading``'s typical-payload path (every field already of its exact type) returns the
   same dict, with the same types, as the general field check, and leaves every other payload to it;
 * :meth:`Reading.accepted` builds the same frozen reading as ``Reading(...)``;
@@ -19,30 +17,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from formation.geodesy import geodetic_to_enu
 from mission.telemetry import reading_format
 from mission.telemetry.reading_format import SCHEMA, Reading, ReadingRejected, _checked_fields, _typical_fields
-from mission.telemetry.readings import _EnuConverter
-
-_LAT = st.floats(-90, 90)
-_LON = st.floats(-180, 180)
-
-
-@settings(max_examples=1000, deadline=None)
-@given(_LAT, _LON, st.floats(-500, 9000), _LAT, _LON, st.floats(-1000, 1e6), st.booleans())
-def test_enu_converter_is_bit_identical_to_pymap3d(lat0, lon0, alt0, lat, lon, alt, near):
-    origin = (lat0, lon0, alt0)
-    if near:   # the mission's case: within a few km of the origin
-        lat, lon = min(90.0, max(-90.0, lat0 + lat * 1e-3)), min(180.0, max(-180.0, lon0 + lon * 1e-3))
-    got = _EnuConverter(origin).enu_m(lat, lon, alt)
-    assert got == tuple(geodetic_to_enu(lat, lon, alt, origin).tolist())
-
-
-def test_enu_converter_returns_plain_floats_and_an_array():
-    conv = _EnuConverter((45.19, 5.72, 230.0))
-    assert all(type(v) is float for v in conv.enu_m(45.2, 5.73, 240.0))
-    assert np.array_equal(conv(45.2, 5.73, 240.0), np.array(conv.enu_m(45.2, 5.73, 240.0)))
-
 
 _VALUES = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10, 10), st.integers(),
                     st.booleans(), st.none(), st.text(max_size=5), st.just(10 ** 400),

@@ -204,15 +204,3 @@ def test_zenoh_subscriber_feeds_the_store():
     finally:
         sub_session.close()
         pub_session.close()
-
-
-@settings(max_examples=100, deadline=None)
-@given(st.floats(-60, 60), st.floats(-170, 170), st.floats(-0.05, 0.05), st.floats(-0.05, 0.05),
-       st.floats(-100, 3000))
-def test_fast_enu_conversion_matches_geodesy(lat0, lon0, dlat, dlon, alt):
-    from formation.geodesy import geodetic_to_enu
-    from mission.telemetry.readings import _EnuConverter
-
-    origin = (lat0, lon0, 100.0)
-    got = _EnuConverter(origin)(lat0 + dlat, lon0 + dlon, alt)
-    assert np.allclose(got, geodetic_to_enu(lat0 + dlat, lon0 + dlon, alt, origin), atol=1e-6)

@@ -22,7 +22,7 @@ and either keeps it (a bounded history per vehicle) or rejects it and counts the
 
 Time alignment: :meth:`ReadingStore.aligned` returns, for an estimation instant ``t``, each
 vehicle's reading nearest ``t`` within ``window_s``, with the position where it was taken in the
-mission ENU frame (converted with :mod:`formation.geodesy` / :mod:`pymap3d`).
+mission ENU frame (converted with :class:`formation.geodesy.TangentFrame`, pymap3d's maths).
 
 The wire format (schema, keys, :func:`decode_reading`, :class:`Reading`) lives in
 :mod:`mission.telemetry.reading_format` and is re-exported here.
@@ -36,9 +36,8 @@ from collections import deque
 from typing import Callable, Iterable
 
 import numpy as np
-import pymap3d
 
-from formation.geodesy import geodetic_to_ecef
+from formation.geodesy import TangentFrame
 from mission.telemetry.reading_format import (
     REJECT_REASONS,
     SCHEMA,
@@ -61,61 +60,6 @@ __all__ = [
     "ReadingStore",
     "ReadingSubscriber",
 ]
-
-
-class _EnuConverter:
-    """Geodetic -> mission ENU for one point at a time (WGS-84 maths of :mod:`pymap3d`).
-
-    The origin's ECEF position, the sines and cosines of its latitude and longitude and the
-    WGS-84 axes are kept once; each call is ``pymap3d.geodetic2ecef`` and ``pymap3d.uvw2enu``
-    written out on plain floats, with the same operations in the same order, so the result is
-    bit-identical to theirs (and to :func:`formation.geodesy.geodetic_to_enu`'s maths) at a
-    fraction of the cost on a single point: :func:`math.radians` is numpy's ``radians`` (one
-    multiplication by the same double pi / 180), :func:`math.sin` and :func:`math.cos` are the
-    C library's, which numpy's float64 ``sin`` and ``cos`` call; ``hypot`` stays numpy's (it
-    differs from :func:`math.hypot` in the last bit). ``tests/test_reading_fast_paths.py`` checks the
-    bit equality with :func:`formation.geodesy.geodetic_to_enu` on random points.
-
-    Parameters
-    ----------
-    origin : tuple of float
-        Mission origin ``(lat_deg, lon_deg, alt_m)``.
-    """
-
-    def __init__(self, origin):
-        lat0_deg, lon0_deg, alt0_m = (float(v) for v in origin)
-        ell = pymap3d.Ellipsoid.from_name("wgs84")
-        self._a_m, self._b_m = ell.semimajor_axis, ell.semiminor_axis
-        self._a2_m2 = self._a_m ** 2
-        self._ba2 = (self._b_m / self._a_m) ** 2
-        lat0_rad, lon0_rad = math.radians(lat0_deg), math.radians(lon0_deg)
-        self._sin_lat0, self._cos_lat0 = float(np.sin(lat0_rad)), float(np.cos(lat0_rad))
-        self._sin_lon0, self._cos_lon0 = float(np.sin(lon0_rad)), float(np.cos(lon0_rad))
-        self._origin_ecef_m = tuple(float(v) for v in geodetic_to_ecef(lat0_deg, lon0_deg, alt0_m))
-
-    def ecef_m(self, lat_deg, lon_deg, alt_m) -> tuple[float, float, float]:
-        """``pymap3d.geodetic2ecef`` (WGS-84, degrees) of one point, as plain floats."""
-        lat_rad, lon_rad = math.radians(lat_deg), math.radians(lon_deg)
-        cos_lat, sin_lat = math.cos(lat_rad), math.sin(lat_rad)
-        cos_lon, sin_lon = math.cos(lon_rad), math.sin(lon_rad)
-        n_m = self._a2_m2 / float(np.hypot(self._a_m * cos_lat, self._b_m * sin_lat))
-        return ((n_m + alt_m) * cos_lat * cos_lon, (n_m + alt_m) * cos_lat * sin_lon,
-                (n_m * self._ba2 + alt_m) * sin_lat)
-
-    def enu_m(self, lat_deg, lon_deg, alt_m) -> tuple[float, float, float]:
-        """ENU metres ``(east, north, up)`` of one geodetic point, as plain floats."""
-        x_m, y_m, z_m = self.ecef_m(lat_deg, lon_deg, alt_m)
-        x0_m, y0_m, z0_m = self._origin_ecef_m
-        u_m, v_m, w_m = x_m - x0_m, y_m - y0_m, z_m - z0_m
-        t_m = self._cos_lon0 * u_m + self._sin_lon0 * v_m
-        east_m = -self._sin_lon0 * u_m + self._cos_lon0 * v_m
-        up_m = self._cos_lat0 * t_m + self._sin_lat0 * w_m
-        north_m = -self._sin_lat0 * t_m + self._cos_lat0 * w_m
-        return east_m, north_m, up_m
-
-    def __call__(self, lat_deg, lon_deg, alt_m) -> np.ndarray:
-        """ENU metres ``array([east, north, up])`` of one geodetic point."""
-        return np.array(self.enu_m(lat_deg, lon_deg, alt_m))
 
 
 class ReadingStore:
@@ -150,7 +94,7 @@ class ReadingStore:
                  seq_reset_after_s: float = 5.0):
         self.fleet = fleet
         self.origin = tuple(float(v) for v in origin)
-        self._to_enu = _EnuConverter(self.origin)
+        self._to_enu = TangentFrame(self.origin)
         self.clock = clock
         self.telemetry_position = telemetry_position
         self.max_age_s = float(max_age_s)
@@ -210,7 +154,7 @@ class ReadingStore:
         t = doc["time_s"]
         if t < now - self.max_age_s or t > now + self.max_age_s:
             raise ReadingRejected("late", f"taken at {t:.3f}, now {now:.3f} (max age {self.max_age_s} s)")
-        east_m, north_m, up_m = self._to_enu.enu_m(doc["lat_deg"], doc["lon_deg"], doc["alt_m"])
+        east_m, north_m, up_m = self._to_enu.geodetic_to_enu_m(doc["lat_deg"], doc["lon_deg"], doc["alt_m"])
         pos = np.array((east_m, north_m, up_m))
         if self.telemetry_position is not None:
             tel = self.telemetry_position(sysid)
