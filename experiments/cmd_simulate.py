@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 from estimator.seekers import MOVING_SEEKERS
-from sitl_mock.cli_args import float_in_range, int_in_range, nonnegative_float, positive_float
+from wire.cli_args import float_in_range, int_in_range, nonnegative_float, positive_float
 
 __all__ = ["configure", "main", "run", "report_lines"]
 

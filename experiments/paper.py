@@ -48,8 +48,8 @@ from experiments.paper_setup import (
     cvt_formation,
     paper_formation,
 )
-from sitl_mock.cli_args import path_arg
 from sitl_mock.fields import sigma1, sigma2
+from wire.cli_args import path_arg
 
 __all__ = [
     "EPS",
@@ -264,7 +264,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Run ``swarmseek paper``; print where the outputs went and the key numbers."""
-    from sitl_mock.cli_args import output_dir_problem
+    from wire.cli_args import output_dir_problem
 
     problem = output_dir_problem(args.out, "output directory (--out)")
     if problem:

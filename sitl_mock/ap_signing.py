@@ -28,27 +28,24 @@ reboot (ArduPilot keeps it in flash). Everything runs in the fleet thread except
 :meth:`VehicleSigning.set_key` called from Python, which is ordered so that a concurrent send
 never signs without a key; prefer setting keys before the fleet starts.
 
-The key-file format is the one of :mod:`mission.link.signing` (64 hex characters, 32 raw bytes or a
-passphrase hashed with SHA-256); :func:`read_key_file` reads it for ``swarmseek mock`` (the mock
-may not import ``mission``).
+Key files (64 hex characters, 32 raw bytes or a passphrase hashed with SHA-256) are read by
+:func:`wire.signing_keys.load_key_file`, the ground station's reader too; a bad key is a
+:class:`wire.signing_keys.SigningError`.
 """
 from __future__ import annotations
 
 import hashlib
-import os
-import stat
-from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from wire.signing_keys import SigningError
 
 __all__ = [
     "SIGNING_EPOCH_UNIX_S",
     "UNSIGNED_OK_MSG_IDS",
-    "SigningKeyError",
     "VehicleSigning",
     "signing_timestamp",
     "frame_signature",
-    "read_key_file",
 ]
 
 #: 2015-01-01 00:00:00 UTC, the origin of MAVLink signing timestamps.
@@ -61,12 +58,6 @@ _V2_MIN_LEN = 10 + 2
 _NEW_STREAM_MAX_LAG = 6_000_000  # one minute in 10 us units (MAVLink spec)
 _TIMESTAMP_MAX = (1 << 48) - 1
 _KEY_LEN = 32
-_KEY_FILE_MAX_BYTES = 4096
-
-
-class SigningKeyError(ValueError):
-    """A signing key or key file that cannot be used (the message says why)."""
-
 
 def signing_timestamp(unix_s: float) -> int:
     """MAVLink signing timestamp (10 us units since 2015-01-01 UTC) of a Unix time in seconds."""
@@ -84,74 +75,9 @@ def frame_signature(key: bytes, signed_part: bytes) -> bytes:
 
 def _check_key(key) -> bytes:
     if not isinstance(key, (bytes, bytearray)) or len(key) != _KEY_LEN:
-        raise SigningKeyError(f"a signing key is {_KEY_LEN} bytes, got "
+        raise SigningError(f"a signing key is {_KEY_LEN} bytes, got "
                               f"{len(key) if isinstance(key, (bytes, bytearray)) else type(key).__name__}")
     return bytes(key)
-
-
-def read_key_file(path) -> bytes:
-    """Read a 32-byte signing key file (same format and checks as :mod:`mission.link.signing`).
-
-    Formats: 64 hexadecimal characters (surrounding whitespace ignored); exactly 32 raw bytes
-    that are not all printable ASCII; otherwise one line of UTF-8 text, a passphrase, whose
-    SHA-256 is the key (MAVProxy's ``signing setup PASSPHRASE``).
-
-    Raises
-    ------
-    SigningKeyError
-        Missing or unreadable file, world-readable file, empty or multi-line passphrase,
-        ambiguous 32 printable bytes, an all-zero key.
-    """
-    p = Path(path)
-    try:
-        st = p.stat()
-    except OSError as exc:
-        raise SigningKeyError(f"signing key file {str(p)!r}: {exc.strerror or exc}") from None
-    if not stat.S_ISREG(st.st_mode):
-        raise SigningKeyError(f"signing key file {str(p)!r} is not a regular file")
-    if os.name == "posix" and st.st_mode & stat.S_IROTH:
-        raise SigningKeyError(f"signing key file {str(p)!r} is world-readable "
-                              f"(mode {stat.S_IMODE(st.st_mode):o}); run: chmod 600 {p}")
-    if st.st_size > _KEY_FILE_MAX_BYTES:
-        raise SigningKeyError(f"signing key file {str(p)!r} is {st.st_size} bytes; a key file "
-                              f"holds 64 hex characters, 32 bytes or a one-line passphrase")
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise SigningKeyError(f"signing key file {str(p)!r}: {exc.strerror or exc}") from None
-    key = _decode_key(data, str(p))
-    if not any(key):
-        raise SigningKeyError(f"signing key file {str(p)!r} holds the all-zero key, which means "
-                              f"'signing off' in SETUP_SIGNING")
-    return key
-
-
-def _decode_key(data: bytes, where: str) -> bytes:
-    stripped = data.strip()
-    if len(stripped) == 2 * _KEY_LEN:
-        try:
-            return bytes.fromhex(stripped.decode("ascii"))
-        except (UnicodeDecodeError, ValueError):
-            pass
-    if len(data) == _KEY_LEN:
-        if all(32 <= b < 127 for b in data):
-            raise SigningKeyError(
-                f"signing key file {where!r} is ambiguous: 32 printable bytes could be a raw key "
-                f"or a passphrase; write the key as 64 hex characters or end the passphrase "
-                f"with a newline")
-        return bytes(data)
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise SigningKeyError(f"signing key file {where!r} is neither 64 hex characters, 32 raw "
-                              f"bytes nor a UTF-8 passphrase ({len(data)} bytes)") from None
-    line = text.rstrip("\r\n")
-    if not line.strip():
-        raise SigningKeyError(f"signing key file {where!r} is empty (no passphrase)")
-    if "\n" in line or "\r" in line:
-        raise SigningKeyError(f"signing key file {where!r} has several lines; a passphrase is "
-                              f"one line")
-    return hashlib.sha256(line.encode("utf-8")).digest()
 
 
 class VehicleSigning:

@@ -9,17 +9,9 @@ import argparse
 import sys
 import threading
 
-from sitl_mock.cli_args import (
-    add_field_arguments,
-    field_from_args,
-    int_in_range,
-    nonnegative_float,
-    origin_geodetic,
-    path_arg,
-    positive_float,
-    source_enu,
-    zenoh_endpoint,
-)
+from sitl_mock.cli_args import add_field_arguments, field_from_args
+from wire.cli_args import (int_in_range, nonnegative_float, origin_geodetic, path_arg, positive_float,
+                           source_enu, zenoh_endpoint)
 
 __all__ = ["configure", "main"]
 
@@ -41,7 +33,7 @@ def _fault(text: str):
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``mock`` command's arguments to ``parser``."""
     from sitl_mock.ap_modes import PERSONALITY_NAMES
-    from sitl_mock.zenoh_flags import add_arguments as add_zenoh_security_arguments
+    from wire.zenoh_flags import add_arguments as add_zenoh_security_arguments
 
     parser.add_argument("--vehicles", type=_vehicles, default=4, help="number of vehicles (sysid 1..N)")
     parser.add_argument("--personality", choices=PERSONALITY_NAMES, default="px4")
@@ -80,11 +72,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Run the fleet; returns the exit status."""
-    from sitl_mock.ap_signing import SigningKeyError, read_key_file
+    from wire.signing_keys import SigningError, load_key_file
     from sitl_mock.fleet import DEFAULT_ORIGIN, MockFleet
     from sitl_mock.sensor_response import set_fleet_response
     from sitl_mock.transport import PortInUseError
-    from sitl_mock.zenoh_flags import ZenohFlagError, security_kwargs
+    from wire.zenoh_flags import ZenohFlagError, security_kwargs
 
     for sysid, _name, _value in args.fault:
         if sysid > args.vehicles:
@@ -104,8 +96,8 @@ def main(args: argparse.Namespace) -> int:
     signing_key = None
     if args.signing_key_file is not None:
         try:
-            signing_key = read_key_file(args.signing_key_file)
-        except SigningKeyError as exc:
+            signing_key = load_key_file(args.signing_key_file)
+        except SigningError as exc:
             print(f"swarmseek mock: error: {exc}", file=sys.stderr)
             return 2
     try:

@@ -81,7 +81,7 @@ class MockFleet:
         TLS / login keywords of :func:`sitl_mock.sensor.zenoh_config` for the fleet's session:
         ``tls`` (mapping of ``transport/link/tls`` file keys), ``enable_mtls``, ``username``,
         ``password``, ``dictionary_file`` (as built by
-        :func:`sitl_mock.zenoh_flags.security_kwargs`).
+        :func:`wire.zenoh_flags.security_kwargs`).
     dynamics : DynamicsParams
         Dynamics of every vehicle (copied per vehicle: parameters can then differ).
     params : dict or list of dict, optional
@@ -184,7 +184,8 @@ class MockFleet:
             if self._zenoh_enabled:
                 import zenoh
 
-                from sitl_mock.sensor import SensorPublisher, zenoh_config
+                from sitl_mock.sensor import SensorPublisher
+                from wire.zenoh_config import zenoh_config
                 self._session = zenoh.open(zenoh_config(self._zenoh_listen, self._zenoh_connect,
                                                         **self._zenoh_security))
                 self._publisher = SensorPublisher(self._session, self.fleet_name,

@@ -7,23 +7,18 @@ stuck, bias, spikes), applies the detection floor (a value below ``detection_flo
 and builds the reading dict of schema ``swarmseek.sensor.v1``. :func:`encode_reading`
 turns it into the UTF-8 JSON payload; :class:`SensorPublisher` puts it on
 ``swarmseek/<fleet>/vehicle/<sysid>/sensor`` (``application/json``, reliable, congestion control
-BLOCK). :func:`zenoh_config` builds a session configuration with explicit endpoints and no
-multicast scouting, as every session of the project must.
+BLOCK), on a session configured by :func:`wire.zenoh_config.zenoh_config`.
 """
 from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
-from typing import TYPE_CHECKING, Iterable, Mapping
 
 import numpy as np
 
 from sitl_mock.faults import FaultSet
 from sitl_mock.sensor_response import FirstOrderLag
-
-if TYPE_CHECKING:  # pragma: no cover
-    import zenoh
+from wire.fleet_name import check_fleet_name
 
 __all__ = [
     "SENSOR_SCHEMA",
@@ -31,15 +26,11 @@ __all__ = [
     "SignalSensor",
     "encode_reading",
     "sensor_key",
-    "zenoh_config",
     "SensorPublisher",
 ]
 
 SENSOR_SCHEMA = "swarmseek.sensor.v1"
 SENSOR_ENCODING = "application/json"
-_TLS_FILE_KEYS = ("root_ca_certificate", "listen_certificate", "listen_private_key",
-                  "connect_certificate", "connect_private_key")
-_ZENOH_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream")
 
 
 def _finite(value, name: str) -> float:
@@ -50,17 +41,6 @@ def _finite(value, name: str) -> float:
     if not math.isfinite(v):
         raise ValueError(f"{name} must be finite, got {value!r}")
     return v
-
-
-def _check_fleet(fleet: str) -> str:
-    """The world's own guard on a fleet name (it may not import the ground station's rule,
-    ``mission.core.fleet_name``, which every command line applies first); the same verdict for
-    every name, by ``tests/test_fleet_names.py``."""
-    if (not isinstance(fleet, str) or not 0 < len(fleet) <= 64 or any(c in fleet for c in "/*$?#")
-            or any(c.isspace() or not c.isprintable() for c in fleet) or fleet.startswith("@")):
-        raise ValueError(f"fleet name must be 1-64 printable characters without / * $ ? #, whitespace "
-                         f"or a leading @, got {fleet!r}")
-    return fleet
 
 
 def _check_sysid(sysid: int) -> int:
@@ -77,7 +57,7 @@ def sensor_key(fleet: str, sysid: int) -> str:
     ValueError
         If the fleet name is empty or holds key-expression characters, or sysid is not 1..255.
     """
-    return f"swarmseek/{_check_fleet(fleet)}/vehicle/{_check_sysid(sysid)}/sensor"
+    return f"swarmseek/{check_fleet_name(fleet)}/vehicle/{_check_sysid(sysid)}/sensor"
 
 
 class SignalSensor:
@@ -116,7 +96,7 @@ class SignalSensor:
             raise ValueError(f"noise_std must be >= 0, got {noise_std!r}")
         self.rng = rng
         self.faults = faults
-        self.fleet = _check_fleet(fleet)
+        self.fleet = check_fleet_name(fleet)
         self.sysid = _check_sysid(sysid)
         self.seq = 0
         self._last_value: float | None = None
@@ -217,79 +197,6 @@ def encode_reading(reading: dict) -> bytes:
         raise ValueError(f"reading is not valid JSON (non-finite number?): {exc}") from None
 
 
-def _endpoints(value, what: str) -> list[str]:
-    if value is None:
-        return []
-    items = [value] if isinstance(value, str) else list(value)
-    for ep in items:
-        proto, sep, rest = str(ep).partition("/")
-        if not sep or proto not in _ZENOH_PROTOCOLS or not rest:
-            raise ValueError(
-                f"bad zenoh {what} endpoint {ep!r}: expected PROTO/ADDRESS, e.g. tcp/127.0.0.1:7447")
-    return [str(ep) for ep in items]
-
-
-def zenoh_config(listen: str | Iterable[str] | None = None,
-                 connect: str | Iterable[str] | None = None, *,
-                 tls: Mapping[str, str] | None = None, enable_mtls: bool = False,
-                 username: str | None = None, password: str | None = None,
-                 dictionary_file: str | None = None) -> "zenoh.Config":
-    """A peer-mode zenoh configuration with explicit endpoints and multicast scouting off.
-
-    Parameters
-    ----------
-    listen, connect : str or iterable of str or None
-        Endpoints such as ``tcp/127.0.0.1:7447`` or ``tls/127.0.0.1:7447``. At least one of
-        the two must be given.
-    tls : mapping, optional
-        ``transport/link/tls`` file paths: ``root_ca_certificate``, ``listen_certificate``,
-        ``listen_private_key``, ``connect_certificate``, ``connect_private_key``.
-    enable_mtls : bool
-        Mutual TLS (present and require certificates).
-    username, password : str, optional
-        zenoh user/password authentication (``transport/auth/usrpwd``); both or neither.
-    dictionary_file : str, optional
-        ``user:password`` lines of the peers this session accepts.
-
-    Raises
-    ------
-    ValueError
-        If no endpoint is given, an endpoint is malformed, a TLS key is unknown, a TLS file is
-        missing, or only one of username/password is given.
-    """
-    import zenoh
-
-    listen_eps = _endpoints(listen, "listen")
-    connect_eps = _endpoints(connect, "connect")
-    if not listen_eps and not connect_eps:
-        raise ValueError("zenoh_config needs at least one listen or connect endpoint")
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("peer"))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps(listen_eps))
-    conf.insert_json5("connect/endpoints", json.dumps(connect_eps))
-    for key, path in (tls or {}).items():
-        if key not in _TLS_FILE_KEYS:
-            raise ValueError(f"unknown zenoh TLS key {key!r} (allowed: {', '.join(_TLS_FILE_KEYS)})")
-        if not Path(path).is_file():
-            raise ValueError(f"zenoh TLS {key}: file not found: {path}")
-        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(path)))
-    if enable_mtls:
-        conf.insert_json5("transport/link/tls/enable_mtls", "true")
-    if (username is None) != (password is None):
-        raise ValueError("zenoh authentication needs both username and password")
-    usrpwd = {}
-    if username is not None:
-        usrpwd.update(user=str(username), password=str(password))
-    if dictionary_file is not None:
-        if not Path(dictionary_file).is_file():
-            raise ValueError(f"zenoh dictionary_file not found: {dictionary_file}")
-        usrpwd["dictionary_file"] = str(dictionary_file)
-    if usrpwd:
-        conf.insert_json5("transport/auth/usrpwd", json.dumps(usrpwd))
-    return conf
-
-
 class SensorPublisher:
     """The sensor publishers of a fleet's vehicles on one zenoh session.
 
@@ -313,7 +220,7 @@ class SensorPublisher:
     def __init__(self, session, fleet: str, sysids: list[int], track_matching: bool = False):
         import zenoh
 
-        self.fleet = _check_fleet(fleet)
+        self.fleet = check_fleet_name(fleet)
         self.published = 0
         self.published_matched = 0
         self._track_matching = bool(track_matching)

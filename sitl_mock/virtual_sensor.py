@@ -19,19 +19,13 @@ import time
 import numpy as np
 
 from formation.geodesy import geodetic_to_enu
-from sitl_mock.cli_args import (
-    add_field_arguments,
-    field_from_args,
-    nonnegative_float,
-    origin_geodetic,
-    positive_float,
-    source_enu,
-    zenoh_endpoint,
-)
+from sitl_mock.cli_args import add_field_arguments, field_from_args
 from sitl_mock.faults import FaultSet
-from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key, zenoh_config
-from sitl_mock.zenoh_flags import ZenohFlagError, security_kwargs
-from sitl_mock.zenoh_flags import add_arguments as _add_zenoh_security_arguments
+from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key
+from wire.cli_args import nonnegative_float, origin_geodetic, positive_float, source_enu, zenoh_endpoint
+from wire.zenoh_config import zenoh_config
+from wire.zenoh_flags import ZenohFlagError, security_kwargs
+from wire.zenoh_flags import add_arguments as _add_zenoh_security_arguments
 
 __all__ = ["VirtualSensorError", "configure", "main", "run"]
 
@@ -101,7 +95,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="standard deviation of the sensor noise, signal units (default 0)")
     parser.add_argument("--rate", type=positive_float, default=10.0, metavar="HZ",
                         help="readings per second (default 10)")
-    parser.add_argument("--fleet", default="swarmseek",  # checked by the one rule, mission.core.fleet_name
+    parser.add_argument("--fleet", default="swarmseek",  # checked by the one rule, wire.fleet_name
                         help="fleet name in the zenoh key (default swarmseek, like swarmseek mock)")
     parser.add_argument("--sysid", type=_sysid_arg, default=None, metavar="N",
                         help="autopilot system id (default: the first autopilot heartbeat's)")

@@ -17,7 +17,7 @@ import sitl_mock.fleet as fleet_mod
 from formation.geodesy import geodetic_to_enu
 from mission.cli import main as swarmseek
 from sitl_mock.fields import make_field
-from sitl_mock.sensor import zenoh_config
+from wire.zenoh_config import zenoh_config
 
 TIMEOUT_S = 60.0
 ORIGIN = (45.19, 5.72, 230.0)

@@ -1,4 +1,4 @@
-"""One rule for fleet names (mission.core.fleet_name): plans, ctl, watch, sitl, mock, sensor.
+"""One rule for fleet names (wire.fleet_name): plans, ctl, watch, sitl, mock, sensor, the world's keys.
 
 A fleet name is one zenoh key chunk naming exactly one fleet: ``ctl '**' land`` must not
 address every fleet on the network, and no name may reach zenoh only to be refused there with
@@ -16,10 +16,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mission.cli import main as cli_main
-from mission.core.fleet_name import FLEET_NAME_MAX_CHARS, check_fleet_name, fleet_name_problem
 from mission.core.plan import parse_plan
 from mission.core.plan_types import PlanError
 from sitl_mock.sensor import sensor_key
+from wire.fleet_name import FLEET_NAME_MAX_CHARS, check_fleet_name, fleet_name_problem
 
 SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
 
@@ -65,16 +65,17 @@ _NAMES = st.one_of(
 
 @settings(max_examples=300, deadline=None)
 @given(_NAMES)
-def test_zenoh_accepts_every_name_the_rule_accepts_and_sitl_mock_agrees(name):
-    """What passes the rule is a wildcard-free canonical key chunk for zenoh; the world's own
-    guard (sitl_mock may not import the ground station's rule) gives the same verdict."""
-    ok = fleet_name_problem(name) is None
-    try:
-        sensor_key(name, 1)
-        mock_ok = True
-    except ValueError:
-        mock_ok = False
-    assert mock_ok == ok, (name, fleet_name_problem(name))
+def test_zenoh_accepts_every_name_the_rule_accepts_and_the_world_applies_it(name):
+    """What passes the rule is a wildcard-free canonical key chunk for zenoh; the simulated
+    sensors' key (``sitl_mock.sensor.sensor_key``) refuses the others with the rule's reason."""
+    problem = fleet_name_problem(name)
+    ok = problem is None
+    if ok:
+        assert sensor_key(name, 1) == f"swarmseek/{name}/vehicle/1/sensor"
+    else:
+        with pytest.raises(ValueError) as info:
+            sensor_key(name, 1)
+        assert problem in str(info.value)
     if ok:
         for key in KEYS:
             expr = zenoh.KeyExpr(key.format(name))

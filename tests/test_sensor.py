@@ -14,8 +14,8 @@ from sitl_mock.sensor import (
     SignalSensor,
     encode_reading,
     sensor_key,
-    zenoh_config,
 )
+from wire.zenoh_config import zenoh_config
 
 PAYLOAD_KEYS = {"schema", "fleet", "sysid", "seq", "time_s", "lat_deg", "lon_deg", "alt_m", "value"}
 GEO = (45.19, 5.72, 230.0)

@@ -21,8 +21,8 @@ from mission.cli import main as swarmseek  # noqa: E402
 from mission.core.clock import WallClock  # noqa: E402
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber  # noqa: E402
 from sitl_mock.fleet import MockFleet  # noqa: E402
-from sitl_mock.sensor import zenoh_config  # noqa: E402
-from sitl_mock.zenoh_flags import ZenohFlagError, read_password_file  # noqa: E402
+from wire.zenoh_config import zenoh_config  # noqa: E402
+from wire.zenoh_secrets import ZenohSecurityError, read_password_file  # noqa: E402
 
 ORIGIN = (45.19, 5.72, 230.0)
 FLEET = "dry"
@@ -251,5 +251,5 @@ def test_read_password_file_refuses_a_world_readable_file(tmp_path):
     path = tmp_path / "p"
     path.write_bytes(b"pw\n")
     os.chmod(path, 0o604)
-    with pytest.raises(ZenohFlagError, match="world-readable; run chmod 600"):
+    with pytest.raises(ZenohSecurityError, match="world-readable; run chmod 600"):
         read_password_file(path)

@@ -11,7 +11,8 @@ import zenoh
 
 from sitl_mock.faults import FaultSet
 from sitl_mock.fields import sigma2
-from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key, zenoh_config
+from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key
+from wire.zenoh_config import zenoh_config
 from wait_helpers import wait_until
 
 TIMEOUT_S = 30.0

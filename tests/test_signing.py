@@ -1,7 +1,6 @@
 """mission.link.signing: key files, signing state, frame signing and the checks of received frames.
 
-The mock's key-file reader (:func:`sitl_mock.ap_signing.read_key_file`) must read every file
-exactly as the ground station does: both are checked on the same files.
+Key files are read by :mod:`wire.signing_keys`, the one reader of the ground station and the mock.
 """
 from __future__ import annotations
 
@@ -15,7 +14,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mission.link import signing as sg
-from sitl_mock.ap_signing import SigningKeyError, read_key_file
+from wire.signing_keys import SigningError, SigningWarning, load_key_file, passphrase_to_key
 
 KEY = bytes(range(1, 33))
 OTHER_KEY = bytes(range(101, 133))
@@ -52,17 +51,16 @@ def _arm(enc, target=1):
     (b"p\xc3\xa4ssphrase\r\n", hashlib.sha256("pässphrase".encode()).digest()),
     (b"x" * 32 + b"\n", hashlib.sha256(b"x" * 32).digest()),          # 32 chars + newline
 ])
-def test_key_file_formats_and_mock_reads_the_same(tmp_path, data, expected):
+def test_key_file_formats(tmp_path, data, expected):
     p = _key_file(tmp_path, data)
-    assert sg.load_key_file(p) == expected
-    assert read_key_file(p) == expected
+    assert load_key_file(p) == expected
 
 
 def test_passphrase_key_is_mavproxys():
     # MAVProxy "signing setup PASSPHRASE": key = sha256(passphrase)
-    assert sg.passphrase_to_key("swarm") == hashlib.sha256(b"swarm").digest()
-    with pytest.raises(sg.SigningError, match="non-empty"):
-        sg.passphrase_to_key("")
+    assert passphrase_to_key("swarm") == hashlib.sha256(b"swarm").digest()
+    with pytest.raises(SigningError, match="non-empty"):
+        passphrase_to_key("")
 
 
 @pytest.mark.parametrize("data,mode,match", [
@@ -77,24 +75,22 @@ def test_passphrase_key_is_mavproxys():
 ])
 def test_key_file_errors_are_clear(tmp_path, data, mode, match):
     p = _key_file(tmp_path, data, mode)
-    with pytest.raises(sg.SigningError, match=match):
-        sg.load_key_file(p)
-    with pytest.raises(SigningKeyError, match=match):
-        read_key_file(p)
+    with pytest.raises(SigningError, match=match):
+        load_key_file(p)
 
 
 def test_missing_file_and_directory(tmp_path):
-    with pytest.raises(sg.SigningError, match="nope.key.*No such file"):
-        sg.load_key_file(tmp_path / "nope.key")
-    with pytest.raises(sg.SigningError, match="not a regular file"):
-        sg.load_key_file(tmp_path)
+    with pytest.raises(SigningError, match="nope.key.*No such file"):
+        load_key_file(tmp_path / "nope.key")
+    with pytest.raises(SigningError, match="not a regular file"):
+        load_key_file(tmp_path)
 
 
 def test_readable_key_files_warn(tmp_path):
-    with pytest.warns(sg.SigningWarning, match="group-readable"):
-        assert sg.load_key_file(_key_file(tmp_path, KEY.hex().encode(), 0o640)) == KEY
-    with pytest.warns(sg.SigningWarning, match="world-readable"):
-        key = sg.load_key_file(_key_file(tmp_path, KEY.hex().encode(), 0o644, "b.key"),
+    with pytest.warns(SigningWarning, match="group-readable"):
+        assert load_key_file(_key_file(tmp_path, KEY.hex().encode(), 0o640)) == KEY
+    with pytest.warns(SigningWarning, match="world-readable"):
+        key = load_key_file(_key_file(tmp_path, KEY.hex().encode(), 0o644, "b.key"),
                                allow_world_readable=True)
     assert key == KEY
 
@@ -117,7 +113,7 @@ def test_config_hides_the_key_and_validates():
     ({"key": KEY, "allow_unsigned": frozenset({"NOT_A_MESSAGE"})}, "NOT_A_MESSAGE"),
 ])
 def test_bad_config(kwargs, match):
-    with pytest.raises(sg.SigningError, match=match):
+    with pytest.raises(SigningError, match=match):
         sg.SigningConfig(**kwargs)
 
 
@@ -143,7 +139,7 @@ def test_security_table(tmp_path):
 ])
 def test_security_table_lists_every_problem(tmp_path, table, keys):
     _key_file(tmp_path, b"my passphrase\n", name="fleet.key")
-    with pytest.raises(sg.SigningError, match="invalid \\[security\\]") as info:
+    with pytest.raises(SigningError, match="invalid \\[security\\]") as info:
         sg.signing_config_from_table(table, tmp_path)
     assert [k for k, _ in info.value.problems] == keys
 
@@ -179,7 +175,7 @@ def test_sign_frame_is_what_pymavlink_sends(make):
     by_hand = sg.sign_frame(plain_msg.pack(_gcs(None)), plain_msg.crc_extra, b)
     assert by_hand == signed
     assert a.timestamp == b.timestamp == sg.signing_timestamp(NOW_S) + 1
-    with pytest.raises(sg.SigningError, match="unsigned MAVLink 2 frame"):
+    with pytest.raises(SigningError, match="unsigned MAVLink 2 frame"):
         sg.sign_frame(signed, plain_msg.crc_extra, b)
 
 
@@ -202,7 +198,7 @@ def test_setup_signing_message_round_trip():
     assert bytes(got.secret_key) == KEY and got.initial_timestamp == sg.signing_timestamp(NOW_S)
     off = parser.parse_buffer(sg.disable_signing_message(3).pack(_gcs(None)))[0]
     assert not any(off.secret_key) and off.initial_timestamp == 0
-    with pytest.raises(sg.SigningError, match="disable_signing_message"):
+    with pytest.raises(SigningError, match="disable_signing_message"):
         sg.setup_signing_message(3, bytes(32), 0)
 
 

@@ -18,9 +18,10 @@ import pytest
 
 from mission.core.clock import WallClock
 from mission.core.plan import PlanError, parse_plan
+from mission.core.zenoh_security import acl_config
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber, sensor_key
-from mission.core.zenoh_security import ZenohSecurityError, acl_config, read_password_file
-from sitl_mock.sensor import zenoh_config
+from wire.zenoh_config import zenoh_config
+from wire.zenoh_secrets import ZenohSecurityError, read_password_file
 
 import zenoh  # noqa: E402  (a project dependency)
 

@@ -74,8 +74,8 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 
 def _check_fleet_argument(args: argparse.Namespace) -> None:
     """Every command's fleet name (``ctl``/``watch`` FLEET, ``--fleet`` of ``sitl``, ``mock`` and
-    ``sensor``) through the one rule of :mod:`mission.core.fleet_name`: a usage error (exit 2)."""
-    from mission.core.fleet_name import check_fleet_name
+    ``sensor``) through the one rule of :mod:`wire.fleet_name`: a usage error (exit 2)."""
+    from wire.fleet_name import check_fleet_name
 
     fleet = getattr(args, "fleet", None)
     if fleet is not None:

@@ -15,14 +15,14 @@ import json
 import os
 import sys
 
-from sitl_mock.cli_args import int_in_range
+from wire.cli_args import int_in_range
 
 __all__ = ["configure", "main"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``audit`` arguments."""
-    from sitl_mock.cli_args import path_arg  # a path that cannot even be asked about: a usage error
+    from wire.cli_args import path_arg  # a path that cannot even be asked about: a usage error
 
     parser.add_argument("log_dir", type=path_arg, metavar="LOG_DIR", help="a mission's --log-dir (mission.jsonl and tlogs/)")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")

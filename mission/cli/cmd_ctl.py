@@ -13,7 +13,7 @@ import json
 import sys
 
 from mission.cli.cmd_watch import add_zenoh_options, open_zenoh
-from sitl_mock.cli_args import positive_float
+from wire.cli_args import positive_float
 
 __all__ = ["configure", "main"]
 

@@ -22,7 +22,7 @@ from mission.core.clock import WallClock
 from mission.core.zenoh_errors import zenoh_open_message
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
-from sitl_mock.cli_args import nonnegative_float, path_arg, positive_float
+from wire.cli_args import nonnegative_float, path_arg, positive_float
 
 __all__ = ["configure", "main", "dry_run", "format_readiness"]
 

@@ -15,18 +15,18 @@ import asyncio
 import sys
 from pathlib import Path
 
-from mission.core.zenoh_security import ZenohSecurityError
+from wire.zenoh_secrets import ZenohSecurityError
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
 from mission.core.clock import WallClock
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
 from mission.flight.operator_stop import run_until_stopped
+from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.terminal import best_effort_terminal, told_to
 from mission.telemetry.watch_keys import with_keys
-from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
-from sitl_mock.cli_args import path_arg
+from wire.cli_args import path_arg
 
 __all__ = ["configure", "main", "fly"]
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sitl_mock.cli_args import path_arg
+from wire.cli_args import path_arg
 
 __all__ = ["configure", "main", "plot_mission", "mission_tracks", "run_title"]
 
@@ -231,7 +231,7 @@ def plot_mission(log_path: Path, out_dir: Path) -> list[Path]:
 
 def main(args) -> int:
     """Plot a mission log; 0 on success, 1 if the log cannot be plotted, 2 if --out cannot be written."""
-    from mission.cli.paths import output_dir_problem
+    from wire.cli_args import output_dir_problem
 
     out = args.out or args.log.parent
     if not args.log.is_file():

@@ -31,8 +31,9 @@ from mission.telemetry.watch_keys import with_keys
 
 import numpy as np
 
-from sitl_mock.cli_args import (add_field_arguments, field_from_args, float_in_range, int_in_range, nonnegative_float,
-                                path_arg, positive_float, source_enu, zenoh_endpoint)
+from sitl_mock.cli_args import add_field_arguments, field_from_args
+from wire.cli_args import (float_in_range, int_in_range, nonnegative_float, path_arg, positive_float,
+                           source_enu, zenoh_endpoint)
 
 __all__ = ["configure", "main", "run_embedded"]
 

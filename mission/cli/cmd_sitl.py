@@ -19,7 +19,7 @@ from pathlib import Path
 
 from estimator.seekers import SEEKERS
 from mission.sim.sitl_plan import seeker_settings
-from sitl_mock.cli_args import int_in_range, origin_geodetic, path_arg, positive_float, source_enu
+from wire.cli_args import int_in_range, origin_geodetic, path_arg, positive_float, source_enu
 
 __all__ = ["configure", "main"]
 

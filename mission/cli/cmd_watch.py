@@ -12,15 +12,15 @@ import json
 import sys
 import time
 
-from sitl_mock.cli_args import positive_float
+from wire.cli_args import positive_float
 
 __all__ = ["configure", "main", "add_zenoh_options", "open_zenoh"]
 
 
 def add_zenoh_options(parser: argparse.ArgumentParser) -> None:
     """``--zenoh-listen`` / ``--zenoh-connect`` (repeatable) and the TLS / login flags."""
-    from sitl_mock.cli_args import zenoh_endpoint
-    from sitl_mock.zenoh_flags import add_arguments
+    from wire.cli_args import zenoh_endpoint
+    from wire.zenoh_flags import add_arguments
 
     parser.add_argument("--zenoh-connect", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
                         help="zenoh endpoint to connect to: the coordinator's listen endpoint or a zenoh "
@@ -39,8 +39,8 @@ def open_zenoh(args, prog: str, wait_s: float | None = None):
     router); a client cannot open before it reaches one, so opening is tried again every 0.5 s."""
     import zenoh
 
-    from sitl_mock.sensor import zenoh_config
-    from sitl_mock.zenoh_flags import ZenohFlagError, security_kwargs
+    from wire.zenoh_config import zenoh_config
+    from wire.zenoh_flags import ZenohFlagError, security_kwargs
 
     if not args.zenoh_connect and not args.zenoh_listen:
         return None, f"{prog}: give --zenoh-connect (the coordinator's or a router's endpoint) and/or --zenoh-listen", 2

@@ -17,9 +17,9 @@ import os
 import time
 from pathlib import Path
 
-from sitl_mock.cli_args import output_dir_problem
+from wire.cli_args import output_dir_problem
 
-__all__ = ["output_dir_problem", "writable_file_problem", "mission_log_dir", "new_log_dir", "DEFAULT_LOG_ROOT",
+__all__ = ["writable_file_problem", "mission_log_dir", "new_log_dir", "DEFAULT_LOG_ROOT",
            "announce_log", "summary_log_line"]
 
 #: where ``run`` and ``fly`` put their log directories when ``--log-dir`` is not given

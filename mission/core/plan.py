@@ -16,9 +16,9 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from mission.core.fleet_name import fleet_name_problem
 from mission.core.plan_checks import check_start_in_fence, Checker, show_value
 from mission.core.plan_field import parse_field
+from wire.fleet_name import fleet_name_problem
 from mission.core.plan_sections import (
     RETURN_BEHAVIOURS,
     parse_control,

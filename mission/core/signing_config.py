@@ -14,7 +14,7 @@ from typing import Mapping
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.core.redaction import secret_field
-from mission.core.signing_keys import SigningError, load_key_file
+from wire.signing_keys import SigningError, load_key_file
 
 __all__ = ["SIGNING_EPOCH_UNIX_S", "DEFAULT_ALLOW_UNSIGNED", "SigningConfig", "signing_timestamp",
            "signing_config_from_table"]

@@ -16,11 +16,10 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 
-from mission.core.zenoh_secrets import read_password_file
+from wire.zenoh_secrets import read_password_file
 
 __all__ = [
     "ZENOH_MODES",
-    "TLS_FILE_KEYS",
     "ZenohAuthPlan",
     "ZenohAclPlan",
     "ZenohPlan",
@@ -29,8 +28,6 @@ __all__ = [
 ]
 
 ZENOH_MODES = ("peer", "client", "router")
-TLS_FILE_KEYS = ("root_ca_certificate", "listen_certificate", "listen_private_key",
-                 "connect_certificate", "connect_private_key")
 
 
 @dataclass(frozen=True)
@@ -132,7 +129,7 @@ def apply_security(conf, *, tls: dict | None = None, enable_mtls: bool = False,
     conf : zenoh.Config
         The session configuration.
     tls : dict, optional
-        ``transport/link/tls`` file keys (see :data:`TLS_FILE_KEYS`) to paths.
+        ``transport/link/tls`` file keys (see :data:`wire.zenoh_config.TLS_FILE_KEYS`) to paths.
     enable_mtls : bool
         Require and present client certificates.
     auth : ZenohAuthPlan, optional
@@ -203,7 +200,7 @@ class ZenohPlan:
 
         Raises
         ------
-        mission.core.zenoh_secrets.ZenohSecurityError
+        wire.zenoh_secrets.ZenohSecurityError
             The password file became unusable since the plan was loaded.
         """
         import zenoh

@@ -16,8 +16,7 @@ the dictionary and the private keys, must not be world-readable.
 
 This module holds the validation of the plan's ``[zenoh]`` tables (:func:`parse_zenoh` and the
 parsers of its sub-tables). The settings and their zenoh configuration are in
-:mod:`mission.core.zenoh_config`, the secret files in :mod:`mission.core.zenoh_secrets`; both are
-re-exported here.
+:mod:`mission.core.zenoh_config`, the secret files in :mod:`wire.zenoh_secrets` (shared with the simulator).
 """
 from __future__ import annotations
 
@@ -25,7 +24,6 @@ from pathlib import Path
 
 from mission.core.plan_checks import Checker, show_value
 from mission.core.zenoh_config import (
-    TLS_FILE_KEYS,
     ZENOH_MODES,
     ZenohAclPlan,
     ZenohAuthPlan,
@@ -33,23 +31,15 @@ from mission.core.zenoh_config import (
     acl_config,
     apply_security,
 )
-from mission.core.zenoh_secrets import (
-    ZenohSecurityError,
-    check_dictionary_file,
-    private_file_problem,
-    read_password_file,
-)
+from wire.zenoh_config import TLS_FILE_KEYS
+from wire.zenoh_secrets import ZenohSecurityError, check_dictionary_file, private_file_problem, read_password_file
 
 __all__ = [
     "ZENOH_MODES",
     "ZenohPlan",
     "parse_zenoh",
-    "TLS_FILE_KEYS",
-    "ZenohSecurityError",
     "ZenohAuthPlan",
     "ZenohAclPlan",
-    "private_file_problem",
-    "read_password_file",
     "acl_config",
     "apply_security",
     "parse_tls",

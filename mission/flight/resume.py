@@ -43,13 +43,13 @@ from mission.core.plan import (
 )
 from mission.core.plan_types import ControlPlan, ForwardPlan, PreflightPlan
 from mission.core.signing_config import SigningConfig
-from mission.core.signing_keys import SigningError
 from mission.flight.connect import build_envelope, connect
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.motion import retried, setpoint_stream
 from mission.flight.resume_endings import classify_ending
 from mission.flight.retire import restore_retired
 from mission.flight.state import MissionError, VehicleLoss
+from wire.signing_keys import SigningError
 
 __all__ = ["ResumeError", "ResumeState", "plan_from_json", "load_resume_state", "rejoin", "resume_mission"]
 

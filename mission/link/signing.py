@@ -1,7 +1,7 @@
 """MAVLink 2 message signing for the ground station: key file, signing state, checks, SETUP_SIGNING.
 
 The key is read from a key file named in the plan (``[security] signing_key_file = "path"``),
-never from the command line. Key-file format (:func:`load_key_file`), tried in this order:
+never from the command line. Key-file format (:func:`wire.signing_keys.load_key_file`), tried in this order:
 
 1. **64 hexadecimal characters** (surrounding whitespace and a final newline ignored): the key.
 2. **exactly 32 bytes** that are not all printable ASCII: the raw key. 32 printable bytes are
@@ -10,9 +10,10 @@ never from the command line. Key-file format (:func:`load_key_file`), tried in t
    the key is ``SHA-256(passphrase)``, exactly what MAVProxy's ``signing setup PASSPHRASE`` and
    ``signing key PASSPHRASE`` do, so a vehicle set up with MAVProxy flies with the same words.
 
-The file must not be world-readable (``chmod 600``): :class:`SigningError` otherwise (unless
-``allow_world_readable=True``, which only warns); a group-readable file gives a
-:class:`SigningWarning`. The all-zero key is refused (it means "signing off" in SETUP_SIGNING).
+The file must not be world-readable (``chmod 600``): :class:`wire.signing_keys.SigningError`
+otherwise (unless ``allow_world_readable=True``, which only warns); a group-readable file gives a
+:class:`wire.signing_keys.SigningWarning`. The all-zero key is refused (it means "signing off" in
+SETUP_SIGNING).
 
 Sending: :meth:`SigningConfig.new_state` makes one pymavlink ``MAVLinkSigning`` per link;
 :func:`apply_signing` gives it to every pymavlink encoder of that link (they then share one
@@ -45,17 +46,13 @@ from pymavlink.generator import mavcrc
 
 from mission.core.signing_config import (DEFAULT_ALLOW_UNSIGNED, SIGNING_EPOCH_UNIX_S, SigningConfig,
                                          signing_config_from_table, signing_timestamp)
-from mission.core.signing_keys import SigningError, SigningWarning, load_key_file, passphrase_to_key
+from wire.signing_keys import SigningError
 
 __all__ = [
     "SIGNING_EPOCH_UNIX_S",
     "DEFAULT_ALLOW_UNSIGNED",
-    "SigningError",
-    "SigningWarning",
     "SigningConfig",
     "SignatureVerifier",
-    "load_key_file",
-    "passphrase_to_key",
     "signing_timestamp",
     "apply_signing",
     "refresh_timestamp",

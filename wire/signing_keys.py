@@ -1,4 +1,5 @@
-"""Signing key files for :mod:`mission.link.signing` (re-exported there; read that module's docstring).
+"""MAVLink 2 signing key files, read alike by the ground station (:mod:`mission.link.signing`)
+and the mock autopilots (``swarmseek mock --signing-key-file``).
 
 Key-file format, tried in this order: 64 hexadecimal characters (surrounding whitespace
 ignored); exactly 32 bytes that are not all printable ASCII (the raw key; 32 printable bytes are

@@ -1,20 +1,22 @@
-"""zenoh TLS and login flags shared by ``swarmseek sensor`` and ``swarmseek mock``.
+"""zenoh TLS and login flags shared by ``swarmseek sensor``, ``mock`` and ``watch``.
 
 ``--zenoh-tls-ca``, ``--zenoh-tls-cert``, ``--zenoh-tls-key``, ``--zenoh-mtls``, ``--zenoh-user``
 and ``--zenoh-password-file`` (the password is never on the command line; a world-readable
 password file is refused). :func:`security_kwargs` checks the combination against the endpoints
-and returns the keyword arguments of :func:`sitl_mock.sensor.zenoh_config`: the certificate and
+and returns the keyword arguments of :func:`wire.zenoh_config.zenoh_config`: the certificate and
 key become ``listen_*`` for ``tls/`` listen endpoints and ``connect_*`` for ``tls/`` connect
-endpoints. ``sitl_mock`` does not import ``mission``, hence its own small password reader.
+endpoints. The password file is read by :func:`wire.zenoh_secrets.read_password_file`, as the
+plan's ``[zenoh.auth]`` one is.
 """
 from __future__ import annotations
 
 import argparse
-import os
-import stat
 from pathlib import Path
 
-__all__ = ["ZenohFlagError", "add_arguments", "read_password_file", "security_kwargs"]
+from wire.cli_args import path_problem
+from wire.zenoh_secrets import ZenohSecurityError, read_password_file
+
+__all__ = ["ZenohFlagError", "add_arguments", "security_kwargs"]
 
 
 class ZenohFlagError(ValueError):
@@ -22,8 +24,6 @@ class ZenohFlagError(ValueError):
 
 
 def _existing_file(text: str) -> str:
-    from sitl_mock.cli_args import path_problem
-
     problem = path_problem(text)
     if problem:
         raise argparse.ArgumentTypeError(problem)
@@ -32,44 +32,11 @@ def _existing_file(text: str) -> str:
     return text
 
 
-def read_password_file(path: str | Path) -> str:
-    """The password on the first line of ``path`` (trailing newline stripped).
-
-    Parameters
-    ----------
-    path : str or Path
-        A file readable by its owner only (not world-readable).
-
-    Returns
-    -------
-    str
-        The password.
-
-    Raises
-    ------
-    ZenohFlagError
-        The file is missing, world-readable, unreadable, not UTF-8, or its first line is empty.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise ZenohFlagError(f"password file not found: {p}")
-    if os.name == "posix" and p.stat().st_mode & stat.S_IROTH:
-        raise ZenohFlagError(f"password file {p} is world-readable; run chmod 600 {p}")
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ZenohFlagError(f"cannot read password file {p}: {exc}") from None
-    lines = text.splitlines()
-    if not lines or not lines[0]:
-        raise ZenohFlagError(f"password file {p}: the first line (the password) is empty")
-    return lines[0]
-
-
 def _password_file_arg(text: str) -> str:
     _existing_file(text)
     try:
         read_password_file(text)  # check now (argparse error); read again when used
-    except ZenohFlagError as exc:
+    except ZenohSecurityError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
 
@@ -145,5 +112,8 @@ def security_kwargs(args: argparse.Namespace) -> dict:
         if not args.zenoh_user or ":" in args.zenoh_user:
             raise ZenohFlagError(f"--zenoh-user must be a non-empty name without ':', got {args.zenoh_user!r}")
         out["username"] = args.zenoh_user
-        out["password"] = read_password_file(args.zenoh_password_file)
+        try:
+            out["password"] = read_password_file(args.zenoh_password_file)
+        except ZenohSecurityError as exc:
+            raise ZenohFlagError(f"--zenoh-password-file: {exc}") from None
     return out

@@ -2,7 +2,8 @@
 
 Secrets never sit in the plan itself: the password is read from ``password_file``, which, like
 the dictionary of ``user:password`` lines and the TLS private keys, must not be world-readable.
-Re-exported by :mod:`mission.core.zenoh_security`.
+Read alike by the plan's ``[zenoh]`` checks (:mod:`mission.core.zenoh_security`) and the
+``--zenoh-password-file`` flag (:mod:`wire.zenoh_flags`).
 """
 from __future__ import annotations
 
