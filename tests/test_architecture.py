@@ -18,14 +18,19 @@ MISSION_LAYERS = ["core", "link", "vehicle", "telemetry", "safety", "flight", "s
 
 #: top-level packages and the project packages each may import (besides itself)
 PACKAGE_RULES = {
+    "wire": set(),
     "formation": set(),
     "estimator": {"formation"},
-    "sitl_mock": {"formation", "estimator"},
-    "experiments": {"formation", "estimator", "sitl_mock"},
-    "mission": {"formation", "estimator", "sitl_mock", "experiments"},
+    "sitl_mock": {"formation", "estimator", "wire"},
+    "experiments": {"formation", "estimator", "sitl_mock", "wire"},
+    "mission": {"formation", "estimator", "sitl_mock", "experiments", "wire"},
 }
-#: within mission, who may import the simulated world and the experiments
-MISSION_OUTSIDE_RULES = {"sitl_mock": {"sim", "cli"}, "experiments": {"cli"}}
+#: within mission, the rooms that may import the simulated world and the experiments
+MISSION_OUTSIDE_RULES = {"sitl_mock": {"sim"}, "experiments": {"cli"}}
+#: and the single modules besides them: ``run`` launches the simulated world (the mock fleet,
+#: its clock and its field flags); every other command (``watch``, ``ctl``, ``sitl``, ...) shares
+#: only ``wire`` with the simulator
+MISSION_OUTSIDE_MODULES = {"sitl_mock": {"mission.cli.cmd_run"}}
 
 
 def _imports(path: Path, module: str):
@@ -77,9 +82,11 @@ def _violations():
                 continue
             if top != "mission" or room is None:
                 continue
-            if t_top in MISSION_OUTSIDE_RULES and room not in MISSION_OUTSIDE_RULES[t_top]:
-                found.append(f"{where}: only mission.{{{', '.join(sorted(MISSION_OUTSIDE_RULES[t_top]))}}} "
-                             f"may import {t_top}")
+            if (t_top in MISSION_OUTSIDE_RULES and room not in MISSION_OUTSIDE_RULES[t_top]
+                    and module not in MISSION_OUTSIDE_MODULES.get(t_top, ())):
+                allowed = sorted(f"mission.{r}" for r in MISSION_OUTSIDE_RULES[t_top])
+                allowed += sorted(MISSION_OUTSIDE_MODULES.get(t_top, ()))
+                found.append(f"{where}: only {{{', '.join(allowed)}}} may import {t_top}")
             t_room = _room(target)
             if t_room is not None and MISSION_LAYERS.index(t_room) > MISSION_LAYERS.index(room):
                 found.append(f"{where}: mission.{room} must not import the higher room mission.{t_room}")
@@ -96,19 +103,37 @@ def test_imports_only_go_down():
     assert _violations() == []
 
 
-@pytest.mark.parametrize("source, expected", [
-    ("from mission.flight.coordinator import Coordinator\n", "mission.core must not import the higher room"),
-    ("def f():\n    import sitl_mock.fleet\n", "only mission.{cli, sim} may import sitl_mock"),
+@pytest.mark.parametrize("where, source, expected", [
+    ("mission/core/bad.py", "from mission.flight.coordinator import Coordinator\n",
+     "mission.core must not import the higher room"),
+    ("mission/core/bad.py", "def f():\n    import sitl_mock.fleet\n",
+     "only {mission.sim, mission.cli.cmd_run} may import sitl_mock"),
+    ("mission/cli/cmd_watch.py", "from sitl_mock.sensor import sensor_key\n",
+     "only {mission.sim, mission.cli.cmd_run} may import sitl_mock"),
+    ("wire/bad.py", "from mission.core.plan import parse_plan\n", "wire must not import mission"),
+    ("wire/bad.py", "def f():\n    from sitl_mock import fields\n", "wire must not import sitl_mock"),
+    ("formation/bad.py", "import wire.fleet_name\n", "formation must not import wire"),
 ])
-def test_the_check_sees_an_upward_or_forbidden_import(tmp_path, monkeypatch, source, expected):
+def test_the_check_sees_an_upward_or_forbidden_import(tmp_path, monkeypatch, where, source, expected):
     """The check is not vacuous: a planted upward (even lazy) import is reported."""
     fake_root = tmp_path
-    (fake_root / "mission" / "core").mkdir(parents=True)
-    (fake_root / "mission" / "__init__.py").write_text("")
-    (fake_root / "mission" / "core" / "__init__.py").write_text("")
-    (fake_root / "mission" / "core" / "bad.py").write_text(source)
     for package in PACKAGE_RULES:
         (fake_root / package).mkdir(exist_ok=True)
+        (fake_root / package / "__init__.py").write_text("")
+    bad = fake_root / where
+    bad.parent.mkdir(parents=True, exist_ok=True)
+    (bad.parent / "__init__.py").write_text("")
+    bad.write_text(source)
     monkeypatch.setattr(__import__(__name__), "ROOT", fake_root)
     problems = _violations()
-    assert any(expected in p and "mission/core/bad.py" in p for p in problems), problems
+    assert any(expected in p and where in p for p in problems), problems
+
+
+def test_the_run_command_may_import_the_simulated_world(tmp_path, monkeypatch):
+    """The one exception of the stricter rule holds (and only for that module)."""
+    for package in PACKAGE_RULES:
+        (tmp_path / package).mkdir(exist_ok=True)
+    (tmp_path / "mission" / "cli").mkdir()
+    (tmp_path / "mission" / "cli" / "cmd_run.py").write_text("from sitl_mock.fleet import MockFleet\n")
+    monkeypatch.setattr(__import__(__name__), "ROOT", tmp_path)
+    assert _violations() == []
