@@ -29,8 +29,8 @@ reboot (ArduPilot keeps it in flash). Everything runs in the fleet thread except
 never signs without a key; prefer setting keys before the fleet starts.
 
 Key files (64 hex characters, 32 raw bytes or a passphrase hashed with SHA-256) are read by
-:func:`wire.signing_keys.load_key_file`, the ground station's reader too; a bad key is a
-:class:`wire.signing_keys.SigningError`.
+:func:`wire.signing.load_key_file`, the ground station's reader too; a bad key is a
+:class:`wire.signing.SigningError`.
 """
 from __future__ import annotations
 
@@ -38,18 +38,14 @@ import hashlib
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from wire.signing_keys import SigningError
+from wire.signing import SigningError, signing_timestamp
 
 __all__ = [
-    "SIGNING_EPOCH_UNIX_S",
     "UNSIGNED_OK_MSG_IDS",
     "VehicleSigning",
-    "signing_timestamp",
     "frame_signature",
 ]
 
-#: 2015-01-01 00:00:00 UTC, the origin of MAVLink signing timestamps.
-SIGNING_EPOCH_UNIX_S = 1_420_070_400
 #: messages accepted unsigned while signing is on (ArduPilot's accept list: radio modems).
 UNSIGNED_OK_MSG_IDS = frozenset({mavlink2.MAVLINK_MSG_ID_RADIO_STATUS, mavlink2.MAVLINK_MSG_ID_RADIO})
 _SIGNED_FLAG = mavlink2.MAVLINK_IFLAG_SIGNED
@@ -58,11 +54,6 @@ _V2_MIN_LEN = 10 + 2
 _NEW_STREAM_MAX_LAG = 6_000_000  # one minute in 10 us units (MAVLink spec)
 _TIMESTAMP_MAX = (1 << 48) - 1
 _KEY_LEN = 32
-
-def signing_timestamp(unix_s: float) -> int:
-    """MAVLink signing timestamp (10 us units since 2015-01-01 UTC) of a Unix time in seconds."""
-    return max(0, min(int((float(unix_s) - SIGNING_EPOCH_UNIX_S) * 100_000), _TIMESTAMP_MAX))
-
 
 def frame_signature(key: bytes, signed_part: bytes) -> bytes:
     """The 6-byte signature of a frame: ``SHA-256(key + signed_part)[:6]``.

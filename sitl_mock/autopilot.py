@@ -17,7 +17,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from formation.geodesy import TangentFrame, enu_to_ned, geodetic_to_enu
 from sitl_mock import ap_failsafe, ap_flight, ap_mission_exec, ap_receive
-from sitl_mock.ap_signing import VehicleSigning, signing_timestamp
+from sitl_mock.ap_signing import VehicleSigning
+from wire.signing import signing_timestamp
 from sitl_mock.ap_mission import MissionItem, MissionServer
 from sitl_mock.ap_modes import Personality, make_personality
 from sitl_mock.ap_params import ParamTable

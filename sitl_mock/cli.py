@@ -72,7 +72,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Run the fleet; returns the exit status."""
-    from wire.signing_keys import SigningError, load_key_file
+    from wire.signing import SigningError, load_key_file
     from sitl_mock.fleet import DEFAULT_ORIGIN, MockFleet
     from sitl_mock.sensor_response import set_fleet_response
     from sitl_mock.transport import PortInUseError

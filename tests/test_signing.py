@@ -1,6 +1,6 @@
 """mission.link.signing: key files, signing state, frame signing and the checks of received frames.
 
-Key files are read by :mod:`wire.signing_keys`, the one reader of the ground station and the mock.
+Key files are read by :mod:`wire.signing`, the one reader of the ground station and the mock.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mission.link import signing as sg
-from wire.signing_keys import SigningError, SigningWarning, load_key_file, passphrase_to_key
+from wire.signing import SigningError, SigningWarning, load_key_file, passphrase_to_key, signing_timestamp
 
 KEY = bytes(range(1, 33))
 OTHER_KEY = bytes(range(101, 133))
@@ -152,7 +152,7 @@ def test_security_table_lists_every_problem(tmp_path, table, keys):
     (datetime.datetime(2025, 1, 1, tzinfo=datetime.timezone.utc), 3653 * 86400 * 100_000),
 ])
 def test_signing_timestamp_units(when, expected):
-    assert sg.signing_timestamp(when.timestamp()) == expected
+    assert signing_timestamp(when.timestamp()) == expected
 
 
 def test_refresh_timestamp_never_goes_back():
@@ -174,7 +174,7 @@ def test_sign_frame_is_what_pymavlink_sends(make):
     plain_msg = make(_gcs(None))
     by_hand = sg.sign_frame(plain_msg.pack(_gcs(None)), plain_msg.crc_extra, b)
     assert by_hand == signed
-    assert a.timestamp == b.timestamp == sg.signing_timestamp(NOW_S) + 1
+    assert a.timestamp == b.timestamp == signing_timestamp(NOW_S) + 1
     with pytest.raises(SigningError, match="unsigned MAVLink 2 frame"):
         sg.sign_frame(signed, plain_msg.crc_extra, b)
 
@@ -195,7 +195,7 @@ def test_setup_signing_message_round_trip():
     got = parser.parse_buffer(msg.pack(_gcs(None)))[0]
     assert got.get_type() == "SETUP_SIGNING"
     assert (got.target_system, got.target_component) == (3, 1)
-    assert bytes(got.secret_key) == KEY and got.initial_timestamp == sg.signing_timestamp(NOW_S)
+    assert bytes(got.secret_key) == KEY and got.initial_timestamp == signing_timestamp(NOW_S)
     off = parser.parse_buffer(sg.disable_signing_message(3).pack(_gcs(None)))[0]
     assert not any(off.secret_key) and off.initial_timestamp == 0
     with pytest.raises(SigningError, match="disable_signing_message"):

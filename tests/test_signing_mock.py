@@ -19,11 +19,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mission import cli
 from mission.link.signing import (SignatureVerifier, SigningConfig, apply_signing,
-                             disable_signing_message, setup_signing_message, signing_timestamp)
+                                  disable_signing_message, setup_signing_message)
 from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.dynamics import DynamicsParams, Multicopter
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import make_parser
+from wire.signing import signing_timestamp
 from wait_helpers import wait_until
 
 KEY = bytes(range(1, 33))

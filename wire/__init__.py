@@ -1,7 +1,7 @@
 """What both ends of a link share: the ground station (``mission``) and the simulated world
 (``sitl_mock``) import it, and it imports nothing of the project.
 
-* :mod:`wire.signing_keys` - MAVLink 2 signing key files (hex, raw or passphrase);
+* :mod:`wire.signing` - MAVLink 2 signing key files (hex, raw or passphrase) and timestamps;
 * :mod:`wire.fleet_name` - the one rule for fleet names (a zenoh key chunk naming one fleet);
 * :mod:`wire.zenoh_config` - a zenoh session configuration with explicit endpoints;
 * :mod:`wire.zenoh_secrets` - the password file and user dictionary of zenoh security;

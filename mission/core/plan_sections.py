@@ -16,7 +16,7 @@ from mission.core.plan_checks import Checker, check_connection, join_key, polygo
 from mission.core.plan_types import (PLUME_MODES, SAMPLINGS, ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
                                      PreflightPlan, SeekingPlan, VehiclePlan)
 from mission.core.signing_config import SigningConfig, signing_config_from_table
-from wire.signing_keys import SigningError
+from wire.signing import SigningError
 
 __all__ = [
     "RETURN_BEHAVIOURS",

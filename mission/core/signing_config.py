@@ -14,25 +14,15 @@ from typing import Mapping
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.core.redaction import secret_field
-from wire.signing_keys import SigningError, load_key_file
+from wire.signing import SigningError, load_key_file, signing_timestamp
 
-__all__ = ["SIGNING_EPOCH_UNIX_S", "DEFAULT_ALLOW_UNSIGNED", "SigningConfig", "signing_timestamp",
-           "signing_config_from_table"]
+__all__ = ["DEFAULT_ALLOW_UNSIGNED", "SigningConfig", "signing_config_from_table"]
 
-#: 2015-01-01 00:00:00 UTC, the origin of MAVLink signing timestamps (Unix seconds).
-SIGNING_EPOCH_UNIX_S = 1_420_070_400
 #: messages accepted unsigned by default: what radio modems inject (ArduPilot's accept list).
 DEFAULT_ALLOW_UNSIGNED = frozenset({"RADIO_STATUS", "RADIO"})
 _KEY_LEN = 32
-_TIMESTAMP_MAX = (1 << 48) - 1
 _SECURITY_KEYS = ("signing_key_file", "signing_link_id", "allow_unsigned", "setup_signing")
 _MSG_IDS: dict[str, int] = {cls.msgname: msg_id for msg_id, cls in mavlink.mavlink_map.items()}
-
-# ---------------------------------------------------------------------------- time
-def signing_timestamp(unix_s: float) -> int:
-    """Signing timestamp of a Unix time: 10 us units since 2015-01-01 UTC, clipped to 48 bits."""
-    return max(0, min(int((float(unix_s) - SIGNING_EPOCH_UNIX_S) * 100_000), _TIMESTAMP_MAX))
-
 
 # ---------------------------------------------------------------------------- configuration
 @dataclass(frozen=True)

@@ -49,7 +49,7 @@ from mission.flight.motion import retried, setpoint_stream
 from mission.flight.resume_endings import classify_ending
 from mission.flight.retire import restore_retired
 from mission.flight.state import MissionError, VehicleLoss
-from wire.signing_keys import SigningError
+from wire.signing import SigningError
 
 __all__ = ["ResumeError", "ResumeState", "plan_from_json", "load_resume_state", "rejoin", "resume_mission"]
 

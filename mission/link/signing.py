@@ -1,7 +1,7 @@
 """MAVLink 2 message signing for the ground station: key file, signing state, checks, SETUP_SIGNING.
 
 The key is read from a key file named in the plan (``[security] signing_key_file = "path"``),
-never from the command line. Key-file format (:func:`wire.signing_keys.load_key_file`), tried in this order:
+never from the command line. Key-file format (:func:`wire.signing.load_key_file`), tried in this order:
 
 1. **64 hexadecimal characters** (surrounding whitespace and a final newline ignored): the key.
 2. **exactly 32 bytes** that are not all printable ASCII: the raw key. 32 printable bytes are
@@ -10,16 +10,16 @@ never from the command line. Key-file format (:func:`wire.signing_keys.load_key_
    the key is ``SHA-256(passphrase)``, exactly what MAVProxy's ``signing setup PASSPHRASE`` and
    ``signing key PASSPHRASE`` do, so a vehicle set up with MAVProxy flies with the same words.
 
-The file must not be world-readable (``chmod 600``): :class:`wire.signing_keys.SigningError`
+The file must not be world-readable (``chmod 600``): :class:`wire.signing.SigningError`
 otherwise (unless ``allow_world_readable=True``, which only warns); a group-readable file gives a
-:class:`wire.signing_keys.SigningWarning`. The all-zero key is refused (it means "signing off" in
+:class:`wire.signing.SigningWarning`. The all-zero key is refused (it means "signing off" in
 SETUP_SIGNING).
 
 Sending: :meth:`SigningConfig.new_state` makes one pymavlink ``MAVLinkSigning`` per link;
 :func:`apply_signing` gives it to every pymavlink encoder of that link (they then share one
 timestamp, so timestamps are monotonic per link whatever the peer), and :func:`sign_frame` signs
 frames built by hand with the same state. Timestamps are 10 us units since 2015-01-01 00:00 UTC
-(:func:`signing_timestamp`); pymavlink adds one per frame and :func:`refresh_timestamp` keeps
+(:func:`wire.signing.signing_timestamp`); pymavlink adds one per frame and :func:`refresh_timestamp` keeps
 them up with the clock.
 
 Receiving: parse with a pymavlink parser that has *no* key (it then decodes signed frames without
@@ -44,16 +44,13 @@ from collections import Counter
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from pymavlink.generator import mavcrc
 
-from mission.core.signing_config import (DEFAULT_ALLOW_UNSIGNED, SIGNING_EPOCH_UNIX_S, SigningConfig,
-                                         signing_config_from_table, signing_timestamp)
-from wire.signing_keys import SigningError
+from mission.core.signing_config import DEFAULT_ALLOW_UNSIGNED, SigningConfig, signing_config_from_table
+from wire.signing import SigningError, signing_timestamp
 
 __all__ = [
-    "SIGNING_EPOCH_UNIX_S",
     "DEFAULT_ALLOW_UNSIGNED",
     "SigningConfig",
     "SignatureVerifier",
-    "signing_timestamp",
     "apply_signing",
     "refresh_timestamp",
     "sign_frame",
@@ -137,7 +134,7 @@ def setup_signing_message(target_system: int, key: bytes, initial_timestamp: int
     """SETUP_SIGNING giving ``key`` to a vehicle (send it over a trusted link only).
 
     ``initial_timestamp`` is in 10 us units since 2015-01-01 (use the link state's
-    ``timestamp``, or :func:`signing_timestamp` of the clock).
+    ``timestamp``, or :func:`wire.signing.signing_timestamp` of the clock).
     """
     if len(key) != _KEY_LEN or not any(key):
         raise SigningError(f"SETUP_SIGNING needs a non-zero {_KEY_LEN}-byte key "

@@ -1,5 +1,8 @@
-"""MAVLink 2 signing key files, read alike by the ground station (:mod:`mission.link.signing`)
-and the mock autopilots (``swarmseek mock --signing-key-file``).
+"""MAVLink 2 signing shared by the ground station (:mod:`mission.link.signing`) and the mock
+autopilots (:mod:`sitl_mock.ap_signing`): key files and signing timestamps.
+
+Timestamps (:func:`signing_timestamp`) are 10 microsecond units since 2015-01-01 00:00 UTC
+(:data:`SIGNING_EPOCH_UNIX_S`), clipped to 48 bits.
 
 Key-file format, tried in this order: 64 hexadecimal characters (surrounding whitespace
 ignored); exactly 32 bytes that are not all printable ASCII (the raw key; 32 printable bytes are
@@ -14,10 +17,19 @@ import stat
 import warnings
 from pathlib import Path
 
-__all__ = ["SigningError", "SigningWarning", "load_key_file", "passphrase_to_key"]
+__all__ = ["SIGNING_EPOCH_UNIX_S", "SigningError", "SigningWarning", "load_key_file", "passphrase_to_key",
+           "signing_timestamp"]
 
+#: 2015-01-01 00:00:00 UTC, the origin of MAVLink signing timestamps.
+SIGNING_EPOCH_UNIX_S = 1_420_070_400
 _KEY_LEN = 32
 _KEY_FILE_MAX_BYTES = 4096
+_TIMESTAMP_MAX = (1 << 48) - 1
+
+
+def signing_timestamp(unix_s: float) -> int:
+    """Signing timestamp of a Unix time: 10 us units since 2015-01-01 UTC, clipped to 48 bits."""
+    return max(0, min(int((float(unix_s) - SIGNING_EPOCH_UNIX_S) * 100_000), _TIMESTAMP_MAX))
 
 
 class SigningError(ValueError):
