@@ -2,7 +2,7 @@
 
 For every N and every stack, three processes:
 
-* the *vehicles* (``--role vehicles``): N fake autopilots (``mission.vehicle.fake``), one UDP
+* the *vehicles* (``--role vehicles``): N fake autopilots (``tests/fake_autopilot.py``), one UDP
   socket each, sending telemetry like an autopilot at the rates the mission asks for
   (GLOBAL_POSITION_INT and LOCAL_POSITION_NED 5 Hz; HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE
   1 Hz) and time-stamping every setpoint they receive (``time.perf_counter``): the intervals and
@@ -32,7 +32,8 @@ Stacks:
 Extending (e.g. to add estimation to the load): :func:`run_swarmseek` takes ``extra_load``, an
 async callable ``extra_load(vehicles, streamer, clock)`` started with the streamer and cancelled
 at the end of the window; its cost is then part of the coordinator CPU figure. From the command
-line: ``--extra-load package.module:function`` (swarmseek stacks only).
+line: ``--extra-load package.module:function`` (swarmseek stacks only; modules of ``benchmarks/``
+are found by name, e.g. ``--extra-load seek_load:seek_load`` for the coordinator's seek-loop work).
 
 Run::
 
@@ -80,7 +81,8 @@ def _stdin_commands(loop, queue) -> None:
 
 # ---------------------------------------------------------------------------------- vehicles
 async def _vehicles_main(n: int, port_base: int, shared: bool) -> None:
-    from mission.vehicle.fake import FakeAutopilot, FakeUdpVehicle
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
+    from fake_autopilot import FakeAutopilot, FakeUdpVehicle
     from formation.geodesy import enu_to_geodetic
 
     fakes = []

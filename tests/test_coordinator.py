@@ -6,6 +6,7 @@ import asyncio
 import io
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -302,10 +303,12 @@ def test_state_publisher_puts_json_snapshots_on_the_documented_key():
         a.close()
 
 
-def test_seek_load_runs_the_seek_work_until_cancelled():
-    """The benchmark load: readings validated, setpoints ramped through the envelope, estimates."""
+def test_seek_load_runs_the_seek_work_until_cancelled(monkeypatch):
+    """The benchmark load (benchmarks/seek_load.py): readings validated, setpoints ramped through
+    the envelope, estimates."""
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from mission.core.clock import WallClock
-    from mission.flight.seek_load import seek_load
+    from seek_load import seek_load
 
     class _V:
         def __init__(self, i):

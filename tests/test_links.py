@@ -11,7 +11,7 @@ from mission.core.clock import WallClock
 from mission.link.endpoint import ConnectionSpec, LinkError, MavEndpoint, SysidRegistry, parse_connection
 from mission.link.poller import UdpPoller
 from mission.vehicle.vehicle_link import VehicleLink
-from mission.vehicle.fake import FakeAutopilot, FakeUdpVehicle
+from fake_autopilot import FakeAutopilot, FakeUdpVehicle
 from wait_helpers import wait_until_async
 
 ORIGIN = (45.0, 5.0, 200.0)

@@ -15,7 +15,7 @@ from mission.core.clock import WallClock, wait_on_clock
 from mission.link.endpoint import MavEndpoint
 from mission.vehicle.streamer import SetpointStreamer
 from mission.vehicle.vehicle_link import CommandError, VehicleLink, command_name
-from mission.vehicle.fake import FakeAutopilot, FakeUdpVehicle
+from fake_autopilot import FakeAutopilot, FakeUdpVehicle
 from mission.vehicle.frames import MissionToLocal, mode_name, resolve_mode
 from wait_helpers import wait_until_async
 

@@ -1,5 +1,8 @@
 """The coordinator's seek-loop work as a load for benchmarks (no vehicles are moved by it).
 
+Not a benchmark itself: ``python benchmarks/bench_setpoints.py --extra-load seek_load:seek_load``
+adds it to the setpoint benchmark's coordinator (``benchmarks/`` is the script's path).
+
 :func:`seek_load` matches the ``extra_load(vehicles, streamer, clock)`` hook of
 ``benchmarks/bench_setpoints.py``: while the benchmark streams setpoints, it does what the
 coordinator does during a seek besides streaming:
