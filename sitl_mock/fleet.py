@@ -78,7 +78,7 @@ class MockFleet:
     zenoh : bool
         False disables zenoh even if endpoints are given.
     zenoh_security : dict, optional
-        TLS / login keywords of :func:`sitl_mock.sensor.zenoh_config` for the fleet's session:
+        TLS / login keywords of :func:`wire.zenoh_config.zenoh_config` for the fleet's session:
         ``tls`` (mapping of ``transport/link/tls`` file keys), ``enable_mtls``, ``username``,
         ``password``, ``dictionary_file`` (as built by
         :func:`wire.zenoh_flags.security_kwargs`).
