@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 import threading
+import time
 
 from sitl_mock.cli_args import (
     add_field_arguments,
@@ -17,6 +18,7 @@ from sitl_mock.cli_args import (
     origin_geodetic,
     path_arg,
     positive_float,
+    probe_custom_field,
     source_enu,
     zenoh_endpoint,
 )
@@ -93,6 +95,7 @@ def main(args: argparse.Namespace) -> int:
             return 2
     try:
         field_name, field, response = field_from_args(args, args.source)
+        probe_custom_field(field, time.time())  # a plug-in's values checked before any socket opens
     except ValueError as exc:
         print(f"swarmseek mock: error: {exc}", file=sys.stderr)
         return 2
