@@ -65,10 +65,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="estimator: Theorem 2 or eq. (3) (default: the formation's)")
     parser.add_argument("--radius", type=positive_float, default=1.0, help="formation radius D, m")
     parser.add_argument("--field", choices=("sigma1", "sigma2"), default="sigma2")
+    parser.add_argument("--field-python", default=None, metavar="PKG.MODULE:FACTORY",
+                        help="your own field instead of --field: a factory importable from sys.path, called with "
+                             "{'python': SPEC} (docs/fields.md, \"Your own field\")")
     parser.add_argument("--noise", type=nonnegative_float, default=0.0,
                         help="reading noise standard deviation (signal units)")
     parser.add_argument("--start", type=_vector3, default=None, metavar="E,N,U",
-                        help="initial centre, ENU metres (default: sigma1 10,50,10; sigma2 20,-20,5)")
+                        help="initial centre, ENU metres (default: sigma1 10,50,10; sigma2 20,-20,5; a plug-in: "
+                             "20 m east and 20 m south of its source)")
     parser.add_argument("--eps", type=positive_float, default=None,
                         help="the gradient seeker's step size (default 1)")
     parser.add_argument("--gamma", type=positive_float, default=0.1,
@@ -124,8 +128,15 @@ def run(args: argparse.Namespace) -> dict:
     else:
         offsets = formation.cvt_sphere(args.n, args.radius, seed=args.seed)
     method = args.method or args.formation
-    start = args.start if args.start is not None else _vector3(_DEFAULT_STARTS[args.field])
-    field = make_field(args.field)
+    field = _plugin_field(args.field_python) if getattr(args, "field_python", None) else make_field(args.field)
+    if getattr(args, "field_python", None):
+        args.field = f"python:{args.field_python}"
+    if args.start is not None:
+        start = args.start
+    elif field_is_plugin(args):
+        start = field.source_enu() + np.array([20.0, -20.0, 0.0])
+    else:
+        start = _vector3(_DEFAULT_STARTS[args.field])
     seeker = getattr(args, "seeker", "gradient")
     sampling = getattr(args, "sampling", "stop_and_go")
     if sampling == "moving" and seeker not in MOVING_SEEKERS:
@@ -152,6 +163,29 @@ def run(args: argparse.Namespace) -> dict:
         t_1m = float(res.moving.time_within_s(1.0)[0])
         out["time_within_1m_s"] = t_1m if np.isfinite(t_1m) else None
     return out
+
+
+def field_is_plugin(args: argparse.Namespace) -> bool:
+    """True when the run's field is a plug-in (``--field-python``)."""
+    return bool(getattr(args, "field_python", None))
+
+
+def _plugin_field(spec: str):
+    """The plug-in ``spec`` loaded with the table ``{"python": spec}`` and probed at the offline
+    run's times (0 s on) around its source (+-50 m; the default start 20 m east, 20 m south).
+
+    Raises
+    ------
+    FieldPluginError
+        One line naming the plug-in (a ValueError: exit 2).
+    """
+    from sitl_mock.fields_plugin import load_plugin, probe_field, probe_points_enu
+
+    field = load_plugin(spec, {"python": spec})
+    src = field.source_enu()
+    box = [(src[0] + e, src[1] + n) for e, n in ((-50, -50), (50, -50), (50, 50), (-50, 50))]
+    probe_field(field, probe_points_enu(box, src[2] - 20.0, src[2] + 20.0, extra=[src, src + (20.0, -20.0, 0.0)]))
+    return field
 
 
 def _inapplicable_option(args: argparse.Namespace) -> str | None:

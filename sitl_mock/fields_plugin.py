@@ -2,8 +2,8 @@
 
 The factory is called with the ``[field]`` table (a ``dict``) and returns an object with the
 interface :class:`FieldPlugin` (``docs/fields.md``, "Your own field"). :func:`load_plugin` imports
-it (``importlib``: the module must be importable from ``sys.path``, e.g. run from the directory
-holding it or set ``PYTHONPATH``), checks what the factory returned and wraps it in a
+it (``importlib``: the module must be importable from ``sys.path`` or the current directory,
+which is searched last: run from the directory holding it or set ``PYTHONPATH``), checks what the factory returned and wraps it in a
 :class:`PluginField`, which gives the simulated world the interface of the built-in fields.
 :func:`probe_field` evaluates a field at a few points and times before a command arms or connects
 anything. Every problem is a :class:`FieldPluginError`: one line naming the plug-in.
@@ -11,7 +11,9 @@ anything. Every problem is a :class:`FieldPluginError`: one line naming the plug
 from __future__ import annotations
 
 import importlib
+import os
 import re
+import sys
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -70,10 +72,13 @@ def _describe(exc: BaseException) -> str:
 
 def _import_factory(spec: str, label: str):
     module_name, attr = spec.split(":")
+    cwd = os.getcwd()
+    if cwd not in sys.path and "" not in sys.path:  # the `swarmseek` script's sys.path lacks it; searched last
+        sys.path.append(cwd)
     try:
         obj = importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
-        if exc.name and module_name.startswith(exc.name):
+        if exc.name and (exc.name == module_name or module_name.startswith(exc.name + ".")):
             raise FieldPluginError(f"{label}: cannot import module {module_name!r} (no module named {exc.name!r}; "
                                    "run from the directory holding it or put it on PYTHONPATH)") from None
         raise FieldPluginError(f"{label}: importing {module_name!r} failed: {_describe(exc)}") from None
@@ -202,7 +207,7 @@ def probe_points_enu(polygon_en_m, min_alt_m: float, max_alt_m: float, extra=())
 
 
 def _where(point, t_s: float) -> str:
-    return f"({', '.join(f'{x:g}' for x in point)}) m, t = {t_s:.6g} s"
+    return f"({', '.join(f'{x:g}' for x in point)}) m, t = {t_s:.12g} s"
 
 
 def probe_field(field, points_enu_m, t0_s: float = 0.0, times_s=PROBE_TIMES_S, label: str | None = None) -> None:
@@ -225,7 +230,7 @@ def probe_field(field, points_enu_m, t0_s: float = 0.0, times_s=PROBE_TIMES_S, l
         try:
             out = np.asarray(raw.value(pts.copy(), t), dtype=float)
         except Exception as exc:  # noqa: BLE001 - the user's code
-            raise FieldPluginError(f"{label}: value() raised {_describe(exc)} at t = {t:.6g} s") from None
+            raise FieldPluginError(f"{label}: value() raised {_describe(exc)} at t = {t:.12g} s") from None
         if out.shape != (len(pts),):
             raise FieldPluginError(f"{label}: value() of {len(pts)} points returned shape {out.shape}, "
                                    f"expected ({len(pts)},)")
