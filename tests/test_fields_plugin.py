@@ -240,6 +240,19 @@ def test_a_broken_plugin_stops_run_with_one_line_and_exit_2(case, tmp_path, monk
     assert not (log_dir / "mission.jsonl").exists()  # nothing started
 
 
+def test_a_plugin_failing_where_the_probe_did_not_look_is_told(tmp_path, monkeypatch, capsys):
+    bad = GOOD_PLUGIN.replace("return out\n", "return out if len(points_enu_m) > 1 else out[:, None]\n")
+    mod = _write_module(tmp_path, "tp_runtime_bad", bad, monkeypatch)  # the sensors read one point at a time
+    log_dir = tmp_path / "log"
+    assert cli_main(["run", "--field-python", f"{mod}:make", "--json", "--no-tlog", "--log-dir", str(log_dir)]) == 1
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert out["outcome"] == "aborted" and "nothing armed" in out["message"]
+    assert (f"swarmseek run: warning: the simulated world caught 20 error(s) (at most the first ones are kept); the "
+            f"first: sitl_mock.fields_plugin.FieldPluginError: field plug-in {mod}:make: value() of 1 points returned "
+            "shape (1, 1), expected (1,)\n") in captured.err
+
+
 @pytest.mark.parametrize("command", ["mock", "sensor", "simulate"])
 def test_a_broken_plugin_stops_mock_sensor_and_simulate(command, tmp_path, monkeypatch, capsys):
     mod = _write_module(tmp_path, f"tp_nan_{command}", BROKEN["nan"][0], monkeypatch)

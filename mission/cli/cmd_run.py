@@ -25,7 +25,7 @@ from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
 from mission.flight.operator_stop import run_until_stopped
 from mission.flight.result import geodetic_point
-from mission.sim.fleet_report import vehicle_rejections
+from mission.sim.fleet_report import vehicle_rejections, world_errors_line
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.terminal import best_effort_terminal, told_to
 from mission.telemetry.watch_keys import with_keys
@@ -354,6 +354,9 @@ def run_embedded(args, display=None, terminal=None):
         return result
     finally:
         fleet.stop()
+        errors = world_errors_line(fleet)
+        if errors:
+            print(f"swarmseek run: warning: {errors}", file=sys.stderr)
 
 
 def _resolve_outs(args) -> str | None:
