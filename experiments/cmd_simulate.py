@@ -113,7 +113,6 @@ def run(args: argparse.Namespace) -> dict:
         convergence window below 8.
     """
     import formation
-    from sitl_mock.fields import make_field
     from experiments.offline import convergence_report, simulate
 
     problem = _inapplicable_option(args)
@@ -128,15 +127,7 @@ def run(args: argparse.Namespace) -> dict:
     else:
         offsets = formation.cvt_sphere(args.n, args.radius, seed=args.seed)
     method = args.method or args.formation
-    field = _plugin_field(args.field_python) if getattr(args, "field_python", None) else make_field(args.field)
-    if getattr(args, "field_python", None):
-        args.field = f"python:{args.field_python}"
-    if args.start is not None:
-        start = args.start
-    elif field_is_plugin(args):
-        start = field.source_enu() + np.array([20.0, -20.0, 0.0])
-    else:
-        start = _vector3(_DEFAULT_STARTS[args.field])
+    field, start = _field_and_start(args)
     seeker = getattr(args, "seeker", "gradient")
     sampling = getattr(args, "sampling", "stop_and_go")
     if sampling == "moving" and seeker not in MOVING_SEEKERS:
@@ -163,6 +154,21 @@ def run(args: argparse.Namespace) -> dict:
         t_1m = float(res.moving.time_within_s(1.0)[0])
         out["time_within_1m_s"] = t_1m if np.isfinite(t_1m) else None
     return out
+
+
+def _field_and_start(args: argparse.Namespace):
+    """The field (``--field`` or ``--field-python``; ``args.field`` then names the plug-in) and the
+    start (``--start``, else the field's default)."""
+    from sitl_mock.fields import make_field
+
+    if field_is_plugin(args):
+        field = _plugin_field(args.field_python)
+        args.field = f"python:{args.field_python}"
+        default_start = field.source_enu() + np.array([20.0, -20.0, 0.0])
+    else:
+        field = make_field(args.field)
+        default_start = _vector3(_DEFAULT_STARTS[args.field])
+    return field, (args.start if args.start is not None else default_start)
 
 
 def field_is_plugin(args: argparse.Namespace) -> bool:

@@ -324,7 +324,8 @@ def probe_custom_field(field, t0_s: float, points_enu_m=None) -> None:
     if not isinstance(field, (PluginField, GridField)):
         return
     if points_enu_m is None:
-        points_enu_m = probe_points_enu(DEFAULT_PROBE_FENCE_EN_M, 2.0, 80.0, extra=[(0.0, 0.0, 0.0), field.source_enu()])
+        points_enu_m = probe_points_enu(DEFAULT_PROBE_FENCE_EN_M, 2.0, 80.0,
+                                        extra=[(0.0, 0.0, 0.0), field.source_enu()])
     probe_field(field, points_enu_m, t0_s)
 
 

@@ -3,10 +3,10 @@
 The factory is called with the ``[field]`` table (a ``dict``) and returns an object with the
 interface :class:`FieldPlugin` (``docs/fields.md``, "Your own field"). :func:`load_plugin` imports
 it (``importlib``: the module must be importable from ``sys.path`` or the current directory,
-which is searched last: run from the directory holding it or set ``PYTHONPATH``), checks what the factory returned and wraps it in a
-:class:`PluginField`, which gives the simulated world the interface of the built-in fields.
-:func:`probe_field` evaluates a field at a few points and times before a command arms or connects
-anything. Every problem is a :class:`FieldPluginError`: one line naming the plug-in.
+which is searched last: run from the directory holding it or set ``PYTHONPATH``), checks what
+the factory returned and wraps it in a :class:`PluginField`, which gives the simulated world the
+interface of the built-in fields. :func:`probe_field` evaluates a field at a few points and times
+before a command arms or connects anything. Every problem is a :class:`FieldPluginError`: one line naming the plug-in.
 """
 from __future__ import annotations
 

@@ -290,7 +290,8 @@ def main(args: argparse.Namespace) -> int:
     """Entry point of ``swarmseek sensor``: 0 on success, 1 with a one-line message on failure,
     2 when no zenoh endpoint was given or the zenoh TLS / login flags do not fit together."""
     if not (args.field or args.field_config or args.field_python or args.field_npz):
-        print("swarmseek sensor: error: give --field or --field-config (or --field-python, --field-npz)", file=sys.stderr)
+        print("swarmseek sensor: error: give --field or --field-config (or --field-python, --field-npz)",
+              file=sys.stderr)
         return 2
     try:
         _name, field, _response = field_from_args(args, args.source)

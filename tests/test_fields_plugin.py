@@ -176,7 +176,8 @@ def test_the_example_npz_is_what_its_script_writes_and_serves_both_ways(tmp_path
     assert (EXAMPLES / "grid_example.npz").stat().st_size < 200_000
     plan = tmp_path / "plan.toml"  # npz relative to the file that names it
     (tmp_path / "fresh_copy.npz").write_bytes((tmp_path / "fresh.npz").read_bytes())
-    for table in ('type = "grid"\nnpz = "fresh_copy.npz"', 'python = "sitl_mock.fields_grid:from_table"\nnpz = "fresh_copy.npz"'):
+    for table in ('type = "grid"\nnpz = "fresh_copy.npz"',
+                  'python = "sitl_mock.fields_grid:from_table"\nnpz = "fresh_copy.npz"'):
         plan.write_text(f"[field]\n{table}\n")
         name, field, _ = field_from_args(_field_args(field_config=plan), None)
         assert field.source_enu().tolist() == [10.0, -5.0, 12.0], name

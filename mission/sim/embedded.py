@@ -34,7 +34,8 @@ from mission.core.plan import (
     ZenohPlan,
 )
 
-__all__ = ["DEFAULT_ORIGIN", "FENCE_MIN_ALT_M", "FENCE_MAX_ALT_M", "FENCE_POLYGON_EN_M", "MAX_VEHICLES", "free_port_block", "default_eps", "default_radius_m",
+__all__ = ["DEFAULT_ORIGIN", "FENCE_MIN_ALT_M", "FENCE_MAX_ALT_M", "FENCE_POLYGON_EN_M", "MAX_VEHICLES",
+           "free_port_block", "default_eps", "default_radius_m",
            "default_source_and_start", "downwind_en", "embedded_plan", "fleet_ports"]
 
 DEFAULT_ORIGIN = (45.1885, 5.7245, 212.0)
