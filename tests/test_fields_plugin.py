@@ -85,6 +85,20 @@ def test_a_plugin_field_reaches_the_sensors_of_a_lockstep_run_and_its_source(tmp
         assert min(abs(v - x["value"]) for v in given[x["time_s"]]) <= 5e-7
 
 
+def test_a_sensor_reads_a_plugin_field_as_a_builtin_one(tmp_path, monkeypatch):
+    from sitl_mock.faults import FaultSet
+    from sitl_mock.sensor import SignalSensor
+
+    mod = _write_module(tmp_path, "tp_sensor_field", GOOD_PLUGIN, monkeypatch)
+    field = load_plugin(f"{mod}:make", {"source_enu_m": [1.0, 2.0, 3.0]})
+    sensor = SignalSensor(field, 0.0, np.random.default_rng(0), FaultSet(), "f", 1)
+    pos, t_s = np.array([4.0, -2.0, 9.0]), LOCKSTEP_T0_S + 12.5
+    reading = sensor.sample(t_s, pos, 45.0, 5.0, 200.0)
+    assert reading["value"] == float(np.exp(-np.sum((pos - (1.0, 2.0, 3.0)) ** 2) / (2.0 * 15.0 ** 2)))
+    calls = importlib.import_module(mod).CALLS
+    assert calls[-1][0] == t_s and calls[-1][1].shape == (1,)  # one point (M = 1), the reading's time
+
+
 def test_the_plan_field_table_reaches_the_factory_and_plan_checks_the_form(tmp_path, monkeypatch):
     mod = _write_module(tmp_path, "tp_table_field", GOOD_PLUGIN, monkeypatch)
     plan = tmp_path / "plan.toml"
