@@ -6,6 +6,10 @@ Gaussian plume, :class:`~sitl_mock.fields_plume.GaussianPlume`), ``intermittent`
 :class:`~sitl_mock.fields_filament.FilamentPlume`). Every one can have several sources
 (``extra_sources``, weighted by ``strengths``): the field is then the sum of one field per
 source (:class:`~sitl_mock.fields_gaussian.SumField`; one background for the sum).
+
+A ``[field]`` table may instead name your own field: ``python = "pkg.module:factory"``
+(:mod:`sitl_mock.fields_plugin`) or ``type = "grid"`` with ``npz = PATH``
+(:mod:`sitl_mock.fields_grid`); :func:`field_from_table` builds those too.
 """
 from __future__ import annotations
 

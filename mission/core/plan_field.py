@@ -13,6 +13,17 @@ file carries a SITL dry-run's field. Keys (``docs/fields.md``)::
     sensor_time_constant_s = 0.5    # every field: sensor lag
     sensor_detection_floor = 0.001  # every field: readings below report 0
 
+Your own field (``docs/fields.md``, "Your own field")::
+
+    [field]
+    python = "my_field:make"        # a plug-in: further keys are its own, passed as given
+    # or
+    type = "grid"
+    npz = "frames.npz"              # gridded frames over time, relative to the plan's directory
+
+Only their form is checked here (the ground station imports no plug-in); the commands that
+simulate the world import and probe them before anything starts.
+
 This module checks types and ranges with the plan's :class:`~mission.core.plan_checks.Checker`
 (every problem with its key path); ``sitl_mock.fields.field_from_table`` builds the field from
 :meth:`FieldPlan.to_table`.
