@@ -64,7 +64,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=("cvt", "symmetric"), default=None,
                         help="estimator: Theorem 2 or eq. (3) (default: the formation's)")
     parser.add_argument("--radius", type=positive_float, default=1.0, help="formation radius D, m")
-    parser.add_argument("--field", choices=("sigma1", "sigma2"), default="sigma2")
+    parser.add_argument("--field", choices=("sigma1", "sigma2"), default=None, help="the paper's field (default sigma2)")
     parser.add_argument("--field-python", default=None, metavar="PKG.MODULE:FACTORY",
                         help="your own field instead of --field: a factory importable from sys.path, called with "
                              "{'python': SPEC} (docs/fields.md, \"Your own field\")")
@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> dict:
     else:
         offsets = formation.cvt_sphere(args.n, args.radius, seed=args.seed)
     method = args.method or args.formation
-    field, start = _field_and_start(args)
+    field_name, field, start = _field_and_start(args)
     seeker = getattr(args, "seeker", "gradient")
     sampling = getattr(args, "sampling", "stop_and_go")
     if sampling == "moving" and seeker not in MOVING_SEEKERS:
@@ -141,7 +141,7 @@ def run(args: argparse.Namespace) -> dict:
     else:
         res = _simulate_seeker(args, offsets, field, start)
     out = {
-        "field": args.field, "formation": args.formation, "method": method, "n": args.n,
+        "field": field_name, "formation": args.formation, "method": method, "n": args.n,
         "radius_m": args.radius, "noise_std": args.noise, "eps": args.eps, "gamma_m": args.gamma,
         "iterations": args.iterations, "seed": args.seed, "start_enu": start.tolist(), "seeker": seeker,
         "sampling": sampling,
@@ -157,18 +157,19 @@ def run(args: argparse.Namespace) -> dict:
 
 
 def _field_and_start(args: argparse.Namespace):
-    """The field (``--field`` or ``--field-python``; ``args.field`` then names the plug-in) and the
-    start (``--start``, else the field's default)."""
+    """The field's name (``python:SPEC`` for a plug-in), the field (``--field`` or
+    ``--field-python``) and the start (``--start``, else the field's default)."""
     from sitl_mock.fields import make_field
 
     if field_is_plugin(args):
-        field = _plugin_field(args.field_python)
-        args.field = f"python:{args.field_python}"
+        if getattr(args, "field", None) is not None:
+            raise ValueError(f"give --field or --field-python, not both (--field {args.field})")
+        field, name = _plugin_field(args.field_python), f"python:{args.field_python}"
         default_start = field.source_enu() + np.array([20.0, -20.0, 0.0])
     else:
-        field = make_field(args.field)
-        default_start = _vector3(_DEFAULT_STARTS[args.field])
-    return field, (args.start if args.start is not None else default_start)
+        name = getattr(args, "field", None) or "sigma2"
+        field, default_start = make_field(name), _vector3(_DEFAULT_STARTS[name])
+    return name, field, (args.start if args.start is not None else default_start)
 
 
 def field_is_plugin(args: argparse.Namespace) -> bool:
