@@ -64,11 +64,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=("cvt", "symmetric"), default=None,
                         help="estimator: Theorem 2 or eq. (3) (default: the formation's)")
     parser.add_argument("--radius", type=positive_float, default=1.0, help="formation radius D, m")
-    parser.add_argument("--field", choices=("sigma1", "sigma2"), default="sigma2")
+    parser.add_argument("--field", choices=("sigma1", "sigma2"), default=None, help="the paper's field (default sigma2)")
+    parser.add_argument("--field-python", default=None, metavar="PKG.MODULE:FACTORY",
+                        help="your own field instead of --field: a factory importable from sys.path, called with "
+                             "{'python': SPEC} (docs/fields.md, \"Your own field\")")
     parser.add_argument("--noise", type=nonnegative_float, default=0.0,
                         help="reading noise standard deviation (signal units)")
     parser.add_argument("--start", type=_vector3, default=None, metavar="E,N,U",
-                        help="initial centre, ENU metres (default: sigma1 10,50,10; sigma2 20,-20,5)")
+                        help="initial centre, ENU metres (default: sigma1 10,50,10; sigma2 20,-20,5; a plug-in: "
+                             "20 m east and 20 m south of its source)")
     parser.add_argument("--eps", type=positive_float, default=None,
                         help="the gradient seeker's step size (default 1)")
     parser.add_argument("--gamma", type=positive_float, default=0.1,
@@ -109,7 +113,6 @@ def run(args: argparse.Namespace) -> dict:
         convergence window below 8.
     """
     import formation
-    from sitl_mock.fields import make_field
     from experiments.offline import convergence_report, simulate
 
     problem = _inapplicable_option(args)
@@ -124,8 +127,7 @@ def run(args: argparse.Namespace) -> dict:
     else:
         offsets = formation.cvt_sphere(args.n, args.radius, seed=args.seed)
     method = args.method or args.formation
-    start = args.start if args.start is not None else _vector3(_DEFAULT_STARTS[args.field])
-    field = make_field(args.field)
+    field_name, field, start = _field_and_start(args)
     seeker = getattr(args, "seeker", "gradient")
     sampling = getattr(args, "sampling", "stop_and_go")
     if sampling == "moving" and seeker not in MOVING_SEEKERS:
@@ -139,7 +141,7 @@ def run(args: argparse.Namespace) -> dict:
     else:
         res = _simulate_seeker(args, offsets, field, start)
     out = {
-        "field": args.field, "formation": args.formation, "method": method, "n": args.n,
+        "field": field_name, "formation": args.formation, "method": method, "n": args.n,
         "radius_m": args.radius, "noise_std": args.noise, "eps": args.eps, "gamma_m": args.gamma,
         "iterations": args.iterations, "seed": args.seed, "start_enu": start.tolist(), "seeker": seeker,
         "sampling": sampling,
@@ -152,6 +154,45 @@ def run(args: argparse.Namespace) -> dict:
         t_1m = float(res.moving.time_within_s(1.0)[0])
         out["time_within_1m_s"] = t_1m if np.isfinite(t_1m) else None
     return out
+
+
+def _field_and_start(args: argparse.Namespace):
+    """The field's name (``python:SPEC`` for a plug-in), the field (``--field`` or
+    ``--field-python``) and the start (``--start``, else the field's default)."""
+    from sitl_mock.fields import make_field
+
+    if field_is_plugin(args):
+        if getattr(args, "field", None) is not None:
+            raise ValueError(f"give --field or --field-python, not both (--field {args.field})")
+        field, name = _plugin_field(args.field_python), f"python:{args.field_python}"
+        default_start = field.source_enu() + np.array([20.0, -20.0, 0.0])
+    else:
+        name = getattr(args, "field", None) or "sigma2"
+        field, default_start = make_field(name), _vector3(_DEFAULT_STARTS[name])
+    return name, field, (args.start if args.start is not None else default_start)
+
+
+def field_is_plugin(args: argparse.Namespace) -> bool:
+    """True when the run's field is a plug-in (``--field-python``)."""
+    return bool(getattr(args, "field_python", None))
+
+
+def _plugin_field(spec: str):
+    """The plug-in ``spec`` loaded with the table ``{"python": spec}`` and probed at the offline
+    run's times (0 s on) around its source (+-50 m; the default start 20 m east, 20 m south).
+
+    Raises
+    ------
+    FieldPluginError
+        One line naming the plug-in (a ValueError: exit 2).
+    """
+    from sitl_mock.fields_plugin import load_plugin, probe_field, probe_points_enu
+
+    field = load_plugin(spec, {"python": spec})
+    src = field.source_enu()
+    box = [(src[0] + e, src[1] + n) for e, n in ((-50, -50), (50, -50), (50, 50), (-50, 50))]
+    probe_field(field, probe_points_enu(box, src[2] - 20.0, src[2] + 20.0, extra=[src, src + (20.0, -20.0, 0.0)]))
+    return field
 
 
 def _inapplicable_option(args: argparse.Namespace) -> str | None:

@@ -8,8 +8,9 @@ from __future__ import annotations
 import argparse
 import sys
 import threading
+import time
 
-from sitl_mock.cli_args import add_field_arguments, field_from_args
+from sitl_mock.cli_args import add_field_arguments, field_from_args, probe_custom_field
 from wire.cli_args import (int_in_range, nonnegative_float, origin_geodetic, path_arg, positive_float,
                            source_enu, zenoh_endpoint)
 
@@ -85,6 +86,7 @@ def main(args: argparse.Namespace) -> int:
             return 2
     try:
         field_name, field, response = field_from_args(args, args.source)
+        probe_custom_field(field, time.time())  # a plug-in's values checked before any socket opens
     except ValueError as exc:
         print(f"swarmseek mock: error: {exc}", file=sys.stderr)
         return 2

@@ -6,6 +6,10 @@ Gaussian plume, :class:`~sitl_mock.fields_plume.GaussianPlume`), ``intermittent`
 :class:`~sitl_mock.fields_filament.FilamentPlume`). Every one can have several sources
 (``extra_sources``, weighted by ``strengths``): the field is then the sum of one field per
 source (:class:`~sitl_mock.fields_gaussian.SumField`; one background for the sum).
+
+A ``[field]`` table may instead name your own field: ``python = "pkg.module:factory"``
+(:mod:`sitl_mock.fields_plugin`) or ``type = "grid"`` with ``npz = PATH``
+(:mod:`sitl_mock.fields_grid`); :func:`field_from_table` builds those too.
 """
 from __future__ import annotations
 
@@ -16,6 +20,8 @@ import numpy as np
 
 from sitl_mock.fields_filament import FilamentPlume
 from sitl_mock.fields_gaussian import S1, S2, GaussianField, SumField
+from sitl_mock.fields_grid import load_grid
+from sitl_mock.fields_plugin import load_plugin
 from sitl_mock.fields_plume import GaussianPlume
 
 __all__ = ["FIELD_NAMES", "FIELD_PARAMS", "PLUME_PARAMS", "FILAMENT_PARAMS", "SENSOR_PARAMS",
@@ -110,20 +116,56 @@ def field_from_table(table: dict, where: str = "field"):
     if not isinstance(table, dict):
         raise ValueError(f"[{where}] must be a table")
     t = dict(table)
+    if "python" in t or t.get("type") == "grid":
+        return _custom_field(t, where)
     name = t.pop("type", None)
     if name is None:
         raise ValueError(f"{where}.type is required (one of {', '.join(FIELD_NAMES)})")
     source = t.pop("source_enu_m", (0.0, 0.0, 0.0))
     extra = t.pop("extra_sources_enu_m", ())
     strengths = t.pop("strengths", None)
-    sensor = {k.removeprefix("sensor_"): t.pop(k) for k in SENSOR_PARAMS if k in t}
-    for k, v in sensor.items():
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and v >= 0):
-            raise ValueError(f"[{where}]: sensor_{k} must be a finite number >= 0, got {v!r}")
+    sensor = _sensor_options(t, where)
     try:
         return make_field(name, source, extra_sources=extra, strengths=strengths, **t), sensor
     except (TypeError, ValueError) as exc:
         raise ValueError(f"[{where}]: {exc}") from None
+
+
+def _sensor_options(t: dict, where: str) -> dict:
+    """Pop the sensor keys (:data:`SENSOR_PARAMS`) of ``t``, checked, as ``set_response`` keywords."""
+    sensor = {k.removeprefix("sensor_"): t.pop(k) for k in SENSOR_PARAMS if k in t}
+    for k, v in sensor.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and v >= 0):
+            raise ValueError(f"[{where}]: sensor_{k} must be a finite number >= 0, got {v!r}")
+    return sensor
+
+
+def _custom_field(table: dict, where: str):
+    """``(field, sensor_options)`` of a ``[field]`` table with ``python = "pkg.module:factory"``
+    (the factory gets the whole table) or ``type = "grid"`` with ``npz = PATH``
+    (:mod:`sitl_mock.fields_plugin`, :mod:`sitl_mock.fields_grid`; ``docs/fields.md``).
+
+    Raises
+    ------
+    ValueError
+        An invalid table; :class:`~sitl_mock.fields_plugin.FieldPluginError` (a ValueError) for a
+        plug-in or a data file that cannot serve (one line naming it).
+    """
+    t = dict(table)
+    sensor = _sensor_options(t, where)
+    if "python" in t:
+        if t.get("type") not in (None, "python"):
+            raise ValueError(f"[{where}]: give either type or python, not both (type {t['type']!r}, "
+                             f"python {t['python']!r})")
+        return load_plugin(t["python"], dict(table)), sensor
+    t.pop("type")
+    npz = t.pop("npz", None)
+    if not isinstance(npz, str) or not npz:
+        raise ValueError(f"[{where}]: a grid field needs npz = \"PATH\" (a .npz of frames), got {npz!r}")
+    if t:
+        raise ValueError(f"[{where}]: {', '.join(sorted(t))} does not apply to a grid field "
+                         "(keys: type, npz, sensor_time_constant_s, sensor_detection_floor)")
+    return load_grid(npz), sensor
 
 
 def read_field_table(path) -> dict:

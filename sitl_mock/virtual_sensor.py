@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from formation.geodesy import geodetic_to_enu
-from sitl_mock.cli_args import add_field_arguments, field_from_args
+from sitl_mock.cli_args import add_field_arguments, field_from_args, probe_custom_field
 from sitl_mock.faults import FaultSet
 from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key
 from wire.cli_args import nonnegative_float, origin_geodetic, positive_float, source_enu, zenoh_endpoint
@@ -282,11 +282,13 @@ def _wait_for_subscriber(publisher, sysid: int, timeout_s: float) -> bool:
 def main(args: argparse.Namespace) -> int:
     """Entry point of ``swarmseek sensor``: 0 on success, 1 with a one-line message on failure,
     2 when no zenoh endpoint was given or the zenoh TLS / login flags do not fit together."""
-    if not args.field and not args.field_config:
-        print("swarmseek sensor: error: give --field or --field-config", file=sys.stderr)
+    if not (args.field or args.field_config or args.field_python or args.field_npz):
+        print("swarmseek sensor: error: give --field or --field-config (or --field-python, --field-npz)",
+              file=sys.stderr)
         return 2
     try:
-        field_from_args(args, args.source)
+        _name, field, _response = field_from_args(args, args.source)
+        probe_custom_field(field, time.time())  # a plug-in's values checked before connecting
     except ValueError as exc:
         print(f"swarmseek sensor: error: {exc}", file=sys.stderr)
         return 2

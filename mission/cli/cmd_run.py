@@ -14,6 +14,7 @@ import argparse
 import asyncio
 import dataclasses
 import sys
+import time
 from pathlib import Path
 
 from estimator.seekers import MOVING_SEEKERS
@@ -24,14 +25,14 @@ from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
 from mission.flight.operator_stop import run_until_stopped
 from mission.flight.result import geodetic_point
-from mission.sim.fleet_report import vehicle_rejections
+from mission.sim.fleet_report import vehicle_rejections, world_errors_line
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.terminal import best_effort_terminal, told_to
 from mission.telemetry.watch_keys import with_keys
 
 import numpy as np
 
-from sitl_mock.cli_args import add_field_arguments, field_from_args
+from sitl_mock.cli_args import add_field_arguments, field_from_args, field_kind, probe_custom_field
 from wire.cli_args import (float_in_range, int_in_range, nonnegative_float, path_arg, positive_float,
                            source_enu, zenoh_endpoint)
 
@@ -137,7 +138,8 @@ def _check_args(args) -> str | None:
     if problem:
         return problem
     try:
-        field_from_args(args, args.source if args.source is not None else (0.0, 0.0, 20.0))
+        field, source, start = _field_setup(args)
+        _probe_field(args, field, source, start)
     except ValueError as exc:
         return str(exc)
     _warn_ignored_options(args)  # valid options: say which of them this mission does not use
@@ -181,30 +183,55 @@ def _warn_ignored_options(args, prog: str = "swarmseek run") -> list[str]:
     return warnings
 
 
-def _mission_setup(args):
-    """The plan, field, source and start of the embedded mission ``args`` describe."""
-    from mission.sim.embedded import (
-        DEFAULT_ORIGIN,
-        FENCE_MIN_ALT_M,
-        default_eps,
-        default_radius_m,
-        default_source_and_start,
-        downwind_en,
-        embedded_plan,
-        fleet_ports,
-    )
-    from mission.core.plan import replace_plan
+def _field_setup(args):
+    """The field, its source and the formation's start (``args.field_name``, ``args.sensor_response``
+    set; ``args.field`` too for a built-in field). A plug-in or grid field's source is its
+    ``source_enu()``; ``--source`` reaches a plug-in as its table's ``source_enu_m``."""
+    from mission.sim.embedded import FENCE_MIN_ALT_M, default_radius_m, default_source_and_start, downwind_en
 
     radius_m = args.radius if args.radius is not None else default_radius_m(args.n)
     d_source, _ = default_source_and_start(args.seed)
-    source = d_source if args.source is None else np.asarray(args.source, dtype=float)
-    args.field, field, args.sensor_response = field_from_args(args, source)
+    if field_kind(args) == "builtin":
+        source = d_source if args.source is None else np.asarray(args.source, dtype=float)
+        args.field, field, args.sensor_response = field_from_args(args, source)
+        args.field_name = args.field
+    else:
+        args.field_name, field, args.sensor_response = field_from_args(args, args.source)
+        source = field.source_enu()
     d_source, d_start = default_source_and_start(args.seed, downwind=downwind_en(field))
     if args.start is None:
         start = source + (d_start - d_source)
         start[2] = max(start[2], FENCE_MIN_ALT_M + radius_m + 1.0)  # the lowest slot 1 m inside the fence
     else:
         start = np.asarray(args.start, dtype=float)
+    return field, source, start
+
+
+def _probe_field(args, field, source, start) -> None:
+    """A plug-in or grid field read at the fence's corners and centre, the start and the source, at
+    the mission's first time and later (:func:`sitl_mock.cli_args.probe_custom_field`).
+
+    Raises
+    ------
+    FieldPluginError
+        One line naming the plug-in or file.
+    """
+    from mission.sim.embedded import FENCE_MAX_ALT_M, FENCE_MIN_ALT_M, FENCE_POLYGON_EN_M
+    from mission.sim.lockstep import LOCKSTEP_T0_S
+    from sitl_mock.fields_plugin import probe_points_enu
+
+    t0_s = time.time() if (args.realtime or args.speedup is not None) else LOCKSTEP_T0_S
+    points = probe_points_enu(FENCE_POLYGON_EN_M, FENCE_MIN_ALT_M, FENCE_MAX_ALT_M, extra=[start, source])
+    probe_custom_field(field, t0_s, points)
+
+
+def _mission_setup(args):
+    """The plan, field, source and start of the embedded mission ``args`` describe."""
+    from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, default_radius_m, embedded_plan, fleet_ports
+    from mission.core.plan import replace_plan
+
+    radius_m = args.radius if args.radius is not None else default_radius_m(args.n)
+    field, source, start = _field_setup(args)
     eps = args.eps if args.eps is not None else default_eps(field)
     ports = fleet_ports(args.n, args.personality)
     if args.gamma is None:
@@ -262,7 +289,7 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None):
     try:
         with told_to(terminal, log):
             session = await open_session(plan.zenoh)  # off the loop
-            log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field,
+            log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field_name,
                       field_model=repr(fleet.field), sensor_response=args.sensor_response,
                       source_enu=source, start_enu=start, noise=args.noise,
                       clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
@@ -327,6 +354,9 @@ def run_embedded(args, display=None, terminal=None):
         return result
     finally:
         fleet.stop()
+        errors = world_errors_line(fleet)
+        if errors:
+            print(f"swarmseek run: warning: {errors}", file=sys.stderr)
 
 
 def _resolve_outs(args) -> str | None:

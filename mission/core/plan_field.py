@@ -13,19 +13,34 @@ file carries a SITL dry-run's field. Keys (``docs/fields.md``)::
     sensor_time_constant_s = 0.5    # every field: sensor lag
     sensor_detection_floor = 0.001  # every field: readings below report 0
 
+Your own field (``docs/fields.md``, "Your own field")::
+
+    [field]
+    python = "my_field:make"        # a plug-in: further keys are its own, passed as given
+    # or
+    type = "grid"
+    npz = "frames.npz"              # gridded frames over time, relative to the plan's directory
+
+Only their form is checked here (the ground station imports no plug-in); the commands that
+simulate the world import and probe them before anything starts.
+
 This module checks types and ranges with the plan's :class:`~mission.core.plan_checks.Checker`
 (every problem with its key path); ``sitl_mock.fields.field_from_table`` builds the field from
 :meth:`FieldPlan.to_table`.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from mission.core.plan_checks import Checker, show_value
 
 __all__ = ["FIELD_TYPES", "FIELD_KEYS", "FieldPlan", "parse_field"]
 
-FIELD_TYPES = ("sigma1", "sigma2", "plume", "intermittent")
+FIELD_TYPES = ("sigma1", "sigma2", "plume", "intermittent", "grid")
+#: ``python = "pkg.module:factory"`` (the same form ``sitl_mock.fields_plugin.check_spec`` accepts)
+_PLUGIN_SPEC = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*$")
+_SENSOR_KEYS = ("sensor_time_constant_s", "sensor_detection_floor")
 _PLUMES = ("plume", "intermittent")
 _STABILITY = ("A", "B", "C", "D", "E", "F")
 #: key -> (field types it applies to, low, low_open, high, integer); None types: every field
@@ -60,6 +75,8 @@ class FieldPlan:
 
     def to_table(self) -> dict:
         """The section as a ``[field]`` table for ``sitl_mock.fields.field_from_table``."""
+        if self.type in ("python", "grid"):  # as given: a plug-in's own keys, or the grid's npz
+            return dict(self.params) if self.type == "python" else {"type": "grid", **dict(self.params)}
         t = {"type": self.type, "source_enu_m": list(self.source_enu_m), **dict(self.params)}
         if self.extra_sources_enu_m:
             t["extra_sources_enu_m"] = [list(s) for s in self.extra_sources_enu_m]
@@ -92,12 +109,44 @@ def _sources(c: Checker, t: dict, p: str):
     return tuple(extra), strengths
 
 
+def _sensor_params(c: Checker, t: dict, p: str) -> dict:
+    out = {}
+    for key in _SENSOR_KEYS:
+        if key in t:
+            _types, low, low_open, high, integer = FIELD_KEYS[key]
+            out[key] = c.number(t, key, p, low=low, low_open=low_open, high=high, integer=integer)
+    return out
+
+
+def _parse_custom(c: Checker, t: dict, p: str) -> FieldPlan | None:
+    """``python = "pkg.module:factory"`` (any further keys are the plug-in's, passed as they are)
+    or ``type = "grid"`` with ``npz = PATH``; only the form is checked here (the command that
+    builds the world imports and probes it)."""
+    before = len(c.problems)
+    if "python" in t:
+        spec = t["python"]
+        if not isinstance(spec, str) or not _PLUGIN_SPEC.match(spec):
+            c.bad(f"{p}.python", f"expected 'pkg.module:factory', got {show_value(spec)}")
+        if t.get("type", "python") != "python":
+            c.bad(f"{p}.type", f"give either type or python, not both (type {show_value(t['type'])})")
+        _sensor_params(c, t, p)
+        return None if len(c.problems) > before else FieldPlan(type="python", params=tuple(t.items()))
+    c.unknown(t, ("type", "npz") + _SENSOR_KEYS, p)
+    npz = t.get("npz")
+    if not isinstance(npz, str) or not npz:
+        c.bad(f"{p}.npz", f"a grid field needs npz = \"PATH\" (a .npz of frames), got {show_value(npz)}")
+    params = {"npz": npz, **_sensor_params(c, t, p)}
+    return None if len(c.problems) > before else FieldPlan(type="grid", params=tuple(params.items()))
+
+
 def parse_field(c: Checker, doc: dict) -> FieldPlan | None:
     """``[field]`` (optional): a :class:`FieldPlan`, or None when absent or invalid."""
     if "field" not in doc:
         return None
     t = c.table(doc, "field")
     p = "field"
+    if "python" in t or t.get("type") == "grid":
+        return _parse_custom(c, t, p)
     c.unknown(t, _OTHER_KEYS + tuple(FIELD_KEYS), p)
     kind = c.string(t, "type", p, required=True, choices=FIELD_TYPES)
     before = len(c.problems)

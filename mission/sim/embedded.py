@@ -34,14 +34,18 @@ from mission.core.plan import (
     ZenohPlan,
 )
 
-__all__ = ["DEFAULT_ORIGIN", "FENCE_MIN_ALT_M", "MAX_VEHICLES", "free_port_block", "default_eps", "default_radius_m",
+__all__ = ["DEFAULT_ORIGIN", "FENCE_MIN_ALT_M", "FENCE_MAX_ALT_M", "FENCE_POLYGON_EN_M", "MAX_VEHICLES",
+           "free_port_block", "default_eps", "default_radius_m",
            "default_source_and_start", "downwind_en", "embedded_plan", "fleet_ports"]
 
 DEFAULT_ORIGIN = (45.1885, 5.7245, 212.0)
 #: MAVLink system ids 1..254 (255 is the ground station's own)
 MAX_VEHICLES = 254
-#: the embedded plan's geofence floor, m
+#: the embedded plan's geofence floor and ceiling, m
 FENCE_MIN_ALT_M = 2.0
+FENCE_MAX_ALT_M = 80.0
+#: the embedded plan's geofence polygon, (east, north) m about the origin
+FENCE_POLYGON_EN_M = ((-150.0, -150.0), (150.0, -150.0), (150.0, 150.0), (-150.0, 150.0))
 
 
 def free_port_block(count: int, step: int = 1, kinds: tuple[str, ...] = ("udp",), lo: int = 20000,
@@ -169,8 +173,8 @@ def embedded_plan(n: int, ports: dict, *, personality: str = "px4", formation: s
     return Plan(
         fleet=fleet, origin=tuple(origin), vehicles=tuple(vehicles),
         formation=FormationPlan(type=formation, radius_m=radius_m, seed=0), seeking=seeking,
-        geofence=GeofencePlan(polygon_en_m=((-150.0, -150.0), (150.0, -150.0), (150.0, 150.0),
-                                            (-150.0, 150.0)), min_alt_m=FENCE_MIN_ALT_M, max_alt_m=80.0),
+        geofence=GeofencePlan(polygon_en_m=FENCE_POLYGON_EN_M, min_alt_m=FENCE_MIN_ALT_M,
+                              max_alt_m=FENCE_MAX_ALT_M),
         zenoh=ZenohPlan(mode="peer", connect=(f"tcp/127.0.0.1:{ports['zenoh_port']}",)),
         max_speed_m_s=max_speed_m_s, min_separation_m=1.5, takeoff_alt_m=8.0,
         return_behaviour=return_behaviour, stagger_s=stagger_s, setpoint_rate_hz=10.0,

@@ -6,7 +6,7 @@ mean "a frame was refused" (:data:`VEHICLE_REJECTION_KINDS`), per vehicle, non-z
 """
 from __future__ import annotations
 
-__all__ = ["VEHICLE_REJECTION_KINDS", "vehicle_rejections"]
+__all__ = ["VEHICLE_REJECTION_KINDS", "vehicle_rejections", "world_errors_line"]
 
 #: mock autopilot counters of refused frames: signing (``rx_unsigned``, ``rx_bad_signature``,
 #: ``rx_replayed``, ``signing_setup_refused_armed``), damaged or foreign frames (``rx_bad_crc``,
@@ -33,3 +33,19 @@ def vehicle_rejections(fleet) -> dict[int, dict[str, int]]:
         if kinds:
             out[int(v.sysid)] = kinds
     return out
+
+
+def world_errors_line(fleet) -> str | None:
+    """One line telling the errors the simulated world caught and kept (``fleet.errors``, a
+    traceback each: e.g. a field plug-in that failed where the probe did not look), or None.
+
+    Parameters
+    ----------
+    fleet : sitl_mock.fleet.MockFleet
+        Its ``errors`` are formatted tracebacks (at most its cap are kept).
+    """
+    errors = list(getattr(fleet, "errors", None) or ())
+    if not errors:
+        return None
+    last = [line for line in errors[0].strip().splitlines() if line.strip()][-1].strip()
+    return f"the simulated world caught {len(errors)} error(s) (at most the first ones are kept); the first: {last}"
