@@ -190,12 +190,12 @@ def centres_estimate(centres, min_centres: int = 8) -> SourceEstimate:
                                         "within it (no model of the source: not a confidence region)")
 
 
-def reported_estimate(seeker, monitor) -> SourceEstimate | None:
-    """What a mission reports: ``seeker.source_estimate(0)`` when the seeker has one, else the
-    convergence monitor's :meth:`~estimator.seeking.ConvergenceMonitor.source_estimate` (None
-    before any centre)."""
+def reported_estimate(seeker, monitor, k: int = 0) -> SourceEstimate | None:
+    """What a mission reports: ``seeker.source_estimate(k)`` (trial ``k``; the mission's is 0) when
+    the seeker has one, else the convergence monitor's (of that trial's centres)
+    :meth:`~estimator.seeking.ConvergenceMonitor.source_estimate` (None before any centre)."""
     own = getattr(seeker, "source_estimate", None)
-    est = None if own is None else own(0)
+    est = None if own is None else own(k)
     if est is not None:
         return est
     return monitor.source_estimate()

@@ -277,7 +277,29 @@ class ModelSeeker(_TrustRegionSeeker):
         cov = fit.newton_cov[k]
         if not (fit.concave[k] and np.all(np.isfinite(fit.newton[k])) and np.all(np.isfinite(cov))):
             return None
+        if not self._determined(k):
+            return None
         return SourceEstimate(self.last_centre[k] + fit.newton[k], sphere_radius95_m(cov), self.BASIS)
+
+    def _determined(self, k: int, rtol: float = 3e-3) -> bool:
+        """Whether the window's readings of trial ``k`` determine the ten coefficients well: the
+        weighted design's smallest singular value at least ``rtol`` of its largest. Readings
+        repeated at (nearly) the same few points (a formation hovering on its exact slots: 8 points
+        for 10 coefficients) leave directions that only the fit's ridge, or a few millimetres of
+        spread, fix, and the delta method's covariance is then far too small (offline, sigma_2: the
+        source inside the region in 0.42-0.46 of the trials on exact slots, 0.98 with 0.1 m of
+        position jitter; ``docs/seekers.md``)."""
+        pos = np.concatenate([b[1][k] for b in self._buf], axis=0)
+        val = np.concatenate([b[2][k] for b in self._buf], axis=0)
+        ok = val > 0
+        if np.count_nonzero(ok) < 10:
+            return False
+        d = pos[ok] - self.last_centre[k]
+        d = d / max(float(np.sqrt(np.mean(np.sum(d * d, axis=1)))), 1e-12)
+        quad = d[:, [0, 1, 2, 0, 0, 1]] * d[:, [0, 1, 2, 1, 2, 2]]
+        f = np.concatenate([np.ones((len(d), 1)), d, quad], axis=1) * val[ok, None]  # sqrt of the weights s^2
+        sv = np.linalg.svd(f, compute_uv=False)
+        return bool(sv[-1] >= rtol * sv[0])
 
 
 def make_seeker(name: str, *, eps: float = 1.0, method: str = "cvt", **kwargs) -> Seeker:

@@ -136,6 +136,30 @@ def test_model_seeker_has_no_estimate_without_a_fitted_maximum():
     c = np.array([[0.0, 0.0, 10.0]])
     seeker.propose(c, (c[:, None, :] + off), np.zeros((1, 8)))  # no signal: no fit, no maximum
     assert seeker.source_estimate(0) is None and seeker.source_estimate(5) is None
+    # readings at (nearly) the same 8 points (a formation on its exact slots, creeping 1 cm per
+    # iteration): a concave fit whose 10 coefficients the readings do not determine, no estimate of
+    # its own; the same with each reading 0.1 m off its slot (a real formation): one with a region
+    field = sigma2(SOURCE)
+    for jitter_m, has in ((0.0, False), (0.1, True)):
+        seeker.reset()
+        rng = np.random.default_rng(0)
+        for i in range(4):
+            c = (SOURCE + [1.0, 0.5, 0.0])[None] + 0.01 * i
+            pos = c[:, None, :] + off + jitter_m * rng.standard_normal((1, 8, 3))
+            seeker.propose(c, pos, field.value(pos) + 0.01 * rng.standard_normal((1, 8)))
+        assert seeker.last_fit.concave[0] and (seeker.source_estimate(0) is not None) == has
+
+
+def test_reported_estimate_takes_the_trials_own():
+    seeker = make_seeker("model")
+    rng = np.random.default_rng(4)
+    c = SOURCE + np.array([[1.0, 0.0, 0.0], [-2.0, 1.0, 0.5]])
+    pos = c[:, None, :] + rng.uniform(-4.0, 4.0, (2, 40, 3))
+    seeker.propose(c, pos, sigma2(SOURCE).value(pos) + 0.01 * rng.standard_normal((2, 40)))
+    mon = ConvergenceMonitor(window=8)
+    a, b = (reported_estimate(seeker, mon, k) for k in (0, 1))
+    assert a.enu == pytest.approx(seeker.source_estimate(0).enu) and b.enu == pytest.approx(seeker.source_estimate(1).enu)
+    assert not np.allclose(a.enu, b.enu) and np.linalg.norm(b.enu - SOURCE) <= b.region95_m
 
 
 def test_ste_reports_its_posterior_region_and_a_plan_view_map():
