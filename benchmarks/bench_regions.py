@@ -16,6 +16,7 @@ Usage::
 
     python benchmarks/bench_regions.py --trials 50 --fields sigma2 --seekers model,gradient,newton,plume
     python benchmarks/bench_regions.py --trials 50 --fields sigma2 --seekers model --jitter-m 0.1
+    python benchmarks/bench_regions.py --mission-seeds 20 --fields sigma2,sigma1   # whole missions
 """
 from __future__ import annotations
 
@@ -92,6 +93,33 @@ def run_cell(seeker_name: str, field_name: str, trials: int, iterations: int, se
     return row
 
 
+def mission_cell(seeds: int, field_name: str) -> dict:
+    """Lock-step ``swarmseek run --json --seed S --field F`` for ``S < seeds`` (the default mission:
+    8 vehicles, the model seeker, moving sampling, noise 0.01): the reported region holds the true
+    source how often."""
+    import contextlib
+    import io
+    import tempfile
+
+    from mission.cli import main as cli_main
+
+    rows = []
+    for seed in range(seeds):
+        with tempfile.TemporaryDirectory() as tmp:
+            buf = io.StringIO()
+            with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(io.StringIO()):
+                cli_main(["run", "--json", "--no-tlog", "--seed", str(seed), "--field", field_name,
+                          "--log-dir", str(Path(tmp) / "log")])
+            rows.append(json.loads(buf.getvalue()))
+    err = np.array([r["error_m"] for r in rows], dtype=float)
+    region = np.array([np.nan if r["estimate_region95_m"] is None else r["estimate_region95_m"] for r in rows])
+    inside = ~np.isnan(region) & (err <= np.nan_to_num(region, nan=-1.0))
+    own = np.array([str(r["estimate_basis"]).startswith("maximum") for r in rows])
+    return {"field": field_name, "converged": sum(r["outcome"] == "converged" for r in rows), "own": int(own.sum()),
+            "error_m_median": float(np.median(err)), "region95_m_median": float(np.nanmedian(region)),
+            **_calibration(inside)}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=50)
@@ -104,8 +132,21 @@ def main(argv=None) -> int:
     ap.add_argument("--jitter-m", type=float, default=0.0,
                     help="each reading's position error about its slot (standard deviation per axis, m)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--mission-seeds", type=int, default=0,
+                    help="instead: this many lock-step `swarmseek run` missions per field (mission_cell)")
     args = ap.parse_args(argv)
     rows = []
+    if args.mission_seeds:
+        for f in args.fields.split(","):
+            row = mission_cell(args.mission_seeds, f)
+            rows.append(row)
+            lo, hi = row["calibration_ci95"]
+            print(f"| run --field {f} | {row['trials']} seeds, {row['converged']} converged, {row['own']} with the "
+                  f"fit's region | {row['calibration']:.2f} ({lo:.2f}-{hi:.2f}) | {row['error_m_median']:.3f} / "
+                  f"{row['region95_m_median']:.3f} |", flush=True)
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=2))
+        return 0
     print("| seeker | field | jitter (m) | calibration (Wilson 95 %) | seeker's own estimate: trials, calibration "
           "| ended within 1 m: trials, calibration | median error (m) | median region (m) |")
     for f in args.fields.split(","):

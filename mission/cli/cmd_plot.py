@@ -125,7 +125,7 @@ def _all_points(tr: dict) -> np.ndarray:
     return np.concatenate(pts, axis=0)
 
 
-def _draw_uncertainty(plt, ax, tr: dict) -> None:
+def _draw_uncertainty(plt, ax, tr: dict, colorbar: bool = True) -> None:
     """The plan-view posterior as a heat map (probability per cell) and the 95 % region's circle."""
     post = tr.get("posterior")
     if post:
@@ -135,16 +135,43 @@ def _draw_uncertainty(plt, ax, tr: dict) -> None:
         img = ax.imshow(np.ma.masked_equal(prob, 0.0), origin="lower", cmap="viridis", alpha=0.8,
                         extent=(e0, e0 + n * cell, n0, n0 + n * cell), interpolation="nearest", zorder=0)
         img.set_label("posterior (plan view)")
-        plt.colorbar(img, ax=ax, fraction=0.046, pad=0.04, label="posterior probability per cell")
+        if colorbar:
+            plt.colorbar(img, ax=ax, fraction=0.046, pad=0.04, label="posterior probability per cell")
     if tr["estimate"] is not None and tr.get("region95_m") is not None:
         ax.add_patch(plt.Circle(tr["estimate"][:2], float(tr["region95_m"]), fill=False, color="tab:red",
                                 ls="--", lw=1.2, label=f"95 % region ({float(tr['region95_m']):.2f} m)"))
 
 
+def _zoom(plt, ax, tr: dict) -> None:
+    """An inset about the estimate (its region and posterior, the true source): they are metres
+    across in a view of tens of metres."""
+    est = tr["estimate"]
+    if est is None or (tr.get("region95_m") is None and not tr.get("posterior")):
+        return
+    half = 3.0 * float(tr.get("region95_m") or 0.0)
+    if tr.get("posterior"):
+        half = max(half, 0.5 * len(tr["posterior"]["prob_e4"]) * float(tr["posterior"]["cell_m"]))
+    if tr["true_source"] is not None:
+        half = max(half, 1.2 * float(np.linalg.norm(tr["true_source"][:2] - est[:2])))
+    half = max(half, 0.25)
+    inset = ax.inset_axes([0.02, 0.02, 0.34, 0.34])
+    _draw_uncertainty(plt, inset, tr, colorbar=False)
+    inset.plot(est[0], est[1], "*", color="tab:red", ms=10)
+    if tr["true_source"] is not None:
+        inset.plot(tr["true_source"][0], tr["true_source"][1], "x", color="tab:green", ms=8)
+    inset.set_xlim(est[0] - half, est[0] + half)
+    inset.set_ylim(est[1] - half, est[1] + half)
+    inset.set_aspect("equal")
+    inset.tick_params(labelsize=6)
+    inset.set_title(f"about the estimate ({2 * half:.1f} m across)", fontsize=6)
+
+
 def plan_view_figure(plt, tr: dict, title: str):
-    """The plan view (east, north), equal scales, with the estimate's uncertainty; returns the figure."""
+    """The plan view (east, north), equal scales, with the estimate's uncertainty (and an inset
+    about the estimate); returns the figure."""
     fig, ax = plt.subplots(figsize=(7, 7))
     _draw_uncertainty(plt, ax, tr)
+    _zoom(plt, ax, tr)
     for sysid, p in sorted(tr["vehicles"].items(), key=lambda kv: int(kv[0])):
         ax.plot(p[:, 0], p[:, 1], lw=0.8, alpha=0.6, label=f"vehicle {sysid}")
     c = tr["centre"]
