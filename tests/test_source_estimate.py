@@ -205,7 +205,7 @@ def test_summary_json_and_log_carry_the_region(model_run):
     assert "95 % region" in summary["message"]
     lines = format_summary(summary)
     assert any(f"95 % region {summary['estimate_region95_m']:.2f} m" in x for x in lines)
-    assert any("region: maximum of the log-quadratic fit" in x for x in lines)
+    assert any("basis: maximum of the log-quadratic fit" in x for x in lines)
     its = [r for r in records if r["type"] == "iteration"]
     assert its and all("estimate_region95_m" in r and r["estimate_basis"] for r in its)
     assert its[-1]["estimate_enu"] == summary["estimate_enu"]
@@ -266,7 +266,7 @@ def test_live_table_and_line_show_the_region():
     state = {"phase": "seek", "estimate_enu": [1.0, 2.0, 3.0], "estimate_region95_m": 0.42,
              "estimate_basis": "posterior 95 % region", "spread_m": 0.1}
     table = format_table(state)
-    assert any("95 % region 0.42 m" in x for x in table) and any("region: posterior 95 % region" in x for x in table)
+    assert any("95 % region 0.42 m" in x for x in table) and any("basis: posterior 95 % region" in x for x in table)
     assert "r95=0.42 m" in format_line(state)
     none = dict(state, estimate_region95_m=None, estimate_basis="mean of the last 3 formation centres; no region")
     assert any("95 % region none" in x for x in format_table(none)) and "r95=none" in format_line(none)

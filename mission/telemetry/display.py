@@ -57,7 +57,7 @@ def format_table(state: dict) -> list[str]:
         f"   flown {_num(state.get('distance_flown_m'), '{:.1f}')} m",
     ]
     if state.get("estimate_basis"):
-        lines.append(f"  region: {state['estimate_basis']}")
+        lines.append(f"  basis: {state['estimate_basis']}")
     if state.get("estimate_geodetic"):
         lines.append(f"estimate {format_geodetic(state['estimate_geodetic'])}")
     rd = state.get("readings") or {}
@@ -111,7 +111,7 @@ def format_summary(summary: dict) -> list[str]:
         lines.append(f"  estimated source {_vec(summary['estimate_enu'], '{:.2f}')} m, {_region(summary)} "
                      f"(spread {_num(summary.get('spread_m'))} m) after {summary.get('iterations', 0)} iterations")
         if summary.get("estimate_basis"):
-            lines.append(f"                   region: {summary['estimate_basis']}")
+            lines.append(f"                   basis: {summary['estimate_basis']}")
         if summary.get("estimate_geodetic"):
             lines.append(f"                   {format_geodetic(summary['estimate_geodetic'])}")
     if summary.get("true_source_enu") is not None:
