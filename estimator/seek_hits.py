@@ -106,6 +106,11 @@ class HitEdgeSeeker:
         self.arrival = None
         self.floor.reset()
 
+    def source_estimate(self, k: int = 0) -> None:
+        """None: this seeker reacts to the latest readings and has no model of the source, so no
+        region to give (where it holds, the mission reports the monitor's mean of the centres)."""
+        return None
+
     def _init_state(self, c: np.ndarray, v: np.ndarray) -> None:
         k = c.shape[0]
         self._k, self.start = k, c.copy()

@@ -149,6 +149,11 @@ class PlumeSeeker:
         self.arrival = None
         self._buf: deque = deque(maxlen=self.window)
 
+    def source_estimate(self, k: int = 0) -> None:
+        """None: this seeker reacts to the latest readings and has no model of the source, so no
+        region to give (where it holds, the mission reports the monitor's mean of the centres)."""
+        return None
+
     def _init_state(self, c: np.ndarray) -> None:
         k = c.shape[0]
         self._k = k

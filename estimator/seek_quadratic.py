@@ -57,6 +57,8 @@ class QuadraticFit:
         ``H`` negative definite.
     used : ndarray of int, shape (K,)
         Readings with a non-zero weight.
+    newton_cov : ndarray, shape (K, 3, 3), or None
+        Covariance of ``p`` (delta method; ``trace = newton_std_m^2``; ``inf`` where not defined).
     """
 
     value: np.ndarray
@@ -67,6 +69,7 @@ class QuadraticFit:
     newton_std_m: np.ndarray
     concave: np.ndarray
     used: np.ndarray
+    newton_cov: np.ndarray | None = None
 
     def predicted_gain(self, step) -> np.ndarray:
         """Model increase of ``y`` for a move ``step`` (K, 3): ``g.s + 1/2 s^T H s``."""
@@ -174,7 +177,10 @@ def fit_quadratic(positions, values, mask, centre, log: bool) -> QuadraticFit:
     jac = _newton_jacobian(p, hinv, scale)
     with np.errstate(invalid="ignore"):
         p_var = np.einsum("kil,klm,kim->k", jac, np.where(np.isfinite(cov), cov, 0.0), jac)
-        p_std = np.where(np.isfinite(var) & concave, np.sqrt(np.maximum(p_var, 0.0)), np.inf)
+        p_cov = np.einsum("kil,klm,kjm->kij", jac, np.where(np.isfinite(cov), cov, 0.0), jac)
+        defined = np.isfinite(var) & concave
+        p_std = np.where(defined, np.sqrt(np.maximum(p_var, 0.0)), np.inf)
+        p_cov = np.where(defined[:, None, None], p_cov, np.inf)
     p = np.where(concave[:, None], p, np.nan)
     value_std = np.where(np.isfinite(var), np.sqrt(np.maximum(var * ainv[:, 0, 0], 0.0)), np.inf)
-    return QuadraticFit(theta[:, 0], value_std, grad, hess, p, p_std, concave, used)
+    return QuadraticFit(theta[:, 0], value_std, grad, hess, p, p_std, concave, used, p_cov)

@@ -27,6 +27,13 @@ seeker never sees them. ``K`` is the number of independent trials (1 in the miss
   moving for information; it reports ``estimate_enu`` with ``region95_m``, the radius of its
   95 % region (seekers without a posterior have no such attributes).
 
+Every seeker also has ``source_estimate(k=0)``: trial ``k``'s estimate of the source as an
+:class:`~estimator.estimate.SourceEstimate` (the point, its 95 % region, what that region is), or
+None when the seeker has no estimate of its own (``gradient``, ``newton``, ``plume``: the mission
+then reports the convergence monitor's mean of the recent centres, labelled as such;
+:func:`estimator.estimate.reported_estimate`). ``model``: the fitted maximum, with the sphere
+holding 95 % of the fit's covariance; ``ste``: the posterior mean and its 95 % region.
+
 The maths and the failure modes are in ``docs/seekers.md``.
 """
 from __future__ import annotations
@@ -36,6 +43,7 @@ from typing import Protocol
 
 import numpy as np
 
+from estimator.estimate import SourceEstimate, sphere_radius95_m
 from estimator.gradient import DEFAULT_MAX_CONDITION, estimator_weights
 from estimator.seek_inputs import seeker_inputs as _inputs
 from estimator.seek_hits import HitEdgeSeeker
@@ -66,6 +74,9 @@ class Seeker(Protocol):
 
     def reset(self) -> None:
         """Forget everything seen (a new run)."""
+
+    def source_estimate(self, k: int = 0) -> SourceEstimate | None:
+        """Trial ``k``'s estimate of the source with its 95 % region; None: the seeker has none."""
 
 
 def cap_move(centre, new_centre, gamma_m: float) -> np.ndarray:
@@ -99,6 +110,11 @@ class GradientSeeker:
 
     def reset(self) -> None:
         """Nothing to forget: the paper's step is memoryless."""
+
+    def source_estimate(self, k: int = 0) -> None:
+        """None: the paper's step estimates a gradient, never the source (the mission reports the
+        convergence monitor's mean of the recent centres)."""
+        return None
 
     def propose(self, centre, positions, values) -> np.ndarray:
         """``c + eps g`` per trial, ``g`` estimated about the centroid of ``positions``."""
@@ -137,6 +153,13 @@ class _TrustRegionSeeker:
         self._prev = None  # (centre, predicted gain, hit the radius, well inside it)
         self.last_fit = None
         self.last_newton = None
+        self.last_centre = None  # the centre the last fit is about
+
+    def source_estimate(self, k: int = 0) -> SourceEstimate | None:
+        """None: the ``newton`` seeker's Taylor model of the readings is a local step, not a
+        model of the source (its maximum is biased by the field's shape away from the peak, a
+        bias its covariance does not see); the mission reports the monitor's mean of the centres."""
+        return None
 
     def _window(self, c, p, v):
         """The window's readings; an iteration whose centre is within ``merge_m`` of the last
@@ -211,7 +234,7 @@ class _TrustRegionSeeker:
         length = np.linalg.norm(step, axis=-1)
         hit = length >= r * (1 - 1e-9)
         self._prev = (c, fit.predicted_gain(step), hit, length < r / 4.0)
-        self.last_fit, self.last_newton = fit, ok
+        self.last_fit, self.last_newton, self.last_centre = fit, ok, c
         return c + step
 
 
@@ -236,9 +259,47 @@ class ModelSeeker(_TrustRegionSeeker):
     name = "model"
     log = True
     use_uncertainty = True
+    #: what the region of :meth:`source_estimate` is
+    BASIS = ("maximum of the log-quadratic fit; region: the sphere holding 95 % of the fit's covariance "
+             "(delta method: the readings' noise, not the model's error)")
 
     def __init__(self, window: int = 6, **kwargs):
         super().__init__(window, **kwargs)
+
+    def source_estimate(self, k: int = 0) -> SourceEstimate | None:
+        """The last fit's maximum ``c + p`` (exact for a Gaussian source) with the radius of the
+        sphere about it holding 95 % of ``N(0, cov p)`` (:func:`estimator.estimate.sphere_radius95_m`);
+        None before a fit, or while the fit has no maximum (not concave) or too few readings for a
+        covariance."""
+        fit = self.last_fit
+        if fit is None or fit.newton_cov is None or not 0 <= k < len(fit.concave):
+            return None
+        cov = fit.newton_cov[k]
+        if not (fit.concave[k] and np.all(np.isfinite(fit.newton[k])) and np.all(np.isfinite(cov))):
+            return None
+        if not self._determined(k):
+            return None
+        return SourceEstimate(self.last_centre[k] + fit.newton[k], sphere_radius95_m(cov), self.BASIS)
+
+    def _determined(self, k: int, rtol: float = 3e-3) -> bool:
+        """Whether the window's readings of trial ``k`` determine the ten coefficients well: the
+        weighted design's smallest singular value at least ``rtol`` of its largest. Readings
+        repeated at (nearly) the same few points (a formation hovering on its exact slots: 8 points
+        for 10 coefficients) leave directions that only the fit's ridge, or a few millimetres of
+        spread, fix, and the delta method's covariance is then far too small (offline, sigma_2: the
+        source inside the region in 0.42-0.46 of the trials on exact slots, 0.98 with 0.1 m of
+        position jitter; ``docs/seekers.md``)."""
+        pos = np.concatenate([b[1][k] for b in self._buf], axis=0)
+        val = np.concatenate([b[2][k] for b in self._buf], axis=0)
+        ok = val > 0
+        if np.count_nonzero(ok) < 10:
+            return False
+        d = pos[ok] - self.last_centre[k]
+        d = d / max(float(np.sqrt(np.mean(np.sum(d * d, axis=1)))), 1e-12)
+        quad = d[:, [0, 1, 2, 0, 0, 1]] * d[:, [0, 1, 2, 1, 2, 2]]
+        f = np.concatenate([np.ones((len(d), 1)), d, quad], axis=1) * val[ok, None]  # sqrt of the weights s^2
+        sv = np.linalg.svd(f, compute_uv=False)
+        return bool(sv[-1] >= rtol * sv[0])
 
 
 def make_seeker(name: str, *, eps: float = 1.0, method: str = "cvt", **kwargs) -> Seeker:

@@ -49,6 +49,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimator.estimate import SourceEstimate, centres_estimate
+
 __all__ = ["seek_step", "ConvergenceMonitor", "ConvergenceVerdict", "convergence_scan"]
 
 
@@ -321,3 +323,10 @@ class ConvergenceMonitor:
             raise ValueError("no centre recorded yet")
         arr = np.asarray(self._centres)
         return float(np.sqrt(np.mean(np.sum((arr - arr.mean(axis=0)) ** 2, axis=-1))))
+
+    def source_estimate(self) -> SourceEstimate | None:
+        """The mean of the recent centres with the radius about it holding 95 % of them, labelled
+        as not a confidence region (:func:`estimator.estimate.centres_estimate`); None before any centre."""
+        if not self._centres:
+            return None
+        return centres_estimate(np.asarray(self._centres))

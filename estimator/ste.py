@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimator.estimate import PlanPosterior, SourceEstimate
 from estimator.seek_inputs import seeker_inputs
 from estimator.ste_model import (BRIGGS_RURAL, deviance_patchy, deviance_steady, hit_probability, loglik_patchy,
                                  loglik_steady, plume_mean)
@@ -409,3 +410,24 @@ class SteSeeker:
         nxt = self._next_centre(c, self._size_formation(p, c), sub)
         self._resample()
         return nxt
+
+    # ------------------------------------------------------------------ the estimate, reported
+    def source_estimate(self, k: int = 0, plan_map: bool = True) -> SourceEstimate | None:
+        """Trial ``k``'s posterior mean release point with its 95 % region (:attr:`region95_m`,
+        the radius about the mean holding 95 % of the weight) and, with ``plan_map``, the plan-view
+        posterior (:meth:`posterior_map`); None before the first update."""
+        if self.estimate_enu is None or not 0 <= k < self._k:
+            return None
+        return SourceEstimate(self.estimate_enu[k], float(self.region95_m[k]), "posterior 95 % region",
+                              self.posterior_map(k) if plan_map else None)
+
+    def posterior_map(self, k: int = 0, cells: int = 24) -> PlanPosterior | None:
+        """Trial ``k``'s posterior over the release's (east, north): the particles' weighted
+        histogram on ``cells x cells`` cells about the posterior mean, the grid's half-side
+        ``1.5 region95_m`` (at least 1 m); None before the first update."""
+        if self.estimate_enu is None or not 0 <= k < self._k:
+            return None
+        w = np.exp(self.logw[k])
+        half = max(1.5 * float(self.region95_m[k]), 1.0)
+        return PlanPosterior.weighted(self.parts[k, :, 0], self.parts[k, :, 1], w / w.sum(),
+                                      self.estimate_enu[k, :2], half, cells)

@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from estimator.estimate import SourceEstimate
 from mission.flight.state import MissionState, VehicleLoss
 from mission.telemetry.mission_log import MissionLog, read_mission_log
 
@@ -101,8 +102,13 @@ def test_retired_board_and_seek_progress(tmp_path):
     state.retire(info, status="sensor retired: at the centre")
     assert state.retired[4] is info and state.status[4] == "sensor retired: at the centre"
     state.record_iteration(1, np.array([0.1, 0.0, 0.0]), 0.5, None, None)
-    state.record_iteration(2, np.array([0.1, 0.0, 0.0]), 0.25, np.ones(3), 0.2)
+    assert state.estimate_enu is None and state.estimate_region95_m is None and state.estimate_basis is None
+    state.record_iteration(2, np.array([0.1, 0.0, 0.0]), 0.25, SourceEstimate(np.ones(3), 0.4, "b"), 0.2)
     assert state.iteration == 2 and state.distance_flown_m == pytest.approx(0.75) and state.spread_m == 0.2
+    assert state.estimate_enu.tolist() == [1.0, 1.0, 1.0] and state.estimate_region95_m == 0.4
+    assert state.estimate_basis == "b"
+    with pytest.raises(TypeError, match="SourceEstimate or None"):
+        state.record_iteration(3, np.zeros(3), 0.0, np.ones(3), 0.2)  # a bare point: never without its region
 
 
 def test_coordinator_state_attributes_are_read_only():

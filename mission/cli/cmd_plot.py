@@ -7,7 +7,9 @@ longitude and altitude AMSL):
 ``trajectory_3d.png``   the formation centre during the seek and every vehicle (telemetry, whole
                         mission) in the mission ENU frame, the estimated (and, for embedded
                         runs, the true) source; equal scales on the three axes;
-``trajectory_top.png``  the same seen from above (east, north), equal scales;
+``trajectory_top.png``  the same seen from above (east, north), equal scales, with the estimate's 95 %
+                        region (a circle of its radius) and, for a seeker with a posterior
+                        (``ste``), the last plan-view posterior as a heat map;
 ``distance.png``        distance of the centre to the estimated source (and to the true one)
                         per iteration;
 ``gradient.png``        the gradient estimate's components and norm per iteration.
@@ -22,7 +24,7 @@ import numpy as np
 
 from wire.cli_args import path_arg
 
-__all__ = ["configure", "main", "plot_mission", "mission_tracks", "run_title"]
+__all__ = ["configure", "main", "plot_mission", "mission_tracks", "run_title", "plan_view_figure"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -38,7 +40,9 @@ def mission_tracks(records: list[dict]) -> dict:
     -------
     dict
         ``k`` (T,), ``centre`` (T+1, 3), ``gradient`` (T, 3), ``estimate`` (3,) or None,
-        ``vehicles`` {sysid: (T, 3)}, ``true_source`` (3,) or None.
+        ``region95_m`` (float or None) and ``basis`` (str or None) of that estimate, ``posterior``
+        (the last iteration's ``estimate_map`` or None), ``vehicles`` {sysid: (T, 3)},
+        ``true_source`` (3,) or None.
     """
     its = [r for r in records if r.get("type") == "iteration"]
     if not its:
@@ -58,15 +62,17 @@ def mission_tracks(records: list[dict]) -> dict:
         if p is not None and len(p) == 3:
             vehicles.setdefault(sysid, []).append(p)
     summary = next((r for r in reversed(records) if r.get("type") == "summary"), None)
-    estimate = summary.get("estimate_enu") if summary else None
-    if estimate is None:
-        estimate = its[-1].get("estimate_enu")
+    source = summary if summary and summary.get("estimate_enu") is not None else its[-1]
+    estimate = source.get("estimate_enu")
+    posterior = next((r["estimate_map"] for r in reversed(its) if r.get("estimate_map")), None)
     truth = next((r for r in reversed(records) if r.get("type") == "truth"), None)
     true_source = truth.get("source_enu") if truth else None
     if true_source is None and summary:
         true_source = summary.get("true_source_enu")
     return {"k": k, "centre": centre, "gradient": grad,
             "estimate": None if estimate is None else np.asarray(estimate, dtype=float),
+            "region95_m": source.get("estimate_region95_m"), "basis": source.get("estimate_basis"),
+            "posterior": posterior,
             "vehicles": {s: np.asarray(v, dtype=float) for s, v in vehicles.items()},
             "true_source": None if true_source is None else np.asarray(true_source, dtype=float)}
 
@@ -96,8 +102,9 @@ def run_title(records: list[dict], log_path: Path) -> str:
     line = " | ".join(parts)
     geo = summary.get("estimate_geodetic")
     if geo:
+        r = summary.get("estimate_region95_m")
         line += (f"\nestimated source {geo['lat_deg']:.7f}, {geo['lon_deg']:.7f}, "
-                 f"{geo['alt_m']:.1f} m AMSL")
+                 f"{geo['alt_m']:.1f} m AMSL, " + ("no 95 % region" if r is None else f"95 % region {float(r):.2f} m"))
     return line
 
 
@@ -118,9 +125,53 @@ def _all_points(tr: dict) -> np.ndarray:
     return np.concatenate(pts, axis=0)
 
 
-def _plot_top(plt, tr: dict, title: str, path: Path) -> None:
-    """Plan view (east, north), equal scales."""
+def _draw_uncertainty(plt, ax, tr: dict, colorbar: bool = True) -> None:
+    """The plan-view posterior as a heat map (probability per cell) and the 95 % region's circle."""
+    post = tr.get("posterior")
+    if post:
+        prob = np.asarray(post["prob_e4"], dtype=float) / 1e4
+        n, cell = prob.shape[0], float(post["cell_m"])
+        e0, n0 = float(post["east0_m"]), float(post["north0_m"])
+        img = ax.imshow(np.ma.masked_equal(prob, 0.0), origin="lower", cmap="viridis", alpha=0.8,
+                        extent=(e0, e0 + n * cell, n0, n0 + n * cell), interpolation="nearest", zorder=0)
+        img.set_label("posterior (plan view)")
+        if colorbar:
+            plt.colorbar(img, ax=ax, fraction=0.046, pad=0.04, label="posterior probability per cell")
+    if tr["estimate"] is not None and tr.get("region95_m") is not None:
+        ax.add_patch(plt.Circle(tr["estimate"][:2], float(tr["region95_m"]), fill=False, color="tab:red",
+                                ls="--", lw=1.2, label=f"95 % region ({float(tr['region95_m']):.2f} m)"))
+
+
+def _zoom(plt, ax, tr: dict) -> None:
+    """An inset about the estimate (its region and posterior, the true source): they are metres
+    across in a view of tens of metres."""
+    est = tr["estimate"]
+    if est is None or (tr.get("region95_m") is None and not tr.get("posterior")):
+        return
+    half = 3.0 * float(tr.get("region95_m") or 0.0)
+    if tr.get("posterior"):
+        half = max(half, 0.5 * len(tr["posterior"]["prob_e4"]) * float(tr["posterior"]["cell_m"]))
+    if tr["true_source"] is not None:
+        half = max(half, 1.2 * float(np.linalg.norm(tr["true_source"][:2] - est[:2])))
+    half = max(half, 0.25)
+    inset = ax.inset_axes([0.02, 0.02, 0.34, 0.34])
+    _draw_uncertainty(plt, inset, tr, colorbar=False)
+    inset.plot(est[0], est[1], "*", color="tab:red", ms=10)
+    if tr["true_source"] is not None:
+        inset.plot(tr["true_source"][0], tr["true_source"][1], "x", color="tab:green", ms=8)
+    inset.set_xlim(est[0] - half, est[0] + half)
+    inset.set_ylim(est[1] - half, est[1] + half)
+    inset.set_aspect("equal")
+    inset.tick_params(labelsize=6)
+    inset.set_title(f"about the estimate ({2 * half:.1f} m across)", fontsize=6)
+
+
+def plan_view_figure(plt, tr: dict, title: str):
+    """The plan view (east, north), equal scales, with the estimate's uncertainty (and an inset
+    about the estimate); returns the figure."""
     fig, ax = plt.subplots(figsize=(7, 7))
+    _draw_uncertainty(plt, ax, tr)
+    _zoom(plt, ax, tr)
     for sysid, p in sorted(tr["vehicles"].items(), key=lambda kv: int(kv[0])):
         ax.plot(p[:, 0], p[:, 1], lw=0.8, alpha=0.6, label=f"vehicle {sysid}")
     c = tr["centre"]
@@ -137,6 +188,12 @@ def _plot_top(plt, tr: dict, title: str, path: Path) -> None:
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
+    return fig
+
+
+def _plot_top(plt, tr: dict, title: str, path: Path) -> None:
+    """Plan view (east, north), equal scales (:func:`plan_view_figure`), saved to ``path``."""
+    fig = plan_view_figure(plt, tr, title)
     fig.savefig(path, dpi=120)
     plt.close(fig)
 

@@ -88,7 +88,10 @@ class Coordinator:
     iteration = _FromState()
     centre_enu = _FromState()
     gradient = _FromState()
+    estimate = _FromState()
     estimate_enu = _FromState()
+    estimate_region95_m = _FromState()
+    estimate_basis = _FromState()
     spread_m = _FromState()
     distance_flown_m = _FromState()
     vehicle_distance_m = _FromState()
@@ -244,6 +247,7 @@ class Coordinator:
             "centre_enu": self.centre_enu, "gradient": g,
             "gradient_norm": None if g is None else float(np.linalg.norm(g)),
             "estimate_enu": self.estimate_enu, "spread_m": self.spread_m,
+            "estimate_region95_m": self.estimate_region95_m, "estimate_basis": self.estimate_basis,
             "estimate_geodetic": geodetic_point(self.plan.origin, self.estimate_enu),
             "distance_flown_m": self.distance_flown_m, "vehicles": self.vehicle_status(),
             "readings": self.store.counts(), "link_rejections": self.link_rejections(),

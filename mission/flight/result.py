@@ -5,7 +5,34 @@ from dataclasses import asdict, dataclass, field
 
 from mission.telemetry.mission_log import dataclass_json
 
-__all__ = ["MissionResult", "mission_result", "readiness_result", "geodetic_point"]
+__all__ = ["MissionResult", "mission_result", "readiness_result", "geodetic_point", "estimate_fields", "region_text"]
+
+
+def region_text(region95_m: float | None) -> str:
+    """``95 % region 0.42 m`` (radius), or ``no 95 % region`` when the estimate has none."""
+    return "no 95 % region" if region95_m is None else f"95 % region {float(region95_m):.2f} m"
+
+
+def estimate_fields(estimate) -> dict:
+    """The mission log's and the summary's keys of a source estimate's uncertainty.
+
+    Parameters
+    ----------
+    estimate : estimator.estimate.SourceEstimate or None
+
+    Returns
+    -------
+    dict
+        ``estimate_region95_m`` (radius, m, or None), ``estimate_basis`` (what that region is, or
+        None without an estimate) and, when the estimate has a plan-view posterior, ``estimate_map``
+        (:meth:`estimator.estimate.PlanPosterior.to_json`).
+    """
+    if estimate is None:
+        return {"estimate_region95_m": None, "estimate_basis": None}
+    out = {"estimate_region95_m": estimate.region95_m, "estimate_basis": estimate.basis}
+    if estimate.plan_map is not None:
+        out["estimate_map"] = estimate.plan_map.to_json()
+    return out
 
 
 def geodetic_point(origin, enu) -> dict | None:
@@ -44,7 +71,14 @@ class MissionResult:
         still flying brought home), ``ready`` or ``not_ready`` (dry run).
     message : str
     estimate_enu : list or None
-        Estimated source position (mean of the last ``convergence_window`` centres).
+        Estimated source position: the seeker's own estimate (``model``: the fitted maximum;
+        ``ste``: the posterior mean), else the mean of the last ``convergence_window`` centres
+        (:func:`estimator.estimate.reported_estimate`).
+    estimate_region95_m : float or None
+        Radius of the sphere about ``estimate_enu`` holding 95 % of the probability, as
+        ``estimate_basis`` defines it; None: the estimate has no region (``estimate_basis`` says why).
+    estimate_basis : str or None
+        What that region is (``docs/seekers.md``), None without an estimate.
     estimate_geodetic : dict or None
         The same in WGS-84: ``lat_deg``, ``lon_deg``, ``alt_m`` (AMSL, like the plan's origin).
     spread_m : float or None
@@ -96,6 +130,8 @@ class MissionResult:
     estimate_enu: list | None = None
     estimate_geodetic: dict | None = None
     spread_m: float | None = None
+    estimate_region95_m: float | None = None
+    estimate_basis: str | None = None
     iterations: int = 0
     mission_time_s: float = 0.0
     seek_time_s: float = 0.0
@@ -158,7 +194,8 @@ def mission_result(state, outcome: str, message: str, *, now_s: float, readings:
         outcome=outcome, message=message,
         estimate_enu=None if est is None else [float(x) for x in est],
         estimate_geodetic=geodetic_point(origin, est),
-        spread_m=state.spread_m, iterations=state.iteration,
+        spread_m=state.spread_m, estimate_region95_m=state.estimate_region95_m,
+        estimate_basis=state.estimate_basis, iterations=state.iteration,
         mission_time_s=now_s - state.t_start_s,
         seek_time_s=0.0 if state.t_seek_start_s is None else t_end - state.t_seek_start_s,
         distance_flown_m=state.distance_flown_m,

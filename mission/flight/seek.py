@@ -29,7 +29,8 @@ import numpy as np
 from mission.flight.control import OperatorStop
 from mission.flight.loss import reform
 from mission.flight.motion import move_and_wait, paced, parked
-from mission.flight.result import geodetic_point
+from estimator.estimate import reported_estimate
+from mission.flight.result import estimate_fields, geodetic_point, region_text
 from mission.flight.rejoin import (
     clear_goals,
     fly_rotation,
@@ -376,12 +377,14 @@ class _Seek:
         dropped = set() if self.check is None else self.check.dropped
         signal = self.arrival.signal([aligned[s].value for s in used if s not in dropped])
         converged = self.monitor.update(new_centre, signal if own is None else own)
-        co.state.record_iteration(k + 1, grad, step_m, self.monitor.estimate_enu, self.monitor.spread_m)
+        # the source estimate with its 95 % region: the seeker's own, else the monitor's mean of the centres
+        source = reported_estimate(getattr(self.seeker, "seeker", None), self.monitor)
+        co.state.record_iteration(k + 1, grad, step_m, source, self.monitor.spread_m)
         if co.log is not None:
             everyone = self.sysids + parked(co)
             co.log.write("iteration", k=k + 1, t_estimate_s=t_est, centre_enu=self.centre, centroid_enu=centroid,
                          gradient=grad, new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.estimate_enu,
-                         estimate_geodetic=geodetic_point(co.plan.origin, co.estimate_enu),
+                         **estimate_fields(source), estimate_geodetic=geodetic_point(co.plan.origin, co.estimate_enu),
                          spread_m=co.spread_m, distance_flown_m=co.distance_flown_m,
                          readings=readings,
                          positions_enu={s: co.telemetry_position(s) for s in everyone},
@@ -401,7 +404,7 @@ class _Seek:
         if converged:
             e = co.estimate_enu
             return "converged", (f"converged after {k + 1} iterations: source at ({e[0]:.2f}, {e[1]:.2f}, "
-                                 f"{e[2]:.2f}) m, spread {co.spread_m:.2f} m")
+                                 f"{e[2]:.2f}) m, {region_text(co.estimate_region95_m)}, spread {co.spread_m:.2f} m")
         if self.at_fence >= self.sk.convergence_window:
             return "stopped_at_fence", ("the formation centre has been held at the geofence for "
                                         f"{self.at_fence} iterations: the source is probably outside the fence")

@@ -11,6 +11,8 @@ from types import MappingProxyType
 
 import numpy as np
 
+from estimator.estimate import SourceEstimate
+
 __all__ = ["PHASES", "MissionError", "MissionState", "VehicleLoss", "VehicleReadiness"]
 
 PHASES = ("idle", "connect", "preflight", "takeoff", "assemble", "seek", "finish", "return", "done",
@@ -166,7 +168,7 @@ class MissionState:
         self._iteration = 0
         self._centre_enu: np.ndarray | None = None
         self._gradient: np.ndarray | None = None
-        self._estimate_enu: np.ndarray | None = None
+        self._estimate: SourceEstimate | None = None
         self._spread_m: float | None = None
         self._distance_flown_m = 0.0
         self._vehicle_distance_m: dict[int, float] = {}
@@ -193,7 +195,24 @@ class MissionState:
     iteration = _value("_iteration", "Seek iterations done.")
     centre_enu = _value("_centre_enu", "The formation centre (ENU m), None before the assembly.")
     gradient = _value("_gradient", "The last gradient estimate.")
-    estimate_enu = _value("_estimate_enu", "The convergence monitor's source estimate.")
+    estimate = _value("_estimate", "The reported source estimate (:class:`estimator.estimate.SourceEstimate`: "
+                                   "the point, its 95 % region, what that region is), None before the seek.")
+
+    @property
+    def estimate_enu(self) -> np.ndarray | None:
+        """The reported source estimate's point (ENU m), None before the seek."""
+        return None if self._estimate is None else self._estimate.enu
+
+    @property
+    def estimate_region95_m(self) -> float | None:
+        """Radius of the estimate's 95 % region (None: none; :attr:`estimate_basis` says why)."""
+        return None if self._estimate is None else self._estimate.region95_m
+
+    @property
+    def estimate_basis(self) -> str | None:
+        """What the estimate's region is (one sentence), None before the seek."""
+        return None if self._estimate is None else self._estimate.basis
+
     spread_m = _value("_spread_m", "RMS spread of the monitor's last centres.")
     distance_flown_m = _value("_distance_flown_m", "Path length of the formation centre during the seek.")
     vehicle_distance_m = _view("_vehicle_distance_m", "Path length flown by each vehicle (telemetry).")
@@ -364,12 +383,15 @@ class MissionState:
         """The seek ends now."""
         self._t_seek_end_s = float(self._clock.time())
 
-    def record_iteration(self, k: int, gradient, step_m: float, estimate_enu, spread_m) -> None:
-        """Seek iteration ``k`` is done: its gradient, the centre's step, the monitor's estimate."""
+    def record_iteration(self, k: int, gradient, step_m: float, estimate, spread_m) -> None:
+        """Seek iteration ``k`` is done: its gradient, the centre's step, the reported source estimate
+        (:class:`estimator.estimate.SourceEstimate` or None) and the monitor's spread."""
+        if estimate is not None and not isinstance(estimate, SourceEstimate):
+            raise TypeError(f"estimate must be a SourceEstimate or None, got {type(estimate).__name__}")
         self._iteration = int(k)
         self._gradient = gradient
         self._distance_flown_m += float(step_m)
-        self._estimate_enu = estimate_enu
+        self._estimate = estimate
         self._spread_m = spread_m
 
     # ------------------------------------------------------------------------ watchdog

@@ -2,8 +2,8 @@
 
 The display renders the coordinator's state snapshot (the same dict published on
 ``swarmseek/<fleet>/mission/state``, see ``docs/mission.md``): phase, per-vehicle mode, armed,
-altitude, link age and setpoint rate; centre, gradient and distance flown; the readings and
-MAVLink frames rejected.
+altitude, link age and setpoint rate; centre, gradient and distance flown; the source estimate
+with its 95 % region and what that region is; the readings and MAVLink frames rejected.
 """
 from __future__ import annotations
 
@@ -27,6 +27,15 @@ def _num(v, fmt="{:.2f}") -> str:
     return "-" if v is None else fmt.format(float(v))
 
 
+def _region(d: dict) -> str:
+    """``95 % region 0.42 m`` of a snapshot or summary; ``95 % region none`` when the estimate has none,
+    ``-`` before any estimate."""
+    if d.get("estimate_enu") is None:
+        return "95 % region -"
+    r = d.get("estimate_region95_m")
+    return "95 % region none" if r is None else f"95 % region {float(r):.2f} m"
+
+
 def format_geodetic(geo: dict | None) -> str:
     """``lat 45.1900123, lon 5.7200456, alt 242.3 m AMSL`` (``-`` when unknown).
 
@@ -44,9 +53,11 @@ def format_table(state: dict) -> list[str]:
         f"swarmseek  fleet {state.get('fleet', '?')}  phase {state.get('phase', '?').upper():9s}"
         f"  t {_num(state.get('elapsed_s'), '{:7.1f}')} s  iteration {state.get('iteration', 0)}",
         f"centre {_vec(state.get('centre_enu'))} m   gradient {_vec(state.get('gradient'), '{:+.2e}')}",
-        f"estimate {_vec(state.get('estimate_enu'))} m  spread {_num(state.get('spread_m'))} m"
+        f"estimate {_vec(state.get('estimate_enu'))} m  {_region(state)}  spread {_num(state.get('spread_m'))} m"
         f"   flown {_num(state.get('distance_flown_m'), '{:.1f}')} m",
     ]
+    if state.get("estimate_basis"):
+        lines.append(f"  basis: {state['estimate_basis']}")
     if state.get("estimate_geodetic"):
         lines.append(f"estimate {format_geodetic(state['estimate_geodetic'])}")
     rd = state.get("readings") or {}
@@ -84,7 +95,9 @@ def format_line(state: dict) -> str:
     return (f"[{_num(state.get('elapsed_s'), '{:7.1f}')} s] {state.get('phase', '?'):8s} "
             f"k={state.get('iteration', 0):<4d} centre={_vec(state.get('centre_enu'), '{:.2f}')} "
             f"|grad|={_num(state.get('gradient_norm'), '{:.2e}')} "
-            f"flown={_num(state.get('distance_flown_m'), '{:.1f}')} m armed={armed}/"
+            + (f"estimate={_vec(state['estimate_enu'], '{:.2f}')} {_region(state).replace('95 % region ', 'r95=')} "
+               if state.get("estimate_enu") is not None else "")
+            + f"flown={_num(state.get('distance_flown_m'), '{:.1f}')} m armed={armed}/"
             f"{len(state.get('vehicles', []))}"
             + (f" mavlink_rejected={format_rejections(rejected)}" if any(rejected.values()) else "")
             + "".join(f" [{line.split(':')[0].replace('OPERATOR', 'operator')}]"
@@ -95,8 +108,10 @@ def format_summary(summary: dict) -> list[str]:
     """Human-readable lines of the end-of-mission summary."""
     lines = [f"mission {summary.get('outcome', '?')}: {summary.get('message', '')}"]
     if summary.get("estimate_enu") is not None:
-        lines.append(f"  estimated source {_vec(summary['estimate_enu'], '{:.2f}')} m "
+        lines.append(f"  estimated source {_vec(summary['estimate_enu'], '{:.2f}')} m, {_region(summary)} "
                      f"(spread {_num(summary.get('spread_m'))} m) after {summary.get('iterations', 0)} iterations")
+        if summary.get("estimate_basis"):
+            lines.append(f"                   basis: {summary['estimate_basis']}")
         if summary.get("estimate_geodetic"):
             lines.append(f"                   {format_geodetic(summary['estimate_geodetic'])}")
     if summary.get("true_source_enu") is not None:

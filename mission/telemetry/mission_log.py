@@ -8,7 +8,9 @@ One JSON object per line; every record has ``t_s`` (mission clock) and ``type``:
 ``event``      something worth knowing: ``level`` (info|warning|error), ``message``, extra fields
 ``status``     per-vehicle status: ``vehicles`` (list of dicts)
 ``iteration``  one seeking iteration: ``k``, ``centre_enu``, ``gradient``, ``new_centre_enu``,
-               ``estimate_enu``, ``spread_m``, ``readings`` (sysid, seq, time_s, value,
+               ``estimate_enu`` with ``estimate_region95_m`` and ``estimate_basis`` (its 95 %
+               region; ``estimate_map``, the plan-view posterior, for a seeker that has one),
+               ``spread_m``, ``readings`` (sysid, seq, time_s, value,
                position_enu_m), ``positions_enu`` (telemetry), ``distance_flown_m``
 ``status_change``  one vehicle's status changed: ``sysid``, ``status``, ``previous``, ``reason``,
                ``phase`` (:meth:`mission.flight.state.MissionState.set_status`)
