@@ -310,3 +310,8 @@ def test_nan_and_stale_estimates_are_left_out_and_counted():
     assert prior.n_vehicles == 1 and prior.n_ignored == 2
     assert prior.from_deg == pytest.approx(270.0)
     assert fleet_wind_prior(snaps[2:], now_s=101.0) is None
+
+
+def test_something_else_than_snapshots_is_a_clear_error():
+    with pytest.raises(TypeError, match="vehicle state snapshots, got int"):
+        fleet_wind_prior({1: _snap(270.0, 3.0)})   # a dict's keys, not its values

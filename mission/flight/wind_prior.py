@@ -64,6 +64,24 @@ def _usable(wind, now_s: float | None, max_age_s: float) -> bool:
     return now_s is None or now_s - wind.time_s <= max_age_s
 
 
+def _fresh_winds(snapshots: Iterable, now_s: float | None, max_age_s: float) -> tuple[list, int]:
+    """The usable estimates of ``snapshots`` and how many were left out (stale, not finite)."""
+    winds, ignored = [], 0
+    for snap in snapshots:
+        if snap is None:
+            continue
+        if not hasattr(snap, "wind"):   # e.g. the keys of co.vehicles: a caller's mistake, said
+            raise TypeError(f"fleet_wind_prior takes vehicle state snapshots, got {type(snap).__name__}")
+        wind = snap.wind
+        if wind is None:
+            continue
+        if _usable(wind, now_s, max_age_s):
+            winds.append(wind)
+        else:
+            ignored += 1
+    return winds, ignored
+
+
 def fleet_wind_prior(snapshots: Iterable, *, now_s: float | None = None, max_age_s: float = 10.0,
                      min_speed_m_s: float = 0.5, floor_std_deg: float = 10.0,
                      estimate_error_m_s: float = 0.5) -> WindPrior | None:
@@ -90,16 +108,13 @@ def fleet_wind_prior(snapshots: Iterable, *, now_s: float | None = None, max_age
     WindPrior or None
         None when no vehicle has a usable estimate or the mean wind is weaker than
         ``min_speed_m_s``.
+
+    Raises
+    ------
+    TypeError
+        An item that is neither None nor has a ``wind`` attribute (not a snapshot).
     """
-    winds, ignored = [], 0
-    for snap in snapshots:
-        wind = getattr(snap, "wind", None) if snap is not None else None
-        if wind is None:
-            continue
-        if _usable(wind, now_s, max_age_s):
-            winds.append(wind)
-        else:
-            ignored += 1
+    winds, ignored = _fresh_winds(snapshots, now_s, max_age_s)
     if not winds:
         return None
     vectors = [w.toward_en_m_s() for w in winds]
