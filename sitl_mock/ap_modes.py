@@ -65,6 +65,11 @@ class Personality:
         Integer parameters encoded bytewise in PARAM_VALUE.
     boot_mode, land_mode, rtl_mode, hold_mode, takeoff_mode, mission_mode : str
         Mode names the flight logic switches to.
+    wind_msg_id : int
+        The message carrying the wind estimate (PX4 WIND_COV, ArduPilot WIND; -1: none), the
+        only one of the two the personality sends or accepts a rate for.
+    wind_default_hz : float
+        Its rate before any SET_MESSAGE_INTERVAL (0: not streamed until asked).
     """
 
     name = ""
@@ -79,6 +84,8 @@ class Personality:
     param_bytewise = False
     sysid_param = ""
     boot_mode = land_mode = rtl_mode = hold_mode = takeoff_mode = mission_mode = ""
+    wind_msg_id = -1
+    wind_default_hz = 0.0
 
     def __init__(self):
         self._by_name = {name: cm for cm, name in self.modes.items()}
@@ -126,6 +133,8 @@ class ArduPilotPersonality(Personality):
     sysid_param = "MAV_SYSID"
     boot_mode, land_mode, rtl_mode, hold_mode = "STABILIZE", "LAND", "RTL", "LOITER"
     takeoff_mode, mission_mode = "GUIDED", "AUTO"
+    # WIND is in ArduCopter's SRx_EXTRA3 stream group (off on a link until asked)
+    wind_msg_id = mavlink2.MAVLINK_MSG_ID_WIND
 
     def mode_from_command(self, base_mode, p2, p3):
         """Param 2 is the Copter mode number (custom mode flag required)."""
@@ -172,6 +181,10 @@ class Px4Personality(Personality):
     sysid_param = "MAV_SYS_ID"
     boot_mode, land_mode, rtl_mode, hold_mode = "AUTO.LOITER", "AUTO.LAND", "AUTO.RTL", "AUTO.LOITER"
     takeoff_mode, mission_mode = "AUTO.TAKEOFF", "AUTO.MISSION"
+    # PX4's mavlink module streams WIND_COV at 0.5 Hz in its "normal" link mode
+    # (mavlink_main.cpp), when EKF2 estimates the wind
+    wind_msg_id = mavlink2.MAVLINK_MSG_ID_WIND_COV
+    wind_default_hz = 0.5
 
     def mode_from_command(self, base_mode, p2, p3):
         """Params 2 and 3 are PX4's main and sub mode (custom mode flag required).

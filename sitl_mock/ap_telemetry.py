@@ -13,9 +13,10 @@ from typing import Protocol
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from sitl_mock.ap_prearm import build_ekf_status_report
+from sitl_mock.ap_wind import wind_cov_fields, wind_fields
 
 __all__ = ["DEFAULT_RATES_HZ", "MAX_RATE_HZ", "MAX_INTERVAL_US", "MessageScheduler", "TelemetrySource",
-           "BUILDERS", "build_message", "SENSORS_PRESENT"]
+           "BUILDERS", "build_message", "SENSORS_PRESENT", "WIND_MSG_IDS"]
 
 #: Streamed by default (Hz); anything in BUILDERS can be enabled by SET_MESSAGE_INTERVAL.
 DEFAULT_RATES_HZ = {
@@ -57,6 +58,7 @@ class TelemetrySource(Protocol):
     mc: object
     uid: int
     missions: object
+    wind: object  # sitl_mock.ap_wind.WindEstimateModel
 
     def position_ready(self, t_s: float) -> bool:
         """True once the position estimate is usable."""
@@ -87,15 +89,32 @@ class TelemetrySource(Protocol):
 
 
 class MessageScheduler:
-    """Per-message intervals and due times, on the simulated clock."""
+    """Per-message intervals and due times, on the simulated clock.
 
-    def __init__(self, t0_s: float):
+    Parameters
+    ----------
+    t0_s : float
+        Boot time: every default stream is first due then.
+    extra_defaults_hz : dict of int to float, optional
+        The personality's own default streams beyond :data:`DEFAULT_RATES_HZ` (a rate of 0: known
+        to SET_MESSAGE_INTERVAL, not streamed until asked).
+    unsupported : iterable of int, optional
+        Message ids in :data:`BUILDERS` this personality does not send (refused like unknown ones).
+    """
+
+    def __init__(self, t0_s: float, extra_defaults_hz: dict | None = None, unsupported=()):
+        self._defaults_hz = {**DEFAULT_RATES_HZ, **{k: v for k, v in (extra_defaults_hz or {}).items() if v > 0}}
+        self._unsupported = frozenset(unsupported)
         self._interval: dict[int, float] = {}
         self._due: dict[int, float] = {}
-        for msg_id, hz in DEFAULT_RATES_HZ.items():
+        for msg_id, hz in self._defaults_hz.items():
             self._interval[msg_id] = 1.0 / hz
             self._due[msg_id] = t0_s
         self._next_s = t0_s  # earliest due time (fast path: nothing due)
+
+    def supports(self, msg_id: int) -> bool:
+        """True for a message this personality can stream."""
+        return msg_id in BUILDERS and msg_id not in self._unsupported
 
     def set_interval(self, msg_id: int, interval_us: float, t_s: float) -> bool:
         """Apply SET_MESSAGE_INTERVAL semantics (-1 off, 0 default); False if unsupported.
@@ -103,7 +122,7 @@ class MessageScheduler:
         An interval above :data:`MAX_INTERVAL_US` is refused (False): GET_MESSAGE_INTERVAL
         could not report it.
         """
-        if msg_id not in BUILDERS or not math.isfinite(interval_us) or interval_us > MAX_INTERVAL_US:
+        if not self.supports(msg_id) or not math.isfinite(interval_us) or interval_us > MAX_INTERVAL_US:
             return False
         self._next_s = min(self._next_s, t_s)
         if interval_us < 0:
@@ -111,7 +130,7 @@ class MessageScheduler:
             self._due.pop(msg_id, None)
             return True
         if interval_us == 0:
-            hz = DEFAULT_RATES_HZ.get(msg_id)
+            hz = self._defaults_hz.get(msg_id)
             if hz is None:
                 self._interval.pop(msg_id, None)
                 self._due.pop(msg_id, None)
@@ -125,7 +144,7 @@ class MessageScheduler:
 
     def interval_us(self, msg_id: int) -> int:
         """Current interval in microseconds (-1 when not streamed, 0 when unsupported)."""
-        if msg_id not in BUILDERS:
+        if not self.supports(msg_id):
             return 0
         iv = self._interval.get(msg_id)
         return -1 if iv is None else int(round(iv * 1e6))
@@ -273,6 +292,22 @@ def _vfr_hud(ap, t_s):
     return ap.mav.vfr_hud_encode(speed, speed, hdg, throttle, alt, -vel[2])
 
 
+def _wind_cov(ap, t_s):
+    if ap.personality.wind_msg_id != mavlink2.MAVLINK_MSG_ID_WIND_COV:
+        return None
+    _ned, _vel, _lat, _lon, alt = ap.estimate(t_s)
+    f = wind_cov_fields(ap.wind.estimate_ned_m_s(t_s), alt)
+    return ap.mav.wind_cov_encode(ap.time_boot_ms(t_s) * 1000, f["wind_x"], f["wind_y"], f["wind_z"], f["var_horiz"],
+                                  f["var_vert"], f["wind_alt"], f["horiz_accuracy"], f["vert_accuracy"])
+
+
+def _wind(ap, t_s):
+    if ap.personality.wind_msg_id != mavlink2.MAVLINK_MSG_ID_WIND:
+        return None
+    f = wind_fields(ap.wind.estimate_ned_m_s(t_s))
+    return ap.mav.wind_encode(f["direction"], f["speed"], f["speed_z"])
+
+
 #: message id -> builder(autopilot, t_s) -> message or None (nothing to say yet)
 BUILDERS = {
     mavlink2.MAVLINK_MSG_ID_HEARTBEAT: _heartbeat,
@@ -291,7 +326,11 @@ BUILDERS = {
     mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT: _mission_current,
     mavlink2.MAVLINK_MSG_ID_VFR_HUD: _vfr_hud,
     mavlink2.MAVLINK_MSG_ID_EKF_STATUS_REPORT: build_ekf_status_report,
+    mavlink2.MAVLINK_MSG_ID_WIND_COV: _wind_cov,
+    mavlink2.MAVLINK_MSG_ID_WIND: _wind,
 }
+#: the wind messages: each personality sends one (``Personality.wind_msg_id``)
+WIND_MSG_IDS = (mavlink2.MAVLINK_MSG_ID_WIND_COV, mavlink2.MAVLINK_MSG_ID_WIND)
 
 
 def build_message(ap, msg_id: int, t_s: float):

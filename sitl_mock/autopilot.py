@@ -23,7 +23,8 @@ from sitl_mock.ap_mission import MissionItem, MissionServer
 from sitl_mock.ap_modes import Personality, make_personality
 from sitl_mock.ap_params import ParamTable
 from sitl_mock.ap_receive import classify_bad_frame
-from sitl_mock.ap_telemetry import MessageScheduler, build_message
+from sitl_mock.ap_telemetry import WIND_MSG_IDS, MessageScheduler, build_message
+from sitl_mock.ap_wind import WindEstimateModel
 from sitl_mock.faults import FaultSet
 
 __all__ = ["MockAutopilot", "classify_bad_frame"]
@@ -53,6 +54,9 @@ class MockAutopilot:
         AUTOPILOT_VERSION.uid (unique per vehicle; default derived from sysid).
     signing_key : bytes, optional
         32-byte MAVLink 2 signing key: signing on from boot (see :mod:`sitl_mock.ap_signing`).
+    wind : WindEstimateModel, optional
+        The vehicle's wind estimate (WIND_COV on PX4, WIND on ArduPilot); default: the dynamics'
+        constant wind, with an error drawn from a generator seeded by ``uid``.
 
     Attributes
     ----------
@@ -71,11 +75,13 @@ class MockAutopilot:
     params : ParamTable
     missions : MissionServer
     mode_name : str
+    wind : WindEstimateModel
     """
 
     def __init__(self, sysid: int, personality, multicopter, home, t_boot_s: float,
                  faults: FaultSet | None = None, param_overrides: dict | None = None,
-                 uid: int | None = None, signing_key: bytes | None = None):
+                 uid: int | None = None, signing_key: bytes | None = None,
+                 wind: WindEstimateModel | None = None):
         if not 1 <= int(sysid) <= 255:
             raise ValueError(f"sysid must be 1..255, got {sysid!r}")
         self.personality: Personality = (make_personality(personality)
@@ -84,6 +90,8 @@ class MockAutopilot:
         self.mc = multicopter
         self.faults = faults if faults is not None else FaultSet()
         self.uid = int(uid) if uid is not None else (0x5357_0000_0000_0000 | self.sysid)
+        self.wind = wind if wind is not None else WindEstimateModel(
+            multicopter.params.wind_ned_m_s, np.random.default_rng([self.uid, 0x57494E44]))
         self.mav = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
         self.counters: Counter = Counter()
         self.last_error: str | None = None
@@ -103,7 +111,9 @@ class MockAutopilot:
     # ------------------------------------------------------------------ state
     def _boot(self, t_s: float) -> None:
         self.t_boot_s = float(t_s)
-        self.scheduler = MessageScheduler(t_s)
+        p = self.personality
+        self.scheduler = MessageScheduler(t_s, {p.wind_msg_id: p.wind_default_hz},
+                                          [m for m in WIND_MSG_IDS if m != p.wind_msg_id])
         self.mode_name = self.personality.boot_mode
         self.home_ned = np.zeros(3)
         self.home: tuple | None = None

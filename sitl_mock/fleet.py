@@ -25,6 +25,7 @@ import numpy as np
 from formation.geodesy import enu_to_geodetic
 from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.clock import SimClock
+from sitl_mock.ap_wind import WindEstimateModel, world_wind_ned_m_s
 from sitl_mock.dynamics import DynamicsParams, Multicopter
 from sitl_mock.faults import FaultSet
 from sitl_mock.ports import check_port_base, check_udp_ranges, default_udp_bind_base_port
@@ -146,14 +147,16 @@ class MockFleet:
         t0 = self.clock.time()
         self.vehicles: list[MockVehicle] = []
         for i in range(n):
-            rng_dyn, rng_sensor, rng_link = (np.random.default_rng(s) for s in seeds[i].spawn(3))
+            # the 4th stream (the wind estimate's error) leaves the first three as they were
+            rng_dyn, rng_sensor, rng_link, rng_wind = (np.random.default_rng(s) for s in seeds[i].spawn(4))
             faults = FaultSet()
             mc = Multicopter(dataclasses.replace(dyn_base), rng_dyn)
             lat, lon, alt = enu_to_geodetic(offsets[i], self.origin)
             home = (float(lat), float(lon), float(alt))
             ap = MockAutopilot(i + 1, personalities[i], mc, home, t0, faults, overrides[i],
                                uid=(seed & 0xFFFF) << 32 | 0x5357_0000 | (i + 1),
-                               signing_key=signing_key)
+                               signing_key=signing_key,
+                               wind=WindEstimateModel(world_wind_ned_m_s(field, dyn_base.wind_ned_m_s), rng_wind))
             links = VehicleLinks(ap, self.clock, self._selector, rng_link,
                                  udp_bind_base_port + i if udp_bind_base_port and udp_base_port else 0,
                                  udp_base_port + i if udp_base_port and udp_bind_base_port else 0,

@@ -82,6 +82,7 @@ async def _attach(co, vp, problems: list[str]) -> None:
     """Attach vehicle ``vp`` to its endpoint (heartbeat, autopilot version, telemetry rates)."""
     from mission.vehicle.prearm import extra_rates_hz
     from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, VehicleLink
+    from mission.vehicle.wind import wind_rates_hz
 
     ep = co.endpoints.get(vp.connection)
     if ep is None:
@@ -101,7 +102,8 @@ async def _attach(co, vp, problems: list[str]) -> None:
     except Exception as exc:  # noqa: BLE001 - optional information
         co.event(f"vehicle {vp.sysid}: no AUTOPILOT_VERSION ({exc})", level="warning")
     try:  # only the telemetry the mission needs (CPU at N = 100+); refusals are not fatal
-        refused = await v.set_message_rates(DEFAULT_RATES_HZ | extra_rates_hz(v.flavour), strict=False)
+        refused = await v.set_message_rates(DEFAULT_RATES_HZ | extra_rates_hz(v.flavour)
+                                            | wind_rates_hz(v.flavour), strict=False)
     except Exception as exc:  # noqa: BLE001 - the autopilot's default rates still work
         refused = {"*": str(exc)}
     if refused:

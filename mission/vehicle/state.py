@@ -18,6 +18,7 @@ from formation.geodesy import geodetic_to_enu
 from mission.core.clock import wait_on_clock
 from mission.link.endpoint import LinkError
 from mission.vehicle.frames import MissionToLocal, mode_name
+from mission.vehicle.wind import WindEstimate, decode_wind, decode_wind_cov
 
 __all__ = ["CommandError", "VehicleState", "VehicleTelemetry", "command_name", "result_name"]
 
@@ -88,6 +89,9 @@ class VehicleState:
         A fresh position and (if reported) a healthy GPS.
     system_status : int
         HEARTBEAT ``system_status`` (MAV_STATE).
+    wind : WindEstimate or None
+        The autopilot's latest wind estimate (WIND_COV on PX4, WIND on ArduPilot); None until one
+        arrived. See :mod:`mission.vehicle.wind` for the conventions.
     """
 
     sysid: int
@@ -109,6 +113,7 @@ class VehicleState:
     position_ok: bool = False
     system_status: int = 0
     gps_healthy: bool | None = None
+    wind: WindEstimate | None = None
 
     def snapshot(self) -> "VehicleState":
         """A copy that later telemetry does not change."""
@@ -234,6 +239,18 @@ class VehicleTelemetry:
             self._home_local = local
             self.frame_map = frame_map
         self._events["home"].set()
+
+    def _on_wind_cov(self, msg) -> None:
+        try:
+            self.state.wind = decode_wind_cov(msg, self.clock.time())
+        except ValueError as exc:
+            self._reject(msg, str(exc))
+
+    def _on_wind(self, msg) -> None:
+        try:
+            self.state.wind = decode_wind(msg, self.clock.time())
+        except ValueError as exc:
+            self._reject(msg, str(exc))
 
     def _on_ack(self, msg) -> None:
         target = getattr(msg, "target_system", 0)

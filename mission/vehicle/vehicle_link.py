@@ -143,6 +143,8 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
             _M.MAVLINK_MSG_ID_COMMAND_ACK: self._on_ack,
             _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._on_version,
             _M.MAVLINK_MSG_ID_STATUSTEXT: self._on_statustext,
+            _M.MAVLINK_MSG_ID_WIND_COV: self._on_wind_cov,
+            _M.MAVLINK_MSG_ID_WIND: self._on_wind,
         }
         self.prearm = PrearmStatus(self.flavour)
         self.params = ParamCache(self.flavour)
