@@ -283,7 +283,9 @@ class Coordinator:
         if self._control_channel is None:
             self._control_channel = open_control_channel(self)
 
-    async def _stop_background(self) -> None:
+    async def stop_background(self) -> None:
+        """Stop what runs beside the phases: watchdog, loss monitor, ramp, streamer, control
+        channel, state publisher, reading subscriber, then close vehicles, links and poller."""
         for name in ("_watchdog_task", "_loss_task"):
             await stop_watched(getattr(self, name))  # a failure was told when it happened
             setattr(self, name, None)
@@ -326,7 +328,7 @@ class Coordinator:
         except MissionError as exc:
             self.event(str(exc), level="error")
         finally:
-            await self._stop_background()
+            await self.stop_background()
         result = readiness_result(self.state, self.plan.vehicles, self.store.counts(),
                                   self.clock.time() - self.state.t_start_s,
                                   mission_checks=self.mission_checks)
@@ -394,7 +396,8 @@ class Coordinator:
             alert(f"swarmseek: mission aborted ({message}); telling it failed too "
                   f"({type(exc).__name__}: {exc}); the vehicles are brought home")
 
-    async def _return_safely(self) -> None:
+    async def return_safely(self) -> None:
+        """Fly every airborne vehicle home; if the return fails, land every vehicle where it is."""
         if not self.airborne:
             return
         try:
