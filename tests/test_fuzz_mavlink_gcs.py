@@ -207,7 +207,7 @@ def test_non_finite_position_telemetry_is_rejected(kind):
         bad = _M.MAVLink_home_position_message(451900000, 57200000, 230000, math.nan, 0, 0, [1, 0, 0, 0],
                                                0, 0, 0)
     ep.receive_datagram(encode(_M.MAVLink_local_position_ned_message(900, 1, 2, -10, 0, 0, 0), SYSID, 1)
-                    + encode(bad, SYSID, 1), PEER)
+                        + encode(bad, SYSID, 1), PEER)
     position = vl.position_enu_m()
     assert position is not None and np.all(np.isfinite(position))
     assert vl.rejected == {kind: 1}

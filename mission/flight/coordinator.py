@@ -107,6 +107,7 @@ class Coordinator:
         self.state = MissionState([v.sysid for v in plan.vehicles], clock=clock, log=log,
                                   formation_kind=plan.formation.type)
         self.endpoints: dict[str, object] = {}
+        self._endpoint_watchers: list = []  # callables told of each endpoint (watch_endpoints)
         self.poller = None  # mission.link.poller.UdpPoller when many UDP endpoints (connect)
         self.vehicles: dict[int, object] = {}
         self.ids = {v.sysid: v.id for v in plan.vehicles}
@@ -133,8 +134,20 @@ class Coordinator:
 
     # ----------------------------------------------------------------- resources set by the phases
     def add_endpoint(self, uri: str, endpoint) -> None:
-        """A MAVLink endpoint opened for ``uri`` (closed at the end)."""
+        """A MAVLink endpoint opened for ``uri`` (closed at the end); told to every endpoint watcher."""
         self.endpoints[uri] = endpoint
+        for watcher in self._endpoint_watchers:
+            watcher(endpoint)
+
+    def watch_endpoints(self, watcher) -> None:
+        """Call ``watcher(endpoint)`` for every MAVLink endpoint open now and each one opened later.
+
+        The ``--out`` forwarder attaches itself this way: at once, without polling, so that it
+        schedules nothing on the mission's clock (a lock-step mission is the same with it).
+        """
+        self._endpoint_watchers.append(watcher)
+        for endpoint in list(self.endpoints.values()):
+            watcher(endpoint)
 
     def add_vehicle(self, vehicle) -> None:
         """A vehicle link attached (by its ``sysid``; closed at the end)."""
