@@ -1,5 +1,5 @@
 """``swarmseek resume`` takes over a mission whose log ends in any phase while vehicles are
-airborne, and brings them home (issue 11): a ground station stopped during the return or after
+airborne, and brings them home: a ground station stopped during the return or after
 the finish, vehicles hovering in GUIDED with nobody flying them."""
 from __future__ import annotations
 
