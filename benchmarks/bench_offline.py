@@ -1,6 +1,6 @@
 """Benchmark of the vectorised offline simulation: prints wall times (no assertions).
 
-Target (issue): 100 trials x 3000 iterations x 8 robots in under 1 s.
+Target: 100 trials x 3000 iterations x 8 robots in under 1 s.
 Run: ``python benchmarks/bench_offline.py``.
 """
 from __future__ import annotations

@@ -16,7 +16,7 @@ For every N and every stack, three processes:
 Stacks:
 
 * ``bare-pymavlink``: the floor: one non-blocking socket, pymavlink ``pack`` + ``sendto`` for
-  every vehicle at 20 Hz, nothing received or parsed (the issue's "bare pymavlink sending alone");
+  every vehicle at 20 Hz, nothing received or parsed ("bare pymavlink sending alone");
 * ``swarmseek``: ``mission.link.endpoint`` + ``mission.vehicle.vehicle_link`` + ``mission.vehicle.streamer``, one ``udpin``
   endpoint per vehicle (PX4 SITL style ports);
 * ``swarmseek-polled``: the same with a shared ``UdpPoller`` (sockets drained every 10 ms by one

@@ -3,7 +3,7 @@
 Run from the repository root (the SITL folder from ``SWARMSEEK_ARDUPILOT_SITL``)::
 
     SWARMSEEK_ARDUPILOT_SITL=../shared/sitl/ardupilot python benchmarks/bench_sitl_ardupilot.py --n 4 --speedup 3
-    # issue 9's case: six vehicles, fly started as soon as the fleet answers (EKFs not ready yet)
+    # the pre-arm readiness case: six vehicles, fly started as soon as the fleet answers (EKFs not ready yet)
     SWARMSEEK_ARDUPILOT_SITL=../shared/sitl/ardupilot python benchmarks/bench_sitl_ardupilot.py --n 6 --speedup 1
     # ... with a dry run first, printed (it reports the vehicles NOT READY while their EKF starts)
     ... bench_sitl_ardupilot.py --n 6 --speedup 1 --dry-run 3

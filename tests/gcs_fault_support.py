@@ -1,6 +1,6 @@
 """Shared by tests/test_gcs_faults_output.py and tests/test_gcs_faults_signals.py (split in two files
 so that the two pytest-xdist workers each take a part). The ground station's own faults never
-abandon a vehicle (issue 20): a ``swarmseek fly`` process
+abandon a vehicle: a ``swarmseek fly`` process
 whose stdout or stderr is a closed pipe, that gets SIGHUP or a SIGPIPE sent by another process
 mid-seek, whose mission log hits a file size limit, or whose zenoh router dies mid-mission.
 

@@ -1,4 +1,4 @@
-"""The never-abandon invariant, checked against the mock fleet's ground truth (issue 11).
+"""The never-abandon invariant, checked against the mock fleet's ground truth.
 
 Every vehicle the ground station armed ends the mission disarmed or on the ground, or flying a
 landing behaviour of its autopilot (LAND or RTL), or it is named in an ``airborne_left`` record

@@ -1,4 +1,4 @@
-"""Never abandon an airborne vehicle (issue 11): every mission path ends with each vehicle the
+"""Never abandon an airborne vehicle: every mission path ends with each vehicle the
 ground station armed down, under a confirmed RTL/LAND, or reported loudly (``airborne_left``).
 
 Each mission flies a mock fleet in lock-step; ``fly_helpers.run_fleet`` checks the invariant

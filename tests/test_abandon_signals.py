@@ -1,4 +1,4 @@
-"""Ctrl-C and SIGTERM sent to a real ``swarmseek run`` process (issue 11): the first brings the
+"""Ctrl-C and SIGTERM sent to a real ``swarmseek run`` process: the first brings the
 vehicles home, a second lands them where they are; the process exits 130 / 143 with a closing
 record and a summary in its mission log, and no vehicle left airborne unreported.
 

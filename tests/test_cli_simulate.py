@@ -32,7 +32,7 @@ def test_the_stop_agrees_with_the_missions_convergence_monitor(capsys):
 
 
 def test_both_distances_reported_and_the_tests_promise_holds(capsys):
-    """The issue's run: the estimate where a mission stops (0.835 m) and the run's end (0.033 m)
+    """The reported run: the estimate where a mission stops (0.835 m) and the run's end (0.033 m)
     are two named distances, and the estimate is within the tolerance of the source (noise-free:
     the limit point is the source), as the test promises."""
     out = _run(capsys)

@@ -74,7 +74,7 @@ def test_failed_preflight_aborts_and_arms_nothing(tmp_path, zenoh_elsewhere):
     assert not any(armed)
     by_sysid = {r["sysid"]: r for r in result.readiness}
     assert by_sysid[3]["checks"]["battery"] is False
-    # without readings no vehicle is ready to seek (issue 11: [preflight] require_readings)
+    # without readings no vehicle is ready to seek ([preflight] require_readings)
     assert all(by_sysid[s]["ready"] != zenoh_elsewhere for s in (1, 2, 4))
     records = read_mission_log(tmp_path / "m.jsonl")
     phases = [r["phase"] for r in records if r["type"] == "phase"]

@@ -1,4 +1,4 @@
-"""'done' means disarmed: a mission ends once its landed vehicles have disarmed (issue 20).
+"""'done' means disarmed: a mission ends once its landed vehicles have disarmed.
 
 The autopilot's own auto-disarm after landing (PX4 ``COM_DISARM_LAND``, 2 s; ArduPilot on
 touchdown) is waited for; a vehicle reported on the ground but still armed is sent a disarm
@@ -93,7 +93,7 @@ def test_summary_line_names_the_armed_vehicles():
 @pytest.mark.parametrize("left, armed, ok", [([], [], True), ([{"sysid": 2}], [], False),
                                              ([], [{"sysid": 3}], False)])
 def test_a_converged_mission_is_ok_only_with_every_vehicle_down_and_disarmed(left, armed, ok):
-    """Exit status 0 means converged AND nothing left in the air AND nothing still armed (issue 21:
+    """Exit status 0 means converged AND nothing left in the air AND nothing still armed (once,
     ``fly`` exited 0 although its last line said a vehicle was left AIRBORNE)."""
     from mission.flight.result import MissionResult
     from mission.telemetry.display import report_result

@@ -149,7 +149,7 @@ def _endpoint(tmp_path, name, signing):
 def _feed(ep, datagrams, vl_holder):
     delivered = []
     for peer, data in datagrams:
-        ep._on_datagram(data, peer)
+        ep.receive_datagram(data, peer)
         if vl_holder[0] is None and ep.last_heartbeat(SYSID) is not None:
             vl = VehicleLink(ep, SYSID, ep.last_heartbeat(SYSID), clock=ep.clock, mission_origin=ORIGIN)
             ep.attach(SYSID, lambda m, vl=vl: (delivered.append(bytes(m.get_msgbuf())), vl._on_message(m)),

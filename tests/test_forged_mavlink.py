@@ -273,7 +273,7 @@ def test_a_mode_change_counts_only_when_the_vehicles_own_stream_repeats_it():
     peer = ("127.0.0.1", 14583)
     ep = MavEndpoint(parse_connection("udpin:127.0.0.1:0"), clock=clock, heartbeat_hz=0, planned_sysids=[3])
     offboard = _encode(_px4_heartbeat(_ARMED, _PX4_OFFBOARD), 3)
-    ep._on_datagram(offboard, peer)
+    ep.receive_datagram(offboard, peer)
     vl = VehicleLink(ep, 3, ep.last_heartbeat(3), clock=clock, mission_origin=DEFAULT_ORIGIN)
     ep.attach(3, vl._on_message, vl._on_link_error)
     sent = []
@@ -284,14 +284,14 @@ def test_a_mode_change_counts_only_when_the_vehicles_own_stream_repeats_it():
         found = classify_loss(vl, clock.time(), 1.0, commanded=False, seen_armed=True)
         return None if found is None else found[0]
 
-    ep._on_datagram(_land_heartbeat(3), peer)
+    ep.receive_datagram(_land_heartbeat(3), peer)
     assert vl.state.mode == "AUTO.LAND" and vl.status_heartbeats == 1 and verdict() == "unconfirmed"
     assert vl.request_heartbeat() and not vl.request_heartbeat() and sent == [peer]  # rate-limited
-    ep._on_datagram(offboard, peer)          # the vehicle's own answer: still OFFBOARD
+    ep.receive_datagram(offboard, peer)          # the vehicle's own answer: still OFFBOARD
     assert verdict() is None
-    ep._on_datagram(_land_heartbeat(3) + _land_heartbeat(3), peer)
+    ep.receive_datagram(_land_heartbeat(3) + _land_heartbeat(3), peer)
     assert vl.status_heartbeats == 2 and verdict() == "left"
-    ep._on_datagram(_disarmed_heartbeat(3), ("127.0.0.1", 9))   # another address: refused
+    ep.receive_datagram(_disarmed_heartbeat(3), ("127.0.0.1", 9))   # another address: refused
     assert ep.counters["foreign_address"] == 1 and vl.state.armed
 
 
@@ -306,10 +306,10 @@ def test_a_planned_vehicles_frames_before_its_heartbeat_wait_for_its_pin(tmp_pat
     position = _encode(_M.MAVLink_global_position_int_message(0, 451900000, 57200000, 230000, 0, 0, 0, 0, 0), 3)
     heartbeat = _encode(_px4_heartbeat(_ARMED, _PX4_OFFBOARD), 3)
     try:
-        ep._on_datagram(position, vehicle)
-        ep._on_datagram(position, forger)
+        ep.receive_datagram(position, vehicle)
+        ep.receive_datagram(position, forger)
         assert ep.tlogs.paths() == {} and ep.counters["foreign_address"] == 0
-        ep._on_datagram(heartbeat, vehicle)
+        ep.receive_datagram(heartbeat, vehicle)
         assert ep.pinned_address(3) == vehicle and ep.counters["foreign_address"] == 1
         ep.tlogs.flush()
         ep.quarantine.flush()

@@ -59,8 +59,9 @@ def _exchange(allow_commands: bool):
     async def main():
         fwd = Forwarder([f"udp:127.0.0.1:{client.getsockname()[1]}"], allow_commands, vehicle_sysids=[1, 2])
         ep = _Endpoint([1, 2])
-        fwd.start(lambda: [ep], period_s=0.01)
-        await wait_until_async(lambda: ep.forward is not None, 5.0, "the endpoint attached")
+        fwd.start()
+        fwd.attach(ep)
+        assert ep.forward == fwd.copy
         heartbeat = mavlink.MAVLink(None, srcSystem=2, srcComponent=1).heartbeat_encode(
             2, 12, 0, 0, 4, 3).pack(mavlink.MAVLink(None, srcSystem=2, srcComponent=1))
         ep.forward(heartbeat)                                   # as the endpoint does for an accepted frame

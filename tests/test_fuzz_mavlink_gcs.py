@@ -1,8 +1,8 @@
 """Fuzzing the ground station's MAVLink input path: nothing escapes, every frame is counted,
 invalid input changes no vehicle state.
 
-Entry points: ``mission.link.endpoint.MavEndpoint._on_datagram(data, peer)`` (UDP: one datagram, a
-partial frame at its end counted ``truncated``) and ``MavEndpoint._on_stream_data(data, peer)``
+Entry points: ``mission.link.endpoint.MavEndpoint.receive_datagram(data, peer)`` (UDP: one datagram, a
+partial frame at its end counted ``truncated``) and ``MavEndpoint.receive_stream_data(data, peer)``
 (TCP / serial), the transport callbacks; each parsed frame is counted (``frames_in``,
 ``bad_crc``, ``malformed``, ``unknown_msgid``) and handed to the attached
 :class:`mission.vehicle.vehicle_link.VehicleLink`. The socket-level test goes through a real UDP endpoint.
@@ -53,7 +53,7 @@ def _endpoint(clock=None):
     """An endpoint (transport not opened) with vehicle ``SYSID`` heard at ``PEER`` and attached."""
     clock = clock if clock is not None else FakeClock()
     ep = MavEndpoint(parse_connection("udpin:127.0.0.1:0"), clock=clock, heartbeat_hz=0)
-    ep._on_datagram(encode(_heartbeat(), SYSID, 1), PEER)
+    ep.receive_datagram(encode(_heartbeat(), SYSID, 1), PEER)
     vl = VehicleLink(ep, SYSID, ep.last_heartbeat(SYSID), clock=clock, mission_origin=ORIGIN)
     ep.attach(SYSID, vl._on_message, vl._on_link_error)
     return ep, vl
@@ -88,7 +88,7 @@ def test_garbage_datagrams_are_counted_frame_by_frame_and_change_nothing(datagra
     assume(not any(not is_bad(m) and m.get_srcSystem() == SYSID for m in msgs))
     before, (counted, unknown, truncated) = _vehicle_state(vl), _counts(ep)
     for data in datagrams:
-        ep._on_datagram(data, PEER)
+        ep.receive_datagram(data, PEER)
     after = _counts(ep)
     assert after[0] - counted == len(msgs)
     assert after[1] - unknown == sum(m.get_type().startswith("UNKNOWN") for m in msgs)
@@ -115,7 +115,7 @@ def test_stream_bytes_are_counted_and_valid_frames_survive_any_chunking(pieces, 
     ep.attach(SYSID, delivered.append)
     counted = _counts(ep)[0]
     for chunk in chunks:
-        ep._on_stream_data(chunk, PEER)
+        ep.receive_stream_data(chunk, PEER)
     assert _counts(ep)[0] - counted == len(reference_parse(chunks)[0])
     whole = [bytes(m.get_msgbuf()) for m in reference_parse(stream)[0]
              if not is_bad(m) and m.get_srcSystem() == SYSID]
@@ -135,7 +135,7 @@ def test_random_telemetry_values_never_escape_the_endpoint(frame_list, one_datag
     ep, vl = _endpoint()
     counted = _counts(ep)[0]
     for data in [b"".join(frame_list)] if one_datagram else frame_list:
-        ep._on_datagram(data, PEER)
+        ep.receive_datagram(data, PEER)
     assert _counts(ep)[0] - counted == len(frame_list)
     assert ep.counters["handler_errors"] == 0, ep.last_handler_error
     position = vl.position_enu_m()    # what the coordinator reads next: sane or unknown
@@ -169,8 +169,8 @@ def test_a_command_takes_only_its_own_correctly_addressed_ack(wrong):
 
         class _Autopilot:      # answers the first COMMAND_LONG with the wrong ack, then the right one
             def send(self, peer, frame):
-                loop.call_soon(ep._on_datagram, ack(_M.MAV_RESULT_FAILED, **wrong), PEER)
-                loop.call_soon(ep._on_datagram, ack(_M.MAV_RESULT_ACCEPTED), PEER)
+                loop.call_soon(ep.receive_datagram, ack(_M.MAV_RESULT_FAILED, **wrong), PEER)
+                loop.call_soon(ep.receive_datagram, ack(_M.MAV_RESULT_ACCEPTED), PEER)
                 return True
 
         ep._transport = _Autopilot()
@@ -191,7 +191,7 @@ def test_a_command_takes_only_its_own_correctly_addressed_ack(wrong):
 def test_absurd_home_position_is_counted_and_changes_nothing(fields):
     ep, vl = _endpoint()
     home = _M.MAVLink_home_position_message(*fields, [1, 0, 0, 0], 0, 0, 0)
-    ep._on_datagram(encode(home, SYSID, 1) + encode(_heartbeat(), SYSID, 1), PEER)
+    ep.receive_datagram(encode(home, SYSID, 1) + encode(_heartbeat(), SYSID, 1), PEER)
     assert ep.counters["frames_in"] == 3 and ep.counters["handler_errors"] == 0
     assert vl.rejected == {"HOME_POSITION": 1} and vl.frame_map is None and vl.state.home is None
 
@@ -200,14 +200,14 @@ def test_absurd_home_position_is_counted_and_changes_nothing(fields):
 def test_non_finite_position_telemetry_is_rejected(kind):
     ep, vl = _endpoint()
     home = _M.MAVLink_home_position_message(451900000, 57200000, 230000, 0, 0, 0, [1, 0, 0, 0], 0, 0, 0)
-    ep._on_datagram(encode(home, SYSID, 1), PEER)
+    ep.receive_datagram(encode(home, SYSID, 1), PEER)
     if kind == "LOCAL_POSITION_NED":
         bad = _M.MAVLink_local_position_ned_message(1000, math.nan, 0, -10, 0, 0, 0)
     else:
         bad = _M.MAVLink_home_position_message(451900000, 57200000, 230000, math.nan, 0, 0, [1, 0, 0, 0],
                                                0, 0, 0)
-    ep._on_datagram(encode(_M.MAVLink_local_position_ned_message(900, 1, 2, -10, 0, 0, 0), SYSID, 1)
-                    + encode(bad, SYSID, 1), PEER)
+    ep.receive_datagram(encode(_M.MAVLink_local_position_ned_message(900, 1, 2, -10, 0, 0, 0), SYSID, 1)
+                        + encode(bad, SYSID, 1), PEER)
     position = vl.position_enu_m()
     assert position is not None and np.all(np.isfinite(position))
     assert vl.rejected == {kind: 1}
@@ -220,7 +220,7 @@ def test_a_frame_of_unknown_message_id_goes_to_the_quarantine_log_not_a_vehicle_
     try:
         payload = b"\x01\x02\x03"
         frame = struct.pack("<BBBBBBBHB", 0xFD, len(payload), 0, 0, 0, 42, 1, 0xBEEF, 0) + payload + b"\0\0"
-        ep._on_datagram(frame, PEER)
+        ep.receive_datagram(frame, PEER)
         assert ep.counters["unknown_msgid"] == 1 and ep.counters["quarantined"] == 1
         assert ep.tlogs.paths() == {}
         ep.quarantine.flush()
@@ -240,7 +240,7 @@ def test_a_handler_that_raises_is_counted_and_the_link_goes_on():
 
     ep.detach(SYSID)
     ep.attach(SYSID, broken)
-    ep._on_datagram(b"".join(encode(_heartbeat(), SYSID, 1) for _ in range(3)), PEER)
+    ep.receive_datagram(b"".join(encode(_heartbeat(), SYSID, 1) for _ in range(3)), PEER)
     assert seen == ["HEARTBEAT"] * 3
     assert ep.counters["handler_errors"] == 3 and "KeyError" in ep.last_handler_error
 

@@ -4,7 +4,7 @@ is not validly signed (unsigned, another key, replayed, older or stale timestamp
 forgery, tampered header / payload / CRC / flag / link id / timestamp / signature, truncated)
 changes any state.
 
-Ground station: ``mission.link.endpoint.MavEndpoint._on_datagram`` / ``_on_stream_data`` with a
+Ground station: ``mission.link.endpoint.MavEndpoint.receive_datagram`` / ``receive_stream_data`` with a
 :class:`mission.link.signing.SigningConfig` (counters ``frames_in``, ``bad_crc``, ``malformed``,
 ``unsigned``, ``bad_signature``, ``replayed``, ``setup_signing_sent``), vehicle state through an
 attached :class:`mission.vehicle.vehicle_link.VehicleLink`. Mock: ``sitl_mock.transport.VehicleLinks._receive``
@@ -191,7 +191,7 @@ def _gcs():
                      signing=SigningConfig(KEY))
     ep._transport = _Recorder()
     peer = ("127.0.0.1", 14583)
-    ep._on_datagram(_GCS_CAPTURED[0], peer)
+    ep.receive_datagram(_GCS_CAPTURED[0], peer)
     vl = VehicleLink(ep, VEHICLE_ID[0], ep.last_heartbeat(VEHICLE_ID[0]), clock=clock, mission_origin=ORIGIN)
     delivered: list[bytes] = []
 
@@ -201,7 +201,7 @@ def _gcs():
 
     ep.attach(VEHICLE_ID[0], on_message, vl._on_link_error)
     for frame in _GCS_CAPTURED[1:]:
-        ep._on_datagram(frame, peer)
+        ep.receive_datagram(frame, peer)
     assert ep.counters["frames_in"] == len(_GCS_CAPTURED) and ep.counters["handler_errors"] == 0
     return ep, vl, delivered, peer
 
@@ -242,7 +242,7 @@ def test_ground_station_counts_every_rejection_and_only_genuine_frames_get_throu
     before_state, before = _gcs_state(vl), dict(ep.counters)
     n_delivered = len(delivered)
     for chunk in chunks:
-        (ep._on_stream_data if mode == "stream" else ep._on_datagram)(chunk, peer)
+        (ep.receive_stream_data if mode == "stream" else ep.receive_datagram)(chunk, peer)
 
     want = collections.Counter(_GCS_REASONS[outcome] for outcome, _ in expected)
     assert {k: ep.counters[k] - before[k] for k in set(_GCS_REASONS.values())} == \
@@ -280,7 +280,7 @@ def test_each_ground_station_attack_would_change_the_state_if_validly_signed(ind
     ep, vl, delivered, peer = _gcs()
     before = _gcs_state(vl)
     n_delivered = len(delivered)
-    ep._on_datagram(sign(_GCS_ATTACKS[index], KEY, STAMP0 + 100, *VEHICLE_ID), peer)
+    ep.receive_datagram(sign(_GCS_ATTACKS[index], KEY, STAMP0 + 100, *VEHICLE_ID), peer)
     assert _gcs_state(vl) != before and len(delivered) == n_delivered + 1
 
 
@@ -289,7 +289,7 @@ def test_a_genuine_far_future_timestamp_does_not_break_sending(stamp):
     """A key holder's frame stamped at (or near) the 48-bit maximum was accepted, the shared
     timestamp followed it past 2**48 and every later ``send_payload`` raised OverflowError."""
     ep, vl, delivered, peer = _gcs()
-    ep._on_datagram(sign(_GCS_HARMLESS[0], KEY, stamp, *VEHICLE_ID, link_id=9), peer)
+    ep.receive_datagram(sign(_GCS_HARMLESS[0], KEY, stamp, *VEHICLE_ID, link_id=9), peer)
     assert ep.verifier.counters["accepted"] == len(_GCS_CAPTURED) + 1
     sp = _M.MAVLink_set_position_target_local_ned_message(0, 3, 1, 1, 0xDF8, 1, 2, -3, 0, 0, 0, 0, 0, 0, 0, 0)
     payload = sp.pack(_M.MAVLink(None))[10:-2]
@@ -306,8 +306,8 @@ def test_a_forged_far_future_frame_does_not_lock_out_the_vehicle():
     ep, vl, delivered, peer = _gcs()
     n_delivered = len(delivered)
     for stamp in (STAMP_MAX, STAMP0 + 10**11):
-        ep._on_datagram(sign(_heartbeat(True, 9), OTHER_KEY, stamp, *VEHICLE_ID), peer)
-    ep._on_datagram(sign(_GCS_HARMLESS[0], KEY, STAMP0 + 100, *VEHICLE_ID), peer)
+        ep.receive_datagram(sign(_heartbeat(True, 9), OTHER_KEY, stamp, *VEHICLE_ID), peer)
+    ep.receive_datagram(sign(_GCS_HARMLESS[0], KEY, STAMP0 + 100, *VEHICLE_ID), peer)
     assert ep.counters["bad_signature"] == 2 and ep.counters["replayed"] == 0
     assert len(delivered) == n_delivered + 1 and not vl.state.armed
 
@@ -457,7 +457,7 @@ def test_the_key_goes_only_to_a_system_id_the_mission_waits_for(wait_for):
     mission waits for system id 7; before that it is refused and counted."""
     ep, _vl, _delivered, peer = _gcs()
     hb = encode(_heartbeat(True, 9), 7, 1)
-    ep._on_datagram(hb, ("127.0.0.1", 14600))
+    ep.receive_datagram(hb, ("127.0.0.1", 14600))
     assert ep.counters["setup_signing_refused"] == 1 and ep.counters["setup_signing_sent"] == 0
 
     async def _wait():
@@ -467,7 +467,7 @@ def test_the_key_goes_only_to_a_system_id_the_mission_waits_for(wait_for):
     if wait_for:
         asyncio.run(_wait())
     ep.clock.t_s += 2.0  # past the once-a-second limit
-    ep._on_datagram(hb, ("127.0.0.1", 14600))
+    ep.receive_datagram(hb, ("127.0.0.1", 14600))
     setups = [m for _, f in ep._transport.sent for m in reference_parse(f)[0]
               if m.get_type() == "SETUP_SIGNING"]
     assert [m.target_system for m in setups] == ([7] if wait_for else [])

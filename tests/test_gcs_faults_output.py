@@ -1,4 +1,4 @@
-"""The ground station's own faults (issue 20), output side: ``swarmseek fly`` with a closed stdout,
+"""The ground station's own faults, output side: ``swarmseek fly`` with a closed stdout,
 a closed stderr (then SIGTERM), a mission log on a size-limited file system; ``run`` under nohup.
 Helpers and the cases' checks: tests/gcs_fault_support.py."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The ground station's own faults (issue 20), stop side: SIGHUP and SIGPIPE sent to ``swarmseek fly``
+"""The ground station's own faults, stop side: SIGHUP and SIGPIPE sent to ``swarmseek fly``
 mid-seek, and its zenoh router killed mid-seek. Helpers and the cases' checks:
 tests/gcs_fault_support.py."""
 from __future__ import annotations

@@ -5,9 +5,11 @@ from __future__ import annotations
 import asyncio
 import json
 import re
+import socket
 import threading
 
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.cli import main as cli_main
 from mission.sim.lockstep import LOCKSTEP_T0_S, LockstepEventLoop, VirtualClock, run_lockstep
@@ -194,6 +196,85 @@ def test_same_seed_same_mission_log(tmp_path, capsys):
     assert {"plan", "phase", "iteration", "summary"} <= kinds
     assert sum(r["type"] == "iteration" for r in a) == 6
     assert a == b
+
+
+class _ForwardClient:
+    """A passive ``--out`` client on loopback: a UDP socket read by a thread until :meth:`stop`."""
+
+    def __init__(self):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.address = f"udp:127.0.0.1:{self.sock.getsockname()[1]}"
+        self.sysids: set[int] = set()
+        self.frames = 0
+        self._stopping = threading.Event()
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        parser = mavlink.MAVLink(None)
+        parser.robust_parsing = True
+        while not self._stopping.is_set():
+            try:
+                data = self.sock.recv(65535)
+            except socket.timeout:
+                continue
+            for msg in parser.parse_buffer(data) or ():
+                if msg.get_type() != "BAD_DATA":
+                    self.frames += 1
+                    self.sysids.add(msg.get_srcSystem())
+
+    def stop(self) -> None:
+        self._stopping.set()
+        self._thread.join(timeout=10)
+        self.sock.close()
+
+
+#: what a passive ``--out`` listener may legitimately change in the mission log, and nothing else:
+#: the two events of the forwarding itself (its start, naming the address, and its counts at the
+#: end), the plan's ``[forward] out`` (the address), the log's own path in the summary, and the
+#: loopback ports chosen at run time (vehicles, zenoh, the client), normalised by _normalised_records.
+#: A lock-step log has no wall-clock field (every ``t_s`` is simulated time).
+_FORWARD_EVENT_KEYS = ("forward_out", "forward")
+
+
+def _without_forwarding(records):
+    """``records`` without what the forwarding legitimately adds; the dropped events, apart."""
+    kept, dropped = [], []
+    for rec in records:
+        if rec["type"] == "event" and any(k in rec for k in _FORWARD_EVENT_KEYS):
+            dropped.append(rec)
+            continue
+        if rec["type"] == "plan":
+            rec["plan"]["forward"].pop("out")
+        kept.append(rec)
+    return kept, dropped
+
+
+@pytest.mark.slow
+def test_a_passive_forward_listener_does_not_change_a_lockstep_mission(tmp_path, capsys):
+    """One seed flown without and with ``--out`` to a loopback client that only listens: the
+    same mission log, record for record, but for what :data:`_FORWARD_EVENT_KEYS` and
+    :func:`_without_forwarding` list."""
+    argv = ["run", "--n", "4", "--seed", "7", "--max-iterations", "6", "--json", "--no-tlog"]
+    client = _ForwardClient()
+    try:
+        plain = cli_main(argv + ["--log-dir", str(tmp_path / "plain")])
+        forwarded = cli_main(argv + ["--log-dir", str(tmp_path / "out"), "--out", client.address])
+    finally:
+        client.stop()
+    capsys.readouterr()
+    assert plain == forwarded
+    a, none = _without_forwarding(_normalised_records(tmp_path / "plain" / "mission.jsonl"))
+    b, events = _without_forwarding(_normalised_records(tmp_path / "out" / "mission.jsonl"))
+    assert none == [] and len(events) == 2
+    frames_out = events[-1]["forward"]["frames_out"]
+    assert 0 < client.frames <= frames_out and client.sysids <= {1, 2, 3, 4}  # it really listened
+    assert sum(r["type"] == "iteration" for r in a) == 6
+    assert len(a) == len(b)
+    for rec_a, rec_b in zip(a, b):
+        assert rec_a == rec_b
 
 
 class _FakeFleet:

@@ -195,7 +195,7 @@ def test_dry_run_is_not_ready_while_the_ekf_has_no_position(tmp_path):
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_fly_waits_for_the_autopilots_then_flies(tmp_path):
-    """The issue's case: fly started right after boot; ArduCopter needs 40 s for its EKF."""
+    """The case seen on ArduCopter SITL: fly started right after boot; ArduCopter needs 40 s for its EKF."""
     fleet, plan = _ardupilot_fleet(tmp_path, ekf_s=40.0, ready_timeout_s=120.0)
     try:
         result = run_fleet(fleet, lambda world: fly(plan, fleet, tmp_path / "m.jsonl", world=world))

@@ -1,4 +1,4 @@
-"""Readiness means ready to seek (issue 11): a reading from every sensor, the zenoh session up,
+"""Readiness means ready to seek: a reading from every sensor, the zenoh session up,
 the start point and every vehicle's path to its slot inside the geofence. ``dry-run`` reports each
 check; ``fly`` arms nothing when one fails; ``[preflight] require_readings = false`` relaxes the
 sensor check; an unreachable zenoh endpoint is said in plain words; a start outside the fence is

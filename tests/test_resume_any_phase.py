@@ -1,5 +1,5 @@
 """``swarmseek resume`` takes over a mission whose log ends in any phase while vehicles are
-airborne, and brings them home (issue 11): a ground station stopped during the return or after
+airborne, and brings them home: a ground station stopped during the return or after
 the finish, vehicles hovering in GUIDED with nobody flying them."""
 from __future__ import annotations
 
@@ -23,12 +23,12 @@ def _stop_in(phase, extra_s):
     async def action(co, task):
         co.return_on_interrupt = False
         if phase == "finish":  # the return starts right after the finish: hold it there a moment
-            original = co._return_safely
+            original = co.return_safely
 
             async def later():
                 await co.clock.sleep(2.0)
                 await original()
-            co._return_safely = later
+            co.return_safely = later
         await _wait_phase(co, phase, extra_s)
         task.cancel()
     return action

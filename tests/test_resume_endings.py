@@ -194,7 +194,7 @@ def test_every_ending_of_the_table_is_tested():
 
 @pytest.mark.timeout(400)
 def test_resume_of_a_log_aborted_by_an_internal_error_brings_the_hovering_vehicles_home(tmp_path):
-    """The issue's case: the ground station died of an internal error in the seek (its log ends
+    """The case seen: the ground station died of an internal error in the seek (its log ends
     ``aborted: unexpected error ...``, nothing after) while the vehicles hover in GUIDED."""
     from mission.cli.cmd_resume import resume
     from mission.telemetry.mission_log import read_mission_log

@@ -1,4 +1,4 @@
-"""Faulty-sensor detection feeds every seeker (issue 20; mission.flight.sensor_check).
+"""Faulty-sensor detection feeds every seeker (mission.flight.sensor_check).
 
 Unit: the detector's exclusions, the readings it keeps, Theorem 2 without the excluded sensor.
 Missions (lock-step ``swarmseek run``, vehicle 2's sensor stuck from the start): with every

@@ -1,4 +1,4 @@
-"""A vehicle that fails during takeoff is a lost vehicle (issue 9, seen on real PX4 SIH): the
+"""A vehicle that fails during takeoff is a lost vehicle (seen on real PX4 SIH): the
 others go on when 4 are left, the failed one is told to land; with fewer than 4 left the mission
 ends and every vehicle that took off lands. Mock fleet in lock-step; the fault: every frame to
 the vehicle is lost (``loss_uplink = 1``), so its takeoff commands are never acknowledged."""

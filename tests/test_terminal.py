@@ -1,4 +1,4 @@
-"""The ground station's own faults, piece by piece (issue 20): a best-effort terminal, a mission log
+"""The ground station's own faults, piece by piece: a best-effort terminal, a mission log
 that fails without raising, background tasks whose failure is told, a state publication and a live
 display that never stop a mission. The whole ``fly`` process under these faults:
 ``tests/test_gcs_faults_output.py tests/test_gcs_faults_signals.py``."""
@@ -136,7 +136,7 @@ def test_a_failing_display_never_stops_the_state_publication():
 
 
 def test_a_mission_whose_terminal_died_flies_to_the_end_and_lands_everyone(tmp_path):
-    """The issue's ``fly | head``, at the coordinator: a display on a dead pipe (without the
+    """``fly | head`` (stdout closed early), at the coordinator: a display on a dead pipe (without the
     command's best-effort terminal) is turned off; the mission goes on and every vehicle lands."""
     source = np.array([4.0, 3.0, 12.0])
     ports = fleet_ports(4, "px4")

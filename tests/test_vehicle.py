@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import struct
 
 import numpy as np
 import pytest
@@ -287,7 +288,7 @@ def _attached(clock=None):
     clock = clock or WallClock()
     ep = MavEndpoint(parse_connection("udpin:127.0.0.1:0"), clock=clock, heartbeat_hz=0)
     ap = FakeAutopilot(3)
-    ep._on_datagram(ap.encode(ap.heartbeat()), ("127.0.0.1", 9))
+    ep.receive_datagram(ap.encode(ap.heartbeat()), ("127.0.0.1", 9))
     v = VehicleLink(ep, 3, ep.last_heartbeat(3), clock=clock, mission_origin=ORIGIN)
     ep.attach(3, v._on_message, v._on_link_error)
     return ep, v, ap
@@ -309,10 +310,10 @@ def _attached(clock=None):
 def test_impossible_telemetry_is_rejected_and_counted(bad, name):
     ep, v, ap = _attached()
     good_home = ap.home_position()
-    ep._on_datagram(ap.encode(good_home) + ap.encode(mavlink.MAVLink_local_position_ned_message(0, 1, 2, -10, 0, 0, 0)),
-                    ("127.0.0.1", 9))
+    ep.receive_datagram(ap.encode(good_home) + ap.encode(mavlink.MAVLink_local_position_ned_message(0, 1, 2, -10, 0, 0, 0)),
+                        ("127.0.0.1", 9))
     before = (v.position_enu_m().copy(), v.state.home, v.frame_map)
-    ep._on_datagram(ap.encode(bad), ("127.0.0.1", 9))
+    ep.receive_datagram(ap.encode(bad), ("127.0.0.1", 9))
     assert v.rejected == {name: 1} and name in v.last_rejection
     assert np.array_equal(v.position_enu_m(), before[0]) and np.all(np.isfinite(v.position_enu_m()))
     assert (v.state.home, v.frame_map) == before[1:]
@@ -326,20 +327,43 @@ def test_a_raising_handler_is_counted_and_the_link_goes_on():
         raise RuntimeError("boom")
 
     v._handlers[mavlink.MAVLINK_MSG_ID_SYS_STATUS] = broken
-    ep._on_datagram(b"".join(ap.encode(m) for m in ap.slow_telemetry()), ("127.0.0.1", 9))
+    ep.receive_datagram(b"".join(ap.encode(m) for m in ap.slow_telemetry()), ("127.0.0.1", 9))
     assert ep.counters["handler_errors"] == 1 and "SYS_STATUS from 3: RuntimeError: boom" in ep.last_handler_error
     assert v.state.landed is True          # EXTENDED_SYS_STATE after the broken one still arrived
 
 
 def test_position_is_converted_once_per_message_and_callers_cannot_corrupt_it():
     ep, v, ap = _attached()
-    ep._on_datagram(ap.encode(ap.home_position()) + ap.encode(mavlink.MAVLink_local_position_ned_message(0, 1, 2, -10, 0, 0, 0)),
-                    ("127.0.0.1", 9))
+    ep.receive_datagram(ap.encode(ap.home_position()) + ap.encode(mavlink.MAVLink_local_position_ned_message(0, 1, 2, -10, 0, 0, 0)),
+                        ("127.0.0.1", 9))
     first = v.position_enu_m()
     expected = v.frame_map.local_ned_to_mission_enu(1.0, 2.0, -10.0)
     assert np.allclose(first, expected, atol=1e-12)
     first += 100.0  # a caller's in-place change must not leak into the next answer
     assert np.allclose(v.position_enu_m(), expected, atol=1e-12)
-    ep._on_datagram(ap.encode(mavlink.MAVLink_local_position_ned_message(0, 4, -3, -12, 0, 0, 0)), ("127.0.0.1", 9))
+    ep.receive_datagram(ap.encode(mavlink.MAVLink_local_position_ned_message(0, 4, -3, -12, 0, 0, 0)), ("127.0.0.1", 9))
     assert np.allclose(v.position_enu_m(), v.frame_map.local_ned_to_mission_enu(4.0, -3.0, -12.0), atol=1e-12)
     assert not np.allclose(v.position_enu_m(), expected)
+
+
+class _SetClock:
+    """A clock that stays where the test puts it."""
+
+    def __init__(self, t_s: float) -> None:
+        self.t_s = t_s
+
+    def time(self) -> float:
+        return self.t_s
+
+
+def test_setpoint_time_boot_ms_is_the_injected_clocks_time_since_the_link_opened():
+    clock = _SetClock(1_767_225_600.0)
+    ep, v, ap = _attached(clock)
+    ep.receive_datagram(ap.encode(ap.home_position()), ("127.0.0.1", 9))
+    sent = []
+    ep.send_payload = lambda sysid, msg_id, crc_extra, payload: sent.append(payload) or True
+    for elapsed_s in (0.0, 2.5, 3600.25):
+        clock.t_s = 1_767_225_600.0 + elapsed_s
+        v.send_position_enu([0.0, 0.0, 5.0])
+    stamps_ms = [struct.unpack_from("<I", payload)[0] for payload in sent]
+    assert stamps_ms == [0, 2500, 3600250]

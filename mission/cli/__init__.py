@@ -68,7 +68,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
             except ImportError as exc:
                 parser.error(f"command {name!r} is not available: {exc}")
             module.configure(p)
-            p.set_defaults(_module=module, _parser=p)
+            # the chosen command's module (its ``main(args)`` runs it) and its own parser (its
+            # usage on an error after the command): public names every command may read
+            p.set_defaults(command_module=module, command_parser=p)
     return parser
 
 
@@ -82,7 +84,7 @@ def _check_fleet_argument(args: argparse.Namespace) -> None:
         try:
             check_fleet_name(fleet)
         except ValueError as exc:
-            args._parser.error(str(exc))
+            args.command_parser.error(str(exc))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -103,13 +105,13 @@ def _main(argv: list[str]) -> int:
     args, extra = parser.parse_known_args(argv)
     if extra:  # after the command: the subcommand's usage and error, not the top level's
         after_command = args.command in argv and extra[0] in argv[argv.index(args.command) + 1:]
-        (args._parser if after_command else parser).error(f"unrecognized arguments: {' '.join(extra)}")
+        (args.command_parser if after_command else parser).error(f"unrecognized arguments: {' '.join(extra)}")
     if args.command is None:
         parser.print_help()
         return 2
     _check_fleet_argument(args)
     try:
-        return int(args._module.main(args) or 0)
+        return int(args.command_module.main(args) or 0)
     except KeyboardInterrupt:
         print("swarmseek: interrupted", file=sys.stderr)
         return 130

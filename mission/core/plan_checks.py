@@ -154,7 +154,7 @@ def polygon_margin_m(point_en, points) -> float:
 
 def check_start_in_fence(c: Checker, radius_m: float, start_enu, polygon_en_m) -> None:
     """The seeking start, and the formation of radius ``radius_m`` about it, inside the fence
-    polygon (issue 11: a start outside the geofence is a plan error, not a flight-time surprise)."""
+    polygon (a start outside the geofence is a plan error, not a flight-time surprise)."""
     if not polygon_en_m or radius_m is None:
         return
     margin = polygon_margin_m(start_enu, polygon_en_m)

@@ -110,6 +110,7 @@ class Coordinator:
         self.state = MissionState([v.sysid for v in plan.vehicles], clock=clock, log=log,
                                   formation_kind=plan.formation.type)
         self.endpoints: dict[str, object] = {}
+        self._endpoint_watchers: list = []  # callables told of each endpoint (watch_endpoints)
         self.poller = None  # mission.link.poller.UdpPoller when many UDP endpoints (connect)
         self.vehicles: dict[int, object] = {}
         self.ids = {v.sysid: v.id for v in plan.vehicles}
@@ -136,8 +137,20 @@ class Coordinator:
 
     # ----------------------------------------------------------------- resources set by the phases
     def add_endpoint(self, uri: str, endpoint) -> None:
-        """A MAVLink endpoint opened for ``uri`` (closed at the end)."""
+        """A MAVLink endpoint opened for ``uri`` (closed at the end); told to every endpoint watcher."""
         self.endpoints[uri] = endpoint
+        for watcher in self._endpoint_watchers:
+            watcher(endpoint)
+
+    def watch_endpoints(self, watcher) -> None:
+        """Call ``watcher(endpoint)`` for every MAVLink endpoint open now and each one opened later.
+
+        The ``--out`` forwarder attaches itself this way: at once, without polling, so that it
+        schedules nothing on the mission's clock (a lock-step mission is the same with it).
+        """
+        self._endpoint_watchers.append(watcher)
+        for endpoint in list(self.endpoints.values()):
+            watcher(endpoint)
 
     def add_vehicle(self, vehicle) -> None:
         """A vehicle link attached (by its ``sysid``; closed at the end)."""
@@ -287,7 +300,9 @@ class Coordinator:
         if self._control_channel is None:
             self._control_channel = open_control_channel(self)
 
-    async def _stop_background(self) -> None:
+    async def stop_background(self) -> None:
+        """Stop what runs beside the phases: watchdog, loss monitor, ramp, streamer, control
+        channel, state publisher, reading subscriber, then close vehicles, links and poller."""
         for name in ("_watchdog_task", "_loss_task"):
             await stop_watched(getattr(self, name))  # a failure was told when it happened
             setattr(self, name, None)
@@ -330,7 +345,7 @@ class Coordinator:
         except MissionError as exc:
             self.event(str(exc), level="error")
         finally:
-            await self._stop_background()
+            await self.stop_background()
         result = readiness_result(self.state, self.plan.vehicles, self.store.counts(),
                                   self.clock.time() - self.state.t_start_s,
                                   mission_checks=self.mission_checks)
@@ -398,7 +413,8 @@ class Coordinator:
             alert(f"swarmseek: mission aborted ({message}); telling it failed too "
                   f"({type(exc).__name__}: {exc}); the vehicles are brought home")
 
-    async def _return_safely(self) -> None:
+    async def return_safely(self) -> None:
+        """Fly every airborne vehicle home; if the return fails, land every vehicle where it is."""
         if not self.airborne:
             return
         try:

@@ -44,7 +44,7 @@ async def _return(co, interrupts: int) -> int:
     while True:
         try:
             if interrupts < 2:
-                await co._return_safely()
+                await co.return_safely()
             return interrupts
         except asyncio.CancelledError:
             _uncancel()
@@ -94,10 +94,10 @@ async def close(co, outcome: str, message: str, *, interrupted: bool = False):
     left, cut_short = await secure(co, why, land=co.return_on_interrupt or not interrupts)
     interrupts += int(cut_short)
     try:
-        await co._stop_background()
+        await co.stop_background()
     except asyncio.CancelledError:
         _uncancel()
-        await co._stop_background()
+        await co.stop_background()
     result = co.result(outcome, message)
     result.airborne_left = left
     result.still_armed = list(co.still_armed)

@@ -1,4 +1,4 @@
-"""Ready to seek, not only ready to fly: the mission-wide preflight checks (issue 11).
+"""Ready to seek, not only ready to fly: the mission-wide preflight checks.
 
 Run at the end of the preflight (:func:`mission.flight.connect.preflight`), after each vehicle's
 own checks; ``swarmseek dry-run`` prints each of them, ``fly`` arms nothing when one fails

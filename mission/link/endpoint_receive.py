@@ -1,7 +1,7 @@
 """Receiving half of :class:`~mission.link.endpoint.MavEndpoint`: parsing, checks and demultiplexing.
 
-:class:`EndpointReceiving` is a mixin: the transport callbacks (``_on_datagram``,
-``_on_stream_data``, ``_on_peer_lost``) parse frames robustly (bad frames are counted, never
+:class:`EndpointReceiving` is a mixin: the transport callbacks (``receive_datagram``,
+``receive_stream_data``, ``peer_lost``) parse frames robustly (bad frames are counted, never
 raised), check signatures, screen each frame's sender (:meth:`EndpointReceiving._screen`: the
 vehicle's pinned address, the plan's system ids), log each accepted frame in its sender's
 ``.tlog`` and every refused one in the quarantine log, hand each message to the vehicle attached
@@ -56,7 +56,7 @@ class EndpointReceiving:
         parser.robust_parsing = True
         return parser
 
-    def _on_datagram(self, data: bytes, peer) -> None:
+    def receive_datagram(self, data: bytes, peer) -> None:
         """Transport callback: one UDP datagram (whole frames; a partial tail is counted).
 
         A datagram of exactly one valid frame of a fixed-layout message (nearly all telemetry)
@@ -77,7 +77,7 @@ class EndpointReceiving:
         if msgs:
             self._deliver(msgs, peer, len(data))
 
-    def _on_stream_data(self, data: bytes, peer) -> None:
+    def receive_stream_data(self, data: bytes, peer) -> None:
         """Transport callback: bytes from a stream (TCP connection, serial line)."""
         parser = self._stream_parsers.get(peer)
         if parser is None:
@@ -86,7 +86,7 @@ class EndpointReceiving:
         if msgs:
             self._deliver(msgs, peer, len(data))
 
-    def _on_peer_lost(self, peer) -> None:
+    def peer_lost(self, peer) -> None:
         """Transport callback: a stream peer went away (its vehicles may pin again on reconnection)."""
         self._stream_parsers.pop(peer, None)
         self._encoders.pop(peer, None)
@@ -103,8 +103,9 @@ class EndpointReceiving:
         verifier = self.verifier
         for msg in msgs:
             # not msg.id: BAD_DATA / UNKNOWN inherit id 0 (HEARTBEAT) and messages with a
-            # field named "id" (BATTERY_STATUS...) shadow the class attribute
-            header = msg._header
+            # field named "id" (BATTERY_STATUS...) shadow the class attribute; get_header() and
+            # get_msgbuf() return pymavlink's own objects (no copy)
+            header = msg.get_header()
             msg_id = header.msgId
             if msg_id == _MSG_BAD:
                 counters["bad_crc" if "CRC" in msg.reason else "malformed"] += 1
@@ -122,19 +123,20 @@ class EndpointReceiving:
             # a pinned vehicle's own address (nearly every frame) passes _screen: not asked
             refused = None if pin is not None and pin[0] == peer else self._screen(sysid, msg, peer, autopilot_hb)
             if refused is not None:
-                if refused == "unverified" and self._hold_early(sysid, msg._msgbuf, peer):
+                frame = msg.get_msgbuf()
+                if refused == "unverified" and self._hold_early(sysid, frame, peer):
                     continue
                 counters[refused] += 1
                 if refused == "unplanned_sysid" and len(self._refused_sysids) < _MAX_REFUSED_SYSIDS:
                     self._refused_sysids.add(sysid)
-                self._quarantine_frame(msg._msgbuf)
+                self._quarantine_frame(frame)
                 continue
             if autopilot_hb and sysid in self._early:
                 self._release_early(sysid, peer)
             if tlogs is not None:
-                tlogs.write(sysid, msg._msgbuf)
+                tlogs.write(sysid, msg.get_msgbuf())
             if self.forward is not None:
-                self.forward(msg._msgbuf)
+                self.forward(msg.get_msgbuf())
             if autopilot_hb:
                 self._on_autopilot_heartbeat(sysid, msg, peer)
             elif sysid not in peer_of:
@@ -153,13 +155,13 @@ class EndpointReceiving:
         if reason is None:
             return False
         self.counters[reason] += 1
-        sysid = msg._header.srcSystem
+        sysid = msg.get_srcSystem()
         if (reason == "unsigned" and msg_id == _MSG_HEARTBEAT and self.signing.send_setup
                 and _is_autopilot_heartbeat(msg) and self.verifier.needs_setup(sysid)):
             pin = self._pins.get(sysid)
             first = self._setup_peer.setdefault(sysid, peer) if sysid in self._expected else None
             if first == peer and (pin is None or pin[0] == peer):
-                self._send_setup_signing(sysid, msg._header.srcComponent, peer)
+                self._send_setup_signing(sysid, msg.get_srcComponent(), peer)
             else:  # not a vehicle of this mission, or not its address: never hand it the key
                 self.counters["setup_signing_refused"] += 1
         return True
@@ -185,7 +187,7 @@ class EndpointReceiving:
             return None
         if autopilot_hb:
             silent_s = self.clock.time() - self._pin_heard_s.get(sysid, -1e18)
-            if silent_s >= _REPIN_SILENCE_S and msg._header.srcComponent == pin[1]:
+            if silent_s >= _REPIN_SILENCE_S and msg.get_srcComponent() == pin[1]:
                 return None  # _on_autopilot_heartbeat pins it again (counted "repinned")
             if sysid not in self._handlers and silent_s <= _ACTIVE_WINDOW_S:
                 self._report_duplicate(sysid, f"autopilot heartbeats from {pin[0]} and {peer}")
@@ -215,7 +217,7 @@ class EndpointReceiving:
         self.counters["quarantined" if quarantine.write(frame) else "quarantine_dropped"] += 1
 
     def _on_autopilot_heartbeat(self, sysid: int, msg, peer) -> None:
-        compid = msg._header.srcComponent
+        compid = msg.get_srcComponent()
         pin = self._pins.get(sysid)
         if pin is None or pin[0] != peer:  # the first one (or a re-pin that _screen allowed)
             if pin is not None:

@@ -23,6 +23,10 @@ a payload longer than it is cut, exactly as pymavlink does. A signed frame is de
 pymavlink's key-less parser does (``_signed`` False, signature not checked): the endpoint's
 :class:`~mission.link.signing.SignatureVerifier` checks it afterwards on ``_msgbuf``, whichever
 path decoded it.
+
+This module is the ground station's one wrapper around pymavlink's private message fields
+(:func:`_with_frame` sets them); everything else reads a message's frame through pymavlink's
+public getters (``get_header()``, ``get_msgbuf()``, ``get_srcSystem()``...).
 """
 from __future__ import annotations
 
@@ -100,10 +104,20 @@ def decode_single_frame(data):
     fields = unpack(payload)
     if order is not None:
         fields = [fields[i] for i in order]
-    msg = cls(*fields)
     msgbuf = bytearray(data)
+    return _with_frame(cls(*fields), msgbuf, msgbuf[6:end], crc,
+                       _HEADER(msg_id, flags, data[3], mlen, data[4], data[5], data[6]))
+
+
+def _with_frame(msg, msgbuf: bytearray, payload: bytearray, crc: int, header):
+    """``msg`` given the frame fields pymavlink's parser sets when it decodes a frame.
+
+    pymavlink has public getters for them (``get_msgbuf()``, ``get_header()``, ``get_payload()``,
+    ``get_crc()``: what the rest of the ground station uses) but no setter: these four lines are
+    the only place in ``mission`` that touches pymavlink's private message fields.
+    """
     msg._msgbuf = msgbuf
-    msg._payload = msgbuf[6:end]
+    msg._payload = payload
     msg._crc = crc
-    msg._header = _HEADER(msg_id, flags, data[3], mlen, data[4], data[5], data[6])
+    msg._header = header
     return msg

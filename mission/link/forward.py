@@ -24,8 +24,6 @@ import socket
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from mission.core.tasks import spawn
-from mission.core.clock import cancel_and_wait
 from mission.core.plan_sections import parse_forward_out
 
 __all__ = ["Forwarder", "COUNTERS", "ForwardAddressError", "forwarding", "out_address", "plan_with_outs",
@@ -117,7 +115,6 @@ class Forwarder:
         self._parsers: list = []
         self._endpoints: list = []
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._follow_task: asyncio.Task | None = None
         for _host, _port in self.addresses:
             sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             sock.setblocking(False)
@@ -186,25 +183,18 @@ class Forwarder:
                 c["dropped_no_target"] += 1
 
     # ------------------------------------------------------------------ life cycle
-    def start(self, endpoints=None, period_s: float = 0.2) -> None:
-        """Read the clients on the running loop; with ``endpoints`` (a callable returning the
-        mission's endpoints), attach every endpoint it lists, now and as they appear."""
+    def start(self) -> None:
+        """Read the clients on the running loop (an event-loop reader per socket; no timer).
+
+        Attach the endpoints with :meth:`attach` (:func:`forwarding` has the coordinator call it
+        for every endpoint it opens).
+        """
         self._loop = asyncio.get_running_loop()
         for i, sock in enumerate(self._socks):
             self._loop.add_reader(sock.fileno(), self._on_client, i)
-        if endpoints is not None:
-            self._follow_task = spawn(self._follow(endpoints, period_s), "the MAVLink forwarding")
-
-    async def _follow(self, endpoints, period_s: float) -> None:
-        while True:
-            for endpoint in list(endpoints()):
-                self.attach(endpoint)
-            await asyncio.sleep(period_s)
 
     async def close(self) -> None:
         """Stop forwarding: detach from the endpoints, close the sockets."""
-        await cancel_and_wait(self._follow_task)
-        self._follow_task = None
         for endpoint in self._endpoints:
             endpoint.forward = None
         for sock in self._socks:
@@ -262,7 +252,8 @@ async def forwarding(co, work, addresses: dict | None = None):
         raise
     forwarder = Forwarder(fwd.out, fwd.allow_commands, [v.sysid for v in co.plan.vehicles],
                           on_first_drop=lambda text: co.event(text, level="warning"), addresses=resolved)
-    forwarder.start(lambda: co.endpoints.values())
+    forwarder.start()
+    co.watch_endpoints(forwarder.attach)  # at once, no polling task: nothing on the mission's clock
     co.event(f"forwarding MAVLink to {', '.join(fwd.out)} "
              f"({'commands relayed' if fwd.allow_commands else 'read-only: client frames dropped'})",
              forward_out=list(fwd.out), allow_commands=fwd.allow_commands)

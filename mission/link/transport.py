@@ -1,7 +1,7 @@
 """Transports under :class:`mission.link.endpoint.MavEndpoint`: UDP (in/out), TCP (client/server), serial.
 
 Every transport is non-blocking and driven by the running asyncio loop. It hands received bytes
-to the endpoint (``_on_datagram(data, peer)`` for UDP, ``_on_stream_data(data, peer)`` for
+to the endpoint (``receive_datagram(data, peer)`` for UDP, ``receive_stream_data(data, peer)`` for
 streams) and sends frames to a peer. A *peer* is an opaque, hashable address: the UDP
 ``(host, port)`` of the sender, the TCP connection's remote address, or the serial device.
 
@@ -52,7 +52,7 @@ class _UdpTransport(asyncio.DatagramProtocol):
             addr = self._remote
         elif addr not in self._heard:
             self._heard.add(addr)
-        self._endpoint._on_datagram(data, addr)
+        self._endpoint.receive_datagram(data, addr)
 
     def error_received(self, exc) -> None:
         self._endpoint.counters["send_errors"] += 1
@@ -118,7 +118,7 @@ class _PolledUdpTransport:
             addr = self._remote
         elif addr not in self._heard:
             self._heard.add(addr)
-        self._endpoint._on_datagram(data, addr)
+        self._endpoint.receive_datagram(data, addr)
 
     def send(self, peer, frame: bytes) -> bool:
         if self._sock is None:
@@ -146,23 +146,33 @@ class _PolledUdpTransport:
 
 
 class _StreamProtocol(asyncio.Protocol):
-    """One TCP connection; reports data and loss to its owner."""
+    """One TCP connection; reports itself connected and lost, and its bytes, to the given callbacks.
 
-    def __init__(self, owner) -> None:
-        self._owner = owner
+    Parameters
+    ----------
+    connected, lost : callable
+        Called with this protocol when the connection is made and when it is lost.
+    received : callable
+        ``received(data, peer)`` for every chunk of bytes (the endpoint's ``receive_stream_data``).
+    """
+
+    def __init__(self, connected, received, lost) -> None:
+        self._connected = connected
+        self._received = received
+        self._lost = lost
         self.transport = None
         self.peer = None
 
     def connection_made(self, transport) -> None:
         self.transport = transport
         self.peer = transport.get_extra_info("peername")[:2]
-        self._owner._connected(self)
+        self._connected(self)
 
     def data_received(self, data: bytes) -> None:
-        self._owner._endpoint._on_stream_data(data, self.peer)
+        self._received(data, self.peer)
 
     def connection_lost(self, exc) -> None:
-        self._owner._lost(self)
+        self._lost(self)
 
 
 def _stream_send(proto, endpoint, frame: bytes) -> bool:
@@ -196,7 +206,10 @@ class _TcpClientTransport:
 
     async def _connect(self) -> None:
         loop = asyncio.get_running_loop()
-        await loop.create_connection(lambda: _StreamProtocol(self), self._spec.host, self._spec.port)
+        await loop.create_connection(self._new_protocol, self._spec.host, self._spec.port)
+
+    def _new_protocol(self) -> _StreamProtocol:
+        return _StreamProtocol(self._connected, self._endpoint.receive_stream_data, self._lost)
 
     def _connected(self, proto) -> None:
         proto.peer = self._peer
@@ -207,7 +220,7 @@ class _TcpClientTransport:
     def _lost(self, proto) -> None:
         if self._proto is proto:
             self._proto = None
-            self._endpoint._on_peer_lost(self._peer)
+            self._endpoint.peer_lost(self._peer)
             self._lost_event.set()
 
     async def _reconnect_loop(self) -> None:
@@ -253,8 +266,11 @@ class _TcpServerTransport:
 
     async def start(self) -> "_TcpServerTransport":
         loop = asyncio.get_running_loop()
-        self._server = await loop.create_server(lambda: _StreamProtocol(self), self._spec.host, self._spec.port)
+        self._server = await loop.create_server(self._new_protocol, self._spec.host, self._spec.port)
         return self
+
+    def _new_protocol(self) -> _StreamProtocol:
+        return _StreamProtocol(self._connected, self._endpoint.receive_stream_data, self._lost)
 
     def _connected(self, proto) -> None:
         self._conns[proto.peer] = proto
@@ -262,7 +278,7 @@ class _TcpServerTransport:
     def _lost(self, proto) -> None:
         if self._conns.get(proto.peer) is proto:
             del self._conns[proto.peer]
-            self._endpoint._on_peer_lost(proto.peer)
+            self._endpoint.peer_lost(proto.peer)
 
     def send(self, peer, frame: bytes) -> bool:
         proto = self._conns.get(peer)
@@ -323,7 +339,7 @@ class _SerialTransport:
         except OSError:
             data = b""
         if data:
-            self._endpoint._on_stream_data(data, self._spec.device)
+            self._endpoint.receive_stream_data(data, self._spec.device)
 
     def _writable(self) -> None:
         try:

@@ -129,11 +129,23 @@ class ReadingStore:
         try:
             reading = self._validate(key, payload)
         except ReadingRejected as exc:
-            with self._lock:
-                self.rejected[exc.reason] += 1
-                self._last_error[exc.reason] = str(exc)
+            self.count_rejection(exc.reason, str(exc))
             return None
         return reading
+
+    def count_rejection(self, reason: str, detail: str) -> None:
+        """Count one sample refused for ``reason`` and keep ``detail`` as its latest message.
+
+        Parameters
+        ----------
+        reason : str
+            The rejection counter (e.g. ``malformed``), shown to the operator in :meth:`counts`.
+        detail : str
+            What was wrong, returned by :meth:`last_errors`.
+        """
+        with self._lock:
+            self.rejected[reason] += 1
+            self._last_error[reason] = detail
 
     def _validate(self, key: str, payload) -> Reading:
         key = str(key)
@@ -261,9 +273,7 @@ class ReadingSubscriber:
             payload = sample.payload.to_bytes()
             key = str(sample.key_expr)
         except Exception as exc:  # noqa: BLE001 - a bad sample must never kill the zenoh callback
-            with self.store._lock:
-                self.store.rejected["malformed"] += 1
-                self.store._last_error["malformed"] = f"unreadable sample: {exc}"
+            self.store.count_rejection("malformed", f"unreadable sample: {exc}")
             return
         self.store.offer(key, payload)
 

@@ -131,7 +131,7 @@ class VehicleTelemetry:
     def _on_message(self, msg) -> None:
         self._last_rx_s = self.clock.time()
         # not msg.id: messages with a field named "id" (BATTERY_STATUS...) shadow the class id
-        handler = self._handlers.get(msg._header.msgId)
+        handler = self._handlers.get(msg.get_header().msgId)
         if handler is not None:
             handler(msg)
 

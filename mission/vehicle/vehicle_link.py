@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import time
 from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -124,7 +123,7 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
         self._local_s: float | None = None
         self._enu_cache: tuple | None = None  # (position_ned_m, frame_map, enu): see position_enu_m
         self._last_rx_s = clock.time()
-        self._t0 = time.monotonic()
+        self._t0_s = clock.time()  # time_boot_ms of the setpoints: clock seconds since the link opened
         self._acks: dict[int, asyncio.Queue] = {}
         self._locks: dict[int, asyncio.Lock] = {}
         self._events: dict[str, asyncio.Event] = {
@@ -269,7 +268,7 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
         east_m, north_m, up_m = position_enu_m
         mask = _MASK_NO_YAW if yaw_rad is None else _MASK_POSITION
         yaw = 0.0 if yaw_rad is None else float(yaw_rad)
-        t_ms = int((time.monotonic() - self._t0) * 1000) & 0xFFFFFFFF
+        t_ms = int((self.clock.time() - self._t0_s) * 1000) & 0xFFFFFFFF
         if self.setpoint_frame == "local_ned":
             fmap = self.frame_map
             if fmap is None:
