@@ -56,8 +56,9 @@ class MovingSampling:
         The sensor's response time constant (>= 0): readings go to the seeker where their
         vehicle was this long before they were taken (module docstring).
     since_s : float or None
-        The seeker's first readings are those taken after this time (``-inf``: every reading the
-        store still holds, i.e. since takeoff for the ``ste`` seeker); None: after the seek started.
+        Every vehicle's readings taken after this time go to the seeker (``-inf``: every reading the
+        store holds, i.e. since takeoff, for the ``ste`` seeker); None: those taken after the seek
+        started, and for a vehicle that joins later (re-admitted) after the collect before it joined.
 
     Raises
     ------
@@ -78,12 +79,13 @@ class MovingSampling:
         self.positions_enu = np.zeros((0, 3))  # where the seeker takes the collected readings to be
         self.last_used_s: dict[int, float] = {}  # per vehicle: time of the newest reading the seeker had
         self.t_collected_s = co.clock.time() if since_s is None else float(since_s)  # a new vehicle's start
+        self.since_s = None if since_s is None else float(since_s)  # every vehicle's start, when given
         self.first_s: dict[int, float] = {}  # per vehicle: the seeker gets its readings taken after this
         self.given: dict[int, set] = {}  # per vehicle: (time_s, seq) of the readings given, still in the store
         self.overflowed: set[int] = set()  # vehicles whose readings left the store before the seeker had them
 
     def _since_s(self, sysid: int) -> float:
-        return self.first_s.setdefault(sysid, self.t_collected_s)
+        return self.first_s.setdefault(sysid, self.t_collected_s if self.since_s is None else self.since_s)
 
     def _new(self, sysid: int, hist: list) -> list:
         """The readings of ``hist`` (a vehicle's, oldest first) not given yet: taken after the vehicle's
