@@ -24,7 +24,9 @@ Usage::
     python benchmarks/bench_seek_mission.py --seeds 0-9 --seekers plume,ste --sampling default \
         --run-args "--field intermittent"      # ste against the plume fields' default seeker
 
-``region95_m`` is the ``ste`` seeker's last 95 % region (its posterior; ``-`` for the others).
+``region95_m`` is the ``ste`` seeker's last 95 % region (its posterior; ``-`` for the others);
+``seeker CPU per update`` the thread CPU time of each seeker update (the mission adapter's
+``step``; on the lock-step loop the executor runs it inline), median and 90th percentile.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ import argparse
 import json
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -98,11 +101,16 @@ def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", ex
     args = ap.parse_args(["--seeker", seeker, "--seed", str(seed), *chosen, "--json", "--no-tlog",
                           "--log-dir", str(log_dir), *extra])
     seen: list = []  # the mission's seeker adapter, for its last 95 % region (ste; None for the others)
+    cpu_s: list = []  # thread CPU time of each seeker update (lock-step: its executor runs inline)
     step = seek._MissionSeeker.step
 
     def _step(self, *a, **kw):
         seen[:] = [self]
-        return step(self, *a, **kw)
+        t0 = time.thread_time()
+        try:
+            return step(self, *a, **kw)
+        finally:
+            cpu_s.append(time.thread_time() - t0)
 
     seek._MissionSeeker.step = _step
     try:
@@ -115,7 +123,9 @@ def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", ex
     row.update(seeker=seeker, seed=seed, sampling=args.sampling if sampling != "default" else
                seek_sampling(result.log_path), outcome=result.outcome, error_m=result.error_m,
                mission_seek_time_s=result.seek_time_s,
-               region95_m=seen[0].region95_m if seen else None)
+               region95_m=seen[0].region95_m if seen else None,
+               seeker_cpu_ms_median=1e3 * float(np.median(cpu_s)) if cpu_s else None,
+               seeker_cpu_ms_p90=1e3 * float(np.percentile(cpu_s, 90)) if cpu_s else None)
     return row
 
 
@@ -135,7 +145,8 @@ def _fmt(row: dict) -> str:
             f"| {f(row['ratio'], '.2f')} | {f(row['model_t_1m_s'])} | {f(row['iterations_1m'], 'd')} | {f(row['mission_seek_time_s'])} "
             f"| {row['iterations']} | {f(row['error_m'], '.2f')} | {f(row['region95_m'], '.2f')} | {row['readings']} "
             f"| {f(row['centre_flown_m'])} "
-            f"| {f(row['vehicle_flown_m_mean'])} / {f(row['vehicle_flown_m_max'])} | {f(row['end_centroid_m'], '.2f')} |")
+            f"| {f(row['vehicle_flown_m_mean'])} / {f(row['vehicle_flown_m_max'])} | {f(row['end_centroid_m'], '.2f')} "
+            f"| {f(row.get('seeker_cpu_ms_median'))} / {f(row.get('seeker_cpu_ms_p90'))} |")
 
 
 def _seeds(text: str) -> list[int]:
@@ -160,8 +171,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print("| seeker | sampling | seed | outcome | time to stay within 1 m, s | straight line, s | ratio | time model, s "
           "| iterations to 1 m | seek time, s | iterations | error, m | region95, m | readings | centre flown, m "
-          "| vehicle flown, m (mean / max) | last centroid to source, m |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| vehicle flown, m (mean / max) | last centroid to source, m | seeker CPU per update, ms (median / p90) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seeker in args.seekers.split(","):
