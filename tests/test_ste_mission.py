@@ -117,9 +117,21 @@ def test_run_cli_passes_the_sensor_not_the_truth():
 
 
 def test_sitl_plan_writer_offers_ste(tmp_path):
-    from mission.sim.sitl_plan import seeker_settings
+    """``swarmseek sitl --seeker ste`` writes a plan that loads, sampling while moving."""
+    import argparse
+    from types import SimpleNamespace
 
-    assert seeker_settings("ste") == {"seeker": "ste", "gamma_m": 20.0, "sampling": "moving"}
+    from mission.cli import cmd_sitl
+    from mission.core.plan import load_plan
+    from mission.sim.sitl_plan import seeker_settings, write_plan
+
+    parser = argparse.ArgumentParser()
+    cmd_sitl.configure(parser)
+    args = parser.parse_args(["--flavour", "px4", "--seeker", "ste"])
+    vehicles = [SimpleNamespace(sysid=i + 1, connection=f"udpin:127.0.0.1:{20000 + i}") for i in range(4)]
+    plan = load_plan(write_plan(tmp_path / "p.toml", vehicles, (47.397742, 8.545594, 489.4), flavour="px4",
+                                overrides={"seeking": seeker_settings(args.seeker)}))
+    assert (plan.seeking.seeker, plan.seeking.gamma_m, plan.seeking.sampling) == ("ste", 20.0, "moving")
 
 
 # ----------------------------------------------------------------------------- the moving path
