@@ -50,9 +50,10 @@ from mission.flight.state import MissionError
 
 __all__ = ["seek", "make_estimator", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
 
-#: With moving sampling the ``ste`` seeker gets at most this many of each vehicle's readings per update,
-#: evenly spread (:func:`mission.flight.seek_moving.thin_evenly`; its CPU, docs/seekers.md)
-STE_READINGS_PER_VEHICLE = 4
+#: With moving sampling the ``ste`` seeker gets at most this many of each vehicle's readings per update
+#: (:func:`mission.flight.seek_moving.thin_evenly`): its filter's tempering assumes about one reading per
+#: vehicle per update (more made it overconfident), and its CPU (docs/seekers.md, "ste in missions")
+STE_READINGS_PER_VEHICLE = 1
 
 
 def make_seeker(kind: str, wind_from_deg: float | None = None, plume_mode: str = "steady", **ste):

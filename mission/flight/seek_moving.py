@@ -198,12 +198,12 @@ def lagged_positions(history: list, readings: list, lag_s: float) -> list[np.nda
 
 def thin_evenly(readings: list, positions, per_vehicle: int) -> tuple[list, np.ndarray]:
     """At most ``per_vehicle`` of each vehicle's ``readings`` (with their ``positions`` (M, 3)), evenly
-    spread over its readings in time order (the first and the last kept); every reading when it has
-    that many or fewer.
+    spread over its readings in time order (the first kept, and the last when ``per_vehicle`` > 1);
+    every reading when it has that many or fewer.
 
-    The ``ste`` seeker's CPU grows with the readings of an update; its likelihood gives readings
-    closer than ``corr_length_m`` (1 m) one reading's weight between them, so keeping evenly spread
-    ones of a vehicle that flew less than ``per_vehicle`` metres loses little (docs/seekers.md).
+    For the ``ste`` seeker (:data:`mission.flight.seek.STE_READINGS_PER_VEHICLE`): its CPU grows with
+    the readings of an update, and its tempering is calibrated for one reading per vehicle per
+    update; with more, its posterior is overconfident (docs/seekers.md, "ste in missions").
     """
     pos = np.asarray(positions, dtype=float).reshape(-1, 3)
     by_vehicle: dict[int, list[int]] = {}
