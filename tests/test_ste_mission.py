@@ -286,10 +286,10 @@ def test_the_adapter_reports_the_posterior():
 # ----------------------------------------------------------------------------- a whole mission
 @pytest.mark.slow
 def test_run_ste_on_the_intermittent_plume_converges_near_the_source(tmp_path, capsys):
-    """``swarmseek run --seeker ste --field intermittent`` (seed 1, lock-step): converged on its
-    posterior's 95 % region, the estimate (the posterior mean) within twice that region of the
-    release, every reading of the log once in the seeker's input (moving sampling), no collapse
-    warnings left unexplained and the separation kept."""
+    """``swarmseek run --seeker ste --field intermittent`` (seed 1, lock-step; a typical seed of the
+    ten in docs/seekers.md): converged on its posterior's 95 % region (at most the default 1 m), the
+    estimate (the posterior mean, also the iteration records') within 1.5 times that region of the
+    release, and the separation never needed the envelope."""
     log_dir = tmp_path / "ste"
     code = cli_main(["run", "--seeker", "ste", "--field", "intermittent", "--seed", "1", "--json", "--no-tlog",
                      "--log-dir", str(log_dir)])
@@ -297,7 +297,7 @@ def test_run_ste_on_the_intermittent_plume_converges_near_the_source(tmp_path, c
     assert code == 0 and out["outcome"] == "converged", out["message"]
     region = float(re.search(r"95 % region ([0-9.]+) m", out["message"]).group(1))
     assert 0 < region <= 1.0
-    assert out["error_m"] <= 2.0 * region, (out["error_m"], region)
+    assert out["error_m"] <= 1.5 * region, (out["error_m"], region)
     records = read_mission_log(log_dir / "mission.jsonl")
     plan = next(r for r in records if r["type"] == "plan")
     assert '"ste"' in json.dumps(plan) and out["separation_interventions"] == 0
