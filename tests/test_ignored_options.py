@@ -49,7 +49,7 @@ def test_run_refuses_an_option_that_cannot_apply(argv, why, capsys):
 
 @pytest.mark.parametrize("argv", [
     ["--seeker", "plume", "--plume-mode", "intermittent", "--seek-wind-from", "270"],
-    ["--field", "intermittent", "--plume-mode", "steady"],          # the plume seeker is that field's default
+    ["--field", "intermittent", "--plume-mode", "steady"],          # the ste seeker is that field's default
     ["--replan-fraction", "0.3", "--sensor-lag", "0.2"],            # model: moving by default
     ["--seeker", "newton", "--sampling", "moving", "--replan-fraction", "1"],
 ])

@@ -66,8 +66,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeker", choices=SEEKERS, default=None,
                         help="how the centre moves: a log-quadratic model fit in a trust region (default), "
                              "a Newton trust-region step, the paper's gradient ascent, the plume seeker "
-                             "(surge up the plume, cast when lost; the default with --field plume/intermittent) "
-                             "or ste (source-term estimation: a posterior over the release; docs/seekers.md)")
+                             "(surge up the plume, cast when lost; the default with --field plume) "
+                             "or ste (source-term estimation: a posterior over the release; the default with "
+                             "--field intermittent; docs/seekers.md)")
     parser.add_argument("--plume-mode", choices=("steady", "intermittent"), default=None,
                         help="the plume and ste seekers' variant: steady (plume: surge, cast, passes, hold; ste: "
                              "the mean field's likelihood) or intermittent (plume: follow the upwind edge of the "
@@ -107,11 +108,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="the ground station also listens here, for `swarmseek watch` / `ctl` (repeatable)")
 
 
+#: ``--seeker`` when not given, by ``--field``: the best measured in whole missions there
+#: (docs/seekers.md, "ste in missions"; README, "Seeking faster"); ``model`` for the others
+_DEFAULT_SEEKER = {"plume": "plume", "intermittent": "ste"}
+
+
 def _resolve_seeker(args) -> str:
-    """``--seeker``, or when not given the best measured for the field (README, "Seeking faster"):
-    ``plume`` for ``--field plume``/``intermittent``, else ``model``."""
+    """``--seeker``, or when not given the best measured for the field (:data:`_DEFAULT_SEEKER`)."""
     if args.seeker is None:
-        args.seeker = "plume" if getattr(args, "field", None) in ("plume", "intermittent") else "model"
+        args.seeker = _DEFAULT_SEEKER.get(getattr(args, "field", None), "model")
     return args.seeker
 
 
@@ -161,7 +166,8 @@ def _inapplicable_option(args) -> str | None:
         for flag, dest in (("--plume-mode", "plume_mode"), ("--seek-wind-from", "seek_wind_from")):
             if getattr(args, dest, None) is not None:
                 return (f"{flag} applies to the plume and ste seekers only (--seeker plume, the default with "
-                        f"--field plume/intermittent, or --seeker ste); this mission's seeker is {seeker}")
+                        f"--field plume, or --seeker ste, the default with --field intermittent); this mission's "
+                        f"seeker is {seeker}")
     if sampling != "moving":
         for flag, dest in (("--replan-fraction", "replan_fraction"), ("--sensor-lag", "sensor_lag")):
             if getattr(args, dest, None) is not None:
