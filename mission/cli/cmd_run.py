@@ -66,9 +66,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeker", choices=SEEKERS, default=None,
                         help="how the centre moves: a log-quadratic model fit in a trust region (default), "
                              "a Newton trust-region step, the paper's gradient ascent, the plume seeker "
-                             "(surge up the plume, cast when lost; the default with --field plume) "
-                             "or ste (source-term estimation: a posterior over the release; the default with "
-                             "--field intermittent; docs/seekers.md)")
+                             "(surge up the plume, cast when lost) or ste (source-term estimation: a posterior "
+                             "over the release; the default with --field plume/intermittent; docs/seekers.md)")
     parser.add_argument("--plume-mode", choices=("steady", "intermittent"), default=None,
                         help="the plume and ste seekers' variant: steady (plume: surge, cast, passes, hold; ste: "
                              "the mean field's likelihood) or intermittent (plume: follow the upwind edge of the "
@@ -110,7 +109,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 #: ``--seeker`` when not given, by ``--field``: the best measured in whole missions there
 #: (docs/seekers.md, "ste in missions"; README, "Seeking faster"); ``model`` for the others
-_DEFAULT_SEEKER = {"plume": "plume", "intermittent": "ste"}
+_DEFAULT_SEEKER = {"plume": "ste", "intermittent": "ste"}
 
 
 def _resolve_seeker(args) -> str:
@@ -165,9 +164,8 @@ def _inapplicable_option(args) -> str | None:
     if seeker not in ("plume", "ste"):
         for flag, dest in (("--plume-mode", "plume_mode"), ("--seek-wind-from", "seek_wind_from")):
             if getattr(args, dest, None) is not None:
-                return (f"{flag} applies to the plume and ste seekers only (--seeker plume, the default with "
-                        f"--field plume, or --seeker ste, the default with --field intermittent); this mission's "
-                        f"seeker is {seeker}")
+                return (f"{flag} applies to the plume and ste seekers only (--seeker plume, or --seeker ste, "
+                        f"the default with --field plume/intermittent); this mission's seeker is {seeker}")
     if sampling != "moving":
         for flag, dest in (("--replan-fraction", "replan_fraction"), ("--sensor-lag", "sensor_lag")):
             if getattr(args, dest, None) is not None:
