@@ -233,6 +233,9 @@ def test_scaled_slots_honour_the_radius_within_the_separation_and_the_plan():
     wide = scaled_slots(tight, 6.0, 1.5, 4.0)
     assert math.isclose(mean_r(wide), 4.0)  # never wider than the plan's radius
     assert scaled_slots(slots, 4.02, 1.5, 4.0) is None  # under 5 %: left as it is
+    uneven = {1: np.array([2.0, 0, 0]), 2: np.array([-1.0, 0, 0]), 3: np.array([0, 1.0, 0]), 4: np.array([0, -1.0, 0])}
+    wide = scaled_slots(uneven, 6.0, 0.5, 4.0)  # the farthest slot, not the mean, bounded by the plan's radius
+    assert max(np.linalg.norm(o) for o in wide.values()) == pytest.approx(4.0)
 
 
 # ----------------------------------------------------------------------------- errors and collapse

@@ -497,18 +497,21 @@ class _Seek:
 
 def scaled_slots(offsets: dict, radius_m: float, min_separation_m: float, max_radius_m: float) -> dict | None:
     """``offsets`` (sysid -> slot offset about the centre, ENU m) scaled about the centre so that
-    their mean distance from it is ``radius_m``, clipped to ``max_radius_m`` (the plan's radius:
-    the fence and altitude checks assumed it) and to the smallest radius whose closest pair of slots
-    is ``1.2 min_separation_m`` apart; None when the scale would change by less than 5 %."""
+    their mean distance from it is ``radius_m``, clipped so that no slot is farther than
+    ``max_radius_m`` from it (the plan's radius: the fence and altitude checks assumed it) and to
+    the smallest scale whose closest pair of slots is ``1.2 min_separation_m`` apart; None when the
+    scale would change by less than 5 %."""
     keys = sorted(offsets)
     off = np.array([offsets[s] for s in keys], dtype=float)
-    mean_r = float(np.linalg.norm(off, axis=1).mean())
+    norms = np.linalg.norm(off, axis=1)
+    mean_r = float(norms.mean())
     d = np.linalg.norm(off[:, None, :] - off[None, :, :], axis=-1)
     closest = float(d[np.triu_indices(len(keys), 1)].min())
     if mean_r <= 0 or closest <= 0:
         return None
     lo = 1.2 * min_separation_m * mean_r / closest
-    target = min(max(float(radius_m), lo), max(max_radius_m, lo))
+    hi = max_radius_m * mean_r / float(norms.max())
+    target = min(max(float(radius_m), lo), max(hi, lo))
     scale = target / mean_r
     if abs(scale - 1.0) < 0.05:
         return None
