@@ -21,6 +21,12 @@ Usage::
     python benchmarks/bench_seek_mission.py                    # seeds 11-13, all seekers
     python benchmarks/bench_seek_mission.py --seeds 0,11 --seekers model --json out.json
     python benchmarks/bench_seek_mission.py --seeds 0,11,12,13 --seekers model --sampling stop_and_go,moving
+    python benchmarks/bench_seek_mission.py --seeds 0-9 --seekers plume,ste --sampling default \
+        --run-args "--field intermittent"      # ste against the plume fields' default seeker
+
+``region95_m`` is the ``ste`` seeker's last 95 % region (its posterior; ``-`` for the others);
+``seeker CPU per update`` the thread CPU time of each seeker update (the mission adapter's
+``step``; on the lock-step loop the executor runs it inline), median and 90th percentile.
 """
 from __future__ import annotations
 
@@ -28,6 +34,7 @@ import argparse
 import json
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -86,17 +93,48 @@ def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", ex
     from mission.cli.cmd_run import configure, run_embedded
     from mission.telemetry.display import Display
 
+    from mission.flight import seek
+
     ap = argparse.ArgumentParser()
     configure(ap)
-    args = ap.parse_args(["--seeker", seeker, "--seed", str(seed), "--sampling", sampling, "--json", "--no-tlog",
+    chosen = [] if sampling == "default" else ["--sampling", sampling]
+    args = ap.parse_args(["--seeker", seeker, "--seed", str(seed), *chosen, "--json", "--no-tlog",
                           "--log-dir", str(log_dir), *extra])
-    result = run_embedded(args, display=Display(quiet=True))
+    seen: list = []  # the mission's seeker adapter, for its last 95 % region (ste; None for the others)
+    cpu_s: list = []  # thread CPU time of each seeker update (lock-step: its executor runs inline)
+    step = seek._MissionSeeker.step
+
+    def _step(self, *a, **kw):
+        seen[:] = [self]
+        t0 = time.thread_time()
+        try:
+            return step(self, *a, **kw)
+        finally:
+            cpu_s.append(time.thread_time() - t0)
+
+    seek._MissionSeeker.step = _step
+    try:
+        result = run_embedded(args, display=Display(quiet=True))
+    finally:
+        seek._MissionSeeker.step = step
     row = mission_measures(Path(result.log_path))
-    if sampling == "moving":
+    if sampling != "stop_and_go":
         row["model_t_1m_s"] = None  # the time model is stop and go's
-    row.update(seeker=seeker, seed=seed, sampling=sampling, outcome=result.outcome, error_m=result.error_m,
-               mission_seek_time_s=result.seek_time_s)
+    row.update(seeker=seeker, seed=seed, sampling=args.sampling if sampling != "default" else
+               seek_sampling(result.log_path), outcome=result.outcome, error_m=result.error_m,
+               mission_seek_time_s=result.seek_time_s,
+               region95_m=seen[0].region95_m if seen else None,
+               seeker_cpu_ms_median=1e3 * float(np.median(cpu_s)) if cpu_s else None,
+               seeker_cpu_ms_p90=1e3 * float(np.percentile(cpu_s, 90)) if cpu_s else None)
     return row
+
+
+def seek_sampling(log_path) -> str:
+    """The sampling the mission used (its plan, as logged)."""
+    for r in _records(Path(log_path)):
+        if r["type"] == "event" and "sampling" in r and r.get("seeker") is not None:
+            return r["sampling"]
+    return "?"
 
 
 def _fmt(row: dict) -> str:
@@ -105,8 +143,19 @@ def _fmt(row: dict) -> str:
 
     return (f"| {row['seeker']} | {row['sampling']} | {row['seed']} | {row['outcome']} | {f(row['t_1m_s'])} | {f(row['straight_s'])} "
             f"| {f(row['ratio'], '.2f')} | {f(row['model_t_1m_s'])} | {f(row['iterations_1m'], 'd')} | {f(row['mission_seek_time_s'])} "
-            f"| {row['iterations']} | {f(row['error_m'], '.2f')} | {row['readings']} | {f(row['centre_flown_m'])} "
-            f"| {f(row['vehicle_flown_m_mean'])} / {f(row['vehicle_flown_m_max'])} | {f(row['end_centroid_m'], '.2f')} |")
+            f"| {row['iterations']} | {f(row['error_m'], '.2f')} | {f(row['region95_m'], '.2f')} | {row['readings']} "
+            f"| {f(row['centre_flown_m'])} "
+            f"| {f(row['vehicle_flown_m_mean'])} / {f(row['vehicle_flown_m_max'])} | {f(row['end_centroid_m'], '.2f')} "
+            f"| {f(row.get('seeker_cpu_ms_median'))} / {f(row.get('seeker_cpu_ms_p90'))} |")
+
+
+def _seeds(text: str) -> list[int]:
+    """``"11,12,13"`` or ``"0-9"`` (inclusive) or a mix."""
+    out = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out.extend(range(int(lo), int(hi) + 1) if hi else [int(lo)])
+    return out
 
 
 def main(argv=None) -> int:
@@ -115,21 +164,22 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="11,12,13")
     ap.add_argument("--seekers", default="gradient,newton,model")
     ap.add_argument("--sampling", default="stop_and_go",
-                    help="comma-separated: stop_and_go, moving (the gradient seeker is flown stop and go only)")
+                    help="comma-separated: stop_and_go, moving, default (each seeker's `run` default: moving for "
+                         "newton/model/ste; the gradient seeker is flown stop and go only)")
     ap.add_argument("--run-args", default="", help="extra `swarmseek run` options, e.g. '--sensor-tau 0.5'")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     print("| seeker | sampling | seed | outcome | time to stay within 1 m, s | straight line, s | ratio | time model, s "
-          "| iterations to 1 m | seek time, s | iterations | error, m | readings | centre flown, m "
-          "| vehicle flown, m (mean / max) | last centroid to source, m |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| iterations to 1 m | seek time, s | iterations | error, m | region95, m | readings | centre flown, m "
+          "| vehicle flown, m (mean / max) | last centroid to source, m | seeker CPU per update, ms (median / p90) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seeker in args.seekers.split(","):
             for sampling in args.sampling.split(","):
                 if sampling == "moving" and seeker == "gradient":
                     continue
-                for seed in (int(s) for s in args.seeds.split(",")):
+                for seed in _seeds(args.seeds):
                     row = fly(seeker, seed, Path(tmp) / f"{seeker}-{sampling}-{seed}", sampling, args.run_args.split())
                     rows.append(row)
                     print(_fmt(row), flush=True)

@@ -55,13 +55,15 @@ __all__ = ["SEEKERS", "OFFLINE_SEEKERS", "MOVING_SEEKERS", "Seeker", "GradientSe
            "cap_move"]
 
 #: Seeker names accepted by :func:`make_seeker` (and by the plan's ``[seeking] seeker``).
-SEEKERS = ("gradient", "newton", "model", "plume")
-#: Seekers :func:`make_seeker` also builds that plans and the CLI do not offer yet (offline only).
-OFFLINE_SEEKERS = ("ste",)
+SEEKERS = ("gradient", "newton", "model", "plume", "ste")
+#: Seekers :func:`make_seeker` also builds that plans and the CLI do not offer yet (none left: ``ste``
+#: joined :data:`SEEKERS`).
+OFFLINE_SEEKERS: tuple[str, ...] = ()
 #: Seekers that can use readings taken anywhere, so can sample while moving (``[seeking] sampling
 #: = "moving"``); the paper's gradient needs the formation's shape at rest (Theorem 2) and the
-#: plume seeker compares readings taken at rest.
-MOVING_SEEKERS = ("newton", "model")
+#: plume seeker compares readings taken at rest. ``ste`` folds each reading in at the position where
+#: it was taken.
+MOVING_SEEKERS = ("newton", "model", "ste")
 
 
 class Seeker(Protocol):

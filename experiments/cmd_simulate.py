@@ -79,11 +79,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="largest centre move per iteration, m (default 0.1)")
     parser.add_argument("--seeker", choices=_seekers(), default="gradient",
                         help="how the centre moves (docs/seekers.md): the paper's gradient ascent "
-                             "(default), Newton trust-region, the log-quadratic model, or the plume "
-                             "seeker (surge/cast); all but gradient take --gamma as their largest step (give e.g. 20)")
+                             "(default), Newton trust-region, the log-quadratic model, the plume "
+                             "seeker (surge/cast) or ste (source-term estimation: a particle filter over the "
+                             "release, for plumes); all but gradient take --gamma as their largest step (give e.g. 20)")
     parser.add_argument("--seek-wind-from", type=float_in_range(0.0, 360.0), default=None,
                         metavar="DEG",
-                        help="wind direction the plume seeker is given (where it comes from, degrees from "
+                        help="wind direction the plume or ste seeker is given (where it comes from, degrees from "
                              "north); default: it estimates the plume's axis")
     parser.add_argument("--min-signal-fraction", type=float_in_range(0.0, 1.0), default=None,
                         help="convergence criterion 3 for the seekers but gradient: a signal in at least this "
@@ -131,7 +132,7 @@ def run(args: argparse.Namespace) -> dict:
     seeker = getattr(args, "seeker", "gradient")
     sampling = getattr(args, "sampling", "stop_and_go")
     if sampling == "moving" and seeker not in MOVING_SEEKERS:
-        raise ValueError(f"--sampling moving needs --seeker model or newton, got {seeker} (the paper's gradient "
+        raise ValueError(f"--sampling moving needs --seeker model, newton or ste, got {seeker} (the paper's gradient "
                          "seeker and the plume seeker sample stop and go)")
     if sampling == "moving":
         res = _simulate_moving(args, offsets, field, start)
@@ -150,6 +151,12 @@ def run(args: argparse.Namespace) -> dict:
     out.update(convergence_report(res, window=args.window, tol_m=args.tol,
                                   stop_at_convergence=args.stop_at_convergence,
                                   min_signal_fraction=getattr(args, "min_signal_fraction", 0.0)))
+    post = getattr(res, "posterior", None)
+    if post is not None:  # ste: its own estimate (the posterior mean), 95 % region and arrival
+        est = np.asarray(post.estimate_enu[0], dtype=float)
+        out.update(posterior_estimate_enu=est.tolist(), region95_m=float(post.region95_m[0]),
+                   posterior_error_m=float(np.linalg.norm(est - np.asarray(res.source_enu, dtype=float))),
+                   posterior_arrival=bool(post.arrival[0]), posterior_misfit=bool(post.misfit[0]))
     if sampling == "moving":  # mission time of the kinematic model, which the stop-and-go runs do not have
         t_1m = float(res.moving.time_within_s(1.0)[0])
         out["time_within_1m_s"] = t_1m if np.isfinite(t_1m) else None
@@ -199,8 +206,9 @@ def _inapplicable_option(args: argparse.Namespace) -> str | None:
     """Why an option given cannot apply to this run's seeker (refused, never ignored), or None:
     ``--seek-wind-from`` is the plume seeker's, ``--method`` the gradient seeker's estimator."""
     seeker = getattr(args, "seeker", "gradient")
-    if getattr(args, "seek_wind_from", None) is not None and seeker != "plume":
-        return f"--seek-wind-from applies to the plume seeker only (--seeker plume); this run's seeker is {seeker}"
+    if getattr(args, "seek_wind_from", None) is not None and seeker not in ("plume", "ste"):
+        return (f"--seek-wind-from applies to the plume and ste seekers only (--seeker plume or ste); this run's "
+                f"seeker is {seeker}")
     if getattr(args, "method", None) is not None and seeker != "gradient":
         return (f"--method (the gradient estimator) applies to the gradient seeker only; the {seeker} seeker "
                 "fits its own model to the readings")
@@ -241,11 +249,16 @@ def _simulate_seeker(args, offsets, field, start) -> _SeekerRun:
     from estimator.seekers import make_seeker
     from experiments.offline_seek import simulate_seeker
 
-    kw = {"wind_from_deg": getattr(args, "seek_wind_from", None)} if args.seeker == "plume" else {}
-    run = simulate_seeker(offsets, field, np.asarray(start, dtype=float)[None], make_seeker(args.seeker, **kw),
+    kw = {"wind_from_deg": getattr(args, "seek_wind_from", None)} if args.seeker in ("plume", "ste") else {}
+    if args.seeker == "ste" and args.noise > 0:
+        kw["noise_std"] = args.noise  # the sensor's (the seeker's default, 0.01, for a noise-free run)
+    seeker = make_seeker(args.seeker, **kw)
+    run = simulate_seeker(offsets, field, np.asarray(start, dtype=float)[None], seeker,
                           gamma_m=args.gamma, iterations=args.iterations, noise_std=args.noise,
                           rotate=False, seed=args.seed)
-    return _SeekerRun(run.centres, field.source_enu(), run.signal)
+    out = _SeekerRun(run.centres, field.source_enu(), run.signal)
+    out.posterior = seeker if getattr(seeker, "region95_m", None) is not None else None
+    return out
 
 
 def _simulate_moving(args, offsets, field, start) -> _SeekerRun:
@@ -303,4 +316,8 @@ def report_lines(out: dict) -> list[str]:
         verdict = "passes" if out["converged_at_end"] else "does not pass"
         lines.append(f"  the test over the last {out['window']} iterations {verdict}; their mean is "
                      f"{out['final_window_error_m']:.3f} m from the true source")
+    if out.get("region95_m") is not None:
+        lines.append(f"the ste posterior at the end: estimate {r3(out['posterior_estimate_enu'])}, 95 % region "
+                     f"{out['region95_m']:.3f} m, {out['posterior_error_m']:.3f} m from the true source (arrival "
+                     f"{'yes' if out['posterior_arrival'] else 'no'}, misfit {'yes' if out['posterior_misfit'] else 'no'})")
     return lines

@@ -140,7 +140,9 @@ def _values(action: argparse.Action):
 
 @st.composite
 def _seeking_changes(draw):
-    keys = {"seeker": ["gradient", "newton", "model", "plume", "nope"], "sampling": ["moving", "stop_and_go", ""],
+    keys = {"seeker": ["gradient", "newton", "model", "plume", "ste", "nope"], "sampling": ["moving", "stop_and_go", ""],
+            "region_m": [1.0, 0.0, float("nan")], "stability": ["C", "Z", 1], "wind_std_deg": [10.0, -1.0],
+            "sensor_noise_std": [0.01, 0.0, float("inf")],
             "plume_mode": ["steady", "intermittent", 3], "replan_fraction": [0.3, 0.0, 2.0, float("nan")],
             "wind_from_deg": [270.0, -1.0, float("inf")], "sensor_lag_s": [0.5, -1.0],
             "gamma_m": [20.0, 0.0, 1e308], "max_iterations": [10, 0, -3, 2**70]}

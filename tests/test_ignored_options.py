@@ -30,9 +30,9 @@ def _run_args(*argv):
 
 
 @pytest.mark.parametrize("argv, why", [
-    (["--plume-mode", "intermittent"], "--plume-mode applies to the plume seeker only.*seeker is model"),
-    (["--field", "plume", "--seeker", "model", "--plume-mode", "steady"], "--plume-mode applies to the plume seeker"),
-    (["--seeker", "newton", "--seek-wind-from", "270"], "--seek-wind-from applies to the plume seeker only.*newton"),
+    (["--plume-mode", "intermittent"], "--plume-mode applies to the plume and ste seekers only.*seeker is model"),
+    (["--field", "plume", "--seeker", "model", "--plume-mode", "steady"], "--plume-mode applies to the plume and ste seekers"),
+    (["--seeker", "newton", "--seek-wind-from", "270"], "--seek-wind-from applies to the plume and ste seekers only.*newton"),
     (["--seeker", "gradient", "--replan-fraction", "0.3"],
      "--replan-fraction applies to sampling while moving only.*samples stop_and_go \\(gradient seeker\\)"),
     (["--seeker", "plume", "--replan-fraction", "0.5"], "--replan-fraction applies to sampling while moving"),
@@ -49,7 +49,7 @@ def test_run_refuses_an_option_that_cannot_apply(argv, why, capsys):
 
 @pytest.mark.parametrize("argv", [
     ["--seeker", "plume", "--plume-mode", "intermittent", "--seek-wind-from", "270"],
-    ["--field", "intermittent", "--plume-mode", "steady"],          # the plume seeker is that field's default
+    ["--field", "intermittent", "--plume-mode", "steady"],          # the ste seeker is that field's default
     ["--replan-fraction", "0.3", "--sensor-lag", "0.2"],            # model: moving by default
     ["--seeker", "newton", "--sampling", "moving", "--replan-fraction", "1"],
 ])
@@ -113,7 +113,7 @@ _SHORT = ["--iterations", "40", "--window", "10", "--n", "6"]
 
 
 @pytest.mark.parametrize("argv, why", [
-    (["--seeker", "model", "--seek-wind-from", "270"], "--seek-wind-from applies to the plume seeker only"),
+    (["--seeker", "model", "--seek-wind-from", "270"], "--seek-wind-from applies to the plume and ste seekers only"),
     (["--seeker", "newton", "--method", "symmetric"], "--method .* applies to the gradient seeker only"),
 ])
 def test_simulate_refuses_an_option_that_cannot_apply(argv, why, capsys):

@@ -127,8 +127,8 @@ def test_plan_selects_moving_sampling(doc):
 
 @pytest.mark.parametrize("changes, key, why", [
     ({"sampling": "sometimes"}, "seeking.sampling", "must be one of stop_and_go, moving, got 'sometimes'"),
-    ({"seeker": "gradient", "sampling": "moving"}, "seeking.sampling", 'needs seeker = "model" or "newton"'),
-    ({"seeker": "plume", "sampling": "moving"}, "seeking.sampling", 'needs seeker = "model" or "newton"'),
+    ({"seeker": "gradient", "sampling": "moving"}, "seeking.sampling", 'needs seeker = "model", "newton" or "ste"'),
+    ({"seeker": "plume", "sampling": "moving"}, "seeking.sampling", 'needs seeker = "model", "newton" or "ste"'),
     ({"seeker": "model", "replan_fraction": 0.0}, "seeking.replan_fraction", "must be > 0"),
     ({"seeker": "model", "replan_fraction": 1.5}, "seeking.replan_fraction", "must be <= 1"),
     ({"seeker": "model", "sensor_lag_s": -1.0}, "seeking.sensor_lag_s", "must be >= 0"),
@@ -163,11 +163,11 @@ def test_run_cli_selects_sampling():
 
 
 def test_run_cli_rejects_moving_gradient_and_bad_fraction(capsys):
-    assert "needs --seeker model or newton" in _check_args(_args("--sampling", "moving", "--seeker", "gradient"))
+    assert "needs --seeker model, newton or ste" in _check_args(_args("--sampling", "moving", "--seeker", "gradient"))
     assert "got plume" in _check_args(_args("--sampling", "moving", "--seeker", "plume"))
     assert "--replan-fraction must be in (0, 1]" in _check_args(_args("--replan-fraction", "1.5"))
     assert cli_main(["run", "--sampling", "moving", "--seeker", "gradient"]) == 2
-    assert "needs --seeker model or newton" in capsys.readouterr().err
+    assert "needs --seeker model, newton or ste" in capsys.readouterr().err
     with pytest.raises(SystemExit) as info:
         cli_main(["run", "--sampling", "sometimes"])
     assert info.value.code == 2
@@ -273,7 +273,7 @@ def test_offline_moving_gets_there_and_shows_the_lag_bias():
 
 def test_simulate_cli_selects_moving_sampling(capsys):
     assert cli_main(["simulate", "--sampling", "moving", "--iterations", "5"]) == 2
-    assert "--sampling moving needs --seeker model or newton" in capsys.readouterr().err
+    assert "--sampling moving needs --seeker model, newton or ste" in capsys.readouterr().err
     assert cli_main(["simulate", "--seeker", "model", "--gamma", "20", "--sampling", "moving", "--noise", "0.01",
                      "--iterations", "40", "--window", "12", "--tol", "0.3", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)

@@ -194,8 +194,8 @@ def test_plume_seeker_mission_on_a_plume(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, seeker", [
-    ([], "model"), (["--field", "sigma1"], "model"), (["--field", "plume"], "plume"),
-    (["--field", "intermittent"], "plume"), (["--field", "plume", "--seeker", "model"], "model"),
+    ([], "model"), (["--field", "sigma1"], "model"), (["--field", "plume"], "ste"),
+    (["--field", "intermittent"], "ste"), (["--field", "plume", "--seeker", "model"], "model"),
 ])
 def test_run_default_seeker_follows_the_field(argv, seeker):
     import argparse

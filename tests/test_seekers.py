@@ -127,7 +127,7 @@ def test_seekers_reject_bad_input():
         make_seeker("simplex")
     with pytest.raises(ValueError, match="radius"):
         ModelSeeker(radius_m=0.0)
-    assert SEEKERS == ("gradient", "newton", "model", "plume")
+    assert SEEKERS == ("gradient", "newton", "model", "plume", "ste")
 
 
 def test_cap_move_keeps_direction_and_length():

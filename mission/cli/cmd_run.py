@@ -17,10 +17,11 @@ import sys
 import time
 from pathlib import Path
 
-from estimator.seekers import MOVING_SEEKERS
+from estimator.seekers import MOVING_SEEKERS, SEEKERS
 from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+from mission.core.plan_types import SeekingPlan
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
 from mission.flight.operator_stop import run_until_stopped
@@ -64,21 +65,22 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="step gain (default 1/(2 A lambda_max(S)) of the field; paper: 1)")
     parser.add_argument("--gamma", type=positive_float, default=None,
                         help="largest step, m (default 1 for the gradient seeker, 20 for the others; paper 0.1)")
-    parser.add_argument("--seeker", choices=("gradient", "newton", "model", "plume"), default=None,
+    parser.add_argument("--seeker", choices=SEEKERS, default=None,
                         help="how the centre moves: a log-quadratic model fit in a trust region (default), "
-                             "a Newton trust-region step, the paper's gradient ascent, or the plume seeker "
-                             "(surge up the plume, cast when lost; the default with --field plume/intermittent) "
-                             "(docs/seekers.md)")
+                             "a Newton trust-region step, the paper's gradient ascent, the plume seeker "
+                             "(surge up the plume, cast when lost) or ste (source-term estimation: a posterior "
+                             "over the release; the default with --field plume/intermittent; docs/seekers.md)")
     parser.add_argument("--plume-mode", choices=("steady", "intermittent"), default=None,
-                        help="the plume seeker's variant: steady (surge, cast, passes, hold) or intermittent "
-                             "(follow the upwind edge of the detections; default with --field intermittent)")
+                        help="the plume and ste seekers' variant: steady (plume: surge, cast, passes, hold; ste: "
+                             "the mean field's likelihood) or intermittent (plume: follow the upwind edge of the "
+                             "detections; ste: hits and misses; default with --field intermittent)")
     parser.add_argument("--seek-wind-from", type=float_in_range(0.0, 360.0), default=None, metavar="DEG",
-                        help="the wind direction the ground station gives the plume seeker (where it comes "
-                             "from, degrees clockwise from north, e.g. the --wind-from of the simulated plume: "
-                             "an anemometer); default: the seeker estimates the plume's axis")
+                        help="the wind direction the ground station gives the plume or ste seeker (where it "
+                             "comes from, degrees clockwise from north, e.g. the --wind-from of the simulated "
+                             "plume: an anemometer); default: the seeker estimates the plume's axis")
     parser.add_argument("--sampling", choices=("stop_and_go", "moving"), default=None,
                         help="stop_and_go: fly to each new centre, settle, read, estimate; moving: estimate "
-                             "while flying from every reading since the last estimate (newton/model only; "
+                             "while flying from every reading since the last estimate (newton/model/ste only; "
                              "default: moving for those, stop_and_go for gradient and plume; docs/seekers.md)")
     parser.add_argument("--replan-fraction", type=positive_float, default=None, metavar="F",
                         help="with --sampling moving: re-plan once this fraction of a move is flown (0-1, "
@@ -107,11 +109,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="the ground station also listens here, for `swarmseek watch` / `ctl` (repeatable)")
 
 
+#: ``--seeker`` when not given, by ``--field``: the best measured in whole missions there
+#: (docs/seekers.md, "ste in missions"; README, "Seeking faster"); ``model`` for the others
+_DEFAULT_SEEKER = {"plume": "ste", "intermittent": "ste"}
+
+
 def _resolve_seeker(args) -> str:
-    """``--seeker``, or when not given the best measured for the field (README, "Seeking faster"):
-    ``plume`` for ``--field plume``/``intermittent``, else ``model``."""
+    """``--seeker``, or when not given the best measured for the field (:data:`_DEFAULT_SEEKER`)."""
     if args.seeker is None:
-        args.seeker = "plume" if getattr(args, "field", None) in ("plume", "intermittent") else "model"
+        args.seeker = _DEFAULT_SEEKER.get(getattr(args, "field", None), "model")
     return args.seeker
 
 
@@ -127,7 +133,7 @@ def _check_args(args) -> str | None:
     if args.formation == "symmetric" and args.n % 2:
         return f"--formation symmetric needs an even --n, got {args.n}"
     if getattr(args, "sampling", None) == "moving" and args.seeker not in MOVING_SEEKERS:
-        return (f"--sampling moving needs --seeker model or newton, got {args.seeker}: the paper's gradient seeker "
+        return (f"--sampling moving needs --seeker model, newton or ste, got {args.seeker}: the paper's gradient seeker "
                 "estimates from the formation's shape at rest (Theorem 2) and the plume seeker compares readings "
                 "taken at rest; both sample stop and go")
     if getattr(args, "replan_fraction", None) is not None and not 0 < args.replan_fraction <= 1:
@@ -158,16 +164,16 @@ def _inapplicable_option(args) -> str | None:
     "Options that do not apply"), or None. An option of another seeker or sampling mode asks
     for a behaviour the mission would not have: refused, never ignored."""
     seeker, sampling = _resolve_seeker(args), _sampling(args)
-    if seeker != "plume":
+    if seeker not in ("plume", "ste"):
         for flag, dest in (("--plume-mode", "plume_mode"), ("--seek-wind-from", "seek_wind_from")):
             if getattr(args, dest, None) is not None:
-                return (f"{flag} applies to the plume seeker only (--seeker plume, the default with --field "
-                        f"plume/intermittent); this mission's seeker is {seeker}")
+                return (f"{flag} applies to the plume and ste seekers only (--seeker plume, or --seeker ste, "
+                        f"the default with --field plume/intermittent); this mission's seeker is {seeker}")
     if sampling != "moving":
         for flag, dest in (("--replan-fraction", "replan_fraction"), ("--sensor-lag", "sensor_lag")):
             if getattr(args, dest, None) is not None:
                 return (f"{flag} applies to sampling while moving only (--sampling moving, the default of "
-                        f"the model and newton seekers); this mission samples {sampling} ({seeker} seeker)")
+                        f"the model, newton and ste seekers); this mission samples {sampling} ({seeker} seeker)")
     return None
 
 
@@ -262,7 +268,18 @@ def _seeking_options(args) -> dict:
     if lag_s is None:  # the operator knows the sensor: the simulated one's time constant
         lag_s = (getattr(args, "sensor_response", None) or {}).get("time_constant_s", 0.0)
     out["sensor_lag_s"] = float(lag_s)
+    if args.seeker == "ste":
+        out.update(_ste_sensor(args))
     return out
+
+
+def _ste_sensor(args) -> dict:
+    """The ``ste`` seeker's sensor keys: what the operator knows of the simulated sensor (its
+    datasheet: ``--noise``, ``--detection-floor``); the wind, the stability class and the
+    release are not given (the seeker's priors)."""
+    floor = (getattr(args, "sensor_response", None) or {}).get("detection_floor", 0.0)
+    noise = float(args.noise) if args.noise > 0 else SeekingPlan.sensor_noise_std  # no sensor is noise-free
+    return {"sensor_noise_std": noise, "sensor_detection_floor": float(floor or 0.0)}
 
 
 def _make_fleet(args, plan, ports, field, clock):

@@ -38,6 +38,7 @@ _ESTIMATORS = ("cvt", "symmetric", "robust")
 #: values of the top-level ``return`` key
 RETURN_BEHAVIOURS = ("land", "rtl")
 _FAULTY_SENSOR = ("retire", "keep", "off")
+_STABILITY = ("A", "B", "C", "D", "E", "F")  # Pasquill-Gifford classes (estimator.ste_model.BRIGGS_RURAL)
 
 
 def parse_faults(c: Checker, doc: dict) -> FaultsPlan:
@@ -143,24 +144,49 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
         max_position_error_m=c.number(t, "max_position_error_m", p, d.max_position_error_m,
                                       low=0, low_open=True),
         min_signal_fraction=c.number(t, "min_signal_fraction", p, d.min_signal_fraction, low=0, high=1),
+        **_ste_keys(c, t, d),
     )
     start = c.point(t, "start_enu_m", p, 3)
     if vals["sampling"] == "moving" and vals["seeker"] not in MOVING_SEEKERS:
-        c.bad(f"{p}.sampling", 'sampling = "moving" needs seeker = "model" or "newton": the paper\'s gradient '
-              "seeker estimates from the formation's shape at rest (Theorem 2) and the plume seeker's passes "
-              "compare readings taken at rest, so they sample stop and go")
+        c.bad(f"{p}.sampling", 'sampling = "moving" needs seeker = "model", "newton" or "ste": the paper\'s '
+              "gradient seeker estimates from the formation's shape at rest (Theorem 2) and the plume seeker's "
+              "passes compare readings taken at rest, so they sample stop and go")
         vals["sampling"] = None
     wind = c.number(t, "wind_from_deg", p, None, low=0, high=360)  # None: not given (or invalid, reported)
     _check_keys_apply(c, t, vals["seeker"], vals["sampling"])
+    if "wind_std_deg" in t and "wind_from_deg" not in t and "seeking.wind_std_deg" not in {k for k, _ in c.problems}:
+        c.bad(f"{p}.wind_std_deg", "is the spread of the wind prior about wind_from_deg: give wind_from_deg too "
+              "(without it the ste seeker estimates the wind's direction from a uniform prior)")
     if None in vals.values():
         return None
     return SeekingPlan(start_enu_m=start, wind_from_deg=wind, **vals)
 
 
+def _ste_keys(c: Checker, t: dict, d: SeekingPlan) -> dict:
+    """The ``ste`` seeker's ``[seeking]`` keys (:class:`~mission.core.plan_types.SeekingPlan`), checked."""
+    p = "seeking"
+    return dict(
+        wind_std_deg=c.number(t, "wind_std_deg", p, d.wind_std_deg, low=0, high=180),
+        sensor_noise_std=c.number(t, "sensor_noise_std", p, d.sensor_noise_std, low=0, low_open=True),
+        sensor_detection_floor=c.number(t, "sensor_detection_floor", p, d.sensor_detection_floor, low=0),
+        ground_alt_m=c.number(t, "ground_alt_m", p, d.ground_alt_m, low=-500, high=9000),
+        stability=c.string(t, "stability", p, d.stability, choices=_STABILITY),
+        region_m=c.number(t, "region_m", p, d.region_m, low=0, low_open=True, high=100),
+    )
+
+
+_STE = 'seeker = "ste"'
+_PLUME_OR_STE = 'seeker = "plume" or "ste"'
 #: [seeking] keys of one seeker or sampling mode: (key, what it needs, does it apply?(seeker, sampling))
 _SEEKING_KEYS_OF = (
-    ("plume_mode", 'seeker = "plume"', lambda seeker, sampling: seeker == "plume"),
-    ("wind_from_deg", 'seeker = "plume"', lambda seeker, sampling: seeker == "plume"),
+    ("plume_mode", _PLUME_OR_STE, lambda seeker, sampling: seeker in ("plume", "ste")),
+    ("wind_from_deg", _PLUME_OR_STE, lambda seeker, sampling: seeker in ("plume", "ste")),
+    ("wind_std_deg", _STE, lambda seeker, sampling: seeker == "ste"),
+    ("sensor_noise_std", _STE, lambda seeker, sampling: seeker == "ste"),
+    ("sensor_detection_floor", _STE, lambda seeker, sampling: seeker == "ste"),
+    ("ground_alt_m", _STE, lambda seeker, sampling: seeker == "ste"),
+    ("stability", _STE, lambda seeker, sampling: seeker == "ste"),
+    ("region_m", _STE, lambda seeker, sampling: seeker == "ste"),
     ("replan_fraction", 'sampling = "moving"', lambda seeker, sampling: sampling == "moving"),
     ("sensor_lag_s", 'sampling = "moving"', lambda seeker, sampling: sampling == "moving"),
 )

@@ -108,7 +108,21 @@ class SeekingPlan:
     plume_mode : str
         The ``plume`` seeker's variant: ``steady`` (surge up the axis, cast, two passes, hold) or
         ``intermittent`` (puffs: follow the upwind edge of the cloud of detections,
-        ``estimator.seek_hits``).
+        ``estimator.seek_hits``); for ``ste`` the likelihood: ``steady`` (the mean field) or
+        ``intermittent`` (hits and misses).
+    wind_std_deg : float
+        ``ste``: the prior's standard deviation about ``wind_from_deg`` (given only with it).
+    sensor_noise_std, sensor_detection_floor : float
+        ``ste``: the sensor's noise standard deviation (> 0, signal units) and detection floor
+        (readings below it report 0), from its datasheet.
+    ground_alt_m : float
+        ``ste``: the ground's up coordinate (mission ENU, m): the dispersion model's reflecting
+        ground, and no release below it.
+    stability : str
+        ``ste``: the Pasquill-Gifford stability class (``A``-``F``) of the dispersion model.
+    region_m : float
+        ``ste``: converged when the posterior's 95 % region (its radius about the posterior mean) is
+        at most this (and the posterior has not collapsed recently nor misfits the readings).
     min_signal_fraction : float
         Convergence needs a signal in at least this fraction of the window's iterations
         (``estimator.seeking``, criterion 3; 0 turns it off): the ``plume`` seeker's "holding
@@ -143,6 +157,12 @@ class SeekingPlan:
     sensor_lag_s: float = 0.0
     wind_from_deg: float | None = None
     plume_mode: str = "steady"
+    wind_std_deg: float = 10.0
+    sensor_noise_std: float = 0.01
+    sensor_detection_floor: float = 0.0
+    ground_alt_m: float = 0.0
+    stability: str = "C"
+    region_m: float = 1.0
     min_signal_fraction: float = 1.0
     rate_hz: float = 2.0
     max_iterations: int = 300

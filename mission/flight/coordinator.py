@@ -28,6 +28,10 @@ from mission.telemetry.link_report import link_rejections, unknown_sysids
 from mission.telemetry.mission_log import MissionLog, to_jsonable
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber
 
+#: Readings kept per vehicle with the ``ste`` seeker: it is given every reading since takeoff once
+#: (sampling while moving), so the store holds 5 minutes at 10 Hz (the other seekers: 200).
+_STE_HISTORY = 3000
+
 __all__ = ["Coordinator"]
 
 
@@ -121,7 +125,8 @@ class Coordinator:
             plan.fleet, [v.sysid for v in plan.vehicles], plan.origin, clock,
             telemetry_position=self.telemetry_position,
             max_age_s=plan.seeking.max_reading_age_s,
-            max_position_error_m=plan.seeking.max_position_error_m)
+            max_position_error_m=plan.seeking.max_position_error_m,
+            history=_STE_HISTORY if plan.seeking.seeker == "ste" else 200)
         self._subscriber: ReadingSubscriber | None = None
         self._state_pub = None
         self._watchdog_task: asyncio.Task | None = None

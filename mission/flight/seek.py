@@ -24,6 +24,8 @@ partly covered; the seeker gets every reading since the last estimate, where it 
 """
 from __future__ import annotations
 
+import asyncio
+
 import numpy as np
 
 from mission.flight.control import OperatorStop
@@ -43,34 +45,86 @@ from mission.flight.retire import (
     make_watch,
     retire_sensor,
 )
-from mission.flight.seek_moving import moving_sampling
+from mission.flight.seek_moving import moving_sampling, thin_evenly
 from mission.flight.sensor_check import make_check
 from mission.flight.state import MissionError
 
-__all__ = ["seek", "make_estimator", "make_seeker"]
+__all__ = ["seek", "make_estimator", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
+
+#: With moving sampling the ``ste`` seeker gets at most this many of each vehicle's readings per update
+#: (:func:`mission.flight.seek_moving.thin_evenly`): its filter's tempering assumes about one reading per
+#: vehicle per update (more made it overconfident), and its CPU (docs/seekers.md, "ste in missions")
+STE_READINGS_PER_VEHICLE = 1
 
 
-def make_seeker(kind: str, wind_from_deg: float | None = None, plume_mode: str = "steady"):
+def make_seeker(kind: str, wind_from_deg: float | None = None, plume_mode: str = "steady", **ste):
     """The plan's seeker (``[seeking] seeker``): None for ``gradient`` (the loop's own paper step,
     with the plan's estimator), else a :class:`_MissionSeeker` around :mod:`estimator.seekers`
-    (``wind_from_deg`` and ``plume_mode``, the plan's, go to the ``plume`` seeker)."""
-    return None if kind == "gradient" else _MissionSeeker(kind, wind_from_deg, plume_mode)
+    (``wind_from_deg`` and ``plume_mode``, the plan's, go to the ``plume`` and ``ste`` seekers; the
+    keywords ``ste`` to the ``ste`` seeker: :func:`ste_options`)."""
+    return None if kind == "gradient" else _MissionSeeker(kind, wind_from_deg, plume_mode, **ste)
+
+
+def ste_options(sk) -> dict:
+    """The ``ste`` seeker's keywords from the plan's ``[seeking]`` (a
+    :class:`~mission.core.plan_types.SeekingPlan`): what the operator knows (the sensor's
+    datasheet, the ground, the stability class, a wind prior), never the simulated world's truth."""
+    return dict(wind_std_deg=sk.wind_std_deg, noise_std=sk.sensor_noise_std,
+                detection_floor=sk.sensor_detection_floor, ground_alt_m=sk.ground_alt_m,
+                stability=sk.stability, region_m=sk.region_m)
+
+
+def ste_wind(sk, snapshots, now_s: float) -> tuple[float | None, float, str]:
+    """The ``ste`` seeker's wind-direction prior: ``(wind_from_deg, wind_std_deg, what was used)``.
+
+    The plan's ``[seeking] wind_from_deg`` / ``wind_std_deg`` when given; else the autopilots' own
+    wind estimates (PX4 ``WIND_COV``, ArduPilot ``WIND``) combined by
+    :func:`mission.flight.wind_prior.fleet_wind_prior` from the vehicles' state ``snapshots``; else
+    None (the seeker estimates the direction, uniform prior)."""
+    from mission.flight.wind_prior import fleet_wind_prior
+
+    if sk.wind_from_deg is not None:
+        return sk.wind_from_deg, sk.wind_std_deg, (f"ste wind prior: the plan's, from {sk.wind_from_deg:.0f} deg "
+                                                   f"+- {sk.wind_std_deg:.0f} deg")
+    prior = fleet_wind_prior(snapshots, now_s=now_s)
+    if prior is None:
+        return None, sk.wind_std_deg, ("ste wind prior: none (the plan gives no wind and no autopilot reports a "
+                                       "usable wind estimate); the seeker estimates the direction")
+    return prior.from_deg, prior.std_deg, (f"ste wind prior: the autopilots' estimate, from {prior.from_deg:.0f} "
+                                           f"deg +- {prior.std_deg:.0f} deg, {prior.speed_m_s:.1f} m/s "
+                                           f"({prior.n_vehicles} vehicles)")
 
 
 class _MissionSeeker:
     """One mission's seeker (K = 1): readings in, the next centre out, capped at ``gamma_m``;
-    the safety envelope's ``clamp_centre`` is applied by the caller."""
+    the safety envelope's ``clamp_centre`` is applied by the caller.
 
-    def __init__(self, kind: str, wind_from_deg: float | None = None, plume_mode: str = "steady"):
+    A seeker with a posterior (``ste``) also gives, after each step, ``estimate_enu`` (the
+    posterior mean release point, (3,)), ``region95_m`` (the radius about it holding 95 % of the
+    posterior), ``collapses`` (re-seeds so far), ``collapsed`` (this step re-seeded), ``misfit``
+    and ``formation_radius_m``; None for the others. ``converges_itself``: the seek ends on the
+    seeker's ``arrival`` alone (the posterior's region), not on the centre's steadiness.
+    """
+
+    def __init__(self, kind: str, wind_from_deg: float | None = None, plume_mode: str = "steady", **ste):
         from estimator.seekers import make_seeker as _make
 
         plume = {"wind_from_deg": wind_from_deg, "patchy": plume_mode == "intermittent"}
-        self.seeker = _make(kind, **(plume if kind == "plume" else {}))
+        kwargs = {"plume": plume, "ste": {**plume, **ste}}.get(kind, {})
+        self.seeker = _make(kind, **kwargs)
+        self.converges_itself = kind == "ste"
         self.arrival = None  # the seeker's own convergence signal after a step (None: it has none)
+        self.failure = None
+        self._clear()
+
+    def _clear(self) -> None:
+        self.estimate_enu = self.region95_m = self.collapses = self.collapsed = self.misfit = None
+        self.formation_radius_m = None
 
     def reset(self) -> None:
         """Forget the readings seen (a sensor among them turned out faulty)."""
         self.seeker.reset()
+        self._clear()
 
     def step(self, centre, positions, values, gamma_m: float) -> np.ndarray:
         """The next centre; the same centre (hold) if the seeker cannot propose one, with ``self.failure`` set."""
@@ -78,10 +132,11 @@ class _MissionSeeker:
 
         c = np.asarray(centre, dtype=float)[None]
         self.failure = self.arrival = None
+        self.collapsed = None
         try:
-            new = self.seeker.propose(c, np.asarray(positions, dtype=float)[None],
+            new = self.seeker.propose(c, np.asarray(positions, dtype=float).reshape(1, -1, 3),
                                       np.asarray(values, dtype=float)[None])
-        except (ValueError, np.linalg.LinAlgError) as exc:
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
             self.failure = f"seeker {self.seeker.name} proposed no centre ({exc}); holding"
             return c[0]
         if not np.all(np.isfinite(new)):
@@ -89,7 +144,20 @@ class _MissionSeeker:
             return c[0]
         own = getattr(self.seeker, "arrival", None)
         self.arrival = None if own is None else bool(own[0])
+        self._posterior()
         return cap_move(c, new, gamma_m)[0]
+
+    def _posterior(self) -> None:
+        """Copy the seeker's posterior summary (trial 0), if it has one."""
+        sk = self.seeker
+        if getattr(sk, "estimate_enu", None) is None:
+            return
+        self.estimate_enu = np.asarray(sk.estimate_enu[0], dtype=float).copy()
+        self.region95_m = float(sk.region95_m[0])
+        self.collapses, self.collapsed = int(sk.collapses[0]), bool(sk.collapsed[0])
+        self.misfit = None if sk.misfit is None else bool(sk.misfit[0])
+        radius = getattr(sk, "formation_radius_m", None)
+        self.formation_radius_m = None if radius is None else float(radius[0])
 
 
 def make_estimator(kind: str, n: int):
@@ -167,7 +235,13 @@ class _Seek:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
         self.est_kind = sk.estimator
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
-        self.seeker = make_seeker(sk.seeker, sk.wind_from_deg, sk.plume_mode)
+        ste = ste_options(sk) if sk.seeker == "ste" else {}
+        wind_from_deg = sk.wind_from_deg
+        if sk.seeker == "ste":
+            wind_from_deg, ste["wind_std_deg"], said = ste_wind(
+                sk, [v.state.snapshot() for v in co.vehicles.values()], co.clock.time())
+            co.event(said)
+        self.seeker = make_seeker(sk.seeker, wind_from_deg, sk.plume_mode, **ste)
         self.moving = moving_sampling(co, sk)
         self.samples = None  # with moving sampling: the readings the seeker gets this iteration
         self.check = make_check(co.plan.faults, self.estimate, self.sysids)
@@ -205,7 +279,7 @@ class _Seek:
         found = await self._estimate(k, t_arrive)
         if found is None:
             return None
-        ended = self._step(k, *found)
+        ended = await self._step(k, *found)
         if ended is None and found[-1] is not None:
             self.sysids = await retire_sensor(self.co, self.centre, self.sysids, found[-1])
             self._new_estimator(symmetric_to_cvt=False)
@@ -358,7 +432,7 @@ class _Seek:
             return [aligned[s] for s in used], [aligned[s].position_enu_m for s in used]
         return self.samples, self.moving.positions_enu
 
-    def _step(self, k, t_est, aligned, used, centroid, grad, retiring) -> tuple[str, str] | None:
+    async def _step(self, k, t_est, aligned, used, centroid, grad, retiring) -> tuple[str, str] | None:
         """Move the centre up the gradient, log the iteration; ``(outcome, message)`` when the seek ends."""
         from estimator import seek_step
 
@@ -368,15 +442,17 @@ class _Seek:
         if self.seeker is None:  # the paper's step with the plan's estimator (robust included)
             proposed = seek_step(self.centre, grad, sk.eps, sk.gamma_m)
         else:
-            proposed = self.seeker.step(self.centre, positions, [r.value for r in kept], sk.gamma_m)
-            if self.seeker.failure:
-                co.event(f"iteration {k + 1}: {self.seeker.failure}", level="warning")
+            if self.samples is not None and self.seeker.converges_itself:  # ste: its CPU (docs/seekers.md)
+                kept, positions = thin_evenly(kept, positions, STE_READINGS_PER_VEHICLE)
+            proposed = await self._propose(k, positions, [r.value for r in kept])
         new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))
         own = None if self.seeker is None else self.seeker.arrival
         dropped = set() if self.check is None else self.check.dropped
         signal = self.arrival.signal([aligned[s].value for s in used if s not in dropped])
         converged = self.monitor.update(new_centre, signal if own is None else own)
+        if self.seeker is not None and self.seeker.converges_itself:  # ste: its posterior's region
+            converged = bool(own)
         # the source estimate with its 95 % region: the seeker's own, else the monitor's mean of the centres
         source = reported_estimate(getattr(self.seeker, "seeker", None), self.monitor)
         co.state.record_iteration(k + 1, grad, step_m, source, self.monitor.spread_m)
@@ -392,7 +468,40 @@ class _Seek:
                          suspects=_suspects(self.check or self.estimate, used), status=co.vehicle_status())
         self.centre = new_centre
         co.state.move_centre(new_centre)
+        self._resize(k)
         return self._ended(k, converged)
+
+    def _resize(self, k: int) -> None:
+        """Honour the seeker's ``formation_radius_m`` (``ste``): the sensing vehicles' slots scaled
+        about the centre (:func:`scaled_slots`), never wider than the plan's radius nor so tight that
+        two slots are closer than 1.2 ``min_separation_m``; the next move flies them there."""
+        want = None if self.seeker is None else self.seeker.formation_radius_m
+        members = [s for s in self.sysids if s not in self.co.lost and s in self.co.slot_offsets]
+        if want is None or len(members) < 2:
+            return
+        co = self.co
+        new = scaled_slots({s: co.slot_offsets[s] for s in members}, want, co.plan.min_separation_m,
+                           co.plan.formation.radius_m)
+        if new is not None:
+            co.state.update_slots(new)
+
+    async def _propose(self, k: int, positions, values) -> np.ndarray:
+        """The seeker's next centre (capped at ``gamma_m``); its failure (a hold) and a collapse of its
+        posterior (re-seeded from the prior about the formation) are events of the mission log. The
+        ``ste`` seeker's update (tens of ms and more) runs in the loop's executor."""
+        sk = self.seeker
+        if sk.converges_itself:
+            proposed = await asyncio.get_running_loop().run_in_executor(
+                None, sk.step, self.centre.copy(), positions, values, self.sk.gamma_m)
+        else:
+            proposed = sk.step(self.centre, positions, values, self.sk.gamma_m)
+        if sk.failure:
+            self.co.event(f"iteration {k + 1}: {sk.failure}", level="warning")
+        if sk.collapsed:
+            self.co.event(f"iteration {k + 1}: the {self.sk.seeker} seeker's posterior collapsed (no particle "
+                          f"explained the {len(values)} readings); re-seeded from the prior about the formation "
+                          f"(collapse {sk.collapses})", level="warning", collapses=sk.collapses)
+        return proposed
 
     def _ended(self, k: int, converged: bool) -> tuple[str, str] | None:
         """``(outcome, message)`` when the seek ends after iteration ``k``, else None."""
@@ -409,6 +518,29 @@ class _Seek:
             return "stopped_at_fence", ("the formation centre has been held at the geofence for "
                                         f"{self.at_fence} iterations: the source is probably outside the fence")
         return None
+
+
+def scaled_slots(offsets: dict, radius_m: float, min_separation_m: float, max_radius_m: float) -> dict | None:
+    """``offsets`` (sysid -> slot offset about the centre, ENU m) scaled about the centre so that
+    their mean distance from it is ``radius_m``, clipped so that no slot is farther than
+    ``max_radius_m`` from it (the plan's radius: the fence and altitude checks assumed it) and to
+    the smallest scale whose closest pair of slots is ``1.2 min_separation_m`` apart; None when the
+    scale would change by less than 5 %."""
+    keys = sorted(offsets)
+    off = np.array([offsets[s] for s in keys], dtype=float)
+    norms = np.linalg.norm(off, axis=1)
+    mean_r = float(norms.mean())
+    d = np.linalg.norm(off[:, None, :] - off[None, :, :], axis=-1)
+    closest = float(d[np.triu_indices(len(keys), 1)].min())
+    if mean_r <= 0 or closest <= 0:
+        return None
+    lo = 1.2 * min_separation_m * mean_r / closest
+    hi = max_radius_m * mean_r / float(norms.max())
+    target = min(max(float(radius_m), lo), max(hi, lo))
+    scale = target / mean_r
+    if abs(scale - 1.0) < 0.05:
+        return None
+    return {s: off[i] * scale for i, s in enumerate(keys)}
 
 
 def _suspects(estimate, used: list[int]) -> list[dict] | None:

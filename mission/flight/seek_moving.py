@@ -2,7 +2,7 @@
 
 Stop and go (:mod:`mission.flight.seek`) flies the formation to the new centre, waits until every
 vehicle is within ``arrival_tol_m`` of its slot, then estimates from one reading per vehicle.
-With ``moving`` sampling (the ``newton`` and ``model`` seekers only), one iteration is:
+With ``moving`` sampling (the ``newton``, ``model`` and ``ste`` seekers only), one iteration is:
 
 1. **move**: the ramp's goals become the slots about the new centre (the ramp and the safety
    envelope apply to every setpoint, as in stop and go); the loop does not wait for the formation
@@ -40,7 +40,7 @@ from mission.flight.rejoin import clear_goals, fly_rotation
 from mission.flight.retire import formation_goals
 from mission.flight.state import MissionError
 
-__all__ = ["MovingSampling", "lagged_positions", "moving_sampling"]
+__all__ = ["MovingSampling", "lagged_positions", "moving_sampling", "thin_evenly"]
 
 
 class MovingSampling:
@@ -55,6 +55,10 @@ class MovingSampling:
     sensor_lag_s : float
         The sensor's response time constant (>= 0): readings go to the seeker where their
         vehicle was this long before they were taken (module docstring).
+    since_s : float or None
+        Every vehicle's readings taken after this time go to the seeker (``-inf``: every reading the
+        store holds, i.e. since takeoff, for the ``ste`` seeker); None: those taken after the seek
+        started, and for a vehicle that joins later (re-admitted) after the collect before it joined.
 
     Raises
     ------
@@ -62,7 +66,7 @@ class MovingSampling:
         ``replan_fraction`` outside ``(0, 1]``, or a negative or non-finite ``sensor_lag_s``.
     """
 
-    def __init__(self, co, replan_fraction: float, sensor_lag_s: float = 0.0):
+    def __init__(self, co, replan_fraction: float, sensor_lag_s: float = 0.0, since_s: float | None = None):
         f = float(replan_fraction)
         if not 0.0 < f <= 1.0:
             raise ValueError(f"replan_fraction must be in (0, 1], got {replan_fraction!r}")
@@ -74,10 +78,29 @@ class MovingSampling:
         self.sensor_lag_s = lag
         self.positions_enu = np.zeros((0, 3))  # where the seeker takes the collected readings to be
         self.last_used_s: dict[int, float] = {}  # per vehicle: time of the newest reading the seeker had
-        self.t_collected_s = co.clock.time()     # readings of a vehicle new to the seeker start here
+        self.t_collected_s = co.clock.time() if since_s is None else float(since_s)  # a new vehicle's start
+        self.since_s = None if since_s is None else float(since_s)  # every vehicle's start, when given
+        self.first_s: dict[int, float] = {}  # per vehicle: the seeker gets its readings taken after this
+        self.given: dict[int, set] = {}  # per vehicle: (time_s, seq) of the readings given, still in the store
+        self.overflowed: set[int] = set()  # vehicles whose readings left the store before the seeker had them
 
     def _since_s(self, sysid: int) -> float:
-        return self.last_used_s.get(sysid, self.t_collected_s)
+        return self.first_s.setdefault(sysid, self.t_collected_s if self.since_s is None else self.since_s)
+
+    def _new(self, sysid: int, hist: list) -> list:
+        """The readings of ``hist`` (a vehicle's, oldest first) not given yet: taken after the vehicle's
+        start and not given before (a reading that arrives late, older than ones given, still counts)."""
+        since_s, given = self._since_s(sysid), self.given.setdefault(sysid, set())
+        if hist and since_s < hist[0].time_s and sysid in self.last_used_s and \
+                self.last_used_s[sysid] < hist[0].time_s:
+            self.overflowed.add(sysid)  # readings between the last given and the store's oldest are gone
+        new = [r for r in hist if r.time_s > since_s and (r.time_s, r.seq) not in given]
+        oldest_s = hist[0].time_s if hist else -np.inf
+        given.intersection_update({k for k in given if k[0] >= oldest_s})  # the store forgot the others
+        given.update((r.time_s, r.seq) for r in new)
+        if new:
+            self.last_used_s[sysid] = max(self.last_used_s.get(sysid, -np.inf), new[-1].time_s)
+        return new
 
     def _centroid(self, sysids: list[int]) -> np.ndarray | None:
         """Centroid of the vehicles' telemetry positions (None if one has none)."""
@@ -141,21 +164,23 @@ class MovingSampling:
         """Every reading taken since the last one the seeker had from each vehicle, oldest first per vehicle.
 
         Each reading keeps the position and time where it was taken
-        (:class:`mission.telemetry.readings.Reading`); none is given twice. ``positions_enu``
+        (:class:`mission.telemetry.readings.Reading`); none is given twice, and one that arrives
+        late (older than readings already given) is given when it arrives. ``positions_enu``
         becomes where the seeker takes them to be: those positions, or with ``sensor_lag_s`` the
         vehicle's position that long before each reading.
         """
-        out, positions = [], []
+        out, positions, overflowed = [], [], set(self.overflowed)
         for s in sysids:
-            since_s = self._since_s(s)
             hist = self.co.store.history(s)
-            new = [r for r in hist if r.time_s > since_s]
-            if new:
-                self.last_used_s[s] = new[-1].time_s
+            new = self._new(s, hist)
             out.extend(new)
             positions.extend(lagged_positions(hist, new, self.sensor_lag_s))
         self.t_collected_s = self.co.clock.time()
         self.positions_enu = np.asarray(positions, dtype=float).reshape(-1, 3)
+        if self.overflowed - overflowed:
+            self.co.event(f"vehicles {sorted(self.overflowed - overflowed)}: readings left the reading store's "
+                          "history before the seeker had them (estimates further apart than the history "
+                          "holds)", level="warning")
         return out
 
 
@@ -171,6 +196,29 @@ def lagged_positions(history: list, readings: list, lag_s: float) -> list[np.nda
     return list(np.stack([np.interp(back_s, t_s, pos[:, i]) for i in range(3)], axis=-1))
 
 
+def thin_evenly(readings: list, positions, per_vehicle: int) -> tuple[list, np.ndarray]:
+    """At most ``per_vehicle`` of each vehicle's ``readings`` (with their ``positions`` (M, 3)), evenly
+    spread over its readings in time order (the first kept, and the last when ``per_vehicle`` > 1);
+    every reading when it has that many or fewer.
+
+    For the ``ste`` seeker (:data:`mission.flight.seek.STE_READINGS_PER_VEHICLE`): its CPU grows with
+    the readings of an update, and its tempering is calibrated for one reading per vehicle per
+    update; with more, its posterior is overconfident (docs/seekers.md, "ste in missions").
+    """
+    pos = np.asarray(positions, dtype=float).reshape(-1, 3)
+    by_vehicle: dict[int, list[int]] = {}
+    for i, r in enumerate(readings):
+        by_vehicle.setdefault(r.sysid, []).append(i)
+    keep: list[int] = []
+    for idx in by_vehicle.values():
+        if len(idx) <= per_vehicle:
+            keep.extend(idx)
+        else:
+            keep.extend(idx[j] for j in np.unique(np.round(np.linspace(0, len(idx) - 1, per_vehicle)).astype(int)))
+    keep.sort()
+    return [readings[i] for i in keep], pos[keep]
+
+
 def moving_sampling(co, sk) -> MovingSampling | None:
     """A :class:`MovingSampling` for the plan's ``[seeking] sampling = "moving"``, else None.
 
@@ -182,7 +230,8 @@ def moving_sampling(co, sk) -> MovingSampling | None:
     if getattr(sk, "sampling", "stop_and_go") != "moving":
         return None
     if sk.seeker not in MOVING_SEEKERS:
-        co.event(f'sampling = "moving" needs the newton or model seeker; the {sk.seeker} seeker samples '
+        co.event(f'sampling = "moving" needs the newton, model or ste seeker; the {sk.seeker} seeker samples '
                  "stop and go", level="warning")
         return None
-    return MovingSampling(co, sk.replan_fraction, getattr(sk, "sensor_lag_s", 0.0))
+    since_s = -np.inf if sk.seeker == "ste" else None  # ste: every reading since takeoff, once
+    return MovingSampling(co, sk.replan_fraction, getattr(sk, "sensor_lag_s", 0.0), since_s=since_s)

@@ -37,7 +37,8 @@ def seeker_settings(seeker: str) -> dict:
     ``gamma_m = 1`` (with its ``eps``) and samples stop and go; the other seekers get
     ``gamma_m = 20`` m, as ``swarmseek run`` (their step is bounded by their own trust region or
     passes, not by ``eps``), and ``newton``/``model`` sample while moving (measured on real PX4
-    and ArduCopter, docs/sitl.md)."""
+    and ArduCopter, docs/sitl.md), as ``ste`` does (it folds in every reading where it was taken;
+    its other keys keep their defaults: a steady plume, the wind estimated, docs/mission.md)."""
     return {"seeker": seeker, "gamma_m": 1.0 if seeker == "gradient" else 20.0,
             "sampling": "moving" if seeker in MOVING_SEEKERS else "stop_and_go"}
 
