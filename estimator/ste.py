@@ -157,12 +157,13 @@ class SteSeeker:
                  min_step_m: float = 1.0, max_step_m: float = 8.0,
                  collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.5,
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
-                 corr_iterations: int = 0, seed: int = 0):
+                 corr_iterations: int = 0, path_samples: int = 1, upwind_prior: bool = False, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
             raise ValueError(f"wind_from_deg must be finite, got {wind_from_deg!r}")
-        for name, v in (("particles", particles), ("memory", memory), ("info_particles", info_particles)):
+        for name, v in (("particles", particles), ("memory", memory), ("info_particles", info_particles),
+                        ("path_samples", path_samples)):
             if isinstance(v, bool) or int(v) != v or v < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
         lo, hi = (_positive("amplitude_range", a) for a in amplitude_range)
@@ -174,6 +175,8 @@ class SteSeeker:
         self.wind_from_deg = None if wind_from_deg is None else float(wind_from_deg)
         self.wind_std_rad = np.deg2rad(_positive("wind_std_deg", wind_std_deg, allow_zero=True))
         self.info_particles = int(info_particles)
+        self.path_samples = int(path_samples)
+        self.upwind_prior = bool(upwind_prior)
         self.log_amp = (np.log(lo), np.log(hi))
         self.model = dict(stability=stability, s0_m=_positive("source_radius_m", source_radius_m),
                           ground_alt_m=float(ground_alt_m), smooth=self.patchy)
@@ -233,6 +236,9 @@ class SteSeeker:
         n, p, rng = len(idx), self.particles, self.rng
         r = self.prior_radius_m * np.sqrt(rng.uniform(0.0, 1.0, (n, p)))
         phi = rng.uniform(0.0, 2.0 * np.pi, (n, p))
+        if self.upwind_prior and self.wind_from_deg is not None:  # the half-disk upwind of the start
+            upwind = np.pi / 2.0 - np.deg2rad(self.wind_from_deg)  # ENU angle toward where the wind comes from
+            phi = upwind + rng.uniform(-np.pi / 2.0, np.pi / 2.0, (n, p))
         ground = self.model["ground_alt_m"] + 0.1
         z_lo = np.maximum(c[idx, 2] - self.prior_height_m, ground)[:, None]
         z_hi = np.maximum(c[idx, 2] + self.prior_height_m, ground + 1.0)[:, None]
@@ -389,8 +395,10 @@ class SteSeeker:
         or the posterior mean (step 5)."""
         k = c.shape[0]
         cand = self._candidates(c)
-        pts = (cand[:, :, None, :] + off[:, None, :, :]).reshape(k, -1, 3)
-        q = self._p_hit(sub, pts)  # (K, S, C * N)
+        frac = np.arange(1, self.path_samples + 1) / self.path_samples  # points along the way (path_samples)
+        way = c[:, None, None, :] + frac[None, None, :, None] * (cand - c[:, None, :])[:, :, None, :]  # (K, C, F, 3)
+        pts = (way[:, :, :, None, :] + off[:, None, None, :, :]).reshape(k, -1, 3)
+        q = self._p_hit(sub, pts)  # (K, S, C * F * N)
         info = (_entropy2(q.mean(axis=1)) - _entropy2(q).mean(axis=1)).reshape(k, cand.shape[1], -1).sum(axis=2)
         best = np.take_along_axis(cand, np.argmax(info, axis=1)[:, None, None], axis=1)[:, 0]
         return np.where((self.region95_m < self.exploit_m)[:, None], self.estimate_enu, best)
