@@ -141,6 +141,10 @@ class SteSeeker:
         Model check: the readings of the last ``memory`` iterations are scored under the posterior
         predictive; their deviance standardised by its expectation and deviation if the model held
         (:attr:`fit_z`) above this flags :attr:`misfit` and withholds ``arrival``.
+    path_samples : int
+        A candidate's information is computed for the formation at ``path_samples`` points evenly
+        along the way to it (the last at the candidate): with sampling while moving the readings
+        taken on the way count too; 1: at the candidate only.
     seed : int
         Seed of the filter's random numbers (reset re-seeds).
     """
@@ -157,7 +161,7 @@ class SteSeeker:
                  min_step_m: float = 1.0, max_step_m: float = 8.0,
                  collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.5,
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
-                 corr_iterations: int = 0, path_samples: int = 1, upwind_prior: bool = False, seed: int = 0):
+                 corr_iterations: int = 0, path_samples: int = 1, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -176,7 +180,6 @@ class SteSeeker:
         self.wind_std_rad = np.deg2rad(_positive("wind_std_deg", wind_std_deg, allow_zero=True))
         self.info_particles = int(info_particles)
         self.path_samples = int(path_samples)
-        self.upwind_prior = bool(upwind_prior)
         self.log_amp = (np.log(lo), np.log(hi))
         self.model = dict(stability=stability, s0_m=_positive("source_radius_m", source_radius_m),
                           ground_alt_m=float(ground_alt_m), smooth=self.patchy)
@@ -236,9 +239,6 @@ class SteSeeker:
         n, p, rng = len(idx), self.particles, self.rng
         r = self.prior_radius_m * np.sqrt(rng.uniform(0.0, 1.0, (n, p)))
         phi = rng.uniform(0.0, 2.0 * np.pi, (n, p))
-        if self.upwind_prior and self.wind_from_deg is not None:  # the half-disk upwind of the start
-            upwind = np.pi / 2.0 - np.deg2rad(self.wind_from_deg)  # ENU angle toward where the wind comes from
-            phi = upwind + rng.uniform(-np.pi / 2.0, np.pi / 2.0, (n, p))
         ground = self.model["ground_alt_m"] + 0.1
         z_lo = np.maximum(c[idx, 2] - self.prior_height_m, ground)[:, None]
         z_hi = np.maximum(c[idx, 2] + self.prior_height_m, ground + 1.0)[:, None]

@@ -251,17 +251,3 @@ def test_path_samples_value_the_readings_along_the_way(monkeypatch):
                 c[0] + (f + 1) / samples * (cand - c[0]), (len(OFFSETS), len(cand), 3)).transpose(1, 0, 2), atol=1e-9)
     with pytest.raises(ValueError, match="path_samples"):
         SteSeeker(path_samples=0)
-
-
-@pytest.mark.parametrize("wind_from_deg", [270.0, 0.0, 135.0])
-def test_upwind_prior_puts_every_particle_upwind_of_the_start(wind_from_deg):
-    s = SteSeeker(wind_from_deg=wind_from_deg, upwind_prior=True, particles=2000)
-    c = np.array([[10.0, -5.0, 12.0]])
-    s.propose(c, c[:, None, :] + OFFSETS[None], np.zeros((1, 8)))
-    b = np.deg2rad(wind_from_deg)
-    upwind_en = np.array([np.sin(b), np.cos(b)])  # where the wind comes from, east/north
-    rel = s.parts[0, :, :2] - c[0, :2]
-    assert np.all(rel @ upwind_en >= -1.0)  # roughening moves a particle by centimetres at most
-    both = SteSeeker(wind_from_deg=wind_from_deg, particles=2000)
-    both.propose(c, c[:, None, :] + OFFSETS[None], np.zeros((1, 8)))
-    assert np.mean((both.parts[0, :, :2] - c[0, :2]) @ upwind_en < 0) > 0.3
