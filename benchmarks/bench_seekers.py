@@ -132,7 +132,10 @@ def _ste_kwargs(text: str | None) -> dict:
     out = {}
     for item in filter(None, (text or "").split(",")):
         key, _, value = item.partition("=")
-        out[key.strip()] = float(value) if "." in value or "e" in value else int(value)
+        try:
+            out[key.strip()] = float(value) if "." in value or "e" in value else int(value)
+        except ValueError:
+            out[key.strip()] = value
     return out
 
 
@@ -212,10 +215,48 @@ def _field_and_noise(name: str, source: np.ndarray, level: str):
     return field, (0.0 if level == "0" else 0.01 * peak)
 
 
+def measure_moving(run, start_dist_m: np.ndarray, tol_m: float = 1.0) -> dict:
+    """The measures of one batch sampling while moving (:class:`experiments.offline_moving.MovingRun`):
+    success = the formation's centre within ``tol_m`` from some estimate to the end."""
+    t_in = run.time_within_s(tol_m)
+    ok = np.isfinite(t_in)
+    lo, hi = wilson(int(ok.sum()), len(ok))
+    ratio = t_in / (start_dist_m / _MAX_SPEED_M_S)
+    reads = np.concatenate([np.zeros((1, len(ok))), np.cumsum(run.readings, axis=0)])
+    entered = np.array([np.searchsorted(run.times_s[:, k], t) if o else 0 for k, (t, o) in enumerate(zip(t_in, ok))])
+    d = np.linalg.norm(run.formation_enu[-1] - run.source_enu, axis=-1)
+    path = np.concatenate([np.zeros((1, len(ok))), np.cumsum(np.linalg.norm(np.diff(run.formation_enu, axis=0),
+                                                                           axis=-1), axis=0)])
+    cols = np.arange(len(ok))
+
+    def q(x, p):
+        return float(np.percentile(x[ok], p)) if ok.any() else float("nan")
+
+    return {"trials": len(ok), "success": float(ok.mean()), "success_ci95": [lo, hi],
+            "time_s_median": q(t_in, 50), "time_s_p90": q(t_in, 90), "ratio_median": q(ratio, 50),
+            "ratio_p90": q(ratio, 90), "flown_m_median": q(path[entered, cols], 50),
+            "straight_m_median": q(start_dist_m, 50), "readings_median": q(reads[entered, cols], 50),
+            "final_error_m_median": q(d, 50), "final_distance_m_median_all": float(np.median(d))}
+
+
+class _Stacked:
+    """The per-trial seekers' own estimates stacked as one batched seeker's (for :func:`_posterior_row`)."""
+
+    def __init__(self, seekers: list):
+        for name in ("estimate_enu", "region95_m", "arrival", "misfit", "fit_z", "collapses"):
+            vals = [getattr(s, name, None) for s in seekers]
+            setattr(self, name, None if any(v is None for v in vals) else np.concatenate([np.atleast_1d(v) for v in vals]))
+        if self.estimate_enu is not None:
+            self.estimate_enu = self.estimate_enu.reshape(-1, 3)
+        self.region_m = getattr(seekers[0], "region_m", 1.0) if seekers else 1.0
+
+
 def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, iterations: int, seed: int,
-             ste_args: str | None = None) -> dict:
-    """One table cell: ``trials`` runs of a seeker on a field at a noise level."""
+             ste_args: str | None = None, sampling: str = "stop") -> dict:
+    """One table cell: ``trials`` runs of a seeker on a field at a noise level, stop and go
+    (vectorised) or sampling while moving (trial by trial)."""
     import formation
+    from experiments.offline_moving import simulate_moving
     from experiments.offline_seek import StopAndGo, simulate_seeker
 
     rng = np.random.default_rng(seed)
@@ -227,11 +268,17 @@ def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, i
     seeker, gamma = _seeker(seeker_name, field, ste_args)
     offsets = formation.cvt_sphere(8, 4.0, seed=0)
     t0 = time.perf_counter()
-    run = simulate_seeker(offsets, field, starts, seeker, gamma_m=gamma, iterations=iterations,
-                          noise_std=noise, rotate=True, seed=seed + 1)
-    row = measure(run, dist, offsets.shape[0], StopAndGo())
+    if sampling == "moving":
+        run = simulate_moving(offsets, field, starts, lambda: _seeker(seeker_name, field, ste_args)[0], gamma_m=gamma,
+                              iterations=iterations, noise_std=noise, rotate=True, seed=seed + 1)
+        row = measure_moving(run, dist)
+        seeker = _Stacked(run.seekers)
+    else:
+        run = simulate_seeker(offsets, field, starts, seeker, gamma_m=gamma, iterations=iterations,
+                              noise_std=noise, rotate=True, seed=seed + 1)
+        row = measure(run, dist, offsets.shape[0], StopAndGo())
     row.update(_posterior_row(seeker, field.source_enu()))
-    row.update(seeker=seeker_name, field=field_name, noise=noise, wall_s=time.perf_counter() - t0)
+    row.update(seeker=seeker_name, field=field_name, noise=noise, sampling=sampling, wall_s=time.perf_counter() - t0)
     return row
 
 
@@ -263,6 +310,8 @@ def main(argv=None) -> int:
     ap.add_argument("--noise", default="0,realistic", help="noise levels: 0 and/or realistic (1 %% of the peak)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--ste-args", default=None, help="keyword arguments of the ste seekers, e.g. exploit_m=1,temper=0.5")
+    ap.add_argument("--sampling", choices=("stop", "moving"), default="stop",
+                    help="stop and go (vectorised), or sampling while moving (experiments.offline_moving, trial by trial)")
     ap.add_argument("--cpu", default=None, help="vehicle counts (e.g. 8,50): print each seeker's CPU per update "
                     "(K = 1, median ms) on each field instead of the table")
     args = ap.parse_args(argv)
@@ -280,7 +329,8 @@ def main(argv=None) -> int:
     for field_name in args.fields.split(","):
         for level in args.noise.split(","):
             for name in args.seekers.split(","):
-                row = run_cell(name, field_name, level, args.trials, args.iterations, args.seed, args.ste_args)
+                row = run_cell(name, field_name, level, args.trials, args.iterations, args.seed, args.ste_args,
+                               args.sampling)
                 rows.append(row)
                 print(_fmt(row), flush=True)
     if args.json is not None:

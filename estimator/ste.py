@@ -142,6 +142,10 @@ class SteSeeker:
         Model check: the readings of the last ``memory`` iterations are scored under the posterior
         predictive; their deviance standardised by its expectation and deviation if the model held
         (:attr:`fit_z`) above this flags :attr:`misfit` and withholds ``arrival``.
+    path_samples : int
+        A candidate's information is computed for the formation at ``path_samples`` points evenly
+        along the way to it (the last at the candidate): with sampling while moving the readings
+        taken on the way count too; 1: at the candidate only.
     seed : int
         Seed of the filter's random numbers (reset re-seeds).
     """
@@ -158,12 +162,13 @@ class SteSeeker:
                  min_step_m: float = 1.0, max_step_m: float = 8.0,
                  collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.5,
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
-                 corr_iterations: int = 0, seed: int = 0):
+                 corr_iterations: int = 0, path_samples: int = 1, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
             raise ValueError(f"wind_from_deg must be finite, got {wind_from_deg!r}")
-        for name, v in (("particles", particles), ("memory", memory), ("info_particles", info_particles)):
+        for name, v in (("particles", particles), ("memory", memory), ("info_particles", info_particles),
+                        ("path_samples", path_samples)):
             if isinstance(v, bool) or int(v) != v or v < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
         lo, hi = (_positive("amplitude_range", a) for a in amplitude_range)
@@ -175,6 +180,7 @@ class SteSeeker:
         self.wind_from_deg = None if wind_from_deg is None else float(wind_from_deg)
         self.wind_std_rad = np.deg2rad(_positive("wind_std_deg", wind_std_deg, allow_zero=True))
         self.info_particles = int(info_particles)
+        self.path_samples = int(path_samples)
         self.log_amp = (np.log(lo), np.log(hi))
         self.model = dict(stability=stability, s0_m=_positive("source_radius_m", source_radius_m),
                           ground_alt_m=float(ground_alt_m), smooth=self.patchy)
@@ -390,8 +396,10 @@ class SteSeeker:
         or the posterior mean (step 5)."""
         k = c.shape[0]
         cand = self._candidates(c)
-        pts = (cand[:, :, None, :] + off[:, None, :, :]).reshape(k, -1, 3)
-        q = self._p_hit(sub, pts)  # (K, S, C * N)
+        frac = np.arange(1, self.path_samples + 1) / self.path_samples  # points along the way (path_samples)
+        way = c[:, None, None, :] + frac[None, None, :, None] * (cand - c[:, None, :])[:, :, None, :]  # (K, C, F, 3)
+        pts = (way[:, :, :, None, :] + off[:, None, None, :, :]).reshape(k, -1, 3)
+        q = self._p_hit(sub, pts)  # (K, S, C * F * N)
         info = (_entropy2(q.mean(axis=1)) - _entropy2(q).mean(axis=1)).reshape(k, cand.shape[1], -1).sum(axis=2)
         best = np.take_along_axis(cand, np.argmax(info, axis=1)[:, None, None], axis=1)[:, 0]
         return np.where((self.region95_m < self.exploit_m)[:, None], self.estimate_enu, best)

@@ -17,6 +17,13 @@ simple kinematic model of what :mod:`mission.flight.seek_moving` does:
   ``gamma_m``, becomes the new ``c``.
 
 The first estimate is made at rest at the start from one reading per vehicle, as in the mission.
+A time-dependent field (``field.time_dependent``: the intermittent plume) is read at the trial's
+mission time plus ``trial * trial_time_offset_s`` (independent realisations per trial). A seeker
+that sizes the formation (``formation_radius_m``: ``ste``) gets it: every vehicle then flies to its
+own slot (the offsets scaled to that mean radius, directions kept) under the same speed limits, and
+the formation's centre is the vehicles' mean less the slots' mean (with a constant radius every
+vehicle makes the centre's move: the rigid formation above). The seekers' own estimates at the end
+(``estimate_enu``, ``region95_m``, ``arrival``: a seeker with a posterior) are kept per trial.
 """
 from __future__ import annotations
 
@@ -44,6 +51,8 @@ class MovingRun:
     readings : ndarray of int, shape (T, K)
         Readings the seeker got at each estimate.
     source_enu : ndarray, shape (3,)
+    seekers : list, optional
+        Each trial's seeker after the run (its own estimate, if it has one).
     """
 
     centres: np.ndarray
@@ -51,6 +60,7 @@ class MovingRun:
     times_s: np.ndarray
     readings: np.ndarray
     source_enu: np.ndarray
+    seekers: list | None = None
 
     def time_within_s(self, tol_m: float = 1.0) -> np.ndarray:
         """Per trial: the first estimate time from which on the formation stays within ``tol_m``
@@ -67,30 +77,42 @@ class MovingRun:
 
 @dataclass
 class _Trial:
-    """One trial's kinematic state and its reading history (positions per sample tick)."""
+    """One trial's kinematic state (each vehicle's position ``p`` (N, 3) and its slot offsets)
+    and its reading history (positions per sample tick)."""
 
-    x: np.ndarray
+    p: np.ndarray
+    slots: np.ndarray
     t_s: float
     hist_t: list
     hist_x: list
 
+    @property
+    def x(self) -> np.ndarray:
+        """The formation's centre: the vehicles' mean less the slots' mean."""
+        return self.p.mean(axis=0) - self.slots.mean(axis=0)
+
 
 def _fly(trial: _Trial, goal: np.ndarray, dt_s: float, speed_m_s: float, vz_m_s: float) -> None:
-    """Advance ``trial.x`` towards ``goal`` for ``dt_s`` under the ramp's speed limits."""
-    d = goal - trial.x
-    h = float(np.hypot(d[0], d[1]))
-    scale = min(1.0, speed_m_s * dt_s / h if h > 0 else 1.0, vz_m_s * dt_s / abs(d[2]) if d[2] else 1.0)
-    trial.x = trial.x + d * scale
+    """Advance every vehicle towards its slot about ``goal`` for ``dt_s`` under the ramp's speed limits."""
+    d = goal + trial.slots - trial.p
+    h = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore"):
+        scale = np.minimum(1.0, np.minimum(np.where(h > 0, speed_m_s * dt_s / h, 1.0),
+                                           np.where(d[:, 2] != 0, vz_m_s * dt_s / np.abs(d[:, 2]), 1.0)))
+    trial.p = trial.p + d * scale[:, None]
     trial.t_s += dt_s
 
 
-def simulate_moving(offsets, field, start, seeker: str, *, gamma_m: float, iterations: int,
+def simulate_moving(offsets, field, start, seeker, *, gamma_m: float, iterations: int,
                     noise_std: float = 0.0, rotate: bool = True, seed: int = 0, speed_m_s: float = 3.0,
                     vertical_speed_m_s: float = 1.0, sensor_rate_hz: float = 10.0, rate_hz: float = 2.0,
                     replan_fraction: float = 0.5, arrival_tol_m: float = 0.35, sensor_tau_s: float = 0.0,
-                    sensor_lag_s: float = 0.0) -> MovingRun:
-    """Run ``K = len(start)`` trials of the ``seeker`` (a name of :data:`estimator.seekers.SEEKERS`
-    other than ``gradient``) sampling while moving (module docstring); returns a :class:`MovingRun`.
+                    sensor_lag_s: float = 0.0, trial_time_offset_s: float = 1.0e4) -> MovingRun:
+    """Run ``K = len(start)`` trials of a seeker sampling while moving (module docstring); returns
+    a :class:`MovingRun`.
+
+    ``seeker`` is a name of :data:`estimator.seekers.SEEKERS` other than ``gradient`` (built with
+    its defaults), or a callable of no argument returning a new seeker (one per trial).
 
     Raises
     ------
@@ -110,62 +132,81 @@ def simulate_moving(offsets, field, start, seeker: str, *, gamma_m: float, itera
             and sensor_tau_s >= 0 and sensor_lag_s >= 0):
         raise ValueError("need gamma_m, speeds and rates > 0, iterations >= 1, noise_std, sensor_tau_s and "
                          "sensor_lag_s >= 0, 0 < replan_fraction <= 1")
+    build = seeker if callable(seeker) else (lambda: make_seeker(seeker))
     rng = np.random.default_rng(seed)
     k = c0.shape[0]
     off = np.asarray(offsets, dtype=float)
     trial_off = _rotated(off, k, rng) if rotate else np.broadcast_to(off, (k,) + off.shape).copy()
     shape = (int(iterations) + 1, k)
     out = {"c": np.empty(shape + (3,)), "x": np.empty(shape + (3,)), "t": np.empty(shape),
-           "m": np.zeros((int(iterations), k), dtype=int)}
+           "m": np.zeros((int(iterations), k), dtype=int), "seekers": []}
     params = dict(gamma_m=gamma_m, noise_std=noise_std, speed_m_s=speed_m_s, vz_m_s=vertical_speed_m_s,
                   dt_s=1.0 / sensor_rate_hz, period_s=1.0 / rate_hz, fraction=replan_fraction,
                   arrival_tol_m=arrival_tol_m, tau_s=sensor_tau_s, lag_s=sensor_lag_s)
     for j in range(k):
-        _one_trial(make_seeker(seeker), field, c0[j], trial_off[j], rng, out, j, params)
-    return MovingRun(out["c"], out["x"], out["t"], out["m"], np.asarray(field.source_enu(), dtype=float))
+        t0_s = j * float(trial_time_offset_s) if getattr(field, "time_dependent", False) else None
+        out["seekers"].append(_one_trial(build(), field, c0[j], trial_off[j], rng, out, j, params, t0_s))
+    return MovingRun(out["c"], out["x"], out["t"], out["m"], np.asarray(field.source_enu(), dtype=float),
+                     out["seekers"])
 
 
-def _one_trial(seeker, field, c0, offsets, rng, out: dict, j: int, p: dict) -> None:
-    """Fly trial ``j`` (module docstring) into ``out``."""
+def _one_trial(seeker, field, c0, offsets, rng, out: dict, j: int, p: dict, t0_s: float | None = None):
+    """Fly trial ``j`` (module docstring) into ``out``; returns the seeker. ``t0_s``: the field's
+    time at the trial's start (None: a static field, read without a time)."""
     from sitl_mock.sensor_response import FirstOrderLag
 
     lags = [FirstOrderLag(p["tau_s"]) for _ in range(len(offsets))]
-    trial = _Trial(x=c0.copy(), t_s=0.0, hist_t=[], hist_x=[])
+    trial = _Trial(p=c0 + offsets, slots=offsets, t_s=0.0, hist_t=[], hist_x=[])
     c = c0.copy()
-    last_est = 0.0
+    seeker.reset()
 
     def read():
-        pos = trial.x + offsets
-        vals = field.value(pos) + (rng.standard_normal(len(pos)) * p["noise_std"] if p["noise_std"] else 0.0)
+        pos = trial.p
+        vals = field.value(pos) if t0_s is None else field.value(pos, t0_s + trial.t_s)
+        if p["noise_std"]:
+            vals = vals + rng.standard_normal(len(pos)) * p["noise_std"]
         vals = np.array([lag(trial.t_s, float(v)) for lag, v in zip(lags, vals)])
         trial.hist_t.append(trial.t_s)
-        trial.hist_x.append(trial.x.copy())
+        trial.hist_x.append(trial.p.copy())
         return vals
 
-    pos, vals = [trial.x + offsets], [read()]
+    vals = [read()]
     for it in range(out["t"].shape[0]):
         out["c"][it, j], out["x"][it, j], out["t"][it, j] = c, trial.x, trial.t_s
         if it == out["t"].shape[0] - 1:
             break
-        placed = _placed(trial, len(pos), offsets, p["lag_s"])
+        placed = _placed(trial, len(vals), p["lag_s"])
         values = np.concatenate(vals)
         out["m"][it, j] = len(values)
         c = cap_move(c[None], seeker.propose(c[None], placed[None], values[None]), p["gamma_m"])[0]
+        radius = getattr(seeker, "formation_radius_m", None)
+        if radius is not None:
+            trial.slots = _scaled_slots(offsets, float(np.asarray(radius).ravel()[0]))
         last_est = trial.t_s
-        start_gap = float(np.linalg.norm(c - trial.x))
+        start_gap = float(np.max(np.linalg.norm(c + trial.slots - trial.p, axis=1)))
         left = max((1.0 - p["fraction"]) * start_gap, p["arrival_tol_m"])
-        pos, vals = [], []
-        while not pos or float(np.linalg.norm(trial.x - c)) > left or trial.t_s - last_est < p["period_s"] - 1e-9:
+        vals = []
+        while (not vals or float(np.max(np.linalg.norm(c + trial.slots - trial.p, axis=1))) > left
+               or trial.t_s - last_est < p["period_s"] - 1e-9):
             _fly(trial, c, p["dt_s"], p["speed_m_s"], p["vz_m_s"])
-            pos.append(trial.x + offsets)
             vals.append(read())
+    return seeker
 
 
-def _placed(trial: _Trial, ticks: int, offsets, lag_s: float) -> np.ndarray:
+def _scaled_slots(offsets: np.ndarray, radius_m: float) -> np.ndarray:
+    """``offsets`` (N, 3) scaled so that their mean distance from the centre is ``radius_m``."""
+    base = float(np.linalg.norm(offsets, axis=1).mean())
+    return offsets * (radius_m / base if base > 0 else 1.0)
+
+
+def _placed(trial: _Trial, ticks: int, lag_s: float) -> np.ndarray:
     """Positions ``(ticks * N, 3)`` the seeker gets for the last ``ticks`` sample ticks: where they
-    were taken, or where the formation was ``lag_s`` before."""
+    were taken, or where each vehicle was ``lag_s`` before."""
     t = np.asarray(trial.hist_t[-ticks:])
-    hx = np.asarray(trial.hist_x)
-    x = hx[-ticks:] if lag_s <= 0 else np.stack(
-        [np.interp(t - lag_s, np.asarray(trial.hist_t), hx[:, i]) for i in range(3)], axis=-1)
-    return (x[:, None, :] + offsets[None]).reshape(-1, 3)
+    hx = np.asarray(trial.hist_x)  # (ticks so far, N, 3)
+    if lag_s <= 0:
+        return hx[-ticks:].reshape(-1, 3)
+    all_t = np.asarray(trial.hist_t)
+    x = np.stack([np.stack([np.interp(t - lag_s, all_t, hx[:, n, i]) for i in range(3)], axis=-1)
+                  for n in range(hx.shape[1])], axis=1)
+    return x.reshape(-1, 3)

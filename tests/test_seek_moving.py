@@ -279,3 +279,49 @@ def test_simulate_cli_selects_moving_sampling(capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["sampling"] == "moving" and out["converged"] and out["estimate_error_m"] < 0.5, out
     assert out["time_within_1m_s"] is not None and out["time_within_1m_s"] > 0
+
+
+def test_offline_moving_reads_a_time_dependent_field_at_mission_time_and_sizes_the_formation():
+    """experiments.offline_moving with a seeker factory: a time-dependent field is read at each
+    trial's mission time (plus the trial's offset), and a seeker's ``formation_radius_m`` moves
+    every vehicle to its scaled slot under the speed limit."""
+    import formation
+    from experiments.offline_moving import simulate_moving
+
+    class _Field:
+        time_dependent = True
+
+        def __init__(self):
+            self.times = []
+
+        def value(self, points, t_s=0.0):
+            self.times.append(float(t_s))
+            return np.zeros(np.shape(points)[:-1])
+
+        def source_enu(self):
+            return np.zeros(3)
+
+    class _Sizer:
+        name = "sizer"
+
+        def reset(self):
+            self.formation_radius_m = None
+
+        def propose(self, c, p, v):
+            last = p[0, -8:]  # the last sample tick's eight positions
+            self.radii = getattr(self, "radii", []) + [float(np.linalg.norm(last - last.mean(axis=0), axis=1).mean())]
+            self.formation_radius_m = np.array([2.0])
+            return c + np.array([[1.0, 0.0, 0.0]])
+
+    field = _Field()
+    offsets = formation.cvt_sphere(8, 4.0, seed=0)
+    run = simulate_moving(offsets, field, np.array([[0.0, 0.0, 10.0], [5.0, 0.0, 10.0]]), _Sizer, gamma_m=5.0,
+                          iterations=6, rotate=False, trial_time_offset_s=1000.0)
+    t = np.asarray(field.times)
+    assert t[0] == 0.0 and np.all(np.diff(t[t < 1000.0]) > 0) and t.max() > 1000.0  # per trial, forward in time
+    assert all(isinstance(s, _Sizer) for s in run.seekers) and run.seekers[0] is not run.seekers[1]
+    radii = run.seekers[0].radii
+    assert radii[0] == pytest.approx(np.linalg.norm(offsets - offsets.mean(axis=0), axis=1).mean(), rel=1e-6)
+    assert radii[-1] == pytest.approx(2.0 * radii[0] / np.linalg.norm(offsets, axis=1).mean(), rel=0.02)  # shrunk
+    # after the shrink the formation's centre (the vehicles' mean less the slots') still follows the commands
+    np.testing.assert_allclose(run.formation_enu[-1, 0] - run.centres[-1, 0], 0.0, atol=0.6)

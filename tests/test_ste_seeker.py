@@ -230,3 +230,24 @@ def test_the_model_check_passes_where_the_model_holds():
     seeker = SteSeeker(wind_from_deg=270.0, seed=3)
     _fly(seeker, field, 40)
     assert not seeker.misfit[0] and seeker.fit_z[0] < seeker.misfit_z
+
+
+def test_path_samples_value_the_readings_along_the_way(monkeypatch):
+    """With ``path_samples`` = 3 a candidate's information is computed for the formation at 1/3,
+    2/3 and all of the way to it (the readings taken while moving), not at its end alone."""
+    field = make_field("plume", SOURCE)
+    seen = {}
+    for samples in (1, 3):
+        s = SteSeeker(wind_from_deg=270.0, seed=1, path_samples=samples, radius_gain=0.0)
+        orig_hit, orig_cand = s._p_hit, s._candidates
+        monkeypatch.setattr(s, "_p_hit", lambda parts, pts, o=orig_hit, k=samples: seen.setdefault(k, pts) is pts and o(parts, pts))
+        monkeypatch.setattr(s, "_candidates", lambda c, o=orig_cand, k=samples: seen.setdefault(("cand", k), o(c)))
+        c = np.array([[25.0, 1.0, 13.0]])
+        s.propose(c, c[:, None, :] + OFFSETS[None], field.value(c[:, None, :] + OFFSETS[None]))
+        cand = seen[("cand", samples)][0]
+        pts = seen[samples][0].reshape(len(cand), samples, len(OFFSETS), 3)
+        for f in range(samples):
+            np.testing.assert_allclose(pts[:, f] - OFFSETS[None], np.broadcast_to(
+                c[0] + (f + 1) / samples * (cand - c[0]), (len(OFFSETS), len(cand), 3)).transpose(1, 0, 2), atol=1e-9)
+    with pytest.raises(ValueError, match="path_samples"):
+        SteSeeker(path_samples=0)
