@@ -151,11 +151,11 @@ class _FakeClock:
 
 class _FakeCoordinator:
     def __init__(self, start, homes, layers, return_behaviour="land"):
-        from mission.flight.targets import TargetRamp
+        from mission.safety.gate import SafetyGate
 
         self.clock = _FakeClock()
         streamer = SimpleNamespace(set_target=lambda s, p: None, remove=lambda s: None)
-        self.ramp = TargetRamp(streamer, self.clock, 3.0)
+        self.ramp = SafetyGate(streamer, self.clock, 3.0, rate_hz=10.0)
         self.clock.ramp = self.ramp
         self.sysids = list(range(1, len(start) + 1))
         for s, p in zip(self.sysids, start):

@@ -2,9 +2,9 @@
 
 One asyncio task drives the phases (``mission.flight.phases`` and ``mission.flight.seek`` hold their code);
 the mission clock is injected (``WallClock`` against real vehicles, the mock fleet's
-``SimClock`` when embedded). Around it run: the :class:`~mission.vehicle.streamer.SetpointStreamer`
-(steady setpoint stream to every vehicle), the :class:`~mission.flight.targets.TargetRamp`
-(speed-limited, safety-checked setpoints), the zenoh readings subscription
+``SimClock`` when embedded). Around it run: the safety gate (:class:`~mission.safety.gate.SafetyGate`,
+``co.ramp``: speed-limited, safety-checked setpoints, sent every tick through the
+:class:`~mission.vehicle.streamer.SetpointStreamer`), the zenoh readings subscription
 (:mod:`mission.telemetry.readings`) and the state publisher (:mod:`mission.telemetry.state_pub`, which also feeds the
 display). Every phase change, event and seeking iteration goes to the mission log.
 """

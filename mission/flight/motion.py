@@ -1,6 +1,6 @@
 """Motion primitives shared by the phases: commands retried, goals flown and waited for, transfers.
 
-* :func:`setpoint_stream`: the setpoint streamer and the speed-limited, safety-checked ramp;
+* :func:`setpoint_stream`: the setpoint streamer and the safety gate driving it;
 * :func:`retried`: a vehicle command retried a few rounds (lossy links);
 * :func:`move_and_wait`: ramp goals set, then waited for (setpoints there, vehicles within a tolerance);
 * :func:`fly_timed`: a synchronous plan fed to the ramp as interpolated goals;
@@ -17,24 +17,23 @@ import numpy as np
 
 from mission.flight.obstacles import obstacles, plan_clear_transfer
 from mission.flight.state import MissionError
-from mission.flight.targets import TargetRamp
+from mission.safety.gate import SafetyGate
 
 __all__ = ["fly_timed", "keep_out", "move_and_wait", "paced", "parked", "retried", "setpoint_stream", "transfer_to"]
 
 
 def setpoint_stream(co, vehicles: list) -> None:
-    """Give the coordinator a setpoint streamer for ``vehicles`` and a ramp feeding it (not started).
+    """Give the coordinator a setpoint streamer for ``vehicles`` and the safety gate driving it
+    (not started: ``co.ramp.start()`` starts both).
 
-    The ramp (new setpoints, each batch checked by the safety envelope) runs at most at 10 Hz;
-    the streamer repeats the latest setpoint at ``setpoint_rate_hz`` in between (identical,
-    hence as safe).
+    The gate (:class:`mission.safety.gate.SafetyGate`) moves, checks and sends every vehicle's
+    setpoint at ``setpoint_rate_hz``, in one task: the one speed limiter.
     """
     from mission.vehicle.streamer import SetpointStreamer
 
     plan = co.plan
-    streamer = SetpointStreamer(vehicles, rate_hz=plan.setpoint_rate_hz, clock=co.clock,
-                                max_speed_m_s=plan.max_speed_m_s)
-    ramp = TargetRamp(streamer, co.clock, plan.max_speed_m_s, rate_hz=min(plan.setpoint_rate_hz, 10.0),
+    streamer = SetpointStreamer(vehicles, rate_hz=plan.setpoint_rate_hz, clock=co.clock)
+    ramp = SafetyGate(streamer, co.clock, plan.max_speed_m_s,
                       envelope=co.envelope, on_violation=lambda m: co.event(m, level="warning"))
     co.use_setpoints(streamer, ramp)
 

@@ -96,8 +96,7 @@ async def takeoff(co) -> None:
                                         plan.formation.seed)
     _plan_slots(co, offsets)
     setpoint_stream(co, list(co.vehicles.values()))
-    await co.streamer.start()
-    co.ramp.start()
+    co.ramp.start()  # the safety gate: moves, checks and sends the setpoints
     order = sorted(co.vehicles, key=lambda s: (co.layer_alt_m[s], s))
     waits = []
     for i, sysid in enumerate(order):

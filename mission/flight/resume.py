@@ -341,8 +341,7 @@ async def _reengage(co, flying: list[int]) -> None:
     for s in flying:
         co.ramp.add(s, co.telemetry_position(s))
         co.state.set_airborne(s, "re-engaging")
-    await co.streamer.start()
-    co.ramp.start()
+    co.ramp.start()  # the safety gate: moves, checks and sends the setpoints
     await co.clock.sleep(0.5)  # setpoints flowing before OFFBOARD (PX4 requires it)
     for s in flying:
         v = co.vehicles[s]
