@@ -105,7 +105,7 @@ async def _fly(co, stop_after=None):
         return await co.run()
     co.return_on_interrupt = False
     task = asyncio.get_running_loop().create_task(co.run())
-    while co.iteration < stop_after and not task.done():
+    while co.state.iteration < stop_after and not task.done():
         await co.clock.sleep(0.2)
     task.cancel()
     try:

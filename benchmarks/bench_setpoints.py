@@ -30,7 +30,8 @@ Stacks:
 * ``mavsdk-shared``: the same with all vehicles on one shared ``udpin://`` connection.
 
 Extending (e.g. to add estimation to the load): :func:`run_swarmseek` takes ``extra_load``, an
-async callable ``extra_load(vehicles, streamer, clock)`` started with the streamer and cancelled
+async callable ``extra_load(vehicles, streamer, clock)`` started instead of the streamer's own task
+(it sends by calling ``streamer.tick()``, as the mission's safety gate does) and cancelled
 at the end of the window; its cost is then part of the coordinator CPU figure. From the command
 line: ``--extra-load package.module:function`` (swarmseek stacks only; modules of ``benchmarks/``
 are found by name, e.g. ``--extra-load seek_load:seek_load`` for the coordinator's seek-loop work).
@@ -156,7 +157,8 @@ async def run_swarmseek(n: int, port_base: int, shared: bool, rate_hz: float, wi
     rng = np.random.default_rng(0)
     for v in vehicles:
         streamer.set_target(v.sysid, v.home_enu_m() + [0.0, 0.0, 10.0])
-    await streamer.start()
+    if extra_load is None:  # with the seek load, its safety gate sends (as in a mission)
+        await streamer.start()
 
     async def seek_like_updates():
         while True:   # the formation moves once a second, as a seek loop would

@@ -11,7 +11,8 @@ coordinator does during a seek besides streaming:
   :class:`~mission.telemetry.readings.ReadingStore` (JSON decode, geodetic -> ENU, telemetry distance,
   sequence checks). The payloads are made by cheap string formatting of a template (a sensor's
   encoding cost is not the coordinator's; zenoh transport is not included);
-* setpoints: a :class:`~mission.flight.targets.TargetRamp` (at most 10 Hz, as in the coordinator) moves every vehicle
+* setpoints: a :class:`~mission.safety.gate.SafetyGate` (at the streamer's rate, driving its sends, as in the
+  coordinator) moves every vehicle
   towards its slot and passes every batch through the :class:`~mission.safety.envelope.SafetyEnvelope`
   (fence, altitude band, speed, separation along the paths);
 * estimation at ``estimate_rate_hz``: time alignment, Theorem 2 on the actual positions about
@@ -36,7 +37,7 @@ async def seek_load(vehicles, streamer, clock, *, reading_rate_hz: float = 10.0,
                     radius_m: float = 4.0, fleet: str = "bench") -> None:
     """Run the seek-loop work until cancelled (see the module docstring)."""
     from mission.flight.phases import formation_offsets
-    from mission.flight.targets import TargetRamp
+    from mission.safety.gate import SafetyGate
     from mission.safety.envelope import Geofence, SafetyEnvelope
     from mission.telemetry.mission_log import MissionLog
     from mission.telemetry.readings import ReadingStore
@@ -53,7 +54,7 @@ async def seek_load(vehicles, streamer, clock, *, reading_rate_hz: float = 10.0,
     fence = Geofence(np.array([[-5000.0, -5000.0], [5000.0, -5000.0], [5000.0, 5000.0], [-5000.0, 5000.0]]),
                      -1000.0, 5000.0)
     envelope = SafetyEnvelope(fence, max_speed_m_s=3.0, min_separation_m=0.0, formation_radius_m=radius_m)
-    ramp = TargetRamp(streamer, clock, 3.0, rate_hz=min(streamer.rate_hz, 10.0), envelope=envelope)
+    ramp = SafetyGate(streamer, clock, 3.0, envelope=envelope)  # it drives the streamer's sends
     offsets = formation_offsets("cvt", n, radius_m * max(1.0, (n / 8) ** 0.5))
     centre = np.array([0.0, 0.0, 20.0])
     for i, v in enumerate(vehicles):

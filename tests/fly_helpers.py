@@ -4,6 +4,7 @@ from __future__ import annotations
 import asyncio
 
 from mission.flight.coordinator import Coordinator
+from mission.flight.result import MissionResult
 from mission.sim.embedded_world import EmbeddedWorld
 from mission.sim.lockstep import VirtualClock, run_lockstep
 from mission.telemetry.mission_log import MissionLog
@@ -54,7 +55,7 @@ def run_fleet(fleet, make_main):
     else:
         world = EmbeddedWorld(fleet)
         result = run_lockstep(lambda: make_main(world), fleet.clock, world)
-    if hasattr(result, "outcome") or hasattr(result, "final_result"):
+    if isinstance(result, (MissionResult, Coordinator)):
         check_never_abandoned(fleet, _log_path(result))
     return result
 

@@ -42,7 +42,7 @@ def _setup(personality="ardupilot", n=4, return_behaviour="rtl", max_iterations=
 
 async def _fly_with(plan, fleet, log_path, action, world):
     """Fly ``plan``; ``action(co, task)`` runs beside the mission (it may cancel ``task``).
-    Returns the coordinator (its ``final_result`` is the result on every path)."""
+    Returns the coordinator (its ``state.final_result`` is the result on every path)."""
     import zenoh
 
     session = zenoh.open(plan.zenoh.to_config())
@@ -66,8 +66,8 @@ async def _fly_with(plan, fleet, log_path, action, world):
 
 async def _wait_phase(co, name, extra_s=0.0, timeout_s=400.0):
     deadline = co.clock.time() + timeout_s
-    while co.phase != name:
-        assert co.clock.time() < deadline, f"phase {name} never came (phase {co.phase})"
+    while co.state.phase != name:
+        assert co.clock.time() < deadline, f"phase {name} never came (phase {co.state.phase})"
         await co.clock.sleep(0.1)
     await co.clock.sleep(extra_s)
 
@@ -161,12 +161,12 @@ def test_interrupts_return_or_land_and_always_summarise(tmp_path, phase, interru
 
     async def action(co, task):
         await _wait_phase(co, phase, 0.5)
-        co.interrupts.append("SIGINT")
+        co.state.note_interrupt("SIGINT")
         task.cancel()
         for i in range(interrupts - 1):
             if i == 0:
                 await _wait_phase(co, "return", 1.0)
-            co.interrupts.append("SIGINT")
+            co.state.note_interrupt("SIGINT")
             task.cancel()
             await co.clock.sleep(0.3)
 
@@ -176,7 +176,7 @@ def test_interrupts_return_or_land_and_always_summarise(tmp_path, phase, interru
         assert not any(v.armed for v in fleet.vehicles), [v.mode_name for v in fleet.vehicles]
     finally:
         fleet.stop()
-    result = co.final_result
+    result = co.state.final_result
     assert result is not None and result.interrupted_by == ["SIGINT"] * interrupts
     summary = _records(log_path, "summary")
     assert len(summary) == 1 and summary[0]["interrupted_by"] == ["SIGINT"] * interrupts
@@ -211,7 +211,7 @@ def test_a_ground_station_that_just_stops_reports_the_vehicles_it_leaves(tmp_pat
     for v in left[0]["vehicles"]:
         assert v["mode"] == "GUIDED" and v["armed"] and v["lat_deg"] is not None and v["relative_alt_m"] > 5
     assert "swarmseek resume" in left[0]["advice"]
-    assert [e["sysid"] for e in co.final_result.airborne_left] == [1, 2, 3, 4]
+    assert [e["sysid"] for e in co.state.final_result.airborne_left] == [1, 2, 3, 4]
 
 
 def test_a_vehicle_that_stops_obeying_is_reported_airborne(tmp_path):
@@ -231,7 +231,7 @@ def test_a_vehicle_that_stops_obeying_is_reported_airborne(tmp_path):
         fleet.stop()
     assert still == [5]
     assert reported_airborne(log_path) == {5}
-    assert [e["sysid"] for e in co.final_result.airborne_left] == [5]
+    assert [e["sysid"] for e in co.state.final_result.airborne_left] == [5]
 
 
 def test_a_lost_vehicle_not_heard_is_reported(tmp_path):
@@ -250,5 +250,5 @@ def test_a_lost_vehicle_not_heard_is_reported(tmp_path):
     finally:
         fleet.stop()
     assert armed == [2]
-    left = co.final_result.airborne_left
+    left = co.state.final_result.airborne_left
     assert [e["sysid"] for e in left] == [2] and "not heard" in left[0]["state"]

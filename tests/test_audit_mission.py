@@ -8,7 +8,7 @@ source outside the geofence (the centre is held at the fence: ``stopped_at_fence
 planner fault steers vehicle 1 at vehicle 2 for 3 s (the envelope holds them apart).
 
 The speed check once failed on every mission: the setpoints sent were a resampling, by the
-``SetpointStreamer`` (10 Hz on an absolute schedule), of the ``TargetRamp`` (its own 10 Hz loop),
+``SetpointStreamer`` (10 Hz on an absolute schedule), of the ``SafetyGate`` (its own 10 Hz loop),
 so a streamer tick could carry a full ramp step (0.37 m) in 0.07 s (5.4 m/s for a 3 m/s limit).
 The streamer is now the last speed gate before the wire (``max_speed_m_s``), and the test holds.
 """
@@ -43,12 +43,12 @@ class _SteerIntoNeighbour:
 
     def __init__(self, a=1, b=2, after_moves=3, steps=30):
         from mission.flight import seek
-        from mission.flight.targets import TargetRamp
+        from mission.safety.gate import SafetyGate
 
         self.a, self.b, self.after_moves, self.left = a, b, after_moves, steps
         self.moves, self.t_start_s = 0, None
-        self._seek, self._ramp_cls = seek, TargetRamp
-        self._move, self._step = seek.move_and_wait, TargetRamp.step
+        self._seek, self._ramp_cls = seek, SafetyGate
+        self._move, self._step = seek.move_and_wait, SafetyGate.step
 
     def __enter__(self):
         fault = self

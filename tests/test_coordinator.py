@@ -13,7 +13,8 @@ import pytest
 
 from mission.telemetry.display import Display, format_line, format_summary, format_table
 from mission.telemetry.mission_log import MissionLog, read_mission_log
-from mission.flight.targets import TargetRamp, assign_slots, layered_altitudes, layered_transfer
+from mission.safety.gate import SafetyGate
+from mission.flight.targets import assign_slots, layered_altitudes, layered_transfer
 
 
 class _Clock:
@@ -31,6 +32,8 @@ class _Clock:
 
 
 class _Streamer:
+    rate_hz = 10.0
+
     def __init__(self):
         self.targets = {}
         self.history = []
@@ -42,6 +45,9 @@ class _Streamer:
     def remove(self, sysid):
         self.targets.pop(sysid, None)
 
+    def tick(self):
+        return 0
+
     def stats(self, sysid):
         return {"rate_hz": 10.0}
 
@@ -50,7 +56,7 @@ class _Streamer:
 @pytest.mark.parametrize("speed, vspeed", [(3.0, 1.0), (1.0, 1.0), (5.0, 0.5)])
 def test_ramp_limits_speed_and_reaches_goal(speed, vspeed):
     st = _Streamer()
-    ramp = TargetRamp(st, _Clock(), speed, rate_hz=10, max_vertical_speed_m_s=vspeed)
+    ramp = SafetyGate(st, _Clock(), speed, rate_hz=10, max_vertical_speed_m_s=vspeed)
     ramp.add(1, [0, 0, 10])
     ramp.add(2, [5, 0, 10])
     ramp.set_goals({1: np.array([10.0, 0, 14]), 2: np.array([5.0, -3, 10])})
@@ -74,7 +80,7 @@ def test_ramp_passes_every_batch_through_the_safety_envelope():
     env = SafetyEnvelope(fence, max_speed_m_s=2.0, min_separation_m=1.0, formation_radius_m=1.0)
     messages = []
     st = _Streamer()
-    ramp = TargetRamp(st, _Clock(), 5.0, rate_hz=10, envelope=env, on_violation=messages.append,
+    ramp = SafetyGate(st, _Clock(), 5.0, rate_hz=10, envelope=env, on_violation=messages.append,
                       max_vertical_speed_m_s=5.0)
     ramp.add(1, [0, 0, 10])
     ramp.set_goal(1, [50.0, 0, 10])  # outside the fence, and faster than the envelope allows
@@ -88,7 +94,7 @@ def test_ramp_passes_every_batch_through_the_safety_envelope():
 
 
 def test_ramp_rejects_goal_for_unknown_vehicle():
-    ramp = TargetRamp(_Streamer(), _Clock(), 3.0)
+    ramp = SafetyGate(_Streamer(), _Clock(), 3.0)
     with pytest.raises(KeyError, match="no setpoint yet"):
         ramp.set_goal(7, [0, 0, 0])
 
@@ -107,7 +113,7 @@ def test_ramp_settles_then_wakes_on_a_new_goal_or_vehicle():
     fence = Geofence(np.array([[-50.0, -50], [50, -50], [50, 50], [-50, 50]]), 2.0, 30.0)
     env = _CountingEnvelope(fence, max_speed_m_s=5.0, min_separation_m=1.0, formation_radius_m=1.0)
     st = _Streamer()
-    ramp = TargetRamp(st, _Clock(), 3.0, rate_hz=10, envelope=env, max_vertical_speed_m_s=3.0)
+    ramp = SafetyGate(st, _Clock(), 3.0, rate_hz=10, envelope=env, max_vertical_speed_m_s=3.0)
     ramp.add(1, [0, 0, 10])
     ramp.add(2, [5, 0, 10])
     ramp.set_goal(1, [1.0, 0, 10])
@@ -136,7 +142,7 @@ def test_ramp_never_settles_while_the_envelope_holds_a_vehicle_short_of_its_goal
     from mission.safety.envelope import Geofence, SafetyEnvelope
     fence = Geofence(np.array([[-10.0, -10], [10, -10], [10, 10], [-10, 10]]), 2.0, 30.0)
     env = SafetyEnvelope(fence, max_speed_m_s=5.0, min_separation_m=1.0, formation_radius_m=1.0)
-    ramp = TargetRamp(_Streamer(), _Clock(), 3.0, rate_hz=10, envelope=env)
+    ramp = SafetyGate(_Streamer(), _Clock(), 3.0, rate_hz=10, envelope=env)
     ramp.add(1, [0, 0, 10])
     ramp.set_goal(1, [50.0, 0, 10])  # outside the fence: clamped at its edge for ever
     for _ in range(60):
@@ -148,7 +154,7 @@ def test_ramp_never_settles_while_the_envelope_holds_a_vehicle_short_of_its_goal
 def _simulate_ramp(batches, speed, vspeed, dt=0.05):
     """Positions over time when every vehicle follows ``batches`` with the ramp's speed limits."""
     st = _Streamer()
-    ramp = TargetRamp(st, _Clock(), speed, rate_hz=1 / dt, max_vertical_speed_m_s=vspeed)
+    ramp = SafetyGate(st, _Clock(), speed, rate_hz=1 / dt, max_vertical_speed_m_s=vspeed)
     for i, p in enumerate(batches[0]):
         ramp.add(i, p)
     track = []

@@ -120,15 +120,15 @@ def test_pause_holds_the_formation_then_continue_converges(tmp_path):
     fleet, plan = _setup()
 
     async def operator(co):
-        await _until(lambda: co.phase == "seek" and co.iteration >= 3, 400.0, "iteration 3")
+        await _until(lambda: co.state.phase == "seek" and co.state.iteration >= 3, 400.0, "iteration 3")
         ack = co.command("pause", "alice@ops")
         assert ack["accepted"], ack
         await _until(lambda: co.control.holding, 30.0, "the pause to hold")
-        k, centre = co.iteration, np.array(co.centre_enu)
+        k, centre = co.state.iteration, np.array(co.state.centre_enu)
         setpoints = {s: co.ramp.setpoint(s).copy() for s in co.ramp.sysids}
         t0 = asyncio.get_running_loop().time()
         await asyncio.sleep(20.0)  # simulated: the mission must not step while paused
-        held = (co.iteration, np.array(co.centre_enu), {s: co.ramp.setpoint(s) for s in co.ramp.sysids})
+        held = (co.state.iteration, np.array(co.state.centre_enu), {s: co.ramp.setpoint(s) for s in co.ramp.sysids})
         positions = {s: co.telemetry_position(s) for s in setpoints}
         assert co.command("continue", "bob@ops")["accepted"]
         return k, centre, setpoints, held, positions, asyncio.get_running_loop().time() - t0
@@ -159,7 +159,7 @@ def test_land_during_the_seek_lands_every_vehicle_where_it_is(tmp_path):
     fleet, plan = _setup()
 
     async def operator(co):
-        await _until(lambda: co.phase == "seek" and co.iteration >= 2, 400.0, "iteration 2")
+        await _until(lambda: co.state.phase == "seek" and co.state.iteration >= 2, 400.0, "iteration 2")
         where = {s: fleet.vehicle(s).true_position_ned().copy() for s in co.vehicles}
         assert co.command("land", "carol")["accepted"]
         await _until(lambda: all(fleet.vehicle(s).mode_name == "AUTO.LAND" for s in where), 30.0, "AUTO.LAND")
@@ -183,7 +183,7 @@ def test_abort_during_the_assembly_brings_every_vehicle_home(tmp_path):
     fleet, plan = _setup()
 
     async def operator(co):
-        await _until(lambda: co.phase == "assemble", 300.0, "the assembly")
+        await _until(lambda: co.state.phase == "assemble", 300.0, "the assembly")
         ack = co.command("abort", "dave")
         late = co.command("pause", "erin")   # the mission is ending: refused
         return ack, late
@@ -204,9 +204,9 @@ def test_rtl_during_the_mission_return_hands_every_vehicle_to_the_autopilot(tmp_
     modes = set()
 
     async def operator(co):
-        await _until(lambda: co.phase == "seek" and co.iteration >= 2, 400.0, "iteration 2")
+        await _until(lambda: co.state.phase == "seek" and co.state.iteration >= 2, 400.0, "iteration 2")
         assert co.command("return", "frank")["accepted"]
-        await _until(lambda: co.phase == "return", 60.0, "the return")
+        await _until(lambda: co.state.phase == "return", 60.0, "the return")
         ack = co.command("rtl", "frank")
         await _until(lambda: all(fleet.vehicle(s).mode_name == "AUTO.RTL" or not fleet.vehicle(s).armed
                                  for s in range(1, 5)), 60.0, "every vehicle in RTL")

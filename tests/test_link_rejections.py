@@ -87,7 +87,7 @@ class Intruder:
             self.first_s = now
 
     async def run(self, co, bursts: int, period_s: float = 0.5) -> None:
-        while co.phase != "seek":
+        while co.state.phase != "seek":
             await self.clock.sleep(0.1)
         try:
             for k in range(bursts):

@@ -111,14 +111,41 @@ def test_retired_board_and_seek_progress(tmp_path):
         state.record_iteration(3, np.zeros(3), 0.0, np.ones(3), 0.2)  # a bare point: never without its region
 
 
-def test_coordinator_state_attributes_are_read_only():
+def test_the_coordinator_has_no_mirror_of_the_state_and_the_state_is_read_only():
     from mission.flight.coordinator import Coordinator
     from mission.sim.embedded import embedded_plan
 
     ports = {"udp_base_port": 20000, "udp_bind_base_port": 20100, "tcp_base_port": 0, "zenoh_port": 20200}
     co = Coordinator(embedded_plan(4, ports), clock=_Clock())
-    assert co.phase == "idle" and dict(co.status) == {s: "pending" for s in (1, 2, 3, 4)}
-    with pytest.raises(AttributeError, match="mission state"):
-        co.phase = "seek"
-    with pytest.raises(AttributeError, match="mission state"):
-        co.lost = {}
+    assert co.state.phase == "idle" and dict(co.state.status) == {s: "pending" for s in (1, 2, 3, 4)}
+    for name in ("phase", "status", "lost", "iteration", "centre_enu", "interrupts", "land_commanded",
+                 "mission_checks", "final_result", "still_armed"):
+        assert not hasattr(co, name), name  # one place: co.state
+        with pytest.raises(AttributeError, match="no setter"):
+            setattr(co.state, name, None)
+
+
+def test_the_end_of_a_mission_is_mission_state(tmp_path):
+    state, _log, _ = _state(tmp_path)
+    state.note_interrupt("SIGINT")
+    state.note_interrupt("SIGTERM")
+    assert state.interrupts == ("SIGINT", "SIGTERM")
+    state.add_mission_check("readings", True, "a reading from each")
+    state.add_mission_check("zenoh", False, "no session", first=True)
+    assert [c["name"] for c in state.mission_checks] == ["zenoh", "readings"]
+    state.mission_checks[0]["ok"] = True  # a copy: the state is unchanged
+    assert state.mission_checks[0] == {"name": "zenoh", "ok": False, "detail": "no session"}
+    state.clear_mission_checks()
+    assert state.mission_checks == ()
+    state.mark_land_commanded(2)
+    assert state.land_commanded == frozenset({2})
+    with pytest.raises(ValueError, match="not in the plan"):
+        state.mark_land_commanded(99)
+    entries = [{"sysid": 3, "state": "armed on the ground"}]
+    state.set_still_armed(entries)
+    entries[0]["sysid"] = 4
+    assert state.still_armed == ({"sysid": 3, "state": "armed on the ground"},)
+    assert state.final_result is None
+    result = SimpleNamespace(outcome="converged")
+    state.finish(result)
+    assert state.final_result is result

@@ -63,9 +63,9 @@ class _Estimate:
 
 
 def _co(faults=FaultsPlan(), retired=(), lost=(), under=range(1, 9)):
-    return SimpleNamespace(plan=SimpleNamespace(faults=faults), lost={s: None for s in lost},
-                           ramp=SimpleNamespace(sysids=set(under)), retired={s: None for s in retired},
-                           slot_offsets={s: np.array([float(s), 0.0, 0.0]) for s in range(1, 9)})
+    state = SimpleNamespace(lost={s: None for s in lost}, retired={s: None for s in retired},
+                            slot_offsets={s: np.array([float(s), 0.0, 0.0]) for s in range(1, 9)})
+    return SimpleNamespace(plan=SimpleNamespace(faults=faults), ramp=SimpleNamespace(sysids=set(under)), state=state)
 
 
 @pytest.mark.parametrize("code, reason", [(4, "noisy"), (1, "stuck")])
@@ -159,7 +159,7 @@ def test_retirement_is_refused_when_things_changed_since_the_estimate(sysids, lo
     co.event = lambda message, level="info", **fields: events.append(message)
     info = RetiredSensor(3, "noisy", 0.05, 0.01, 30, 20, 100.0)
     assert asyncio.run(retire_sensor(co, np.zeros(3), sysids, info)) == sysids
-    assert events == [f"vehicle 3's sensor not retired: {why}"] and 3 not in co.retired
+    assert events == [f"vehicle 3's sensor not retired: {why}"] and 3 not in co.state.retired
 
 
 @pytest.mark.parametrize("climb_m, planned_s, expected_s", [
@@ -200,10 +200,10 @@ def test_resume_reads_the_retired_sensor_back(tmp_path):
     state = load_resume_state(tmp_path / "m.jsonl")
     assert sorted(state.retired) == [4] and state.retired[4]["reason"] == "noisy"
     assert np.allclose(state.slot_offsets[4], 0.0) and sorted(state.slot_offsets) == [1, 2, 3, 4, 5, 6]
-    co = SimpleNamespace(retired={}, lost={}, status={})
+    co = SimpleNamespace(state=SimpleNamespace(retired={}, lost={}, status={}))
     restore_retired(co, state.retired)
-    assert co.retired[4] == RetiredSensor(4, "noisy", 0.05, 0.01, 12, 10, 30.0)
-    assert co.status[4] == PARKED_STATUS
+    assert co.state.retired[4] == RetiredSensor(4, "noisy", 0.05, 0.01, 12, 10, 30.0)
+    assert co.state.status[4] == PARKED_STATUS
 
 
 # ------------------------------------------------------------------------ against the mock

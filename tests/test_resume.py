@@ -36,10 +36,10 @@ async def _fly_then_stop(plan, fleet, log_path, stop_after: int, world=None):
         co.return_on_interrupt = False
         task = asyncio.get_running_loop().create_task(co.run())
         deadline = fleet.clock.time() + 600.0
-        while co.iteration < stop_after and not task.done() and fleet.clock.time() < deadline:
+        while co.state.iteration < stop_after and not task.done() and fleet.clock.time() < deadline:
             await fleet.clock.sleep(0.2)
         assert not task.done(), task.result().message
-        assert co.iteration >= stop_after, f"only {co.iteration} iterations before the deadline"
+        assert co.state.iteration >= stop_after, f"only {co.state.iteration} iterations before the deadline"
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task

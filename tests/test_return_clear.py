@@ -151,23 +151,21 @@ class _FakeClock:
 
 class _FakeCoordinator:
     def __init__(self, start, homes, layers, return_behaviour="land"):
-        from mission.flight.targets import TargetRamp
+        from mission.safety.gate import SafetyGate
 
         self.clock = _FakeClock()
         streamer = SimpleNamespace(set_target=lambda s, p: None, remove=lambda s: None)
-        self.ramp = TargetRamp(streamer, self.clock, 3.0)
+        self.ramp = SafetyGate(streamer, self.clock, 3.0, rate_hz=10.0)
         self.clock.ramp = self.ramp
         self.sysids = list(range(1, len(start) + 1))
         for s, p in zip(self.sysids, start):
             self.ramp.add(s, p)
-        self.home_enu = dict(zip(self.sysids, homes))
-        self.layer_alt_m = dict(zip(self.sysids, layers))
+        self.state = SimpleNamespace(home_enu=dict(zip(self.sysids, homes)),
+                                     layer_alt_m=dict(zip(self.sysids, layers)), phase="return", lost={},
+                                     status={})
         self.plan = SimpleNamespace(min_separation_m=SEP_M, return_behaviour=return_behaviour,
                                     seeking=SimpleNamespace(arrival_tol_m=0.35))
         self.envelope = None
-        self.phase = "return"
-        self.lost: dict = {}
-        self.status: dict = {}
         self.events: list = []
         self.track: list = []
 
@@ -220,13 +218,13 @@ def test_fly_clear_assembles_round_a_vehicle_lost_during_the_takeoff(monkeypatch
     obs = np.array([[10.0, 0.2, 8.0]])                           # lost climbing, on vehicle 1's way
     monkeypatch.setattr(return_clear, "obstacles", lambda co: obs)
     co = _FakeCoordinator(above_homes, HOMES, LAYERS)
-    co.phase = "assemble"
+    co.state.phase = "assemble"
     asyncio.run(return_clear.fly_clear(co, co.sysids, dict(zip(co.sysids, START)), 0.35))
     assert np.allclose([co.ramp.setpoint(s) for s in co.sysids], START, atol=1e-6)
     assert [(lv, m.split(":")[0]) for lv, m in co.events] == [
         ("info", "assembly re-planned around 1 position(s) of lost vehicles still flying")]
     assert np.linalg.norm(np.array(co.track) - obs[0], axis=-1).min() >= CLEAR_M - 0.05
-    assert co.status[1] == "assemble: slots"
+    assert co.state.status[1] == "assemble: slots"
 
 
 def test_fly_return_replans_after_a_loss_on_the_way(monkeypatch):
@@ -237,9 +235,9 @@ def test_fly_return_replans_after_a_loss_on_the_way(monkeypatch):
     hovering = []
 
     def _tick(t):
-        if t >= t_loss and 3 not in co.lost:              # vehicle 3 falls silent mid-way and hovers
+        if t >= t_loss and 3 not in co.state.lost:              # vehicle 3 falls silent mid-way and hovers
             hovering.append(co.ramp.setpoint(3))
-            co.lost[3] = object()
+            co.state.lost[3] = object()
             co.ramp.remove(3)
 
     co.clock.on_tick = _tick

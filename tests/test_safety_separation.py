@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mission.flight.result import MissionResult
-from mission.flight.targets import TargetRamp
+from mission.safety.gate import SafetyGate
 from mission.safety.envelope import Geofence, SafetyEnvelope, pairwise_path_separation
 from mission.safety.separation import hold_for_separation
 
@@ -168,6 +168,8 @@ class _Clock:
 
 
 class _Streamer:
+    rate_hz = 10.0
+
     def __init__(self):
         self.targets = {}
         self.history = []
@@ -179,6 +181,9 @@ class _Streamer:
     def remove(self, sysid):
         self.targets.pop(sysid, None)
 
+    def tick(self):
+        return 0
+
 
 def _tick(ramp, clock, n):
     for _ in range(n):
@@ -189,7 +194,7 @@ def _tick(ramp, clock, n):
 def test_ramp_streams_held_setpoints_and_reports_once_per_episode():
     env = _env(speed=3.0)
     clock, st_, messages = _Clock(), _Streamer(), []
-    ramp = TargetRamp(st_, clock, 3.0, rate_hz=10, envelope=env, on_violation=messages.append,
+    ramp = SafetyGate(st_, clock, 3.0, rate_hz=10, envelope=env, on_violation=messages.append,
                       max_vertical_speed_m_s=3.0)
     ramp.add(1, [10, 10, 20])
     ramp.add(2, [16, 10, 20])
@@ -219,7 +224,7 @@ def test_ramp_streams_held_setpoints_and_reports_once_per_episode():
 def test_ramp_stop_reports_an_open_episode():
     env = _env()
     clock, messages = _Clock(), []
-    ramp = TargetRamp(_Streamer(), clock, 3.0, envelope=env, on_violation=messages.append)
+    ramp = SafetyGate(_Streamer(), clock, 3.0, rate_hz=10.0, envelope=env, on_violation=messages.append)
     ramp.add(1, [10, 10, 20])
     ramp.add(2, [12, 10, 20])
     ramp.set_goal(1, [12.0, 10, 20])

@@ -53,8 +53,8 @@ async def dry_run(plan, *, clock=None, display=None, zenoh_session=None):
         except zenoh.ZError as exc:
             problem = zenoh_open_message(exc, plan.zenoh)
     try:
-        co = Coordinator(plan, clock=clock or WallClock(), zenoh_session=session, display=display)
-        co.zenoh_problem = problem
+        co = Coordinator(plan, clock=clock or WallClock(), zenoh_session=session, display=display,
+                         zenoh_problem=problem)
         return await co.dry_run()
     finally:
         if own and session is not None:

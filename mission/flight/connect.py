@@ -155,8 +155,8 @@ async def preflight(co, timeout_s: float = 30.0) -> None:
     await check_failsafe_params(co)
     await wait_autopilots_ready(co, plan.preflight.autopilot_ready_timeout_s)
     await _sensor_check(co)
-    for sysid in sorted(co.readiness):
-        r = co.readiness[sysid]
+    for sysid in sorted(co.state.readiness):
+        r = co.state.readiness[sysid]
         co.event(f"vehicle {sysid} ({r.id}): " + ("ready" if r.ready else "NOT READY: " + "; ".join(r.problems)),
                  level="info" if r.ready else "warning", sysid=sysid, checks=r.checks, warnings=r.warnings)
     co.use_envelope(envelope)

@@ -196,13 +196,13 @@ class MissionControl:
 
     async def checkpoint(self, co) -> None:
         """The seek loop's iteration boundary: a stop raises, a pause holds the formation."""
-        self.check(co.phase)
+        self.check(co.state.phase)
         if not self.paused:
             return
         by = self._paused_by
         held = {s: co.ramp.setpoint(s) for s in co.ramp.sysids}
         co.ramp.set_goals(held)  # the formation is settled at its slots: hold these setpoints
-        co.event(f"paused by {by}: the formation holds at iteration {co.iteration}", sender=by)
+        co.event(f"paused by {by}: the formation holds at iteration {co.state.iteration}", sender=by)
         t0 = co.clock.time()
         self._holding = True
         try:
@@ -237,7 +237,7 @@ class MissionControl:
 def operator_command(co, command: str, sender: str, state_pub=None) -> dict:
     """Submit an operator command to the coordinator ``co``: decided, logged, shown above the
     table and published at once (``state_pub``); returns the acknowledgement dict."""
-    ack = co.control.submit(command, sender, co.phase)
+    ack = co.control.submit(command, sender, co.state.phase)
     co.event(f"operator {ack.sender}: {ack.command} {'accepted' if ack.accepted else 'rejected'}: "
              f"{ack.reason}", level="info" if ack.accepted else "warning")
     if state_pub is not None:

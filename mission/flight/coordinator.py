@@ -2,9 +2,9 @@
 
 One asyncio task drives the phases (``mission.flight.phases`` and ``mission.flight.seek`` hold their code);
 the mission clock is injected (``WallClock`` against real vehicles, the mock fleet's
-``SimClock`` when embedded). Around it run: the :class:`~mission.vehicle.streamer.SetpointStreamer`
-(steady setpoint stream to every vehicle), the :class:`~mission.flight.targets.TargetRamp`
-(speed-limited, safety-checked setpoints), the zenoh readings subscription
+``SimClock`` when embedded). Around it run: the safety gate (:class:`~mission.safety.gate.SafetyGate`,
+``co.ramp``: speed-limited, safety-checked setpoints, sent every tick through the
+:class:`~mission.vehicle.streamer.SetpointStreamer`), the zenoh readings subscription
 (:mod:`mission.telemetry.readings`) and the state publisher (:mod:`mission.telemetry.state_pub`, which also feeds the
 display). Every phase change, event and seeking iteration goes to the mission log.
 """
@@ -35,19 +35,6 @@ _STE_HISTORY = 3000
 __all__ = ["Coordinator"]
 
 
-class _FromState:
-    """Read-only coordinator attribute: the :class:`MissionState` attribute of the same name."""
-
-    def __set_name__(self, owner, name: str) -> None:
-        self._name = name
-
-    def __get__(self, obj, objtype=None):
-        return self if obj is None else getattr(obj.state, self._name)
-
-    def __set__(self, obj, value) -> None:
-        raise AttributeError(f"{self._name} is mission state: change it through the methods of Coordinator.state")
-
-
 class Coordinator:
     """Flies one mission described by a :class:`~mission.core.plan.Plan`.
 
@@ -67,42 +54,23 @@ class Coordinator:
         State publication / display rate (wall clock).
     status_period_s : float
         A ``status`` record (every vehicle's state) goes to the mission log this often (mission clock).
+    zenoh_problem : str, optional
+        Why the plan's zenoh session could not be opened (the dry run's ``zenoh`` check says it).
 
     Notes
     -----
-    The mission's state is :attr:`state` (:class:`~mission.flight.state.MissionState`); the
-    coordinator's ``phase``, ``status``, ``lost``... are read-only views of it. The links,
+    All the mission's mutable state is :attr:`state` (:class:`~mission.flight.state.MissionState`:
+    phase, statuses, losses, the seek's progress, interrupts, mission checks, the landing guard's
+    commands, the final result); read it there (``co.state.phase``), change it through its
+    methods. The links,
     vehicles, setpoint stream and envelope are set by the phases through :meth:`add_endpoint`,
     :meth:`add_vehicle`, :meth:`use_poller`, :meth:`use_envelope` and :meth:`use_setpoints`.
     """
 
-    phase = _FromState()
-    status = _FromState()
-    readiness = _FromState()
-    airborne = _FromState()
-    released = _FromState()
-    reengaged = _FromState()
-    lost = _FromState()
-    readmitted = _FromState()
-    retired = _FromState()
-    slot_offsets = _FromState()
-    layer_alt_m = _FromState()
-    home_enu = _FromState()
-    formation_kind = _FromState()
-    iteration = _FromState()
-    centre_enu = _FromState()
-    gradient = _FromState()
-    estimate = _FromState()
-    estimate_enu = _FromState()
-    estimate_region95_m = _FromState()
-    estimate_basis = _FromState()
-    spread_m = _FromState()
-    distance_flown_m = _FromState()
-    vehicle_distance_m = _FromState()
-    max_loop_lag_s = _FromState()
 
     def __init__(self, plan: Plan, *, clock, zenoh_session=None, log: MissionLog | None = None,
-                 display=None, tlog_dir=None, state_rate_hz: float = 2.0, status_period_s: float = 1.0):
+                 display=None, tlog_dir=None, state_rate_hz: float = 2.0, status_period_s: float = 1.0,
+                 zenoh_problem: str | None = None):
         self.plan = plan
         self.clock = clock
         self.session = zenoh_session
@@ -132,11 +100,7 @@ class Coordinator:
         self._watchdog_task: asyncio.Task | None = None
         self._loss_task: asyncio.Task | None = None
         self.return_on_interrupt = True
-        self.interrupts: list[str] = []  # signals that interrupted the mission (operator_stop)
-        self.final_result: MissionResult | None = None  # set by mission_end.close on every path
-        self.mission_checks: list[dict] = []  # mission-wide preflight checks (readiness_mission)
-        self.land_commanded: set[int] = set()  # vehicles the landing guard commanded to LAND
-        self.still_armed: list[dict] = []  # vehicles still armed, though down or landing, at the end
+        self.zenoh_problem = zenoh_problem
         self.control = MissionControl(clock, log)  # operator commands (mission.flight.control)
         self._control_channel = None
 
@@ -232,8 +196,8 @@ class Coordinator:
         out = []
         for vp in self.plan.vehicles:
             v = self.vehicles.get(vp.sysid)
-            d = {"sysid": vp.sysid, "id": vp.id, "status": self.status.get(vp.sysid, ""),
-                 "sensor_retired": vp.sysid in self.retired}
+            d = {"sysid": vp.sysid, "id": vp.id, "status": self.state.status.get(vp.sysid, ""),
+                 "sensor_retired": vp.sysid in self.state.retired}
             if v is not None:
                 st = v.state
                 pos = self.telemetry_position(vp.sysid)
@@ -258,16 +222,16 @@ class Coordinator:
 
     def snapshot(self) -> dict:
         """The current state (published on ``swarmseek/<fleet>/mission/state``)."""
-        g = self.gradient
+        g = self.state.gradient
         return {
-            "fleet": self.plan.fleet, "phase": self.phase, "t_s": self.clock.time(),
-            "elapsed_s": self.clock.time() - self.state.t_start_s, "iteration": self.iteration,
-            "centre_enu": self.centre_enu, "gradient": g,
+            "fleet": self.plan.fleet, "phase": self.state.phase, "t_s": self.clock.time(),
+            "elapsed_s": self.clock.time() - self.state.t_start_s, "iteration": self.state.iteration,
+            "centre_enu": self.state.centre_enu, "gradient": g,
             "gradient_norm": None if g is None else float(np.linalg.norm(g)),
-            "estimate_enu": self.estimate_enu, "spread_m": self.spread_m,
-            "estimate_region95_m": self.estimate_region95_m, "estimate_basis": self.estimate_basis,
-            "estimate_geodetic": geodetic_point(self.plan.origin, self.estimate_enu),
-            "distance_flown_m": self.distance_flown_m, "vehicles": self.vehicle_status(),
+            "estimate_enu": self.state.estimate_enu, "spread_m": self.state.spread_m,
+            "estimate_region95_m": self.state.estimate_region95_m, "estimate_basis": self.state.estimate_basis,
+            "estimate_geodetic": geodetic_point(self.plan.origin, self.state.estimate_enu),
+            "distance_flown_m": self.state.distance_flown_m, "vehicles": self.vehicle_status(),
             "readings": self.store.counts(), "link_rejections": self.link_rejections(),
             "unknown_sysids": self.unknown_sysids(), "control": self.control.snapshot(),
         }
@@ -276,7 +240,7 @@ class Coordinator:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
         deadline = self.clock.time() + timeout_s
         while not predicate():
-            self.control.check(self.phase)  # an operator's stop ends the phase here
+            self.control.check(self.state.phase)  # an operator's stop ends the phase here
             if self.clock.time() > deadline:
                 raise MissionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
             await self.clock.sleep(poll_s)
@@ -353,7 +317,7 @@ class Coordinator:
             await self.stop_background()
         result = readiness_result(self.state, self.plan.vehicles, self.store.counts(),
                                   self.clock.time() - self.state.t_start_s,
-                                  mission_checks=self.mission_checks)
+                                  mission_checks=self.state.mission_checks)
         result.link_rejections, result.unknown_sysids = self.link_rejections(), self.unknown_sysids()
         if self.log is not None:
             self.log.write("summary", sync=True, **result.to_json())
@@ -372,7 +336,7 @@ class Coordinator:
         False (a ground station that just stops: the vehicles do what their autopilot does); a
         second cancellation lands them where they are (:mod:`mission.flight.mission_end`). Every
         path ends with the never-abandon check (:mod:`mission.flight.landing_guard`) and a
-        ``summary`` record; a cancelled run then raises CancelledError (:attr:`final_result`
+        ``summary`` record; a cancelled run then raises CancelledError (``state.final_result``
         holds its result).
         """
         if self.log is not None:
@@ -399,7 +363,7 @@ class Coordinator:
         except Exception as exc:  # noqa: BLE001 - anything unexpected: still bring the vehicles home
             import traceback
 
-            outcome, message = "aborted", f"unexpected error in phase {self.phase}: {type(exc).__name__}: {exc}"
+            outcome, message = "aborted", f"unexpected error in phase {self.state.phase}: {type(exc).__name__}: {exc}"
             self._aborting(message, traceback=traceback.format_exc())
         except asyncio.CancelledError:  # Ctrl-C, SIGTERM, a cancelled task: mission_end counts them
             return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self),
@@ -420,7 +384,7 @@ class Coordinator:
 
     async def return_safely(self) -> None:
         """Fly every airborne vehicle home; if the return fails, land every vehicle where it is."""
-        if not self.airborne:
+        if not self.state.airborne:
             return
         try:
             await phases.return_home(self)

@@ -125,7 +125,7 @@ async def check_failsafe_params(co, timeout_s: float = 5.0) -> dict[int, Failsaf
     _report(co, out, require)
     for s, a in out.items():
         bad = a.hovers_forever is not False
-        r = co.readiness.get(s)
+        r = co.state.readiness.get(s)
         if r is None:
             continue
         if require:

@@ -46,7 +46,7 @@ ADVICE = ("take manual control (RC) or command LAND/RTL from another ground stat
 
 def engaged_vehicles(co) -> list[int]:
     """Vehicles this ground station engaged: airborne, released (landing / RTL) or lost."""
-    return sorted(set(co.airborne) | set(co.released) | set(co.lost))
+    return sorted(set(co.state.airborne) | set(co.state.released) | set(co.state.lost))
 
 
 def verdict(v, link_timeout_s: float) -> tuple[str, str]:
@@ -191,7 +191,7 @@ async def land_now(co, timeout_s: float = 5.0) -> list[int]:
     Returns the vehicles commanded. No return flight, no stagger: each descends where it is.
     """
     timeout = co.plan.faults.link_timeout_s
-    done = co.land_commanded  # LAND accepted here: not sent twice
+    done = co.state.land_commanded  # LAND accepted here: not sent twice
     todo = [s for s in engaged_vehicles(co)
             if s not in done and verdict(co.vehicles.get(s), timeout)[0] == "airborne"]
     if not todo:
@@ -202,7 +202,7 @@ async def land_now(co, timeout_s: float = 5.0) -> list[int]:
         if err is not None:
             co.event(f"vehicle {s}: LAND command failed: {err}", level="error", sysid=s)
         else:
-            done.add(s)
+            co.state.mark_land_commanded(s)
     return todo
 
 
@@ -213,7 +213,7 @@ async def secure(co, why: str, confirm_timeout_s: float = 5.0,
     Returns the ``airborne_left`` entries (empty: none left airborne) and whether a
     cancellation cut the wait short (it is handled here: the caller decides what follows). The
     vehicles still armed though down or landing, after :func:`await_disarm`, are reported
-    (:func:`report_still_armed`) and kept in ``co.still_armed`` (the summary's ``still_armed``).
+    (:func:`report_still_armed`) and kept in ``co.state.still_armed`` (the summary's ``still_armed``).
 
     Parameters
     ----------
@@ -234,7 +234,7 @@ async def secure(co, why: str, confirm_timeout_s: float = 5.0,
     try:
         if land:
             await land_now(co, confirm_timeout_s)
-        commanded = co.land_commanded  # here or by an earlier land_now
+        commanded = co.state.land_commanded  # here or by an earlier land_now
         deadline = co.clock.time() + confirm_timeout_s
         while co.clock.time() < deadline and any(
                 verdict(co.vehicles.get(s), timeout)[0] == "airborne" for s in commanded):
@@ -261,5 +261,5 @@ async def secure(co, why: str, confirm_timeout_s: float = 5.0,
     armed = still_armed(co, timeout)
     if armed:
         report_still_armed(co, armed, why)
-    co.still_armed = armed
+    co.state.set_still_armed(armed)
     return entries, cancelled

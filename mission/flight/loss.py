@@ -169,7 +169,7 @@ async def watch_losses(co, period_s: float = 0.1) -> None:
     while True:
         t_before = co.clock.time()
         await co.clock.sleep(period_s)
-        if co.phase not in ("takeoff", "assemble", "seek", "finish", "return"):
+        if co.state.phase not in ("takeoff", "assemble", "seek", "finish", "return"):
             continue
         if co.clock.time() - t_before > period_s + 0.5 * faults.link_timeout_s:
             # this task woke up late: the event loop was busy and frames may be waiting in the
@@ -177,16 +177,16 @@ async def watch_losses(co, period_s: float = 0.1) -> None:
             await asyncio.sleep(0)
             continue
         now = co.clock.time()
-        watched = co.airborne | set(co.lost) | set(co.ramp.sysids if co.ramp is not None else ())
+        watched = co.state.airborne | set(co.state.lost) | set(co.ramp.sysids if co.ramp is not None else ())
         for sysid in sorted(watched):
             v = co.vehicles.get(sysid)
             if v is None:
                 continue
-            loss = co.lost.get(sysid)
+            loss = co.state.lost.get(sysid)
             if loss is not None:
                 await _maybe_came_back(co, v, loss, now)
                 continue
-            if sysid in co.released:
+            if sysid in co.state.released:
                 continue  # commanded by the coordinator to land / RTL
             if v.state.armed:
                 seen_armed.add(sysid)
@@ -219,7 +219,7 @@ async def _check(co, sysid: int, v, seen_armed: bool, engaged_s: float) -> Vehic
     else:  # the first of the heartbeats that reported it
         hb = getattr(v, "status_since_s", None) or getattr(v.state, "last_heartbeat_s", None)
         since = now if hb is None else min(now, float(hb))
-    return VehicleLoss(sysid, reason, detail, now, since, co.phase)
+    return VehicleLoss(sysid, reason, detail, now, since, co.state.phase)
 
 
 def _declare_lost(co, loss: VehicleLoss) -> None:
@@ -253,7 +253,7 @@ async def _maybe_came_back(co, v, loss: VehicleLoss, now: float) -> None:
     if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
         return
     alt = getattr(v.state, "relative_alt_m", None)
-    readmissible = (co.plan.faults.readmit and co.phase == "seek" and v.state.armed
+    readmissible = (co.plan.faults.readmit and co.state.phase == "seek" and v.state.armed
                     and (alt is None or alt >= 1.0) and v.state.mode not in LEFT_MODES.get(v.flavour, ()))
     co.state.came_back(loss.sysid, now, readmit=readmissible)
     if readmissible:
@@ -261,7 +261,7 @@ async def _maybe_came_back(co, v, loss: VehicleLoss, now: float) -> None:
                  "iteration (faults.readmit = true)", level="warning", sysid=loss.sysid)
         return
     if co.plan.faults.readmit:
-        why = f"faults.readmit = true, but not re-admissible (phase {co.phase}, mode {v.state.mode})"
+        why = f"faults.readmit = true, but not re-admissible (phase {co.state.phase}, mode {v.state.mode})"
     else:
         why = "faults.readmit = false"
     await keep_out(co, loss.sysid, v, why)
@@ -273,7 +273,7 @@ async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
     Computes the survivors' slots (:func:`survivor_slots`), then :func:`mission.flight.motion.transfer_to`. Returns
     the survivors; with fewer than 4 nothing is flown (the caller ends the mission).
     """
-    survivors = [s for s in sysids if s not in co.lost and co.ramp is not None and s in co.ramp.sysids]
+    survivors = [s for s in sysids if s not in co.state.lost and co.ramp is not None and s in co.ramp.sysids]
     if len(survivors) < 4:
         return survivors
     lost_here = [s for s in sysids if s not in survivors]
@@ -281,7 +281,7 @@ async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
                                      " (and the Theorem 2 estimator)")
     await transfer_to(co, survivors, new, centre_enu, f"re-forming for {len(survivors)} vehicles ({kind})",
                       lost_here)
-    return [s for s in survivors if s not in co.lost]
+    return [s for s in survivors if s not in co.state.lost]
 
 
 async def survivor_slots(co, centre_enu, sysids: list[int], gone: list[int], who: str = "vehicles",
@@ -297,9 +297,9 @@ async def survivor_slots(co, centre_enu, sysids: list[int], gone: list[int], who
     plan = co.plan
     loop = asyncio.get_running_loop()
     new, kind = await loop.run_in_executor(None, functools.partial(
-        reformed_offsets, co.formation_kind, {s: co.slot_offsets[s] for s in sysids}, gone,
+        reformed_offsets, co.state.formation_kind, {s: co.state.slot_offsets[s] for s in sysids}, gone,
         plan.formation.radius_m, plan.formation.seed))
-    if kind != co.formation_kind:
+    if kind != co.state.formation_kind:
         co.event(f"{len(sysids) - len(gone)} {who} left: the symmetric formation needs an even number; "
                  f"switching to the CVT formation{switch_note}", level="warning")
         co.state.set_formation_kind(kind)

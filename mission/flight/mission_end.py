@@ -33,7 +33,7 @@ def _uncancel() -> None:
 
 def interrupted_message(co) -> str:
     """``interrupted (SIGINT)``, ``interrupted (SIGINT, SIGINT)``... or ``interrupted``."""
-    names = list(getattr(co, "interrupts", ()) or ())
+    names = co.state.interrupts
     return "interrupted" + (f" ({', '.join(names)})" if names else "")
 
 
@@ -100,9 +100,9 @@ async def close(co, outcome: str, message: str, *, interrupted: bool = False):
         await co.stop_background()
     result = co.result(outcome, message)
     result.airborne_left = left
-    result.still_armed = list(co.still_armed)
-    result.interrupted_by = list(getattr(co, "interrupts", ()) or ())
-    co.final_result = result
+    result.still_armed = list(co.state.still_armed)
+    result.interrupted_by = list(co.state.interrupts)
+    co.state.finish(result)
     co.set_phase("done")
     if co.log is not None:
         co.log.write("summary", sync=True, **result.to_json())

@@ -1,6 +1,6 @@
 """Motion primitives shared by the phases: commands retried, goals flown and waited for, transfers.
 
-* :func:`setpoint_stream`: the setpoint streamer and the speed-limited, safety-checked ramp;
+* :func:`setpoint_stream`: the setpoint streamer and the safety gate driving it;
 * :func:`retried`: a vehicle command retried a few rounds (lossy links);
 * :func:`move_and_wait`: ramp goals set, then waited for (setpoints there, vehicles within a tolerance);
 * :func:`fly_timed`: a synchronous plan fed to the ramp as interpolated goals;
@@ -17,24 +17,23 @@ import numpy as np
 
 from mission.flight.obstacles import obstacles, plan_clear_transfer
 from mission.flight.state import MissionError
-from mission.flight.targets import TargetRamp
+from mission.safety.gate import SafetyGate
 
 __all__ = ["fly_timed", "keep_out", "move_and_wait", "paced", "parked", "retried", "setpoint_stream", "transfer_to"]
 
 
 def setpoint_stream(co, vehicles: list) -> None:
-    """Give the coordinator a setpoint streamer for ``vehicles`` and a ramp feeding it (not started).
+    """Give the coordinator a setpoint streamer for ``vehicles`` and the safety gate driving it
+    (not started: ``co.ramp.start()`` starts both).
 
-    The ramp (new setpoints, each batch checked by the safety envelope) runs at most at 10 Hz;
-    the streamer repeats the latest setpoint at ``setpoint_rate_hz`` in between (identical,
-    hence as safe).
+    The gate (:class:`mission.safety.gate.SafetyGate`) moves, checks and sends every vehicle's
+    setpoint at ``setpoint_rate_hz``, in one task: the one speed limiter.
     """
     from mission.vehicle.streamer import SetpointStreamer
 
     plan = co.plan
-    streamer = SetpointStreamer(vehicles, rate_hz=plan.setpoint_rate_hz, clock=co.clock,
-                                max_speed_m_s=plan.max_speed_m_s)
-    ramp = TargetRamp(streamer, co.clock, plan.max_speed_m_s, rate_hz=min(plan.setpoint_rate_hz, 10.0),
+    streamer = SetpointStreamer(vehicles, rate_hz=plan.setpoint_rate_hz, clock=co.clock)
+    ramp = SafetyGate(streamer, co.clock, plan.max_speed_m_s,
                       envelope=co.envelope, on_violation=lambda m: co.event(m, level="warning"))
     co.use_setpoints(streamer, ramp)
 
@@ -67,9 +66,9 @@ async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_
                         what: str = "vehicles to reach their goals") -> None:
     """Set ramp goals and wait until every setpoint is there and every vehicle within ``tol_m``.
 
-    Lost vehicles (``co.lost``, also those lost while waiting) are not waited for.
+    Lost vehicles (``co.state.lost``, also those lost while waiting) are not waited for.
     """
-    goals = {s: g for s, g in goals.items() if s not in co.lost and s in co.ramp.sysids}
+    goals = {s: g for s, g in goals.items() if s not in co.state.lost and s in co.ramp.sysids}
     co.ramp.set_goals(goals)
     if timeout_s is None:
         far = max((float(np.linalg.norm(co.ramp.setpoint(s) - g)) for s, g in goals.items()), default=0.0)
@@ -78,7 +77,7 @@ async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_
     def _arrived():
         co.update_odometry()
         for s, g in goals.items():
-            if s in co.lost or s not in co.ramp.sysids:
+            if s in co.state.lost or s not in co.ramp.sysids:
                 continue
             if not co.ramp.at_goal(s):
                 return False
@@ -92,8 +91,8 @@ async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_
 
 def parked(co) -> list[int]:
     """Vehicles whose sensor was retired, still under the mission's setpoints (sorted)."""
-    retired = getattr(co, "retired", None) or {}
-    return sorted(s for s in retired if s not in co.lost and co.ramp is not None and s in co.ramp.sysids)
+    retired = co.state.retired
+    return sorted(s for s in retired if s not in co.state.lost and co.ramp is not None and s in co.ramp.sysids)
 
 
 async def keep_out(co, sysid: int, v, why: str) -> None:
@@ -119,7 +118,7 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
     The transfer is planned by :func:`mission.flight.obstacles.plan_clear_transfer` (separation kept
     between the vehicles and from the lost vehicles still flying, inside the fence, at 80 % of
     the speed limit so that the ramp keeps up), flown leg by leg (interpolated goals every 0.1 s
-    of the mission clock); then ``co.slot_offsets`` is updated and the formation settles.
+    of the mission clock); then ``co.state.slot_offsets`` is updated and the formation settles.
     Without a separation-keeping plan the vehicles fly straight under the safety envelope.
     Vehicles parked at the centre (retired sensors, :mod:`mission.flight.retire`) not in ``sysids`` are
     part of the transfer too, at the new centre.
@@ -204,7 +203,7 @@ async def fly_timed(co, sysids: list[int], times_s, waypoints_enu) -> None:
             k = int(np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2))
             span = max(times[k + 1] - times[k], 1e-9)
             pos = wps[k] + (t - times[k]) / span * (wps[k + 1] - wps[k])
-        ramp.set_goals({s: pos[i] for i, s in enumerate(sysids) if s in ramp.sysids and s not in co.lost})
+        ramp.set_goals({s: pos[i] for i, s in enumerate(sysids) if s in ramp.sysids and s not in co.state.lost})
         if t >= times[-1]:
             return
         await co.clock.sleep(0.1)

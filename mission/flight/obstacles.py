@@ -32,7 +32,7 @@ def obstacles(co) -> np.ndarray:
     """
     now = co.clock.time()
     pts = []
-    for sysid, loss in co.lost.items():
+    for sysid, loss in co.state.lost.items():
         if loss.reason != "link" or now - loss.since_s > OBSTACLE_TTL_S:
             continue
         v = co.vehicles.get(sysid)

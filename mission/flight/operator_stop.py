@@ -48,7 +48,7 @@ _TOLD = {1: "stopping the mission: every vehicle returns (Ctrl-C again: LAND the
 async def run_until_stopped(co, resume_state=None):
     """``co.run(resume_state)`` under the stop handlers; returns the MissionResult.
 
-    A run cut short by a stop still returns its result (:attr:`Coordinator.final_result`,
+    A run cut short by a stop still returns its result (:attr:`MissionState.final_result <mission.flight.state.MissionState.final_result>`,
     whose ``summary`` record is in the log); a cancellation from anything else propagates.
     """
     loop = asyncio.get_running_loop()
@@ -56,7 +56,7 @@ async def run_until_stopped(co, resume_state=None):
     cancels = []
 
     def _stop(name: str) -> None:
-        co.interrupts.append(name)
+        co.state.note_interrupt(name)
         cancels.append(name)
         task.cancel()
 
@@ -65,12 +65,12 @@ async def run_until_stopped(co, resume_state=None):
         print(f"\nswarmseek: {sig.name}: {_TOLD.get(len(cancels), 'stopping now')}", file=sys.stderr, flush=True)
 
     def _on_log_failure(exc: OSError) -> None:
-        ending = co.phase in _ENDING or bool(cancels)
+        ending = co.state.phase in _ENDING or bool(cancels)
         alert(f"swarmseek: ERROR: cannot write the mission log {co.log.path} ({type(exc).__name__}: {exc}); "
               + ("the vehicles are already on their way home; nothing more is logged" if ending else
                  "bringing every vehicle home (the plan's return); nothing more is logged"))
         if ending:
-            co.interrupts.append(LOG_FAILURE)  # for the exit status; the return goes on as it is
+            co.state.note_interrupt(LOG_FAILURE)  # for the exit status; the return goes on as it is
         else:
             _stop(LOG_FAILURE)
 
@@ -83,8 +83,8 @@ async def run_until_stopped(co, resume_state=None):
     try:
         return await task
     except asyncio.CancelledError:
-        if co.interrupts and co.final_result is not None and not _self_cancelled():
-            return co.final_result
+        if co.state.interrupts and co.state.final_result is not None and not _self_cancelled():
+            return co.state.final_result
         raise
     finally:
         pipe.stop()

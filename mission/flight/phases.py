@@ -83,7 +83,7 @@ def _plan_slots(co, offsets: np.ndarray) -> None:
                            home_enu={s: homes[i] for i, s in enumerate(sysids)})
     co.event(f"formation {plan.formation.type}, {len(sysids)} slots, radius {plan.formation.radius_m} m, "
              f"d_min {d_min:.2f} m; {len(np.unique(alts))} layers {alts.min():.1f}..{alts.max():.1f} m",
-             slots={s: co.slot_offsets[s] for s in sysids}, layers=dict(co.layer_alt_m))
+             slots={s: co.state.slot_offsets[s] for s in sysids}, layers=dict(co.state.layer_alt_m))
 
 
 async def takeoff(co) -> None:
@@ -96,16 +96,15 @@ async def takeoff(co) -> None:
                                         plan.formation.seed)
     _plan_slots(co, offsets)
     setpoint_stream(co, list(co.vehicles.values()))
-    await co.streamer.start()
-    co.ramp.start()
-    order = sorted(co.vehicles, key=lambda s: (co.layer_alt_m[s], s))
+    co.ramp.start()  # the safety gate: moves, checks and sends the setpoints
+    order = sorted(co.vehicles, key=lambda s: (co.state.layer_alt_m[s], s))
     waits = []
     for i, sysid in enumerate(order):
         if i:
             await co.clock.sleep(plan.stagger_s)
         v = co.vehicles[sysid]
-        home = co.home_enu[sysid]
-        rel_alt = co.layer_alt_m[sysid] - home[2]
+        home = co.state.home_enu[sysid]
+        rel_alt = co.state.layer_alt_m[sysid] - home[2]
         held = {}
 
         def _note_start(v=v, held=held):
@@ -123,7 +122,7 @@ async def takeoff(co) -> None:
         co.state.set_airborne(sysid, "taking off")
         co.event(f"vehicle {sysid} taking off to {rel_alt:.1f} m above home", sysid=sysid)
         start = home if held.get("xy") is None else held["xy"]
-        waits.append(asyncio.ensure_future(_hold_after_climb(co, sysid, start, co.layer_alt_m[sysid])))
+        waits.append(asyncio.ensure_future(_hold_after_climb(co, sysid, start, co.state.layer_alt_m[sysid])))
     await asyncio.gather(*waits)
 
 
@@ -136,7 +135,7 @@ async def _hold_after_climb(co, sysid, start, layer_alt):
         co.ramp.add(sysid, target)  # PX4 offboard: setpoints must keep streaming from now on
 
     def _near():
-        if sysid in co.lost:
+        if sysid in co.state.lost:
             return True
         p = co.telemetry_position(sysid)
         return p is not None and abs(float(p[2]) - layer_alt) < 0.6
@@ -147,7 +146,7 @@ async def _hold_after_climb(co, sysid, start, layer_alt):
         raise
     except MissionError as exc:
         lose_failed(co, sysid, str(exc))
-    if sysid in co.lost:
+    if sysid in co.state.lost:
         return
     if sysid not in co.ramp.sysids:
         co.ramp.add(sysid, target)
@@ -163,14 +162,14 @@ async def assemble(co) -> None:
     """
     co.set_phase("assemble")
     plan = co.plan
-    sysids = sorted(s for s in co.vehicles if s not in co.lost and s in co.ramp.sysids)
+    sysids = sorted(s for s in co.vehicles if s not in co.state.lost and s in co.ramp.sysids)
     if len(sysids) < 4:
-        raise MissionError(f"vehicles {sorted(co.lost)} lost before the formation was assembled: "
+        raise MissionError(f"vehicles {sorted(co.state.lost)} lost before the formation was assembled: "
                            f"{len(sysids)} left, a formation needs 4")
     centre = plan.seeking.start_point()
     # the layered legs, re-planned around lost vehicles still flying (e.g. one lost in takeoff);
     # a vehicle that cannot reach its slot in time is lost, the others go on (if 4 are left)
-    goals = {s: centre + co.slot_offsets[s] for s in sysids}
+    goals = {s: centre + co.state.slot_offsets[s] for s in sysids}
     try:
         await fly_clear(co, sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
     except OperatorStop:
@@ -181,9 +180,9 @@ async def assemble(co) -> None:
             raise
         for s in late:
             lose_failed(co, s, str(exc))
-        sysids = [s for s in sysids if s not in co.lost]
+        sysids = [s for s in sysids if s not in co.state.lost]
         if len(sysids) < 4:
-            raise MissionError(f"vehicles {sorted(co.lost)} lost during the assembly: {len(sysids)} left, "
+            raise MissionError(f"vehicles {sorted(co.state.lost)} lost during the assembly: {len(sysids)} left, "
                                "a formation needs 4") from None
         await fly_clear(co, sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
     co.state.move_centre(centre)
@@ -208,18 +207,18 @@ async def return_home(co) -> None:
         co.set_phase("return", behaviour=f"{order} (operator)")
         done = order
         order = await co.control.unless_landing_ordered(
-            _land_staggered(co, sorted(co.airborne), rtl=order == "rtl", stagger_s=0.0), current=done)
+            _land_staggered(co, sorted(co.state.airborne), rtl=order == "rtl", stagger_s=0.0), current=done)
 
 
 async def _return_home(co) -> None:
     """The mission's own return (:func:`return_home` without an operator's order)."""
     co.set_phase("return", behaviour=co.plan.return_behaviour)
     plan = co.plan
-    flying = [s for s in sorted(co.airborne) if co.ramp is not None and s in co.ramp.sysids]
+    flying = [s for s in sorted(co.state.airborne) if co.ramp is not None and s in co.ramp.sysids]
     land_here: set[int] = set()
     if flying:
         land_here = await fly_return(co, flying)
-    await _land_staggered(co, sorted(co.airborne, key=lambda s: co.layer_alt_m.get(s, 0.0)),
+    await _land_staggered(co, sorted(co.state.airborne, key=lambda s: co.state.layer_alt_m.get(s, 0.0)),
                           rtl=plan.return_behaviour == "rtl", land_only=land_here)
 
 
@@ -273,4 +272,4 @@ async def _wait_landed(co, sysid, timeout_s: float = 180.0) -> None:
 
 async def land_all_now(co) -> None:
     """Emergency: land every airborne vehicle where it is (no stagger)."""
-    await _land_staggered(co, sorted(co.airborne), rtl=False)
+    await _land_staggered(co, sorted(co.state.airborne), rtl=False)

@@ -57,7 +57,7 @@ async def wait_autopilots_ready(co, timeout_s: float) -> None:
     clock = co.clock
     start = clock.time()
     # a vehicle that already failed another check is not waited for (its autopilot is still judged)
-    failed = {s for s in co.vehicles if (r := co.readiness.get(s)) is not None and not r.ready}
+    failed = {s for s in co.vehicles if (r := co.state.readiness.get(s)) is not None and not r.ready}
     vehicles = {s: v for s, v in co.vehicles.items() if s not in failed}
     last_progress = start
     last_probe: dict[int, float] = {}
@@ -87,7 +87,7 @@ async def wait_autopilots_ready(co, timeout_s: float) -> None:
     now = clock.time()
     waiting.update({s: p for s in failed if (p := autopilot_problems(co.vehicles[s], now))})
     for s in co.vehicles:
-        r = co.readiness.get(s)
+        r = co.state.readiness.get(s)
         if r is None:
             continue
         r.checks["autopilot"] = s not in waiting

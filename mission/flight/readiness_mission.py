@@ -18,7 +18,7 @@ own checks; ``swarmseek dry-run`` prints each of them, ``fly`` arms nothing when
     layer, down to the slot) inside the geofence.
 
 The checks are kept as a list of ``{"name", "ok", "detail"}`` on the coordinator
-(``co.mission_checks``) and go into the dry run's result (``mission_checks``).
+(``co.state.mission_checks``) and go into the dry run's result (``mission_checks``).
 """
 from __future__ import annotations
 
@@ -29,19 +29,17 @@ from formation.geodesy import geodetic_to_enu
 __all__ = ["check", "not_ready_message", "path_problems"]
 
 
-def _record(co, name: str, ok: bool, detail: str) -> None:
-    co.mission_checks.append({"name": name, "ok": bool(ok), "detail": detail})
+def _record(co, name: str, ok: bool, detail: str, first: bool = False) -> None:
+    co.state.add_mission_check(name, ok, detail, first=first)
     co.event(f"preflight: {name} " + ("ok" if ok else "FAIL") + f": {detail}",
              level="info" if ok else "warning", check=name, ok=bool(ok))
 
 
 async def check(co) -> None:
-    """Run the mission-wide checks (module docstring); record each on ``co.mission_checks``."""
-    co.mission_checks = []
+    """Run the mission-wide checks (module docstring); record each in ``co.state.mission_checks``."""
+    co.state.clear_mission_checks()
     await _readings_check(co)  # first: it gives the zenoh connections time to come up
-    _zenoh_check(co)
-    checks = co.mission_checks
-    checks.insert(0, checks.pop())  # reported first
+    _zenoh_check(co)  # reported first
     offsets = None
     if len(co.vehicles) >= 4 and co.plan.geofence.polygon_en_m:  # the slots of path_problems, off the loop
         from mission.flight.phases import solve_formation
@@ -52,24 +50,24 @@ async def check(co) -> None:
 
 
 def _zenoh_check(co) -> None:
-    problem = getattr(co, "zenoh_problem", None)
+    problem = co.zenoh_problem
     if problem or co.session is None:
-        _record(co, "zenoh", False, problem or "no zenoh session: no reading can arrive")
+        _record(co, "zenoh", False, problem or "no zenoh session: no reading can arrive", first=True)
         return
     z = co.plan.zenoh
     try:
         info = co.session.info
         n_peers = len(list(info.peers_zid())) + len(list(info.routers_zid()))
     except Exception as exc:  # noqa: BLE001 - a closed session, a test double: said, not fatal
-        _record(co, "zenoh", False, f"the zenoh session does not answer: {exc}")
+        _record(co, "zenoh", False, f"the zenoh session does not answer: {exc}", first=True)
         return
     if z.connect and n_peers == 0:
         _record(co, "zenoh", False, f"session open, but nothing reached at {', '.join(z.connect)} (mode {z.mode}): "
-                "is the zenoh router or the sensors' listener running, and is the address right?")
+                "is the zenoh router or the sensors' listener running, and is the address right?", first=True)
         return
     _record(co, "zenoh", True, f"session open, {n_peers} zenoh peer(s)/router(s) connected"
             + (f", connecting to {', '.join(z.connect)}" if z.connect else "")
-            + (f", listening on {', '.join(z.listen)}" if z.listen else ""))
+            + (f", listening on {', '.join(z.listen)}" if z.listen else ""), first=True)
 
 
 async def _readings_check(co) -> None:
@@ -100,7 +98,7 @@ async def _readings_check(co) -> None:
         return
     _record(co, "readings", False, detail + "; set [preflight] require_readings = false to fly anyway")
     for s in missing:
-        r = co.readiness.get(s)
+        r = co.state.readiness.get(s)
         if r is not None:
             r.checks["reading"] = False
             r.problems.append(f"no sensor reading within {pre.readings_timeout_s:g} s")
@@ -186,6 +184,6 @@ def path_problems(co, fence, offsets=None) -> list[str] | None:
 
 def not_ready_message(co) -> str | None:
     """Why ``fly`` must not arm (vehicles not ready, a mission check failed), or None."""
-    parts = [f"vehicle {r.sysid}: {', '.join(r.problems)}" for r in co.readiness.values() if not r.ready]
-    parts += [f"{c['name']}: {c['detail']}" for c in getattr(co, "mission_checks", []) if not c["ok"]]
+    parts = [f"vehicle {r.sysid}: {', '.join(r.problems)}" for r in co.state.readiness.values() if not r.ready]
+    parts += [f"{c['name']}: {c['detail']}" for c in co.state.mission_checks if not c["ok"]]
     return ("not ready to seek, nothing armed: " + "; ".join(parts)) if parts else None

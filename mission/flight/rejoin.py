@@ -39,12 +39,12 @@ def clear_goals(co, centre_enu, sysids: list[int]) -> bool:
     if not len(obs):
         return True
     sep = co.plan.min_separation_m + OBSTACLE_MARGIN_M
-    offsets = {s: co.slot_offsets[s] for s in sysids}
+    offsets = {s: co.state.slot_offsets[s] for s in sysids}
     start = {s: co.ramp.setpoint(s) for s in sysids if s in co.ramp.sysids}
     if len(start) != len(sysids):
         start = None
     new, ok = clear_offsets(offsets, centre_enu, obs, sep, start_enu=start,
-                            allow_tilt=co.formation_kind == "cvt")
+                            allow_tilt=co.state.formation_kind == "cvt")
     if any(not np.allclose(new[s], offsets[s]) for s in sysids):
         co.state.update_slots(new)
         co.event("formation rotated to keep clear of a lost vehicle still flying"
@@ -61,10 +61,10 @@ async def fly_rotation(co, centre_enu, sysids: list[int], before: dict[int, np.n
     (:func:`mission.flight.motion.transfer_to`) every path is planned and checked. ``before``: the slot
     offsets before :func:`clear_goals`. Nothing is flown when nothing rotated.
     """
-    members = [s for s in sysids if s not in co.lost and co.ramp is not None and s in co.ramp.sysids]
-    if all(np.allclose(before[s], co.slot_offsets[s]) for s in members if s in before):
+    members = [s for s in sysids if s not in co.state.lost and co.ramp is not None and s in co.ramp.sysids]
+    if all(np.allclose(before[s], co.state.slot_offsets[s]) for s in members if s in before):
         return
-    await transfer_to(co, members, {s: co.slot_offsets[s] for s in members}, centre_enu,
+    await transfer_to(co, members, {s: co.state.slot_offsets[s] for s in members}, centre_enu,
                       f"rotating the formation of {len(members)} clear of a lost vehicle", [])
 
 
@@ -72,7 +72,7 @@ def pending_readmissions(co) -> list[int]:
     """Lost vehicles heard again and waiting to be re-admitted (``[faults] readmit = true``)."""
     if not co.plan.faults.readmit:
         return []
-    return sorted(s for s, x in co.lost.items() if x.reason == "link" and x.came_back_s is not None
+    return sorted(s for s, x in co.state.lost.items() if x.reason == "link" and x.came_back_s is not None
                   and x.readmit_pending)
 
 
@@ -127,18 +127,18 @@ async def readmit(co, centre_enu, sysids: list[int], returning: list[int]) -> li
     joined = [sysid for sysid in returning if await _rejoin_one(co, sysid)]
     if not joined:
         return sysids
-    members = [s for s in sysids if s not in co.lost]
+    members = [s for s in sysids if s not in co.state.lost]
     centre = np.asarray(centre_enu, dtype=float)
     loop = asyncio.get_running_loop()
     new, kind = await loop.run_in_executor(None, functools.partial(
-        readmitted_offsets, co.formation_kind, {s: co.slot_offsets[s] for s in members},
+        readmitted_offsets, co.state.formation_kind, {s: co.state.slot_offsets[s] for s in members},
         {s: co.ramp.setpoint(s) - centre for s in joined}, plan.formation.radius_m))
     everyone = sorted(new)
     obs = obstacles(co)
     if len(obs):
         new, _ = clear_offsets(new, centre, obs, plan.min_separation_m + OBSTACLE_MARGIN_M,
                                allow_tilt=kind == "cvt")
-    if kind != co.formation_kind:
+    if kind != co.state.formation_kind:
         co.event(f"{len(everyone)} vehicles: the symmetric formation needs an even number; switching to "
                  "the CVT formation (and the Theorem 2 estimator)", level="warning")
     co.state.set_formation_kind(kind)

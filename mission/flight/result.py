@@ -184,7 +184,7 @@ def mission_result(state, outcome: str, message: str, *, now_s: float, readings:
         The reading store's counts (and last errors).
     log_path : str, optional
     separation_interventions : int
-        The ramp's count (:attr:`mission.flight.targets.TargetRamp.separation_interventions`).
+        The ramp's count (:attr:`mission.safety.gate.SafetyGate.separation_interventions`).
     origin : tuple of float, optional
         The plan's geodetic origin: gives ``estimate_geodetic``.
     """

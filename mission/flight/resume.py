@@ -291,7 +291,7 @@ async def rejoin(co, state: ResumeState) -> None:
     for s in state.lost:
         co.state.declare_lost(VehicleLoss(s, "link", "lost before the ground station stopped", now, now, "resume"))
     flying = []
-    for sysid in sorted(co.slot_offsets):
+    for sysid in sorted(co.state.slot_offsets):
         reason = await _why_not_flying(co, sysid)
         if reason is not None:
             co.state.declare_lost(VehicleLoss(sysid, "left", reason, now, now, "resume"), f"lost ({reason})")
@@ -302,10 +302,10 @@ async def rejoin(co, state: ResumeState) -> None:
     restore_retired(co, state.retired)
     co.event(("resumed" if state.go_on else f"taken over to bring the vehicles home (the log ends "
                                              f"{state.ending} in phase {state.last_phase!r})") + f" at iteration {state.iteration} from centre "
-             f"({co.centre_enu[0]:.2f}, {co.centre_enu[1]:.2f}, {co.centre_enu[2]:.2f}) m with vehicles "
-             f"{flying}", iteration=state.iteration, centre_enu=co.centre_enu, vehicles=flying,
-             lost=sorted(co.lost), retired=sorted(co.retired))
-    sensing = [s for s in flying if s not in co.retired]
+             f"({co.state.centre_enu[0]:.2f}, {co.state.centre_enu[1]:.2f}, {co.state.centre_enu[2]:.2f}) m with vehicles "
+             f"{flying}", iteration=state.iteration, centre_enu=co.state.centre_enu, vehicles=flying,
+             lost=sorted(co.state.lost), retired=sorted(co.state.retired))
+    sensing = [s for s in flying if s not in co.state.retired]
     if state.go_on and len(sensing) < 4:
         raise MissionError(f"only {len(sensing)} sensing vehicles can be re-engaged ({sensing}); a formation "
                            "needs 4: bringing them home")
@@ -341,8 +341,7 @@ async def _reengage(co, flying: list[int]) -> None:
     for s in flying:
         co.ramp.add(s, co.telemetry_position(s))
         co.state.set_airborne(s, "re-engaging")
-    await co.streamer.start()
-    co.ramp.start()
+    co.ramp.start()  # the safety gate: moves, checks and sends the setpoints
     await co.clock.sleep(0.5)  # setpoints flowing before OFFBOARD (PX4 requires it)
     for s in flying:
         v = co.vehicles[s]
@@ -359,7 +358,7 @@ async def resume_mission(co, state: ResumeState) -> tuple[str, str]:
     await rejoin(co, state)
     if state.go_on:
         return await seek.seek(co, start_iteration=state.iteration, history=state.centres)
-    flying = sorted(co.airborne)
+    flying = sorted(co.state.airborne)
     if not flying:
         return "recovered", "no vehicle of the stopped mission is flying: nothing to bring home"
     return "recovered", (f"the stopped mission ({state.ending}, last phase {state.last_phase!r}) left vehicles "

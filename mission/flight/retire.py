@@ -41,7 +41,7 @@ PARKED_STATUS = "sensor retired: at the centre"
 
 @dataclass
 class RetiredSensor:
-    """One retired sensor (``co.retired[sysid]``, the summary's ``retired``).
+    """One retired sensor (``co.state.retired[sysid]``, the summary's ``retired``).
 
     Attributes
     ----------
@@ -148,7 +148,7 @@ def make_watch(co, check, sysids: list[int]) -> SensorWatch | None:
 def formation_goals(co, centre_enu, sysids: list[int]) -> dict[int, np.ndarray]:
     """Goals of one iteration: the sensing vehicles at their slots, the parked ones at the centre."""
     centre = np.asarray(centre_enu, dtype=float)
-    goals = {s: centre + co.slot_offsets[s] for s in sysids}
+    goals = {s: centre + co.state.slot_offsets[s] for s in sysids}
     goals.update({s: centre.copy() for s in parked(co) if s not in goals})
     return goals
 
@@ -159,8 +159,8 @@ async def retire_sensor(co, centre_enu, sysids: list[int], info: RetiredSensor) 
     Returns the sensing vehicles left (not lost).
     """
     sysid = info.sysid
-    remaining = [s for s in sysids if s != sysid and s not in co.lost]
-    why = ("the vehicle was lost" if sysid in co.lost or sysid not in co.ramp.sysids
+    remaining = [s for s in sysids if s != sysid and s not in co.state.lost]
+    why = ("the vehicle was lost" if sysid in co.state.lost or sysid not in co.ramp.sysids
            else f"{len(remaining)} other sensing vehicles left, a formation needs 4" if len(remaining) < 4
            else f"vehicle {parked(co)[0]} is already parked at the centre" if parked(co) else None)
     if why is not None:  # a loss or a parking since the watch was made: the seek's rules apply
@@ -179,7 +179,7 @@ async def retire_sensor(co, centre_enu, sysids: list[int], info: RetiredSensor) 
     new[sysid] = np.zeros(3)
     await transfer_to(co, remaining + [sysid], new, centre_enu,
                       f"re-forming for {len(remaining)} vehicles ({kind}), sensor of {sysid} retired", [])
-    return [s for s in remaining if s not in co.lost]
+    return [s for s in remaining if s not in co.state.lost]
 
 
 async def keep_out_retired(co, returning: list[int]) -> list[int]:
@@ -187,7 +187,7 @@ async def keep_out_retired(co, returning: list[int]) -> list[int]:
 
     Returns the others (to re-admit).
     """
-    retired = getattr(co, "retired", None) or {}
+    retired = co.state.retired
     for s in [s for s in returning if s in retired]:
         await keep_out(co, s, co.vehicles.get(s), "its sensor was retired")
     return [s for s in returning if s not in retired]
@@ -196,7 +196,7 @@ async def keep_out_retired(co, returning: list[int]) -> list[int]:
 def restore_retired(co, records: dict) -> None:
     """Put the retired sensors read back from a mission log (:mod:`mission.flight.resume`) into ``co``.
 
-    Written against mappings (``co.retired``, ``co.status``): on the coordinator, item assignment
+    Written against mappings (``co.state.retired``, ``co.state.status``): on the coordinator, item assignment
     there is :meth:`MissionState.retire <mission.flight.state.MissionState.retire>` and
     :meth:`MissionState.set_status <mission.flight.state.MissionState.set_status>`.
     """
@@ -204,6 +204,6 @@ def restore_retired(co, records: dict) -> None:
                 "named_for": 0, "retired_s": float("nan")}
     for sysid, fields in records.items():
         kept = {k: fields[k] for k in defaults if fields.get(k) is not None}
-        co.retired[int(sysid)] = RetiredSensor(sysid=int(sysid), **(defaults | kept))
-        if int(sysid) not in co.lost:
-            co.status[int(sysid)] = PARKED_STATUS
+        co.state.retired[int(sysid)] = RetiredSensor(sysid=int(sysid), **(defaults | kept))
+        if int(sysid) not in co.state.lost:
+            co.state.status[int(sysid)] = PARKED_STATUS

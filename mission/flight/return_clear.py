@@ -54,13 +54,13 @@ async def _fly_timed(co, sysids, plan: ClearPlan) -> None:
 
 async def _fly(co, sysids, plan: ClearPlan, tol_m: float, names: tuple[str, str, str]) -> bool:
     """Fly ``plan``; False as soon as a vehicle is lost on the way (the caller re-plans)."""
-    lost_before = frozenset(co.lost)
+    lost_before = frozenset(co.state.lost)
     wps = plan.waypoints_enu
     first, across, last = names
-    # co.status[s] = ... is MissionState.set_status on the coordinator (a plain dict on test doubles)
+    # co.state.status[s] = ... is MissionState.set_status on the coordinator (a plain dict on test doubles)
     if plan.times_s is not None:
         for s in sysids:
-            co.status[s] = f"{co.phase}: {plan.strategy}"
+            co.state.status[s] = f"{co.state.phase}: {plan.strategy}"
         await _fly_timed(co, sysids, plan)
         batches = [(last, wps[-1])]
     else:  # start, layers, detours..., across (at the layers), goal
@@ -68,14 +68,14 @@ async def _fly(co, sysids, plan: ClearPlan, tol_m: float, names: tuple[str, str,
         batches = [(name, row) for name, row, prev in zip(labels, wps[1:], wps[:-1])
                    if not np.allclose(row, prev)]
     for name, row in batches:
-        if frozenset(co.lost) != lost_before:
+        if frozenset(co.state.lost) != lost_before:
             return False
         for s in sysids:
-            if s not in co.lost:
-                co.status[s] = f"{co.phase}: {name}"
+            if s not in co.state.lost:
+                co.state.status[s] = f"{co.state.phase}: {name}"
         await move_and_wait(co, {s: row[i] for i, s in enumerate(sysids)}, tol_m,
-                            what=f"the vehicles to reach their '{name}' waypoints of the {co.phase}")
-    return frozenset(co.lost) == lost_before
+                            what=f"the vehicles to reach their '{name}' waypoints of the {co.state.phase}")
+    return frozenset(co.state.lost) == lost_before
 
 
 async def _plan_and_fly(co, flying, goal, layers, tol_m, what, names, landing=None, moved=()) -> bool:
@@ -116,7 +116,7 @@ async def _plan_and_fly(co, flying, goal, layers, tol_m, what, names, landing=No
 
 async def fly_clear(co, sysids: list[int], goals: dict[int, np.ndarray], tol_m: float, what: str = "assembly",
                     names: tuple[str, str, str] = ("layers", "across", "slots")) -> None:
-    """Fly ``sysids`` to ``goals`` by their layers (``co.layer_alt_m``), clear of lost vehicles.
+    """Fly ``sysids`` to ``goals`` by their layers (``co.state.layer_alt_m``), clear of lost vehicles.
 
     The legs of :func:`mission.flight.targets.layered_transfer`, re-planned by
     :func:`plan_clear_return` around the lost vehicles still flying (events as for the
@@ -129,11 +129,11 @@ async def fly_clear(co, sysids: list[int], goals: dict[int, np.ndarray], tol_m: 
         A vehicle did not reach a goal in time (:func:`mission.flight.motion.move_and_wait`).
     """
     for _ in range(_MAX_REPLANS + 1):
-        flying = [s for s in sysids if s not in co.lost and s in co.ramp.sysids]
+        flying = [s for s in sysids if s not in co.state.lost and s in co.ramp.sysids]
         if not flying:
             return
         goal = np.array([goals[s] for s in flying], dtype=float)
-        layers = np.array([co.layer_alt_m[s] for s in flying])
+        layers = np.array([co.state.layer_alt_m[s] for s in flying])
         if await _plan_and_fly(co, flying, goal, layers, tol_m, what, names):
             return
         co.event(f"{what}: a vehicle was lost on the way; re-planning from where the others are", level="warning")
@@ -148,13 +148,13 @@ def _return_layers(co, flying: list[int], homes) -> np.ndarray:
     cross on the way back), recorded in the state and logged; the takeoff layers with a warning
     if none fit.
     """
-    layers = np.array([co.layer_alt_m[s] for s in flying])
+    layers = np.array([co.state.layer_alt_m[s] for s in flying])
     start = np.array([co.ramp.setpoint(s) for s in flying])
     sep = co.plan.min_separation_m
     if layers_keep_apart(start, homes, layers, sep):
         return layers
     try:
-        new = shared_layers(start, homes, float(min(co.layer_alt_m.values())), co.plan.geofence.max_alt_m - 0.5, sep)
+        new = shared_layers(start, homes, float(min(co.state.layer_alt_m.values())), co.plan.geofence.max_alt_m - 0.5, sep)
     except ValueError as exc:
         co.event(f"return: the takeoff layers do not keep the return paths apart and no others fit ({exc}); "
                  "flying the takeoff layers", level="warning")
@@ -185,10 +185,10 @@ async def fly_return(co, sysids: list[int]) -> set[int]:
     fence = None if co.envelope is None else co.envelope.fence
     land_here: set[int] = set()
     for _ in range(_MAX_REPLANS + 1):
-        flying = [s for s in sysids if s not in co.lost and s in co.ramp.sysids]
+        flying = [s for s in sysids if s not in co.state.lost and s in co.ramp.sysids]
         if not flying:
             break
-        homes = np.array([co.home_enu[s] for s in flying])
+        homes = np.array([co.state.home_enu[s] for s in flying])
         layers = _return_layers(co, flying, homes)
         spots, moved, _ = landing_spots(homes, layers, obstacles(co), plan_cfg.min_separation_m + OBSTACLE_MARGIN_M,
                                         plan_cfg.min_separation_m, fence=fence,

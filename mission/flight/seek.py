@@ -228,9 +228,9 @@ class _Seek:
         self.sk = sk = co.plan.seeking
         # the formation's vehicles: those under setpoints, and those lost since their slot was
         # given (the loop re-forms without them first)
-        self.sysids = sorted(s for s in co.slot_offsets
-                             if (s in co.ramp.sysids or s in co.lost) and s not in co.retired)
-        flying = [s for s in self.sysids if s not in co.lost]
+        self.sysids = sorted(s for s in co.state.slot_offsets
+                             if (s in co.ramp.sysids or s in co.state.lost) and s not in co.state.retired)
+        flying = [s for s in self.sysids if s not in co.state.lost]
         if len(flying) < 4:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
         self.est_kind = sk.estimator
@@ -249,7 +249,7 @@ class _Seek:
         self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
                                           min_signal_fraction=sk.min_signal_fraction)
         self.arrival = ArrivalSignal()  # the convergence test's signal when the seeker has none
-        self.centre = np.asarray(co.centre_enu, dtype=float).copy()
+        self.centre = np.asarray(co.state.centre_enu, dtype=float).copy()
         for c in history:
             self.monitor.update(np.asarray(c, dtype=float))
         if not len(history):
@@ -261,7 +261,7 @@ class _Seek:
 
     def _new_estimator(self, symmetric_to_cvt: bool = True) -> None:
         """A fresh estimator (and retirement watch) for the current members."""
-        if symmetric_to_cvt and self.co.formation_kind == "cvt" and self.est_kind == "symmetric":
+        if symmetric_to_cvt and self.co.state.formation_kind == "cvt" and self.est_kind == "symmetric":
             self.est_kind = "cvt"
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
         self.check = make_check(self.co.plan.faults, self.estimate, self.sysids)
@@ -274,7 +274,7 @@ class _Seek:
             return ended
         t_arrive = await self._move(k)
         await self._wait_readings(k, t_arrive)
-        if any(s in self.co.lost for s in self.sysids):
+        if any(s in self.co.state.lost for s in self.sysids):
             return None  # lost during this iteration: re-form first
         found = await self._estimate(k, t_arrive)
         if found is None:
@@ -288,10 +288,10 @@ class _Seek:
     async def _update_members(self) -> tuple[str, str] | None:
         """Re-form without lost vehicles, re-admit returning ones; the end when fewer than 4 are left."""
         co = self.co
-        if any(s in co.lost for s in self.sysids):
+        if any(s in co.state.lost for s in self.sysids):
             self.sysids = await reform(co, self.centre, self.sysids)
             if len(self.sysids) < 4:
-                return "too_few_vehicles", (f"vehicles {sorted(co.lost)} lost: {len(self.sysids)} left, a "
+                return "too_few_vehicles", (f"vehicles {sorted(co.state.lost)} lost: {len(self.sysids)} left, a "
                                             "formation needs 4; ending the mission, the others come home")
             self._new_estimator()
         returning = await keep_out_retired(co, pending_readmissions(co))
@@ -306,7 +306,7 @@ class _Seek:
         if self.moving is not None:
             return await self.moving.move(self, k)
         co, sk = self.co, self.sk
-        before = {s: co.slot_offsets[s].copy() for s in self.sysids}
+        before = {s: co.state.slot_offsets[s].copy() for s in self.sysids}
         clear_goals(co, self.centre, self.sysids)  # a few ms at most: slots clear of lost vehicles still flying
         await fly_rotation(co, self.centre, self.sysids, before)  # a rotation is flown as a planned transfer
         goals = formation_goals(co, self.centre, self.sysids)  # parked vehicles (retired sensors) at the centre
@@ -328,7 +328,7 @@ class _Seek:
 
         def _fresh():
             return all((r := co.store.latest(s)) is not None and r.time_s >= t_arrive
-                       for s in self.sysids if s not in co.lost)
+                       for s in self.sysids if s not in co.state.lost)
 
         try:
             await co.wait_until(_fresh, max(5.0, 10 * sk.reading_window_s), "fresh readings", poll_s=0.02)
@@ -459,9 +459,9 @@ class _Seek:
         if co.log is not None:
             everyone = self.sysids + parked(co)
             co.log.write("iteration", k=k + 1, t_estimate_s=t_est, centre_enu=self.centre, centroid_enu=centroid,
-                         gradient=grad, new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.estimate_enu,
-                         **estimate_fields(source), estimate_geodetic=geodetic_point(co.plan.origin, co.estimate_enu),
-                         spread_m=co.spread_m, distance_flown_m=co.distance_flown_m,
+                         gradient=grad, new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.state.estimate_enu,
+                         **estimate_fields(source), estimate_geodetic=geodetic_point(co.plan.origin, co.state.estimate_enu),
+                         spread_m=co.state.spread_m, distance_flown_m=co.state.distance_flown_m,
                          readings=readings,
                          positions_enu={s: co.telemetry_position(s) for s in everyone},
                          setpoints_enu={s: co.ramp.setpoint(s) for s in everyone},
@@ -476,11 +476,11 @@ class _Seek:
         about the centre (:func:`scaled_slots`), never wider than the plan's radius nor so tight that
         two slots are closer than 1.2 ``min_separation_m``; the next move flies them there."""
         want = None if self.seeker is None else self.seeker.formation_radius_m
-        members = [s for s in self.sysids if s not in self.co.lost and s in self.co.slot_offsets]
+        members = [s for s in self.sysids if s not in self.co.state.lost and s in self.co.state.slot_offsets]
         if want is None or len(members) < 2:
             return
         co = self.co
-        new = scaled_slots({s: co.slot_offsets[s] for s in members}, want, co.plan.min_separation_m,
+        new = scaled_slots({s: co.state.slot_offsets[s] for s in members}, want, co.plan.min_separation_m,
                            co.plan.formation.radius_m)
         if new is not None:
             co.state.update_slots(new)
@@ -511,9 +511,9 @@ class _Seek:
                                         f"({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}) m: the "
                                         "source is probably outside the fence (shrunk by the radius)")
         if converged:
-            e = co.estimate_enu
+            e = co.state.estimate_enu
             return "converged", (f"converged after {k + 1} iterations: source at ({e[0]:.2f}, {e[1]:.2f}, "
-                                 f"{e[2]:.2f}) m, {region_text(co.estimate_region95_m)}, spread {co.spread_m:.2f} m")
+                                 f"{e[2]:.2f}) m, {region_text(co.state.estimate_region95_m)}, spread {co.state.spread_m:.2f} m")
         if self.at_fence >= self.sk.convergence_window:
             return "stopped_at_fence", ("the formation centre has been held at the geofence for "
                                         f"{self.at_fence} iterations: the source is probably outside the fence")

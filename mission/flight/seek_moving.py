@@ -104,7 +104,7 @@ class MovingSampling:
 
     def _centroid(self, sysids: list[int]) -> np.ndarray | None:
         """Centroid of the vehicles' telemetry positions (None if one has none)."""
-        pos = [self.co.telemetry_position(s) for s in sysids if s not in self.co.lost]
+        pos = [self.co.telemetry_position(s) for s in sysids if s not in self.co.state.lost]
         if not pos or any(p is None for p in pos):
             return None
         return np.mean(np.asarray(pos, dtype=float), axis=0)
@@ -116,11 +116,11 @@ class MovingSampling:
         ``sk``, ``period_s``, ``last_estimate_t``).
         """
         co, sk = self.co, run.sk
-        before = {s: co.slot_offsets[s].copy() for s in run.sysids}
+        before = {s: co.state.slot_offsets[s].copy() for s in run.sysids}
         clear_goals(co, run.centre, run.sysids)
         await fly_rotation(co, run.centre, run.sysids, before)
         goals = {s: g for s, g in formation_goals(co, run.centre, run.sysids).items()
-                 if s not in co.lost and s in co.ramp.sysids}
+                 if s not in co.state.lost and s in co.ramp.sysids}
         co.ramp.set_goals(goals)  # through the ramp and the safety envelope, as in stop and go
         members = [s for s in run.sysids if s in goals]
         target = np.mean([goals[s] for s in members], axis=0) if members else np.asarray(run.centre, dtype=float)
@@ -149,7 +149,7 @@ class MovingSampling:
         co = self.co
 
         def _stale() -> list[int]:
-            return [s for s in run.sysids if s not in co.lost
+            return [s for s in run.sysids if s not in co.state.lost
                     and ((r := co.store.latest(s)) is None or r.time_s < t_s)]
 
         try:

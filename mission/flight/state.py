@@ -177,6 +177,11 @@ class MissionState:
         self._t_seek_start_s: float | None = None
         self._t_seek_end_s: float | None = None
         self._max_loop_lag_s = 0.0
+        self._interrupts: list[str] = []
+        self._land_commanded: set[int] = set()
+        self._mission_checks: list[dict] = []
+        self._still_armed: list[dict] = []
+        self._final_result = None
 
     # ------------------------------------------------------------------------ reading
     sysids = _value("_sysids", "The plan's vehicles.")
@@ -220,6 +225,23 @@ class MissionState:
     t_seek_start_s = _value("_t_seek_start_s", "Mission clock when the seek started (None before).")
     t_seek_end_s = _value("_t_seek_end_s", "Mission clock when the seek ended (None before).")
     max_loop_lag_s = _value("_max_loop_lag_s", "Largest event-loop lag seen by the watchdog.")
+    land_commanded = _frozen("_land_commanded", "Vehicles the landing guard commanded to LAND (not sent twice).")
+    final_result = _value("_final_result", "The mission's result, once the mission ended (every path), else None.")
+
+    @property
+    def interrupts(self) -> tuple[str, ...]:
+        """What interrupted the mission, in order (signal names, the log failure)."""
+        return tuple(self._interrupts)
+
+    @property
+    def mission_checks(self) -> tuple[dict, ...]:
+        """The mission-wide preflight checks (``name``, ``ok``, ``detail``), in report order (copies)."""
+        return tuple(dict(c) for c in self._mission_checks)
+
+    @property
+    def still_armed(self) -> tuple[dict, ...]:
+        """Vehicles still armed at the end, though down or landing (copies of the entries)."""
+        return tuple(dict(e) for e in self._still_armed)
 
     @property
     def status(self) -> _Board:
@@ -411,3 +433,32 @@ class MissionState:
     def note_loop_lag(self, lag_s: float) -> None:
         """An event-loop lag seen by the watchdog (the largest is kept)."""
         self._max_loop_lag_s = max(self._max_loop_lag_s, float(lag_s))
+
+    # ------------------------------------------------------------------------ the end
+    def note_interrupt(self, name: str) -> None:
+        """Something interrupted the mission (a signal's name, the log failure)."""
+        self._interrupts.append(str(name))
+
+    def clear_mission_checks(self) -> None:
+        """The mission-wide checks start again (a new preflight)."""
+        self._mission_checks = []
+
+    def add_mission_check(self, name: str, ok: bool, detail: str, first: bool = False) -> None:
+        """One mission-wide preflight check's outcome (``first``: reported before the others)."""
+        entry = {"name": str(name), "ok": bool(ok), "detail": str(detail)}
+        if first:
+            self._mission_checks.insert(0, entry)
+        else:
+            self._mission_checks.append(entry)
+
+    def mark_land_commanded(self, sysid: int) -> None:
+        """The landing guard's LAND was accepted by ``sysid`` (not sent twice)."""
+        self._land_commanded.add(self._known(sysid))
+
+    def set_still_armed(self, entries: list[dict]) -> None:
+        """The vehicles found still armed at the end (landing guard entries)."""
+        self._still_armed = [dict(e) for e in entries]
+
+    def finish(self, result) -> None:
+        """The mission ended with ``result`` (:class:`mission.flight.result.MissionResult`)."""
+        self._final_result = result

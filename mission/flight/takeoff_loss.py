@@ -21,15 +21,15 @@ __all__ = ["lose_failed", "laggards"]
 
 def lose_failed(co, sysid: int, detail: str) -> None:
     """Declare ``sysid`` lost because it failed in this phase; command it to land (in the background)."""
-    if sysid in co.lost:
+    if sysid in co.state.lost:
         return
     now = co.clock.time()
-    loss = VehicleLoss(sysid, "failed", detail, now, now, co.phase)
+    loss = VehicleLoss(sysid, "failed", detail, now, now, co.state.phase)
     if co.ramp is not None and sysid in co.ramp.sysids:
         loss.last_setpoint_enu = co.ramp.setpoint(sysid)
         co.ramp.remove(sysid)
-    co.state.declare_lost(loss, f"lost (failed in {co.phase})")
-    co.event(f"vehicle {sysid} lost: failed in {co.phase}: {detail}; the others go on, it is commanded to land",
+    co.state.declare_lost(loss, f"lost (failed in {co.state.phase})")
+    co.event(f"vehicle {sysid} lost: failed in {co.state.phase}: {detail}; the others go on, it is commanded to land",
              level="warning", sysid=sysid, reason="failed", detected_s=now, since_s=now)
     v = co.vehicles.get(sysid)
     if v is not None:
@@ -50,7 +50,7 @@ def laggards(co, sysids, tol_m: float) -> list[int]:
     """Vehicles of ``sysids`` (not lost) farther than ``tol_m`` from their setpoint, or without a position."""
     out = []
     for s in sysids:
-        if s in co.lost or co.ramp is None or s not in co.ramp.sysids:
+        if s in co.state.lost or co.ramp is None or s not in co.ramp.sysids:
             continue
         p = co.telemetry_position(s)
         if p is None or float(np.linalg.norm(np.asarray(p) - co.ramp.setpoint(s))) > tol_m:

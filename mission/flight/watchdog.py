@@ -28,15 +28,15 @@ async def watchdog(co, period_s: float = 0.1) -> None:
         rejections.check()
         if co.log is not None and co.vehicles and co.clock.time() >= next_status_s:
             next_status_s = co.clock.time() + co.status_period_s
-            co.log.write("status", phase=co.phase, centre_enu=co.centre_enu, vehicles=co.vehicle_status(),
+            co.log.write("status", phase=co.state.phase, centre_enu=co.state.centre_enu, vehicles=co.vehicle_status(),
                          link_rejections=co.link_rejections(), unknown_sysids=co.unknown_sysids())
-        if co.phase not in ("assemble", "seek", "finish", "return") or co.ramp is None:
+        if co.state.phase not in ("assemble", "seek", "finish", "return") or co.ramp is None:
             continue
         for sysid in co.ramp.sysids:
             v = co.vehicles.get(sysid)
             want = GUIDED_MODES.get(getattr(v, "flavour", None))
-            if (v is None or want is None or sysid in co.state.reengaging or sysid in co.released
-                    or sysid in co.lost or v.state.mode == want):
+            if (v is None or want is None or sysid in co.state.reengaging or sysid in co.state.released
+                    or sysid in co.state.lost or v.state.mode == want):
                 continue
             if v.state.mode in LEFT_MODES.get(v.flavour, ()) or v.link_age_s() > co.plan.faults.link_timeout_s:
                 continue  # left the mission or silent: mission.flight.loss decides, never re-engaged

@@ -5,11 +5,10 @@ latest target of every vehicle, one non-blocking datagram each, so no vehicle wa
 The order rotates every tick so that the same vehicle is not always the last one of the burst.
 If the loop falls more than a period behind, it skips ahead rather than bursting to catch up.
 
-With ``max_speed_m_s`` the streamer is the last speed gate before the wire: each datagram sent to
-a vehicle is at most ``max_speed_m_s`` times the time since that vehicle's previous datagram away
-from it, whatever the targets do between two ticks (a ramp running on its own schedule, an event
-loop that stalled). The sent setpoint moves along the straight line towards the target and
-reaches it as soon as the limit allows.
+The streamer sends targets as they are: it limits nothing. In a mission its own task is not
+started; the safety gate (:class:`mission.safety.gate.SafetyGate`, the one speed limiter) calls
+:meth:`SetpointStreamer.tick` right after each batch it made, so that what is sent is what the
+gate checked, tick for tick.
 """
 from __future__ import annotations
 
@@ -28,14 +27,10 @@ _HISTORY = 1200
 
 
 class _Track:
-    __slots__ = ("target", "yaw", "sent", "errors", "last_s", "intervals", "first_s", "last_error",
-                 "sent_pos", "sent_pos_s", "limited")
+    __slots__ = ("target", "yaw", "sent", "errors", "last_s", "intervals", "first_s", "last_error")
 
     def __init__(self) -> None:
         self.target = None
-        self.sent_pos = None  # last position actually sent, and when (clock seconds)
-        self.sent_pos_s = None
-        self.limited = 0
         self.yaw = None
         self.sent = 0
         self.errors = 0
@@ -56,9 +51,6 @@ class SetpointStreamer:
         Setpoints per clock second per vehicle.
     clock : object, optional
         Mission clock; default :class:`~mission.core.clock.WallClock`.
-    max_speed_m_s : float, optional
-        Largest speed between two consecutive setpoints sent to one vehicle (module docstring);
-        None: targets are sent as they are.
 
     Attributes
     ----------
@@ -68,13 +60,10 @@ class SetpointStreamer:
         Ticks that started more than one period late (the schedule was reset).
     """
 
-    def __init__(self, vehicles, rate_hz: float = 10.0, clock=None, max_speed_m_s: float | None = None) -> None:
+    def __init__(self, vehicles, rate_hz: float = 10.0, clock=None) -> None:
         if not rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
-        if max_speed_m_s is not None and not (np.isfinite(max_speed_m_s) and max_speed_m_s > 0):
-            raise ValueError(f"max_speed_m_s must be a positive number, got {max_speed_m_s}")
         self.rate_hz = float(rate_hz)
-        self._max_speed_m_s = None if max_speed_m_s is None else float(max_speed_m_s)
         self.clock = clock if clock is not None else WallClock()
         self._vehicles = {v.sysid: v for v in vehicles}
         self._tracks = {sysid: _Track() for sysid in self._vehicles}
@@ -148,11 +137,8 @@ class SetpointStreamer:
         for sysid, track in items[k:] + items[:k]:
             if track.target is None:
                 continue
-            position = track.target
-            if self._max_speed_m_s is not None:
-                position = self._limited(track, self.clock.time())
             try:
-                self._vehicles[sysid].send_position_enu(position, track.yaw)
+                self._vehicles[sysid].send_position_enu(track.target, track.yaw)
             except Exception as exc:  # one vehicle's problem must not starve the others
                 track.errors += 1
                 track.last_error = str(exc)
@@ -162,27 +148,10 @@ class SetpointStreamer:
             else:
                 track.first_s = now
             track.last_s = now
-            if self._max_speed_m_s is not None:
-                # read after the send, so that the next step's time base is never longer than
-                # the time between the two datagrams as stamped on the way out (e.g. in a .tlog)
-                track.sent_pos, track.sent_pos_s = position, self.clock.time()
             track.sent += 1
             sent += 1
         self.ticks += 1
         return sent
-
-    def _limited(self, track: _Track, now_s: float):
-        """The target, or the point towards it that keeps the step within the speed limit."""
-        target = track.target
-        if track.sent_pos is None:
-            return target
-        step = np.subtract(target, track.sent_pos)
-        dist = float(np.linalg.norm(step))
-        reach = self._max_speed_m_s * max(now_s - track.sent_pos_s, 0.0)
-        if dist <= reach:
-            return target
-        track.limited += 1
-        return tuple(float(v) for v in np.add(track.sent_pos, step * (reach / dist)))
 
     async def _run(self) -> None:
         clock = self.clock
@@ -210,13 +179,11 @@ class SetpointStreamer:
         Returns
         -------
         dict
-            ``sent``, ``errors``, ``last_error``, ``speed_limited`` (datagrams moved less than
-            their target to keep the speed limit), ``rate_hz`` (over the recent history),
+            ``sent``, ``errors``, ``last_error``, ``rate_hz`` (over the recent history),
             ``p50_interval_s``, ``p99_interval_s`` (None before two sends).
         """
         track = self._tracks[sysid]
         out = {"sent": track.sent, "errors": track.errors, "last_error": track.last_error,
-               "speed_limited": track.limited,
                "rate_hz": None, "p50_interval_s": None, "p99_interval_s": None}
         if track.intervals:
             intervals = np.fromiter(track.intervals, dtype=float)
