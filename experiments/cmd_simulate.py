@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> dict:
 def _field_and_start(args: argparse.Namespace):
     """The field's name (``python:SPEC`` for a plug-in), the field (``--field`` or
     ``--field-python``) and the start (``--start``, else the field's default)."""
-    from sitl_mock.fields import make_field
+    from sitl_mock.fields_config import make_field
 
     if field_is_plugin(args):
         if getattr(args, "field", None) is not None:

@@ -48,23 +48,10 @@ from experiments.paper_setup import (
     cvt_formation,
     paper_formation,
 )
-from sitl_mock.fields import sigma1, sigma2
+from sitl_mock.fields_gaussian import sigma1, sigma2
 from wire.cli_args import path_arg
 
-__all__ = [
-    "EPS",
-    "GAMMA",
-    "SIGMA1_START_ENU",
-    "SIGMA2_START_ENU",
-    "TABLE_NS",
-    "PAPER_TABLE1",
-    "PaperConfig",
-    "table1",
-    "footnote",
-    "generate",
-    "configure",
-    "main",
-]
+__all__ = ["table1", "footnote", "generate", "configure", "main"]
 
 
 # ----------------------------------------------------------------------------- tables

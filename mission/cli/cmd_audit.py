@@ -43,7 +43,8 @@ def _emit(text: str) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Audit ``args.log_dir``; 0 clean, 1 violations, 2 bad input, 3 incomplete."""
-    from mission.safety.audit import AuditError, audit_mission
+    from mission.safety.audit_read import AuditError
+    from mission.safety.audit import audit_mission
 
     try:
         report = audit_mission(args.log_dir, gcs_sysid=args.gcs_sysid)

@@ -81,7 +81,8 @@ def main(args) -> int:
     import dataclasses
 
     from mission.telemetry.display import Display
-    from mission.core.plan import PlanError, load_plan
+    from mission.core.plan_types import PlanError
+    from mission.core.plan import load_plan
 
     try:
         plan = load_plan(args.plan)

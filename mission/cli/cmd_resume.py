@@ -100,7 +100,8 @@ def main(args) -> int:
 
 def _main(args, terminal) -> int:
     from mission.telemetry.display import Display, report_result
-    from mission.core.plan import PlanError, load_plan
+    from mission.core.plan_types import PlanError
+    from mission.core.plan import load_plan
     from mission.flight.resume import ResumeError
 
     from mission.cli.paths import writable_file_problem

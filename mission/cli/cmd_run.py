@@ -234,7 +234,7 @@ def _probe_field(args, field, source, start) -> None:
 def _mission_setup(args):
     """The plan, field, source and start of the embedded mission ``args`` describe."""
     from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, default_radius_m, embedded_plan, fleet_ports
-    from mission.core.plan import replace_plan
+    from mission.core.plan_types import replace_plan
 
     radius_m = args.radius if args.radius is not None else default_radius_m(args.n)
     field, source, start = _field_setup(args)

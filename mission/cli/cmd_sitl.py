@@ -112,7 +112,7 @@ def _report(fleet, args, plan: Path | None) -> None:
 
 def _serve(fleet) -> int:
     """Wait until interrupted (KeyboardInterrupt) or until an instance dies (exit 1)."""
-    from mission.sim.sitl_fleet import SitlSetupError
+    from mission.sim.sitl_settings import SitlSetupError
 
     idle = threading.Event()
     while True:
@@ -126,7 +126,8 @@ def _serve(fleet) -> int:
 
 def main(args: argparse.Namespace) -> int:
     """Start the fleet, print how to fly it, serve until Ctrl-C/SIGTERM, stop everything."""
-    from mission.sim.sitl_fleet import SitlFleet, SitlSetupError, sigterm_as_interrupt
+    from mission.sim.sitl_fleet import SitlFleet, sigterm_as_interrupt
+    from mission.sim.sitl_settings import SitlSetupError
 
     if args.free_layout and (args.first_instance is not None or args.port_offset is not None):
         print("swarmseek sitl: error: --free-layout picks the instance numbers and the port offset itself: "
