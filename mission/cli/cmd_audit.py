@@ -15,7 +15,7 @@ import json
 import os
 import sys
 
-from wire.cli_args import int_in_range
+from wire.cli_args import fail, int_in_range
 
 __all__ = ["configure", "main"]
 
@@ -49,7 +49,6 @@ def main(args: argparse.Namespace) -> int:
     try:
         report = audit_mission(args.log_dir, gcs_sysid=args.gcs_sysid)
     except AuditError as exc:
-        print(f"swarmseek audit: {exc}", file=sys.stderr)
-        return 2
+        return fail("swarmseek audit", str(exc))
     _emit(json.dumps(report.to_dict(), indent=2, allow_nan=False) if args.json else report.format_text())
     return report.exit_status
