@@ -32,8 +32,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from mission.flight.coordinator import Coordinator  # noqa: E402
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports, free_port_block  # noqa: E402
 from mission.telemetry.mission_log import MissionLog, read_mission_log  # noqa: E402
-from mission.core.plan import GeofencePlan  # noqa: E402
-from sitl_mock.fields import sigma2  # noqa: E402
+from mission.core.plan_types import GeofencePlan
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet  # noqa: E402
 
 

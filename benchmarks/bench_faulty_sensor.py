@@ -46,9 +46,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from estimator import estimator_weights, gradient_batch, seek_step  # noqa: E402
 from estimator.retire import SensorRetirement  # noqa: E402
-from estimator.robust import REASONS, RobustGradientEstimator, weighted_gradient  # noqa: E402
+from estimator.robust_faults import REASONS
+from estimator.robust import RobustGradientEstimator
+from estimator.robust_wls import weighted_gradient
 from formation import cvt_sphere, reconfigure, symmetric_cylinder  # noqa: E402
-from sitl_mock.fields import sigma2  # noqa: E402
+from sitl_mock.fields_gaussian import sigma2
 
 N = 8
 EPS, GAMMA = 1.0, 0.1

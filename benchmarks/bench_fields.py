@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from experiments.offline import simulate  # noqa: E402
-from sitl_mock.fields import make_field  # noqa: E402
+from sitl_mock.fields_config import make_field
 
 __all__ = ["main"]
 

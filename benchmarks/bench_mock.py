@@ -25,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from sitl_mock.fields import sigma1  # noqa: E402
+from sitl_mock.fields_gaussian import sigma1
 from sitl_mock.fleet import PHYSICS_RATE_HZ, MockFleet  # noqa: E402
 
 _SINK = textwrap.dedent("""

@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from sitl_mock.fields import sigma2  # noqa: E402
+from sitl_mock.fields_gaussian import sigma2
 from experiments.offline import simulate  # noqa: E402
 
 __all__ = ["main"]

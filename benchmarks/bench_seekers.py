@@ -21,7 +21,7 @@ Per seeker, field and noise:
 
 Noise levels: 0 and "realistic" = 1 % of the field's peak (0.01 for sigma_2, the default
 ``swarmseek run --noise``; 1.0 for sigma_1; 0.01 for the plumes, whose peak is about 1). Fields
-(``--fields``): any name :func:`sitl_mock.fields.make_field` knows, with its default parameters:
+(``--fields``): any name :func:`sitl_mock.fields_config.make_field` knows, with its default parameters:
 the paper's sigma_1 and sigma_2, ``plume`` (steady Gaussian plume, wind 2 m/s) and
 ``intermittent`` (puffs: a reading is patchy in time; read at the mission time the time model
 gives). On a plume the starts are downwind (within 10 degrees of the wind axis), as in
@@ -207,7 +207,7 @@ def update_ms(seeker_name: str, field_name: str, n: int, iterations: int = 40, s
 
 
 def _field_and_noise(name: str, source: np.ndarray, level: str):
-    from sitl_mock.fields import make_field
+    from sitl_mock.fields_config import make_field
 
     field = make_field(name, source)
     steady = getattr(field, "steady", field)  # the intermittent plume's ensemble mean

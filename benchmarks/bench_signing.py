@@ -24,9 +24,11 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import numpy as np  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 
-from mission.link.signing import SignatureVerifier, SigningConfig, apply_signing, sign_frame  # noqa: E402
+from mission.link.signing import SignatureVerifier, apply_signing, sign_frame
+from mission.core.signing_config import SigningConfig
 from sitl_mock.autopilot import MockAutopilot  # noqa: E402
-from sitl_mock.dynamics import DynamicsParams, Multicopter  # noqa: E402
+from sitl_mock.dynamics_params import DynamicsParams
+from sitl_mock.dynamics import Multicopter
 from sitl_mock.transport import make_parser  # noqa: E402
 
 KEY = bytes(range(1, 33))

@@ -35,7 +35,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import numpy as np  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 
-from mission.link.signing import SigningConfig, apply_signing  # noqa: E402
+from mission.core.signing_config import SigningConfig
+from mission.link.signing import apply_signing
 
 KEY = bytes(range(1, 33))
 WRONG_KEY = bytes(range(101, 133))
@@ -121,8 +122,8 @@ async def _mission(n: int, attack_hz: float, provision: bool, seed: int) -> dict
 
     from mission.flight.coordinator import Coordinator
     from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-    from mission.core.plan import replace_plan
-    from sitl_mock.fields import make_field
+    from mission.core.plan_types import replace_plan
+    from sitl_mock.fields_config import make_field
     from sitl_mock.fleet import MockFleet
 
     source = np.array([6.0, -4.0, 13.0])

@@ -1,10 +1,11 @@
 """Per-call cost of the simulated world's hot paths (prints figures; no assertions)."""
 import timeit
 import numpy as np
-from sitl_mock.dynamics import DynamicsParams, Multicopter
+from sitl_mock.dynamics_params import DynamicsParams
+from sitl_mock.dynamics import Multicopter
 from sitl_mock.sensor import SignalSensor, encode_reading
 from sitl_mock.faults import FaultSet
-from sitl_mock.fields import sigma1
+from sitl_mock.fields_gaussian import sigma1
 
 def flying(**kw):
     m = Multicopter(DynamicsParams(**kw), np.random.default_rng(1)); m.arm(); m.command_takeoff(10)

@@ -66,7 +66,7 @@ def _formation_view(field, offsets) -> None:
 
 def main() -> int:
     import formation
-    from sitl_mock.fields import make_field
+    from sitl_mock.fields_config import make_field
 
     field = make_field("plume", (0.0, 0.0, 15.0))
     offsets = formation.cvt_sphere(8, 4.0, seed=0)

@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 def main(argv=None) -> int:
     """Print the table and the fit."""
     from estimator.ste_model import hit_probability, plume_mean
-    from sitl_mock.fields import make_field
+    from sitl_mock.fields_config import make_field
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--times", type=int, default=300, help="independent times (97 s apart)")

@@ -23,11 +23,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from estimator.retire import SensorRetirement
-from estimator.robust import REASONS, RobustGradientEstimator
+from estimator.robust_faults import REASONS
+from estimator.robust import RobustGradientEstimator
 from estimator.seekers import cap_move, make_seeker
 from formation import cvt_sphere, reconfigure
 from mission.flight.sensor_check import DETECTOR_WARMUP
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 
 __all__ = ["VARIANTS", "run_seeker"]
 

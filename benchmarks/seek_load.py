@@ -37,8 +37,9 @@ async def seek_load(vehicles, streamer, clock, *, reading_rate_hz: float = 10.0,
                     radius_m: float = 4.0, fleet: str = "bench") -> None:
     """Run the seek-loop work until cancelled (see the module docstring)."""
     from mission.flight.phases import formation_offsets
+    from mission.safety.envelope import SafetyEnvelope
+    from mission.safety.fence import Geofence
     from mission.safety.gate import SafetyGate
-    from mission.safety.envelope import Geofence, SafetyEnvelope
     from mission.telemetry.mission_log import MissionLog
     from mission.telemetry.readings import ReadingStore
 
@@ -89,7 +90,7 @@ async def seek_load(vehicles, streamer, clock, *, reading_rate_hz: float = 10.0,
 def _reading_templates(fleet: str, sysids, origin, centre, offsets) -> dict:
     """Per vehicle: its sensor key and a reading payload with ``%d`` (seq), ``%.4f`` (time), ``%.6f`` (value)."""
     from formation.geodesy import enu_to_geodetic
-    from mission.telemetry.readings import SCHEMA, sensor_key
+    from mission.telemetry.reading_format import SCHEMA, sensor_key
 
     templates = {}
     for i, s in enumerate(sysids):

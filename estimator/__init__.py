@@ -20,7 +20,8 @@ from estimator.gradient import (
     gradient_batch,
 )
 from estimator.retire import SensorRetirement
-from estimator.robust import RobustGradientEstimator, weighted_gradient
+from estimator.robust import RobustGradientEstimator
+from estimator.robust_wls import weighted_gradient
 from estimator.seeking import ConvergenceMonitor, ConvergenceVerdict, convergence_scan, seek_step
 
 __all__ = [

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.robust import REASONS
+from estimator.robust_faults import REASONS
 
 __all__ = ["RETIRE_REASONS", "SensorRetirement"]
 

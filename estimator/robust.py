@@ -56,16 +56,9 @@ from estimator.robust_weights import (
     base_weights,
     choose_weights,
 )
-from estimator.robust_wls import CENTRE_MODES, _check_inputs, _solve_weighted, weighted_gradient
+from estimator.robust_wls import CENTRE_MODES, _check_inputs, _solve_weighted
 
-__all__ = [
-    "CENTRE_MODES",
-    "WEIGHTINGS",
-    "REASONS",
-    "Suspect",
-    "RobustGradientEstimator",
-    "weighted_gradient",
-]
+__all__ = ["RobustGradientEstimator"]
 
 #: strength (in updates) of the shrinkage of each sensor's variance towards the median
 _PRIOR_UPDATES = 25

@@ -51,8 +51,10 @@ from estimator.seek_plume import PlumeSeeker
 from estimator.seek_quadratic import fit_quadratic
 from estimator.ste import SteSeeker
 
-__all__ = ["SEEKERS", "OFFLINE_SEEKERS", "MOVING_SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker", "ModelSeeker", "PlumeSeeker", "make_seeker",
-           "cap_move"]
+__all__ = [
+    "SEEKERS", "OFFLINE_SEEKERS", "MOVING_SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker",
+    "ModelSeeker", "make_seeker", "cap_move",
+]
 
 #: Seeker names accepted by :func:`make_seeker` (and by the plan's ``[seeking] seeker``).
 SEEKERS = ("gradient", "newton", "model", "plume", "ste")

@@ -2,5 +2,5 @@
 
 The paper reproduction (``swarmseek paper``), its figures, and the vectorised offline
 source-seeking simulation (``swarmseek simulate``). Imports :mod:`formation`, :mod:`estimator`
-and :mod:`sitl_mock.fields`; never :mod:`mission`.
+and :mod:`sitl_mock.fields_config`; never :mod:`mission`.
 """

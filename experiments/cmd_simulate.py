@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 from estimator.seekers import MOVING_SEEKERS
-from wire.cli_args import float_in_range, int_in_range, nonnegative_float, positive_float
+from wire.cli_args import fail, float_in_range, int_in_range, nonnegative_float, positive_float
 
 __all__ = ["configure", "main", "run", "report_lines"]
 
@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> dict:
 def _field_and_start(args: argparse.Namespace):
     """The field's name (``python:SPEC`` for a plug-in), the field (``--field`` or
     ``--field-python``) and the start (``--start``, else the field's default)."""
-    from sitl_mock.fields import make_field
+    from sitl_mock.fields_config import make_field
 
     if field_is_plugin(args):
         if getattr(args, "field", None) is not None:
@@ -279,8 +279,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         out = run(args)
     except ValueError as exc:
-        print(f"swarmseek simulate: {exc}", file=sys.stderr)
-        return 2
+        return fail("swarmseek simulate", str(exc))
     if args.json:
         print(json.dumps(out))
         return 0

@@ -5,7 +5,7 @@ exactly at ``centre + offset_i`` (perfect tracking), read the field with optiona
 (one standard deviation per robot), the centre estimates the gradient with
 :func:`estimator.gradient_batch` and moves with :func:`estimator.seek_step`.
 
-Any field of :mod:`sitl_mock.fields` (or its name, ``make_field(name)``): a time-dependent one
+Any field of :mod:`sitl_mock.fields_config` (or its name, ``make_field(name)``): a time-dependent one
 (``field.time_dependent``, the intermittent plume) is read at ``t = k * iteration_period_s +
 j * trial_time_offset_s`` in iteration ``k`` of trial ``j`` (trials far apart in time see
 independent plume realisations).
@@ -111,7 +111,7 @@ def simulate(
         Formation offsets from the centre, metres (N >= 4), kept rigid during the run.
     field : Field or str
         Object with ``value(points)``, ``gradient(points)`` and ``source_enu()``
-        (see :mod:`sitl_mock.fields`), or a field name for ``sitl_mock.fields.make_field``.
+        (see :mod:`sitl_mock.fields_config`), or a field name for ``sitl_mock.fields_config.make_field``.
     start : array_like, shape (3,) or (K, 3)
         Initial centre (common or per trial), ENU metres.
     eps, gamma : float
@@ -160,7 +160,7 @@ def simulate(
     if sigma_c not in SIGMA_C_MODES:
         raise ValueError(f"sigma_c must be one of {SIGMA_C_MODES}, got {sigma_c!r}")
     if isinstance(field, str):
-        from sitl_mock.fields import make_field
+        from sitl_mock.fields_config import make_field
 
         field = make_field(field)
     timed = bool(getattr(field, "time_dependent", False))

@@ -135,7 +135,7 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
     offsets : array_like, shape (N, 3)
         Formation offsets (rigid), metres.
     field : Field
-        ``value(points)`` and ``source_enu()`` (:mod:`sitl_mock.fields`).
+        ``value(points)`` and ``source_enu()`` (:mod:`sitl_mock.fields_config`).
     start : array_like, shape (K, 3)
         Initial centres.
     seeker : estimator.seekers.Seeker

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -48,23 +47,10 @@ from experiments.paper_setup import (
     cvt_formation,
     paper_formation,
 )
-from sitl_mock.fields import sigma1, sigma2
-from wire.cli_args import path_arg
+from sitl_mock.fields_gaussian import sigma1, sigma2
+from wire.cli_args import path_arg, usage_error
 
-__all__ = [
-    "EPS",
-    "GAMMA",
-    "SIGMA1_START_ENU",
-    "SIGMA2_START_ENU",
-    "TABLE_NS",
-    "PAPER_TABLE1",
-    "PaperConfig",
-    "table1",
-    "footnote",
-    "generate",
-    "configure",
-    "main",
-]
+__all__ = ["table1", "footnote", "generate", "configure", "main"]
 
 
 # ----------------------------------------------------------------------------- tables
@@ -268,8 +254,7 @@ def main(args: argparse.Namespace) -> int:
 
     problem = output_dir_problem(args.out, "output directory (--out)")
     if problem:
-        print(f"swarmseek paper: error: {problem}", file=sys.stderr)
-        return 2
+        return usage_error("swarmseek paper", problem)
     summary = generate(args.out, quick=args.quick)
     print(f"wrote the paper's table and figures to {args.out} in {summary['elapsed_s']:.1f} s")
     for row in summary["table1"]:

@@ -24,7 +24,7 @@ from experiments.paper_setup import (
     cvt_formation,
     paper_formation,
 )
-from sitl_mock.fields import S1, S2, sigma1, sigma2
+from sitl_mock.fields_gaussian import S1, S2, sigma1, sigma2
 
 __all__ = ["effective_rate", "physics_checks", "first_below", "convergence_sigma1",
            "convergence_sigma2"]

@@ -21,7 +21,7 @@ from experiments.paper_setup import (
     PaperConfig,
     paper_formation,
 )
-from sitl_mock.fields import S2, sigma2
+from sitl_mock.fields_gaussian import S2, sigma2
 
 __all__ = ["predicted_rms", "robustness", "robustness_summary"]
 

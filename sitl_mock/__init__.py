@@ -1,6 +1,6 @@
 """sitl_mock: the simulated world (fields, vehicles, sensors) and protocol-faithful mock autopilots.
 
-The main entry points are re-exported lazily (importing ``sitl_mock.fields`` stays cheap):
+The main entry points are re-exported lazily (importing ``sitl_mock.fields_gaussian`` stays cheap):
 ``MockFleet``, ``MockVehicle``, ``MockAutopilot``, ``FaultSet``, ``SimClock``, ``LockstepClock``,
 ``DynamicsParams``.
 """
@@ -13,12 +13,12 @@ __all__ = ["MockFleet", "MockVehicle", "MockAutopilot", "FaultSet", "SimClock", 
 
 _LAZY = {
     "MockFleet": "sitl_mock.fleet",
-    "MockVehicle": "sitl_mock.fleet",
+    "MockVehicle": "sitl_mock.vehicle",
     "MockAutopilot": "sitl_mock.autopilot",
     "FaultSet": "sitl_mock.faults",
     "SimClock": "sitl_mock.clock",
     "LockstepClock": "sitl_mock.clock",
-    "DynamicsParams": "sitl_mock.dynamics",
+    "DynamicsParams": "sitl_mock.dynamics_params",
     "PortInUseError": "sitl_mock.transport",
 }
 

@@ -20,7 +20,7 @@ import math
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from sitl_mock import ap_flight
+from sitl_mock import ap_flight, ap_flight_state
 
 __all__ = ["check_failsafes"]
 
@@ -46,7 +46,7 @@ def _failsafe(ap, t_s: float, reason: str, action: str, text: str) -> None:
     if action == "terminate":
         ap_flight.disarm_now(ap, "failsafe")
         return
-    if action == "land" and not ap_flight.airborne(ap):
+    if action == "land" and not ap_flight_state.airborne(ap):
         if ap.mc.armed:
             ap_flight.disarm_now(ap, "failsafe")
         return
@@ -59,7 +59,7 @@ def _check_gcs_loss(ap, t_s: float) -> None:
     last = ap.last_gcs_heartbeat_s
     if last is None:
         return
-    if ap_flight.is_ardupilot(ap):
+    if ap_flight_state.is_ardupilot(ap):
         enable, timeout = int(ap.params["FS_GCS_ENABLE"]), ap.params["FS_GCS_TIMEOUT"]
         action = {0: "none", 2: "rtl", 5: "land", 7: "land"}.get(enable, "rtl")
         if enable == 2 and ap.behaviour == "mission":
@@ -83,11 +83,11 @@ def _check_gcs_loss(ap, t_s: float) -> None:
 def _check_battery(ap, t_s: float) -> None:
     fs = ap.flight
     level = ap_flight.battery_level(ap)
-    if level <= fs.battery_level_done or not ap_flight.airborne(ap):
+    if level <= fs.battery_level_done or not ap_flight_state.airborne(ap):
         return
     fs.battery_level_done = level
     p = ap.params
-    if ap_flight.is_ardupilot(ap):
+    if ap_flight_state.is_ardupilot(ap):
         act = int(p["BATT_FS_CRT_ACT"] if level >= 2 else p["BATT_FS_LOW_ACT"])
         action = {0: "none", 1: "land", 5: "terminate", 7: "land"}.get(act, "rtl")
     else:
@@ -107,7 +107,7 @@ def _check_fence(ap, t_s: float) -> None:
     ned = ap.mc.position_ned_m
     dist = math.hypot(ned[0] - ap.home_ned[0], ned[1] - ap.home_ned[1])
     alt = -ned[2]
-    if ap_flight.is_ardupilot(ap):
+    if ap_flight_state.is_ardupilot(ap):
         if not p["FENCE_ENABLE"]:
             return
         radius, alt_max = p["FENCE_RADIUS"], p["FENCE_ALT_MAX"]

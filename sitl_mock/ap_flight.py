@@ -21,14 +21,14 @@ import math
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from sitl_mock.ap_flight_state import FlightState, Setpoint, airborne, is_ardupilot
+from sitl_mock.ap_flight_state import airborne, is_ardupilot
 from sitl_mock.ap_prearm import announce_prearm, ekf_problem
-from sitl_mock.ap_setpoints import apply_setpoint, handle_setpoint, setpoint_echo
+from sitl_mock.ap_setpoints import apply_setpoint
 
-__all__ = ["FlightState", "Setpoint", "apply_params", "arming_problem", "arm", "disarm",
-           "disarm_now", "airborne", "is_ardupilot", "battery_level",
-           "mode_change_problem", "enter_mode", "start_takeoff", "handle_setpoint",
-           "setpoint_echo", "update"]
+__all__ = [
+    "apply_params", "arming_problem", "arm", "disarm", "disarm_now", "battery_level",
+    "mode_change_problem", "enter_mode", "start_takeoff", "update",
+]
 
 _ARDUPILOT_LAND_DISARM_S = 1.0
 _REACHED_ALT_M = 0.5

@@ -16,7 +16,14 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from formation.geodesy import TangentFrame, enu_to_ned, geodetic_to_enu
-from sitl_mock import ap_failsafe, ap_flight, ap_mission_exec, ap_receive
+from sitl_mock import (
+    ap_failsafe,
+    ap_flight,
+    ap_flight_state,
+    ap_mission_exec,
+    ap_receive,
+    ap_setpoints,
+)
 from sitl_mock.ap_signing import VehicleSigning
 from wire.signing import signing_timestamp
 from sitl_mock.ap_mission import MissionItem, MissionServer
@@ -27,7 +34,7 @@ from sitl_mock.ap_telemetry import WIND_MSG_IDS, MessageScheduler, build_message
 from sitl_mock.ap_wind import WindEstimateModel
 from sitl_mock.faults import FaultSet
 
-__all__ = ["MockAutopilot", "classify_bad_frame"]
+__all__ = ["MockAutopilot"]
 
 _TARGETED_AUTOPILOT_COMPONENTS = (0, mavlink2.MAV_COMP_ID_AUTOPILOT1)
 
@@ -118,7 +125,7 @@ class MockAutopilot:
         self.home_ned = np.zeros(3)
         self.home: tuple | None = None
         self.failsafe: str | None = None
-        self.flight = ap_flight.FlightState()
+        self.flight = ap_flight_state.FlightState()
         self.last_gcs_heartbeat_s: float | None = None
         self._est_key = None
         self._est = None
@@ -219,7 +226,7 @@ class MockAutopilot:
 
     def setpoint_echo(self):
         """Current GCS setpoint for POSITION_TARGET_* (None when none is being followed)."""
-        return ap_flight.setpoint_echo(self)
+        return ap_setpoints.setpoint_echo(self)
 
     # ----------------------------------------------------------------- output
     def emit(self, msg) -> None:

@@ -11,10 +11,12 @@ import threading
 import time
 
 from sitl_mock.cli_args import add_field_arguments, field_from_args, probe_custom_field
-from wire.cli_args import (int_in_range, nonnegative_float, origin_geodetic, path_arg, positive_float,
-                           source_enu, zenoh_endpoint)
+from wire.cli_args import (fail, int_in_range, nonnegative_float, origin_geodetic, path_arg, positive_float,
+                           source_enu, usage_error)
 
 __all__ = ["configure", "main"]
+
+_PROG = "swarmseek mock"
 
 
 _vehicles = int_in_range(1, 255, "--vehicles")
@@ -35,6 +37,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``mock`` command's arguments to ``parser``."""
     from sitl_mock.ap_modes import PERSONALITY_NAMES
     from wire.zenoh_flags import add_arguments as add_zenoh_security_arguments
+    from wire.zenoh_flags import add_endpoint_arguments
 
     parser.add_argument("--vehicles", type=_vehicles, default=4, help="number of vehicles (sysid 1..N)")
     parser.add_argument("--personality", choices=PERSONALITY_NAMES, default="px4")
@@ -55,10 +58,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tcp-base-port", type=_port, default=5760,
                         help="vehicle i serves TCP on 127.0.0.1:BASE+10*i (0 disables TCP)")
     parser.add_argument("--fleet", default="swarmseek", help="fleet name (zenoh keys)")
-    parser.add_argument("--zenoh-listen", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
-                        help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    parser.add_argument("--zenoh-connect", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
-                        help="zenoh connect endpoint (repeatable)")
+    add_endpoint_arguments(parser, listen_help="zenoh listen endpoint, e.g. tcp/127.0.0.1:7447 (repeatable)",
+                           connect_help="zenoh connect endpoint (repeatable)")
     add_zenoh_security_arguments(parser)
     parser.add_argument("--noise", type=nonnegative_float, default=0.0, help="sensor noise standard deviation")
     parser.add_argument("--fault", type=_fault, action="append", default=[], metavar="SYSID:NAME=VALUE",
@@ -81,27 +82,22 @@ def main(args: argparse.Namespace) -> int:
 
     for sysid, _name, _value in args.fault:
         if sysid > args.vehicles:
-            print(f"swarmseek mock: error: --fault for sysid {sysid} but only {args.vehicles} vehicles",
-                  file=sys.stderr)
-            return 2
+            return usage_error(_PROG, f"--fault for sysid {sysid} but only {args.vehicles} vehicles")
     try:
         field_name, field, response = field_from_args(args, args.source)
         probe_custom_field(field, time.time())  # a plug-in's values checked before any socket opens
     except ValueError as exc:
-        print(f"swarmseek mock: error: {exc}", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, str(exc))
     try:
         zenoh_security = security_kwargs(args)
     except ZenohFlagError as exc:
-        print(f"swarmseek mock: error: {exc}", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, str(exc))
     signing_key = None
     if args.signing_key_file is not None:
         try:
             signing_key = load_key_file(args.signing_key_file)
         except SigningError as exc:
-            print(f"swarmseek mock: error: {exc}", file=sys.stderr)
-            return 2
+            return usage_error(_PROG, str(exc))
     try:
         fleet = MockFleet(
             n=args.vehicles, personality=args.personality, field=field,
@@ -114,17 +110,13 @@ def main(args: argparse.Namespace) -> int:
         for sysid, name, value in args.fault:
             fleet.set_fault(sysid, name, value)
     except ValueError as exc:
-        print(f"swarmseek mock: error: {exc}", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, str(exc))
     try:
         fleet.start()
     except PortInUseError as exc:
-        print(f"swarmseek mock: error: {exc.strerror}", file=sys.stderr)
-        return 1
+        return fail(_PROG, f"error: {exc.strerror}", 1)
     except Exception as exc:  # OSError from sockets, zenoh.ZError from the zenoh session
-        print(f"swarmseek mock: error: cannot open the fleet's sockets or zenoh session: {exc}",
-              file=sys.stderr)
-        return 1
+        return fail(_PROG, f"error: cannot open the fleet's sockets or zenoh session: {exc}", 1)
     try:
         print(f"mock fleet {args.fleet!r}: {args.vehicles} x {args.personality}, "
               f"speedup {args.speedup:g}, origin {fleet.origin}, field {field_name}, "

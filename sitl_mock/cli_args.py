@@ -26,7 +26,8 @@ _FIELD_FLAGS = {
 def add_field_arguments(parser: argparse.ArgumentParser, default: str) -> None:
     """The field and sensor-response flags of ``mock``, ``sensor`` and ``run`` (``--field``
     defaults to ``default``; ``--source`` stays each command's own). See ``docs/fields.md``."""
-    from sitl_mock.fields import FIELD_NAMES, STABILITY_CLASSES
+    from sitl_mock.fields_config import FIELD_NAMES
+    from sitl_mock.fields_plume import STABILITY_CLASSES
 
     g = parser.add_argument_group("simulated field (docs/fields.md)")
     g.add_argument("--field", choices=FIELD_NAMES, default=None,
@@ -71,7 +72,7 @@ def field_kind(args: argparse.Namespace) -> str:
     """``"python"``, ``"grid"`` or ``"builtin"``: the kind of field the flags (and the
     ``--field-config``'s ``[field]`` table) describe. A ``--field-config`` that cannot be read
     counts as built-in (:func:`field_from_args` reports it)."""
-    from sitl_mock.fields import read_field_table
+    from sitl_mock.fields_config import read_field_table
 
     if getattr(args, "field", None):
         return "builtin"
@@ -88,7 +89,7 @@ def field_kind(args: argparse.Namespace) -> str:
 
 def _field_table(args: argparse.Namespace) -> tuple[dict, str]:
     """The ``[field]`` table the flags describe (the ``--field-config``'s, overridden) and the kind."""
-    from sitl_mock.fields import read_field_table
+    from sitl_mock.fields_config import read_field_table
 
     chosen = [f for f, d in (("--field", "field"), ("--field-python", "field_python"), ("--field-npz", "field_npz"))
               if getattr(args, d, None)]
@@ -130,7 +131,7 @@ def field_from_args(args: argparse.Namespace, source):
         ``--field-config`` file or a value is invalid; the message names the flag or key.
         :class:`~sitl_mock.fields_plugin.FieldPluginError` for a plug-in or data file that cannot serve.
     """
-    from sitl_mock.fields import FIELD_PARAMS, field_from_table
+    from sitl_mock.fields_config import FIELD_PARAMS, field_from_table
     from sitl_mock.fields_plugin import FieldPluginError
 
     table, kind = _field_table(args)

@@ -38,7 +38,7 @@ from sitl_mock.dynamics_control import (
 from sitl_mock.dynamics_disturbances import NormalBatch, gauss_markov_step, wind_drag_step
 from sitl_mock.dynamics_params import GRAVITY_M_S2, DynamicsParams
 
-__all__ = ["DynamicsParams", "Multicopter", "GRAVITY_M_S2"]
+__all__ = ["Multicopter"]
 
 _MODE_IDLE = "idle"          # motors off, or armed and sitting on the ground
 _MODE_POSITION = "position"  # fly to / hold a position target

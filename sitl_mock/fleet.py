@@ -26,14 +26,14 @@ from formation.geodesy import enu_to_geodetic
 from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.clock import SimClock
 from sitl_mock.ap_wind import WindEstimateModel, world_wind_ned_m_s
-from sitl_mock.dynamics import DynamicsParams, Multicopter
+from sitl_mock.dynamics_params import DynamicsParams
+from sitl_mock.dynamics import Multicopter
 from sitl_mock.faults import FaultSet
 from sitl_mock.ports import check_port_base, check_udp_ranges, default_udp_bind_base_port
 from sitl_mock.transport import VehicleLinks
-from sitl_mock.vehicle import MockVehicle, default_home_offsets, per_vehicle, per_vehicle_params
+from sitl_mock.vehicle import MockVehicle, per_vehicle, per_vehicle_params
 
-__all__ = ["MockFleet", "MockVehicle", "PHYSICS_RATE_HZ", "DEFAULT_ORIGIN", "default_home_offsets",
-           "default_udp_bind_base_port"]
+__all__ = ["MockFleet", "PHYSICS_RATE_HZ", "DEFAULT_ORIGIN"]
 
 PHYSICS_RATE_HZ = 50.0
 DEFAULT_ORIGIN = (45.1900, 5.7200, 230.0)
@@ -52,7 +52,7 @@ class MockFleet:
         Number of vehicles (system ids 1..n).
     personality : str or list of str
         ``"px4"`` or ``"ardupilot"``, for all vehicles or one per vehicle.
-    field : sitl_mock.fields.Field, optional
+    field : sitl_mock.fields_gaussian.Field, optional
         Signal field the sensors sample (no sensors without a field).
     origin : tuple
         Fleet origin ``(lat_deg, lon_deg, alt_m)`` (the mission frame's origin).

@@ -65,7 +65,7 @@ class SignalSensor:
 
     Parameters
     ----------
-    field : sitl_mock.fields.Field
+    field : sitl_mock.fields_gaussian.Field
         The signal field (mission frame, ENU m).
     noise_std : float
         Standard deviation of the additive Gaussian noise (signal units, >= 0); overridden by

@@ -22,12 +22,14 @@ from formation.geodesy import geodetic_to_enu
 from sitl_mock.cli_args import add_field_arguments, field_from_args, probe_custom_field
 from sitl_mock.faults import FaultSet
 from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key
-from wire.cli_args import nonnegative_float, origin_geodetic, positive_float, source_enu, zenoh_endpoint
+from wire.cli_args import fail, nonnegative_float, origin_geodetic, positive_float, source_enu, usage_error
 from wire.zenoh_config import zenoh_config
-from wire.zenoh_flags import ZenohFlagError, security_kwargs
+from wire.zenoh_flags import ZenohFlagError, add_endpoint_arguments, security_kwargs
 from wire.zenoh_flags import add_arguments as _add_zenoh_security_arguments
 
 __all__ = ["VirtualSensorError", "configure", "main", "run"]
+
+_PROG = "swarmseek sensor"
 
 _MSG_ID_GLOBAL_POSITION_INT = 33
 _MAV_CMD_SET_MESSAGE_INTERVAL = 511
@@ -99,10 +101,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="fleet name in the zenoh key (default swarmseek, like swarmseek mock)")
     parser.add_argument("--sysid", type=_sysid_arg, default=None, metavar="N",
                         help="autopilot system id (default: the first autopilot heartbeat's)")
-    parser.add_argument("--zenoh-listen", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
-                        help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    parser.add_argument("--zenoh-connect", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
-                        help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    add_endpoint_arguments(parser, listen_help="zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
+                           connect_help="zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
     _add_zenoh_security_arguments(parser)
     parser.add_argument("--count", type=_positive_int, default=None, metavar="N", help="stop after N readings")
     parser.add_argument("--duration", type=positive_float, default=None, metavar="S", help="stop after S seconds")
@@ -283,28 +283,22 @@ def main(args: argparse.Namespace) -> int:
     """Entry point of ``swarmseek sensor``: 0 on success, 1 with a one-line message on failure,
     2 when no zenoh endpoint was given or the zenoh TLS / login flags do not fit together."""
     if not (args.field or args.field_config or args.field_python or args.field_npz):
-        print("swarmseek sensor: error: give --field or --field-config (or --field-python, --field-npz)",
-              file=sys.stderr)
-        return 2
+        return usage_error(_PROG, "give --field or --field-config (or --field-python, --field-npz)")
     try:
         _name, field, _response = field_from_args(args, args.source)
         probe_custom_field(field, time.time())  # a plug-in's values checked before connecting
     except ValueError as exc:
-        print(f"swarmseek sensor: error: {exc}", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, str(exc))
     if not args.zenoh_listen and not args.zenoh_connect:
-        print("swarmseek sensor: error: give --zenoh-listen and/or --zenoh-connect, e.g. "
-              "--zenoh-connect tcp/127.0.0.1:7447 for a coordinator flying the sample plan on this "
-              "machine (zenoh endpoints are always explicit)", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, "give --zenoh-listen and/or --zenoh-connect, e.g. "
+                                  "--zenoh-connect tcp/127.0.0.1:7447 for a coordinator flying the sample plan on "
+                                  "this machine (zenoh endpoints are always explicit)")
     try:
         security_kwargs(args)
     except ZenohFlagError as exc:
-        print(f"swarmseek sensor: error: {exc}", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, str(exc))
     try:
         run(args)
     except VirtualSensorError as exc:
-        print(f"swarmseek sensor: error: {exc}", file=sys.stderr)
-        return 1
+        return fail(_PROG, f"error: {exc}", 1)
     return 0

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from mission.sim.embedded import DEFAULT_ORIGIN, fleet_ports, free_port_block
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
 from invariants import abandoned

@@ -7,6 +7,7 @@ not know, fails with the file, the line and the rule it breaks.
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -137,3 +138,104 @@ def test_the_run_command_may_import_the_simulated_world(tmp_path, monkeypatch):
     (tmp_path / "mission" / "cli" / "cmd_run.py").write_text("from sitl_mock.fleet import MockFleet\n")
     monkeypatch.setattr(__import__(__name__), "ROOT", tmp_path)
     assert _violations() == []
+
+
+def _module_file(module: str) -> Path | None:
+    """The source file of one of our modules (``None`` for a package or a foreign module)."""
+    path = ROOT.joinpath(*module.split(".")).with_suffix(".py")
+    return path if module.split(".")[0] in PACKAGE_RULES and path.is_file() else None
+
+
+@functools.lru_cache(maxsize=None)
+def _borrowed_names(path: Path, module: str) -> dict[str, str]:
+    """Names that ``path`` binds at module level by importing them from another of our modules
+    (name -> that module); a submodule imported by name (``from pkg import mod``) is not one."""
+    borrowed = {}
+    for node in ast.parse(path.read_text(encoding="utf-8"), str(path)).body:
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        base = _from_module(node, module, path.name == "__init__.py")
+        if base.split(".")[0] not in PACKAGE_RULES:
+            continue
+        for alias in node.names:
+            if _module_file(f"{base}.{alias.name}") is None and not (
+                    ROOT.joinpath(*base.split("."), alias.name).is_dir()):
+                borrowed[alias.asname or alias.name] = base
+    return borrowed
+
+
+def _from_module(node: ast.ImportFrom, module: str, is_package: bool) -> str:
+    """The absolute module a ``from ... import`` in ``module`` reads from."""
+    if not node.level:
+        return node.module or ""
+    parts = (module if is_package else module.rpartition(".")[0]).split(".")
+    parts = parts[: len(parts) - node.level + 1]
+    return ".".join(parts + ([node.module] if node.module else []))
+
+
+def _reexports() -> list[str]:
+    """Modules (not package ``__init__``s) listing in ``__all__`` a name imported from another."""
+    found = []
+    for path, module in _modules():
+        if path.name == "__init__.py":
+            continue
+        borrowed = _borrowed_names(path, module)
+        for node in ast.parse(path.read_text(encoding="utf-8"), str(path)).body:
+            if isinstance(node, ast.Assign) and any(
+                    isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets):
+                for name in ast.literal_eval(node.value):
+                    if name in borrowed:
+                        found.append(f"{path.relative_to(ROOT)}: __all__ re-exports {name} "
+                                     f"(defined in {borrowed[name]}); import it from there")
+    return found
+
+
+def _imports_through_a_shim() -> list[str]:
+    """Imports, anywhere in the repository, of a name from a module that only imported it."""
+    found = []
+    for path in sorted(ROOT.rglob("*.py")):
+        rel = path.relative_to(ROOT)
+        if rel.parts[0].startswith("."):
+            continue
+        parts = list(rel.with_suffix("").parts)
+        module = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            base = _from_module(node, module, path.name == "__init__.py")
+            source = _module_file(base)
+            if source is None or source.name == "__init__.py":
+                continue
+            borrowed = _borrowed_names(source, base)
+            for alias in node.names:
+                if alias.name in borrowed:
+                    found.append(f"{rel}:{node.lineno} imports {alias.name} from {base}; "
+                                 f"it is defined in {borrowed[alias.name]}")
+    return found
+
+
+def test_no_module_re_exports_what_another_defines():
+    """One import path per name: a module's ``__all__`` lists only what it defines (package
+    ``__init__`` files, the documented public API of ``formation`` and ``estimator``, excepted)."""
+    assert _reexports() == []
+
+
+def test_every_name_is_imported_from_the_module_that_defines_it():
+    assert _imports_through_a_shim() == []
+
+
+def test_the_shim_checks_see_a_planted_shim(tmp_path, monkeypatch):
+    """Not vacuous: a module re-exporting an imported name, and an import through it, are reported."""
+    for package in PACKAGE_RULES:
+        (tmp_path / package).mkdir()
+        (tmp_path / package / "__init__.py").write_text("")
+    (tmp_path / "wire" / "real.py").write_text("def thing():\n    return 1\n")
+    (tmp_path / "wire" / "shim.py").write_text(
+        "from wire.real import thing\nfrom wire import real\n\n__all__ = [\"thing\", \"real\"]\n")
+    (tmp_path / "mission" / "user.py").write_text(
+        "def f():\n    from wire.shim import thing, real\n")
+    monkeypatch.setattr(__import__(__name__), "ROOT", tmp_path)
+    assert _reexports() == [
+        "wire/shim.py: __all__ re-exports thing (defined in wire.real); import it from there"]
+    assert _imports_through_a_shim() == [
+        "mission/user.py:2 imports thing from wire.shim; it is defined in wire.real"]

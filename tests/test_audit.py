@@ -9,7 +9,8 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from formation.geodesy import geodetic_to_enu
-from mission.safety.audit import AuditError, audit_mission
+from mission.safety.audit_read import AuditError
+from mission.safety.audit import audit_mission
 from mission.cli import main as cli_main
 from mission.link.tlog import tlog_record
 

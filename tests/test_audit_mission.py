@@ -25,8 +25,8 @@ from mission.safety.audit import audit_mission
 from mission.cli import main as cli_main
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.telemetry.mission_log import read_mission_log
-from mission.core.plan import GeofencePlan
-from sitl_mock.fields import sigma2
+from mission.core.plan_types import GeofencePlan
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
 from fly_helpers import run_with_saboteur

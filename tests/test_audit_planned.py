@@ -7,7 +7,8 @@ import json
 import pytest
 
 from mission.cli import main as cli_main
-from mission.safety.audit import AuditError, audit_mission
+from mission.safety.audit_read import AuditError
+from mission.safety.audit import audit_mission
 from test_audit import _line, _plan, _write_log
 
 

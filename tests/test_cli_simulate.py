@@ -20,7 +20,7 @@ def test_the_stop_agrees_with_the_missions_convergence_monitor(capsys):
     out = _run(capsys, "--window", "400", "--tol", "1.0")
     from experiments.offline import simulate
     import formation
-    from sitl_mock.fields import make_field
+    from sitl_mock.fields_config import make_field
 
     res = simulate(formation.cvt_sphere(8, 1.0, seed=0), make_field("sigma2"), np.array([20.0, -20.0, 5.0]),
                    eps=1.0, gamma=0.1, iterations=3000)

@@ -74,7 +74,8 @@ def test_ramp_limits_speed_and_reaches_goal(speed, vspeed):
 
 
 def test_ramp_passes_every_batch_through_the_safety_envelope():
-    from mission.safety.envelope import Geofence, SafetyEnvelope
+    from mission.safety.fence import Geofence
+    from mission.safety.envelope import SafetyEnvelope
 
     fence = Geofence(np.array([[-10.0, -10], [10, -10], [10, 10], [-10, 10]]), 2.0, 30.0)
     env = SafetyEnvelope(fence, max_speed_m_s=2.0, min_separation_m=1.0, formation_radius_m=1.0)
@@ -101,7 +102,8 @@ def test_ramp_rejects_goal_for_unknown_vehicle():
 
 def test_ramp_settles_then_wakes_on_a_new_goal_or_vehicle():
     """At its goals, with the batch passed by the envelope, the ramp stops re-sending and re-checking."""
-    from mission.safety.envelope import Geofence, SafetyEnvelope
+    from mission.safety.fence import Geofence
+    from mission.safety.envelope import SafetyEnvelope
 
     class _CountingEnvelope(SafetyEnvelope):
         calls = 0
@@ -139,7 +141,8 @@ def test_ramp_settles_then_wakes_on_a_new_goal_or_vehicle():
 
 
 def test_ramp_never_settles_while_the_envelope_holds_a_vehicle_short_of_its_goal():
-    from mission.safety.envelope import Geofence, SafetyEnvelope
+    from mission.safety.fence import Geofence
+    from mission.safety.envelope import SafetyEnvelope
     fence = Geofence(np.array([[-10.0, -10], [10, -10], [10, 10], [-10, 10]]), 2.0, 30.0)
     env = SafetyEnvelope(fence, max_speed_m_s=5.0, min_separation_m=1.0, formation_radius_m=1.0)
     ramp = SafetyGate(_Streamer(), _Clock(), 3.0, rate_hz=10, envelope=env)

@@ -10,9 +10,9 @@ import pytest
 from mission.flight.coordinator import Coordinator
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.telemetry.mission_log import MissionLog, read_mission_log
-from mission.core.plan import GeofencePlan
+from mission.core.plan_types import GeofencePlan
 from mission.sim.lockstep import VirtualClock
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
 from fly_helpers import run_fleet
@@ -52,7 +52,7 @@ def test_failed_preflight_aborts_and_arms_nothing(tmp_path, zenoh_elsewhere):
     """... and warns when no sensor reading arrives (zenoh connected elsewhere: as silent as a
     refused TLS handshake or login)."""
     from mission.sim.embedded import free_port_block
-    from mission.core.zenoh_security import ZenohPlan
+    from mission.core.zenoh_config import ZenohPlan
 
     n = 4
     ports = fleet_ports(n, "px4")

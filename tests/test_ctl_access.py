@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from mission.core.plan import PlanError, parse_plan
+from mission.core.plan_types import PlanError
+from mission.core.plan import parse_plan
 from mission.telemetry.control_channel import ControlChannel, control_key, parse_request
 from tls_helpers import write_private
 from wait_helpers import wait_until

@@ -12,7 +12,7 @@ from mission.flight.control import COMMANDS, MissionControl, OperatorStop
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.sim.lockstep import VirtualClock
 from mission.telemetry.mission_log import read_mission_log
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
 pytestmark = pytest.mark.timeout(300)

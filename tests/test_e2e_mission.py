@@ -38,7 +38,7 @@ def _offline_tolerance(formation: str, n: int, source, start, eps: float, gamma:
     """(99th percentile of the offline final error, offline mean estimate)."""
     from estimator import convergence_scan
     from mission.flight.phases import formation_offsets
-    from sitl_mock.fields import sigma2
+    from sitl_mock.fields_gaussian import sigma2
     from experiments.offline import simulate
 
     offsets = formation_offsets(formation, n, 4.0)
@@ -59,7 +59,7 @@ def _offline_tolerance(formation: str, n: int, source, start, eps: float, gamma:
 def test_mission_finds_the_source(tmp_path, capsys, personality, formation, n, clock_args):
     from mission.sim.embedded import default_eps
     from mission.telemetry.mission_log import read_mission_log
-    from sitl_mock.fields import sigma2
+    from sitl_mock.fields_gaussian import sigma2
 
     source = np.array([6.0, -4.0, 13.0])
     start = source + np.array([-8.0, 5.0, -2.0])
@@ -155,7 +155,7 @@ def test_dry_run_then_fly_a_plan_file_against_a_mock_fleet(tmp_path):
     from mission.cli.cmd_fly import fly
     from mission.sim.embedded import DEFAULT_ORIGIN, fleet_ports, free_port_block
     from mission.core.plan import load_plan
-    from sitl_mock.fields import sigma2
+    from sitl_mock.fields_gaussian import sigma2
     from mission.sim.lockstep import VirtualClock
     from sitl_mock.fleet import MockFleet
 

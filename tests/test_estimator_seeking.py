@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 import formation
 from estimator import ConvergenceMonitor, convergence_scan, seek_step
-from sitl_mock.fields import sigma1, sigma2
+from sitl_mock.fields_gaussian import sigma1, sigma2
 from experiments.offline import simulate
 
 _vec = st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=3, max_size=3).map(np.array)

@@ -12,13 +12,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mission.core.plan import PreflightPlan
+from mission.core.plan_types import PreflightPlan
 from mission.flight.coordinator import Coordinator
 from mission.flight.failsafe_params import assess
 from mission.sim.embedded import DEFAULT_ORIGIN, embedded_plan, fleet_ports
 from mission.sim.lockstep import VirtualClock
 from mission.telemetry.mission_log import MissionLog, read_mission_log
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
 from fly_helpers import fly, run_fleet

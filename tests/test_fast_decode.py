@@ -22,9 +22,10 @@ from pymavlink.generator import mavcrc
 import mission.link.endpoint_receive as endpoint_receive
 from fuzz_helpers import (ALL_MESSAGE_CLASSES, SIGNED_REGIONS, FakeClock, encode, frames, message_class, messages,
                           mutate_signed, mutated, sign, state_repr)
-from mission.link.endpoint import MavEndpoint, parse_connection
+from mission.link.endpoint import MavEndpoint
+from mission.core.uri import parse_connection
 from mission.link.fast_decode import FAST_MSG_IDS, decode_single_frame
-from mission.link.signing import SigningConfig
+from mission.core.signing_config import SigningConfig
 from wire.signing import signing_timestamp
 from mission.link.tlog import read_tlog_records
 from mission.vehicle.vehicle_link import VehicleLink

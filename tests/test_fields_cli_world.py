@@ -16,7 +16,7 @@ import zenoh
 import sitl_mock.fleet as fleet_mod
 from formation.geodesy import geodetic_to_enu
 from mission.cli import main as swarmseek
-from sitl_mock.fields import make_field
+from sitl_mock.fields_config import make_field
 from wire.zenoh_config import zenoh_config
 
 TIMEOUT_S = 60.0

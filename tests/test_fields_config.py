@@ -12,10 +12,13 @@ import pytest
 import formation
 from experiments.offline import simulate
 from mission.cli import main as cli_main
-from mission.core.plan import PlanError, parse_plan
+from mission.core.plan_types import PlanError
+from mission.core.plan import parse_plan
 from sitl_mock import cli as mock_cli
 from sitl_mock.cli_args import field_from_args
-from sitl_mock.fields import FilamentPlume, SumField, field_from_table, make_field
+from sitl_mock.fields_filament import FilamentPlume
+from sitl_mock.fields_gaussian import SumField
+from sitl_mock.fields_config import field_from_table, make_field
 
 SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
 FIELD = {"type": "plume", "source_enu_m": [5.0, 20.0, 15.0], "wind_from_deg": 200.0, "stability": "B",

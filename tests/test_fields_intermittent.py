@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl_mock.fields import FilamentPlume, GaussianPlume, make_field
+from sitl_mock.fields_filament import FilamentPlume
+from sitl_mock.fields_plume import GaussianPlume
+from sitl_mock.fields_config import make_field
 
 H = 15.0
 T0 = 1767225600.0  # the lock-step clock's epoch: the mock fleet's times are this large

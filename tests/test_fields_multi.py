@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl_mock.fields import FilamentPlume, GaussianField, GaussianPlume, SumField, make_field
+from sitl_mock.fields_filament import FilamentPlume
+from sitl_mock.fields_gaussian import GaussianField, SumField
+from sitl_mock.fields_plume import GaussianPlume
+from sitl_mock.fields_config import make_field
 
 SOURCES = [(0.0, 0.0, 15.0), (5.0, 40.0, 12.0), (-30.0, -25.0, 18.0)]  # crosswind of each other (west wind)
 

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from mission.cli import main as cli_main
-from mission.core.plan import PlanError, parse_plan
+from mission.core.plan_types import PlanError
+from mission.core.plan import parse_plan
 from mission.sim.lockstep import LOCKSTEP_T0_S
 from mission.telemetry.mission_log import read_mission_log
 from sitl_mock.cli_args import field_from_args

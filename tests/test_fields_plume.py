@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl_mock.fields import GaussianPlume, briggs_sigmas, make_field
+from sitl_mock.fields_plume import GaussianPlume, briggs_sigmas
+from sitl_mock.fields_config import make_field
 
 H = 15.0
 

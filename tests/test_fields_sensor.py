@@ -89,7 +89,7 @@ def test_detection_floor_reports_zero_below_and_the_value_above():
 
 
 def test_sensor_reads_a_time_dependent_field_at_the_sample_time():
-    from sitl_mock.fields import make_field
+    from sitl_mock.fields_config import make_field
 
     f = make_field("intermittent", (0.0, 0.0, 10.0), seed=2)
     s = _sensor(f)

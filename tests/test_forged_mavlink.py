@@ -28,13 +28,14 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from fly_helpers import run_with_saboteur
 from mission.core.clock import WallClock
 from mission.core.uri import parse_connection
-from mission.link.endpoint import MavEndpoint, SysidRegistry
+from mission.link.endpoint import MavEndpoint
+from mission.link.endpoint_registry import SysidRegistry
 from mission.link.tlog import read_tlog_records
 from mission.safety.audit import audit_mission
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.sim.lockstep import VirtualClock
 from mission.telemetry.mission_log import read_mission_log
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from wait_helpers import wait_until_async
 

@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from mission.core.plan import PlanError, parse_plan
+from mission.core.plan_types import PlanError
+from mission.core.plan import parse_plan
 from mission.link.forward import Forwarder, plan_with_outs
 from mission.telemetry.mission_log import read_mission_log
 from wait_helpers import wait_until, wait_until_async

@@ -19,7 +19,8 @@ from pathlib import Path
 import pytest
 
 from mission.cli import main as cli_main
-from mission.core.plan import PlanError, load_plan, parse_plan
+from mission.core.plan_types import PlanError
+from mission.core.plan import load_plan, parse_plan
 from mission.core.plan_sections import parse_forward_out
 from mission.link.forward import ForwardAddressError, Forwarder, forwarding, plan_with_outs, resolve_out, resolve_outs
 

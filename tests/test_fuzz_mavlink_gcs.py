@@ -23,7 +23,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from fuzz_helpers import (ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad, message_class, mutated,
                           reference_parse, state_repr)
 from mission.core.clock import WallClock
-from mission.link.endpoint import MavEndpoint, parse_connection
+from mission.link.endpoint import MavEndpoint
+from mission.core.uri import parse_connection
 from mission.link.poller import UdpPoller
 from mission.link.tlog import read_tlog_records
 from mission.vehicle.vehicle_link import VehicleLink

@@ -28,7 +28,8 @@ from mission.sim.embedded import free_port_block
 from sitl_mock.ap_commands import COMMANDS
 from sitl_mock.ap_telemetry import BUILDERS
 from sitl_mock.autopilot import MockAutopilot
-from sitl_mock.dynamics import DynamicsParams, Multicopter
+from sitl_mock.dynamics_params import DynamicsParams
+from sitl_mock.dynamics import Multicopter
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import VehicleLinks, make_parser
 from fuzz_helpers import (run_autopilot, ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad, is_valid_for, message_class,

@@ -20,8 +20,15 @@ from hypothesis import strategies as st
 from fuzz_helpers import FakeClock
 from formation.geodesy import enu_to_geodetic
 from mission.sim.embedded import free_port_block
-from mission.telemetry.readings import (REJECT_REASONS, SCHEMA, Reading, ReadingRejected, ReadingStore, ReadingSubscriber,
-                              decode_reading, sensor_key)
+from mission.telemetry.reading_format import (
+    REJECT_REASONS,
+    SCHEMA,
+    Reading,
+    ReadingRejected,
+    decode_reading,
+    sensor_key,
+)
+from mission.telemetry.readings import ReadingStore, ReadingSubscriber
 from sitl_mock.sensor import encode_reading
 from wait_helpers import wait_until
 

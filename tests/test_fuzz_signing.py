@@ -28,13 +28,16 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fuzz_helpers import (run_autopilot, SIGNED_REGIONS, FakeClock, SigningOracle, encode, message_class, messages,
                           mutate_signed, reference_parse, sign, state_repr)
-from mission.link.endpoint import LinkError, MavEndpoint, parse_connection
-from mission.link.signing import SigningConfig
+from mission.link.endpoint_registry import LinkError
+from mission.link.endpoint import MavEndpoint
+from mission.core.uri import parse_connection
+from mission.core.signing_config import SigningConfig
 from wire.signing import signing_timestamp
 from mission.vehicle.vehicle_link import VehicleLink
 from sitl_mock.ap_signing import UNSIGNED_OK_MSG_IDS
 from sitl_mock.autopilot import MockAutopilot
-from sitl_mock.dynamics import DynamicsParams, Multicopter
+from sitl_mock.dynamics_params import DynamicsParams
+from sitl_mock.dynamics import Multicopter
 from sitl_mock.transport import VehicleLinks, make_parser
 
 _M = mavlink

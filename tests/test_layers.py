@@ -119,7 +119,8 @@ def test_embedded_fleet_ports_do_not_overlap(n):
 
 
 def test_mock_fleet_default_ports_scale_and_overlaps_are_refused():
-    from sitl_mock.fleet import MockFleet, default_udp_bind_base_port
+    from sitl_mock.fleet import MockFleet
+    from sitl_mock.ports import default_udp_bind_base_port
 
     assert default_udp_bind_base_port(40) == 14580                   # PX4's layout while it fits
     assert default_udp_bind_base_port(41) == 14540 + 41               # vehicle 41 no longer streams to 14580

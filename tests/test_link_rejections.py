@@ -23,10 +23,11 @@ import zenoh
 from fly_helpers import run_fleet
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mission.core.plan import replace_plan
+from mission.core.plan_types import replace_plan
 from mission.flight.coordinator import Coordinator
 from mission.flight.result import MissionResult
-from mission.link.signing import SigningConfig, apply_signing
+from mission.core.signing_config import SigningConfig
+from mission.link.signing import apply_signing
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.sim.fleet_report import vehicle_rejections
 from mission.sim.lockstep import VirtualClock
@@ -38,7 +39,7 @@ from mission.telemetry.link_report import (
 )
 from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.telemetry.state_pub import state_key
-from sitl_mock.fields import make_field
+from sitl_mock.fields_config import make_field
 from sitl_mock.fleet import MockFleet
 
 KEY = bytes(range(1, 33))

@@ -8,7 +8,9 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.core.clock import WallClock
-from mission.link.endpoint import ConnectionSpec, LinkError, MavEndpoint, SysidRegistry, parse_connection
+from mission.core.uri import ConnectionSpec, parse_connection
+from mission.link.endpoint_registry import LinkError, SysidRegistry
+from mission.link.endpoint import MavEndpoint
 from mission.link.poller import UdpPoller
 from mission.vehicle.vehicle_link import VehicleLink
 from fake_autopilot import FakeAutopilot, FakeUdpVehicle

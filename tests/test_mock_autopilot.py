@@ -8,7 +8,8 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sitl_mock.autopilot import MockAutopilot
-from sitl_mock.dynamics import DynamicsParams, Multicopter
+from sitl_mock.dynamics_params import DynamicsParams
+from sitl_mock.dynamics import Multicopter
 from sitl_mock.transport import make_parser
 
 ORIGIN = (45.19, 5.72, 230.0)

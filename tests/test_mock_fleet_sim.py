@@ -13,8 +13,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sitl_mock.clock import LockstepClock
-from sitl_mock.dynamics import DynamicsParams
-from sitl_mock.fields import sigma1
+from sitl_mock.dynamics_params import DynamicsParams
+from sitl_mock.fields_gaussian import sigma1
 from sitl_mock.fleet import MockFleet
 
 

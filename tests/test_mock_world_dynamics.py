@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from sitl_mock.dynamics import DynamicsParams, Multicopter
+from sitl_mock.dynamics_params import DynamicsParams
+from sitl_mock.dynamics import Multicopter
 
 DT_S = 0.02
 

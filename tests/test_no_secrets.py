@@ -23,7 +23,7 @@ import zenoh
 from fly_helpers import run_fleet
 from tls_helpers import write_private
 
-from mission.core.plan import replace_plan
+from mission.core.plan_types import replace_plan
 from mission.core.signing_config import signing_config_from_table
 from mission.core.zenoh_config import ZenohAuthPlan, ZenohPlan
 from mission.flight.coordinator import Coordinator
@@ -33,7 +33,7 @@ from mission.sim.lockstep import VirtualClock
 from mission.telemetry.display import Display, format_summary
 from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.telemetry.state_pub import state_key
-from sitl_mock.fields import make_field
+from sitl_mock.fields_config import make_field
 from sitl_mock.fleet import MockFleet
 
 PASSPHRASE = "swarmseek test passphrase: correct horse battery staple"

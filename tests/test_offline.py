@@ -11,7 +11,7 @@ from scipy.optimize import minimize
 import formation
 from estimator import GeometryError, gradient, seek_step
 from mission.cli import main as cli_main
-from sitl_mock.fields import GaussianField, SumField, sigma1, sigma2
+from sitl_mock.fields_gaussian import GaussianField, SumField, sigma1, sigma2
 from experiments.offline import simulate
 
 

@@ -9,7 +9,7 @@ import pytest
 
 import formation
 from mission.cli import main as cli_main
-from experiments.paper import SIGMA1_START_ENU, SIGMA2_START_ENU, TABLE_NS
+from experiments.paper_setup import SIGMA1_START_ENU, SIGMA2_START_ENU, TABLE_NS
 
 _FILES = [
     "table1.csv", "table1.json", "table1.md", "footnote.csv", "footnote.json",

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mission.core.plan import PLAN_VERSION, Plan, PlanError, load_plan, parse_plan
+from mission.core.plan_types import PLAN_VERSION, Plan, PlanError
+from mission.core.plan import load_plan, parse_plan
 
 SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
 

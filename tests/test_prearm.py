@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mission.core.plan import PlanError, PreflightPlan, parse_plan
+from mission.core.plan_types import PlanError, PreflightPlan
+from mission.core.plan import parse_plan
 from mission.flight.coordinator import Coordinator
 from mission.flight.readiness_autopilot import arm_and_takeoff
 from mission.flight.state import MissionError
@@ -24,7 +25,7 @@ from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.vehicle.prearm import EKF_NEEDED, PrearmStatus
 from mission.vehicle.state import CommandError
 from sitl_mock.ap_prearm import EKF_FLAGS_NO_GPS, EKF_FLAGS_OK, PREARM_REPORT_INTERVAL_S
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
 from fly_helpers import fly, run_fleet

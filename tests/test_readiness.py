@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 
 from mission.cli.cmd_dryrun import dry_run, format_readiness
-from mission.core.plan import GeofencePlan, PlanError, parse_plan
-from mission.core.zenoh_security import ZenohPlan
+from mission.core.plan_types import GeofencePlan, PlanError
+from mission.core.plan import parse_plan
+from mission.core.zenoh_config import ZenohPlan
 from mission.sim.embedded import DEFAULT_ORIGIN, embedded_plan, fleet_ports, free_port_block
 from mission.sim.lockstep import VirtualClock
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
 from fly_helpers import fly, run_fleet

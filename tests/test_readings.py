@@ -11,14 +11,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from formation.geodesy import enu_to_geodetic
-from mission.telemetry.readings import (
+from mission.telemetry.reading_format import (
     REJECT_REASONS,
     SCHEMA,
     ReadingRejected,
-    ReadingStore,
     decode_reading,
     sensor_key,
 )
+from mission.telemetry.readings import ReadingStore
 
 ORIGIN = (45.19, 5.72, 230.0)
 FLEET = "demo"

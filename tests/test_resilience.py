@@ -12,7 +12,7 @@ import pytest
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.flight.loss import classify_loss, reformed_offsets
 from mission.telemetry.mission_log import read_mission_log
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
 from fly_helpers import fly as _fly, run_fleet
@@ -223,7 +223,8 @@ def test_plan_faults_section_is_checked(faults, problem):
     import tomllib
     from pathlib import Path
 
-    from mission.core.plan import PlanError, parse_plan
+    from mission.core.plan_types import PlanError
+    from mission.core.plan import parse_plan
 
     doc = tomllib.loads((Path(__file__).parents[1] / "mission/examples/sitl_plan.toml").read_text())
     assert parse_plan(doc).faults.readmit is False          # default: kept out

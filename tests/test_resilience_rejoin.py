@@ -12,10 +12,10 @@ import pytest
 
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.telemetry.mission_log import read_mission_log
-from mission.core.plan import FaultsPlan
+from mission.core.plan_types import FaultsPlan
 from mission.flight.obstacles import clear_offsets, plan_clear_transfer, segment_clearance
 from mission.flight.rejoin import readmitted_offsets
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
 from fly_helpers import fly as _fly, run_fleet

@@ -28,17 +28,17 @@ from mission.safety.audit import audit_mission
 from mission.flight.coordinator import _plan_json
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.telemetry.mission_log import MissionLog, read_mission_log
-from mission.core.plan import FaultsPlan
+from mission.core.plan_types import FaultsPlan
 from mission.flight.retire import (
     PARKED_STATUS,
     RetiredSensor,
     SensorWatch,
     formation_goals,
     make_watch,
-    parked,
     restore_retired,
 )
-from sitl_mock.fields import sigma2
+from mission.flight.motion import parked
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
 from fly_helpers import run_with_saboteur

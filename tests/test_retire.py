@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from estimator import RobustGradientEstimator, SensorRetirement
-from estimator.robust import REASONS
+from estimator.robust_faults import REASONS
 from formation import cvt_sphere, reconfigure
 
 N = 8

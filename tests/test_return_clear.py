@@ -15,7 +15,7 @@ import pytest
 
 from mission.flight.obstacles import OBSTACLE_MARGIN_M
 from mission.flight.return_plan import landing_spots, path_clearance, plan_clear_return
-from mission.safety.envelope import Geofence
+from mission.safety.fence import Geofence
 from mission.flight.targets import layered_transfer
 from fly_helpers import fly, run_fleet
 
@@ -300,7 +300,7 @@ def _whole_mission(tmp_path, keep_clear, monkeypatch):
     from mission.flight import return_clear
     from mission.sim.embedded import DEFAULT_ORIGIN, embedded_plan, fleet_ports
     from mission.telemetry.mission_log import read_mission_log
-    from sitl_mock.fields import sigma2
+    from sitl_mock.fields_gaussian import sigma2
     from mission.sim.lockstep import VirtualClock
     from sitl_mock.fleet import MockFleet
 

@@ -9,9 +9,11 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from estimator import GeometryError, estimator_weights, gradient, gradient_batch
-from estimator.robust import REASONS, RobustGradientEstimator, weighted_gradient
+from estimator.robust_faults import REASONS
+from estimator.robust import RobustGradientEstimator
+from estimator.robust_wls import weighted_gradient
 from formation import cvt_sphere
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 
 N = 8
 

@@ -13,8 +13,8 @@ import warnings
 import numpy as np
 import pytest
 
-from estimator.robust import REASONS, RobustGradientEstimator
-from estimator.robust_faults import biased_mask, worst_spike
+from estimator.robust import RobustGradientEstimator
+from estimator.robust_faults import biased_mask, worst_spike, REASONS
 from formation import cvt_sphere
 
 GRAD = np.array([1.0, 2.0, 3.0])

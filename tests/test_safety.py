@@ -5,13 +5,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from mission.safety.envelope import (
-    EmptyFenceError,
-    Geofence,
-    SafetyEnvelope,
-    SafetyError,
-    SafetyViolation,
-)
+from mission.safety.report import EmptyFenceError, SafetyError, SafetyViolation
+from mission.safety.fence import Geofence
+from mission.safety.envelope import SafetyEnvelope
 from mission.safety.geometry import (
     offset_polygon_inward,
     point_in_polygon,

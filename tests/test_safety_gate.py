@@ -5,7 +5,8 @@ import asyncio
 import numpy as np
 import pytest
 
-from mission.safety.envelope import Geofence, SafetyEnvelope
+from mission.safety.envelope import SafetyEnvelope
+from mission.safety.fence import Geofence
 from mission.safety.gate import SafetyGate
 from mission.vehicle.streamer import SetpointStreamer
 

@@ -11,8 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mission.flight.result import MissionResult
+from mission.safety.envelope import SafetyEnvelope, pairwise_path_separation
+from mission.safety.fence import Geofence
 from mission.safety.gate import SafetyGate
-from mission.safety.envelope import Geofence, SafetyEnvelope, pairwise_path_separation
 from mission.safety.separation import hold_for_separation
 
 SQUARE = np.array([(0.0, 0.0), (100.0, 0.0), (100.0, 100.0), (0.0, 100.0)])

@@ -7,8 +7,8 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
 from formation import cvt_sphere, symmetric_cylinder
-from mission.safety.envelope import Geofence, TransferError, plan_transfer
-from mission.safety.transfer import leg_separation
+from mission.safety.fence import Geofence
+from mission.safety.transfer import leg_separation, TransferError, plan_transfer
 
 SEP_M = 2.0
 

@@ -8,7 +8,7 @@ import formation
 from estimator.seek_hits import HitEdgeSeeker, _spiral
 from estimator.seekers import make_seeker
 from experiments.offline_seek import simulate_seeker
-from sitl_mock.fields import make_field
+from sitl_mock.fields_config import make_field
 
 _OFF = formation.cvt_sphere(8, 4.0, seed=0)
 _SOURCE = np.array([0.0, 0.0, 15.0])

@@ -13,11 +13,12 @@ import pytest
 
 from mission.cli import main as cli_main
 from mission.cli.cmd_run import _check_args, _seeking_options, configure
-from mission.core.plan import GeofencePlan, PlanError, parse_plan
+from mission.core.plan_types import GeofencePlan, PlanError
+from mission.core.plan import parse_plan
 from mission.flight.seek_moving import MovingSampling, lagged_positions
 from mission.telemetry.mission_log import read_mission_log
-from mission.telemetry.readings import Reading
-from sitl_mock.fields import sigma2
+from mission.telemetry.reading_format import Reading
+from sitl_mock.fields_gaussian import sigma2
 
 SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
 

@@ -14,7 +14,7 @@ from estimator.seek_signal import ArrivalSignal, SignalFloor
 from estimator.seekers import SEEKERS, make_seeker
 from estimator.seeking import ConvergenceMonitor, convergence_scan
 from experiments.offline_seek import simulate_seeker
-from sitl_mock.fields import make_field
+from sitl_mock.fields_config import make_field
 
 _OFF = formation.cvt_sphere(8, 4.0, seed=0)
 _STARTS = np.array([[20, 0, 15], [30, 2, 13], [15, -1, 16], [40, -3, 17], [25, 3, 14], [35, 0, 15]], float)

@@ -14,7 +14,7 @@ from estimator import estimator_weights, seek_step
 from estimator.seek_quadratic import fit_quadratic
 from estimator.seekers import SEEKERS, GradientSeeker, ModelSeeker, NewtonSeeker, cap_move, make_seeker
 from experiments.offline_seek import StopAndGo, simulate_seeker
-from sitl_mock.fields import sigma1, sigma2
+from sitl_mock.fields_gaussian import sigma1, sigma2
 
 _OFF = formation.cvt_sphere(8, 4.0, seed=0)
 

@@ -70,7 +70,7 @@ def test_no_signal_holds_the_centre():
 
 def test_gamma_caps_the_model_step():
     hook = make_seeker("model")
-    from sitl_mock.fields import sigma2
+    from sitl_mock.fields_gaussian import sigma2
 
     field = sigma2((30.0, 0.0, 10.0))
     centre = np.array([0.0, 0.0, 10.0])

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sitl_mock.faults import FaultSet
-from sitl_mock.fields import sigma1, sigma2
+from sitl_mock.fields_gaussian import sigma1, sigma2
 from sitl_mock.sensor import (
     SENSOR_SCHEMA,
     SignalSensor,

@@ -18,7 +18,7 @@ import pytest
 from formation import cvt_sphere
 from mission.cli import cmd_run
 from mission.cli import main as cli_main
-from mission.core.plan import FaultsPlan
+from mission.core.plan_types import FaultsPlan
 from mission.flight.sensor_check import SensorCheck, make_check
 from mission.flight.seek import make_estimator
 from mission.telemetry.mission_log import read_mission_log

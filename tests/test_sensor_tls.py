@@ -161,7 +161,7 @@ def test_sensor_delivers_with_user_password_only_when_right(tmp_path, coordinato
 
 # --------------------------------------------------------------------------- mock fleet over TLS
 def test_mock_fleet_publishes_over_mutual_tls(pki, coordinator):
-    from sitl_mock.fields import make_field
+    from sitl_mock.fields_config import make_field
 
     port = _free_port()
     coord = coordinator(_tls_listener(pki, port))

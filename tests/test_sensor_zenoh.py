@@ -10,7 +10,7 @@ import pytest
 import zenoh
 
 from sitl_mock.faults import FaultSet
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key
 from wire.zenoh_config import zenoh_config
 from wait_helpers import wait_until

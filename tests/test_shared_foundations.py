@@ -11,7 +11,8 @@ from formation.geodesy import (
     ned_to_enu,
 )
 from sitl_mock.faults import FAULT_NAMES, FaultSet, parse_fault
-from sitl_mock.fields import GaussianField, S1, S2, SumField, make_field, sigma1, sigma2
+from sitl_mock.fields_gaussian import GaussianField, S1, S2, SumField, sigma1, sigma2
+from sitl_mock.fields_config import make_field
 
 ORIGIN = (45.1885, 5.7245, 212.0)
 

@@ -10,8 +10,10 @@ import socket
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mission.link.endpoint import LinkError, MavEndpoint
-from mission.link.signing import SigningConfig, apply_signing
+from mission.link.endpoint_registry import LinkError
+from mission.link.endpoint import MavEndpoint
+from mission.core.signing_config import SigningConfig
+from mission.link.signing import apply_signing
 from mission.vehicle.vehicle_link import VehicleLink
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import make_parser

@@ -18,10 +18,16 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mission import cli
-from mission.link.signing import (SignatureVerifier, SigningConfig, apply_signing,
-                                  disable_signing_message, setup_signing_message)
+from mission.link.signing import (
+    SignatureVerifier,
+    apply_signing,
+    disable_signing_message,
+    setup_signing_message,
+)
+from mission.core.signing_config import SigningConfig
 from sitl_mock.autopilot import MockAutopilot
-from sitl_mock.dynamics import DynamicsParams, Multicopter
+from sitl_mock.dynamics_params import DynamicsParams
+from sitl_mock.dynamics import Multicopter
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import make_parser
 from wire.signing import signing_timestamp

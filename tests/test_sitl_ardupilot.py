@@ -54,7 +54,7 @@ def _offline_tolerance() -> tuple[float, np.ndarray]:
     from estimator import convergence_scan
     from experiments.offline import simulate
     from mission.flight.phases import formation_offsets
-    from sitl_mock.fields import sigma2
+    from sitl_mock.fields_gaussian import sigma2
 
     offsets = formation_offsets("cvt", _N, _RADIUS_M)
     res = simulate(offsets, sigma2(np.array(_SOURCE)), np.array(_START), eps=_EPS, gamma=_GAMMA,

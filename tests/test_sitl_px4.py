@@ -54,7 +54,7 @@ def _offline_tolerance(seeking: dict) -> tuple[float, np.ndarray]:
     from estimator.seekers import make_seeker
     from experiments.offline_seek import simulate_seeker
     from mission.flight.phases import formation_offsets
-    from sitl_mock.fields import sigma2
+    from sitl_mock.fields_gaussian import sigma2
 
     offsets = formation_offsets("cvt", _N, 2.0)
     trials = 200

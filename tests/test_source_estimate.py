@@ -20,7 +20,8 @@ from estimator.estimate import (
     sphere_radius95_m,
 )
 from estimator.seekers import cap_move, make_seeker
-from sitl_mock.fields import make_field, sigma2
+from sitl_mock.fields_config import make_field
+from sitl_mock.fields_gaussian import sigma2
 
 SOURCE = np.array([0.0, 0.0, 15.0])
 

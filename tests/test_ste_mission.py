@@ -17,7 +17,8 @@ import pytest
 from estimator.seekers import MOVING_SEEKERS, SEEKERS
 from estimator.ste import SteSeeker
 from mission.cli import main as cli_main
-from mission.core.plan import PlanError, parse_plan
+from mission.core.plan_types import PlanError
+from mission.core.plan import parse_plan
 from mission.flight import seek
 from mission.flight.seek import _MissionSeeker, make_seeker, scaled_slots, ste_options
 from mission.flight.seek_moving import MovingSampling, thin_evenly

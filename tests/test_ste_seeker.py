@@ -8,7 +8,7 @@ import formation
 from estimator.seekers import cap_move, make_seeker
 from estimator.ste import SteSeeker
 from estimator.ste_model import plume_mean
-from sitl_mock.fields import make_field
+from sitl_mock.fields_config import make_field
 
 SOURCE = np.array([0.0, 0.0, 15.0])
 OFFSETS = formation.cvt_sphere(8, 4.0, seed=0)

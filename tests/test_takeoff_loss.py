@@ -11,7 +11,7 @@ from fly_helpers import run_with_saboteur
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.sim.lockstep import VirtualClock
 from mission.telemetry.mission_log import read_mission_log
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
 _SOURCE = np.array([6.0, 4.0, 12.0])

@@ -19,7 +19,7 @@ from mission.telemetry.display import Display
 from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.telemetry.state_pub import StatePublisher
 from mission.telemetry.terminal import Terminal, alert, best_effort_terminal
-from sitl_mock.fields import sigma2
+from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
 from fly_helpers import run_fleet

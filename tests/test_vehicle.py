@@ -15,7 +15,8 @@ from formation.geodesy import enu_to_geodetic, enu_to_ned, geodetic_to_enu
 from mission.core.clock import WallClock, wait_on_clock
 from mission.link.endpoint import MavEndpoint
 from mission.vehicle.streamer import SetpointStreamer
-from mission.vehicle.vehicle_link import CommandError, VehicleLink, command_name
+from mission.vehicle.state import CommandError, command_name
+from mission.vehicle.vehicle_link import VehicleLink
 from fake_autopilot import FakeAutopilot, FakeUdpVehicle
 from mission.vehicle.frames import MissionToLocal, mode_name, resolve_mode
 from wait_helpers import wait_until_async
@@ -283,7 +284,7 @@ def test_wait_on_clock_returns_result_or_times_out():
 
 def _attached(clock=None):
     """An endpoint (transport not opened) with an ArduPilot vehicle 3 heard and attached."""
-    from mission.link.endpoint import parse_connection
+    from mission.core.uri import parse_connection
 
     clock = clock or WallClock()
     ep = MavEndpoint(parse_connection("udpin:127.0.0.1:0"), clock=clock, heartbeat_hz=0)

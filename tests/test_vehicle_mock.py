@@ -10,7 +10,8 @@ import pytest
 
 import sitl_mock.clock as clock_mod
 import sitl_mock.fleet as fleet_mod
-from mission.link.endpoint import MavEndpoint, SysidRegistry
+from mission.link.endpoint import MavEndpoint
+from mission.link.endpoint_registry import SysidRegistry
 from mission.sim.embedded import free_port_block
 from mission.link.poller import UdpPoller
 from mission.vehicle.streamer import SetpointStreamer

@@ -14,7 +14,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 import sitl_mock.clock as clock_mod
 import sitl_mock.fleet as fleet_mod
 from mission.flight.wind_prior import WindPrior, fleet_wind_prior
-from mission.link.endpoint import MavEndpoint, SysidRegistry
+from mission.link.endpoint import MavEndpoint
+from mission.link.endpoint_registry import SysidRegistry
 from mission.link.fast_decode import FAST_MSG_IDS, decode_single_frame
 from mission.sim.embedded import free_port_block
 from mission.vehicle.state import VehicleState, VehicleTelemetry
@@ -23,7 +24,8 @@ from mission.vehicle.wind import WindEstimate, decode_wind, decode_wind_cov, win
 from sitl_mock.ap_wind import (ERROR_STD_M_S, WindEstimateModel, wind_cov_fields, wind_fields,
                                wind_ned_from_met, world_wind_ned_m_s)
 from sitl_mock.autopilot import MockAutopilot
-from sitl_mock.dynamics import DynamicsParams, Multicopter
+from sitl_mock.dynamics_params import DynamicsParams
+from sitl_mock.dynamics import Multicopter
 from sitl_mock.fields_filament import FilamentPlume
 from sitl_mock.fields_plume import GaussianPlume
 from sitl_mock.transport import make_parser

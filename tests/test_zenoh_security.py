@@ -17,9 +17,11 @@ from pathlib import Path
 import pytest
 
 from mission.core.clock import WallClock
-from mission.core.plan import PlanError, parse_plan
-from mission.core.zenoh_security import acl_config
-from mission.telemetry.readings import ReadingStore, ReadingSubscriber, sensor_key
+from mission.core.plan_types import PlanError
+from mission.core.plan import parse_plan
+from mission.core.zenoh_config import acl_config
+from mission.telemetry.readings import ReadingStore, ReadingSubscriber
+from mission.telemetry.reading_format import sensor_key
 from wire.zenoh_config import zenoh_config
 from wire.zenoh_secrets import ZenohSecurityError, read_password_file
 
@@ -326,7 +328,7 @@ def test_state_reaches_only_monitors(doc, tmp_path, coordinator, user, password,
 
 
 def test_acl_config_lists_only_the_given_subjects():
-    from mission.core.zenoh_security import ZenohAclPlan
+    from mission.core.zenoh_config import ZenohAclPlan
 
     conf = acl_config(ZenohAclPlan("swarmseek/f/vehicle/*/sensor", "swarmseek/f/mission/**",
                                    sensor_cert_common_names=("v1", "v2")))

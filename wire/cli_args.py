@@ -1,7 +1,9 @@
 """argparse argument types shared by the ground station's commands and the simulator's
-(``mock``, ``sensor``) and the experiments: numbers in ranges, coordinates, paths, zenoh endpoints.
+(``mock``, ``sensor``) and the experiments: numbers in ranges, coordinates, paths, zenoh endpoints;
+and the one way a command reports a problem it found after parsing (:func:`fail`,
+:func:`usage_error`).
 
-Each raises :class:`argparse.ArgumentTypeError` with a message that names what was expected,
+Each type raises :class:`argparse.ArgumentTypeError` with a message that names what was expected,
 so a bad flag is a one-line argparse error (exit 2), never a traceback.
 """
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -25,7 +28,13 @@ __all__ = [
     "output_dir_problem",
     "path_arg",
     "path_problem",
+    "fail",
+    "usage_error",
+    "USAGE_STATUS",
 ]
+
+#: exit status of a command given invalid options or an invalid plan (argparse's own)
+USAGE_STATUS = 2
 
 #: longest path and path component the file systems we run on accept (Linux PATH_MAX, NAME_MAX)
 _PATH_MAX_BYTES = 4095
@@ -184,3 +193,15 @@ def output_dir_problem(path: Path, what: str) -> str | None:
     except OSError as exc:
         return f"cannot write in the {what} {str(path)!r}: {exc.strerror or exc}"
     return None
+
+
+def fail(prog: str, message: str, status: int = USAGE_STATUS) -> int:
+    """Print ``"{prog}: {message}"`` as one line on stderr and return ``status`` (the command's
+    exit status: :data:`USAGE_STATUS` for invalid options or plans, 1 for a failure at run time)."""
+    print(f"{prog}: {message}", file=sys.stderr)
+    return status
+
+
+def usage_error(prog: str, problem: str) -> int:
+    """``"{prog}: error: {problem}"`` on stderr, as argparse words its own errors; returns 2."""
+    return fail(prog, f"error: {problem}")

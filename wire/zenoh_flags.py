@@ -1,22 +1,23 @@
-"""zenoh TLS and login flags shared by ``swarmseek sensor``, ``mock`` and ``watch``.
+"""zenoh endpoint, TLS and login flags shared by ``swarmseek sensor``, ``mock``, ``watch`` and ``run``.
 
-``--zenoh-tls-ca``, ``--zenoh-tls-cert``, ``--zenoh-tls-key``, ``--zenoh-mtls``, ``--zenoh-user``
-and ``--zenoh-password-file`` (the password is never on the command line; a world-readable
-password file is refused). :func:`security_kwargs` checks the combination against the endpoints
-and returns the keyword arguments of :func:`wire.zenoh_config.zenoh_config`: the certificate and
-key become ``listen_*`` for ``tls/`` listen endpoints and ``connect_*`` for ``tls/`` connect
-endpoints. The password file is read by :func:`wire.zenoh_secrets.read_password_file`, as the
-plan's ``[zenoh.auth]`` one is.
+:func:`add_endpoint_arguments` adds ``--zenoh-listen`` / ``--zenoh-connect`` (each command words
+their help for its own role); :func:`add_arguments` adds ``--zenoh-tls-ca``, ``--zenoh-tls-cert``,
+``--zenoh-tls-key``, ``--zenoh-mtls``, ``--zenoh-user`` and ``--zenoh-password-file`` (the
+password is never on the command line; a world-readable password file is refused).
+:func:`security_kwargs` checks the combination against the endpoints and returns the keyword
+arguments of :func:`wire.zenoh_config.zenoh_config`: the certificate and key become ``listen_*``
+for ``tls/`` listen endpoints and ``connect_*`` for ``tls/`` connect endpoints. The password file
+is read by :func:`wire.zenoh_secrets.read_password_file`, as the plan's ``[zenoh.auth]`` one is.
 """
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from wire.cli_args import path_problem
+from wire.cli_args import path_problem, zenoh_endpoint
 from wire.zenoh_secrets import ZenohSecurityError, read_password_file
 
-__all__ = ["ZenohFlagError", "add_arguments", "security_kwargs"]
+__all__ = ["ZenohFlagError", "add_arguments", "add_endpoint_arguments", "security_kwargs"]
 
 
 class ZenohFlagError(ValueError):
@@ -39,6 +40,17 @@ def _password_file_arg(text: str) -> str:
     except ZenohSecurityError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
+
+
+def add_endpoint_arguments(parser: argparse.ArgumentParser, *, listen_help: str | None = None,
+                           connect_help: str | None = None, connect_first: bool = False) -> None:
+    """Add the repeatable ``--zenoh-listen`` and ``--zenoh-connect`` (a list of checked endpoints,
+    empty by default); an option whose help is None is not added."""
+    options = [("--zenoh-listen", listen_help), ("--zenoh-connect", connect_help)]
+    for flag, help_text in (options[::-1] if connect_first else options):
+        if help_text is not None:
+            parser.add_argument(flag, type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
+                                help=help_text)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -15,7 +15,7 @@ import json
 import os
 import sys
 
-from wire.cli_args import int_in_range
+from wire.cli_args import fail, int_in_range
 
 __all__ = ["configure", "main"]
 
@@ -43,12 +43,12 @@ def _emit(text: str) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Audit ``args.log_dir``; 0 clean, 1 violations, 2 bad input, 3 incomplete."""
-    from mission.safety.audit import AuditError, audit_mission
+    from mission.safety.audit_read import AuditError
+    from mission.safety.audit import audit_mission
 
     try:
         report = audit_mission(args.log_dir, gcs_sysid=args.gcs_sysid)
     except AuditError as exc:
-        print(f"swarmseek audit: {exc}", file=sys.stderr)
-        return 2
+        return fail("swarmseek audit", str(exc))
     _emit(json.dumps(report.to_dict(), indent=2, allow_nan=False) if args.json else report.format_text())
     return report.exit_status

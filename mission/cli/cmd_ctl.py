@@ -13,7 +13,7 @@ import json
 import sys
 
 from mission.cli.cmd_watch import add_zenoh_options, open_zenoh
-from wire.cli_args import positive_float
+from wire.cli_args import fail, positive_float
 
 __all__ = ["configure", "main"]
 
@@ -40,8 +40,7 @@ def main(args) -> int:
     sender = args.sender if args.sender is not None else default_sender()
     problem = check_sender(sender)
     if problem:
-        print(f"swarmseek ctl: --sender: {problem}", file=sys.stderr)
-        return 2
+        return fail("swarmseek ctl", f"--sender: {problem}")
     session, problem, status = open_zenoh(args, "swarmseek ctl", args.timeout_s)
     if session is None:
         print(problem, file=sys.stderr)

@@ -11,8 +11,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import sys
-from pathlib import Path
 
 import zenoh
 
@@ -22,14 +20,17 @@ from mission.core.clock import WallClock
 from mission.core.zenoh_errors import zenoh_open_message
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
-from wire.cli_args import nonnegative_float, path_arg, positive_float
+from mission.cli.common import add_plan_argument, load_plan_or_fail
+from wire.cli_args import nonnegative_float, positive_float, usage_error
 
 __all__ = ["configure", "main", "dry_run", "format_readiness"]
+
+_PROG = "swarmseek dry-run"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``dry-run`` options."""
-    parser.add_argument("--plan", type=path_arg, required=True, help="mission plan (TOML)")
+    add_plan_argument(parser)
     parser.add_argument("--json", action="store_true", help="print the readiness report as JSON")
     parser.add_argument("--verbose", action="store_true", help="show phases and events as they happen")
     parser.add_argument("--timeout", type=positive_float, default=15.0,
@@ -81,20 +82,16 @@ def main(args) -> int:
     import dataclasses
 
     from mission.telemetry.display import Display
-    from mission.core.plan import PlanError, load_plan
 
-    try:
-        plan = load_plan(args.plan)
-    except PlanError as exc:
-        print(f"swarmseek dry-run: {exc}", file=sys.stderr)
-        return 2
+    plan, status = load_plan_or_fail(args.plan, _PROG)
+    if plan is None:
+        return status
     from mission.link.forward import ForwardAddressError, resolve_outs
 
     try:  # fly resolves these once before connecting and refuses to start when one fails: so does dry-run
         resolve_outs(plan.forward.out)
     except ForwardAddressError as exc:
-        print(f"swarmseek dry-run: error: {exc} (fly would refuse to start)", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, f"{exc} (fly would refuse to start)")
     plan = dataclasses.replace(plan, heartbeat_timeout_s=args.timeout)
     if args.ready_timeout is not None:  # the argument types refuse negative, NaN and infinite values
         plan = dataclasses.replace(plan, preflight=dataclasses.replace(

@@ -12,35 +12,30 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import sys
 from pathlib import Path
 
-from wire.zenoh_secrets import ZenohSecurityError
+from mission.cli.common import add_mission_outputs, add_plan_argument, load_plan_or_fail, run_or_fail
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
 from mission.core.clock import WallClock
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
 from mission.flight.operator_stop import run_until_stopped
-from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
+from mission.link.forward import ForwardAddressError, forwarding, plan_with_outs, resolve_outs
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.terminal import best_effort_terminal, told_to
 from mission.telemetry.watch_keys import with_keys
-from wire.cli_args import path_arg
+from wire.cli_args import fail, usage_error
 
-__all__ = ["configure", "main", "fly"]
+__all__ = ["configure", "main", "fly", "fly_logged"]
+
+_PROG = "swarmseek fly"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``fly`` options."""
-    parser.add_argument("--plan", type=path_arg, required=True, help="mission plan (TOML)")
-    parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
-    parser.add_argument("--log-dir", type=path_arg, default=None,
-                        help="mission log and tlogs go here (default ./swarmseek-logs/fly-TIME)")
-    parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
-    parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
-                        help="forward every vehicle's MAVLink to this client, e.g. QGroundControl on "
-                             "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
+    add_plan_argument(parser)
+    add_mission_outputs(parser, "fly")
 
 
 async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True, forward_addresses=None,
@@ -52,15 +47,25 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
     ``terminal``: the :class:`~mission.telemetry.terminal.Terminal` whose losses the mission log tells.
     """
     clock = clock or WallClock()
-    log = MissionLog(Path(log_dir) / "mission.jsonl", clock)
+    return await fly_logged(plan, MissionLog(Path(log_dir) / "mission.jsonl", clock), clock=clock,
+                            display=display, tlog_dir=Path(log_dir) / "tlogs" if tlog else None,
+                            forward_addresses=forward_addresses, terminal=terminal)
+
+
+async def fly_logged(plan, log, *, clock, display=None, tlog_dir=None, forward_addresses=None, terminal=None,
+                     resume_state=None):
+    """Open the plan's zenoh session, fly the mission into ``log`` (closed at the end) with the
+    operator's stop handlers (:func:`mission.flight.operator_stop.run_until_stopped`; from
+    ``resume_state`` when resuming), its keys on a terminal and the ``--out`` forwarding; close.
+    Returns the MissionResult. ``fly`` and ``resume`` both fly this way."""
     session = None
     try:
         with told_to(terminal, log):
             session = await open_session(plan.zenoh)  # off the loop
             co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
-                             tlog_dir=Path(log_dir) / "tlogs" if tlog else None)
-            return await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal
-                                    forward_addresses)
+                             tlog_dir=tlog_dir)
+            return await forwarding(co, with_keys(co, display, run_until_stopped(co, resume_state)),
+                                    forward_addresses)  # --out; keys on a terminal
     finally:
         log.close()
         if session is not None:
@@ -75,47 +80,33 @@ def main(args) -> int:
 
 def _main(args, terminal) -> int:
     from mission.telemetry.display import Display, report_result
-    from mission.core.plan import PlanError, load_plan
 
-    try:
-        plan = load_plan(args.plan)
-    except PlanError as exc:
-        print(f"swarmseek fly: {exc}", file=sys.stderr)
-        return 2
+    plan, status = load_plan_or_fail(args.plan, _PROG)
+    if plan is None:
+        return status
     plan = plan_with_outs(plan, args.out)
     if not plan.zenoh.listen and not plan.zenoh.connect:
-        print("swarmseek fly: the plan's [zenoh] section has no listen or connect endpoint: "
-              "no reading could arrive (multicast scouting is off)", file=sys.stderr)
-        return 2
+        return fail(_PROG, "the plan's [zenoh] section has no listen or connect endpoint: "
+                           "no reading could arrive (multicast scouting is off)")
     from mission.cli.paths import announce_log, mission_log_dir, summary_log_line
 
     try:
         addresses = resolve_outs(plan.forward.out)  # once, before any vehicle is contacted
     except ForwardAddressError as exc:
-        print(f"swarmseek fly: error: {exc}; nothing armed", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, f"{exc}; nothing armed")
     log_dir, problem = mission_log_dir(args.log_dir, "fly")
     if problem:
-        print(f"swarmseek fly: error: {problem}", file=sys.stderr)
-        return 2
-    import zenoh
+        return usage_error(_PROG, problem)
+    from mission.core.zenoh_errors import zenoh_open_message
 
     announce_log("fly", log_dir / "mission.jsonl", args.json)
     display = Display(quiet=args.json)
-    try:
-        result = asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog,
-                                 forward_addresses=addresses, terminal=terminal))
-    except zenoh.ZError as exc:
-        from mission.core.zenoh_errors import zenoh_open_message
-
-        print(f"swarmseek fly: {zenoh_open_message(exc, plan.zenoh)}; nothing armed", file=sys.stderr)
-        return 1
-    except OSError as exc:
-        print(f"swarmseek fly: cannot write the mission log: {exc}", file=sys.stderr)
-        return 1
-    except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
-        print(f"swarmseek fly: zenoh security settings: {exc}", file=sys.stderr)
-        return 2
+    result, status = run_or_fail(
+        _PROG, lambda: asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog,
+                                       forward_addresses=addresses, terminal=terminal)),
+        lambda exc: f"{zenoh_open_message(exc, plan.zenoh)}; nothing armed")
+    if result is None:
+        return status
     from mission.flight.operator_stop import exit_status
 
     status = exit_status(result, report_result(result, display, args.json))

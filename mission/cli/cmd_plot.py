@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wire.cli_args import path_arg
+from wire.cli_args import path_arg, usage_error
 
 __all__ = ["configure", "main", "plot_mission", "mission_tracks", "run_title", "plan_view_figure"]
 
@@ -297,8 +297,7 @@ def main(args) -> int:
         return 1
     problem = output_dir_problem(out, "output directory (--out)")
     if problem:
-        print(f"swarmseek plot: error: {problem}", file=sys.stderr)
-        return 2
+        return usage_error("swarmseek plot", problem)
     try:
         paths = plot_mission(args.log, out)
     except FileNotFoundError:

@@ -18,24 +18,22 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import sys
 from pathlib import Path
 
-from mission.link.forward import ForwardAddressError, forwarding
-from wire.zenoh_secrets import ZenohSecurityError
+from mission.cli.cmd_fly import fly_logged
+from mission.cli.common import add_mission_outputs, load_plan_or_fail, run_or_fail
+from mission.link.forward import ForwardAddressError
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
 from mission.core.clock import WallClock
-from mission.core.zenoh_open import open_session
-from mission.flight.coordinator import Coordinator
-from mission.flight.operator_stop import run_until_stopped
 from mission.flight.resume import load_resume_state
 from mission.telemetry.mission_log import MissionLog
-from mission.telemetry.terminal import best_effort_terminal, told_to
-from mission.telemetry.watch_keys import with_keys
-from wire.cli_args import path_arg
+from mission.telemetry.terminal import best_effort_terminal
+from wire.cli_args import fail, path_arg, usage_error
 
 __all__ = ["configure", "main", "resume"]
+
+_PROG = "swarmseek resume"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -43,8 +41,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", type=path_arg, help="mission.jsonl of the stopped mission")
     parser.add_argument("--plan", type=path_arg, default=None,
                         help="plan file (default: the plan recorded in the log)")
-    parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
-    parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+    add_mission_outputs(parser, "resume", log_dir=False, forward=False)
 
 
 async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: bool = True,
@@ -77,19 +74,9 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     # reading a whole mission log is file I/O of any size: off the loop (in the executor)
     state = await asyncio.get_running_loop().run_in_executor(None, load_resume_state, log_path, plan)
     clock = clock or WallClock()
-    log = MissionLog(log_path, clock)
-    session = None
-    try:
-        with told_to(terminal, log):
-            session = await open_session(state.plan.zenoh)  # off the loop
-            co = Coordinator(state.plan, clock=clock, zenoh_session=session, log=log, display=display,
-                             tlog_dir=log_path.parent / "tlogs" if tlog else None)
-            return await forwarding(co, with_keys(co, display, run_until_stopped(co, state)),  # as fly
-                                    forward_addresses)
-    finally:
-        log.close()
-        if session is not None:
-            session.close()
+    return await fly_logged(state.plan, MissionLog(log_path, clock), clock=clock, display=display,
+                            tlog_dir=log_path.parent / "tlogs" if tlog else None,
+                            forward_addresses=forward_addresses, terminal=terminal, resume_state=state)
 
 
 def main(args) -> int:
@@ -100,53 +87,38 @@ def main(args) -> int:
 
 def _main(args, terminal) -> int:
     from mission.telemetry.display import Display, report_result
-    from mission.core.plan import PlanError, load_plan
     from mission.flight.resume import ResumeError
 
     from mission.cli.paths import writable_file_problem
 
     problem = writable_file_problem(args.log, "mission log")
     if problem:
-        print(f"swarmseek resume: error: {problem}", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, problem)
     plan = None
     if args.plan is not None:
-        try:
-            plan = load_plan(args.plan)
-        except PlanError as exc:
-            print(f"swarmseek resume: {exc}", file=sys.stderr)
-            return 2
+        plan, status = load_plan_or_fail(args.plan, _PROG)
+        if plan is None:
+            return status
     try:
         addresses = _forward_addresses(args.log, plan)
     except ResumeError as exc:
-        print(f"swarmseek resume: {exc}", file=sys.stderr)
-        return 2
+        return fail(_PROG, str(exc))
     except ForwardAddressError as exc:
-        print(f"swarmseek resume: error: {exc}; nothing re-engaged", file=sys.stderr)
-        return 2
-    import zenoh
-
+        return usage_error(_PROG, f"{exc}; nothing re-engaged")
     from mission.cli.paths import announce_log, summary_log_line
+    from mission.core.zenoh_errors import clean_zenoh_error
 
     announce_log("resume", args.log, args.json)
     display = Display(quiet=args.json)
     try:
-        result = asyncio.run(resume(args.log, plan=plan, display=display, tlog=not args.no_tlog,
-                                    forward_addresses=addresses, terminal=terminal))
+        result, status = run_or_fail(
+            _PROG, lambda: asyncio.run(resume(args.log, plan=plan, display=display, tlog=not args.no_tlog,
+                                              forward_addresses=addresses, terminal=terminal)),
+            lambda exc: f"cannot open the zenoh session: {clean_zenoh_error(exc)}")
     except ResumeError as exc:
-        print(f"swarmseek resume: {exc}", file=sys.stderr)
-        return 2
-    except zenoh.ZError as exc:
-        from mission.core.zenoh_errors import clean_zenoh_error
-
-        print(f"swarmseek resume: cannot open the zenoh session: {clean_zenoh_error(exc)}", file=sys.stderr)
-        return 1
-    except OSError as exc:
-        print(f"swarmseek resume: cannot write the mission log: {exc}", file=sys.stderr)
-        return 1
-    except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
-        print(f"swarmseek resume: zenoh security settings: {exc}", file=sys.stderr)
-        return 2
+        return fail(_PROG, str(exc))
+    if result is None:
+        return status
     from mission.flight.operator_stop import exit_status
 
     status = report_result(result, display, args.json)

@@ -18,7 +18,8 @@ import time
 from pathlib import Path
 
 from estimator.seekers import MOVING_SEEKERS, SEEKERS
-from mission.link.forward import ForwardAddressError, forwarding, out_address, plan_with_outs, resolve_outs
+from mission.cli.common import add_mission_outputs
+from mission.link.forward import ForwardAddressError, forwarding, plan_with_outs, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
 from mission.core.plan_types import SeekingPlan
@@ -34,10 +35,13 @@ from mission.telemetry.watch_keys import with_keys
 import numpy as np
 
 from sitl_mock.cli_args import add_field_arguments, field_from_args, field_kind, probe_custom_field
-from wire.cli_args import (float_in_range, int_in_range, nonnegative_float, path_arg, positive_float,
-                           source_enu, zenoh_endpoint)
+from wire.cli_args import (fail, float_in_range, int_in_range, nonnegative_float, positive_float, source_enu,
+                           usage_error)
+from wire.zenoh_flags import add_endpoint_arguments
 
 __all__ = ["configure", "main", "run_embedded"]
+
+_PROG = "swarmseek run"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -98,15 +102,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "vehicle parked at the formation centre); keep: detection only; off: none (docs/faults.md)")
     parser.add_argument("--max-iterations", type=int, default=300)
     parser.add_argument("--return", dest="return_behaviour", choices=("land", "rtl"), default="land")
-    parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
-    parser.add_argument("--log-dir", type=path_arg, default=None,
-                        help="mission log and tlogs go here (default ./swarmseek-logs/run-TIME)")
-    parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
-    parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
-                        help="forward every vehicle's MAVLink to this client, e.g. QGroundControl on "
-                             "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
-    parser.add_argument("--zenoh-listen", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
-                        help="the ground station also listens here, for `swarmseek watch` / `ctl` (repeatable)")
+    add_mission_outputs(parser, "run")
+    add_endpoint_arguments(
+        parser, listen_help="the ground station also listens here, for `swarmseek watch` / `ctl` (repeatable)")
 
 
 #: ``--seeker`` when not given, by ``--field``: the best measured in whole missions there
@@ -234,7 +232,7 @@ def _probe_field(args, field, source, start) -> None:
 def _mission_setup(args):
     """The plan, field, source and start of the embedded mission ``args`` describe."""
     from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, default_radius_m, embedded_plan, fleet_ports
-    from mission.core.plan import replace_plan
+    from mission.core.plan_types import replace_plan
 
     radius_m = args.radius if args.radius is not None else default_radius_m(args.n)
     field, source, start = _field_setup(args)
@@ -401,8 +399,7 @@ def _main(args, terminal) -> int:
     if not problem:
         args.log_dir, problem = mission_log_dir(args.log_dir, "run")
     if problem:
-        print(f"swarmseek run: error: {problem}", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, problem)
     import zenoh
 
     announce_log("run", args.log_dir / "mission.jsonl", args.json)
@@ -410,8 +407,7 @@ def _main(args, terminal) -> int:
     try:
         result = run_embedded(args, display=display, terminal=terminal)
     except (OSError, zenoh.ZError) as exc:
-        print(f"swarmseek run: cannot start the embedded fleet or zenoh: {exc}", file=sys.stderr)
-        return 1
+        return fail(_PROG, f"cannot start the embedded fleet or zenoh: {exc}", 1)
     from mission.flight.operator_stop import exit_status
 
     status = exit_status(result, report_result(result, display, args.json))

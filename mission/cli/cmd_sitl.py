@@ -19,9 +19,11 @@ from pathlib import Path
 
 from estimator.seekers import SEEKERS
 from mission.sim.sitl_plan import seeker_settings
-from wire.cli_args import int_in_range, origin_geodetic, path_arg, positive_float, source_enu
+from wire.cli_args import fail, int_in_range, origin_geodetic, path_arg, positive_float, source_enu, usage_error
 
 __all__ = ["configure", "main"]
+
+_PROG = "swarmseek sitl"
 
 #: a formation (hence a plan) needs at least this many vehicles
 _MIN_MISSION_VEHICLES = 4
@@ -112,33 +114,31 @@ def _report(fleet, args, plan: Path | None) -> None:
 
 def _serve(fleet) -> int:
     """Wait until interrupted (KeyboardInterrupt) or until an instance dies (exit 1)."""
-    from mission.sim.sitl_fleet import SitlSetupError
+    from mission.sim.sitl_settings import SitlSetupError
 
     idle = threading.Event()
     while True:
         try:
             fleet.check_alive()
         except SitlSetupError as exc:
-            print(f"swarmseek sitl: {exc}", file=sys.stderr)
-            return 1
+            return fail(_PROG, str(exc), 1)
         idle.wait(1.0)
 
 
 def main(args: argparse.Namespace) -> int:
     """Start the fleet, print how to fly it, serve until Ctrl-C/SIGTERM, stop everything."""
-    from mission.sim.sitl_fleet import SitlFleet, SitlSetupError, sigterm_as_interrupt
+    from mission.sim.sitl_fleet import SitlFleet, sigterm_as_interrupt
+    from mission.sim.sitl_settings import SitlSetupError
 
     if args.free_layout and (args.first_instance is not None or args.port_offset is not None):
-        print("swarmseek sitl: error: --free-layout picks the instance numbers and the port offset itself: "
-              "give it or --first-instance/--port-offset, not both", file=sys.stderr)
-        return 2
+        return usage_error(_PROG, "--free-layout picks the instance numbers and the port offset itself: "
+                                  "give it or --first-instance/--port-offset, not both")
     with sigterm_as_interrupt():
         try:
             cfg = _config(args)
             fleet = SitlFleet(cfg)
         except SitlSetupError as exc:
-            print(f"swarmseek sitl: error: {exc}", file=sys.stderr)
-            return 2
+            return usage_error(_PROG, str(exc))
         print(f"starting {cfg.n} {cfg.flavour} SITL instances from {fleet.sitl_dir} ...", flush=True)
         try:
             with fleet:
@@ -160,8 +160,7 @@ def main(args: argparse.Namespace) -> int:
             print("swarmseek sitl: interrupted while starting; stopped every instance", file=sys.stderr)
             return 0
         except (SitlSetupError, OSError, ValueError) as exc:
-            print(f"swarmseek sitl: {exc}", file=sys.stderr)
-            return 1
+            return fail(_PROG, str(exc), 1)
 
 
 def _ignore_signals() -> None:

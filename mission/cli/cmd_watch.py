@@ -19,14 +19,12 @@ __all__ = ["configure", "main", "add_zenoh_options", "open_zenoh"]
 
 def add_zenoh_options(parser: argparse.ArgumentParser) -> None:
     """``--zenoh-listen`` / ``--zenoh-connect`` (repeatable) and the TLS / login flags."""
-    from wire.cli_args import zenoh_endpoint
-    from wire.zenoh_flags import add_arguments
+    from wire.zenoh_flags import add_arguments, add_endpoint_arguments
 
-    parser.add_argument("--zenoh-connect", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
-                        help="zenoh endpoint to connect to: the coordinator's listen endpoint or a zenoh "
-                             "router, e.g. tcp/192.168.1.10:7447 (repeatable)")
-    parser.add_argument("--zenoh-listen", type=zenoh_endpoint, action="append", default=[], metavar="ENDPOINT",
-                        help="zenoh endpoint to listen on (the coordinator connects here; repeatable)")
+    add_endpoint_arguments(parser, connect_first=True,
+                           connect_help="zenoh endpoint to connect to: the coordinator's listen endpoint or a zenoh "
+                                        "router, e.g. tcp/192.168.1.10:7447 (repeatable)",
+                           listen_help="zenoh endpoint to listen on (the coordinator connects here; repeatable)")
     add_arguments(parser)
 
 

@@ -32,36 +32,10 @@ from mission.core.plan_sections import (
     parse_seeking,
     parse_vehicles,
 )
-from mission.core.plan_types import (
-    PLAN_VERSION,
-    FaultsPlan,
-    FormationPlan,
-    GeofencePlan,
-    Plan,
-    PreflightPlan,
-    PlanError,
-    SeekingPlan,
-    VehiclePlan,
-    ZenohPlan,
-    replace_plan,
-)
+from mission.core.plan_types import PLAN_VERSION, Plan, PlanError
 from mission.core.zenoh_security import parse_zenoh
 
-__all__ = [
-    "PLAN_VERSION",
-    "PlanError",
-    "VehiclePlan",
-    "FaultsPlan",
-    "FormationPlan",
-    "PreflightPlan",
-    "SeekingPlan",
-    "GeofencePlan",
-    "ZenohPlan",
-    "Plan",
-    "load_plan",
-    "parse_plan",
-    "replace_plan",
-]
+__all__ = ["load_plan", "parse_plan"]
 
 
 def load_plan(path: str | Path) -> Plan:

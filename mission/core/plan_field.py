@@ -25,7 +25,7 @@ Only their form is checked here (the ground station imports no plug-in); the com
 simulate the world import and probe them before anything starts.
 
 This module checks types and ranges with the plan's :class:`~mission.core.plan_checks.Checker`
-(every problem with its key path); ``sitl_mock.fields.field_from_table`` builds the field from
+(every problem with its key path); ``sitl_mock.fields_config.field_from_table`` builds the field from
 :meth:`FieldPlan.to_table`.
 """
 from __future__ import annotations
@@ -74,7 +74,7 @@ class FieldPlan:
     params: tuple[tuple[str, object], ...] = ()
 
     def to_table(self) -> dict:
-        """The section as a ``[field]`` table for ``sitl_mock.fields.field_from_table``."""
+        """The section as a ``[field]`` table for ``sitl_mock.fields_config.field_from_table``."""
         if self.type in ("python", "grid"):  # as given: a plug-in's own keys, or the grid's npz
             return dict(self.params) if self.type == "python" else {"type": "grid", **dict(self.params)}
         t = {"type": self.type, "source_enu_m": list(self.source_enu_m), **dict(self.params)}

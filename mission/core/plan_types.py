@@ -14,21 +14,9 @@ from mission.core.signing_config import SigningConfig
 from mission.core.zenoh_config import ZenohPlan
 
 __all__ = [
-    "PLAN_VERSION",
-    "SAMPLINGS",
-    "PLUME_MODES",
-    "PlanError",
-    "VehiclePlan",
-    "FaultsPlan",
-    "PreflightPlan",
-    "ControlPlan",
-    "ForwardPlan",
-    "FormationPlan",
-    "SeekingPlan",
-    "GeofencePlan",
-    "ZenohPlan",
-    "Plan",
-    "replace_plan",
+    "PLAN_VERSION", "SAMPLINGS", "PLUME_MODES", "PlanError", "VehiclePlan", "FaultsPlan",
+    "PreflightPlan", "ControlPlan", "ForwardPlan", "FormationPlan", "SeekingPlan", "GeofencePlan",
+    "Plan", "replace_plan",
 ]
 
 PLAN_VERSION = 1

@@ -23,29 +23,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from mission.core.plan_checks import Checker, show_value
-from mission.core.zenoh_config import (
-    ZENOH_MODES,
-    ZenohAclPlan,
-    ZenohAuthPlan,
-    ZenohPlan,
-    acl_config,
-    apply_security,
-)
+from mission.core.zenoh_config import ZENOH_MODES, ZenohAclPlan, ZenohAuthPlan, ZenohPlan
 from wire.zenoh_config import TLS_FILE_KEYS
 from wire.zenoh_secrets import ZenohSecurityError, check_dictionary_file, private_file_problem, read_password_file
 
-__all__ = [
-    "ZENOH_MODES",
-    "ZenohPlan",
-    "parse_zenoh",
-    "ZenohAuthPlan",
-    "ZenohAclPlan",
-    "acl_config",
-    "apply_security",
-    "parse_tls",
-    "parse_auth",
-    "parse_access_control",
-]
+__all__ = ["parse_zenoh", "parse_tls", "parse_auth", "parse_access_control"]
 
 _PRIVATE_TLS_KEYS = ("listen_private_key", "connect_private_key")
 _NAME_CHARS_FORBIDDEN = ":\n\r"

@@ -21,7 +21,8 @@ def build_envelope(plan):
     """The plan's :class:`mission.safety.envelope.SafetyEnvelope`, or None when no fence polygon is given."""
     if not plan.geofence.polygon_en_m:
         return None
-    from mission.safety.envelope import Geofence, SafetyEnvelope
+    from mission.safety.fence import Geofence
+    from mission.safety.envelope import SafetyEnvelope
 
     fence = Geofence(np.asarray(plan.geofence.polygon_en_m, dtype=float),
                      plan.geofence.min_alt_m, plan.geofence.max_alt_m)
@@ -32,7 +33,7 @@ def build_envelope(plan):
 async def connect(co, required: bool = True) -> None:
     """Open each distinct connection once and attach every vehicle of the plan to it."""
     from mission.core.uri import parse_connection
-    from mission.link.endpoint import SysidRegistry
+    from mission.link.endpoint_registry import SysidRegistry
     from mission.link.poller import UdpPoller
 
     co.set_phase("connect")

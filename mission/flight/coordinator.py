@@ -14,7 +14,7 @@ import asyncio
 import numpy as np
 
 from mission.core.tasks import spawn, stop_watched
-from mission.core.plan import Plan
+from mission.core.plan_types import Plan
 from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
 from mission.flight.control import MissionControl, open_control_channel, operator_command

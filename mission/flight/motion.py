@@ -123,7 +123,7 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
     Vehicles parked at the centre (retired sensors, :mod:`mission.flight.retire`) not in ``sysids`` are
     part of the transfer too, at the new centre.
     """
-    from mission.safety.envelope import TransferError
+    from mission.safety.transfer import TransferError
 
     still = parked(co)
     # a vehicle lost (and taken off the ramp) since the caller chose ``sysids`` is not flown: on the

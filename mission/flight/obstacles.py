@@ -163,7 +163,7 @@ def plan_clear_transfer(start, goal, obstacle_points, min_separation_m: float, m
     TransferError
         No strategy keeps the separation with the obstacles fixed.
     """
-    from mission.safety.envelope import TransferError, plan_transfer
+    from mission.safety.transfer import TransferError, plan_transfer
 
     obs = np.asarray(obstacle_points, dtype=float).reshape(-1, 3)
     if not len(obs):
@@ -196,7 +196,7 @@ def _plan_with_fixed(start, goal, obs, min_separation_m: float, max_speed_m_s: f
     Returns the plan with the obstacle rows removed, or None (each strategy's failure appended to
     ``errors``).
     """
-    from mission.safety.envelope import TransferError, plan_transfer
+    from mission.safety.transfer import TransferError, plan_transfer
     from mission.safety.transfer import TransferPlan
 
     fixed = []

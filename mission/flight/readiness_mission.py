@@ -106,7 +106,7 @@ async def _readings_check(co) -> None:
 
 
 def _fence_checks(co, offsets=None) -> None:
-    from mission.safety.envelope import Geofence
+    from mission.safety.fence import Geofence
 
     plan = co.plan
     if not plan.geofence.polygon_en_m:

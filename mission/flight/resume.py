@@ -32,16 +32,18 @@ from pathlib import Path
 import numpy as np
 
 from formation.geodesy import geodetic_to_enu
-from mission.core.plan import (
+from mission.core.zenoh_config import ZenohPlan
+from mission.core.plan_types import (
+    ControlPlan,
+    ForwardPlan,
+    PreflightPlan,
     FaultsPlan,
     FormationPlan,
     GeofencePlan,
     Plan,
     SeekingPlan,
     VehiclePlan,
-    ZenohPlan,
 )
-from mission.core.plan_types import ControlPlan, ForwardPlan, PreflightPlan
 from mission.core.signing_config import SigningConfig
 from mission.flight.connect import build_envelope, connect
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES

@@ -32,8 +32,10 @@ import numpy as np
 from mission.flight.loss import survivor_slots
 from mission.flight.motion import keep_out, parked, transfer_to
 
-__all__ = ["PARKED_STATUS", "RetiredSensor", "SensorWatch", "formation_goals", "keep_out_retired",
-           "make_watch", "parked", "restore_retired", "retire_sensor"]
+__all__ = [
+    "PARKED_STATUS", "RetiredSensor", "SensorWatch", "formation_goals", "keep_out_retired",
+    "make_watch", "restore_retired", "retire_sensor",
+]
 
 #: the status of a vehicle whose sensor was retired
 PARKED_STATUS = "sensor retired: at the centre"
@@ -113,7 +115,7 @@ class SensorWatch:
         now_s : float
             Mission clock.
         """
-        from estimator.robust import REASONS
+        from estimator.robust_faults import REASONS
 
         if list(used) != self.sysids:
             return None  # not an update over every sensing vehicle: the estimator skipped it

@@ -337,7 +337,7 @@ def _transfer(s, g, obs, c: float, min_separation_m: float, max_speed_m_s: float
               fence) -> ClearPlan | None:
     """A synchronous transfer with the obstacles as fixed participants (clearance ``c``, else the
     separation), retimed for the ramp; None when none can be planned."""
-    from mission.safety.envelope import TransferError
+    from mission.safety.transfer import TransferError
 
     for need in (c, min_separation_m):
         try:

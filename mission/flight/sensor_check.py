@@ -82,7 +82,7 @@ class SensorCheck:
             except (GeometryError, ValueError) as exc:
                 self.failure = str(exc)
                 return
-        from estimator.robust import REASONS
+        from estimator.robust_faults import REASONS
 
         out = np.asarray(self.robust.excluded, dtype=bool)
         codes = np.asarray(self.robust.suspect_codes)

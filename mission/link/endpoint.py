@@ -42,22 +42,15 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from mission.core.tasks import spawn
 from mission.core.clock import cancel_and_wait, wait_on_clock
 from mission.link.transport import open_transport
-from mission.core.uri import DEFAULT_SERIAL_BAUD, ConnectionSpec, parse_connection
+from mission.core.uri import ConnectionSpec, parse_connection
 from mission.link.endpoint_receive import SUSPECT_REASONS, EndpointReceiving
 from mission.link.endpoint_registry import LinkError, SysidRegistry
 from mission.link.endpoint_send import EndpointSending
-from mission.link.signing import SignatureVerifier, SigningConfig
+from mission.link.signing import SignatureVerifier
+from mission.core.signing_config import SigningConfig
 from mission.link.tlog import TlogSet
 
-__all__ = [
-    "LinkError",
-    "ConnectionSpec",
-    "parse_connection",
-    "SysidRegistry",
-    "MavEndpoint",
-    "DEFAULT_SERIAL_BAUD",
-    "SUSPECT_REASONS",
-]
+__all__ = ["MavEndpoint"]
 
 
 class MavEndpoint(EndpointReceiving, EndpointSending):

@@ -44,19 +44,12 @@ from collections import Counter
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from pymavlink.generator import mavcrc
 
-from mission.core.signing_config import DEFAULT_ALLOW_UNSIGNED, SigningConfig, signing_config_from_table
+from mission.core.signing_config import SigningConfig
 from wire.signing import SigningError, signing_timestamp
 
 __all__ = [
-    "DEFAULT_ALLOW_UNSIGNED",
-    "SigningConfig",
-    "SignatureVerifier",
-    "apply_signing",
-    "refresh_timestamp",
-    "sign_frame",
-    "setup_signing_message",
-    "disable_signing_message",
-    "signing_config_from_table",
+    "SignatureVerifier", "apply_signing", "refresh_timestamp", "sign_frame",
+    "setup_signing_message", "disable_signing_message",
 ]
 
 _KEY_LEN = 32

@@ -57,15 +57,13 @@ import numpy as np
 from mission.safety.audit_read import (
     AuditError,
     AuditViolation,
-    VehicleSetpoints,
     find_tlogs,
     load_plan_limits,
     read_vehicle_setpoints,
 )
 from mission.safety.geometry import boundary_distance, point_in_polygon, synchronous_distance
 
-__all__ = ["AuditError", "AuditViolation", "AuditReport", "VehicleSetpoints", "audit_mission",
-           "read_vehicle_setpoints"]
+__all__ = ["AuditReport", "audit_mission"]
 
 _MAX_LISTED = 200                       # violations listed per kind (all are counted)
 

@@ -36,23 +36,8 @@ from mission.safety.report import (
 from mission.safety.fence import Geofence, _as_points
 from mission.safety.separation import close_pairs as _close_pairs
 from mission.safety.separation import hold_for_separation
-from mission.safety.transfer import TransferError, TransferPlan, plan_transfer
 
-__all__ = [
-    "SafetyError",
-    "EmptyFenceError",
-    "SafetyViolation",
-    "Geofence",
-    "CentreClamp",
-    "Violation",
-    "SetpointReport",
-    "ClampedSetpoints",
-    "SafetyEnvelope",
-    "pairwise_path_separation",
-    "plan_transfer",
-    "TransferPlan",
-    "TransferError",
-]
+__all__ = ["SafetyEnvelope", "pairwise_path_separation"]
 
 #: numerical slack (m) when checking a point against a boundary it was projected onto
 _TOL_M = 1e-7

@@ -25,14 +25,8 @@ import socket
 
 import numpy as np
 
-from mission.core.plan import (
-    FormationPlan,
-    GeofencePlan,
-    Plan,
-    SeekingPlan,
-    VehiclePlan,
-    ZenohPlan,
-)
+from mission.core.plan_types import FormationPlan, GeofencePlan, Plan, SeekingPlan, VehiclePlan
+from mission.core.zenoh_config import ZenohPlan
 
 __all__ = ["DEFAULT_ORIGIN", "FENCE_MIN_ALT_M", "FENCE_MAX_ALT_M", "FENCE_POLYGON_EN_M", "MAX_VEHICLES",
            "free_port_block", "default_eps", "default_radius_m",

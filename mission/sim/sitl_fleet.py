@@ -42,7 +42,7 @@ from mission.sim.sitl_procs import cleanup_px4_files, stop_groups
 from mission.sim.sitl_ready import wait_ready
 from mission.sim.sitl_settings import FLAVOURS, SitlSetupError, resolve_sitl_dir
 
-__all__ = ["SitlFleetConfig", "SitlFleet", "SitlSetupError", "SitlVehicle", "sigterm_as_interrupt"]
+__all__ = ["SitlFleetConfig", "SitlFleet", "SitlVehicle", "sigterm_as_interrupt"]
 
 _PR_SET_PDEATHSIG = 1
 

@@ -40,26 +40,14 @@ import numpy as np
 from formation.geodesy import TangentFrame
 from mission.telemetry.reading_format import (
     REJECT_REASONS,
-    SCHEMA,
     Reading,
     ReadingRejected,
     decode_reading,
-    sensor_key,
     sensor_key_expr,
     sysid_from_key,
 )
 
-__all__ = [
-    "SCHEMA",
-    "REJECT_REASONS",
-    "Reading",
-    "ReadingRejected",
-    "decode_reading",
-    "sensor_key",
-    "sensor_key_expr",
-    "ReadingStore",
-    "ReadingSubscriber",
-]
+__all__ = ["ReadingStore", "ReadingSubscriber"]
 
 
 class ReadingStore:

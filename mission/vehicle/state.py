@@ -16,7 +16,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from formation.geodesy import geodetic_to_enu
 from mission.core.clock import wait_on_clock
-from mission.link.endpoint import LinkError
+from mission.link.endpoint_registry import LinkError
 from mission.vehicle.frames import MissionToLocal, mode_name
 from mission.vehicle.wind import WindEstimate, decode_wind, decode_wind_cov
 

@@ -25,14 +25,15 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from formation.geodesy import enu_to_geodetic
 from mission.core.tasks import spawn
-from mission.link.endpoint import LinkError, MavEndpoint
+from mission.link.endpoint_registry import LinkError
+from mission.link.endpoint import MavEndpoint
 from mission.vehicle.frames import MissionToLocal
 from mission.vehicle.prearm import PrearmStatus
 from mission.vehicle.prearm_params import ParamCache
-from mission.vehicle.state import CommandError, VehicleState, VehicleTelemetry, command_name
+from mission.vehicle.state import CommandError, VehicleState, VehicleTelemetry
 from mission.vehicle.vehicle_commands import VehicleCommands
 
-__all__ = ["CommandError", "VehicleState", "VehicleLink", "DEFAULT_RATES_HZ", "command_name"]
+__all__ = ["VehicleLink", "DEFAULT_RATES_HZ"]
 
 #: Telemetry a mission needs, and at what rate (Hz); 0 stops what it does not need (CPU at N = 100+).
 #: The position comes from LOCAL_POSITION_NED (5 Hz, which also updates ``relative_alt_m``);

@@ -23,7 +23,7 @@ SITL_SPEEDUP = {"ardupilot": 4.0, "px4": 1.0}
 def mock_param_names(flavour: str) -> list[str]:
     """Names in the mock's parameter table of ``flavour`` (mock-only ``SIM_*`` names left out)."""
     from sitl_mock.ap_params import ardupilot_param_specs, px4_param_specs
-    from sitl_mock.dynamics import DynamicsParams
+    from sitl_mock.dynamics_params import DynamicsParams
     specs = (ardupilot_param_specs if flavour == "ardupilot" else px4_param_specs)(1, DynamicsParams())
     return [s.name for s in specs if not s.name.startswith("SIM_")]
 

@@ -1,0 +1,65 @@
+"""What the mission commands (``fly``, ``resume``, ``dry-run``, ``run``) share on the command line:
+their common options, loading ``--plan``, and the one-line report of a mission that could not
+run.
+
+The one-line error itself (``"swarmseek CMD: ..."`` on stderr, exit 2) is
+:func:`wire.cli_args.fail` / :func:`wire.cli_args.usage_error`, shared with the simulator's
+commands; the zenoh endpoint and security flags are :mod:`wire.zenoh_flags`.
+"""
+from __future__ import annotations
+
+import argparse
+
+from mission.link.forward import out_address
+from wire.cli_args import USAGE_STATUS, fail, path_arg
+from wire.zenoh_secrets import ZenohSecurityError
+
+__all__ = ["add_plan_argument", "add_mission_outputs", "load_plan_or_fail", "run_or_fail"]
+
+
+def add_plan_argument(parser: argparse.ArgumentParser) -> None:
+    """``--plan FILE`` (required): the mission plan of ``fly`` and ``dry-run``."""
+    parser.add_argument("--plan", type=path_arg, required=True, help="mission plan (TOML)")
+
+
+def add_mission_outputs(parser: argparse.ArgumentParser, command: str, *, log_dir: bool = True,
+                        forward: bool = True) -> None:
+    """``--json``, ``--log-dir`` (default ``./swarmseek-logs/COMMAND-TIME``; not with
+    ``log_dir=False``), ``--no-tlog`` and ``--out`` (not with ``forward=False``), in that order."""
+    parser.add_argument("--json", action="store_true", help="print a JSON summary at the end (no live display)")
+    if log_dir:
+        parser.add_argument("--log-dir", type=path_arg, default=None,
+                            help=f"mission log and tlogs go here (default ./swarmseek-logs/{command}-TIME)")
+    parser.add_argument("--no-tlog", action="store_true", help="do not write .tlog files")
+    if forward:
+        parser.add_argument("--out", type=out_address, action="append", default=[], metavar="udp:HOST:PORT",
+                            help="forward every vehicle's MAVLink to this client, e.g. QGroundControl on "
+                                 "udp:127.0.0.1:14550 (repeatable; read-only unless [forward] allow_commands)")
+
+
+def load_plan_or_fail(path, prog: str):
+    """``(plan, None)``, or ``(None, 2)`` once the plan's problems are printed as one line
+    (``"{prog}: {every problem}"``, :class:`~mission.core.plan_types.PlanError`)."""
+    from mission.core.plan import load_plan
+    from mission.core.plan_types import PlanError
+
+    try:
+        return load_plan(path), None
+    except PlanError as exc:
+        return None, fail(prog, str(exc))
+
+
+def run_or_fail(prog: str, run, zenoh_message):
+    """``(run(), None)``, or ``(None, exit status)`` once why the mission could not run is printed
+    as one line: zenoh refused the session (``zenoh_message(exc)``, 1), the mission log could not be
+    written (1), the zenoh security settings became unusable since the plan loaded (2)."""
+    import zenoh
+
+    try:
+        return run(), None
+    except zenoh.ZError as exc:
+        return None, fail(prog, zenoh_message(exc), 1)
+    except OSError as exc:
+        return None, fail(prog, f"cannot write the mission log: {exc}", 1)
+    except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
+        return None, fail(prog, f"zenoh security settings: {exc}", USAGE_STATUS)
