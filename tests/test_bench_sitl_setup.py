@@ -127,10 +127,17 @@ def test_default_bench_mission_unchanged(bench, tmp_path):
     assert _plan(tmp_path, setting["overrides"]).seeking.start_enu_m == (0.0, 20.0, 15.0)
 
 
+def test_fly_timeout_longer_on_a_plume(bench):
+    assert bench.parse_args([]).fly_timeout == 900.0
+    assert bench.parse_args(["--field", "intermittent"]).fly_timeout == 1800.0
+    assert bench.parse_args(["--field", "plume", "--fly-timeout", "60"]).fly_timeout == 60.0
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--wind-from", "90"], "--wind-from/--wind-speed need --field plume or intermittent"),
     (["--field", "intermittent", "--seeker", "model", "--seek-wind-from", "270"],
      "--seek-wind-from needs --seeker plume or ste, not model"),
+    (["--fly-timeout", "0"], "--fly-timeout must be > 0, got 0"),
 ])
 def test_inconsistent_options_exit_2(bench, capsys, argv, message):
     with pytest.raises(SystemExit) as exc:
