@@ -12,12 +12,13 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from mission.sim.sitl_procs import stop_groups
 
-__all__ = ["SitlMissionResult", "fly_sitl_mission", "process_cpu_s"]
+__all__ = ["SitlMissionResult", "fly_sitl_mission", "process_cpu_s", "sensor_argv"]
 
 
 @dataclass
@@ -53,9 +54,31 @@ def process_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _sensor_argv(vehicle, origin, source, *, fleet: str, zenoh: str, noise: float, rate_hz: float) -> list[str]:
+def sensor_argv(vehicle, origin, source, *, fleet: str, zenoh: str, noise: float, rate_hz: float,
+                field: str = "sigma2", field_args: Sequence[str] = ()) -> list[str]:
+    """The ``swarmseek sensor`` command line of one vehicle's virtual sensor.
+
+    Parameters
+    ----------
+    vehicle : mission.sim.sitl_fleet.SitlVehicle
+        Its ``sensor_connection`` and ``sysid`` (also the sensor's noise seed).
+    origin : tuple of float
+        ``(lat_deg, lon_deg, alt_m)`` of the field frame (the plan's origin).
+    source : tuple of float
+        The field's source (plumes: the release point), mission ENU metres.
+    fleet, zenoh : str
+        The zenoh fleet name and the coordinator's endpoint.
+    noise, rate_hz : float
+        The sensor's noise standard deviation and readings per second.
+    field : str
+        ``swarmseek sensor --field``: ``sigma1``, ``sigma2`` (default), ``plume``, ``intermittent``.
+    field_args : sequence of str
+        Further field flags, e.g. ``("--wind-from", "270", "--wind-speed", "2")``.
+    """
+    if isinstance(field_args, str) or not all(isinstance(a, str) for a in field_args):
+        raise TypeError(f"field_args must be a sequence of strings, got {field_args!r}")
     return [sys.executable, "-m", "mission", "sensor", "--connect", vehicle.sensor_connection,
-            "--sysid", str(vehicle.sysid), "--fleet", fleet, "--field", "sigma2",
+            "--sysid", str(vehicle.sysid), "--fleet", fleet, "--field", field, *field_args,
             f"--source={','.join(f'{x:g}' for x in source)}",
             f"--origin={origin[0]:.7f},{origin[1]:.7f},{origin[2]:g}", "--noise", f"{noise:g}",
             "--seed", str(vehicle.sysid), "--rate", f"{rate_hz:g}", "--zenoh-connect", zenoh, "--quiet"]
@@ -77,7 +100,8 @@ def _wait_rusage(proc: subprocess.Popen, timeout_s: float) -> float:
 
 def fly_sitl_mission(fleet, plan: Path, log_dir: Path, source, *, fleet_name: str = "sitl",
                      zenoh: str = "tcp/127.0.0.1:7447", noise: float = 0.005, timeout_s: float = 300.0,
-                     env: dict | None = None) -> SitlMissionResult:
+                     env: dict | None = None, field: str = "sigma2",
+                     field_args: Sequence[str] = ()) -> SitlMissionResult:
     """Start the sensors, fly the plan, stop the sensors; return what happened.
 
     Parameters
@@ -87,18 +111,21 @@ def fly_sitl_mission(fleet, plan: Path, log_dir: Path, source, *, fleet_name: st
     plan, log_dir : Path
         The plan file and ``swarmseek fly --log-dir``.
     source : tuple of float
-        The simulated ``sigma_2`` source, mission ENU metres.
+        The simulated field's source (plumes: the release point), mission ENU metres.
     zenoh : str
         The endpoint the plan's coordinator listens on (the sensors connect to it).
     timeout_s : float
         ``fly`` is killed after this long (its return code is then negative).
+    field, field_args
+        The sensors' field and further field flags (:func:`sensor_argv`; default ``sigma2``).
     """
     rate_hz = min(10.0 * fleet.config.speedup, 40.0)
     sensors = []
     for v in fleet.vehicles:
         with open(log_dir.parent / f"{log_dir.name}-sensor-{v.sysid}.log", "wb") as err:
             sensors.append(subprocess.Popen(
-                _sensor_argv(v, fleet.origin, source, fleet=fleet_name, zenoh=zenoh, noise=noise, rate_hz=rate_hz),
+                sensor_argv(v, fleet.origin, source, fleet=fleet_name, zenoh=zenoh, noise=noise, rate_hz=rate_hz,
+                            field=field, field_args=field_args),
                 env=env, stdout=err, stderr=subprocess.STDOUT, start_new_session=True))
     sitl_before = {v.sysid: process_cpu_s(v.pid) for v in fleet.vehicles}
     out_path, err_path = log_dir.with_suffix(".stdout"), log_dir.with_suffix(".stderr")
