@@ -310,6 +310,8 @@ class MockFleet:
         sample_dt = 1.0 / self.sensor_rate_hz
         steps = 0
         while self.next_step_s <= t_s + 1e-9:
+            if steps:  # catching up: send the previous step's frames first (see below)
+                self._pump_all()
             self._tick(self.next_step_s, dt, sample_dt)
             self._k += 1
             steps += 1
@@ -317,10 +319,20 @@ class MockFleet:
             with self._tick_cond:
                 self._sim_time_s = self.next_step_s - dt
                 self._tick_cond.notify_all()
-            t_io = self.clock.time()
-            for v in self.vehicles:
-                self._guard(v.links.pump, t_io)
+            self._pump_all()
         return steps
+
+    def _pump_all(self) -> None:
+        """Send every vehicle's pending frames now.
+
+        Called between the steps of a catch-up too: on a starved host a run of up to
+        ``_MAX_CATCHUP_STEPS`` steps (with their sensor publications, which may block on a slow
+        zenoh peer) took over a wall second, and a ground station heard nothing from any vehicle
+        for that long and declared the whole fleet lost (``tests/test_ctl_processes.py`` under load).
+        """
+        t_io = self.clock.time()
+        for v in self.vehicles:
+            self._guard(v.links.pump, t_io)
 
     # ------------------------------------------------------------ simulation thread
     def _run(self) -> None:

@@ -1,6 +1,12 @@
 """`swarmseek ctl` and `swarmseek watch` in their own processes against a mission in another:
 directly (peers connecting to the ground station's listen endpoint) and through a zenoh router
-that the ground station, the mock fleet's sensors and the monitors all connect to."""
+that the ground station, the mock fleet's sensors and the monitors all connect to.
+
+Everything runs on the wall clock in separate processes, so every wait is a condition poll with a
+generous timeout (CI runs the suite with ``-n 2`` on 2 cores, possibly beside CPU-bound work):
+``ctl`` waits :data:`CTL_WAIT_S` for the coordinator's answer, and the plan detects a vehicle's
+loss after the longest link timeout it allows (1.4 s), so a starved mock process is less often
+taken for a lost fleet."""
 from __future__ import annotations
 
 import json
@@ -21,6 +27,10 @@ from wait_helpers import wait_until
 pytestmark = [pytest.mark.timeout(400), pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
+#: wall seconds `ctl` waits to reach the ground station and for its answer (a cold process on a loaded host)
+CTL_WAIT_S = 60.0
+#: wall seconds for one condition seen through `watch` (snapshots, the hold, the next iteration)
+WATCH_WAIT_S = 120.0
 
 
 def free_port() -> int:
@@ -47,11 +57,11 @@ def swarmseek(*args, out: Path | None = None) -> subprocess.Popen:
                                 stdout=fh, stderr=subprocess.STDOUT, text=True)
 
 
-def ctl(endpoint, *args, fleet="swarmseek", sender="tester"):
-    """Run `swarmseek ctl` to the end: (exit status, stdout + stderr)."""
+def ctl(endpoint, *args, fleet="swarmseek", sender="tester", wait_s=CTL_WAIT_S):
+    """Run `swarmseek ctl` (``--timeout-s wait_s``) to the end: (exit status, stdout + stderr)."""
     p = subprocess.run([sys.executable, "-m", "mission", "ctl", fleet, *args, "--sender", sender,
-                        "--zenoh-connect", endpoint, "--timeout-s", "10"],
-                       env=_env(), cwd=ROOT, capture_output=True, text=True, timeout=60)
+                        "--zenoh-connect", endpoint, "--timeout-s", str(wait_s)],
+                       env=_env(), cwd=ROOT, capture_output=True, text=True, timeout=2 * wait_s + 60)
     return p.returncode, p.stdout + p.stderr
 
 
@@ -96,16 +106,16 @@ def _operate(endpoint, watch: Lines, mission: subprocess.Popen, fleet: str):
     assert mission.poll() is None, "the mission ended before the seek (see its output file)"
     rc, out = ctl(endpoint, "pause", fleet=fleet, sender="alice")
     assert rc == 0 and "pause accepted" in out, out
-    wait_until(lambda: (watch.last().get("control") or {}).get("holding"), 60.0, "the hold", poll_s=0.1)
+    wait_until(lambda: (watch.last().get("control") or {}).get("holding"), WATCH_WAIT_S, "the hold", poll_s=0.1)
     n0 = len(watch.states)
-    wait_until(lambda: len(watch.states) >= n0 + 4, 30.0, "4 snapshots while paused", poll_s=0.1)
+    wait_until(lambda: len(watch.states) >= n0 + 4, WATCH_WAIT_S, "4 snapshots while paused", poll_s=0.1)
     held = [s for s in watch.states[n0 - 1:] if (s.get("control") or {}).get("holding")]
     assert len({s["iteration"] for s in held}) == 1 and len(held) >= 4      # no step while paused
     k = held[0]["iteration"]
     assert ctl(endpoint, "continue", fleet=fleet, sender="bob")[0] == 0
     rc, out = ctl(endpoint, "continue", fleet=fleet, sender="bob")
     assert rc == 1 and "REJECTED" in out and "not paused" in out, (out, mission.poll(), watch.last().get("phase"))
-    wait_until(lambda: watch.last().get("iteration", 0) > k, 60.0, "an iteration after continue", poll_s=0.1)
+    wait_until(lambda: watch.last().get("iteration", 0) > k, WATCH_WAIT_S, "an iteration after continue", poll_s=0.1)
     rc, out = ctl(endpoint, "land", fleet=fleet, sender="carol")
     assert rc == 0 and "land accepted" in out, out
 
@@ -148,6 +158,8 @@ arrival_tol_m = 0.5
 polygon_enu_m = [[-150.0, -150.0], [150.0, -150.0], [150.0, 150.0], [-150.0, 150.0]]
 min_alt_m = 3.0
 max_alt_m = 60.0
+[faults]
+link_timeout_s = 1.4
 [zenoh]
 {zenoh_section}
 ''')
@@ -180,7 +192,7 @@ def test_ctl_and_watch_peers_of_the_ground_station(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     _fly_and_operate(tmp_path, "direct", f'mode = "peer"\nlisten = ["{endpoint}"]', endpoint)
     # nobody there any more: a clear message and status 3
-    rc, out = ctl(endpoint, "pause", fleet="direct")
+    rc, out = ctl(endpoint, "pause", fleet="direct", wait_s=5.0)
     assert rc == 3 and f"cannot reach {endpoint}" in out
 
 

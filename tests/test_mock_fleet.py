@@ -228,3 +228,33 @@ def test_cli_stops_cleanly_on_ctrl_c():
             p.kill()
     assert p.returncode == 0, err
     assert "Traceback" not in err
+
+
+def test_catching_up_sends_each_steps_frames_before_the_next_step():
+    """A fleet behind its clock (a starved host) runs up to 25 steps in one go; the frames of
+    each step leave before the next step runs, so a ground station never hears the whole fleet
+    fall silent for the length of a catch-up (it declared every vehicle lost under load)."""
+    from sitl_mock.clock import LockstepClock
+
+    base = free_port_block(4, kinds=("udp",))
+    clock = LockstepClock()
+    fleet = MockFleet(2, personality="px4", clock=clock, udp_base_port=base, udp_bind_base_port=base + 2,
+                      tcp_base_port=0)
+    pending_before_tick = []
+    tick = fleet._tick
+
+    def recording_tick(t_s, dt, sample_dt):
+        pending_before_tick.append(sum(len(v.autopilot._outbox) for v in fleet.vehicles))
+        tick(t_s, dt, sample_dt)
+
+    fleet._tick = recording_tick
+    fleet.start(thread=False)
+    try:
+        clock.advance(0.5)
+        steps = fleet.step_until(clock.time())
+        produced = sum(len(v.autopilot._outbox) for v in fleet.vehicles)
+    finally:
+        fleet.stop()
+    assert steps >= 20 and len(pending_before_tick) == steps
+    assert pending_before_tick == [0] * steps      # nothing waited behind a later step
+    assert produced == 0                           # and the last step's frames went too
