@@ -276,7 +276,11 @@ class SteSeeker:
         return self.temper / np.exp(-0.5 * d2 / self.corr_length_m ** 2).sum(axis=2)
 
     def _update(self, c: np.ndarray, p: np.ndarray, v: np.ndarray) -> None:
-        """Fold the readings in (steps 1-2 of the module docstring)."""
+        """Fold the readings in (steps 1-2 of the module docstring); no readings: nothing to fold."""
+        if v.shape[1] == 0:
+            self.collapsed = np.zeros(v.shape[0], dtype=bool)
+            self.since_collapse = self.since_collapse + 1
+            return
         ll = self._loglik(self.parts, p, v)
         best = ll.mean(axis=2).max(axis=1)  # the best particle's mean log-likelihood per reading
         collapsed = (-best > self.collapse_nats) & (v.shape[1] >= 4)

@@ -21,7 +21,7 @@ from mission.core.plan_types import PlanError
 from mission.core.plan import parse_plan
 from mission.flight import seek
 from mission.flight.seek import _MissionSeeker, make_seeker, scaled_slots, ste_options
-from mission.flight.seek_moving import MovingSampling, TimeThinning
+from mission.flight.seek_moving import MovingSampling, thin_evenly
 from mission.telemetry.mission_log import read_mission_log
 from mission.telemetry.reading_format import Reading
 
@@ -202,18 +202,15 @@ def test_readings_that_left_the_store_first_are_reported():
     assert co.events and "left the reading store's history" in co.events[0][1]
 
 
-def test_time_thinning_keeps_readings_spread_in_time_across_updates():
-    """Each vehicle's kept readings are at least the interval apart, counted across updates: a long
-    first update (every reading since takeoff) keeps readings spread over it, not its first alone."""
-    thin = TimeThinning(1.5)
-    first = [_reading(s, i, 0.1 * i) for i in range(100) for s in (1, 2)] + [_reading(3, 0, 0.0)]
-    pos = np.array([r.position_enu_m for r in first])
-    kept, kept_pos = thin.keep(first, pos)
-    by = {s: [round(r.time_s, 1) for r in kept if r.sysid == s] for s in (1, 2, 3)}
-    assert by[1] == by[2] == [0.0, 1.5, 3.0, 4.5, 6.0, 7.5, 9.0] and by[3] == [0.0]
+def test_thin_evenly_keeps_each_vehicles_first_and_last():
+    readings = [_reading(s, i, 0.1 * i) for i in range(10) for s in (1, 2)] + [_reading(3, 0, 0.0)]
+    pos = np.array([r.position_enu_m for r in readings])
+    kept, kept_pos = thin_evenly(readings, pos, 4)
+    by = {s: [r.seq for r in kept if r.sysid == s] for s in (1, 2, 3)}
+    assert by == {1: [0, 3, 6, 9], 2: [0, 3, 6, 9], 3: [0]}
     np.testing.assert_array_equal(kept_pos, [r.position_enu_m for r in kept])
-    later = [_reading(1, i, 0.1 * i) for i in range(100, 112)]  # 10.0-11.1 s: one is 1.5 s after 9.0
-    assert [round(r.time_s, 1) for r in thin.keep(later, [r.position_enu_m for r in later])[0]] == [10.5]
+    assert thin_evenly(readings[:3], pos[:3], 4)[0] == readings[:3]
+    assert [(r.sysid, r.seq) for r in thin_evenly(readings, pos, 1)[0]] == [(1, 0), (2, 0), (3, 0)]
 
 
 # ----------------------------------------------------------------------------- formation radius

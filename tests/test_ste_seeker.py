@@ -251,3 +251,19 @@ def test_path_samples_value_the_readings_along_the_way(monkeypatch):
                 c[0] + (f + 1) / samples * (cand - c[0]), (len(OFFSETS), len(cand), 3)).transpose(1, 0, 2), atol=1e-9)
     with pytest.raises(ValueError, match="path_samples"):
         SteSeeker(path_samples=0)
+
+
+def test_an_update_without_readings_changes_nothing_and_warns_nothing():
+    """The mission may hand the seeker no reading (all thinned out): the posterior stays as it was."""
+    import warnings
+
+    s = SteSeeker(wind_from_deg=270.0, seed=3)
+    c = np.array([[25.0, 1.0, 13.0]])
+    pos = c[:, None, :] + OFFSETS[None]
+    s.propose(c, pos, make_field("plume", SOURCE).value(pos))
+    before = s.logw.copy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s.propose(c, np.zeros((1, 0, 3)), np.zeros((1, 0)))
+    np.testing.assert_array_equal(s.logw, before)
+    assert not s.collapsed[0] and np.isfinite(s.region95_m[0])

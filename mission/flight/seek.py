@@ -45,17 +45,16 @@ from mission.flight.retire import (
     make_watch,
     retire_sensor,
 )
-from mission.flight.seek_moving import TimeThinning, moving_sampling
+from mission.flight.seek_moving import moving_sampling, thin_evenly
 from mission.flight.sensor_check import make_check
 from mission.flight.state import MissionError
 
-__all__ = ["seek", "make_estimator", "make_seeker", "ste_options", "scaled_slots", "STE_READING_INTERVAL_S"]
+__all__ = ["seek", "make_estimator", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
 
-#: With moving sampling the ``ste`` seeker gets each vehicle's readings at least this far apart in
-#: reading time (:class:`mission.flight.seek_moving.TimeThinning`): its filter's tempering is calibrated
-#: for about one reading per vehicle per 1.5 s (more made it overconfident), and its CPU
-#: (docs/seekers.md, "ste in missions")
-STE_READING_INTERVAL_S = 1.5
+#: With moving sampling the ``ste`` seeker gets at most this many of each vehicle's readings per update
+#: (:func:`mission.flight.seek_moving.thin_evenly`): its filter's tempering assumes about one reading per
+#: vehicle per update (more made it overconfident), and its CPU (docs/seekers.md, "ste in missions")
+STE_READINGS_PER_VEHICLE = 1
 
 
 def make_seeker(kind: str, wind_from_deg: float | None = None, plume_mode: str = "steady", **ste):
@@ -245,7 +244,6 @@ class _Seek:
         self.seeker = make_seeker(sk.seeker, wind_from_deg, sk.plume_mode, **ste)
         self.moving = moving_sampling(co, sk)
         self.samples = None  # with moving sampling: the readings the seeker gets this iteration
-        self.thinning = TimeThinning(STE_READING_INTERVAL_S)  # the ste seeker's share of them
         self.check = make_check(co.plan.faults, self.estimate, self.sysids)
         self.watch = make_watch(co, self.check, self.sysids)
         self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
@@ -445,7 +443,7 @@ class _Seek:
             proposed = seek_step(self.centre, grad, sk.eps, sk.gamma_m)
         else:
             if self.samples is not None and self.seeker.converges_itself:  # ste: its CPU (docs/seekers.md)
-                kept, positions = self.thinning.keep(kept, positions)
+                kept, positions = thin_evenly(kept, positions, STE_READINGS_PER_VEHICLE)
             proposed = await self._propose(k, positions, [r.value for r in kept])
         new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))

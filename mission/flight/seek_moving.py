@@ -40,7 +40,7 @@ from mission.flight.rejoin import clear_goals, fly_rotation
 from mission.flight.retire import formation_goals
 from mission.flight.state import MissionError
 
-__all__ = ["MovingSampling", "TimeThinning", "lagged_positions", "moving_sampling"]
+__all__ = ["MovingSampling", "lagged_positions", "moving_sampling", "thin_evenly"]
 
 
 class MovingSampling:
@@ -196,39 +196,27 @@ def lagged_positions(history: list, readings: list, lag_s: float) -> list[np.nda
     return list(np.stack([np.interp(back_s, t_s, pos[:, i]) for i in range(3)], axis=-1))
 
 
-class TimeThinning:
-    """Each vehicle's readings at least ``interval_s`` apart in reading time, across updates.
+def thin_evenly(readings: list, positions, per_vehicle: int) -> tuple[list, np.ndarray]:
+    """At most ``per_vehicle`` of each vehicle's ``readings`` (with their ``positions`` (M, 3)), evenly
+    spread over its readings in time order (the first kept, and the last when ``per_vehicle`` > 1);
+    every reading when it has that many or fewer.
 
-    For the ``ste`` seeker (:data:`mission.flight.seek.STE_READING_INTERVAL_S`): its tempering is
-    calibrated for about one reading per vehicle per 1.5 s (the offline stop-and-go iteration);
-    10 Hz readings within the meander's few seconds are nearly one reading, and with all of them its
-    posterior is overconfident (docs/seekers.md, "ste in missions"). Keeping by time rather than a
-    count per update keeps the readings of a long first update (every reading since takeoff) spread
-    over that time, hits included, and the same rate whatever the update period.
-
-    Parameters
-    ----------
-    interval_s : float
-        Least reading-time gap between two kept readings of one vehicle.
+    For the ``ste`` seeker (:data:`mission.flight.seek.STE_READINGS_PER_VEHICLE`): its CPU grows with
+    the readings of an update, and its tempering is calibrated for one reading per vehicle per
+    update; with more, its posterior is overconfident (docs/seekers.md, "ste in missions").
     """
-
-    def __init__(self, interval_s: float):
-        self.interval_s = float(interval_s)
-        self._last_s: dict[int, float] = {}
-
-    def keep(self, readings: list, positions) -> tuple[list, np.ndarray]:
-        """The readings to keep (time order per vehicle, each ``interval_s`` after the last kept
-        one of its vehicle, in this update or an earlier one) and their ``positions`` (M, 3)."""
-        pos = np.asarray(positions, dtype=float).reshape(-1, 3)
-        keep: list[int] = []
-        for i in sorted(range(len(readings)), key=lambda j: (readings[j].sysid, readings[j].time_s)):
-            r = readings[i]
-            last = self._last_s.get(r.sysid)
-            if last is None or r.time_s >= last + self.interval_s:
-                self._last_s[r.sysid] = r.time_s
-                keep.append(i)
-        keep.sort()
-        return [readings[i] for i in keep], pos[keep]
+    pos = np.asarray(positions, dtype=float).reshape(-1, 3)
+    by_vehicle: dict[int, list[int]] = {}
+    for i, r in enumerate(readings):
+        by_vehicle.setdefault(r.sysid, []).append(i)
+    keep: list[int] = []
+    for idx in by_vehicle.values():
+        if len(idx) <= per_vehicle:
+            keep.extend(idx)
+        else:
+            keep.extend(idx[j] for j in np.unique(np.round(np.linspace(0, len(idx) - 1, per_vehicle)).astype(int)))
+    keep.sort()
+    return [readings[i] for i in keep], pos[keep]
 
 
 def moving_sampling(co, sk) -> MovingSampling | None:
