@@ -115,7 +115,7 @@ def mission_settings(args: argparse.Namespace) -> dict:
 
 
 def main(argv=None) -> int:
-    from mission.core.plan import PlanError
+    from mission.core.plan_types import PlanError
     from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
     from mission.sim.sitl_mission import fly_sitl_mission
 

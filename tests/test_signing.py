@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from mission.core.signing_config import signing_config_from_table
 from mission.link import signing as sg
 from wire.signing import SigningError, SigningWarning, load_key_file, passphrase_to_key, signing_timestamp
 
@@ -119,13 +120,13 @@ def test_bad_config(kwargs, match):
 
 def test_security_table(tmp_path):
     _key_file(tmp_path, b"my passphrase\n", name="fleet.key")
-    cfg = sg.signing_config_from_table({"signing_key_file": "fleet.key", "signing_link_id": 7,
+    cfg = signing_config_from_table({"signing_key_file": "fleet.key", "signing_link_id": 7,
                                         "allow_unsigned": ["RADIO_STATUS"], "setup_signing": False},
                                        tmp_path)
     assert cfg.key == hashlib.sha256(b"my passphrase").digest()
     assert (cfg.link_id, cfg.allow_unsigned, cfg.send_setup) == (7, {"RADIO_STATUS"}, False)
     assert cfg.key_file == str(tmp_path / "fleet.key")
-    assert sg.signing_config_from_table({}, tmp_path) is None
+    assert signing_config_from_table({}, tmp_path) is None
 
 
 @pytest.mark.parametrize("table,keys", [
@@ -140,7 +141,7 @@ def test_security_table(tmp_path):
 def test_security_table_lists_every_problem(tmp_path, table, keys):
     _key_file(tmp_path, b"my passphrase\n", name="fleet.key")
     with pytest.raises(SigningError, match="invalid \\[security\\]") as info:
-        sg.signing_config_from_table(table, tmp_path)
+        signing_config_from_table(table, tmp_path)
     assert [k for k, _ in info.value.problems] == keys
 
 
