@@ -34,18 +34,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["BRIGGS_RURAL", "STABILITY_CLASSES", "briggs_sigmas", "GaussianPlume"]
+from estimator.ste_model import BRIGGS_RURAL
 
-#: Briggs (1973) open-country coefficients per Pasquill-Gifford class:
-#: ``sigma_y = ay x (1 + by x)^-1/2``, ``sigma_z = az x (1 + bz x)^pz``.
-BRIGGS_RURAL = {
-    "A": (0.22, 1e-4, 0.20, 0.0, 1.0),
-    "B": (0.16, 1e-4, 0.12, 0.0, 1.0),
-    "C": (0.11, 1e-4, 0.08, 2e-4, -0.5),
-    "D": (0.08, 1e-4, 0.06, 1.5e-3, -0.5),
-    "E": (0.06, 1e-4, 0.03, 3e-4, -1.0),
-    "F": (0.04, 1e-4, 0.016, 3e-4, -1.0),
-}
+__all__ = ["STABILITY_CLASSES", "briggs_sigmas", "GaussianPlume"]
+
+#: The Pasquill-Gifford classes, with Briggs (1973) open-country coefficients (one table, the
+#: dispersion model's: :data:`estimator.ste_model.BRIGGS_RURAL`).
 STABILITY_CLASSES = tuple(BRIGGS_RURAL)
 _GRAD_STEP_M = 1e-3
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from estimator.seekers import MOVING_SEEKERS, SEEKERS as _SEEKERS
+from estimator.ste_model import BRIGGS_RURAL
 from formation.geodesy import geodetic_to_enu
 from mission.core.plan_checks import Checker, check_connection, join_key, polygon_area, show_value
 from mission.core.plan_types import (PLUME_MODES, SAMPLINGS, ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
@@ -38,7 +39,7 @@ _ESTIMATORS = ("cvt", "symmetric", "robust")
 #: values of the top-level ``return`` key
 RETURN_BEHAVIOURS = ("land", "rtl")
 _FAULTY_SENSOR = ("retire", "keep", "off")
-_STABILITY = ("A", "B", "C", "D", "E", "F")  # Pasquill-Gifford classes (estimator.ste_model.BRIGGS_RURAL)
+_STABILITY = tuple(BRIGGS_RURAL)  # the Pasquill-Gifford classes of the dispersion model
 
 
 def parse_faults(c: Checker, doc: dict) -> FaultsPlan:
