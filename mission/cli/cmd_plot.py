@@ -11,8 +11,11 @@ longitude and altitude AMSL):
                         region (a circle of its radius) and, for a seeker with a posterior
                         (``ste``), the last plan-view posterior as a heat map;
 ``distance.png``        distance of the centre to the estimated source (and to the true one)
-                        per iteration;
-``gradient.png``        the gradient estimate's components and norm per iteration.
+                        per iteration, on a log scale whose floor is 1 cm (a centre on the estimate,
+                        0 m, is drawn there with a triangle);
+``gradient.png``        the gradient estimate's components (∂c/∂east, ...) and norm per iteration.
+
+The trajectories' legends sit outside the axes; above eight vehicles they have one entry for all.
 """
 from __future__ import annotations
 
@@ -25,6 +28,12 @@ import numpy as np
 from wire.cli_args import path_arg, usage_error
 
 __all__ = ["configure", "main", "plot_mission", "mission_tracks", "run_title", "plan_view_figure"]
+
+#: Up to this many vehicles the legend names each one; above, one entry stands for them all.
+LEGEND_VEHICLES_MAX = 8
+#: distance.png's floor on its log scale: a centre closer than this to a source (the last
+#: iteration's centre is often the estimate itself, 0 m) is drawn at the floor and marked.
+DISTANCE_FLOOR_M = 0.01
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -166,14 +175,35 @@ def _zoom(plt, ax, tr: dict) -> None:
     inset.set_title(f"about the estimate ({2 * half:.1f} m across)", fontsize=6)
 
 
+def _draw_vehicles(ax, tr: dict, dims: int) -> None:
+    """Every vehicle's track on ``ax`` (``dims`` 2: east, north; 3: east, north, up).
+
+    Up to :data:`LEGEND_VEHICLES_MAX` vehicles, each has its colour and legend entry; above, all
+    are drawn in grey with one legend entry, so that the legend of a 20-vehicle swarm stays short.
+    """
+    tracks = sorted(tr["vehicles"].items(), key=lambda kv: int(kv[0]))
+    grouped = len(tracks) > LEGEND_VEHICLES_MAX
+    for i, (sysid, p) in enumerate(tracks):
+        cols = [p[:, j] for j in range(dims)]
+        if grouped:
+            label = f"{len(tracks)} vehicles (one line each)" if i == 0 else "_nolegend_"
+            ax.plot(*cols, lw=0.6, alpha=0.45, color="tab:gray", label=label)
+        else:
+            ax.plot(*cols, lw=0.8, alpha=0.6, label=f"vehicle {sysid}")
+
+
+def _legend_outside(ax, fontsize: int = 7):
+    """The legend to the right of the axes, outside them, so that it covers no track."""
+    return ax.legend(fontsize=fontsize, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
+
+
 def plan_view_figure(plt, tr: dict, title: str):
     """The plan view (east, north), equal scales, with the estimate's uncertainty (and an inset
     about the estimate); returns the figure."""
-    fig, ax = plt.subplots(figsize=(7, 7))
+    fig, ax = plt.subplots(figsize=(9.5, 7))
     _draw_uncertainty(plt, ax, tr)
     _zoom(plt, ax, tr)
-    for sysid, p in sorted(tr["vehicles"].items(), key=lambda kv: int(kv[0])):
-        ax.plot(p[:, 0], p[:, 1], lw=0.8, alpha=0.6, label=f"vehicle {sysid}")
+    _draw_vehicles(ax, tr, 2)
     c = tr["centre"]
     ax.plot(c[:, 0], c[:, 1], "k-", lw=2.0, label="formation centre")
     ax.plot(c[0, 0], c[0, 1], "ko", ms=5, label="start")
@@ -186,7 +216,7 @@ def plan_view_figure(plt, tr: dict, title: str):
     ax.set_ylabel("north (m)")
     ax.grid(True, alpha=0.3)
     ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="best")
+    _legend_outside(ax)
     fig.tight_layout()
     return fig
 
@@ -200,10 +230,9 @@ def _plot_top(plt, tr: dict, title: str, path: Path) -> None:
 
 def _plot_3d(plt, tr: dict, title: str, path: Path) -> None:
     """3D trajectory in the mission ENU frame, equal scales on the three axes."""
-    fig = plt.figure(figsize=(8, 7))
-    ax = fig.add_subplot(111, projection="3d")
-    for sysid, p in sorted(tr["vehicles"].items(), key=lambda kv: int(kv[0])):
-        ax.plot(p[:, 0], p[:, 1], p[:, 2], lw=0.8, alpha=0.6, label=f"vehicle {sysid}")
+    fig = plt.figure(figsize=(10, 7))
+    ax = fig.add_axes((0.0, 0.02, 0.72, 0.86), projection="3d")
+    _draw_vehicles(ax, tr, 3)
     c = tr["centre"]
     ax.plot(c[:, 0], c[:, 1], c[:, 2], "k-", lw=2.0, label="formation centre")
     ax.scatter(*c[0], color="k", marker="o", s=30, label="start")
@@ -216,26 +245,38 @@ def _plot_3d(plt, tr: dict, title: str, path: Path) -> None:
     ax.set_zlabel("up (m)")
     _equal_3d(ax, _all_points(tr))
     ax.set_title(f"Trajectory (mission ENU frame, equal scales)\n{title}", fontsize=9)
-    ax.legend(fontsize=7, loc="upper left")
+    _legend_outside(ax)
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
 
+def _distance_line(ax, iters: np.ndarray, d_m: np.ndarray, style: str, label: str) -> None:
+    """One distance curve on the log axis, its points below :data:`DISTANCE_FLOOR_M` (0 m when the
+    centre reached that point) drawn at the floor and marked with a triangle, so that the curve
+    does not vanish off the log scale."""
+    below = d_m < DISTANCE_FLOOR_M
+    (line,) = ax.plot(iters, np.maximum(d_m, DISTANCE_FLOOR_M), style, label=label)
+    if below.any():
+        ax.plot(iters[below], np.full(int(below.sum()), DISTANCE_FLOOR_M), "v", color=line.get_color(), ms=7,
+                label=f"{label}: under {100 * DISTANCE_FLOOR_M:.0f} cm (drawn at {100 * DISTANCE_FLOOR_M:.0f} cm)")
+
+
 def _plot_distance(plt, tr: dict, title: str, path: Path) -> None:
-    """Distance of the centre to the estimated (and true) source per iteration."""
+    """Distance of the centre to the estimated (and true) source per iteration (log scale, floored)."""
     c = tr["centre"]
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig, ax = plt.subplots(figsize=(8, 4.3))
     iters = np.arange(len(c))
     if tr["estimate"] is not None:
-        ax.plot(iters, np.linalg.norm(c - tr["estimate"], axis=1), label="to the estimated source")
+        _distance_line(ax, iters, np.linalg.norm(c - tr["estimate"], axis=1), "-", "to the estimated source")
     if tr["true_source"] is not None:
-        ax.plot(iters, np.linalg.norm(c - tr["true_source"], axis=1), "--", label="to the true source")
+        _distance_line(ax, iters, np.linalg.norm(c - tr["true_source"], axis=1), "--", "to the true source")
     ax.set_xlabel("iteration")
     ax.set_ylabel("distance of the centre (m)")
     ax.set_yscale("log")
-    ax.set_title(title, fontsize=9)
+    ax.xaxis.get_major_locator().set_params(integer=True)  # iterations are whole numbers
+    ax.set_title(f"Distance of the formation centre to the source\n{title}", fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -243,16 +284,17 @@ def _plot_distance(plt, tr: dict, title: str, path: Path) -> None:
 
 def _plot_gradient(plt, tr: dict, title: str, path: Path) -> None:
     """The gradient estimate's components and norm per iteration."""
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig, ax = plt.subplots(figsize=(8, 4.3))
     g = tr["gradient"]
     for i, name in enumerate(("east", "north", "up")):
-        ax.plot(tr["k"], g[:, i], lw=1.0, label=f"d/d{name}")
-    ax.plot(tr["k"], np.linalg.norm(g, axis=1), "k-", lw=1.5, label="norm")
+        ax.plot(tr["k"], g[:, i], lw=1.0, label=f"∂c/∂{name}")
+    ax.plot(tr["k"], np.linalg.norm(g, axis=1), "k-", lw=1.5, label="norm |∇c|")
     ax.set_xlabel("iteration")
     ax.set_ylabel("gradient estimate (signal / m)")
-    ax.set_title(title, fontsize=9)
+    ax.xaxis.get_major_locator().set_params(integer=True)  # iterations are whole numbers
+    ax.set_title(f"Gradient estimate of the signal c at the formation centre\n{title}", fontsize=9)
     ax.grid(True, alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
