@@ -122,7 +122,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     security = parse_security(c, doc, Path(base_dir) if base_dir is not None else None)
     field = parse_field(c, doc)
     control, forward = parse_control(c, doc), parse_forward(c, doc)
-    _check_across_sections(c, vehicles, formation, seeking, geofence, top)
+    _check_across_sections(c, doc, formation, seeking, geofence, top)
     if c.problems:
         raise PlanError(c.problems, source)
     return Plan(fleet=fleet, origin=origin, vehicles=tuple(vehicles), formation=formation,
@@ -131,25 +131,39 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
                 control=control, forward=forward, **top)
 
 
-def _check_across_sections(c: Checker, vehicles, formation, seeking, geofence, top: dict) -> None:
+def _check_across_sections(c: Checker, doc: dict, formation, seeking, geofence, top: dict) -> None:
     """Checks that span sections: fleet size for the formation, radius against separation, the
-    seeking start and the take-off altitude inside the geofence's altitude band."""
-    if formation is not None and vehicles:
-        n = len(vehicles)
+    seeking start and the take-off altitude inside the geofence's altitude band.
+
+    Each check runs only when the keys it reads were valid, so that one bad value is reported
+    once, at its key, and not again as a consequence elsewhere (a bad ``[[vehicles]]`` entry is
+    not also "a formation needs at least 4 vehicles"; an invalid ``min_separation_m`` is not
+    compared, as its default, with the radius). The fleet size is the number of ``[[vehicles]]``
+    entries written, valid or not.
+    """
+    failed = {key for key, _ in c.problems}
+
+    def ok(*keys: str) -> bool:
+        return not any(f == k or f.startswith((k + ".", k + "[")) for f in failed for k in keys)
+
+    raw = doc.get("vehicles")
+    if formation is not None and isinstance(raw, list) and raw and ok("formation.type"):
+        n = len(raw)
         if n < 4:
             c.bad("vehicles", f"a formation needs at least 4 vehicles, got {n}")
         elif formation.type == "symmetric" and n % 2:
             c.bad("formation.type", f"the symmetric formation needs an even number of vehicles, got {n}")
-    if formation is not None and top["min_separation_m"] is not None and formation.radius_m is not None:
+    if (formation is not None and top["min_separation_m"] is not None and formation.radius_m is not None
+            and ok("min_separation_m")):
         if formation.radius_m < top["min_separation_m"]:
             c.bad("formation.radius_m", f"radius {formation.radius_m} m is smaller than "
                   f"min_separation_m {top['min_separation_m']} m")
-    if geofence is not None and seeking is not None and formation is not None:
+    if geofence is not None and seeking is not None and formation is not None and ok("seeking.start_enu_m"):
         start = seeking.start_point()
         if not geofence.min_alt_m + formation.radius_m <= start[2] <= geofence.max_alt_m - formation.radius_m:
             c.bad("seeking.start_enu_m", f"start altitude {start[2]:.1f} m must leave the formation "
                   f"radius inside the altitude band [{geofence.min_alt_m}, {geofence.max_alt_m}] m")
         check_start_in_fence(c, formation.radius_m, start, geofence.polygon_en_m)
-        if top["takeoff_alt_m"] is not None and not (
-                geofence.min_alt_m <= top["takeoff_alt_m"] <= geofence.max_alt_m):
-            c.bad("takeoff_alt_m", f"{top['takeoff_alt_m']} m is outside the geofence altitude band")
+    if geofence is not None and top["takeoff_alt_m"] is not None and ok("takeoff_alt_m") and not (
+            geofence.min_alt_m <= top["takeoff_alt_m"] <= geofence.max_alt_m):
+        c.bad("takeoff_alt_m", f"{top['takeoff_alt_m']} m is outside the geofence altitude band")
