@@ -310,7 +310,7 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None):
                       clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
                       eps=eps, gamma_m=args.gamma, seeker=args.seeker, sampling=plan.seeking.sampling, seed=args.seed)
             co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, display=display,
-                             tlog_dir=None if args.no_tlog else log_dir / "tlogs")
+                             tlog_dir=None if args.no_tlog else log_dir / "tlogs", simulated_fleet=True)
             if world is not None:
                 world.store = co.store
             result = await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal

@@ -56,6 +56,10 @@ class Coordinator:
         A ``status`` record (every vehicle's state) goes to the mission log this often (mission clock).
     zenoh_problem : str, optional
         Why the plan's zenoh session could not be opened (the dry run's ``zenoh`` check says it).
+    simulated_fleet : bool
+        The vehicles are ``swarmseek run``'s embedded mock fleet, which ends with the ground
+        station: the preflight says once that its autopilots have no ground-station-loss
+        failsafe configured, instead of warning about each as about a real vehicle.
 
     Notes
     -----
@@ -70,8 +74,9 @@ class Coordinator:
 
     def __init__(self, plan: Plan, *, clock, zenoh_session=None, log: MissionLog | None = None,
                  display=None, tlog_dir=None, state_rate_hz: float = 2.0, status_period_s: float = 1.0,
-                 zenoh_problem: str | None = None):
+                 zenoh_problem: str | None = None, simulated_fleet: bool = False):
         self.plan = plan
+        self.simulated_fleet = bool(simulated_fleet)
         self.clock = clock
         self.session = zenoh_session
         self.log = log

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from mission.vehicle.prearm_params import read_params
 
-__all__ = ["FailsafeAssessment", "PARAMS", "assess", "check_failsafe_params"]
+__all__ = ["FailsafeAssessment", "PARAMS", "assess", "check_failsafe_params", "report_lines"]
 
 #: the parameters read per flavour
 PARAMS = {
@@ -117,12 +117,17 @@ async def check_failsafe_params(co, timeout_s: float = 5.0) -> dict[int, Failsaf
 
     Each vehicle's readiness gets a warning (or, with ``require_gcs_failsafe``, a failed
     ``gcs_failsafe`` check) when it would hover forever or its parameters could not be read.
+    For ``swarmseek run``'s embedded mock fleet (``co.simulated_fleet``), which ends with the
+    ground station, an unconfigured failsafe is said once, as what it is, and is no warning.
     """
     require = co.plan.preflight.require_gcs_failsafe
+    simulated = co.simulated_fleet
     sysids = sorted(co.vehicles)
     found = await asyncio.gather(*(_read_one(co, s, co.vehicles[s], timeout_s) for s in sysids))
     out = dict(zip(sysids, found))
-    _report(co, out, require)
+    for sysids_, message, level, hovers in report_lines(out, require=require, simulated=simulated):
+        co.event(message, level=level, sysids=sysids_, failsafe={s: out[s].values for s in sysids_},
+                 hovers_forever=hovers)
     for s, a in out.items():
         bad = a.hovers_forever is not False
         r = co.state.readiness.get(s)
@@ -133,21 +138,45 @@ async def check_failsafe_params(co, timeout_s: float = 5.0) -> dict[int, Failsaf
             if bad:
                 r.problems.append(f"ground-station-loss failsafe required by the plan: {a.action}")
             co.state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
-        elif bad:
+        elif bad and not (simulated and a.hovers_forever):
             r.warnings.append(f"if the ground station dies: {a.action}")
     return out
 
 
-def _report(co, found: dict[int, FailsafeAssessment], require: bool) -> None:
-    """One event per distinct behaviour, naming its vehicles (a fleet usually shares one)."""
+def report_lines(found: dict[int, FailsafeAssessment], *, require: bool,
+                 simulated: bool = False) -> list[tuple[list[int], str, str, bool | None]]:
+    """One line per distinct behaviour, naming its vehicles (a fleet usually shares one).
+
+    Parameters
+    ----------
+    found : dict of int to FailsafeAssessment
+        Each vehicle's assessment, by system id.
+    require : bool
+        The plan requires a ground-station-loss failsafe (``[preflight] require_gcs_failsafe``):
+        a vehicle without one is an error.
+    simulated : bool
+        The vehicles are the embedded mock fleet: mock autopilots with their autopilot's default
+        parameters, gone when the ground station goes. Hovering ones get one informative line in
+        the mock's words (unless the plan requires a failsafe).
+
+    Returns
+    -------
+    list of (sysids, message, level, hovers_forever)
+    """
     groups: dict[tuple, list[int]] = {}
     for s, a in found.items():
         groups.setdefault((a.action, a.hovers_forever), []).append(s)
+    lines = []
     for (action, hovers), sysids in groups.items():
         bad = hovers is not False
         level = "info" if not bad else ("error" if require else "warning")
+        if simulated and hovers and not require:
+            lines.append((sysids, "simulation: the mock autopilots keep their defaults, no ground-station-loss "
+                          f"failsafe: {action}. A real vehicle set up like this would hover until its "
+                          "battery fails (docs/ardupilot.md, failsafe parameters)", "info", hovers))
+            continue
         what = (" -- nothing brings it down: it would hover until its battery fails" if hovers
                 else " -- failsafe unknown" if hovers is None else "")
         who = f"vehicle {sysids[0]}" if len(sysids) == 1 else "vehicles " + ", ".join(map(str, sysids))
-        co.event(f"{who}: if the ground station dies: {action}{what}", level=level, sysids=sysids,
-                 failsafe={s: found[s].values for s in sysids}, hovers_forever=hovers)
+        lines.append((sysids, f"{who}: if the ground station dies: {action}{what}", level, hovers))
+    return lines
