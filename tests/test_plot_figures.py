@@ -19,8 +19,9 @@ class _Clock:
         return 1000.0
 
 
-def _log(path: Path, n_vehicles: int) -> Path:
-    """A mission log whose last centre is the estimate itself (distance 0 m), as a plume run's is."""
+def _log(path: Path, n_vehicles: int, posterior: bool = False) -> Path:
+    """A mission log whose last centre is the estimate itself (distance 0 m), as a plume run's is;
+    ``posterior``: the last iteration carries a plan-view posterior (the ``ste`` seeker's)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     log = MissionLog(path, _Clock())
     log.write("plan", plan={"fleet": "alpha"})
@@ -28,10 +29,14 @@ def _log(path: Path, n_vehicles: int) -> Path:
     c = np.array([-30.0, 0.0, 10.0])
     angles = np.linspace(0.0, 2.0 * np.pi, n_vehicles, endpoint=False)
     ring = np.stack([4.0 * np.cos(angles), 4.0 * np.sin(angles), np.zeros(n_vehicles)], axis=1)
+    prob = np.zeros((10, 10), dtype=int)
+    prob[4:6, 4:6] = 2500
     for k in range(1, 15):
         new = c + 0.3 * (source - c)
+        extra = {"estimate_map": {"prob_e4": prob.tolist(), "cell_m": 0.5, "east0_m": new[0] - 2.5,
+                                  "north0_m": new[1] - 2.5}} if posterior and k == 14 else {}
         log.write("iteration", k=k, centre_enu=c, new_centre_enu=new, gradient=(source - c) * 0.01,
-                  estimate_enu=new, positions_enu={i + 1: c + ring[i] for i in range(n_vehicles)})
+                  estimate_enu=new, positions_enu={i + 1: c + ring[i] for i in range(n_vehicles)}, **extra)
         c = new
     log.write("summary", outcome="converged", estimate_enu=c)
     log.write("truth", source_enu=source, error_m=float(np.linalg.norm(c - source)))
@@ -39,25 +44,32 @@ def _log(path: Path, n_vehicles: int) -> Path:
     return path
 
 
-@pytest.fixture
-def figures(tmp_path, monkeypatch):
-    """plot_mission's four figures, kept open (plt.close recorded instead) and drawn."""
+@pytest.fixture(scope="module")
+def figures(tmp_path_factory):
+    """plot_mission's four figures by name, kept open (plt.close recorded instead) and drawn;
+    one plot per (vehicles, posterior) for the whole module."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    def plot(n_vehicles: int) -> dict:
-        closed: list = []
-        monkeypatch.setattr(plt, "close", lambda fig=None: closed.append(fig))
-        paths = plot_mission(_log(tmp_path / f"run-{n_vehicles}" / "mission.jsonl", n_vehicles),
-                             tmp_path / f"fig-{n_vehicles}")
-        for fig in closed:
-            fig.canvas.draw()
-        return {p.name: fig for p, fig in zip(paths, closed)}
+    made: dict = {}
+    tmp_path = tmp_path_factory.mktemp("plots")
+
+    def plot(n_vehicles: int, posterior: bool = False) -> dict:
+        name = f"{n_vehicles}{'-posterior' if posterior else ''}"
+        if name not in made:
+            closed: list = []
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setattr(plt, "close", lambda fig=None: closed.append(fig))
+                log = _log(tmp_path / name / f"run-{n_vehicles}" / "mission.jsonl", n_vehicles, posterior)
+                paths = plot_mission(log, tmp_path / f"fig-{name}")
+            for fig in closed:
+                fig.canvas.draw()
+            made[name] = {p.name: fig for p, fig in zip(paths, closed)}
+        return made[name]
 
     yield plot
-    monkeypatch.undo()
     plt.close("all")
 
 
@@ -84,6 +96,16 @@ def test_a_legend_outside_the_axes_stays_inside_the_figure(figures, name):
     _, box, _ = _legend_and_axes_boxes(fig)
     assert fig.bbox.x0 <= box.x0 and box.x1 <= fig.bbox.x1 + 0.5
     assert fig.bbox.y0 <= box.y0 and box.y1 <= fig.bbox.y1 + 0.5
+
+
+def test_the_posterior_colour_bar_leaves_the_legend_alone(figures):
+    fig = figures(8, posterior=True)["trajectory_top.png"]
+    legend, box, axes_box = _legend_and_axes_boxes(fig)
+    (cbar,) = [a for a in fig.axes if a.get_label() == "<colorbar>"]
+    cbar_box = cbar.get_window_extent()
+    assert cbar.get_xlabel() == "posterior probability per cell"  # horizontal, below the plan view
+    assert not box.overlaps(cbar_box) and cbar_box.y1 <= axes_box.y0
+    assert box.x0 >= axes_box.x1 - 1.0
 
 
 def test_a_small_swarm_names_each_vehicle(figures):

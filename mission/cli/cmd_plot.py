@@ -145,7 +145,9 @@ def _draw_uncertainty(plt, ax, tr: dict, colorbar: bool = True) -> None:
                         extent=(e0, e0 + n * cell, n0, n0 + n * cell), interpolation="nearest", zorder=0)
         img.set_label("posterior (plan view)")
         if colorbar:
-            plt.colorbar(img, ax=ax, fraction=0.046, pad=0.04, label="posterior probability per cell")
+            # below the axes: the legend is on their right (:func:`_legend_outside`)
+            plt.colorbar(img, ax=ax, location="bottom", fraction=0.046, pad=0.1,
+                         label="posterior probability per cell")
     if tr["estimate"] is not None and tr.get("region95_m") is not None:
         ax.add_patch(plt.Circle(tr["estimate"][:2], float(tr["region95_m"]), fill=False, color="tab:red",
                                 ls="--", lw=1.2, label=f"95 % region ({float(tr['region95_m']):.2f} m)"))
