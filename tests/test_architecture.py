@@ -22,9 +22,10 @@ PACKAGE_RULES = {
     "wire": set(),
     "formation": set(),
     "estimator": {"formation"},
-    "sitl_mock": {"formation", "estimator", "wire"},
+    "sitl_mock": {"formation", "estimator", "wire", "companion"},
     "experiments": {"formation", "estimator", "sitl_mock", "wire"},
     "mission": {"formation", "estimator", "sitl_mock", "experiments", "wire"},
+    "companion": {"wire"},
 }
 #: within mission, the rooms that may import the simulated world and the experiments
 MISSION_OUTSIDE_RULES = {"sitl_mock": {"sim"}, "experiments": {"cli"}}

@@ -101,7 +101,7 @@ def guards():
             (cmd_run, "_make_fleet", _raise_reached), (cmd_fly, "fly", _raise_reached),
             (cmd_dryrun, "dry_run", _raise_reached), (cmd_resume, "resume", resume),
             (zenoh, "open", _raise_reached), (mock_fleet.MockFleet, "start", _raise_reached),
-            (virtual_sensor, "_open_mavlink", _raise_reached), (paper, "generate", _raise_reached),
+            (virtual_sensor, "open_mavlink", _raise_reached), (paper, "generate", _raise_reached),
             (sitl_fleet.SitlFleet, "start", _raise_reached), (sitl_fleet, "resolve_sitl_dir", lambda *a, **k: Path(".")),
             (offline, "simulate", _raise_reached), (cmd_simulate, "_simulate_seeker", _raise_reached),
             (cmd_simulate, "_simulate_moving", _raise_reached), (formation, "cvt_sphere", cvt),
