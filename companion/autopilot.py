@@ -279,6 +279,7 @@ class AutopilotTelemetry:
         self._latest: PositionFix | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._closed = False
         self._thread = threading.Thread(target=self._run, name=f"autopilot-{self.sysid}", daemon=True)
         self._thread.start()
 
@@ -300,6 +301,9 @@ class AutopilotTelemetry:
 
     def close(self) -> None:
         """Stop the thread and close the link (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
         self._stop.set()
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(5.0)
