@@ -16,7 +16,8 @@ import sys
 import time
 
 from companion.autopilot import AutopilotError, connection_arg, sysid_arg
-from companion.line_input import BAD_LINE_REASONS, InputError, LineSplitter, SerialSource, StdinSource, parse_reading_line
+from companion.line_input import (BAD_LINE_REASONS, InputError, LineSplitter, SerialSource, StdinSource,
+                                  parse_reading_line)
 from companion.publisher import DEFAULT_MAX_FIX_AGE_S, Publisher, PublisherError
 from wire.cli_args import fail, int_in_range, nonnegative_float, positive_float, usage_error
 from wire.zenoh_flags import ZenohFlagError, add_endpoint_arguments, security_kwargs
@@ -91,7 +92,7 @@ class _Tally:
     def _first(self, kind: str, text: str) -> None:
         if kind not in self._told:
             self._told.add(kind)
-            _log(self.args, f"{text} (only the first is shown; see the counts)")
+            _log(self.args, f"{text} (shown once; the rest are only counted)")
 
     def summary(self) -> str:
         """One line: published, held by reason, bad lines by reason."""

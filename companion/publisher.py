@@ -193,7 +193,8 @@ class Publisher:
         return self._sensor.has_subscribers(self.sysid)
 
     def summary(self) -> str:
-        """One line of the counts, e.g. ``published 120; held 2 (no position yet 2, stale position 0); bad values 1``."""
+        """One line of the counts, e.g. ``published 120; held 2 (no position yet 2, stale position 0);
+        bad values 1``."""
         c = self.counts
         held = c["no_position"] + c["stale_position"]
         return (f"published {c['published']}; held {held} (no position yet {c['no_position']}, "

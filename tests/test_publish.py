@@ -78,7 +78,8 @@ def test_the_payload_is_the_ground_stations_schema_with_exact_types():
     doc = json.loads(payload)
     assert key == "swarmseek/pub/vehicle/1/sensor"
     assert list(doc) == ["schema", "fleet", "sysid", "seq", "time_s", "lat_deg", "lon_deg", "alt_m", "value"]
-    assert (doc["schema"], doc["fleet"], doc["sysid"], doc["seq"], doc["value"]) == ("swarmseek.sensor.v1", "pub", 1, 0, 5.0)
+    assert (doc["schema"], doc["fleet"], doc["sysid"], doc["seq"], doc["value"]) == (
+        "swarmseek.sensor.v1", "pub", 1, 0, 5.0)
     assert [type(doc[k]).__name__ for k in ("sysid", "seq", "time_s", "value")] == ["int", "int", "float", "float"]
     assert decode_reading(payload) == doc
 

@@ -1,0 +1,150 @@
+"""``swarmseek publish`` end to end: a line sensor on a pseudo terminal, the mock autopilot's
+position, the ground station's reading store on a real zenoh session; and its standard input,
+its counts and its errors."""
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from formation.geodesy import geodetic_to_enu
+from mission.cli import main as swarmseek
+from publish_support import HOME_ENU, ORIGIN, NoFixAutopilot, ground_station, mock_autopilot
+
+ROOT = Path(__file__).resolve().parents[1]
+TIMEOUT_S = 60.0
+
+
+class _Stderr:
+    """A child's stderr lines, read by a thread; :meth:`wait_for` waits for one holding a text."""
+
+    def __init__(self, stream):
+        self.lines: list[str] = []
+        self._new = threading.Condition()
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream) -> None:
+        for line in stream:
+            with self._new:
+                self.lines.append(line)
+                self._new.notify_all()
+
+    def wait_for(self, text: str) -> None:
+        with self._new:
+            assert self._new.wait_for(lambda: any(text in line for line in self.lines), TIMEOUT_S), self.text()
+
+    def text(self) -> str:
+        """Everything read (all of it once the child has exited and :meth:`join` returned)."""
+        return "".join(self.lines)
+
+    def join(self) -> None:
+        self._thread.join(TIMEOUT_S)
+
+
+class _LineSensor:
+    """Writes ``0.5``, ``1.5``, ... (CR LF ended) into a pseudo terminal's master side at about
+    10 lines a second until stopped: a sensor that prints one number a line."""
+
+    def __init__(self, master: int):
+        self.master, self.written = master, []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.1) and len(self.written) < 600:
+            self.written.append(0.5 + len(self.written))
+            os.write(self.master, f"{self.written[-1]}\r\n".encode())
+
+    def __enter__(self) -> "_LineSensor":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        self._stop.set()
+        self._thread.join(TIMEOUT_S)
+
+
+def _start_publish(argv: list[str], stdin=None) -> tuple[subprocess.Popen, _Stderr]:
+    """``python -m mission publish ARGV`` in a child process, and its stderr."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")])}
+    proc = subprocess.Popen([sys.executable, "-m", "mission", "publish", *argv], stdin=stdin,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    return proc, _Stderr(proc.stderr)
+
+
+def test_serial_line_sensor_on_a_pseudo_terminal():
+    master, slave = os.openpty()
+    device = os.ttyname(slave)
+    with mock_autopilot("pubs") as (_fleet, mavlink), ground_station("pubs") as (store, endpoint, _payloads):
+        proc, stderr = _start_publish(["--connect", mavlink, "--serial", device, "--baud", "115200", "--fleet", "pubs",
+                                       "--zenoh-connect", endpoint, "--count", "3", "--wait-subscriber", "30",
+                                       "--timeout", str(TIMEOUT_S)])
+        try:
+            stderr.wait_for(f"publishing swarmseek/pubs/vehicle/1/sensor from {device}")
+            os.write(master, b"abc\n\r\nnan\n" + b"9" * 300 + b"\n")  # four bad lines, one of each reason
+            with _LineSensor(master) as sensor:  # readings before the autopilot's first fix are held
+                assert proc.wait(TIMEOUT_S) == 0, stderr.text()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            os.close(master)
+            os.close(slave)
+    stderr.join()
+    err = stderr.text()
+    assert "Traceback" not in err
+    assert "bad line (not a number): b'abc'" in err
+    summary = re.search(r"published 3; held (\d+) \(no position yet (\d+), stale position (\d+)\); "
+                        r"bad lines 4 \(empty 1, not a number 1, not finite 1, too long 1\)", err)
+    assert summary, err
+    readings = store.history(1)
+    assert store.counts()["rejected"] == dict.fromkeys(store.counts()["rejected"], 0)
+    assert [r.seq for r in readings] == [0, 1, 2]
+    values = [r.value for r in readings]
+    assert values == sorted(values) and set(values) <= set(sensor.written)
+    for r in readings:
+        np.testing.assert_allclose(geodetic_to_enu(r.lat_deg, r.lon_deg, r.alt_m, ORIGIN), HOME_ENU, atol=0.05)
+
+
+def test_standard_input_before_the_first_fix_is_held_and_counted():
+    with NoFixAutopilot(sysid=5) as autopilot, ground_station("pubs", sysids=(5,)) as (_store, endpoint, payloads):
+        proc, stderr = _start_publish(["--connect", autopilot.connection, "--fleet", "pubs", "--zenoh-connect",
+                                       endpoint, "--wait-subscriber", "30", "--timeout", str(TIMEOUT_S)],
+                                      stdin=subprocess.PIPE)
+        try:
+            proc.stdin.write("1.0\n2.0\nbad\n3.0")  # the last line without its newline
+            proc.stdin.close()
+            assert proc.wait(TIMEOUT_S) == 0, stderr.text()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    stderr.join()
+    err = stderr.text()
+    assert "Traceback" not in err
+    assert "reading held: no position fix from the autopilot yet" in err
+    assert "end of standard input" in err
+    assert ("published 0; held 3 (no position yet 3, stale position 0); "
+            "bad lines 1 (empty 0, not a number 1, not finite 0, too long 0)") in err
+    assert payloads == []
+
+
+def test_usage_and_input_errors_are_one_line(capsys, tmp_path):
+    base = ["publish", "--connect", "tcp:127.0.0.1:5760"]
+    assert swarmseek(base) == 2
+    assert "give --zenoh-connect" in capsys.readouterr().err
+    missing = str(tmp_path / "ttyUSB9")
+    assert swarmseek([*base, "--zenoh-connect", "tcp/127.0.0.1:7447", "--serial", missing]) == 1
+    err = capsys.readouterr().err
+    assert f"swarmseek publish: error: cannot open serial device {missing!r}" in err and "Traceback" not in err
+    for bad in (["--baud", "0"], ["--sysid", "256"], ["--connect", "tcp:nohost"], ["--max-fix-age", "nan"]):
+        try:
+            status = swarmseek([*base, "--zenoh-connect", "tcp/127.0.0.1:7447", *bad])
+        except SystemExit as exc:
+            status = exc.code
+        assert status == 2, bad
+        assert "swarmseek publish: error:" in capsys.readouterr().err
