@@ -3,6 +3,7 @@ store on a real zenoh session, and an autopilot that never gets a GPS fix."""
 from __future__ import annotations
 
 import contextlib
+import os
 import socket
 import threading
 
@@ -101,3 +102,26 @@ class NoFixAutopilot:
                         client.sendall(frames)
                     except OSError:
                         break
+
+
+class LineSensor:
+    """Writes ``0.5``, ``1.5``, ... (CR LF ended, through ``line_format``) into a pseudo terminal's
+    master side at about 10 lines a second until stopped: a sensor that prints one reading a line."""
+
+    def __init__(self, master: int, line_format: str = "{}"):
+        self.master, self.written, self.line_format = master, [], line_format
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.1) and len(self.written) < 600:
+            self.written.append(0.5 + len(self.written))
+            os.write(self.master, (self.line_format.format(self.written[-1]) + "\r\n").encode())
+
+    def __enter__(self) -> "LineSensor":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        self._stop.set()
+        self._thread.join(60.0)

@@ -14,7 +14,7 @@ import numpy as np
 
 from formation.geodesy import geodetic_to_enu
 from mission.cli import main as swarmseek
-from publish_support import HOME_ENU, ORIGIN, NoFixAutopilot, ground_station, mock_autopilot
+from publish_support import HOME_ENU, ORIGIN, LineSensor, NoFixAutopilot, ground_station, mock_autopilot
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 60.0
@@ -47,29 +47,6 @@ class _Stderr:
         self._thread.join(TIMEOUT_S)
 
 
-class _LineSensor:
-    """Writes ``0.5``, ``1.5``, ... (CR LF ended) into a pseudo terminal's master side at about
-    10 lines a second until stopped: a sensor that prints one number a line."""
-
-    def __init__(self, master: int):
-        self.master, self.written = master, []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        while not self._stop.wait(0.1) and len(self.written) < 600:
-            self.written.append(0.5 + len(self.written))
-            os.write(self.master, f"{self.written[-1]}\r\n".encode())
-
-    def __enter__(self) -> "_LineSensor":
-        self._thread.start()
-        return self
-
-    def __exit__(self, *_exc) -> None:
-        self._stop.set()
-        self._thread.join(TIMEOUT_S)
-
-
 def _start_publish(argv: list[str], stdin=None) -> tuple[subprocess.Popen, _Stderr]:
     """``python -m mission publish ARGV`` in a child process, and its stderr."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")])}
@@ -88,7 +65,7 @@ def test_serial_line_sensor_on_a_pseudo_terminal():
         try:
             stderr.wait_for(f"publishing swarmseek/pubs/vehicle/1/sensor from {device}")
             os.write(master, b"abc\n\r\nnan\n" + b"9" * 300 + b"\n")  # four bad lines, one of each reason
-            with _LineSensor(master) as sensor:  # readings before the autopilot's first fix are held
+            with LineSensor(master) as sensor:  # readings before the autopilot's first fix are held
                 assert proc.wait(TIMEOUT_S) == 0, stderr.text()
         finally:
             if proc.poll() is None:
@@ -148,3 +125,31 @@ def test_usage_and_input_errors_are_one_line(capsys, tmp_path):
             status = exc.code
         assert status == 2, bad
         assert "swarmseek publish: error:" in capsys.readouterr().err
+
+
+def test_the_python_api_example_publishes_a_co2_sensors_lines():
+    """examples/real_sensor/co2_serial.py, as shipped, on a pseudo terminal."""
+    master, slave = os.openpty()
+    device = os.ttyname(slave)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    with mock_autopilot("co2") as (_fleet, mavlink), ground_station("co2") as (store, endpoint, _payloads):
+        proc = subprocess.Popen([sys.executable, str(ROOT / "examples" / "real_sensor" / "co2_serial.py"),
+                                 "--serial", device, "--connect", mavlink, "--fleet", "co2", "--zenoh-connect",
+                                 endpoint, "--count", "2"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                text=True, env=env)
+        stderr = _Stderr(proc.stderr)
+        try:
+            stderr.wait_for("publishing swarmseek/co2/vehicle/1/sensor")
+            os.write(master, b"warming up\r\n")
+            with LineSensor(master, "CO2 {} ppm") as sensor:
+                assert proc.wait(TIMEOUT_S) == 0, stderr.text()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            os.close(master)
+            os.close(slave)
+    stderr.join()
+    assert re.search(r"published 2; held \d+ .*; bad values 0; lines without a reading 1", stderr.text()), stderr.text()
+    values = [r.value for r in store.history(1)]
+    assert len(values) == 2 and set(values) <= set(sensor.written)
+    assert store.counts()["rejected"] == dict.fromkeys(store.counts()["rejected"], 0)
