@@ -11,10 +11,15 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import zenoh
 
+from companion.publisher import Publisher
 from formation.geodesy import geodetic_to_enu
 from mission.cli import main as swarmseek
-from publish_support import HOME_ENU, ORIGIN, LineSensor, NoFixAutopilot, ground_station, mock_autopilot
+from publish_support import (HOME_ENU, ORIGIN, LineSensor, NoFixAutopilot, free_tcp_port, ground_station,
+                             mock_autopilot)
+from wait_helpers import wait_until
+from wire.zenoh_config import zenoh_config
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 60.0
@@ -153,3 +158,32 @@ def test_the_python_api_example_publishes_a_co2_sensors_lines():
     values = [r.value for r in store.history(1)]
     assert len(values) == 2 and set(values) <= set(sensor.written)
     assert store.counts()["rejected"] == dict.fromkeys(store.counts()["rejected"], 0)
+
+
+def test_the_listener_example_shows_what_the_ground_station_accepts_and_rejects():
+    """examples/real_sensor/listen.py prints the readings the ground station's checks accept and
+    the rejections with their reason (here ``wrong_schema``)."""
+    port = free_tcp_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, str(ROOT / "examples" / "real_sensor" / "listen.py"), "--fleet", "lis",
+                             "--sysid", "1", "--origin", ",".join(map(str, ORIGIN)), "--zenoh-listen", endpoint,
+                             "--count", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    stderr = _Stderr(proc.stderr)
+    try:
+        stderr.wait_for("listening for swarmseek/lis/vehicle/*/sensor")
+        with mock_autopilot("lis") as (_fleet, mavlink), Publisher(
+                "lis", mavlink=mavlink, zenoh_connect=[endpoint], heartbeat_timeout_s=TIMEOUT_S) as pub:
+            assert pub.wait_for_subscriber(TIMEOUT_S)
+            wait_until(pub.telemetry.latest, TIMEOUT_S, "the autopilot's first position fix")
+            with zenoh.open(zenoh_config(connect=endpoint)) as session:
+                session.put(pub.key, b'{"schema": "other"}')
+            assert pub.put(2.5) and pub.put(3.5)
+            out, _ = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr.text()
+    accepted = re.findall(r"accepted sysid 1 seq (\d) value ([0-9.]+) age [0-9.]+ s at E 12.0 N -7.0 U -?0.0 m", out)
+    assert accepted == [("0", "2.5"), ("1", "3.5")], out
+    assert "rejected 1 (wrong_schema: schema 'other', expected 'swarmseek.sensor.v1')" in out, out
