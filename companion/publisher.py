@@ -92,6 +92,9 @@ class Publisher:
         :meth:`put`, by what became of them.
     last_problem : str or None
         Why the latest value not sent was not sent.
+    telemetry : companion.autopilot.AutopilotTelemetry
+        The autopilot's link: ``telemetry.latest()`` the newest fix, ``telemetry.error`` why the
+        link was lost (None while it lives).
 
     Raises
     ------

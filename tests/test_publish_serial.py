@@ -187,3 +187,22 @@ def test_the_listener_example_shows_what_the_ground_station_accepts_and_rejects(
     accepted = re.findall(r"accepted sysid 1 seq (\d) value ([0-9.]+) age [0-9.]+ s at E 12.0 N -7.0 U -?0.0 m", out)
     assert accepted == [("0", "2.5"), ("1", "3.5")], out
     assert "rejected 1 (wrong_schema: schema 'other', expected 'swarmseek.sensor.v1')" in out, out
+
+
+def test_the_autopilot_going_away_ends_with_a_clear_error_and_the_counts():
+    with ground_station("pubs", sysids=(5,)) as (_store, endpoint, _payloads):
+        with NoFixAutopilot(sysid=5) as autopilot:
+            proc, stderr = _start_publish(["--connect", autopilot.connection, "--retries", "1", "--fleet", "pubs",
+                                           "--zenoh-connect", endpoint, "--wait-subscriber", "30"],
+                                          stdin=subprocess.PIPE)
+            stderr.wait_for("publishing swarmseek/pubs/vehicle/5/sensor from standard input")
+        try:  # the autopilot is gone; standard input stays open
+            assert proc.wait(TIMEOUT_S) == 1, stderr.text()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.stdin.close()
+    stderr.join()
+    err = stderr.text()
+    assert "swarmseek publish: error: lost the MAVLink connection" in err and "Traceback" not in err
+    assert "swarmseek publish: published 0; held 0" in err
