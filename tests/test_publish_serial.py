@@ -206,3 +206,23 @@ def test_the_autopilot_going_away_ends_with_a_clear_error_and_the_counts():
     err = stderr.text()
     assert "swarmseek publish: error: lost the MAVLink connection" in err and "Traceback" not in err
     assert "swarmseek publish: published 0; held 0" in err
+
+
+def test_the_counts_are_reported_while_it_runs():
+    with NoFixAutopilot(sysid=5) as autopilot, ground_station("pubs", sysids=(5,)) as (_store, endpoint, _payloads):
+        proc, stderr = _start_publish(["--connect", autopilot.connection, "--fleet", "pubs", "--zenoh-connect",
+                                       endpoint, "--wait-subscriber", "30", "--report-every", "0.2"],
+                                      stdin=subprocess.PIPE)
+        try:
+            stderr.wait_for("publishing swarmseek/pubs/vehicle/5/sensor from standard input")
+            proc.stdin.write("1.0\n")
+            proc.stdin.flush()
+            # before the end of the input: the periodic report, not the final one
+            stderr.wait_for("swarmseek publish: published 0; held 1 (no position yet 1, stale position 0)")
+            proc.stdin.close()
+            assert proc.wait(TIMEOUT_S) == 0, stderr.text()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    stderr.join()
+    assert stderr.text().count("published 0; held 1 (") == 2  # once while running (unchanged after), once at the end
