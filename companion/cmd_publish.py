@@ -87,7 +87,7 @@ class _Tally:
             shown = "" if line is None else f": {line[:60]!r}"
             self._first(reason, f"bad line ({reason.replace('_', ' ')}){shown}; counted, not published")
         elif not self.publisher.put(value):
-            self._first(f"held:{self.publisher.last_problem}", f"reading held: {self.publisher.last_problem}")
+            self._first(self.publisher.last_reason, f"reading held: {self.publisher.last_problem}")
 
     def _first(self, kind: str, text: str) -> None:
         if kind not in self._told:

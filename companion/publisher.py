@@ -92,6 +92,8 @@ class Publisher:
         :meth:`put`, by what became of them.
     last_problem : str or None
         Why the latest value not sent was not sent.
+    last_reason : str or None
+        Its count name (``bad_value``, ``no_position`` or ``stale_position``).
     telemetry : companion.autopilot.AutopilotTelemetry
         The autopilot's link: ``telemetry.latest()`` the newest fix, ``telemetry.error`` why the
         link was lost (None while it lives).
@@ -118,6 +120,7 @@ class Publisher:
         self.max_fix_age_s = float(max_fix_age_s)
         self.counts = dict.fromkeys(COUNT_NAMES, 0)
         self.last_problem: str | None = None
+        self.last_reason: str | None = None
         self._seq = 0
         self._lock = threading.Lock()
         self._session = self._sensor = None
@@ -161,7 +164,7 @@ class Publisher:
             problem, reading = self._reading(value, time_s)
             if problem is not None:
                 self.counts[problem[0]] += 1
-                self.last_problem = problem[1]
+                self.last_reason, self.last_problem = problem
                 return False
             self._sensor.publish(reading)
             self._seq += 1

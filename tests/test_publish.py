@@ -96,6 +96,7 @@ def test_a_silent_autopilot_holds_readings_as_stale():
             assert pub.put(1.0) is False
             assert pub.counts["stale_position"] == 1 and pub.counts["published"] == 0
             assert pub.last_problem.startswith("latest position fix ")
+            assert pub.last_reason == "stale_position"
         with pytest.raises(RuntimeError, match="closed"):
             pub.put(1.0)
 
@@ -109,6 +110,7 @@ def test_before_the_first_fix_readings_are_held_and_counted():
             assert [pub.put(v) for v in (1.0, 2.0)] == [False, False]
             assert pub.counts["no_position"] == 2 and pub.counts["published"] == 0
             assert pub.last_problem == "no position fix from the autopilot yet"
+            assert pub.last_reason == "no_position"
             assert "held 2 (no position yet 2, stale position 0)" in pub.summary()
     assert "autopilot has no position fix yet (lat = lon = 0); waiting" in told
     assert store.history(5) == []
