@@ -3,7 +3,8 @@ import timeit
 import numpy as np
 from sitl_mock.dynamics_params import DynamicsParams
 from sitl_mock.dynamics import Multicopter
-from sitl_mock.sensor import SignalSensor, encode_reading
+from companion.sensor_wire import encode_reading
+from sitl_mock.sensor import SignalSensor
 from sitl_mock.faults import FaultSet
 from sitl_mock.fields_gaussian import sigma1
 

@@ -187,7 +187,7 @@ class MockFleet:
             if self._zenoh_enabled:
                 import zenoh
 
-                from sitl_mock.sensor import SensorPublisher
+                from companion.sensor_wire import SensorPublisher
                 from wire.zenoh_config import zenoh_config
                 self._session = zenoh.open(zenoh_config(self._zenoh_listen, self._zenoh_connect,
                                                         **self._zenoh_security))

@@ -22,9 +22,10 @@ PACKAGE_RULES = {
     "wire": set(),
     "formation": set(),
     "estimator": {"formation"},
-    "sitl_mock": {"formation", "estimator", "wire"},
+    "sitl_mock": {"formation", "estimator", "wire", "companion"},
     "experiments": {"formation", "estimator", "sitl_mock", "wire"},
     "mission": {"formation", "estimator", "sitl_mock", "experiments", "wire"},
+    "companion": {"wire"},
 }
 #: within mission, the rooms that may import the simulated world and the experiments
 MISSION_OUTSIDE_RULES = {"sitl_mock": {"sim"}, "experiments": {"cli"}}
@@ -114,6 +115,8 @@ def test_imports_only_go_down():
     ("wire/bad.py", "from mission.core.plan import parse_plan\n", "wire must not import mission"),
     ("wire/bad.py", "def f():\n    from sitl_mock import fields\n", "wire must not import sitl_mock"),
     ("formation/bad.py", "import wire.fleet_name\n", "formation must not import wire"),
+    ("companion/bad.py", "def f():\n    import sitl_mock.fleet\n", "companion must not import sitl_mock"),
+    ("mission/cli/bad.py", "from companion.publisher import Publisher\n", "mission must not import companion"),
 ])
 def test_the_check_sees_an_upward_or_forbidden_import(tmp_path, monkeypatch, where, source, expected):
     """The check is not vacuous: a planted upward (even lazy) import is reported."""

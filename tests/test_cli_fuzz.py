@@ -72,6 +72,7 @@ def guards():
     import formation
     import zenoh
 
+    import companion.cmd_publish as cmd_publish
     import experiments.cmd_simulate as cmd_simulate
     import experiments.offline as offline
     import experiments.paper as paper
@@ -101,7 +102,8 @@ def guards():
             (cmd_run, "_make_fleet", _raise_reached), (cmd_fly, "fly", _raise_reached),
             (cmd_dryrun, "dry_run", _raise_reached), (cmd_resume, "resume", resume),
             (zenoh, "open", _raise_reached), (mock_fleet.MockFleet, "start", _raise_reached),
-            (virtual_sensor, "_open_mavlink", _raise_reached), (paper, "generate", _raise_reached),
+            (virtual_sensor, "open_mavlink", _raise_reached), (cmd_publish, "open_input", _raise_reached),
+            (paper, "generate", _raise_reached),
             (sitl_fleet.SitlFleet, "start", _raise_reached), (sitl_fleet, "resolve_sitl_dir", lambda *a, **k: Path(".")),
             (offline, "simulate", _raise_reached), (cmd_simulate, "_simulate_seeker", _raise_reached),
             (cmd_simulate, "_simulate_moving", _raise_reached), (formation, "cvt_sphere", cvt),
@@ -235,6 +237,8 @@ VALID = {
     "mock": ["mock", "--fleet", "demo", "--seed", "4"],
     "sensor": ["sensor", "--connect", "tcp:127.0.0.1:5762", "--origin", "47,8,500", "--field", "sigma2",
                "--zenoh-connect", "tcp/127.0.0.1:7447", "--fleet", "demo"],
+    "publish": ["publish", "--connect", "tcp:127.0.0.1:5762", "--serial", "/dev/ttyUSB0", "--fleet", "demo",
+                "--zenoh-connect", "tcp/127.0.0.1:7447"],
 }
 
 

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from mission.cli import main as cli_main
 from mission.core.plan import parse_plan
 from mission.core.plan_types import PlanError
-from sitl_mock.sensor import sensor_key
+from companion.sensor_wire import sensor_key
 from wire.fleet_name import FLEET_NAME_MAX_CHARS, check_fleet_name, fleet_name_problem
 
 SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
@@ -67,7 +67,7 @@ _NAMES = st.one_of(
 @given(_NAMES)
 def test_zenoh_accepts_every_name_the_rule_accepts_and_the_world_applies_it(name):
     """What passes the rule is a wildcard-free canonical key chunk for zenoh; the simulated
-    sensors' key (``sitl_mock.sensor.sensor_key``) refuses the others with the rule's reason."""
+    sensors' key (``companion.sensor_wire.sensor_key``) refuses the others with the rule's reason."""
     problem = fleet_name_problem(name)
     ok = problem is None
     if ok:

@@ -4,7 +4,7 @@ accepted or counted under one reason, accepted readings are sane.
 Entry point: ``mission.telemetry.readings.ReadingStore.offer(key, payload)`` (what the zenoh callback
 ``ReadingSubscriber._on_sample`` calls with every sample), and ``decode_reading(payload)`` under
 it. The mock has no zenoh input path (it only publishes), so its side is covered by a round trip:
-whatever ``sitl_mock.sensor.encode_reading`` can produce, the coordinator must accept. The
+whatever ``companion.sensor_wire.encode_reading`` can produce, the coordinator must accept. The
 socket-level test publishes garbage through a real zenoh session pair.
 """
 from __future__ import annotations
@@ -29,7 +29,7 @@ from mission.telemetry.reading_format import (
     sensor_key,
 )
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber
-from sitl_mock.sensor import encode_reading
+from companion.sensor_wire import encode_reading
 from wait_helpers import wait_until
 
 FLEET = "demo"

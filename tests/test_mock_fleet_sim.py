@@ -51,7 +51,7 @@ def test_lockstep_fleet_is_deterministic_per_seed():
 
 
 def test_sensor_readings_published_over_zenoh_and_crash_stops_them():
-    from sitl_mock.sensor import sensor_key
+    from companion.sensor_wire import sensor_key
     from wire.zenoh_config import zenoh_config
 
     port = _free_port(socket.SOCK_STREAM)

@@ -9,12 +9,8 @@ import pytest
 
 from sitl_mock.faults import FaultSet
 from sitl_mock.fields_gaussian import sigma1, sigma2
-from sitl_mock.sensor import (
-    SENSOR_SCHEMA,
-    SignalSensor,
-    encode_reading,
-    sensor_key,
-)
+from companion.sensor_wire import SENSOR_SCHEMA, encode_reading, sensor_key
+from sitl_mock.sensor import SignalSensor
 from wire.zenoh_config import zenoh_config
 
 PAYLOAD_KEYS = {"schema", "fleet", "sysid", "seq", "time_s", "lat_deg", "lon_deg", "alt_m", "value"}

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 import zenoh
 
+from companion.sensor_wire import SensorPublisher, sensor_key
 from sitl_mock.faults import FaultSet
 from sitl_mock.fields_gaussian import sigma2
-from sitl_mock.sensor import SensorPublisher, SignalSensor, sensor_key
+from sitl_mock.sensor import SignalSensor
 from wire.zenoh_config import zenoh_config
 from wait_helpers import wait_until
 

@@ -17,7 +17,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from formation.geodesy import enu_to_geodetic, geodetic_to_enu
 from mission.cli import main as swarmseek
 from sitl_mock.fields_config import make_field
-from sitl_mock.sensor import sensor_key
+from companion.sensor_wire import sensor_key
 from wire.zenoh_config import zenoh_config
 
 TIMEOUT_S = 60.0

@@ -13,7 +13,7 @@ import sitl_mock.fleet as fleet_mod
 from formation.geodesy import geodetic_to_enu
 from mission.cli import main as swarmseek
 from sitl_mock.fields_config import make_field
-from sitl_mock.sensor import sensor_key
+from companion.sensor_wire import sensor_key
 from wire.zenoh_config import zenoh_config
 
 TIMEOUT_S = 60.0

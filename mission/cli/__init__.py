@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sitl": ("mission.cli.cmd_sitl", "start a fleet of real PX4 SIH or ArduCopter SITL autopilots until interrupted"),
     "mock": ("sitl_mock.cli", "run a fleet of mock autopilots until interrupted"),
     "sensor": ("sitl_mock.virtual_sensor", "publish readings for a real autopilot's position over zenoh"),
+    "publish": ("companion.cmd_publish", "publish a real sensor's readings (one number a line, serial or stdin) at the autopilot's position over zenoh"),
 }
 
 
