@@ -38,8 +38,9 @@ def add_mission_outputs(parser: argparse.ArgumentParser, command: str, *, log_di
 
 
 def load_plan_or_fail(path, prog: str):
-    """``(plan, None)``, or ``(None, 2)`` once the plan's problems are printed as one line
-    (``"{prog}: {every problem}"``, :class:`~mission.core.plan_types.PlanError`).
+    """``(plan, None)``, or ``(None, 2)`` once the plan's problems are printed (one problem: one
+    line, ``"{prog}: invalid plan in FILE: KEY: WHY"``; several: a line each,
+    :class:`~mission.core.plan_types.PlanError`).
 
     The fence is also built as the safety envelope will build it
     (:class:`mission.safety.fence.Geofence`): a self-intersecting polygon (drawn in the plan or
@@ -51,6 +52,9 @@ def load_plan_or_fail(path, prog: str):
     try:
         plan = load_plan(path)
     except PlanError as exc:
+        if len(exc.problems) == 1:  # one problem, one line
+            key, why = exc.problems[0]
+            return None, fail(prog, f"invalid plan in {path}: {key}: {why}")
         return None, fail(prog, str(exc))
     problem = fence_problem(plan.geofence)
     if problem is not None:
