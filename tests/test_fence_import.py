@@ -304,3 +304,15 @@ def test_a_plan_with_each_example_fence_is_ready_against_a_mock_fleet(plan_path)
     checks = {c["name"]: c["ok"] for c in result.mission_checks}
     assert checks["start_in_fence"] and checks["path_in_fence"], result.mission_checks
     assert not any(v.armed for v in fleet.vehicles)
+
+
+def test_resume_reads_an_imported_fence_back_from_the_log_plan_record():
+    from mission.flight.resume import plan_from_json
+    from mission.telemetry.mission_log import to_jsonable
+
+    plan = load_plan(QGC_PLAN)
+    back = plan_from_json(json.loads(json.dumps(to_jsonable(plan))))
+    assert back.geofence.source_latlon_deg == plan.geofence.source_latlon_deg  # degrees to 1e-9 in the log
+    assert np.allclose(back.geofence.polygon_en_m, plan.geofence.polygon_en_m, atol=1e-6, rtol=0)
+    assert (back.geofence.source, back.geofence.origin_from_file) == (plan.geofence.source, True)
+    assert back.origin == plan.origin
