@@ -158,6 +158,8 @@ _BAD_FILES = {
                                r"2 geoFence inclusion polygons"),
     "plan vertex not numbers": ("f.plan", _qgc(polygons=[{"inclusion": True, "polygon": [[1, 2], ["a", 3], [4, 5]]}]),
                                 r"geoFence vertex 1 \['a', 3\] is not \[lat, lon\]"),
+    "no inclusion flag": ("f.plan", _qgc(polygons=[{"polygon": [list(v) for v in _SQUARE]}]),
+                          r"each geoFence polygon must be an object with \"inclusion\": true or false"),
     "plan latitude > 90": ("f.plan", _qgc(polygons=[{"inclusion": True, "polygon": [[91, 2], [1, 3], [4, 5]]}]),
                            r"vertex 0: latitude 91.0 is outside"),
     "bad home": ("f.plan", _qgc(home=[200, 149.1, 10]), r"plannedHomePosition: latitude 200 is outside"),
@@ -316,3 +318,13 @@ def test_resume_reads_an_imported_fence_back_from_the_log_plan_record():
     assert np.allclose(back.geofence.polygon_en_m, plan.geofence.polygon_en_m, atol=1e-6, rtol=0)
     assert (back.geofence.source, back.geofence.origin_from_file) == (plan.geofence.source, True)
     assert back.origin == plan.origin
+
+
+def test_an_older_qgc_geofence_with_one_polygon_is_read():
+    from mission.core.fence_file import parse_qgc_plan
+
+    ring = [list(v) for v in _latlon(QGC_EN_M)]
+    doc = {"fileType": "Plan", "geoFence": {"polygon": ring, "breachReturn": ring[0], "version": 1}, "version": 1}
+    fence = parse_qgc_plan(json.dumps(doc).encode(), "old.plan")
+    assert fence.polygon_latlon_deg == tuple(tuple(v) for v in ring) and fence.home is None
+    assert np.allclose(fence_in_mission_frame(fence, CMAC), QGC_EN_M, atol=1e-6)

@@ -237,9 +237,9 @@ def parse_qgc_plan(data: bytes, name: str = ".plan") -> FenceFile:
         radius = c.get("circle", {}).get("radius") if isinstance(c, dict) and isinstance(c.get("circle"), dict) else None
         raise FenceFileError(f"{name}: a geoFence {kind} circle (radius {radius!r} m): the safety envelope holds "
                              "one polygon, not circles (draw the fence as a polygon; it is never approximated)")
-    if not all(isinstance(p, dict) for p in polygons):
-        raise FenceFileError(f"{name}: each geoFence polygon must be an object")
-    excluded = [p for p in polygons if p.get("inclusion", True) is not True]
+    if not all(isinstance(p, dict) and isinstance(p.get("inclusion"), bool) for p in polygons):
+        raise FenceFileError(f"{name}: each geoFence polygon must be an object with \"inclusion\": true or false")
+    excluded = [p for p in polygons if not p["inclusion"]]
     if excluded:
         raise FenceFileError(f"{name}: {len(excluded)} geoFence exclusion polygon(s): the safety envelope has "
                              "no exclusion zones (remove them, or fly around them with a smaller fence)")
