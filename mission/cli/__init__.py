@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "watch": ("mission.cli.cmd_watch", "the live table of a running mission, over zenoh from anywhere"),
     "ctl": ("mission.cli.cmd_ctl", "command a running mission over zenoh: pause, continue, abort, land, rtl, return"),
     "plot": ("mission.cli.cmd_plot", "figures of a flown mission from its mission log"),
+    "export": ("mission.cli.cmd_export", "a flown mission as KML (Google Earth) or GeoJSON (QGIS): tracks, fence, estimate"),
     "audit": ("mission.cli.cmd_audit", "check from the .tlog files that no setpoint broke the fence, speed or separation"),
     "paper": ("experiments.paper", "regenerate the paper's table and figures from our own geometry"),
     "simulate": ("experiments.cmd_simulate", "offline source-seeking simulation (perfect tracking, no MAVLink)"),

@@ -23,7 +23,7 @@ from mission.flight.coordinator import Coordinator
 from mission.cli.common import add_plan_argument, load_plan_or_fail
 from wire.cli_args import nonnegative_float, positive_float, usage_error
 
-__all__ = ["configure", "main", "dry_run", "format_readiness"]
+__all__ = ["configure", "main", "dry_run", "format_readiness", "geofence_conversion", "format_geofence_conversion"]
 
 _PROG = "swarmseek dry-run"
 
@@ -62,6 +62,34 @@ async def dry_run(plan, *, clock=None, display=None, zenoh_session=None):
             session.close()
 
 
+def geofence_conversion(plan) -> dict | None:
+    """The conversion of a ``[geofence] file`` into the mission frame: its source, the origin (and
+    whether it is the file's home), each vertex as written in the file (``lat_deg``, ``lon_deg``)
+    and in the mission frame (``north_m``, ``east_m`` about the origin), the altitude band; None
+    when the plan gives its polygon itself."""
+    gf = plan.geofence
+    if not gf.source:
+        return None
+    vertices = [{"lat_deg": lat, "lon_deg": lon, "north_m": round(n, 3) + 0.0, "east_m": round(e, 3) + 0.0}
+                for (lat, lon), (e, n) in zip(gf.source_latlon_deg, gf.polygon_en_m)]
+    return {"source": gf.source, "origin": list(plan.origin), "origin_from_file": gf.origin_from_file,
+            "vertices": vertices, "min_alt_m": gf.min_alt_m, "max_alt_m": gf.max_alt_m}
+
+
+def format_geofence_conversion(conv: dict) -> list[str]:
+    """The lines of :func:`geofence_conversion` (one per vertex)."""
+    lat0, lon0, alt0 = conv["origin"]
+    whence = "the file's home" if conv["origin_from_file"] else "the plan's [origin]"
+    lines = [f"geofence from {conv['source']}",
+             f"  mission frame about {lat0:.7f}, {lon0:.7f}, {alt0:.1f} m AMSL ({whence})",
+             f"  {'vertex':>6}  {'lat_deg':>12} {'lon_deg':>13}  ->  {'north_m':>9} {'east_m':>9}"]
+    lines += [f"  {j:>6}  {v['lat_deg']:>12.7f} {v['lon_deg']:>13.7f}  ->  {v['north_m']:>9.2f} {v['east_m']:>9.2f}"
+              for j, v in enumerate(conv["vertices"])]
+    lines.append(f"  altitude band {conv['min_alt_m']:g} .. {conv['max_alt_m']:g} m up "
+                 "(the plan's min_alt_m, max_alt_m)")
+    return lines
+
+
 def format_readiness(result) -> list[str]:
     """One line per vehicle: READY / NOT READY, the checks and the problems."""
     lines = [f"check {c['name']:<15} {'ok  ' if c['ok'] else 'FAIL'} {c['detail']}"
@@ -97,9 +125,15 @@ def main(args) -> int:
         plan = dataclasses.replace(plan, preflight=dataclasses.replace(
             plan.preflight, autopilot_ready_timeout_s=args.ready_timeout))
     display = Display(quiet=args.json, tty=False, min_interval_s=float("inf")) if args.verbose else None
+    conversion = geofence_conversion(plan)
+    if conversion is not None and not args.json:
+        print("\n".join(format_geofence_conversion(conversion)), flush=True)
     result = asyncio.run(dry_run(plan, display=display))
     if args.json:
-        print(json.dumps(result.to_json(), indent=2))
+        report = result.to_json()
+        if conversion is not None:
+            report["geofence_conversion"] = conversion
+        print(json.dumps(report, indent=2))
     else:
         for line in format_readiness(result):
             print(line)

@@ -14,7 +14,7 @@ from mission.link.forward import out_address
 from wire.cli_args import USAGE_STATUS, fail, path_arg
 from wire.zenoh_secrets import ZenohSecurityError
 
-__all__ = ["add_plan_argument", "add_mission_outputs", "load_plan_or_fail", "run_or_fail"]
+__all__ = ["add_plan_argument", "add_mission_outputs", "fence_problem", "load_plan_or_fail", "run_or_fail"]
 
 
 def add_plan_argument(parser: argparse.ArgumentParser) -> None:
@@ -38,15 +38,44 @@ def add_mission_outputs(parser: argparse.ArgumentParser, command: str, *, log_di
 
 
 def load_plan_or_fail(path, prog: str):
-    """``(plan, None)``, or ``(None, 2)`` once the plan's problems are printed as one line
-    (``"{prog}: {every problem}"``, :class:`~mission.core.plan_types.PlanError`)."""
+    """``(plan, None)``, or ``(None, 2)`` once the plan's problems are printed (one problem: one
+    line, ``"{prog}: invalid plan in FILE: KEY: WHY"``; several: a line each,
+    :class:`~mission.core.plan_types.PlanError`).
+
+    The fence is also built as the safety envelope will build it
+    (:class:`mission.safety.fence.Geofence`): a self-intersecting polygon (drawn in the plan or
+    in its ``[geofence] file``) is an invalid plan here, before anything is contacted.
+    """
     from mission.core.plan import load_plan
     from mission.core.plan_types import PlanError
 
     try:
-        return load_plan(path), None
+        plan = load_plan(path)
     except PlanError as exc:
+        if len(exc.problems) == 1:  # one problem, one line
+            key, why = exc.problems[0]
+            return None, fail(prog, f"invalid plan in {path}: {key}: {why}")
         return None, fail(prog, str(exc))
+    problem = fence_problem(plan.geofence)
+    if problem is not None:
+        return None, fail(prog, f"invalid plan in {path}: {problem}")
+    return plan, None
+
+
+def fence_problem(geofence) -> str | None:
+    """Why the safety envelope cannot hold the plan's ``[geofence]`` (a
+    :class:`~mission.core.plan_types.GeofencePlan`), in one line, or None."""
+    from mission.safety.fence import Geofence
+    from mission.safety.report import SafetyError
+
+    if not geofence.polygon_en_m:
+        return None
+    try:
+        Geofence(geofence.polygon_en_m, geofence.min_alt_m, geofence.max_alt_m)
+    except SafetyError as exc:
+        where = f"geofence.file ({geofence.source})" if geofence.source else "geofence"
+        return f"{where}: {exc}"
+    return None
 
 
 def run_or_fail(prog: str, run, zenoh_message):

@@ -26,6 +26,7 @@ from mission.core.plan_sections import (
     parse_forward,
     parse_formation,
     parse_geofence,
+    parse_geofence_file,
     parse_origin,
     parse_preflight,
     parse_security,
@@ -79,7 +80,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     source : str, optional
         Where it came from (for error messages).
     base_dir : path, optional
-        Relative TLS file paths are resolved against it.
+        Relative TLS and fence file paths are resolved against it.
 
     Raises
     ------
@@ -101,7 +102,9 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     fleet = c.string(doc, "fleet", "", required=True)
     if fleet is not None and fleet_name_problem(fleet):
         c.bad("fleet", f"{fleet_name_problem(fleet)}, got {show_value(fleet)}")
-    origin = parse_origin(c, doc)
+    base = Path(base_dir) if base_dir is not None else None
+    fence_file, fence_file_given = parse_geofence_file(c, doc, base)
+    origin = parse_origin(c, doc, fence_file, fence_file_given)
     vehicles = parse_vehicles(c, doc)
     formation = parse_formation(c, doc)
     seeking = parse_seeking(c, doc)
@@ -115,7 +118,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
         heartbeat_timeout_s=c.number(doc, "heartbeat_timeout_s", "", 10.0, low=0.5, low_open=False),
         min_battery_pct=c.number(doc, "min_battery_pct", "", 30.0, low=0, high=100),
     )
-    geofence = parse_geofence(c, doc, origin)
+    geofence = parse_geofence(c, doc, origin, fence_file)
     faults = parse_faults(c, doc)
     preflight = parse_preflight(c, doc)
     zen = parse_zenoh(c, doc, Path(base_dir) if base_dir is not None else None)

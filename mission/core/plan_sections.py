@@ -13,6 +13,7 @@ from pathlib import Path
 from estimator.seekers import MOVING_SEEKERS, SEEKERS as _SEEKERS
 from estimator.ste_model import BRIGGS_RURAL
 from formation.geodesy import geodetic_to_enu
+from mission.core.fence_file import FenceFile, FenceFileError, fence_in_mission_frame, read_fence_file
 from mission.core.plan_checks import Checker, check_connection, join_key, polygon_area, show_value
 from mission.core.plan_types import (PLUME_MODES, SAMPLINGS, ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
                                      PreflightPlan, SeekingPlan, VehiclePlan)
@@ -23,6 +24,7 @@ __all__ = [
     "RETURN_BEHAVIOURS",
     "parse_faults",
     "parse_origin",
+    "parse_geofence_file",
     "parse_vehicles",
     "parse_formation",
     "parse_seeking",
@@ -60,8 +62,41 @@ def parse_faults(c: Checker, doc: dict) -> FaultsPlan:
                       faulty_sensor=faulty, retire_after=after, retire_min_noise_ratio=ratio)
 
 
-def parse_origin(c: Checker, doc: dict):
-    """``[origin]`` (required): ``(lat_deg, lon_deg, alt_m)``, or None if invalid."""
+def parse_geofence_file(c: Checker, doc: dict, base_dir: Path | None) -> tuple[FenceFile | None, bool]:
+    """``[geofence] file``: ``(the fence file read, whether the key is given)``; the file is None
+    when absent or refused (the reason recorded under ``geofence.file``). A relative path is
+    relative to the plan file (``base_dir``)."""
+    t = doc.get("geofence")
+    if not isinstance(t, dict) or "file" not in t:
+        return None, False
+    name = c.string(t, "file", "geofence")
+    if name is None:
+        return None, True
+    path = Path(name).expanduser()
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    try:
+        return read_fence_file(path), True
+    except FenceFileError as exc:
+        c.bad("geofence.file", str(exc))
+        return None, True
+
+
+def parse_origin(c: Checker, doc: dict, fence_file: FenceFile | None = None, file_given: bool = False):
+    """``[origin]`` (required, unless the ``[geofence] file`` gives a home: then that home):
+    ``(lat_deg, lon_deg, alt_m)``, or None if invalid."""
+    if "origin" not in doc and file_given:
+        if fence_file is None:
+            return None  # the file was refused: that is the problem to fix first
+        if fence_file.home is None:
+            why = fence_file.home_problem or f"{fence_file.path} gives no home position"
+            c.bad("origin", f"required table missing, and the geofence file cannot stand in: {why}")
+            return None
+        lat, lon, alt = fence_file.home
+        if not -500 <= alt <= 9000:
+            c.bad("origin", f"the geofence file's home altitude {alt} m is outside -500..9000 m")
+            return None
+        return (lat, lon, alt)
     t = c.table(doc, "origin", required=True)
     c.unknown(t, ("lat_deg", "lon_deg", "alt_m"), "origin")
     lat = c.number(t, "lat_deg", "origin", low=-90, high=90, required=True)
@@ -207,20 +242,23 @@ def _check_keys_apply(c: Checker, t: dict, seeker: str | None, sampling: str | N
                         " (remove the key)")
 
 
-def parse_geofence(c: Checker, doc: dict, origin) -> GeofencePlan | None:
-    """``[geofence]`` (required): polygon (mission ENU or lat/lon, converted about ``origin``) and
-    altitude band, or None if invalid."""
+def parse_geofence(c: Checker, doc: dict, origin, fence_file: FenceFile | None = None) -> GeofencePlan | None:
+    """``[geofence]`` (required): polygon (mission ENU, lat/lon or a fence file, converted about
+    ``origin``) and altitude band, or None if invalid."""
     t = c.table(doc, "geofence")
     p = "geofence"
-    c.unknown(t, ("polygon_enu_m", "polygon_latlon_deg", "min_alt_m", "max_alt_m"), p)
+    c.unknown(t, ("polygon_enu_m", "polygon_latlon_deg", "file", "min_alt_m", "max_alt_m"), p)
     lo = c.number(t, "min_alt_m", p, 2.0)
     hi = c.number(t, "max_alt_m", p, 120.0)
     if lo is not None and hi is not None and lo >= hi:
         c.bad(f"{p}.max_alt_m", f"must be greater than min_alt_m ({lo}), got {hi}")
         hi = None
-    if "polygon_enu_m" in t and "polygon_latlon_deg" in t:
-        c.bad(p, "give polygon_enu_m or polygon_latlon_deg, not both")
+    given = [k for k in ("polygon_enu_m", "polygon_latlon_deg", "file") if k in t]
+    if len(given) > 1:
+        c.bad(p, f"give one of polygon_enu_m, polygon_latlon_deg or file, not {' and '.join(given)}")
         return None
+    if "file" in t:
+        return _geofence_from_file(c, fence_file, origin, lo, hi, "origin" not in doc)
     polygon: list[tuple[float, float]] = []
     for key in ("polygon_enu_m", "polygon_latlon_deg"):
         if key not in t:
@@ -249,11 +287,31 @@ def parse_geofence(c: Checker, doc: dict, origin) -> GeofencePlan | None:
             c.bad(path, "the polygon has zero area")
             return None
     if "polygon_enu_m" not in t and "polygon_latlon_deg" not in t:
-        c.bad(p, "required: a polygon_enu_m or polygon_latlon_deg of at least 3 vertices")
+        c.bad(p, "required: a polygon_enu_m or polygon_latlon_deg of at least 3 vertices, or a fence file")
         return None
     if lo is None or hi is None:
         return None
     return GeofencePlan(polygon_en_m=tuple(polygon), min_alt_m=lo, max_alt_m=hi)
+
+
+def _geofence_from_file(c: Checker, fence_file: FenceFile | None, origin, lo, hi,
+                        origin_from_file: bool) -> GeofencePlan | None:
+    """The ``[geofence]`` of a fence file: its polygon converted about ``origin``, the plan's band."""
+    if fence_file is None or origin is None:
+        return None  # refused (reported by parse_geofence_file) or no origin (reported by parse_origin)
+    try:
+        polygon = fence_in_mission_frame(fence_file, origin)
+    except FenceFileError as exc:
+        c.bad("geofence.file", str(exc))
+        return None
+    if abs(polygon_area(polygon)) < 1e-6:
+        c.bad("geofence.file", f"{fence_file.path}: the polygon has zero area")
+        return None
+    if lo is None or hi is None:
+        return None
+    return GeofencePlan(polygon_en_m=polygon, min_alt_m=lo, max_alt_m=hi,
+                        source=f"{fence_file.path}: {fence_file.what}",
+                        source_latlon_deg=fence_file.polygon_latlon_deg, origin_from_file=origin_from_file)
 
 
 def parse_security(c: Checker, doc: dict, base_dir: Path | None) -> SigningConfig | None:

@@ -172,11 +172,26 @@ class SeekingPlan:
 
 @dataclass(frozen=True)
 class GeofencePlan:
-    """Geofence: polygon vertices (east_m, north_m) in the mission frame and altitude band (up_m)."""
+    """Geofence: polygon vertices (east_m, north_m) in the mission frame and altitude band (up_m).
+
+    Attributes
+    ----------
+    source : str
+        Where a polygon read from a file (``[geofence] file``) came from, in words (the file and
+        the fence in it: ``fence.kml: KML Polygon 'Search area'``); empty when the plan gives it.
+    source_latlon_deg : tuple of (float, float)
+        That file's vertices ``(lat_deg, lon_deg)``, as written in it (``polygon_en_m`` is their
+        conversion about the origin).
+    origin_from_file : bool
+        The plan has no ``[origin]``: the mission origin is the file's home.
+    """
 
     polygon_en_m: tuple[tuple[float, float], ...] = ()
     min_alt_m: float = 2.0
     max_alt_m: float = 120.0
+    source: str = ""
+    source_latlon_deg: tuple[tuple[float, float], ...] = ()
+    origin_from_file: bool = False
 
 
 @dataclass(frozen=True)

@@ -128,6 +128,7 @@ def plan_from_json(d: dict) -> Plan:
             sk["start_enu_m"] = tuple(float(v) for v in sk["start_enu_m"])
         gf = dict(d["geofence"])
         gf["polygon_en_m"] = _tuple_of_tuples(gf.get("polygon_en_m") or ())
+        gf["source_latlon_deg"] = _tuple_of_tuples(gf.get("source_latlon_deg") or ())
         zn = dict(d["zenoh"])
         zn["listen"], zn["connect"] = tuple(zn.get("listen") or ()), tuple(zn.get("connect") or ())
         top = {k: d[k] for k in ("fleet", "max_speed_m_s", "min_separation_m", "takeoff_alt_m",

@@ -98,9 +98,12 @@ def to_jsonable(obj):
 
 
 def _degrees(value):
-    """An angle entry (``*_deg``): 9 decimals (0.1 mm on the ground) instead of 6 (0.1 m)."""
+    """An angle entry (``*_deg``): 9 decimals (0.1 mm on the ground) instead of 6 (0.1 m), also
+    in a list of them (a fence file's ``source_latlon_deg`` vertices)."""
     if isinstance(value, (np.floating, float)) and math.isfinite(float(value)):
         return round(float(value), 9)
+    if isinstance(value, (list, tuple)):
+        return [_degrees(v) for v in value]
     return to_jsonable(value)
 
 
@@ -108,10 +111,11 @@ def dataclass_json(obj) -> dict:
     """The fields of dataclass instance ``obj`` through :func:`to_jsonable`, secret ones redacted.
 
     Unlike ``dataclasses.asdict``, a nested value's own ``to_json()`` is used (a signing
-    configuration writes its fingerprint, never its key).
+    configuration writes its fingerprint, never its key); a ``*_deg`` field keeps 9 decimals, as a
+    ``*_deg`` dict entry does.
     """
-    return {f.name: REDACTED if is_secret_field(f) else to_jsonable(getattr(obj, f.name))
-            for f in dataclasses.fields(obj)}
+    return {f.name: REDACTED if is_secret_field(f) else _degrees(getattr(obj, f.name)) if f.name.endswith("_deg")
+            else to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
 
 
 class MissionLog:
