@@ -495,7 +495,58 @@ def test_the_plan_record_carries_the_findings(tmp_path):
     asyncio.run(co.dry_run())
     co.log.close()
     record = next(r for r in iter_mission_log(log_path) if r["type"] == "plan")
-    assert [(f["level"], f["key"]) for f in record["security"]] == [
+    assert [(f["level"], f["key"]) for f in record["security_check"]] == [
         ("warn", "zenoh.allow_unauthenticated_network"), ("warn", "zenoh.access_control"),
         ("info", "forward.out[0]")]
     assert refusals(check_security(plan)) == []
+
+
+# --------------------------------------------------------------------------- docs/security.md
+def _snippets() -> list[str]:
+    text = (ROOT / "docs" / "security.md").read_text()
+    return [block.split("```", 1)[0] for block in text.split("```toml\n")[1:]]
+
+
+def _files_for(doc: dict, base: Path) -> None:
+    """Create every file a snippet names (certificates, keys, secrets) under ``base``."""
+    zen = doc.get("zenoh", {})
+    paths = list(zen.get("tls", {}).values()) + list(zen.get("auth", {}).values())
+    for rel in [p for p in paths if isinstance(p, str)]:
+        (base / rel).parent.mkdir(parents=True, exist_ok=True)
+        write_private(base / rel, b"sensor1:x\n" if rel.endswith(".txt") else b"-----BEGIN-----\n")
+    key = doc.get("security", {}).get("signing_key_file")
+    if key:
+        (base / key).parent.mkdir(parents=True, exist_ok=True)
+        write_private(base / key, bytes(range(1, 33)).hex().encode())
+
+
+@pytest.mark.parametrize("index, levels", [
+    (0, []), (1, ["info"]), (2, ["info"]), (3, ["info", "info"]), (4, ["warn", "warn"]), (5, [])])
+def test_the_plans_to_copy_in_docs_security_are_accepted(tmp_path, index, levels):
+    snippets = _snippets()
+    assert len(snippets) == 6
+    block = tomllib.loads(snippets[index])
+    doc = _doc(block.get("zenoh"), **{k: v for k, v in block.items() if k not in ("zenoh", "vehicles")})
+    if "vehicles" in block:  # the radio plan: every vehicle on the snippet's radio
+        doc["vehicles"] = [dict(v, connection=block["vehicles"][0]["connection"]) for v in doc["vehicles"]]
+    _files_for(doc, tmp_path)
+    plan = parse_plan(doc, base_dir=tmp_path)
+    assert [f.level for f in check_security(plan)] == levels
+
+
+def test_resume_refuses_an_open_plan_read_back_from_a_log(tmp_path):
+    """A log written before the check existed (or by hand) does not bypass it."""
+    import dataclasses
+
+    from mission.telemetry.mission_log import to_jsonable
+
+    plan = load_plan(SAMPLE)
+    plan = dataclasses.replace(plan, zenoh=dataclasses.replace(plan.zenoh, listen=("tcp/0.0.0.0:7447",)))
+    log = tmp_path / "mission.jsonl"
+    log.write_text(json.dumps({"t_s": 1.0, "type": "plan", "plan": to_jsonable(plan), "resumed": False}) + "\n")
+    before = log.read_bytes()
+    p = _swarmseek("resume", str(log), "--no-tlog")
+    assert p.returncode == 2, p.stdout + p.stderr
+    assert p.stderr.startswith("swarmseek resume: refused: zenoh.listen: tcp/0.0.0.0:7447 can be reached from the "
+                               "network") and len(p.stderr.splitlines()) == 1, p.stderr
+    assert log.read_bytes() == before  # nothing appended: nothing re-engaged

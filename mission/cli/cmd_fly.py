@@ -85,9 +85,6 @@ def _main(args, terminal) -> int:
     if plan is None:
         return status
     plan = plan_with_outs(plan, args.out)
-    status = security_or_fail(plan, _PROG)  # warns on every start (the plan's refusals came with it)
-    if status is not None:
-        return status
     if not plan.zenoh.listen and not plan.zenoh.connect:
         return fail(_PROG, "the plan's [zenoh] section has no listen or connect endpoint: "
                            "no reading could arrive (multicast scouting is off)")
@@ -102,6 +99,9 @@ def _main(args, terminal) -> int:
         return usage_error(_PROG, problem)
     from mission.core.zenoh_errors import zenoh_open_message
 
+    status = security_or_fail(plan, _PROG)  # warns on every start (the plan's refusals came with it)
+    if status is not None:
+        return status
     announce_log("fly", log_dir / "mission.jsonl", args.json)
     display = Display(quiet=args.json)
     result, status = run_or_fail(

@@ -101,14 +101,14 @@ def _main(args, terminal) -> int:
             return status
     try:
         flown = _flown_plan(args.log, plan)
-        status = security_or_fail(flown, _PROG) if flown is not None else None
-        if status is not None:  # e.g. an insecure plan in a log written before the check existed
-            return status
         addresses = resolve_outs(flown.forward.out) if flown is not None else {}
     except ResumeError as exc:
         return fail(_PROG, str(exc))
     except ForwardAddressError as exc:
         return usage_error(_PROG, f"{exc}; nothing re-engaged")
+    status = security_or_fail(flown, _PROG) if flown is not None else None
+    if status is not None:  # e.g. an insecure plan in a log written before the check existed
+        return status
     from mission.cli.paths import announce_log, summary_log_line
     from mission.core.zenoh_errors import clean_zenoh_error
 

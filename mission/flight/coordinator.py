@@ -73,8 +73,8 @@ class Coordinator:
                  display=None, tlog_dir=None, state_rate_hz: float = 2.0, status_period_s: float = 1.0,
                  zenoh_problem: str | None = None):
         self.plan = plan
-        #: the plan's security findings (:mod:`mission.core.plan_security`): in the log's plan
-        #: record, and the warnings in every state publication (``watch`` prints them)
+        #: the plan's security findings (:mod:`mission.core.plan_security`): the log's plan record
+        #: (``security_check``), and the warnings in every state publication (``watch`` prints them)
         self.security = check_security(plan)
         self.clock = clock
         self.session = zenoh_session
@@ -315,7 +315,7 @@ class Coordinator:
     async def dry_run(self) -> MissionResult:
         """Connect and run the preflight checks; arms nothing. Outcome ``ready`` or ``not_ready``."""
         if self.log is not None:
-            self.log.write("plan", plan=_plan_json(self.plan), dry_run=True, security=self._security_json())
+            self.log.write("plan", plan=_plan_json(self.plan), dry_run=True, security_check=self._security_json())
         self._start_background()
         try:
             await connect_phase.connect(self, required=False)
@@ -350,7 +350,7 @@ class Coordinator:
         """
         if self.log is not None:
             self.log.write("plan", plan=_plan_json(self.plan), resumed=resume_state is not None,
-                           security=self._security_json())
+                           security_check=self._security_json())
         self._start_background()
         outcome, message = "aborted", ""
         try:
