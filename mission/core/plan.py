@@ -116,16 +116,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     vehicles = parse_vehicles(c, doc)
     formation = parse_formation(c, doc)
     seeking = parse_seeking(c, doc)
-    top = dict(
-        max_speed_m_s=c.number(doc, "max_speed_m_s", "", 3.0, low=0, low_open=True, high=30),
-        min_separation_m=c.number(doc, "min_separation_m", "", 1.5, low=0, low_open=True),
-        takeoff_alt_m=c.number(doc, "takeoff_alt_m", "", 10.0, low=1.0, high=500),
-        return_behaviour=c.string(doc, "return", "", "land", choices=RETURN_BEHAVIOURS),
-        stagger_s=c.number(doc, "stagger_s", "", 1.0, low=0, high=60),
-        setpoint_rate_hz=c.number(doc, "setpoint_rate_hz", "", 10.0, low=2.0, high=100),
-        heartbeat_timeout_s=c.number(doc, "heartbeat_timeout_s", "", 10.0, low=0.5, low_open=False),
-        min_battery_pct=c.number(doc, "min_battery_pct", "", 30.0, low=0, high=100),
-    )
+    top = _top_level(c, doc)
     geofence = parse_geofence(c, doc, origin)
     faults = parse_faults(c, doc)
     preflight = parse_preflight(c, doc)
@@ -144,6 +135,20 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     if refused:
         raise PlanSecurityError(refused, source)
     return plan
+
+
+def _top_level(c: Checker, doc: dict) -> dict:
+    """The plan's top-level numbers and the return behaviour, by :class:`Plan` field name."""
+    return dict(
+        max_speed_m_s=c.number(doc, "max_speed_m_s", "", 3.0, low=0, low_open=True, high=30),
+        min_separation_m=c.number(doc, "min_separation_m", "", 1.5, low=0, low_open=True),
+        takeoff_alt_m=c.number(doc, "takeoff_alt_m", "", 10.0, low=1.0, high=500),
+        return_behaviour=c.string(doc, "return", "", "land", choices=RETURN_BEHAVIOURS),
+        stagger_s=c.number(doc, "stagger_s", "", 1.0, low=0, high=60),
+        setpoint_rate_hz=c.number(doc, "setpoint_rate_hz", "", 10.0, low=2.0, high=100),
+        heartbeat_timeout_s=c.number(doc, "heartbeat_timeout_s", "", 10.0, low=0.5, low_open=False),
+        min_battery_pct=c.number(doc, "min_battery_pct", "", 30.0, low=0, high=100),
+    )
 
 
 def _check_across_sections(c: Checker, vehicles, formation, seeking, geofence, top: dict) -> None:
