@@ -78,7 +78,7 @@ def main(args: argparse.Namespace) -> int:
     from sitl_mock.fleet import DEFAULT_ORIGIN, MockFleet
     from sitl_mock.sensor_response import set_fleet_response
     from sitl_mock.transport import PortInUseError
-    from wire.zenoh_flags import ZenohFlagError, security_kwargs
+    from wire.zenoh_flags import ZenohFlagError, plain_network_warning, security_kwargs
 
     for sysid, _name, _value in args.fault:
         if sysid > args.vehicles:
@@ -92,6 +92,9 @@ def main(args: argparse.Namespace) -> int:
         zenoh_security = security_kwargs(args)
     except ZenohFlagError as exc:
         return usage_error(_PROG, str(exc))
+    warning = plain_network_warning(_PROG, args.zenoh_listen, args.zenoh_connect)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
     signing_key = None
     if args.signing_key_file is not None:
         try:

@@ -28,7 +28,7 @@ from sitl_mock.faults import FaultSet
 from sitl_mock.sensor import SignalSensor
 from wire.cli_args import fail, nonnegative_float, origin_geodetic, positive_float, source_enu, usage_error
 from wire.zenoh_config import zenoh_config
-from wire.zenoh_flags import ZenohFlagError, add_endpoint_arguments, security_kwargs
+from wire.zenoh_flags import ZenohFlagError, add_endpoint_arguments, plain_network_warning, security_kwargs
 from wire.zenoh_flags import add_arguments as _add_zenoh_security_arguments
 
 __all__ = ["VirtualSensorError", "configure", "main", "run"]
@@ -196,6 +196,9 @@ def main(args: argparse.Namespace) -> int:
         security_kwargs(args)
     except ZenohFlagError as exc:
         return usage_error(_PROG, str(exc))
+    warning = plain_network_warning(_PROG, args.zenoh_listen, args.zenoh_connect)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
     try:
         run(args)
     except (VirtualSensorError, AutopilotError) as exc:

@@ -6,5 +6,6 @@
 * :mod:`wire.zenoh_config` - a zenoh session configuration with explicit endpoints;
 * :mod:`wire.zenoh_secrets` - the password file and user dictionary of zenoh security;
 * :mod:`wire.zenoh_flags` - the ``--zenoh-tls-*`` / ``--zenoh-user`` command-line flags;
+* :mod:`wire.loopback` - is an address on this machine only (the security checks' rule);
 * :mod:`wire.cli_args` - argparse argument types (numbers in ranges, coordinates, paths).
 """

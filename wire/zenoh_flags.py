@@ -8,6 +8,8 @@ password is never on the command line; a world-readable password file is refused
 arguments of :func:`wire.zenoh_config.zenoh_config`: the certificate and key become ``listen_*``
 for ``tls/`` listen endpoints and ``connect_*`` for ``tls/`` connect endpoints. The password file
 is read by :func:`wire.zenoh_secrets.read_password_file`, as the plan's ``[zenoh.auth]`` one is.
+:func:`plain_network_warning` is the warning ``ctl``, ``watch``, ``sensor`` and ``mock`` print when
+an endpoint another machine can reach is not TLS (:mod:`wire.loopback`'s rule).
 """
 from __future__ import annotations
 
@@ -15,9 +17,10 @@ import argparse
 from pathlib import Path
 
 from wire.cli_args import path_problem, zenoh_endpoint
+from wire.loopback import IsLoopback, host_is_loopback, network_endpoints
 from wire.zenoh_secrets import ZenohSecurityError, read_password_file
 
-__all__ = ["ZenohFlagError", "add_arguments", "add_endpoint_arguments", "security_kwargs"]
+__all__ = ["ZenohFlagError", "add_arguments", "add_endpoint_arguments", "plain_network_warning", "security_kwargs"]
 
 
 class ZenohFlagError(ValueError):
@@ -129,3 +132,30 @@ def security_kwargs(args: argparse.Namespace) -> dict:
         except ZenohSecurityError as exc:
             raise ZenohFlagError(f"--zenoh-password-file: {exc}") from None
     return out
+
+
+def plain_network_warning(prog: str, listen, connect, is_loopback: IsLoopback = host_is_loopback) -> str | None:
+    """The one-line warning for zenoh endpoints another machine can reach without TLS, or None.
+
+    Parameters
+    ----------
+    prog : str
+        The command (``"swarmseek ctl"``), first on the line.
+    listen, connect : iterable of str or None
+        The session's endpoints.
+    is_loopback : callable
+        ``host -> bool`` (default :func:`wire.loopback.host_is_loopback`).
+
+    Returns
+    -------
+    str or None
+        ``"PROG: warning: ..."`` naming the plain (not ``tls/``) network endpoints; None when every
+        network endpoint is TLS or every endpoint is loopback.
+    """
+    plain = [ep for ep in network_endpoints(list(listen or ()) + list(connect or ()), is_loopback)
+             if not _is_tls(ep)]
+    if not plain:
+        return None
+    return (f"{prog}: warning: {', '.join(plain)} is not loopback and not TLS: anyone on the network path "
+            f"can read what this session sends and receives (commands, readings, the mission state) and "
+            f"pose as its peer; use tls/ endpoints with --zenoh-tls-ca (docs/security.md)")

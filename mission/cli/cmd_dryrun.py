@@ -4,7 +4,9 @@ Prints each mission-wide check (zenoh session, a reading from every sensor, star
 formation paths inside the geofence: :mod:`mission.flight.readiness_mission`) and each vehicle's
 readiness (every check and why it failed). Exit status: 0 ready to seek, 1 a check failed (a
 vehicle not ready or unreachable, no readings, zenoh unreachable, start or path outside the
-fence), 2 invalid plan (also: a ``[forward] out`` host name that does not resolve, as ``fly``).
+fence), 2 invalid plan (also: a ``[forward] out`` host name that does not resolve, as ``fly``; a plan
+the security check refuses, :mod:`mission.core.plan_security`). The security check's warnings and
+infos come first, one ``security LEVEL KEY: TEXT`` line each (``--json``: the ``security`` list).
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ from mission.core.zenoh_errors import zenoh_open_message
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
 from mission.cli.common import add_plan_argument, load_plan_or_fail
+from mission.core.plan_security import check_security
 from wire.cli_args import nonnegative_float, positive_float, usage_error
 
 __all__ = ["configure", "main", "dry_run", "format_readiness", "geofence_conversion", "format_geofence_conversion"]
@@ -124,13 +127,17 @@ def main(args) -> int:
     if args.ready_timeout is not None:  # the argument types refuse negative, NaN and infinite values
         plan = dataclasses.replace(plan, preflight=dataclasses.replace(
             plan.preflight, autopilot_ready_timeout_s=args.ready_timeout))
+    findings = check_security(plan)  # refusals came with the plan; warnings and infos here, first
+    if not args.json:
+        for finding in findings:
+            print(f"security {finding.line()}", flush=True)
     display = Display(quiet=args.json, tty=False, min_interval_s=float("inf")) if args.verbose else None
     conversion = geofence_conversion(plan)
     if conversion is not None and not args.json:
         print("\n".join(format_geofence_conversion(conversion)), flush=True)
     result = asyncio.run(dry_run(plan, display=display))
     if args.json:
-        report = result.to_json()
+        report = {**result.to_json(), "security": [f.to_json() for f in findings]}
         if conversion is not None:
             report["geofence_conversion"] = conversion
         print(json.dumps(report, indent=2))

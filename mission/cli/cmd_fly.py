@@ -14,7 +14,7 @@ import argparse
 import asyncio
 from pathlib import Path
 
-from mission.cli.common import add_mission_outputs, add_plan_argument, load_plan_or_fail, run_or_fail
+from mission.cli.common import add_mission_outputs, add_plan_argument, load_plan_or_fail, run_or_fail, security_or_fail
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
 from mission.core.clock import WallClock
@@ -99,6 +99,9 @@ def _main(args, terminal) -> int:
         return usage_error(_PROG, problem)
     from mission.core.zenoh_errors import zenoh_open_message
 
+    status = security_or_fail(plan, _PROG)  # warns on every start (the plan's refusals came with it)
+    if status is not None:
+        return status
     announce_log("fly", log_dir / "mission.jsonl", args.json)
     display = Display(quiet=args.json)
     result, status = run_or_fail(

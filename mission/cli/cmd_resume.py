@@ -21,8 +21,8 @@ import asyncio
 from pathlib import Path
 
 from mission.cli.cmd_fly import fly_logged
-from mission.cli.common import add_mission_outputs, load_plan_or_fail, run_or_fail
-from mission.link.forward import ForwardAddressError
+from mission.cli.common import add_mission_outputs, load_plan_or_fail, run_or_fail, security_or_fail
+from mission.link.forward import ForwardAddressError, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
 from mission.core.clock import WallClock
@@ -100,11 +100,15 @@ def _main(args, terminal) -> int:
         if plan is None:
             return status
     try:
-        addresses = _forward_addresses(args.log, plan)
+        flown = _flown_plan(args.log, plan)
+        addresses = resolve_outs(flown.forward.out) if flown is not None else {}
     except ResumeError as exc:
         return fail(_PROG, str(exc))
     except ForwardAddressError as exc:
         return usage_error(_PROG, f"{exc}; nothing re-engaged")
+    status = security_or_fail(flown, _PROG) if flown is not None else None
+    if status is not None:  # e.g. an insecure plan in a log written before the check existed
+        return status
     from mission.cli.paths import announce_log, summary_log_line
     from mission.core.zenoh_errors import clean_zenoh_error
 
@@ -128,29 +132,24 @@ def _main(args, terminal) -> int:
     return exit_status(result, status)
 
 
-def _forward_addresses(log_path: Path, plan) -> dict:
-    """The ``[forward] out`` of the plan the resumed mission flies (``plan``, else the log's), each
-    host resolved once, before the event loop starts (a log without a plan record: none here,
-    :func:`resume` then says why it cannot be resumed).
+def _flown_plan(log_path: Path, plan):
+    """The plan the resumed mission flies: ``plan``, else the log's (None for a log without a plan
+    record: :func:`resume` then says why it cannot be resumed). Its ``[forward] out`` hosts are
+    resolved and its security checked before the event loop starts.
 
     Raises
     ------
     mission.flight.resume.ResumeError
         The log cannot be read, or its plan record is malformed.
-    mission.link.forward.ForwardAddressError
-        An address that is invalid or does not resolve.
     """
     from mission.flight.resume import ResumeError, plan_from_json
-    from mission.link.forward import resolve_outs
     from mission.telemetry.mission_log import iter_mission_log
 
-    if plan is None:
-        try:
-            record = next((r for r in iter_mission_log(log_path)
-                           if r.get("type") == "plan" and not r.get("dry_run")), None)
-        except (OSError, ValueError) as exc:
-            raise ResumeError(f"cannot read {log_path}: {exc}") from None
-        if record is None:
-            return {}
-        plan = plan_from_json(record.get("plan") or {})
-    return resolve_outs(plan.forward.out)
+    if plan is not None:
+        return plan
+    try:
+        record = next((r for r in iter_mission_log(log_path)
+                       if r.get("type") == "plan" and not r.get("dry_run")), None)
+    except (OSError, ValueError) as exc:
+        raise ResumeError(f"cannot read {log_path}: {exc}") from None
+    return None if record is None else plan_from_json(record.get("plan") or {})

@@ -38,7 +38,7 @@ def open_zenoh(args, prog: str, wait_s: float | None = None):
     import zenoh
 
     from wire.zenoh_config import zenoh_config
-    from wire.zenoh_flags import ZenohFlagError, security_kwargs
+    from wire.zenoh_flags import ZenohFlagError, plain_network_warning, security_kwargs
 
     if not args.zenoh_connect and not args.zenoh_listen:
         return None, f"{prog}: give --zenoh-connect (the coordinator's or a router's endpoint) and/or --zenoh-listen", 2
@@ -46,6 +46,9 @@ def open_zenoh(args, prog: str, wait_s: float | None = None):
         conf = zenoh_config(listen=args.zenoh_listen, connect=args.zenoh_connect, **security_kwargs(args))
     except (ZenohFlagError, ValueError) as exc:
         return None, f"{prog}: {exc}", 2
+    warning = plain_network_warning(prog, args.zenoh_listen, args.zenoh_connect)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
     if not args.zenoh_listen:  # a monitor is a zenoh client of the ground station or the router
         conf.insert_json5("mode", json.dumps("client"))
     deadline = None if wait_s is None else time.monotonic() + wait_s
@@ -83,6 +86,8 @@ def _watch(watcher, display, as_json: bool, wait_s: float | None) -> int:
                       file=sys.stderr)
                 return 3
             continue
+        if not heard:
+            _security_warnings(watcher.fleet, state)
         heard = True
         if as_json:
             print(json.dumps(state), flush=True)
@@ -92,6 +97,15 @@ def _watch(watcher, display, as_json: bool, wait_s: float | None) -> int:
             if not as_json:
                 print(f"swarmseek watch: the mission of fleet {watcher.fleet!r} ended", flush=True)
             return 0
+
+
+def _security_warnings(fleet: str, state: dict) -> None:
+    """The mission's security warnings (its plan's, :mod:`mission.core.plan_security`), on stderr
+    when the first state arrives: e.g. an open command channel the plan allowed."""
+    for finding in state.get("security_warnings") or ():
+        if isinstance(finding, dict):
+            print(f"swarmseek watch: warning: fleet {fleet!r}: {str(finding.get('key'))[:80]}: "
+                  f"{str(finding.get('text'))[:600]}", file=sys.stderr, flush=True)
 
 
 def main(args) -> int:

@@ -9,12 +9,14 @@ commands; the zenoh endpoint and security flags are :mod:`wire.zenoh_flags`.
 from __future__ import annotations
 
 import argparse
+import sys
 
 from mission.link.forward import out_address
 from wire.cli_args import USAGE_STATUS, fail, path_arg
 from wire.zenoh_secrets import ZenohSecurityError
 
-__all__ = ["add_plan_argument", "add_mission_outputs", "fence_problem", "load_plan_or_fail", "run_or_fail"]
+__all__ = ["add_plan_argument", "add_mission_outputs", "fence_problem", "load_plan_or_fail", "run_or_fail",
+           "security_or_fail"]
 
 
 def add_plan_argument(parser: argparse.ArgumentParser) -> None:
@@ -92,3 +94,20 @@ def run_or_fail(prog: str, run, zenoh_message):
         return None, fail(prog, f"cannot write the mission log: {exc}", 1)
     except ZenohSecurityError as exc:  # e.g. the password file became unreadable since the plan loaded
         return None, fail(prog, f"zenoh security settings: {exc}", USAGE_STATUS)
+
+
+def security_or_fail(plan, prog: str, *, stream=None) -> int | None:
+    """Run the plan's security check (:func:`mission.core.plan_security.check_security`) as a
+    mission starts: None once every warning and info is printed (``"{prog}: security LEVEL: KEY:
+    TEXT"``, one line each, on ``stream``, default stderr), or 2 once the refusals are printed (a
+    plan that did not come through :func:`load_plan_or_fail`: ``resume``'s log, ``--out``)."""
+    from mission.core.plan_security import PlanSecurityError, check_security, refusals
+
+    findings = check_security(plan)
+    refused = refusals(findings)
+    if refused:
+        return fail(prog, str(PlanSecurityError(refused)))
+    for finding in findings:
+        print(f"{prog}: security {finding.level}: {finding.key}: {finding.text}",
+              file=stream if stream is not None else sys.stderr, flush=True)
+    return None

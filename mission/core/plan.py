@@ -29,23 +29,28 @@ from mission.core.plan_sections import (
     parse_geofence_file,
     parse_origin,
     parse_preflight,
+    parse_require_signing,
     parse_security,
     parse_seeking,
     parse_vehicles,
 )
+from mission.core.plan_security import PlanSecurityError, check_security, refusals
 from mission.core.plan_types import PLAN_VERSION, Plan, PlanError
+from wire.loopback import IsLoopback, host_is_loopback
 from mission.core.zenoh_security import parse_zenoh
 
 __all__ = ["load_plan", "parse_plan"]
 
 
-def load_plan(path: str | Path) -> Plan:
+def load_plan(path: str | Path, *, is_loopback: IsLoopback = host_is_loopback) -> Plan:
     """Read and validate a plan file.
 
     Parameters
     ----------
     path : str or pathlib.Path
         TOML file.
+    is_loopback : callable
+        The security check's loopback rule (see :func:`parse_plan`).
 
     Returns
     -------
@@ -67,10 +72,11 @@ def load_plan(path: str | Path) -> Plan:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise PlanError([("(file)", f"not valid TOML: {exc}")], str(path)) from None
-    return parse_plan(doc, source=str(path), base_dir=path.parent)
+    return parse_plan(doc, source=str(path), base_dir=path.parent, is_loopback=is_loopback)
 
 
-def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | None = None) -> Plan:
+def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | None = None,
+               is_loopback: IsLoopback = host_is_loopback) -> Plan:
     """Validate a decoded TOML document and build a :class:`Plan`.
 
     Parameters
@@ -81,11 +87,16 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
         Where it came from (for error messages).
     base_dir : path, optional
         Relative TLS and fence file paths are resolved against it.
+    is_loopback : callable
+        ``host -> bool`` for the security check (:func:`mission.core.plan_security.check_security`,
+        run once every key is valid; default :func:`wire.loopback.host_is_loopback`).
 
     Raises
     ------
     PlanError
         Listing every invalid key with its path and why.
+    PlanSecurityError
+        (a PlanError) The security check refuses the plan: one line per refusal.
     """
     c = Checker()
     if not isinstance(doc, dict):
@@ -108,16 +119,7 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     vehicles = parse_vehicles(c, doc)
     formation = parse_formation(c, doc)
     seeking = parse_seeking(c, doc)
-    top = dict(
-        max_speed_m_s=c.number(doc, "max_speed_m_s", "", 3.0, low=0, low_open=True, high=30),
-        min_separation_m=c.number(doc, "min_separation_m", "", 1.5, low=0, low_open=True),
-        takeoff_alt_m=c.number(doc, "takeoff_alt_m", "", 10.0, low=1.0, high=500),
-        return_behaviour=c.string(doc, "return", "", "land", choices=RETURN_BEHAVIOURS),
-        stagger_s=c.number(doc, "stagger_s", "", 1.0, low=0, high=60),
-        setpoint_rate_hz=c.number(doc, "setpoint_rate_hz", "", 10.0, low=2.0, high=100),
-        heartbeat_timeout_s=c.number(doc, "heartbeat_timeout_s", "", 10.0, low=0.5, low_open=False),
-        min_battery_pct=c.number(doc, "min_battery_pct", "", 30.0, low=0, high=100),
-    )
+    top = _top_level(c, doc)
     geofence = parse_geofence(c, doc, origin, fence_file)
     faults = parse_faults(c, doc)
     preflight = parse_preflight(c, doc)
@@ -128,10 +130,28 @@ def parse_plan(doc: dict, *, source: str | None = None, base_dir: str | Path | N
     _check_across_sections(c, doc, formation, seeking, geofence, top)
     if c.problems:
         raise PlanError(c.problems, source)
-    return Plan(fleet=fleet, origin=origin, vehicles=tuple(vehicles), formation=formation,
-                seeking=seeking, geofence=geofence, zenoh=zen, security=security, version=PLAN_VERSION, faults=faults,
-                preflight=preflight, field=field,
-                control=control, forward=forward, **top)
+    plan = Plan(fleet=fleet, origin=origin, vehicles=tuple(vehicles), formation=formation,
+                seeking=seeking, geofence=geofence, zenoh=zen, security=security,
+                require_signing=parse_require_signing(doc), version=PLAN_VERSION, faults=faults,
+                preflight=preflight, field=field, control=control, forward=forward, **top)
+    refused = refusals(check_security(plan, is_loopback=is_loopback))
+    if refused:
+        raise PlanSecurityError(refused, source)
+    return plan
+
+
+def _top_level(c: Checker, doc: dict) -> dict:
+    """The plan's top-level numbers and the return behaviour, by :class:`Plan` field name."""
+    return dict(
+        max_speed_m_s=c.number(doc, "max_speed_m_s", "", 3.0, low=0, low_open=True, high=30),
+        min_separation_m=c.number(doc, "min_separation_m", "", 1.5, low=0, low_open=True),
+        takeoff_alt_m=c.number(doc, "takeoff_alt_m", "", 10.0, low=1.0, high=500),
+        return_behaviour=c.string(doc, "return", "", "land", choices=RETURN_BEHAVIOURS),
+        stagger_s=c.number(doc, "stagger_s", "", 1.0, low=0, high=60),
+        setpoint_rate_hz=c.number(doc, "setpoint_rate_hz", "", 10.0, low=2.0, high=100),
+        heartbeat_timeout_s=c.number(doc, "heartbeat_timeout_s", "", 10.0, low=0.5, low_open=False),
+        min_battery_pct=c.number(doc, "min_battery_pct", "", 30.0, low=0, high=100),
+    )
 
 
 def _check_across_sections(c: Checker, doc: dict, formation, seeking, geofence, top: dict) -> None:

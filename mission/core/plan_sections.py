@@ -30,6 +30,7 @@ __all__ = [
     "parse_seeking",
     "parse_geofence",
     "parse_security",
+    "parse_require_signing",
     "parse_preflight",
     "parse_control",
     "parse_forward",
@@ -323,6 +324,14 @@ def parse_security(c: Checker, doc: dict, base_dir: Path | None) -> SigningConfi
         for key, why in exc.problems:
             c.bad(key, why)
         return None
+
+
+def parse_require_signing(doc: dict) -> bool:
+    """``[security] require_signing`` (default false; a wrong type is reported by
+    :func:`parse_security`)."""
+    t = doc.get("security")
+    value = t.get("require_signing", False) if isinstance(t, dict) else False
+    return value if isinstance(value, bool) else False
 
 
 def parse_preflight(c: Checker, doc: dict) -> PreflightPlan:

@@ -303,6 +303,9 @@ class Plan:
     geofence: GeofencePlan = GeofencePlan()
     zenoh: ZenohPlan = ZenohPlan()
     security: SigningConfig | None = None
+    #: ``[security] require_signing``: a vehicle link that is not loopback must be signed (else the
+    #: plan is refused, :mod:`mission.core.plan_security`)
+    require_signing: bool = False
     max_speed_m_s: float = 3.0
     min_separation_m: float = 1.5
     takeoff_alt_m: float = 10.0

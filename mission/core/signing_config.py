@@ -22,6 +22,8 @@ __all__ = ["DEFAULT_ALLOW_UNSIGNED", "SigningConfig", "signing_config_from_table
 DEFAULT_ALLOW_UNSIGNED = frozenset({"RADIO_STATUS", "RADIO"})
 _KEY_LEN = 32
 _SECURITY_KEYS = ("signing_key_file", "signing_link_id", "allow_unsigned", "setup_signing")
+#: [security] keys that are a policy, not a signing setting (no key file needed): read by the plan
+_POLICY_KEYS = ("require_signing",)
 _MSG_IDS: dict[str, int] = {cls.msgname: msg_id for msg_id, cls in mavlink.mavlink_map.items()}
 
 # ---------------------------------------------------------------------------- configuration
@@ -116,7 +118,9 @@ def signing_config_from_table(table: Mapping, base_dir=None) -> SigningConfig | 
     Keys: ``signing_key_file`` (path, relative to ``base_dir``; no key file: no signing, None
     is returned), ``signing_link_id`` (0..255, default 0), ``allow_unsigned`` (message names,
     default ``["RADIO_STATUS", "RADIO"]``, ``["*"]`` for all), ``setup_signing`` (bool, default
-    true: send SETUP_SIGNING to vehicles heard unsigned).
+    true: send SETUP_SIGNING to vehicles heard unsigned). ``require_signing`` (bool, default false)
+    is checked here but is a policy of the plan (``Plan.require_signing``: a vehicle link that is
+    not loopback must be signed, :mod:`mission.core.plan_security`); it needs no key file.
 
     Raises
     ------
@@ -127,8 +131,9 @@ def signing_config_from_table(table: Mapping, base_dir=None) -> SigningConfig | 
     if not isinstance(table, Mapping):
         raise SigningError("[security] must be a table", [("security", "expected a table")])
     for key in table:
-        if key not in _SECURITY_KEYS:
-            problems.append((f"security.{key}", f"unknown key (allowed: {', '.join(_SECURITY_KEYS)})"))
+        if key not in _SECURITY_KEYS + _POLICY_KEYS:
+            allowed = ", ".join(_SECURITY_KEYS + _POLICY_KEYS)
+            problems.append((f"security.{key}", f"unknown key (allowed: {allowed})"))
     link_id = table.get("signing_link_id", 0)
     if isinstance(link_id, bool) or not isinstance(link_id, int) or not 0 <= link_id <= 255:
         problems.append(("security.signing_link_id", f"expected an integer 0..255, got {link_id!r}"))
@@ -142,6 +147,9 @@ def signing_config_from_table(table: Mapping, base_dir=None) -> SigningConfig | 
         if unknown:
             problems.append(("security.allow_unsigned", f"unknown MAVLink message name(s) {unknown}"))
             allow = DEFAULT_ALLOW_UNSIGNED
+    require = table.get("require_signing", False)
+    if not isinstance(require, bool):
+        problems.append(("security.require_signing", f"expected true or false, got {require!r}"))
     setup = table.get("setup_signing", True)
     if not isinstance(setup, bool):
         problems.append(("security.setup_signing", f"expected true or false, got {setup!r}"))

@@ -177,6 +177,10 @@ class ZenohPlan:
         User/password authentication.
     access_control : mission.core.zenoh_security.ZenohAclPlan or None
         Who may put readings and read the state (see ``docs/zenoh.md``).
+    allow_unauthenticated_network : bool
+        The operator's explicit consent to a network endpoint (not loopback) on which peers
+        that prove no identity may command the mission: without it such a plan is refused
+        (:mod:`mission.core.plan_security`, ``docs/security.md``); with it every start warns.
     """
 
     mode: str = "peer"
@@ -186,6 +190,7 @@ class ZenohPlan:
     enable_mtls: bool = False
     auth: ZenohAuthPlan | None = None
     access_control: ZenohAclPlan | None = None
+    allow_unauthenticated_network: bool = False
 
     def __post_init__(self):
         # A plan read back from a mission log (``dataclasses.asdict``) holds plain dicts/lists.

@@ -166,7 +166,12 @@ def parse_zenoh(c: Checker, doc: dict, base_dir: Path | None) -> ZenohPlan:
     """Validate the plan's ``[zenoh]`` table; problems go to ``c`` with their dotted keys."""
     t = c.table(doc, "zenoh")
     p = "zenoh"
-    c.unknown(t, ("mode", "listen", "connect", "tls", "auth", "access_control"), p)
+    c.unknown(t, ("mode", "listen", "connect", "tls", "auth", "access_control",
+                  "allow_unauthenticated_network"), p)
+    allow_open = t.get("allow_unauthenticated_network", False)
+    if not isinstance(allow_open, bool):
+        c.bad(f"{p}.allow_unauthenticated_network", f"must be true or false, got {show_value(allow_open)}")
+        allow_open = False
     mode = c.string(t, "mode", p, "peer", choices=ZENOH_MODES)
     listen = c.strings(t, "listen", p)
     connect = c.strings(t, "connect", p)
@@ -183,4 +188,5 @@ def parse_zenoh(c: Checker, doc: dict, base_dir: Path | None) -> ZenohPlan:
     acl = parse_access_control(c, c.table(t, "access_control", p), f"{p}.access_control", fleet,
                                enable_mtls=mtls, auth=auth, listen=listen)
     return ZenohPlan(mode=mode or "peer", listen=listen, connect=connect, tls=tls,
-                     enable_mtls=mtls, auth=auth, access_control=acl)
+                     enable_mtls=mtls, auth=auth, access_control=acl,
+                     allow_unauthenticated_network=allow_open)

@@ -14,6 +14,7 @@ import asyncio
 import numpy as np
 
 from mission.core.tasks import spawn, stop_watched
+from mission.core.plan_security import check_security
 from mission.core.plan_types import Plan
 from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
@@ -77,6 +78,9 @@ class Coordinator:
                  zenoh_problem: str | None = None, simulated_fleet: bool = False):
         self.plan = plan
         self.simulated_fleet = bool(simulated_fleet)
+        #: the plan's security findings (:mod:`mission.core.plan_security`): the log's plan record
+        #: (``security_check``), and the warnings in every state publication (``watch`` prints them)
+        self.security = check_security(plan)
         self.clock = clock
         self.session = zenoh_session
         self.log = log
@@ -239,7 +243,12 @@ class Coordinator:
             "distance_flown_m": self.state.distance_flown_m, "vehicles": self.vehicle_status(),
             "readings": self.store.counts(), "link_rejections": self.link_rejections(),
             "unknown_sysids": self.unknown_sysids(), "control": self.control.snapshot(),
+            "security_warnings": [f.to_json() for f in self.security if f.level != "info"],
         }
+
+    def _security_json(self) -> list[dict]:
+        """Every security finding of the plan, for the mission log's ``plan`` record."""
+        return [f.to_json() for f in self.security]
 
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
@@ -311,7 +320,7 @@ class Coordinator:
     async def dry_run(self) -> MissionResult:
         """Connect and run the preflight checks; arms nothing. Outcome ``ready`` or ``not_ready``."""
         if self.log is not None:
-            self.log.write("plan", plan=_plan_json(self.plan), dry_run=True)
+            self.log.write("plan", plan=_plan_json(self.plan), dry_run=True, security_check=self._security_json())
         self._start_background()
         try:
             await connect_phase.connect(self, required=False)
@@ -345,7 +354,8 @@ class Coordinator:
         holds its result).
         """
         if self.log is not None:
-            self.log.write("plan", plan=_plan_json(self.plan), resumed=resume_state is not None)
+            self.log.write("plan", plan=_plan_json(self.plan), resumed=resume_state is not None,
+                           security_check=self._security_json())
         self._start_background()
         outcome, message = "aborted", ""
         try:

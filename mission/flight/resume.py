@@ -133,7 +133,7 @@ def plan_from_json(d: dict) -> Plan:
         zn["listen"], zn["connect"] = tuple(zn.get("listen") or ()), tuple(zn.get("connect") or ())
         top = {k: d[k] for k in ("fleet", "max_speed_m_s", "min_separation_m", "takeoff_alt_m",
                                  "return_behaviour", "stagger_s", "setpoint_rate_hz",
-                                 "heartbeat_timeout_s", "min_battery_pct", "version") if k in d}
+                                 "heartbeat_timeout_s", "min_battery_pct", "version", "require_signing") if k in d}
         return Plan(origin=tuple(float(v) for v in d["origin"]),
                     vehicles=tuple(VehiclePlan(**v) for v in d["vehicles"]),
                     formation=FormationPlan(**d["formation"]), seeking=SeekingPlan(**sk),
