@@ -49,12 +49,13 @@ def load_plan_or_fail(path, prog: str):
     in its ``[geofence] file``) is an invalid plan here, before anything is contacted.
     """
     from mission.core.plan import load_plan
+    from mission.core.plan_security import PlanSecurityError
     from mission.core.plan_types import PlanError
 
     try:
         plan = load_plan(path)
     except PlanError as exc:
-        if len(exc.problems) == 1:  # one problem, one line
+        if len(exc.problems) == 1 and not isinstance(exc, PlanSecurityError):  # one problem, one line
             key, why = exc.problems[0]
             return None, fail(prog, f"invalid plan in {path}: {key}: {why}")
         return None, fail(prog, str(exc))
