@@ -182,7 +182,7 @@ def _write_fig4(out: Path, cfg: PaperConfig, figs) -> dict:
     figs.write_csv(out / "fig4_robustness.csv", rob)
     figs.write_json(out / "fig4_robustness.json", rob)
     rob_summary = robustness_summary(rob)
-    label = f"**{cfg.quick_note()}**\n\n" if cfg.quick_note() else ""
+    label = f"**{cfg.quick_note().replace(chr(10), ' ')}**\n\n" if cfg.quick_note() else ""
     (out / "fig4_robustness.md").write_text(label + figs.markdown_table(
         rob_summary, ["radius_m", "formation", "orientation", "no_fault_m", "faulty_mean_m",
                       "faulty_best_m", "faulty_worst_m"]) + "\n" + figs.markdown_table(
@@ -260,7 +260,7 @@ def main(args: argparse.Namespace) -> int:
     note = summary["note"]
     print(f"wrote the paper's table and figures to {args.out} in {summary['elapsed_s']:.1f} s")
     if note:
-        print(f"{note}.\n  The final distances below are where those short runs stopped; `swarmseek paper` "
+        print(f"{note.replace(chr(10), ' ')}.\n  The final distances below are where those short runs stopped; `swarmseek paper` "
               "(without --quick) gives the paper's figures.")
     for row in summary["table1"]:
         print(f"  N={row['n']:2d}  d_min symmetric {row['symmetric_d_min']:.3f}  "

@@ -31,7 +31,7 @@ _DPI = 120
 def _save(fig, path: Path, note: str | None = None) -> None:
     """Lay out, write and close ``fig``; ``note`` (e.g. a quick run's label) in red across its top."""
     if note:
-        fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.94))
+        fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.92))
         fig.text(0.5, 0.99, note, ha="center", va="top", color="tab:red", fontsize=9, fontweight="bold")
     else:
         fig.tight_layout()

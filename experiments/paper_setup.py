@@ -91,8 +91,8 @@ class PaperConfig:
         full = PaperConfig()
         if self.iterations_sigma1 >= full.iterations_sigma1 and self.iterations_sigma2 >= full.iterations_sigma2:
             return None
-        return (f"QUICK RUN (--quick): {self.iterations_sigma1}/{self.iterations_sigma2} iterations instead of "
-                f"{full.iterations_sigma1}/{full.iterations_sigma2}, stopped before convergence: not the paper's result")
+        return (f"QUICK RUN (--quick, {self.iterations_sigma1}/{self.iterations_sigma2} iterations, not "
+                f"{full.iterations_sigma1}/{full.iterations_sigma2}):\nstopped before convergence, not the paper's result")
 
     @classmethod
     def quick(cls) -> "PaperConfig":
