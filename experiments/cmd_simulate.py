@@ -408,7 +408,7 @@ def _sweep(args: argparse.Namespace) -> int:
     import functools
     import time
 
-    problem = _check_options(args)
+    problem = _check_options(args) or rows_file_problem(args.sweep_out)
     if problem:
         return fail(_PROG, f"error: {problem}")
     try:
@@ -430,7 +430,7 @@ def _sweep(args: argparse.Namespace) -> int:
         return fail(_PROG, f"cannot write the rows file: {exc}", 1)
     finally:
         writer.close()
-    summ = summary(rows, time.perf_counter() - t0_s, jobs)
+    summ = summary(rows, time.perf_counter() - t0_s, jobs, len(args.seeds))
     print(json.dumps(summ, indent=2) if args.json else "\n".join(summary_lines(_PROG, summ, args.sweep_out)))
     return 1 if any(r["outcome"] == "error" for r in rows) else 0
 

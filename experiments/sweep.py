@@ -14,9 +14,12 @@ import argparse
 import csv
 import json
 import multiprocessing
+import os
+import signal
 import sys
+import threading
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 import numpy as np
@@ -109,8 +112,22 @@ def add_sweep_arguments(parser: argparse.ArgumentParser, seed_group, what: str) 
                              "JSON lines (.jsonl)")
 
 
-def rows_file_problem(path: Path, exc: OSError) -> str:
-    """The one-line reason the rows file ``path`` could not be opened (``exc``)."""
+def rows_file_problem(path: Path | None, exc: OSError | None = None) -> str | None:
+    """The one-line reason the rows file ``path`` cannot be written: ``exc`` when given (its
+    opening failed), else found by opening it for appending (an existing file is left as it was, a
+    new one removed again); None when it can be (or ``path`` is None)."""
+    if exc is None and path is not None:
+        existed = os.path.lexists(path)
+        try:
+            with open(path, "a", encoding="utf-8"):
+                pass
+        except OSError as err:
+            exc = err
+        else:
+            if not existed:
+                os.unlink(path)
+    if exc is None:
+        return None
     return f"cannot write the rows file (--sweep-out) {str(path)!r}: {exc.strerror or exc}"
 
 
@@ -121,6 +138,27 @@ def sweep_flag_problem(args) -> str | None:
             if getattr(args, dest, None) is not None:
                 return f"{flag} applies to a sweep only (give --seeds, e.g. --seeds 0-9)"
     return None
+
+
+class _terminate_as_interrupt:
+    """While the workers run (this process only waits), SIGTERM is handled as Ctrl-C
+    (KeyboardInterrupt: the runs under way finish and their rows are kept) instead of ending this
+    process at once with its workers left running. Only in the main thread (signals)."""
+
+    def __enter__(self):
+        self._old = None
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGTERM, self._raise)
+        return self
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise KeyboardInterrupt("SIGTERM")
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            signal.signal(signal.SIGTERM, self._old)
+        return False
 
 
 class RowWriter:
@@ -219,7 +257,8 @@ def _guarded(one, base: dict, seed: int) -> dict:
         return error_row(seed, exc, time.perf_counter() - t0_s, base)
 
 
-def run_sweep(seeds: list[int], one, *, jobs: int = 1, on_row=None, base: dict | None = None) -> list[dict]:
+def run_sweep(seeds: list[int], one, *, jobs: int = 1, on_row=None, base: dict | None = None,
+              stop=None) -> list[dict]:
     """Run ``one(seed)`` for every seed; the rows, in seed order.
 
     Parameters
@@ -234,32 +273,66 @@ def run_sweep(seeds: list[int], one, *, jobs: int = 1, on_row=None, base: dict |
         Called with each row as it finishes (in finishing order).
     base : dict, optional
         Columns an error row starts from (``n``, ``field``, ``seeker``).
+    stop : callable, optional
+        ``stop(row) -> bool``: True (e.g. the operator interrupted that run) starts no further
+        seed; the runs under way finish and their rows are kept. Seeds never run have no row.
     """
-    rows = []
+    rows: list[dict] = []
 
-    def finished(row):
+    def finished(row) -> bool:
         rows.append(row)
         if on_row is not None:
             on_row(row)
+        return stop is not None and bool(stop(row))
 
     if jobs <= 1 or len(seeds) == 1:
         for seed in seeds:
-            finished(_guarded(one, base, seed))
+            if finished(_guarded(one, base, seed)):
+                break
         return rows
-    t0_s = time.perf_counter()
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(seeds)), mp_context=multiprocessing.get_context("spawn"))
-    try:
-        futures = {pool.submit(_guarded, one, base, seed): seed for seed in seeds}
-        for fut in as_completed(futures):
-            try:
-                row = fut.result()
-            except Exception as exc:  # noqa: BLE001 - the worker died (BrokenProcessPool) or the row did not pickle
-                row = error_row(futures[fut], exc, time.perf_counter() - t0_s, base)
-            finished(row)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+    _pool_sweep(seeds, one, jobs, base, finished)
     order = {seed: i for i, seed in enumerate(seeds)}
     return sorted(rows, key=lambda r: order[r["seed"]])
+
+
+def _pool_sweep(seeds: list[int], one, jobs: int, base: dict | None, finished) -> None:
+    """:func:`run_sweep` in ``jobs`` worker processes, a seed handed to a worker only when one is
+    free (nothing queued that a stop could not cancel); ``finished(row)`` True starts no further
+    seed. Interrupted here (Ctrl-C reaching this process only, or SIGTERM), the running seeds'
+    rows are collected before the interrupt goes on."""
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(seeds)), mp_context=multiprocessing.get_context("spawn"))
+    todo, running, t0_s = iter(seeds), {}, time.perf_counter()
+
+    def start_next() -> None:
+        seed = next(todo, None)
+        if seed is not None:
+            running[pool.submit(_guarded, one, base, seed)] = seed
+
+    def row_of(fut) -> dict:
+        try:
+            return fut.result()
+        except Exception as exc:  # noqa: BLE001 - the worker died (BrokenProcessPool) or the row did not pickle
+            return error_row(running[fut], exc, time.perf_counter() - t0_s, base)
+
+    with _terminate_as_interrupt():
+        try:
+            for _ in range(jobs):
+                start_next()
+            stopping = False
+            while running:
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    stopping = finished(row_of(fut)) or stopping
+                    running.pop(fut)
+                    if not stopping:
+                        start_next()
+        except KeyboardInterrupt:
+            for fut in list(running):
+                finished(row_of(fut))  # waits for it: its mission ends as it would have
+                running.pop(fut)
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _stats(values: list[float]) -> dict:
@@ -268,7 +341,7 @@ def _stats(values: list[float]) -> dict:
             "p90": float(np.percentile(a, 90)), "min": float(a.min()), "max": float(a.max())}
 
 
-def summary(rows: list[dict], wall_s: float, jobs: int) -> dict:
+def summary(rows: list[dict], wall_s: float, jobs: int, planned: int | None = None) -> dict:
     """The sweep's summary: runs by outcome and, for each numeric column, the count, median,
     10th and 90th percentiles, min and max over the rows that have it (error rows have none)."""
     outcomes: dict = {}
@@ -279,7 +352,8 @@ def summary(rows: list[dict], wall_s: float, jobs: int) -> dict:
         values = [r[col] for r in rows if r.get("outcome") != "error" and r.get(col) is not None]
         if values:
             stats[col] = _stats(values)
-    return {"runs": len(rows), "seeds": seeds_text([r["seed"] for r in rows]), "outcomes": outcomes,
+    return {"runs": len(rows), "planned": len(rows) if planned is None else planned,
+            "seeds": seeds_text([r["seed"] for r in rows]), "outcomes": outcomes,
             "failed": [{"seed": r["seed"], "reason": r.get("reason")} for r in rows if r["outcome"] == "error"],
             "stats": stats, "wall_s": round(wall_s, 3), "jobs": jobs}
 
@@ -287,8 +361,9 @@ def summary(rows: list[dict], wall_s: float, jobs: int) -> dict:
 def summary_lines(prog: str, summ: dict, out_path: Path | None) -> list[str]:
     """The summary as text: the outcomes, a line per numeric column, the failures, the rows file."""
     counts = ", ".join(f"{k} {v}" for k, v in sorted(summ["outcomes"].items()))
-    lines = [f"{prog}: sweep of {summ['runs']} seeds ({summ['seeds']}) in {summ['wall_s']:.1f} s wall "
-             f"(--jobs {summ['jobs']}): {counts}"]
+    runs = f"{summ['runs']}" if summ["runs"] == summ["planned"] else f"{summ['runs']} of {summ['planned']}"
+    lines = [f"{prog}: sweep of {runs} seed{'s' if summ['planned'] != 1 else ''} ({summ['seeds']}) in "
+             f"{summ['wall_s']:.1f} s wall (--jobs {summ['jobs']}): {counts}"]
     for col, s in summ["stats"].items():
         lines.append(f"  {col:20s} median {s['median']:.4g}  p10 {s['p10']:.4g}  p90 {s['p90']:.4g}  "
                      f"min {s['min']:.4g}  max {s['max']:.4g}  ({s['count']} values)")

@@ -157,3 +157,39 @@ def test_bad_sweep_options_exit_2_with_one_line(tmp_path, capsys, argv, message)
     assert "Traceback" not in err
     assert not (tmp_path / "logs").exists()  # refused before any mission or log directory
     assert not (tmp_path / "rows.csv").exists()
+
+
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_ctrl_c_stops_the_sweep_with_its_rows_kept(tmp_path, jobs):
+    """SIGINT once the first mission's row is out: the mission under way ends as a single run's
+    does (its vehicles brought down), no further seed flies, exit 130 naming the seeds not flown."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    rows_path = tmp_path / "rows.jsonl"
+    proc = subprocess.Popen([sys.executable, "-m", "mission", "run", *_SHORT, "--seeds", "0-5", "--jobs", jobs,
+                             "--log-dir", str(tmp_path / "logs"), "--sweep-out", str(rows_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                            env=dict(os.environ, PYTHONPATH=str(root)))
+    err_lines = []
+    try:
+        for line in proc.stderr:  # the progress lines: wait for the first finished mission
+            err_lines.append(line)
+            if " done, " in line:
+                break
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = "".join(err_lines) + err
+    assert proc.returncode == 130, err
+    assert "swarmseek run: stopped by SIGINT: seeds " in err and " not flown" in err
+    assert "Traceback" not in err
+    rows = [json.loads(line) for line in rows_path.read_text().splitlines()]
+    assert 1 <= len(rows) < 6
+    assert all(r["landed"] is True for r in rows)  # the interrupted mission's vehicles too

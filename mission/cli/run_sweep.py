@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -53,7 +54,8 @@ def mission_row(result, args, wall_s: float) -> dict:
             "estimate_region95_m": summ["estimate_region95_m"], "iterations": summ["iterations"],
             "seek_s": summ["seek_time_s"], "straight_line_ratio": None if ratio is None else round(ratio, 4),
             "distance_flown_m": summ["distance_flown_m"], "landed": landed, "wall_s": round(wall_s, 3),
-            "reason": "" if result.ok else summ["message"], "log_path": summ["log_path"]}
+            "reason": "" if result.ok else summ["message"], "log_path": summ["log_path"],
+            "interrupted_by": (summ["interrupted_by"] or [None])[0]}  # not a column: what stops the sweep
 
 
 def sweep_mission(options: dict, log_root: str, seed: int) -> dict:
@@ -93,39 +95,71 @@ def sweep_main(args, prog: str) -> int:
     """Fly one mission per seed of ``args.seeds`` (options checked by the caller); 0 when every
     mission ran and ended with its vehicles down, 1 when one failed (an exception: its row's
     outcome is ``error``) or left a vehicle armed or airborne, 2 for an unusable log directory or
-    rows file."""
+    rows file, a signal's status (130, 143) when the operator stopped the sweep."""
+    problem = rows_file_problem(args.sweep_out)
+    root, problem = (None, problem) if problem else _log_root(args)
+    if problem:
+        return usage_error(prog, problem)
     try:
         writer = RowWriter(args.sweep_out, RUN_COLUMNS)
     except OSError as exc:
         return usage_error(prog, rows_file_problem(args.sweep_out, exc))
-    root, problem = _log_root(args)
-    if problem:
-        writer.close()
-        return usage_error(prog, problem)
-    options = {k: v for k, v in vars(args).items() if k not in _NOT_MISSION_OPTIONS}
-    jobs = args.jobs or 1
     progress = Progress(prog, len(args.seeds))
     print(f"{prog}: sweep of {len(args.seeds)} missions, mission logs in {root}/seed-K", flush=True,
           file=progress.stream)
-    t0_s = time.perf_counter()
-    base = {"n": args.n, "field": args.field_name, "seeker": args.seeker}
+    t0_s, rows = time.perf_counter(), []
 
     def on_row(row):
+        rows.append(row)
         writer.write(row)
         progress.update(row)
 
     try:
-        rows = run_sweep(args.seeds, functools.partial(sweep_mission, options, str(root)), jobs=jobs,
-                         on_row=on_row, base=base)
+        stopped_by = _fly_all(args, root, on_row)
     except OSError as exc:  # the rows file became unwritable (disk full...)
         return fail(prog, f"cannot write the rows file: {exc}", 1)
     finally:
         writer.close()
-    summ = summary(rows, time.perf_counter() - t0_s, jobs)
+    order = {seed: i for i, seed in enumerate(args.seeds)}
+    summ = summary(sorted(rows, key=lambda r: order[r["seed"]]), time.perf_counter() - t0_s, args.jobs or 1,
+                   len(args.seeds))
     summ["log_dir"] = str(root)
-    if args.json:
-        print(json.dumps(summ, indent=2))
-    else:
-        print("\n".join(summary_lines(prog, summ, args.sweep_out)))
+    print(json.dumps(summ, indent=2) if args.json else "\n".join(summary_lines(prog, summ, args.sweep_out)))
+    return _sweep_status(prog, rows, args.seeds, stopped_by)
+
+
+def _fly_all(args, root: Path, on_row) -> str | None:
+    """Every seed's mission (rows to ``on_row``); the signal that stopped the sweep between
+    missions or while workers flew them (``KeyboardInterrupt``: Ctrl-C, or SIGTERM in the
+    workers' parent), else None."""
+    options = {k: v for k, v in vars(args).items() if k not in _NOT_MISSION_OPTIONS}
+    base = {"n": args.n, "field": args.field_name, "seeker": args.seeker}
+    try:
+        run_sweep(args.seeds, functools.partial(sweep_mission, options, str(root)), jobs=args.jobs or 1,
+                  on_row=on_row, base=base, stop=_interrupted)
+    except KeyboardInterrupt as exc:
+        return "SIGTERM" if exc.args == ("SIGTERM",) else "SIGINT"
+    return None
+
+
+def _interrupted(row: dict) -> bool:
+    """A signal (Ctrl-C, SIGTERM) stopped this mission: the operator's stop ends the sweep too."""
+    return bool(row.get("interrupted_by"))
+
+
+def _sweep_status(prog: str, rows: list[dict], seeds: list[int], stopped_by: str | None = None) -> int:
+    """The sweep's exit status: a signal's (as a single run's: 130 for SIGINT, 143 for SIGTERM) when
+    one stopped a mission, with the seeds not flown named; else 1 when a mission failed or left a
+    vehicle armed or airborne, 0 otherwise."""
+    from experiments.sweep import seeds_text
+    from mission.flight.operator_stop import SIGNAL_EXIT
+
+    signal_name = stopped_by or next((r["interrupted_by"] for r in rows if r.get("interrupted_by")), None)
+    if signal_name is not None:
+        flown = {r["seed"] for r in rows}
+        rest = [s for s in seeds if s not in flown]
+        not_flown = f": {'seed' if len(rest) == 1 else 'seeds'} {seeds_text(rest)} not flown" if rest else ""
+        print(f"{prog}: stopped by {signal_name}{not_flown}", file=sys.stderr)
+        return SIGNAL_EXIT.get(signal_name, 130)
     bad = [r for r in rows if r["outcome"] == "error" or r.get("landed") is False]
     return 1 if bad else 0
