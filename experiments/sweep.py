@@ -140,7 +140,7 @@ def sweep_flag_problem(args) -> str | None:
     return None
 
 
-class _terminate_as_interrupt:
+class _TerminateAsInterrupt:
     """While the workers run (this process only waits), SIGTERM is handled as Ctrl-C
     (KeyboardInterrupt: the runs under way finish and their rows are kept) instead of ending this
     process at once with its workers left running. Only in the main thread (signals)."""
@@ -314,7 +314,7 @@ def _pool_sweep(seeds: list[int], one, jobs: int, base: dict | None, finished) -
         except Exception as exc:  # noqa: BLE001 - the worker died (BrokenProcessPool) or the row did not pickle
             return error_row(running[fut], exc, time.perf_counter() - t0_s, base)
 
-    with _terminate_as_interrupt():
+    with _TerminateAsInterrupt():
         try:
             for _ in range(jobs):
                 start_next()

@@ -193,3 +193,28 @@ def test_ctrl_c_stops_the_sweep_with_its_rows_kept(tmp_path, jobs):
     rows = [json.loads(line) for line in rows_path.read_text().splitlines()]
     assert 1 <= len(rows) < 6
     assert all(r["landed"] is True for r in rows)  # the interrupted mission's vehicles too
+
+
+@pytest.mark.parametrize("tty", [False, True])
+def test_progress_is_a_bar_on_a_terminal_and_plain_lines_elsewhere(tty):
+    import io
+
+    from experiments.sweep import Progress
+
+    class Stream(io.StringIO):
+        def isatty(self):
+            return tty
+
+    stream = Stream()
+    progress = Progress("swarmseek run", 4, stream)
+    progress.update({"seed": 7, "outcome": "converged", "error_m": 0.0514})
+    progress.update({"seed": 8, "outcome": "error", "error_m": None})
+    text = stream.getvalue()
+    if tty:  # redrawn in place: carriage returns, a bar, no newline before the last run
+        assert text.startswith("\r[#####...............] swarmseek run: 1/4 done")
+        assert "\x1b[K\r[##########..........] swarmseek run: 2/4 done (1 failed)" in text and "\n" not in text
+    else:
+        lines = text.splitlines()
+        assert lines[0].startswith("swarmseek run: 1/4 done, ") and lines[0].endswith("seed 7 converged, error 0.051 m")
+        assert lines[1].startswith("swarmseek run: 2/4 done (1 failed), ") and lines[1].endswith("seed 8 error")
+        assert "\r" not in text
