@@ -49,43 +49,18 @@ def _records(path: Path) -> list[dict]:
 
 
 def mission_measures(log_path: Path, max_speed_m_s: float = 3.0, tol_m: float = 1.0) -> dict:
-    """The measures of one mission log (module docstring)."""
+    """The measures of one mission log (:func:`mission.telemetry.log_measures.mission_measures`) and
+    ``model_t_1m_s``, the offline stop-and-go time model on the same mission's centre moves."""
     from experiments.offline_seek import StopAndGo
+    from mission.telemetry.log_measures import centre_moves_enu
+    from mission.telemetry.log_measures import mission_measures as log_measures
 
-    recs = _records(log_path)
-    source = np.asarray(next(r for r in recs if r["type"] == "truth")["source_enu"], dtype=float)
-    t_seek = next(r["t_s"] for r in recs if r["type"] == "phase" and r.get("phase") == "seek")
-    its = [r for r in recs if r["type"] == "iteration"]
-    t = np.array([r["t_s"] - t_seek for r in its])
-    dist = np.array([np.linalg.norm(np.asarray(r["centroid_enu"]) - source) for r in its])
-    out_ = dist > tol_m
-    first_in = int(len(its) - np.argmax(out_[::-1])) if out_.any() else 0
-    stays = first_in < len(its)
-    centres = np.array([its[0]["centre_enu"]] + [r["new_centre_enu"] for r in its])
-    moves = np.diff(centres, axis=0)
+    row = log_measures(log_path, max_speed_m_s, tol_m)
+    moves = centre_moves_enu(_records(Path(log_path)))
     model_t = np.concatenate([[0.0], np.cumsum(StopAndGo(max_speed_m_s=max_speed_m_s).iteration_s(moves))])
-    straight = float(np.linalg.norm(np.asarray(its[0]["centre_enu"]) - source)) / max_speed_m_s
-    pos = {s: np.array([r["positions_enu"][s] for r in its if r["positions_enu"].get(s) is not None])
-           for s in its[0]["positions_enu"]}
-    per_vehicle = [float(np.linalg.norm(np.diff(p, axis=0), axis=-1).sum()) for p in pos.values() if len(p) > 1]
-    summary = next((r for r in recs if r["type"] == "summary"), {})
-    truth = next(r for r in recs if r["type"] == "truth")
-    return {
-        "t_1m_s": float(t[first_in]) if stays else None,
-        "ratio": float(t[first_in]) / straight if stays else None,
-        "model_t_1m_s": float(model_t[first_in]) if stays else None,
-        "straight_s": straight,
-        "iterations_1m": first_in + 1 if stays else None,
-        "iterations": len(its),
-        "seek_time_s": float(its[-1]["t_s"] - t_seek),
-        "error_m": truth.get("error_m"),
-        "readings": int(sum(len(r["readings"]) for r in its)),
-        "centre_flown_m": float(np.linalg.norm(moves, axis=-1).sum()),
-        "vehicle_flown_m_mean": float(np.mean(per_vehicle)) if per_vehicle else None,
-        "vehicle_flown_m_max": float(np.max(per_vehicle)) if per_vehicle else None,
-        "outcome": summary.get("outcome"),
-        "end_centroid_m": float(dist[-1]) if len(dist) else None,
-    }
+    k = row["iterations_1m"]
+    row["model_t_1m_s"] = float(model_t[k - 1]) if k is not None else None
+    return row
 
 
 def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", extra=()) -> dict:

@@ -21,11 +21,19 @@ import sys
 import numpy as np
 
 from estimator.seekers import MOVING_SEEKERS
+from experiments.sweep import (SIMULATE_COLUMNS, Progress, RowWriter, add_sweep_arguments, rows_file_problem, run_sweep,
+                               summary, summary_lines, sweep_flag_problem)
 from wire.cli_args import fail, float_in_range, int_in_range, nonnegative_float, positive_float
 
-__all__ = ["configure", "main", "run", "report_lines"]
+__all__ = ["configure", "main", "run", "report_lines", "trial_row", "sweep_trial"]
 
+_PROG = "swarmseek simulate"
 _DEFAULT_STARTS = {"sigma1": "10,50,10", "sigma2": "20,-20,5"}
+#: the convergence test of the paper's gradient run (gamma 0.1 m: hundreds of small steps)
+PAPER_WINDOW, PAPER_TOL_M = 400, 1.0
+#: a mission plan's convergence test (``[seeking] convergence_window`` and ``convergence_tol_m``'s
+#: defaults, :class:`mission.core.plan_types.SeekingPlan`; tests/test_sweep_simulate.py checks they agree)
+MISSION_WINDOW, MISSION_TOL_M = 12, 0.5
 
 
 def _vector3(text: str) -> np.ndarray:
@@ -94,11 +102,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "at 3 m/s, from every reading since the last estimate (experiments.offline_moving; "
                              "docs/seekers.md)")
     parser.add_argument("--iterations", type=_positive(int), default=3000)
-    parser.add_argument("--seed", type=int_in_range(0, None, "--seed"), default=0, help="noise and CVT seed")
-    parser.add_argument("--window", type=_positive(int), default=400,
-                        help="convergence test window, iterations")
-    parser.add_argument("--tol", type=positive_float, default=1.0,
-                        help="convergence test tolerance, m")
+    seed = parser.add_mutually_exclusive_group()
+    seed.add_argument("--seed", type=int_in_range(0, None, "--seed"), default=0, help="noise and CVT seed")
+    add_sweep_arguments(parser, seed, "trial")
+    parser.add_argument("--window", type=_positive(int), default=None,
+                        help=f"convergence test window, iterations (default: {PAPER_WINDOW} for the gradient seeker, "
+                             f"the paper's run; {MISSION_WINDOW}, a mission plan's, for the others)")
+    parser.add_argument("--tol", type=positive_float, default=None,
+                        help=f"convergence test tolerance, m (default: {PAPER_TOL_M:g} for the gradient seeker; "
+                             f"{MISSION_TOL_M:g}, a mission plan's, for the others)")
     parser.add_argument("--stop-at-convergence", action="store_true",
                         help="end the run where the convergence test first passes, as a mission does")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -123,6 +135,7 @@ def run(args: argparse.Namespace) -> dict:
         args.eps = 1.0
     if getattr(args, "min_signal_fraction", None) is None:
         args.min_signal_fraction = 1.0
+    test_from = _resolve_test(args)
     if args.formation == "symmetric":
         offsets = formation.symmetric_cylinder(args.n, args.radius)
     else:
@@ -147,6 +160,7 @@ def run(args: argparse.Namespace) -> dict:
         "iterations": args.iterations, "seed": args.seed, "start_enu": start.tolist(), "seeker": seeker,
         "sampling": sampling,
         "source_enu": np.asarray(res.source_enu, dtype=float).tolist(), "window": args.window, "tol_m": args.tol,
+        "test_from": test_from, "min_signal_fraction": args.min_signal_fraction,
     }
     out.update(convergence_report(res, window=args.window, tol_m=args.tol,
                                   stop_at_convergence=args.stop_at_convergence,
@@ -161,6 +175,19 @@ def run(args: argparse.Namespace) -> dict:
         t_1m = float(res.moving.time_within_s(1.0)[0])
         out["time_within_1m_s"] = t_1m if np.isfinite(t_1m) else None
     return out
+
+
+def _resolve_test(args: argparse.Namespace) -> str:
+    """Set ``args.window`` and ``args.tol`` when not given; where they come from: ``paper`` (the
+    gradient seeker's defaults), ``plan`` (a mission plan's defaults, the other seekers') or
+    ``options`` (one of them given)."""
+    given = getattr(args, "window", None) is not None or getattr(args, "tol", None) is not None
+    paper = getattr(args, "seeker", "gradient") == "gradient"
+    if getattr(args, "window", None) is None:
+        args.window = PAPER_WINDOW if paper else MISSION_WINDOW
+    if getattr(args, "tol", None) is None:
+        args.tol = PAPER_TOL_M if paper else MISSION_TOL_M
+    return "options" if given else ("paper" if paper else "plan")
 
 
 def _field_and_start(args: argparse.Namespace):
@@ -273,9 +300,14 @@ def _simulate_moving(args, offsets, field, start) -> _SeekerRun:
 
 
 def main(args: argparse.Namespace) -> int:
-    """Run ``swarmseek simulate``; 0 on success, 2 on bad arguments."""
+    """Run ``swarmseek simulate``; 0 on success, 2 on bad arguments (``--seeds``: 1 when a trial failed)."""
+    problem = sweep_flag_problem(args)
+    if problem:
+        return fail(_PROG, f"error: {problem}")
     for warning in _ignored_option_warnings(args):
         print(f"swarmseek simulate: warning: {warning}", file=sys.stderr)
+    if getattr(args, "seeds", None) is not None:
+        return _sweep(args)
     try:
         out = run(args)
     except ValueError as exc:
@@ -294,10 +326,119 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+def _test_text(out: dict) -> str:
+    """The convergence test's name with its window and tolerance, and where they come from."""
+    w, tol = out["window"], out["tol_m"]
+    origin = {"paper": f"the paper's gradient run's; a mission plan's default is window {MISSION_WINDOW}, "
+                       f"tolerance {MISSION_TOL_M:g} m",
+              "plan": "a mission plan's defaults",
+              "options": "--window, --tol"}.get(out.get("test_from"), "--window, --tol")
+    return f"convergence test (a mission's test, here window {w} iterations, tolerance {tol:g} m: {origin})"
+
+
+def _why_not_lines(out: dict) -> list[str]:
+    """Why the test never passed, from its verdict over the run's last window."""
+    last = out.get("last_window")
+    if last is None:
+        return [f"  the run's {out['final_iteration']} iterations are fewer than the test's window of {out['window']}"]
+    why = []
+    if last["spread_m"] > out["tol_m"]:
+        why.append(f"the centres spread {last['spread_m']:.3f} m (over the tolerance; up to "
+                   f"{last['max_distance_m']:.3f} m from the source)")
+    elif last["net_m"] > 0.5 * last["walk_m"]:
+        why.append(f"the centre is still going somewhere (net move {last['net_m']:.3f} m, more than half "
+                   f"the {last['walk_m']:.3f} m a random walk of the same steps would make)")
+    if last["signal_fraction"] < out.get("min_signal_fraction", 0.0) - 1e-12:
+        why.append(f"a detection in {100 * last['signal_fraction']:.0f} % of them (--min-signal-fraction "
+                   f"{out['min_signal_fraction']:g})")
+    if not why:
+        why.append("the steps do not decay fast enough to call the centre settled")
+    return [f"  over the last {out['window']} iterations " + "; ".join(why)]
+
+
+def _check_options(args: argparse.Namespace) -> str | None:
+    """What :func:`run` would refuse, found before a sweep starts (else every trial's row would be
+    the same error): an option of another seeker, moving sampling for a stop-and-go seeker, an
+    impossible formation or window, a plug-in field that does not load."""
+    import formation
+
+    problem = _inapplicable_option(args)
+    if problem:
+        return problem
+    if getattr(args, "sampling", "stop_and_go") == "moving" and args.seeker not in MOVING_SEEKERS:
+        return f"--sampling moving needs --seeker model, newton or ste, got {args.seeker}"
+    if args.window is not None and args.window < 8:
+        return f"--window must be at least 8 iterations, got {args.window}"
+    try:
+        if args.formation == "symmetric":
+            formation.symmetric_cylinder(args.n, args.radius)
+        else:
+            formation.cvt_sphere(args.n, args.radius, seed=0)
+        _field_and_start(args)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+def trial_row(out: dict, wall_s: float) -> dict:
+    """The sweep row of one trial's :func:`run` result (:data:`experiments.sweep.SIMULATE_COLUMNS`):
+    ``error_m`` is the estimated source's (where a mission would stop; None when never converged)."""
+    return {"seed": out["seed"], "n": out["n"], "field": out["field"], "seeker": out["seeker"],
+            "outcome": "converged" if out["converged"] else "not_converged", "error_m": out["estimate_error_m"],
+            "estimate_region95_m": out.get("region95_m"),
+            "iterations": out["converged_at_iteration"] if out["converged"] else out["final_iteration"],
+            "distance_flown_m": round(out["distance_flown_m"], 6), "final_distance_m": round(out["final_distance_m"], 6),
+            "wall_s": round(wall_s, 3), "reason": ""}
+
+
+def sweep_trial(options: dict, seed: int) -> dict:
+    """One trial of ``options`` (a ``simulate`` namespace's values) with ``seed``; its row (picklable:
+    runs in a sweep's worker process too)."""
+    import time
+
+    args = argparse.Namespace(**options)
+    args.seed = seed
+    t0_s = time.perf_counter()
+    out = run(args)
+    return trial_row(out, time.perf_counter() - t0_s)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    """``--seeds``: one trial per seed; 0 when every trial ran, 1 when one failed, 2 for bad options."""
+    import functools
+    import time
+
+    problem = _check_options(args) or rows_file_problem(args.sweep_out)
+    if problem:
+        return fail(_PROG, f"error: {problem}")
+    try:
+        writer = RowWriter(args.sweep_out, SIMULATE_COLUMNS)
+    except OSError as exc:
+        return fail(_PROG, f"error: {rows_file_problem(args.sweep_out, exc)}")
+    skip = ("command_module", "command_parser", "seeds", "jobs", "sweep_out")
+    options = {k: v for k, v in vars(args).items() if k not in skip}
+    progress, jobs, t0_s = Progress(_PROG, len(args.seeds)), args.jobs or 1, time.perf_counter()
+
+    def on_row(row):
+        writer.write(row)
+        progress.update(row)
+
+    base = {"n": args.n, "field": _field_and_start(args)[0], "seeker": args.seeker}
+    try:
+        rows = run_sweep(args.seeds, functools.partial(sweep_trial, options), jobs=jobs, on_row=on_row, base=base)
+    except OSError as exc:  # the rows file became unwritable (disk full...)
+        return fail(_PROG, f"cannot write the rows file: {exc}", 1)
+    finally:
+        writer.close()
+    summ = summary(rows, time.perf_counter() - t0_s, jobs, len(args.seeds))
+    print(json.dumps(summ, indent=2) if args.json else "\n".join(summary_lines(_PROG, summ, args.sweep_out)))
+    return 1 if any(r["outcome"] == "error" for r in rows) else 0
+
+
 def report_lines(out: dict) -> list[str]:
     """The human-readable result of :func:`run`: the stop a mission would make, then the run's end."""
     r3 = lambda v: np.round(v, 3).tolist()  # noqa: E731
-    test = f"convergence test (the mission's: window {out['window']} iterations, tolerance {out['tol_m']:g} m)"
+    test = _test_text(out)
     lines = []
     if out["converged"]:
         lines += [f"{test} passed at iteration {out['converged_at_iteration']}: a mission would stop there",
@@ -307,10 +448,12 @@ def report_lines(out: dict) -> list[str]:
                   f"{out['centre_at_convergence_distance_m']:.3f} m from the true source"]
     else:
         lines.append(f"{test} never passed: not converged, no estimated source")
+        lines += _why_not_lines(out)
     goes_on = " (the run goes on past convergence)" if out["converged"] and not out["stopped_at_convergence"] else ""
+    grad = out["final_gradient_error"]
+    grad_text = "" if grad is None else f", gradient error {grad:.3g}"
     lines.append(f"after {out['final_iteration']} iterations{goes_on}: centre {r3(out['final_centre_enu'])}, "
-                 f"{out['final_distance_m']:.3f} m from the true source, gradient error "
-                 f"{out['final_gradient_error']:.3g}")
+                 f"{out['final_distance_m']:.3f} m from the true source{grad_text}")
     if goes_on:
         verdict = "passes" if out["converged_at_end"] else "does not pass"
         lines.append(f"  the test over the last {out['window']} iterations {verdict}; their mean is "

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimator import DEFAULT_MAX_CONDITION, convergence_scan, estimator_weights, gradient_batch, seek_step
+from estimator import DEFAULT_MAX_CONDITION, ConvergenceMonitor, convergence_scan, estimator_weights, gradient_batch, seek_step
 
 __all__ = ["OfflineResult", "simulate", "convergence_report", "SIGMA_C_MODES"]
 
@@ -228,9 +228,13 @@ def convergence_report(result: OfflineResult, *, window: int, tol_m: float, tria
         ``converged``, ``converged_at_iteration``, ``estimated_source_enu``, ``estimate_error_m``,
         ``estimate_spread_m``, ``centre_at_convergence_enu``, ``centre_at_convergence_distance_m``
         (None when never converged); ``final_iteration``, ``final_centre_enu``,
-        ``final_distance_m``, ``final_gradient_error``, ``stopped_at_convergence``; and the test
-        over the run's last window: ``converged_at_end``, ``final_window_estimate_enu``,
-        ``final_window_error_m`` (None when the run is shorter than the window).
+        ``final_distance_m``, ``final_gradient_error`` (None for a seeker without a gradient
+        estimate), ``stopped_at_convergence``, ``distance_flown_m`` (the centre's path to the
+        end); the test over the run's last window: ``converged_at_end``, ``final_window_estimate_enu``,
+        ``final_window_error_m`` (None when the run is shorter than the window); and, when never
+        converged, ``last_window``: why the test fails there (``spread_m``, ``net_m``, ``walk_m``,
+        ``path_m``, ``signal_fraction``, ``max_distance_m`` to the source; None when the run is
+        shorter than the window).
     """
     centres = result.centres[:, trial]
     source = result.source_enu
@@ -253,7 +257,8 @@ def convergence_report(result: OfflineResult, *, window: int, tol_m: float, tria
         "final_iteration": end,
         "final_centre_enu": centres[end].tolist(),
         "final_distance_m": float(np.linalg.norm(centres[end] - source)),
-        "final_gradient_error": float(result.error_norm()[min(end, result.grad_est.shape[0] - 1), trial]),
+        "final_gradient_error": _finite_or_none(result.error_norm()[min(end, result.grad_est.shape[0] - 1), trial]),
+        "distance_flown_m": float(np.linalg.norm(np.diff(centres[:end + 1], axis=0), axis=-1).sum()),
     }
     last = centres[max(0, end + 1 - window):end + 1]
     if last.shape[0] >= window:
@@ -265,4 +270,29 @@ def convergence_report(result: OfflineResult, *, window: int, tol_m: float, tria
                    final_window_error_m=float(np.linalg.norm(mean - source)))
     else:
         out.update(converged_at_end=None, final_window_estimate_enu=None, final_window_error_m=None)
+    out["last_window"] = None if converged else _last_window(centres[:end + 1], sig, source, window, tol_m,
+                                                             min_signal_fraction)
     return out
+
+
+def _finite_or_none(value) -> float | None:
+    """``value`` as a float, None when NaN (a seeker without a gradient estimate)."""
+    v = float(value)
+    return v if np.isfinite(v) else None
+
+
+def _last_window(centres, sig, source, window: int, tol_m: float, min_signal_fraction: float) -> dict | None:
+    """Why the convergence test does not pass at the run's end: the test over the last window
+    (:class:`estimator.ConvergenceMonitor`'s verdict), with the window's largest distance to the
+    source; None when the run is shorter than the window."""
+    if centres.shape[0] < window:
+        return None
+    monitor = ConvergenceMonitor(window=window, tol_m=tol_m, min_signal_fraction=min_signal_fraction)
+    last = centres[-window:]
+    signals = [None] * window if sig is None else [bool(x) for x in sig[-window:, 0]]
+    for c, s in zip(last, signals):
+        monitor.update(c, s)
+    v = monitor.verdict
+    return {"spread_m": v.spread_m, "net_m": v.net_m, "walk_m": v.walk_m, "path_m": v.path_m,
+            "signal_fraction": v.signal_fraction,
+            "max_distance_m": float(np.linalg.norm(last - source, axis=-1).max())}

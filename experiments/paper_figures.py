@@ -28,8 +28,13 @@ __all__ = [
 _DPI = 120
 
 
-def _save(fig, path: Path) -> None:
-    fig.tight_layout()
+def _save(fig, path: Path, note: str | None = None) -> None:
+    """Lay out, write and close ``fig``; ``note`` (e.g. a quick run's label) in red across its top."""
+    if note:
+        fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.92))
+        fig.text(0.5, 0.99, note, ha="center", va="top", color="tab:red", fontsize=9, fontweight="bold")
+    else:
+        fig.tight_layout()
     fig.savefig(path, dpi=_DPI)
     plt.close(fig)
 
@@ -41,7 +46,7 @@ def _sphere_wire(ax, centre, radius_m, color):
                       centre[2] + radius_m * np.cos(v), color=color, linewidth=0.3, alpha=0.4)
 
 
-def fig1_trajectory(path, centres, offsets, k_mid: int) -> None:
+def fig1_trajectory(path, centres, offsets, k_mid: int, note: str | None = None) -> None:
     """Fig. 1: 3D trajectory of the centre, robots at k = 0 and k = ``k_mid``, the source.
 
     Parameters
@@ -73,10 +78,10 @@ def fig1_trajectory(path, centres, offsets, k_mid: int) -> None:
         setter(m - span, m + span)
     ax.set_title(f"N = {len(offsets)} CVT formation, D = {radius_m:g} m, sigma_1, Theorem 2")
     ax.legend(loc="upper left", fontsize=8)
-    _save(fig, Path(path))
+    _save(fig, Path(path), note)
 
 
-def fig2_gradient(path, k, exact, eq3, thm2) -> None:
+def fig2_gradient(path, k, exact, eq3, thm2, note: str | None = None) -> None:
     """Fig. 2: gradient components along the run: exact, eq. (3), Theorem 2 (each (T, 3))."""
     fig, axes = plt.subplots(3, 1, figsize=(7, 7), sharex=True)
     for i, (ax, axis) in enumerate(zip(axes, "xyz")):
@@ -88,10 +93,10 @@ def fig2_gradient(path, k, exact, eq3, thm2) -> None:
     axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("iteration k")
     axes[0].set_title("Gradient along the Fig. 1 run (N = 7 CVT, D = 4 m, sigma_1)")
-    _save(fig, Path(path))
+    _save(fig, Path(path), note)
 
 
-def fig3_error(path, k, errors: dict) -> None:
+def fig3_error(path, k, errors: dict, note: str | None = None) -> None:
     """Fig. 3: ||g_hat - grad|| along the run for each radius (dict label -> (T,))."""
     fig, ax = plt.subplots(figsize=(7, 4))
     for label, err in errors.items():
@@ -101,10 +106,10 @@ def fig3_error(path, k, errors: dict) -> None:
     ax.set_title("Theorem 2 estimation error, N = 7 CVT, sigma_1")
     ax.grid(alpha=0.3, which="both")
     ax.legend()
-    _save(fig, Path(path))
+    _save(fig, Path(path), note)
 
 
-def fig4_noise(path, k, runs: dict) -> None:
+def fig4_noise(path, k, runs: dict, note: str | None = None) -> None:
     """Fig. 4: mean +- std of ||c - r*|| over trials; ``runs[(case, kind)]`` is (T + 1, K).
 
     Left: the whole run; right: the last third, zoomed, where the formations differ.
@@ -132,7 +137,7 @@ def fig4_noise(path, k, runs: dict) -> None:
         ax.set_ylim(0.0, 1.05 * ymax)
     for ax in axes[-1]:
         ax.set_xlabel("iteration k")
-    _save(fig, Path(path))
+    _save(fig, Path(path), note)
 
 
 def fig5_cvt(path, generators) -> None:

@@ -84,6 +84,16 @@ class PaperConfig:
     tail: int = 1000
     iterations_checks: int = 5000
 
+    def quick_note(self) -> str | None:
+        """The label of outputs whose runs are shorter than the full configuration's (``--quick``):
+        they stop before convergence, so their final errors are not the paper's result; None for
+        a full-length configuration."""
+        full = PaperConfig()
+        if self.iterations_sigma1 >= full.iterations_sigma1 and self.iterations_sigma2 >= full.iterations_sigma2:
+            return None
+        return (f"QUICK RUN (--quick, {self.iterations_sigma1}/{self.iterations_sigma2} iterations, not "
+                f"{full.iterations_sigma1}/{full.iterations_sigma2}):\nstopped before convergence, not the paper's result")
+
     @classmethod
     def quick(cls) -> "PaperConfig":
         """A small configuration that still writes every output."""

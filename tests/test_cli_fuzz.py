@@ -76,6 +76,7 @@ def guards():
     import experiments.cmd_simulate as cmd_simulate
     import experiments.offline as offline
     import experiments.paper as paper
+    import experiments.sweep as sweep
     import mission.cli.cmd_dryrun as cmd_dryrun
     import mission.cli.cmd_fly as cmd_fly
     import mission.cli.cmd_resume as cmd_resume
@@ -108,6 +109,7 @@ def guards():
             (offline, "simulate", _raise_reached), (cmd_simulate, "_simulate_seeker", _raise_reached),
             (cmd_simulate, "_simulate_moving", _raise_reached), (formation, "cvt_sphere", cvt),
             (formation, "symmetric_cylinder", symmetric),
+            (sweep, "ProcessPoolExecutor", _raise_reached),  # --seeds --jobs: the workers would not see these guards
         ]:
             mp.setattr(target, name, value)
         yield

@@ -79,3 +79,48 @@ def test_outputs_state_the_starting_points_and_data_is_consistent(paper_dir):
         rows = list(csv.DictReader(fh))
     assert float(rows[0]["equal_cvt_mean_m"]) == pytest.approx(np.linalg.norm(SIGMA2_START_ENU))
     assert float(rows[-1]["faulty_symmetric_mean_m"]) < float(rows[0]["faulty_symmetric_mean_m"])
+
+
+def test_quick_outputs_say_they_stopped_before_convergence(paper_dir):
+    """--quick's final errors (20-23 m on Fig. 4) are not the paper's result: its outputs say so."""
+    summary = json.loads((paper_dir / "summary.json").read_text())
+    assert "QUICK RUN (--quick, 600/400 iterations, not 3000/5000)" in summary["note"]
+    assert "stopped before convergence, not the paper's result" in summary["note"]
+    assert (paper_dir / "fig4_robustness.md").read_text().startswith("**QUICK RUN (--quick")
+    from experiments.paper_setup import PaperConfig
+
+    assert PaperConfig().quick_note() is None  # the full run has no label
+
+
+def test_quick_printed_fig4_lines_say_so(paper_dir, tmp_path, monkeypatch, capsys):
+    import experiments.paper as paper
+
+    summary = json.loads((paper_dir / "summary.json").read_text())
+    monkeypatch.setattr(paper, "generate", lambda out, quick=False: summary)
+    assert cli_main(["paper", "--quick", "--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].startswith("QUICK RUN (--quick, 600/400 iterations, not 3000/5000): stopped before convergence")
+    fig4 = [line for line in lines if line.startswith("  fig4 ")]
+    assert len(fig4) == 4 and all(line.endswith("m (quick run: stopped before convergence)") for line in fig4)
+
+
+@pytest.mark.parametrize("note", [None, "QUICK RUN (--quick):\nstopped before convergence"])
+def test_a_quick_figures_label_is_on_top_of_the_figure(tmp_path, monkeypatch, note):
+    """The label is a figure text above every axes, inside the figure; a full run's figure has none."""
+    from experiments import paper_figures as figs
+
+    closed = []
+    monkeypatch.setattr(figs.plt, "close", closed.append)
+    k = np.arange(50)
+    figs.fig3_error(tmp_path / "fig3.png", k, {"D1": np.linspace(1.0, 0.1, 50)}, note=note)
+    (fig,) = closed
+    texts = [t for t in fig.texts if t.get_text()]
+    if note is None:
+        assert texts == []
+        return
+    (label,) = texts
+    assert label.get_text() == note and label.get_color() == "tab:red"
+    renderer = fig.canvas.get_renderer()
+    box = label.get_window_extent(renderer)
+    assert box.y1 <= fig.bbox.y1 + 0.5 and box.x0 >= 0 and box.x1 <= fig.bbox.x1
+    assert all(box.y0 >= ax.get_tightbbox(renderer).y1 - 0.5 for ax in fig.axes)  # above the axes and their titles

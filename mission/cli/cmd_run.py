@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from estimator.seekers import MOVING_SEEKERS, SEEKERS
+from experiments.sweep import add_sweep_arguments, sweep_flag_problem
 from mission.cli.common import add_mission_outputs
 from mission.link.forward import ForwardAddressError, forwarding, plan_with_outs, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
@@ -60,7 +61,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speedup", type=positive_float, default=None,
                         help="with the wall clock: simulated seconds per wall second (implies --realtime; "
                              "the default lock-step clock runs as fast as the CPU allows)")
-    parser.add_argument("--seed", type=int_in_range(0, None, "--seed"), default=0, help="seed of the source position, noise, fleet")
+    seed = parser.add_mutually_exclusive_group()
+    seed.add_argument("--seed", type=int_in_range(0, None, "--seed"), default=0, help="seed of the source position, noise, fleet")
+    add_sweep_arguments(parser, seed, "mission")
     parser.add_argument("--source", type=source_enu, default=None, metavar="E,N,U",
                         help="source position, ENU m (default: drawn from the seed in a box)")
     parser.add_argument("--start", type=source_enu, default=None, metavar="E,N,U",
@@ -385,9 +388,24 @@ def _resolve_outs(args) -> str | None:
 
 
 def main(args) -> int:
-    """Run the embedded mission; 0 if it converged, 1 if not, 2 for bad options (stops: as ``fly``)."""
+    """Run the embedded mission; 0 if it converged, 1 if not, 2 for bad options (stops: as ``fly``).
+    With ``--seeds``: one mission per seed (:func:`mission.cli.run_sweep.sweep_main`)."""
+    problem = sweep_flag_problem(args)
+    if problem:
+        return usage_error(_PROG, problem)
     with best_effort_terminal() as terminal:
         return _main(args, terminal)
+
+
+def _sweep(args) -> int:
+    """``--seeds``: the options checked once (with the first seed), then one mission per seed."""
+    from mission.cli.run_sweep import sweep_main, sweep_problem
+
+    args.seed = args.seeds[0]
+    problem = sweep_problem(args) or _check_args(args)
+    if problem:
+        return usage_error(_PROG, problem)
+    return sweep_main(args, _PROG)
 
 
 def _main(args, terminal) -> int:
@@ -395,6 +413,8 @@ def _main(args, terminal) -> int:
 
     from mission.cli.paths import announce_log, mission_log_dir, summary_log_line
 
+    if args.seeds is not None:
+        return _sweep(args)
     problem = _check_args(args) or _resolve_outs(args)
     if not problem:
         args.log_dir, problem = mission_log_dir(args.log_dir, "run")
