@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from estimator.seekers import MOVING_SEEKERS, SEEKERS
+from mission.cli.cmd_map import add_map_option, start_map_thread
 from mission.cli.common import add_mission_outputs
 from mission.link.forward import ForwardAddressError, forwarding, plan_with_outs, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
@@ -103,6 +104,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-iterations", type=int, default=300)
     parser.add_argument("--return", dest="return_behaviour", choices=("land", "rtl"), default="land")
     add_mission_outputs(parser, "run")
+    add_map_option(parser)
     add_endpoint_arguments(
         parser, listen_help="the ground station also listens here, for `swarmseek watch` / `ctl` (repeatable)")
 
@@ -310,7 +312,8 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None):
                       clock="lockstep" if world is not None else f"realtime x{fleet.clock.speedup:g}",
                       eps=eps, gamma_m=args.gamma, seeker=args.seeker, sampling=plan.seeking.sampling, seed=args.seed)
             co = Coordinator(plan, clock=fleet.clock, zenoh_session=session, log=log, display=display,
-                             tlog_dir=None if args.no_tlog else log_dir / "tlogs")
+                             tlog_dir=None if args.no_tlog else log_dir / "tlogs",
+                             state_rate_hz=_state_rate_hz(args, world))
             if world is not None:
                 world.store = co.store
             result = await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal
@@ -330,7 +333,14 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None):
             session.close()
 
 
-def run_embedded(args, display=None, terminal=None):
+def _state_rate_hz(args, world) -> float:
+    """The state publication's rate: 10 Hz (wall clock) for ``--map`` on the wall clock; 2 Hz
+    otherwise (on the lock-step clock 2 Hz of simulated time, many per wall second: a
+    ``--map`` leaves a lock-step mission unchanged, record for record)."""
+    return 10.0 if getattr(args, "map", None) is not None and world is None else 2.0
+
+
+def run_embedded(args, display=None, terminal=None, map_thread=None):
     """Start the mock fleet, fly the mission, stop everything; returns the MissionResult.
 
     ``args`` as :func:`main` leaves them: with ``log_dir`` (created by
@@ -347,6 +357,8 @@ def run_embedded(args, display=None, terminal=None):
     from sitl_mock.clock import SimClock
 
     plan, ports, field, source, start, eps = _mission_setup(args)
+    if map_thread is not None:
+        map_thread.set_truth(source)
     if getattr(args, "log_dir", None) is None:
         from mission.cli.paths import DEFAULT_LOG_ROOT, new_log_dir
 
@@ -402,12 +414,18 @@ def _main(args, terminal) -> int:
         return usage_error(_PROG, problem)
     import zenoh
 
+    map_thread, status = start_map_thread(args, "swarmseek", _PROG)
+    if status is not None:
+        return status
     announce_log("run", args.log_dir / "mission.jsonl", args.json)
     display = Display(quiet=args.json)
     try:
-        result = run_embedded(args, display=display, terminal=terminal)
+        result = run_embedded(args, display=display, terminal=terminal, map_thread=map_thread)
     except (OSError, zenoh.ZError) as exc:
         return fail(_PROG, f"cannot start the embedded fleet or zenoh: {exc}", 1)
+    finally:
+        if map_thread is not None:
+            map_thread.stop()
     from mission.flight.operator_stop import exit_status
 
     status = exit_status(result, report_result(result, display, args.json))

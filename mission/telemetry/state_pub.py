@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 from typing import Callable
 
 from mission.core.tasks import spawn, stop_watched
@@ -78,6 +79,7 @@ class StatePublisher:
             self._failed("taking the mission's state", exc)
             return {}
         state["schema"] = STATE_SCHEMA
+        state["published_wall_s"] = round(time.time(), 4)  # for a watcher's latency (same host or synced clocks)
         if final:
             state["final"] = True
         if self.on_snapshot is not None:
