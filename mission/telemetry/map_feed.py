@@ -95,8 +95,9 @@ class MapFeed:
         self._last_seq = 0
         self._broadcast(sse_message("reset", {}))
 
-    def push(self, state: dict) -> None:
-        """One snapshot: update the tracks and events, send it to every page."""
+    def push(self, state: dict, broadcast: bool = True) -> None:
+        """One snapshot: update the tracks and events, send it to every page (unless not ``broadcast``:
+        a replay rebuilding its past)."""
         if self.first_wall_s is None:
             self.first_wall_s = time.time()
         self.updates += 1
@@ -109,7 +110,8 @@ class MapFeed:
             if isinstance(ev, dict) and isinstance(ev.get("seq"), int) and ev["seq"] > self._last_seq:
                 self._last_seq = ev["seq"]
                 self.events.append(ev)
-        self._broadcast(sse_message("state", state))
+        if broadcast:
+            self._broadcast(sse_message("state", state))
 
     def history(self) -> dict:
         """Tracks, centre track and events so far (for a page that connects now)."""
