@@ -14,7 +14,7 @@ import time
 from typing import Callable
 
 from mission.telemetry.map_feed import MapFeed
-from mission.telemetry.map_server import MapAccess, MapServer, make_app
+from mission.telemetry.map_server import FEED, MapAccess, MapServer, make_app
 from mission.telemetry.watch import CommandTimeout, StateWatcher, send_command
 
 __all__ = ["pump_states", "zenoh_commander", "live_feed", "serve_live", "MapThread"]
@@ -74,7 +74,7 @@ async def serve_live(open_session: Callable[[], object], fleet: str, host: str, 
                      ready: Callable[[MapServer], None], stop: asyncio.Event) -> None:
     """Serve the map of ``fleet`` on ``host:port`` until ``stop`` is set.
 
-    Binds first (``ready(server)`` is then called: :attr:`MapServer.url`, ``server.app["feed"]``),
+    Binds first (``ready(server)`` is then called: :attr:`MapServer.url`, ``server.app[FEED]``),
     then opens the zenoh session (``open_session()``, in the executor: it may wait for the
     mission's endpoint) and streams the state. Raises ``OSError`` when the address cannot be bound.
     """
@@ -150,7 +150,7 @@ class MapThread:
             self._bound.set()
 
     def _ready(self, server: MapServer) -> None:
-        self.url, self.feed = server.url, server.app["feed"]
+        self.url, self.feed = server.url, server.app[FEED]
         self._bound.set()
 
     def stop(self, final_wait_s: float = 3.0) -> None:

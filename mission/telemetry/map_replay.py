@@ -72,14 +72,16 @@ class MissionLogReplay:
 
 def _frames(records: list[dict]) -> tuple[list[dict], list | None]:
     """Snapshots rebuilt from ``records``, and the true source (ENU m) if the log has one."""
-    base: dict = {"schema": STATE_SCHEMA, "phase": "idle", "iteration": 0, "events": [], "ending": None,
+    base: dict = {"schema": STATE_SCHEMA, "phase": "idle", "events": [], "ending": None,
+                  **{k: None for k in _ESTIMATE_KEYS}, "iteration": 0,
                   "geometry": {"origin": None, "fence_en_m": [], "slots_enu": {}}, "control": {}}
-    t0_s, offsets, events, frames, truth = None, {}, [], [], None
+    t0_s, offsets, events, frames, truth, end_s = None, {}, [], [], None, None
     for rec in records:
         kind, t_s = rec.get("type"), rec.get("t_s")
         if not isinstance(t_s, (int, float)):
             continue
         t0_s = t_s if t0_s is None else t0_s
+        end_s = t_s
         if kind in RECENT_KINDS:
             events.append(_short(rec, len(events) + 1))
         if kind == "plan" and isinstance(rec.get("plan"), dict):
@@ -103,7 +105,8 @@ def _frames(records: list[dict]) -> tuple[list[dict], list | None]:
         elif kind == "status":
             frames.append(_frame(base, rec, t_s, t0_s, offsets, events))
     if frames:
-        last = dict(frames[-1], final=True, phase="done", ending=base["ending"], events=events[-RECENT_RECORDS:])
+        last = dict(frames[-1], final=True, phase="done", ending=base["ending"], events=events[-RECENT_RECORDS:],
+                    t_s=max(end_s, frames[-1]["t_s"]), elapsed_s=max(end_s, frames[-1]["t_s"]) - t0_s)
         frames.append(last)
     return frames, truth
 

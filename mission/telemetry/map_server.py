@@ -26,7 +26,8 @@ from aiohttp import web
 
 from mission.telemetry.map_feed import MapFeed
 
-__all__ = ["COMMANDS", "DESTRUCTIVE", "MapAccess", "is_loopback", "make_app", "MapServer"]
+__all__ = ["COMMANDS", "DESTRUCTIVE", "FEED", "ACCESS", "SEND", "PLAYER", "MapAccess", "is_loopback", "make_app",
+           "MapServer"]
 
 #: Commands the page offers (as ``swarmseek ctl``'s) and those it confirms first
 COMMANDS = ("pause", "continue", "abort", "return", "land", "rtl")
@@ -34,6 +35,10 @@ DESTRUCTIVE = ("abort", "return", "land", "rtl")
 _COOKIE = "swarmseek_map_session"
 _STATIC_FILES = {"index.html": "text/html", "map.js": "application/javascript", "map.css": "text/css"}
 _MAX_BODY_BYTES = 4096
+FEED = web.AppKey("feed", MapFeed)
+ACCESS = web.AppKey("access", object)
+SEND = web.AppKey("send_command", object)
+PLAYER = web.AppKey("player", object)
 
 
 def is_loopback(host: str) -> bool:
@@ -63,6 +68,7 @@ class MapAccess:
         self.password = password
         self.csrf_token = secrets.token_urlsafe(32)
         self._sessions: set[str] = set()
+        self.refused = 0
         if read_only_reason is None and password is None and not is_loopback(bind_host):
             read_only_reason = (f"bound to {bind_host}, not a loopback address, without --password-file: "
                                 "commands are refused")
@@ -110,7 +116,7 @@ def _static(name: str) -> bytes:
 
 async def _events(request: web.Request) -> web.StreamResponse:
     """``/events``: the server-sent event stream of one page."""
-    feed: MapFeed = request.app["feed"]
+    feed: MapFeed = request.app[FEED]
     resp = web.StreamResponse(headers={"Content-Type": "text/event-stream", "Cache-Control": "no-store",
                                        "X-Accel-Buffering": "no"})
     await resp.prepare(request)
@@ -138,23 +144,23 @@ async def _json_body(request: web.Request) -> dict | None:
 
 async def _command(request: web.Request) -> web.Response:
     """``POST /api/command {"command": ...}``: the coordinator's acknowledgement, or a refusal (403/400)."""
-    access: MapAccess = request.app["access"]
+    access: MapAccess = request.app[ACCESS]
     problem = access.refusal(request)
     if problem:
-        request.app["refused"] += 1
+        access.refused += 1
         return web.json_response({"accepted": False, "reason": problem}, status=403)
     body = await _json_body(request)
     command = None if body is None else body.get("command")
     if command not in COMMANDS:
         return web.json_response({"accepted": False, "reason": f"unknown command; commands: {', '.join(COMMANDS)}"},
                                  status=400)
-    send: Callable[[str], dict] = request.app["send_command"]
+    send: Callable[[str], dict] = request.app[SEND]
     ack = await asyncio.get_running_loop().run_in_executor(None, send, command)
     return web.json_response(ack)
 
 
 async def _login(request: web.Request) -> web.Response:
-    access: MapAccess = request.app["access"]
+    access: MapAccess = request.app[ACCESS]
     body = await _json_body(request)
     if access.read_only or access.password is None or body is None or not isinstance(body.get("password"), str):
         return web.json_response({"ok": False, "reason": "no login here"}, status=400)
@@ -169,8 +175,8 @@ async def _login(request: web.Request) -> web.Response:
 
 
 async def _replay_control(request: web.Request) -> web.Response:
-    player = request.app.get("player")
-    problem = request.app["access"].foreign(request)
+    player = request.app.get(PLAYER)
+    problem = request.app[ACCESS].foreign(request)
     if problem:
         return web.json_response({"ok": False, "reason": problem}, status=403)
     body = await _json_body(request)
@@ -210,8 +216,7 @@ def make_app(feed: MapFeed, access: MapAccess, send_command: Callable[[str], dic
         A replay's player (``POST /api/replay``: position, speed, pause).
     """
     app = web.Application(client_max_size=_MAX_BODY_BYTES)
-    app["feed"], app["access"], app["send_command"], app["player"] = feed, access, send_command, player
-    app["refused"] = 0
+    app[FEED], app[ACCESS], app[SEND], app[PLAYER] = feed, access, send_command, player
     app.router.add_get("/", _static_handler("index.html", "text/html"))
     for name, ctype in _STATIC_FILES.items():
         app.router.add_get(f"/static/{name}", _static_handler(name, ctype))
