@@ -3,10 +3,17 @@ feed of snapshots to the pages, the replay of a mission log, and the ``map`` com
 (one line, non-zero exit). The browser itself: tests/test_map_browser.py."""
 from __future__ import annotations
 
-import asyncio
 import argparse
+import asyncio
 import json
+import os
+import re
 import socket
+import subprocess
+import sys
+import threading
+import urllib.request
+from pathlib import Path
 
 import pytest
 from aiohttp.test_utils import TestClient, TestServer
@@ -16,6 +23,8 @@ from mission.cli.cmd_map import bind_address, tile_url
 from mission.telemetry.map_feed import MapFeed
 from mission.telemetry.map_replay import MissionLogReplay, ReplayError, ReplayPlayer
 from mission.telemetry.map_server import MapAccess, is_loopback, make_app
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_bind_and_tile_url_options():
@@ -238,3 +247,61 @@ def test_a_port_in_use_is_one_line_before_anything_flies(tmp_path, capsys):
         assert "--map: cannot serve the map on 127.0.0.1" in line
         flown = tmp_path / "run" / "mission.jsonl"
         assert not flown.exists() or flown.read_text() == ""  # the log is only checked writable: nothing flew
+
+
+def _normalised(path):
+    out = []
+    for line in open(path, encoding="utf-8"):
+        line = re.sub(r"127\.0\.0\.1:\d+", "127.0.0.1:PORT", line)
+        rec = json.loads(line.replace(", listening on tcp/127.0.0.1:PORT", ""))  # the preflight's zenoh line
+        rec.pop("log_path", None)
+        if rec["type"] == "plan":
+            rec["plan"]["zenoh"].pop("listen")  # --map adds the endpoint its own zenoh session reaches
+        out.append(rec)
+    return out
+
+
+class _Stream(threading.Thread):
+    """Reads a map's event stream, counting the state snapshots."""
+
+    def __init__(self, url):
+        super().__init__(daemon=True)
+        self.url, self.states, self.final = url, 0, False
+        self.start()
+
+    def run(self):
+        with urllib.request.urlopen(self.url + "events", timeout=60) as resp:
+            for raw in resp:
+                line = raw.decode()
+                if line.startswith("event: state"):
+                    self.states += 1
+                if line.startswith("data: ") and '"final":true' in line:
+                    self.final = True
+                    return
+
+
+@pytest.mark.slow
+def test_a_map_leaves_a_lockstep_mission_unchanged(tmp_path):
+    """One seed flown lock-step without and with ``--map`` (a page reading its stream): the same
+    mission log, record for record, but for the zenoh endpoint the map reaches."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    argv = [sys.executable, "-m", "mission", "run", "--n", "4", "--seed", "7", "--max-iterations", "6", "--json",
+            "--no-tlog"]
+    plain = subprocess.run(argv + ["--log-dir", str(tmp_path / "plain")], env=env, cwd=ROOT,
+                           capture_output=True, text=True, timeout=300)
+    proc = subprocess.Popen(argv + ["--log-dir", str(tmp_path / "map"), "--map", "127.0.0.1:0"], env=env, cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        url = re.search(r"live map at (http://\S+/)", proc.stderr.readline()).group(1)
+        stream = _Stream(url)
+        assert proc.wait(timeout=300) == plain.returncode
+        stream.join(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert stream.states > 0 and stream.final  # it really watched, to the mission's end
+    a, b = _normalised(tmp_path / "plain" / "mission.jsonl"), _normalised(tmp_path / "map" / "mission.jsonl")
+    assert sum(r["type"] == "iteration" for r in a) == 6
+    assert len(a) == len(b)
+    for rec_a, rec_b in zip(a, b):
+        assert rec_a == rec_b
