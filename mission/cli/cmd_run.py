@@ -30,6 +30,7 @@ from mission.flight.operator_stop import run_until_stopped
 from mission.flight.result import geodetic_point
 from mission.sim.fleet_report import vehicle_rejections, world_errors_line
 from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.state_pub import MAP_RATE_HZ, WALL_CLOCK_RATE_HZ
 from mission.telemetry.terminal import best_effort_terminal, told_to
 from mission.telemetry.watch_keys import with_keys
 
@@ -334,10 +335,12 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None):
 
 
 def _state_rate_hz(args, world) -> float:
-    """The state publication's rate: 10 Hz (wall clock) for ``--map`` on the wall clock; 2 Hz
-    otherwise (on the lock-step clock 2 Hz of simulated time, many per wall second: a
-    ``--map`` leaves a lock-step mission unchanged, record for record)."""
-    return 10.0 if getattr(args, "map", None) is not None and world is None else 2.0
+    """The state publication's rate: on the wall clock 10 Hz with ``--map``, 5 Hz without; on the
+    lock-step clock 2 Hz of simulated time, many per wall second (a ``--map`` leaves a lock-step
+    mission unchanged, record for record)."""
+    if world is not None:
+        return 2.0
+    return MAP_RATE_HZ if getattr(args, "map", None) is not None else WALL_CLOCK_RATE_HZ
 
 
 def run_embedded(args, display=None, terminal=None, map_thread=None):

@@ -80,11 +80,6 @@
         t.textContent = `${fmt(a, 0)} m`;
       }
     }
-    if (S.config && S.config.truth_enu) {
-      const t = S.config.truth_enu, r = v.span / 90;
-      el("path", {class: "truth", id: "truth", d: star(t[0], -t[1], r)}, st);
-      el("path", {class: "truth", id: "side-truth", d: star(t[0], -t[2], r)}, ss);
-    }
     drawGrid(); drawTiles();
   }
   function star(x, y, r) {
@@ -170,6 +165,11 @@
     }
     for (const q of Array.from(pd.querySelectorAll(".slot"))) if (!seen.has(q.id)) q.remove();
     drawEstimate(pd, sd, st, r);
+    if (S.config && S.config.truth_enu) {  // drawn above the estimate: the two meet at the end
+      const t = S.config.truth_enu;
+      node(pd, "truth", "path", {class: "truth"}).setAttribute("d", star(t[0], -t[1], r * 1.8));
+      node(sd, "side-truth", "path", {class: "truth"}).setAttribute("d", star(t[0], -t[2], r * 1.8));
+    }
     for (const veh of st.vehicles || []) {
       const p = veh.position_enu; if (!p) continue;
       const cls = `vehicle ${veh.flight_state || "landed"}`;
