@@ -176,7 +176,9 @@ def _flown_log(path):
         {"t_s": 0.0, "type": "event", "message": "embedded mock fleet", "source_enu": [9.0, 1.0, 12.0]},
         {"t_s": 0.1, "type": "plan", "plan": plan}, {"t_s": 0.2, "type": "phase", "phase": "seek"},
         {"t_s": 1.0, "type": "status", "phase": "seek", "centre_enu": [0.0, 0.0, 10.0], "vehicles": veh(0.0)},
-        {"t_s": 1.5, "type": "iteration", "k": 1, "estimate_enu": [5.0, 0.0, 10.0], "estimate_region95_m": 2.0},
+        {"t_s": 1.5, "type": "iteration", "k": 1, "estimate_enu": [5.0, 0.0, 10.0], "estimate_region95_m": 2.0,
+         "estimate_map": {"east0_m": 3.0, "north0_m": -2.0, "cell_m": 1.0, "prob_e4": [[0, 10], [9990, 0]],
+                          "outside": 0.0}},
         {"t_s": 2.0, "type": "status", "phase": "seek", "centre_enu": [2.0, 0.0, 10.0], "vehicles": veh(2.0)},
         {"t_s": 3.0, "type": "summary", "outcome": "converged", "message": "converged after 1 iteration"}])
 
@@ -190,6 +192,7 @@ def test_a_mission_log_replays_as_the_snapshots_the_mission_published(tmp_path):
     assert first["geometry"]["fence_en_m"][0] == [-50, -50] and first["estimate_enu"] is None
     assert first["vehicles"][0]["flight_state"] == "flying"
     assert second["estimate_enu"] == [5.0, 0.0, 10.0] and second["estimate_region95_m"] == 2.0
+    assert second["estimate_map"]["prob_e4"][1][0] == 9990 and first["estimate_map"] is None
     assert last["final"] and last["ending"]["outcome"] == "converged"
     assert replay.index_at(1.7) == 0 and replay.index_at(2.0) == 1
 

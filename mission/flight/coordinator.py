@@ -232,6 +232,11 @@ class Coordinator:
         return {"origin": list(self.plan.origin), "fence_en_m": [list(p) for p in fence.polygon_en_m],
                 "min_alt_m": fence.min_alt_m, "max_alt_m": fence.max_alt_m, "slots_enu": slots}
 
+    def _estimate_map(self) -> dict | None:
+        """The estimate's plan-view posterior (the ``ste`` seeker's, 24 x 24 cells), None without one."""
+        est = self.state.estimate
+        return None if est is None or est.plan_map is None else est.plan_map.to_json()
+
     def link_rejections(self) -> dict[str, int]:
         """Frames the mission's MAVLink endpoints refused so far, by kind (non-zero only;
         :func:`mission.telemetry.link_report.link_rejections`)."""
@@ -255,7 +260,7 @@ class Coordinator:
             "distance_flown_m": self.state.distance_flown_m, "vehicles": self.vehicle_status(),
             "readings": self.store.counts(), "link_rejections": self.link_rejections(),
             "unknown_sysids": self.unknown_sysids(), "control": self.control.snapshot(),
-            "geometry": self.map_geometry(), "ending": self.state.ending,
+            "geometry": self.map_geometry(), "ending": self.state.ending, "estimate_map": self._estimate_map(),
             "events": [] if self.log is None else list(self.log.recent),
         }
 

@@ -25,7 +25,7 @@ __all__ = ["ReplayError", "MissionLogReplay", "ReplayPlayer", "serve_replay"]
 
 _MAX_GAP_S = 5.0  # wall seconds at most between two replayed snapshots (a long silence in the log)
 _ESTIMATE_KEYS = ("iteration", "estimate_enu", "estimate_region95_m", "estimate_basis", "spread_m",
-                  "distance_flown_m", "gradient")
+                  "distance_flown_m", "gradient", "estimate_map")
 
 
 class ReplayError(ValueError):

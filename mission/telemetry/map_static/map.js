@@ -181,7 +181,23 @@
       s.setAttribute("class", cls); s.setAttribute("cx", p[0]); s.setAttribute("cy", -p[2]); s.setAttribute("r", r);
     }
   }
+  function drawPosterior(m) {
+    const key = m ? JSON.stringify(m) : "";
+    if (key === S.postKey) return;
+    S.postKey = key;
+    const g = $("plan-post"); g.replaceChildren();
+    if (!m || !m.prob_e4 || !m.prob_e4.length) return;
+    let top = 0;
+    for (const row of m.prob_e4) for (const p of row) top = Math.max(top, p);
+    if (!(top > 0)) return;
+    m.prob_e4.forEach((row, i) => row.forEach((p, j) => {
+      if (p <= 0) return;
+      el("rect", {class: "post", x: m.east0_m + j * m.cell_m, y: -(m.north0_m + (i + 1) * m.cell_m), width: m.cell_m,
+        height: m.cell_m, "fill-opacity": (0.7 * p / top).toFixed(3)}, g);
+    }));
+  }
   function drawEstimate(pd, sd, st, r) {
+    drawPosterior(st.estimate_map);
     const e = st.estimate_enu, r95 = st.estimate_region95_m;
     const reg = node(pd, "estimate-region", "circle", {class: "est-region"});
     const sreg = node(sd, "side-estimate-region", "circle", {class: "est-region"});
