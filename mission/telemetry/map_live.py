@@ -14,7 +14,7 @@ import time
 from typing import Callable
 
 from mission.telemetry.map_feed import MapFeed
-from mission.telemetry.map_server import FEED, MapAccess, MapServer, make_app
+from mission.telemetry.map_server import DESTRUCTIVE, FEED, MapAccess, MapServer, make_app
 from mission.telemetry.watch import CommandTimeout, StateWatcher, send_command
 
 __all__ = ["pump_states", "zenoh_commander", "live_feed", "serve_live", "MapThread"]
@@ -64,7 +64,7 @@ def zenoh_commander(session_of: Callable[[], object], fleet: str, sender: str,
 
 def live_feed(fleet: str, access: MapAccess, config: dict) -> MapFeed:
     """A feed whose configuration tells the page the fleet and its access (read-only, CSRF token, login)."""
-    return MapFeed({**config, "fleet": fleet, "read_only": access.read_only,
+    return MapFeed({**config, "fleet": fleet, "read_only": access.read_only, "confirm": list(DESTRUCTIVE),
                     "read_only_reason": access.read_only_reason, "csrf_token": access.csrf_token,
                     "login": access.password is not None and not access.read_only})
 

@@ -125,8 +125,8 @@ async def _events(request: web.Request) -> web.StreamResponse:
         while True:
             msg = await q.get()
             await resp.write(msg)
-    except (ConnectionResetError, asyncio.CancelledError):
-        pass  # the page went away (or the server stops): nothing to tell
+    except ConnectionResetError:
+        pass  # the page went away: nothing to tell
     finally:
         feed.unsubscribe(q)
     return resp

@@ -339,7 +339,7 @@
   }
   async function command(name) {
     if (S.config && S.config.read_only) return;
-    if (["abort", "return", "land", "rtl"].includes(name) && !window.confirm(`Send "${name}" to fleet ${S.config.fleet}? This ends the mission.`)) return;
+    if ((S.config.confirm || ["abort", "return", "land", "rtl"]).includes(name) && !window.confirm(`Send "${name}" to fleet ${S.config.fleet}? This ends the mission.`)) return;
     $("ack").textContent = `${name}: sending…`;
     const ack = await post("/api/command", {command: name});
     $("ack").textContent = `${name} ${ack.accepted ? "accepted" : "REJECTED"}${ack.phase ? ` (phase ${ack.phase})` : ""}: ${ack.reason || ""}`;
