@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "resume": ("mission.cli.cmd_resume", "restart a stopped mission from its mission log"),
     "watch": ("mission.cli.cmd_watch", "the live table of a running mission, over zenoh from anywhere"),
     "ctl": ("mission.cli.cmd_ctl", "command a running mission over zenoh: pause, continue, abort, land, rtl, return"),
+    "map": ("mission.cli.cmd_map", "the live map of a running mission in a browser (or --log: a replay)"),
     "plot": ("mission.cli.cmd_plot", "figures of a flown mission from its mission log"),
     "export": ("mission.cli.cmd_export", "a flown mission as KML (Google Earth) or GeoJSON (QGIS): tracks, fence, estimate"),
     "audit": ("mission.cli.cmd_audit", "check from the .tlog files that no setpoint broke the fence, speed or separation"),

@@ -20,6 +20,7 @@ from mission.cli.common import add_mission_outputs, add_plan_argument, load_plan
 from mission.core.clock import WallClock
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
+from mission.telemetry.state_pub import WALL_CLOCK_RATE_HZ
 from mission.flight.operator_stop import run_until_stopped
 from mission.link.forward import ForwardAddressError, forwarding, plan_with_outs, resolve_outs
 from mission.telemetry.mission_log import MissionLog
@@ -63,7 +64,7 @@ async def fly_logged(plan, log, *, clock, display=None, tlog_dir=None, forward_a
         with told_to(terminal, log):
             session = await open_session(plan.zenoh)  # off the loop
             co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
-                             tlog_dir=tlog_dir)
+                             tlog_dir=tlog_dir, state_rate_hz=WALL_CLOCK_RATE_HZ)
             return await forwarding(co, with_keys(co, display, run_until_stopped(co, resume_state)),
                                     forward_addresses)  # --out; keys on a terminal
     finally:

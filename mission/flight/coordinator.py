@@ -206,7 +206,7 @@ class Coordinator:
         for vp in self.plan.vehicles:
             v = self.vehicles.get(vp.sysid)
             d = {"sysid": vp.sysid, "id": vp.id, "status": self.state.status.get(vp.sysid, ""),
-                 "sensor_retired": vp.sysid in self.state.retired}
+                 "sensor_retired": vp.sysid in self.state.retired, "flight_state": self.flight_state(vp.sysid)}
             if v is not None:
                 st = v.state
                 pos = self.telemetry_position(vp.sysid)
@@ -219,6 +219,32 @@ class Coordinator:
                     d["setpoint_enu"] = np.round(self.ramp.setpoint(vp.sysid), 3)
             out.append(d)
         return out
+
+    def flight_state(self, sysid: int) -> str:
+        """One word for the map's colour: ``lost``, ``retired``, ``holding`` (paused, or its status
+        says it holds), ``flying`` (airborne) or ``landed`` (on the ground, also before takeoff)."""
+        if sysid in self.state.lost:
+            return "lost"
+        if sysid in self.state.retired:
+            return "retired"
+        if sysid in self.state.airborne:
+            holding = self.control.paused or "holding" in self.state.status.get(sysid, "")
+            return "holding" if holding else "flying"
+        return "landed"
+
+    def map_geometry(self) -> dict:
+        """What the live map draws besides the vehicles: origin, geofence, altitude band and the
+        formation's slots (ENU m, by sysid; empty before the assembly)."""
+        fence, centre = self.plan.geofence, self.state.centre_enu
+        slots = {} if centre is None else {
+            str(s): np.round(np.asarray(centre, float) + off, 3) for s, off in self.state.slot_offsets.items()}
+        return {"origin": list(self.plan.origin), "fence_en_m": [list(p) for p in fence.polygon_en_m],
+                "min_alt_m": fence.min_alt_m, "max_alt_m": fence.max_alt_m, "slots_enu": slots}
+
+    def _estimate_map(self) -> dict | None:
+        """The estimate's plan-view posterior (the ``ste`` seeker's, 24 x 24 cells), None without one."""
+        est = self.state.estimate
+        return None if est is None or est.plan_map is None else est.plan_map.to_json()
 
     def link_rejections(self) -> dict[str, int]:
         """Frames the mission's MAVLink endpoints refused so far, by kind (non-zero only;
@@ -244,6 +270,8 @@ class Coordinator:
             "readings": self.store.counts(), "link_rejections": self.link_rejections(),
             "unknown_sysids": self.unknown_sysids(), "control": self.control.snapshot(),
             "security_warnings": [f.to_json() for f in self.security if f.level != "info"],
+            "geometry": self.map_geometry(), "ending": self.state.ending, "estimate_map": self._estimate_map(),
+            "events": [] if self.log is None else list(self.log.recent),
         }
 
     def _security_json(self) -> list[dict]:

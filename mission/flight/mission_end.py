@@ -93,6 +93,7 @@ async def close(co, outcome: str, message: str, *, interrupted: bool = False):
     why = f"mission {message}" if message.startswith(outcome) else f"mission {outcome}: {message}"
     left, cut_short = await secure(co, why, land=co.return_on_interrupt or not interrupts)
     interrupts += int(cut_short)
+    co.state.set_ending(outcome, message)  # in the last snapshot (a watcher's map shows the outcome)
     try:
         await co.stop_background()
     except asyncio.CancelledError:

@@ -182,6 +182,7 @@ class MissionState:
         self._mission_checks: list[dict] = []
         self._still_armed: list[dict] = []
         self._final_result = None
+        self._ending: dict | None = None
 
     # ------------------------------------------------------------------------ reading
     sysids = _value("_sysids", "The plan's vehicles.")
@@ -458,6 +459,15 @@ class MissionState:
     def set_still_armed(self, entries: list[dict]) -> None:
         """The vehicles found still armed at the end (landing guard entries)."""
         self._still_armed = [dict(e) for e in entries]
+
+    @property
+    def ending(self) -> dict | None:
+        """How the mission is ending (``outcome``, ``message``) once decided, else None."""
+        return None if self._ending is None else dict(self._ending)
+
+    def set_ending(self, outcome: str, message: str) -> None:
+        """The mission is ending with ``outcome`` (told to watchers before its last snapshot)."""
+        self._ending = {"outcome": str(outcome), "message": str(message)}
 
     def finish(self, result) -> None:
         """The mission ended with ``result`` (:class:`mission.flight.result.MissionResult`)."""

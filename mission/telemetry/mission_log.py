@@ -31,6 +31,7 @@ import dataclasses
 import json
 import math
 import os
+from collections import deque
 from collections.abc import Callable, Iterator
 from enum import Enum
 from pathlib import Path, PurePath
@@ -46,7 +47,13 @@ from mission.core.redaction import (
     is_secret_field,
 )
 
-__all__ = ["MissionLog", "dataclass_json", "iter_mission_log", "read_mission_log", "to_jsonable"]
+__all__ = ["RECENT_RECORDS", "RECENT_KINDS", "MissionLog", "dataclass_json", "iter_mission_log", "read_mission_log",
+           "to_jsonable"]
+
+#: How many of the last event, phase and command records a log keeps in memory (:attr:`MissionLog.recent`,
+#: published in the mission state as ``events`` for the live map)
+RECENT_RECORDS = 30
+RECENT_KINDS = frozenset({"event", "phase", "command"})
 
 
 def to_jsonable(obj):
@@ -135,6 +142,9 @@ class MissionLog:
         the records lost).
     on_error : callable or None
         Called once with that error.
+    recent : collections.deque
+        The last :data:`RECENT_RECORDS` event, phase and command records, shortened and numbered
+        (``seq``), for the state publication's ``events``.
     """
 
     def __init__(self, path: str | Path, clock):
@@ -146,11 +156,15 @@ class MissionLog:
         self.error: OSError | None = None
         self.dropped = 0
         self.on_error: Callable[[OSError], None] | None = None
+        self.recent: deque = deque(maxlen=RECENT_RECORDS)
+        self._seq = 0
 
     def write(self, kind: str, sync: bool = False, **fields) -> dict:
         """Write one record of type ``kind`` and flush it; returns the record written."""
         record = {"t_s": round(float(self.clock.time()), 4), "type": kind}
         record.update(to_jsonable(fields))
+        if kind in RECENT_KINDS:
+            self._remember(record)
         if self._fh is None:
             self.dropped += self.error is not None
             return record
@@ -167,6 +181,15 @@ class MissionLog:
                 pass
         self.records += 1
         return record
+
+    def _remember(self, record: dict) -> None:
+        """Keep a short copy of an event, phase or command record in :attr:`recent` (numbered)."""
+        self._seq += 1
+        short = {"seq": self._seq, "t_s": record["t_s"], "type": record["type"]}
+        for key in ("level", "message", "phase", "command", "sender", "accepted", "reason"):
+            if key in record:
+                short[key] = str(record[key])[:300] if isinstance(record[key], str) else record[key]
+        self.recent.append(short)
 
     def _fail(self, exc: OSError) -> None:
         """The first failed write: stop writing (what is buffered is lost), tell ``on_error``."""

@@ -13,14 +13,21 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 from typing import Callable
 
 from mission.core.tasks import spawn, stop_watched
 from mission.telemetry.mission_log import to_jsonable
 
-__all__ = ["STATE_SCHEMA", "state_key", "StatePublisher"]
+__all__ = ["STATE_SCHEMA", "WALL_CLOCK_RATE_HZ", "MAP_RATE_HZ", "state_key", "StatePublisher"]
 
 STATE_SCHEMA = "swarmseek.mission_state.v1"
+#: The publication's rate on the wall clock (``fly``, ``resume``, ``run --realtime``): the live map
+#: wants at least 5 updates a second (a lock-step mission publishes at 2 Hz of simulated time, many
+#: per wall second, and keeps that rate: more timers would move its world in other steps)
+WALL_CLOCK_RATE_HZ = 5.0
+#: ... and with the map served by the mission itself (``run --map``)
+MAP_RATE_HZ = 10.0
 
 
 def state_key(fleet: str) -> str:
@@ -78,6 +85,7 @@ class StatePublisher:
             self._failed("taking the mission's state", exc)
             return {}
         state["schema"] = STATE_SCHEMA
+        state["published_wall_s"] = round(time.time(), 4)  # for a watcher's latency (same host or synced clocks)
         if final:
             state["final"] = True
         if self.on_snapshot is not None:
