@@ -89,10 +89,10 @@ def test_a_mission_that_fails_is_a_row_and_the_sweep_goes_on(tmp_path, monkeypat
 
     real = sweep_module.sweep_mission
 
-    def flaky(options, log_root, seed):
+    def flaky(fly, options, log_root, seed):
         if seed == 0:
             raise RuntimeError("the fleet caught fire")
-        return real(options, log_root, seed)
+        return real(fly, options, log_root, seed)
 
     monkeypatch.setattr(sweep_module, "sweep_mission", flaky)
     rows_path = tmp_path / "rows.csv"

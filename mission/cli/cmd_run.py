@@ -420,7 +420,7 @@ def _sweep(args) -> int:
     problem = sweep_problem(args) or _check_args(args)
     if problem:
         return usage_error(_PROG, problem)
-    return sweep_main(args, _PROG)
+    return sweep_main(args, _PROG, run_embedded)
 
 
 def _main(args, terminal) -> int:

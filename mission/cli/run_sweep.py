@@ -58,12 +58,12 @@ def mission_row(result, args, wall_s: float) -> dict:
             "interrupted_by": (summ["interrupted_by"] or [None])[0]}  # not a column: what stops the sweep
 
 
-def sweep_mission(options: dict, log_root: str, seed: int) -> dict:
-    """Fly the mission of ``options`` (a ``run`` namespace's values) with ``seed``; its row.
+def sweep_mission(fly, options: dict, log_root: str, seed: int) -> dict:
+    """Fly the mission of ``options`` (a ``run`` namespace's values) with ``seed`` through ``fly``
+    (``run``'s :func:`mission.cli.cmd_run.run_embedded`); its row.
 
     Runs in this process or in a sweep's worker process (everything here is picklable).
     """
-    from mission.cli.cmd_run import run_embedded
     from mission.telemetry.display import Display
 
     args = argparse.Namespace(**options)
@@ -71,7 +71,7 @@ def sweep_mission(options: dict, log_root: str, seed: int) -> dict:
     args.log_dir = Path(log_root) / f"seed-{seed}"
     args.forward_addresses = ()
     t0_s = time.perf_counter()
-    result = run_embedded(args, display=Display(quiet=True))
+    result = fly(args, display=Display(quiet=True))
     return mission_row(result, args, time.perf_counter() - t0_s)
 
 
@@ -91,8 +91,10 @@ def _log_root(args) -> tuple[Path | None, str | None]:
     return Path(root), None
 
 
-def sweep_main(args, prog: str) -> int:
-    """Fly one mission per seed of ``args.seeds`` (options checked by the caller); 0 when every
+def sweep_main(args, prog: str, fly) -> int:
+    """Fly one mission per seed of ``args.seeds`` (options checked by the caller) with ``fly``
+    (``args, display -> MissionResult``, a module-level function: worker processes get it by
+    name); 0 when every
     mission ran and ended with its vehicles down, 1 when one failed (an exception: its row's
     outcome is ``error``) or left a vehicle armed or airborne, 2 for an unusable log directory or
     rows file, a signal's status (130, 143) when the operator stopped the sweep."""
@@ -115,7 +117,7 @@ def sweep_main(args, prog: str) -> int:
         progress.update(row)
 
     try:
-        stopped_by = _fly_all(args, root, on_row)
+        stopped_by = _fly_all(args, root, on_row, fly)
     except OSError as exc:  # the rows file became unwritable (disk full...)
         return fail(prog, f"cannot write the rows file: {exc}", 1)
     finally:
@@ -128,14 +130,14 @@ def sweep_main(args, prog: str) -> int:
     return _sweep_status(prog, rows, args.seeds, stopped_by)
 
 
-def _fly_all(args, root: Path, on_row) -> str | None:
+def _fly_all(args, root: Path, on_row, fly) -> str | None:
     """Every seed's mission (rows to ``on_row``); the signal that stopped the sweep between
     missions or while workers flew them (``KeyboardInterrupt``: Ctrl-C, or SIGTERM in the
     workers' parent), else None."""
     options = {k: v for k, v in vars(args).items() if k not in _NOT_MISSION_OPTIONS}
     base = {"n": args.n, "field": args.field_name, "seeker": args.seeker}
     try:
-        run_sweep(args.seeds, functools.partial(sweep_mission, options, str(root)), jobs=args.jobs or 1,
+        run_sweep(args.seeds, functools.partial(sweep_mission, fly, options, str(root)), jobs=args.jobs or 1,
                   on_row=on_row, base=base, stop=_interrupted)
     except KeyboardInterrupt as exc:
         return "SIGTERM" if exc.args == ("SIGTERM",) else "SIGINT"
