@@ -12,7 +12,8 @@ parameters ask for:
 * low battery: ArduPilot ``BATT_LOW_MAH`` / ``BATT_CRT_MAH``, or the pack voltage (``SIM_BATT_VOLTAGE``
   when set) below ``BATT_LOW_VOLT`` / ``BATT_CRT_VOLT`` for ``BATT_LOW_TIMER`` s -> ``BATT_FS_LOW_ACT`` /
   ``BATT_FS_CRT_ACT``; PX4 ``BAT_CRIT_THR`` / ``BAT_EMERGEN_THR`` -> ``COM_LOW_BAT_ACT``;
-* geofence: ArduPilot ``FENCE_ENABLE`` / ``FENCE_RADIUS`` / ``FENCE_ALT_MAX`` ->
+* geofence: ArduPilot ``FENCE_ENABLE`` / ``FENCE_TYPE`` (altitude and circle bits) / ``FENCE_RADIUS`` /
+  ``FENCE_ALT_MAX`` ->
   ``FENCE_ACTION``; PX4 ``GF_MAX_HOR_DIST`` / ``GF_MAX_VER_DIST`` -> ``GF_ACTION``.
 """
 from __future__ import annotations
@@ -131,7 +132,9 @@ def _check_fence(ap, t_s: float) -> None:
     if ap_flight_state.is_ardupilot(ap):
         if not p["FENCE_ENABLE"]:
             return
-        radius, alt_max = p["FENCE_RADIUS"], p["FENCE_ALT_MAX"]
+        kinds = int(p["FENCE_TYPE"])
+        radius = p["FENCE_RADIUS"] if kinds & 2 else math.inf
+        alt_max = p["FENCE_ALT_MAX"] if kinds & 1 else math.inf
         action = {0: "none", 2: "land", 4: "hold", 6: "hold"}.get(int(p["FENCE_ACTION"]), "rtl")
     else:
         radius = p["GF_MAX_HOR_DIST"] or math.inf

@@ -159,6 +159,7 @@ def ardupilot_param_specs(sysid: int, dyn) -> list[ParamSpec]:
         ParamSpec("GUID_TIMEOUT", 3.0, _REAL32, 0.1, 5.0),
         ParamSpec("FENCE_ENABLE", 0, _INT8, 0, 1),
         ParamSpec("FENCE_ACTION", 1, _INT8, 0, 6),
+        ParamSpec("FENCE_TYPE", 7, _INT8, 0, 15),  # bits: 1 altitude, 2 circle (honoured), 4 polygon, 8 floor
         ParamSpec("FENCE_ALT_MAX", 100.0, _REAL32, 10.0, 1000.0),
         ParamSpec("FENCE_RADIUS", 300.0, _REAL32, 30.0, 10000.0),
         ParamSpec("WPNAV_SPEED", round(dyn.max_speed_h_m_s * 100.0), _REAL32, 20.0, 2000.0),
