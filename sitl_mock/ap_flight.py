@@ -89,6 +89,8 @@ def arming_problem(ap, t_s: float, mode_name: str, check_mode: bool = True) -> s
             return problem
     if battery_level(ap) > 0:
         return "battery low"
+    if is_ardupilot(ap) and ap.failsafe == "battery":  # latched until a reboot, as AP_BattMonitor
+        return "Battery failsafe"
     if check_mode and mode_name not in ap.personality.arming_modes:
         return f"{mode_name} mode not armable"  # ArduCopter 4.7: "Arm: RTL mode not armable"
     if check_mode and mode_name == "OFFBOARD" and \

@@ -227,3 +227,4 @@ def _check(m: _Mission, out: dict, status: int, kill: dict, battery: dict, fence
     for sysid, ((_, mode, armed), alt_m) in final.items():
         assert not armed and abs(alt_m) < 1.0, (sysid, mode, armed, alt_m)
     assert final[battery_id][0][1] == _LAND, final[battery_id]
+    assert final[fence_id][0][1] == _RTL, final[fence_id]  # ArduCopter stays in RTL once landed

@@ -9,7 +9,8 @@ circle, ``FENCE_ALT_MAX`` 100 m, ``FENCE_ACTION`` 1) and the battery failsafe (`
    PARAM_SET echo, the mode once landed and disarmed; the fence is then turned off;
 2. **battery**: a new takeoff to 8 m, then ``SIM_BATT_VOLTAGE`` 9.5 V (the SITL's simulated pack,
    the mock's pack override): the mode, how long after (``BATT_LOW_TIMER``, 10 s by default), the
-   mode once landed and disarmed.
+   mode once landed and disarmed, and whether it arms again in GUIDED (ArduCopter: no, its
+   battery failsafe stays latched until a reboot: ``PreArm: Battery failsafe``).
 
 :func:`observe` runs it against one mock ArduPilot (TCP, as SERIAL0) or one real instance;
 :func:`differences` lists what differs beyond the tolerances (reaction times compared in
@@ -90,6 +91,13 @@ def run_failsafes(uri: str, sysid: int, wall_scale: float = 1.0) -> Observation:
         c.step = "takeoff_again"
         _takeoff(c, 8.0)
         c.obs.details["battery"] = _failsafe(c, "battery", ("SIM_BATT_VOLTAGE", 9.5, _REAL32))
+        c.step = "rearm"  # ArduCopter latches its battery failsafe: no new arming until a reboot
+        c.set_mode("guided_again", _GUIDED)
+        c.wait_mode("guided_again", _GUIDED, 10.0)
+        rearm = c.command("rearm", c.m.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        c.obs.details["battery"]["rearm_accepted"] = rearm == c.m.MAV_RESULT_ACCEPTED
+        if rearm == c.m.MAV_RESULT_ACCEPTED:
+            c.command("disarm", c.m.MAV_CMD_COMPONENT_ARM_DISARM, 0)
         return c.obs
     finally:
         c.close()
@@ -122,8 +130,8 @@ def differences(mock: Observation, sitl: Observation) -> list[str]:
     out = []
     for case in ("fence", "battery"):
         m, s = mock.details[case], sitl.details[case]
-        for key in ("mode", "mode_landed"):
-            if m[key] != s[key]:
+        for key in ("mode", "mode_landed", "rearm_accepted"):
+            if m.get(key) != s.get(key):
                 out.append(f"{case}: {key} mock {m[key]} vs SITL {s[key]}")
         if abs(m["reaction_s"] - s["reaction_s"]) > REACTION_TOL_S:
             out.append(f"{case}: reaction mock {m['reaction_s']} s vs SITL {s['reaction_s']} s (autopilot time)")
