@@ -127,8 +127,9 @@ def _inject(m: _Mission, watch: VehicleWatch, name: str, value: float, modes: se
             "event": lost, "t_mode": t_mode}
 
 
-def _kill_and_resume(m: _Mission, out_dir: Path) -> dict:
-    """SIGKILL ``fly`` after iteration 2; ``resume`` it; wait for a resumed iteration."""
+def _kill_and_resume(m: _Mission, out_dir: Path, procs: list) -> dict:
+    """SIGKILL ``fly`` after iteration 2; ``resume`` it (added to ``procs`` at once, so that it is
+    stopped whatever happens next); wait for a resumed iteration."""
     m.wait(lambda: m.recs(), "fly's first log record", _START_TIMEOUT_S)
     m.wait(lambda: len(m.iterations()) >= 2, "two seek iterations", _START_TIMEOUT_S)
     k_killed = m.iterations()[-1]["k"]
@@ -137,6 +138,7 @@ def _kill_and_resume(m: _Mission, out_dir: Path) -> dict:
     m.proc.wait(timeout=30)
     fly = m.proc
     m.proc = _spawn(_cli("resume", str(m.log), "--json"), out_dir / "resume.out")
+    procs.append(m.proc)
     resumed = m.wait(lambda: next((r for r in m.recs() if r["type"] == "event"
                                    and r.get("message", "").startswith("resumed at iteration")), None),
                      "the resume", _START_TIMEOUT_S)
@@ -167,8 +169,7 @@ def test_ardupilot_sitl_faults(tmp_path):
         m.proc = _spawn(_cli("fly", "--plan", str(plan), "--log-dir", str(m.log.parent), "--json"),
                         tmp_path / "fly.out")
         procs.append(m.proc)
-        kill = _kill_and_resume(m, tmp_path)
-        procs.append(m.proc)
+        kill = _kill_and_resume(m, tmp_path, procs)
         assert sorted(kill["resumed"]["vehicles"]) == sorted(watches), kill["resumed"]["message"]
         battery_id, fence_id = fleet.vehicles[1].sysid, fleet.vehicles[3].sysid
         battery = _inject(m, watches[battery_id], "SIM_BATT_VOLTAGE", _LOW_VOLTAGE_V, {_LAND, _RTL})
