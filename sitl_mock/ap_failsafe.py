@@ -9,9 +9,11 @@ parameters ask for:
 * GCS loss: no GCS heartbeat for ``FS_GCS_TIMEOUT`` (ArduPilot, heartbeats from
   ``MAV_GCS_SYSID``) or ``COM_DL_LOSS_T`` (PX4, any MAV_TYPE_GCS) -> ``FS_GCS_ENABLE`` /
   ``NAV_DLL_ACT``; only after a GCS has been heard once;
-* low battery: ArduPilot ``BATT_LOW_MAH`` / ``BATT_CRT_MAH`` -> ``BATT_FS_LOW_ACT`` /
+* low battery: ArduPilot ``BATT_LOW_MAH`` / ``BATT_CRT_MAH``, or the pack voltage (``SIM_BATT_VOLTAGE``
+  when set) below ``BATT_LOW_VOLT`` / ``BATT_CRT_VOLT`` for ``BATT_LOW_TIMER`` s -> ``BATT_FS_LOW_ACT`` /
   ``BATT_FS_CRT_ACT``; PX4 ``BAT_CRIT_THR`` / ``BAT_EMERGEN_THR`` -> ``COM_LOW_BAT_ACT``;
-* geofence: ArduPilot ``FENCE_ENABLE`` / ``FENCE_RADIUS`` / ``FENCE_ALT_MAX`` ->
+* geofence: ArduPilot ``FENCE_ENABLE`` / ``FENCE_TYPE`` (altitude and circle bits) / ``FENCE_RADIUS`` /
+  ``FENCE_ALT_MAX`` ->
   ``FENCE_ACTION``; PX4 ``GF_MAX_HOR_DIST`` / ``GF_MAX_VER_DIST`` -> ``GF_ACTION``.
 """
 from __future__ import annotations
@@ -80,9 +82,29 @@ def _check_gcs_loss(ap, t_s: float) -> None:
     _failsafe(ap, t_s, "gcs", action, "Failsafe: GCS connection lost")
 
 
+def _voltage_level(ap, t_s: float) -> int:
+    """ArduPilot's voltage failsafe: 1 (2) once the pack stayed below ``BATT_LOW_VOLT``
+    (``BATT_CRT_VOLT``) for ``BATT_LOW_TIMER`` s (as AP_BattMonitor; a threshold of 0 is off)."""
+    p, fs = ap.params, ap.flight
+    volts, timer_s = ap_flight.battery_voltage_v(ap), float(p["BATT_LOW_TIMER"])
+    level = 0
+    for lvl, name, attr in ((1, "BATT_LOW_VOLT", "volt_low_since_s"), (2, "BATT_CRT_VOLT", "volt_crt_since_s")):
+        if not 0 < volts < p[name]:
+            setattr(fs, attr, None)
+            continue
+        since = getattr(fs, attr)
+        if since is None:
+            setattr(fs, attr, t_s)
+        elif t_s - since >= timer_s:
+            level = lvl
+    return level
+
+
 def _check_battery(ap, t_s: float) -> None:
     fs = ap.flight
     level = ap_flight.battery_level(ap)
+    if ap_flight_state.is_ardupilot(ap):
+        level = max(level, _voltage_level(ap, t_s))
     if level <= fs.battery_level_done or not ap_flight_state.airborne(ap):
         return
     fs.battery_level_done = level
@@ -110,7 +132,9 @@ def _check_fence(ap, t_s: float) -> None:
     if ap_flight_state.is_ardupilot(ap):
         if not p["FENCE_ENABLE"]:
             return
-        radius, alt_max = p["FENCE_RADIUS"], p["FENCE_ALT_MAX"]
+        kinds = int(p["FENCE_TYPE"])
+        radius = p["FENCE_RADIUS"] if kinds & 2 else math.inf
+        alt_max = p["FENCE_ALT_MAX"] if kinds & 1 else math.inf
         action = {0: "none", 2: "land", 4: "hold", 6: "hold"}.get(int(p["FENCE_ACTION"]), "rtl")
     else:
         radius = p["GF_MAX_HOR_DIST"] or math.inf

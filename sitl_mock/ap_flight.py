@@ -51,6 +51,13 @@ def apply_params(ap) -> None:
 
 
 # ------------------------------------------------------------------ arming and modes
+def battery_voltage_v(ap) -> float:
+    """The pack voltage the autopilot reports: ArduPilot's ``SIM_BATT_VOLTAGE`` when it is set (> 0),
+    else the pack model's."""
+    forced = ap.params.get("SIM_BATT_VOLTAGE") if "SIM_BATT_VOLTAGE" in ap.params else 0.0
+    return float(forced) if forced > 0 else ap.mc.battery_voltage_v
+
+
 def battery_level(ap) -> int:
     """0 fine, 1 low, 2 critical, 3 emergency (per the personality's parameters)."""
     p, rem = ap.params, ap.mc.battery_remaining
@@ -82,6 +89,8 @@ def arming_problem(ap, t_s: float, mode_name: str, check_mode: bool = True) -> s
             return problem
     if battery_level(ap) > 0:
         return "battery low"
+    if is_ardupilot(ap) and ap.failsafe == "battery":  # latched until a reboot, as AP_BattMonitor
+        return "Battery failsafe"
     if check_mode and mode_name not in ap.personality.arming_modes:
         return f"{mode_name} mode not armable"  # ArduCopter 4.7: "Arm: RTL mode not armable"
     if check_mode and mode_name == "OFFBOARD" and \

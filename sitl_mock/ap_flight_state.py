@@ -46,6 +46,9 @@ class FlightState:
     idle_since_s: float | None = None
     has_flown: bool = False
     battery_level_done: int = 0
+    #: mission clock since which the pack voltage is below BATT_LOW_VOLT / BATT_CRT_VOLT (None: above)
+    volt_low_since_s: float | None = None
+    volt_crt_since_s: float | None = None
     gcs_failsafe_done: bool = False
     fence_breached: bool = False
     mission_target_ned: np.ndarray | None = None

@@ -159,6 +159,7 @@ def ardupilot_param_specs(sysid: int, dyn) -> list[ParamSpec]:
         ParamSpec("GUID_TIMEOUT", 3.0, _REAL32, 0.1, 5.0),
         ParamSpec("FENCE_ENABLE", 0, _INT8, 0, 1),
         ParamSpec("FENCE_ACTION", 1, _INT8, 0, 6),
+        ParamSpec("FENCE_TYPE", 7, _INT8, 0, 15),  # bits: 1 altitude, 2 circle (honoured), 4 polygon, 8 floor
         ParamSpec("FENCE_ALT_MAX", 100.0, _REAL32, 10.0, 1000.0),
         ParamSpec("FENCE_RADIUS", 300.0, _REAL32, 30.0, 10000.0),
         ParamSpec("WPNAV_SPEED", round(dyn.max_speed_h_m_s * 100.0), _REAL32, 20.0, 2000.0),
@@ -174,6 +175,14 @@ def ardupilot_param_specs(sysid: int, dyn) -> list[ParamSpec]:
         ParamSpec("BATT_CRT_MAH", 500.0, _REAL32, 0.0, 1_000_000.0),
         ParamSpec("BATT_FS_LOW_ACT", 2, _INT8, 0, 7),
         ParamSpec("BATT_FS_CRT_ACT", 1, _INT8, 0, 7),
+        # voltage failsafe as ArduCopter 4.7 (defaults measured on its SITL): below BATT_LOW_VOLT
+        # (BATT_CRT_VOLT) for BATT_LOW_TIMER s -> BATT_FS_LOW_ACT (BATT_FS_CRT_ACT); 0 V: off
+        ParamSpec("BATT_LOW_VOLT", 10.5, _REAL32, 0.0, 1000.0),
+        ParamSpec("BATT_CRT_VOLT", 0.0, _REAL32, 0.0, 1000.0),
+        ParamSpec("BATT_LOW_TIMER", 10, _INT8, 0, 120),
+        # ArduPilot SITL's simulated pack voltage (its default 12.6 V, fixed without SIM_BATT_CAP_AH);
+        # the mock's 0 means its own pack model (4S, 16.8 V full, sagging under load)
+        ParamSpec("SIM_BATT_VOLTAGE", 0.0, _REAL32, 0.0, 100.0),
         # mock only (no such ArduPilot parameter): seconds after the GPS fix until the EKF uses
         # it; arming in GUIDED is refused "Need Position Estimate" meanwhile (sitl_mock.ap_prearm)
         ParamSpec("SIM_EKF_GPS_S", 0.0, _REAL32, 0.0, 600.0),

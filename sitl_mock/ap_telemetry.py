@@ -12,6 +12,7 @@ from typing import Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from sitl_mock import ap_flight
 from sitl_mock.ap_prearm import build_ekf_status_report
 from sitl_mock.ap_wind import wind_cov_fields, wind_fields
 
@@ -174,7 +175,7 @@ def _sys_status(ap, t_s):
     health = SENSORS_PRESENT if ap.health_ok(t_s) else SENSORS_PRESENT & ~_NOT_READY
     mc = ap.mc
     return ap.mav.sys_status_encode(
-        SENSORS_PRESENT, SENSORS_PRESENT, health, 250, int(mc.battery_voltage_v * 1000),
+        SENSORS_PRESENT, SENSORS_PRESENT, health, 250, int(ap_flight.battery_voltage_v(ap) * 1000),
         -1, int(round(mc.battery_remaining * 100)), 0, 0, 0, 0, 0, 0)
 
 
@@ -223,7 +224,7 @@ def _extended_sys_state(ap, t_s):
 def _battery_status(ap, t_s):
     mc = ap.mc
     cells = int(mc.params.battery_cells)
-    cell_mv = int(mc.battery_voltage_v * 1000 / cells)
+    cell_mv = int(ap_flight.battery_voltage_v(ap) * 1000 / cells)
     volts = [cell_mv] * min(cells, 10) + [65535] * (10 - min(cells, 10))
     remaining = int(round(mc.battery_remaining * 100))
     return ap.mav.battery_status_encode(

@@ -325,7 +325,10 @@ async def _why_not_flying(co, sysid: int) -> str | None:
         home = await v.wait_home(10.0)
     except Exception as exc:  # noqa: BLE001 - CommandError: reported as the reason
         home, reason = None, f"no home position at resume ({exc})"
-    await co.wait_until(lambda: v.state.position_ok, 10.0, f"vehicle {sysid} position")
+    # its altitude too: a position may come first (real ArduCopter at resume: 4 of 5 hovering
+    # vehicles were taken for "not flying" on the altitude of before their first GLOBAL_POSITION_INT)
+    await co.wait_until(lambda: v.state.position_ok and v.state.relative_alt_m is not None, 10.0,
+                        f"vehicle {sysid} position and altitude")
     st = v.state
     if home is not None:
         co.state.set_home(sysid, geodetic_to_enu(home[0], home[1], home[2], co.plan.origin))
