@@ -149,15 +149,20 @@ class SteSeeker:
         one, ``dt``, ``ds`` to that sensor's previous reading (:mod:`estimator.ste_tempering`). Default 5 s: the simulated intermittent plume's
         meander time (``meander_time_s``, docs/fields.md); 0: every reading weighs 1.
     corr_path_m : float or None
-        With reading times: the path a sensor flies for its readings to decorrelate; None:
-        ``corr_length_m`` for the steady likelihood (the model's error is a function of place),
-        infinite (time alone) for the intermittent one (readings along a path see the same meander).
+        With reading times: the path a sensor flies for its readings to decorrelate; None: infinite
+        (time alone: readings along a path see the same meander).
     time_temper : float
         With reading times: the exponent applied to those weights, in (0, 1] (readings of different
         sensors far apart at one instant still share the meander).
     same_time_s : float
         With reading times: readings of other sensors within this time and about ``corr_length_m``
         share reading ``i``'s weight (the per-update sharing of ``corr_length_m``, by time).
+    timed : bool or None
+        Use the readings' times when given (the tempering by time); False: keep each sensor's
+        first reading of an update and the per-update tempering (``temper``). None: the
+        intermittent likelihood only (``patchy``): the steady likelihood's error is the model's, a
+        function of place correlated along the whole path, which time does not decorrelate
+        (measured in lock-step missions: docs/seekers.md, "ste in missions").
     path_samples : int
         A candidate's information is computed for the formation at ``path_samples`` points evenly
         along the way to it (the last at the candidate): with sampling while moving the readings
@@ -180,7 +185,7 @@ class SteSeeker:
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
                  corr_iterations: int = 0, path_samples: int = 1, corr_time_s: float = 5.0,
                  corr_path_m: float | None = None, time_temper: float = 1.0, same_time_s: float = 0.25,
-                 seed: int = 0):
+                 timed: bool | None = None, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -217,12 +222,12 @@ class SteSeeker:
             raise ValueError(f"corr_iterations must be an integer >= 0, got {corr_iterations!r}")
         self.corr_iterations = int(corr_iterations)
         self.corr_time_s = _positive("corr_time_s", corr_time_s, allow_zero=True)
-        self.corr_path_m = (np.inf if self.patchy else max(self.corr_length_m, 1e-9)) if corr_path_m is None \
-            else _positive("corr_path_m", corr_path_m)
+        self.corr_path_m = np.inf if corr_path_m is None else _positive("corr_path_m", corr_path_m)
         if not 0 < float(time_temper) <= 1:
             raise ValueError(f"time_temper must be in (0, 1], got {time_temper!r}")
         self.time_temper = float(time_temper)
         self.same_time_s = _positive("same_time_s", same_time_s, allow_zero=True)
+        self.timed = self.patchy if timed is None else bool(timed)
         self.region_m = _positive("region_m", region_m)
         self.exploit_m = self.region_m if exploit_m is None else _positive("exploit_m", exploit_m)
         self.min_step_m, self.max_step_m = _positive("min_step_m", min_step_m), _positive("max_step_m", max_step_m)
@@ -464,6 +469,8 @@ class SteSeeker:
         """
         c, p, v = seeker_inputs(centre, positions, values)
         t, ids = self._times(times_s, sensor_ids, v.shape)
+        if t is not None and not self.timed:
+            p, v, t, ids = self._first_per_sensor(p, v, t, ids)
         if self._k != c.shape[0]:
             self._init_state(c)
         self.iterations += 1
@@ -488,6 +495,19 @@ class SteSeeker:
         if ids.shape != shape:
             raise ValueError(f"sensor_ids must have the readings' shape {shape}, got {ids.shape}")
         return t, ids
+
+    @staticmethod
+    def _first_per_sensor(p: np.ndarray, v: np.ndarray, t: np.ndarray, ids: np.ndarray) -> tuple:
+        """Each sensor's earliest reading of the update (the same sensors in every trial), without
+        times: ``(positions, values, None, None)``; the per-update tempering takes them."""
+        keep = []
+        for k in range(p.shape[0]):
+            order = np.lexsort((t[k], ids[k]))
+            keep.append(order[np.r_[True, ids[k][order][1:] != ids[k][order][:-1]]])
+        if len({len(x) for x in keep}) != 1:
+            raise ValueError("every trial's update needs readings of the same number of sensors")
+        idx = np.sort(np.stack(keep), axis=1)
+        return np.take_along_axis(p, idx[..., None], axis=1), np.take_along_axis(v, idx, axis=1), None, None
 
     @staticmethod
     def _formation_points(p: np.ndarray, t, ids) -> np.ndarray:

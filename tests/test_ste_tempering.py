@@ -122,10 +122,27 @@ def test_propose_readings_passes_times_only_to_seekers_that_take_them():
     t = np.zeros((1, 8))
     g = propose_readings(GradientSeeker(), c, pos, v, t, np.arange(8)[None])
     assert np.allclose(g, GradientSeeker().propose(c, pos, v))
-    ste = make_seeker("ste", wind_from_deg=270.0)
+    ste = make_seeker("ste", wind_from_deg=270.0, patchy=True)
     assert ste.takes_times
     propose_readings(ste, c, pos, np.zeros((1, 8)), t, np.arange(8)[None])
     assert ste._last[0] and set(ste._last[0]) == set(range(8))
+
+
+def test_the_steady_likelihood_takes_each_sensors_first_reading_of_an_update():
+    """Without ``timed`` (the steady likelihood's default) the readings' times pick each sensor's first
+    reading of the update and the per-update tempering takes them: the same posterior as being
+    given only those (as the mission's thinning did before)."""
+    c = np.array([[25.0, 1.0, 13.0]])
+    pos = np.tile(c[:, None, :] + OFFSETS[None], (1, 3, 1)) + 0.1 * np.arange(24)[None, :, None]
+    v = 0.05 + 0.01 * np.arange(24)[None]
+    t = np.repeat(np.arange(3) * 0.1, 8)[None]
+    ids = np.tile(np.arange(8), 3)[None]
+    a, b = SteSeeker(wind_from_deg=270.0, seed=1), SteSeeker(wind_from_deg=270.0, seed=1)
+    assert not a.timed and SteSeeker(patchy=True).timed
+    na = a.propose(c, pos, v, times_s=t, sensor_ids=ids)
+    nb = b.propose(c, pos[:, :8], v[:, :8])
+    np.testing.assert_allclose(na, nb)
+    np.testing.assert_allclose(a.logw, b.logw)
 
 
 @pytest.mark.parametrize("times, ids, match", [

@@ -449,7 +449,8 @@ class _Seek:
         else:
             if self.samples is not None and self.seeker.converges_itself and STE_READINGS_PER_VEHICLE:
                 kept, positions = thin_evenly(kept, positions, STE_READINGS_PER_VEHICLE)  # an option (above)
-            proposed = await self._propose(k, positions, kept)
+            proposed = await self._propose(k, positions, [r.value for r in kept], [r.time_s for r in kept],
+                                           [r.sysid for r in kept])
         new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))
         own = None if self.seeker is None else self.seeker.arrival
@@ -490,14 +491,13 @@ class _Seek:
         if new is not None:
             co.state.update_slots(new)
 
-    async def _propose(self, k: int, positions, readings: list) -> np.ndarray:
-        """The seeker's next centre (capped at ``gamma_m``) from ``readings`` (taken to be at ``positions``,
-        each with its time and vehicle); its failure (a hold) and a collapse of its
-        posterior (re-seeded from the prior about the formation) are events of the mission log. The
-        ``ste`` seeker's update (tens of ms and more) runs in the loop's executor."""
+    async def _propose(self, k: int, positions, values, times_s=None, sysids=None) -> np.ndarray:
+        """The seeker's next centre (capped at ``gamma_m``) from the readings ``values`` taken (to be) at
+        ``positions``, at ``times_s`` by vehicles ``sysids`` (for a seeker that takes reading times); its
+        failure (a hold) and a collapse of its posterior (re-seeded from the prior about the formation)
+        are events of the mission log. The ``ste`` seeker's update (tens of ms and more) runs in the
+        loop's executor."""
         sk = self.seeker
-        values = [r.value for r in readings]
-        times_s, sysids = [r.time_s for r in readings], [r.sysid for r in readings]
         if sk.converges_itself:
             proposed = await asyncio.get_running_loop().run_in_executor(
                 None, sk.step, self.centre.copy(), positions, values, self.sk.gamma_m, times_s, sysids)
