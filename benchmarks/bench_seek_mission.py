@@ -23,6 +23,10 @@ Usage::
     python benchmarks/bench_seek_mission.py --seeds 0,11,12,13 --seekers model --sampling stop_and_go,moving
     python benchmarks/bench_seek_mission.py --seeds 0-9 --seekers plume,ste --sampling default \
         --run-args "--field intermittent"      # ste against the plume fields' default seeker
+    python benchmarks/bench_seek_mission.py --seeds 0-9 --seekers ste --sampling default \
+        --run-args "--field intermittent" --ste-readings 1   # ste as before it took reading times
+    python benchmarks/bench_seek_mission.py --seeds 0-4 --seekers ste --sampling default \
+        --run-args "--field plume" --ste-args timed=1          # more ste keywords (estimator.ste.SteSeeker)
 
 ``region95_m`` is the ``ste`` seeker's last 95 % region (its posterior; ``-`` for the others);
 ``seeker CPU per update`` the thread CPU time of each seeker update (the mission adapter's

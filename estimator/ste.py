@@ -10,7 +10,11 @@ likelihoods are :mod:`estimator.ste_model`. Per iteration:
    (``temper`` < 1 because the readings of one instant, and of nearby instants, see the same
    meander: they are not independent, and counting them as such makes the posterior overconfident;
    ``n_i`` the number of the iteration's readings within about ``corr_length_m`` of reading ``i``,
-   itself included, so readings that see the same puff share one reading's weight).
+   itself included, so readings that see the same puff share one reading's weight). Given the
+   readings' times and sensors (``propose(..., times_s=, sensor_ids=)``) and the intermittent
+   likelihood (``timed``), each reading's exponent is instead its share of independent evidence
+   (:mod:`estimator.ste_tempering`: one unit per sensor per ``corr_time_s``), so every reading,
+   dense or not, can be given; the steady likelihood then keeps each sensor's first reading.
 2. **Collapse**: when even the best particle explains the iteration's readings worse than
    ``collapse_nats`` per reading on average (every weight effectively zero), the trial's
    particles are re-seeded from the prior about the current centre and the last ``memory``
