@@ -308,6 +308,7 @@ def test_the_adapter_reports_the_posterior():
 
 # ----------------------------------------------------------------------------- a whole mission
 @pytest.mark.slow
+@pytest.mark.timeout(600)  # every reading to the filter: ~6 s of its CPU per mission, more on a loaded machine
 def test_run_ste_on_the_intermittent_plume_converges_near_the_source(tmp_path, capsys):
     """``swarmseek run --seeker ste --field intermittent`` (seed 1, lock-step; a typical seed of the
     ten in docs/seekers.md): converged on its posterior's 95 % region (at most the default 1 m), the
