@@ -23,6 +23,10 @@ Usage::
     python benchmarks/bench_seek_mission.py --seeds 0,11,12,13 --seekers model --sampling stop_and_go,moving
     python benchmarks/bench_seek_mission.py --seeds 0-9 --seekers plume,ste --sampling default \
         --run-args "--field intermittent"      # ste against the plume fields' default seeker
+    python benchmarks/bench_seek_mission.py --seeds 0-9 --seekers ste --sampling default \
+        --run-args "--field intermittent" --ste-readings 1   # ste as before it took reading times
+    python benchmarks/bench_seek_mission.py --seeds 0-4 --seekers ste --sampling default \
+        --run-args "--field plume" --ste-args timed=1          # more ste keywords (estimator.ste.SteSeeker)
 
 ``region95_m`` is the ``ste`` seeker's last 95 % region (its posterior; ``-`` for the others);
 ``seeker CPU per update`` the thread CPU time of each seeker update (the mission adapter's
@@ -63,8 +67,12 @@ def mission_measures(log_path: Path, max_speed_m_s: float = 3.0, tol_m: float = 
     return row
 
 
-def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", extra=()) -> dict:
-    """One default mission with ``seeker``, ``seed`` and ``sampling`` (plus ``run`` options ``extra``); its measures."""
+def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", extra=(), ste_args: dict | None = None,
+        ste_readings: int | None = None) -> dict:
+    """One default mission with ``seeker``, ``seed`` and ``sampling`` (plus ``run`` options ``extra``); its measures.
+    ``ste_args``: more keywords of the ``ste`` seeker; ``ste_readings``: each vehicle's readings per update
+    given to it (``seek.STE_READINGS_PER_VEHICLE``; with a number the readings' times are withheld, as
+    before the filter took them)."""
     from mission.cli.cmd_run import configure, run_embedded
     from mission.telemetry.display import Display
 
@@ -81,17 +89,23 @@ def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", ex
 
     def _step(self, *a, **kw):
         seen[:] = [self]
+        if ste_readings is not None:  # the readings' times withheld: the per-update tempering
+            a, kw = a[:4], {}
         t0 = time.thread_time()
         try:
             return step(self, *a, **kw)
         finally:
             cpu_s.append(time.thread_time() - t0)
 
+    options, thin = seek.ste_options, seek.STE_READINGS_PER_VEHICLE
     seek._MissionSeeker.step = _step
+    seek.ste_options = lambda sk: {**options(sk), **(ste_args or {})}
+    seek.STE_READINGS_PER_VEHICLE = ste_readings
     try:
         result = run_embedded(args, display=Display(quiet=True))
     finally:
         seek._MissionSeeker.step = step
+        seek.ste_options, seek.STE_READINGS_PER_VEHICLE = options, thin
     row = mission_measures(Path(result.log_path))
     if sampling != "stop_and_go":
         row["model_t_1m_s"] = None  # the time model is stop and go's
@@ -142,8 +156,13 @@ def main(argv=None) -> int:
                     help="comma-separated: stop_and_go, moving, default (each seeker's `run` default: moving for "
                          "newton/model/ste; the gradient seeker is flown stop and go only)")
     ap.add_argument("--run-args", default="", help="extra `swarmseek run` options, e.g. '--sensor-tau 0.5'")
+    ap.add_argument("--ste-args", default=None, help="keyword arguments of the ste seeker, e.g. time_temper=0.5")
+    ap.add_argument("--ste-readings", type=int, default=None,
+                    help="each vehicle's readings per update given to ste, without their times (1: as before "
+                         "the filter took reading times); default every reading with its time")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
+    from bench_seekers import _ste_kwargs
     print("| seeker | sampling | seed | outcome | time to stay within 1 m, s | straight line, s | ratio | time model, s "
           "| iterations to 1 m | seek time, s | iterations | error, m | region95, m | readings | centre flown, m "
           "| vehicle flown, m (mean / max) | last centroid to source, m | seeker CPU per update, ms (median / p90) |")
@@ -155,7 +174,8 @@ def main(argv=None) -> int:
                 if sampling == "moving" and seeker == "gradient":
                     continue
                 for seed in _seeds(args.seeds):
-                    row = fly(seeker, seed, Path(tmp) / f"{seeker}-{sampling}-{seed}", sampling, args.run_args.split())
+                    row = fly(seeker, seed, Path(tmp) / f"{seeker}-{sampling}-{seed}", sampling, args.run_args.split(),
+                              _ste_kwargs(args.ste_args), args.ste_readings)
                     rows.append(row)
                     print(_fmt(row), flush=True)
     if args.json is not None:

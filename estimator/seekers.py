@@ -27,6 +27,12 @@ seeker never sees them. ``K`` is the number of independent trials (1 in the miss
   moving for information; it reports ``estimate_enu`` with ``region95_m``, the radius of its
   95 % region (seekers without a posterior have no such attributes).
 
+**Reading times.** A seeker with ``takes_times = True`` (``ste``) also takes
+``propose(..., times_s=(K, N), sensor_ids=(K, N))``: when and by which sensor each reading was
+taken, so that dense readings (every reading of every vehicle while moving) can be weighed by
+the independent evidence they carry. :func:`propose_readings` passes them to such a seeker and
+calls every other seeker as before (they never see them).
+
 Every seeker also has ``source_estimate(k=0)``: trial ``k``'s estimate of the source as an
 :class:`~estimator.estimate.SourceEstimate` (the point, its 95 % region, what that region is), or
 None when the seeker has no estimate of its own (``gradient``, ``newton``, ``plume``: the mission
@@ -53,7 +59,7 @@ from estimator.ste import SteSeeker
 
 __all__ = [
     "SEEKERS", "OFFLINE_SEEKERS", "MOVING_SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker",
-    "ModelSeeker", "make_seeker", "cap_move",
+    "ModelSeeker", "make_seeker", "cap_move", "propose_readings",
 ]
 
 #: Seeker names accepted by :func:`make_seeker` (and by the plan's ``[seeking] seeker``).
@@ -81,6 +87,14 @@ class Seeker(Protocol):
 
     def source_estimate(self, k: int = 0) -> SourceEstimate | None:
         """Trial ``k``'s estimate of the source with its 95 % region; None: the seeker has none."""
+
+
+def propose_readings(seeker, centre, positions, values, times_s=None, sensor_ids=None) -> np.ndarray:
+    """``seeker.propose(centre, positions, values)``, with the readings' ``times_s`` and
+    ``sensor_ids`` (each ``(K, N)``, or None) passed when the seeker takes them (``takes_times``)."""
+    if times_s is not None and getattr(seeker, "takes_times", False):
+        return seeker.propose(centre, positions, values, times_s=times_s, sensor_ids=sensor_ids)
+    return seeker.propose(centre, positions, values)
 
 
 def cap_move(centre, new_centre, gamma_m: float) -> np.ndarray:

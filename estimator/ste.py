@@ -10,7 +10,11 @@ likelihoods are :mod:`estimator.ste_model`. Per iteration:
    (``temper`` < 1 because the readings of one instant, and of nearby instants, see the same
    meander: they are not independent, and counting them as such makes the posterior overconfident;
    ``n_i`` the number of the iteration's readings within about ``corr_length_m`` of reading ``i``,
-   itself included, so readings that see the same puff share one reading's weight).
+   itself included, so readings that see the same puff share one reading's weight). Given the
+   readings' times and sensors (``propose(..., times_s=, sensor_ids=)``) and the intermittent
+   likelihood (``timed``), each reading's exponent is instead its share of independent evidence
+   (:mod:`estimator.ste_tempering`: one unit per sensor per ``corr_time_s``), so every reading,
+   dense or not, can be given; the steady likelihood then keeps each sensor's first reading.
 2. **Collapse**: when even the best particle explains the iteration's readings worse than
    ``collapse_nats`` per reading on average (every weight effectively zero), the trial's
    particles are re-seeded from the prior about the current centre and the last ``memory``
@@ -46,6 +50,7 @@ import numpy as np
 
 from estimator.estimate import PlanPosterior, SourceEstimate
 from estimator.seek_inputs import seeker_inputs
+from estimator.ste_tempering import shared_counts, time_weights
 from estimator.ste_model import (BRIGGS_RURAL, deviance_patchy, deviance_steady, hit_probability, loglik_patchy,
                                  loglik_steady, plume_mean)
 from scipy.special import ndtr
@@ -142,6 +147,26 @@ class SteSeeker:
         Model check: the readings of the last ``memory`` iterations are scored under the posterior
         predictive; their deviance standardised by its expectation and deviation if the model held
         (:attr:`fit_z`) above this flags :attr:`misfit` and withholds ``arrival``.
+    corr_time_s : float
+        With reading times (``propose(..., times_s=)``): the plume's correlation time ``tau`` (s);
+        per sensor, a reading weighs ``min(1, max(dt / tau, ds / corr_path_m))`` of an independent
+        one, ``dt``, ``ds`` to that sensor's previous reading (:mod:`estimator.ste_tempering`). Default 5 s: the simulated intermittent plume's
+        meander time (``meander_time_s``, docs/fields.md); 0: every reading weighs 1.
+    corr_path_m : float or None
+        With reading times: the path a sensor flies for its readings to decorrelate; None: infinite
+        (time alone: readings along a path see the same meander).
+    time_temper : float
+        With reading times: the exponent applied to those weights, in (0, 1] (readings of different
+        sensors far apart at one instant still share the meander).
+    same_time_s : float
+        With reading times: readings of other sensors within this time and about ``corr_length_m``
+        share reading ``i``'s weight (the per-update sharing of ``corr_length_m``, by time).
+    timed : bool or None
+        Use the readings' times when given (the tempering by time); False: keep each sensor's
+        first reading of an update and the per-update tempering (``temper``). None: the
+        intermittent likelihood only (``patchy``): the steady likelihood's error is the model's, a
+        function of place correlated along the whole path, which time does not decorrelate
+        (measured in lock-step missions: docs/seekers.md, "ste in missions").
     path_samples : int
         A candidate's information is computed for the formation at ``path_samples`` points evenly
         along the way to it (the last at the candidate): with sampling while moving the readings
@@ -162,7 +187,9 @@ class SteSeeker:
                  min_step_m: float = 1.0, max_step_m: float = 8.0,
                  collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.5,
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
-                 corr_iterations: int = 0, path_samples: int = 1, seed: int = 0):
+                 corr_iterations: int = 0, path_samples: int = 1, corr_time_s: float = 5.0,
+                 corr_path_m: float | None = None, time_temper: float = 1.0, same_time_s: float = 0.25,
+                 timed: bool | None = None, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -198,6 +225,13 @@ class SteSeeker:
         if isinstance(corr_iterations, bool) or int(corr_iterations) != corr_iterations or corr_iterations < 0:
             raise ValueError(f"corr_iterations must be an integer >= 0, got {corr_iterations!r}")
         self.corr_iterations = int(corr_iterations)
+        self.corr_time_s = _positive("corr_time_s", corr_time_s, allow_zero=True)
+        self.corr_path_m = np.inf if corr_path_m is None else _positive("corr_path_m", corr_path_m)
+        if not 0 < float(time_temper) <= 1:
+            raise ValueError(f"time_temper must be in (0, 1], got {time_temper!r}")
+        self.time_temper = float(time_temper)
+        self.same_time_s = _positive("same_time_s", same_time_s, allow_zero=True)
+        self.timed = self.patchy if timed is None else bool(timed)
         self.region_m = _positive("region_m", region_m)
         self.exploit_m = self.region_m if exploit_m is None else _positive("exploit_m", exploit_m)
         self.min_step_m, self.max_step_m = _positive("min_step_m", min_step_m), _positive("max_step_m", max_step_m)
@@ -232,7 +266,8 @@ class SteSeeker:
         self.hits = np.zeros(k, dtype=int)
         self.since_collapse = np.full(k, self.memory + 1)
         self.iterations = 0
-        self._buf: list = []
+        self._buf: list = []  # the last ``memory`` updates: (positions, values, applied weights, unit weights)
+        self._last: list = [{} for _ in range(k)]  # per trial: sensor -> its newest (time_s, position)
         self._seed_prior(np.arange(k), c)
 
     def _seed_prior(self, idx: np.ndarray, c: np.ndarray) -> None:
@@ -275,28 +310,43 @@ class SteSeeker:
         d2 = np.sum((p[:, :, None, :] - near[:, None, :, :]) ** 2, axis=-1)
         return self.temper / np.exp(-0.5 * d2 / self.corr_length_m ** 2).sum(axis=2)
 
-    def _update(self, c: np.ndarray, p: np.ndarray, v: np.ndarray) -> None:
-        """Fold the readings in (steps 1-2 of the module docstring); no readings: nothing to fold."""
+    def _timed_weights(self, p: np.ndarray, v: np.ndarray, t: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """Each reading's unit weight ``(K, M)`` in (0, 1] from its time and sensor
+        (:mod:`estimator.ste_tempering`: per sensor by ``corr_time_s`` / ``corr_path_m``,
+        shared across sensors within ``same_time_s`` and ``corr_length_m``)."""
+        out = np.empty(v.shape)
+        for k in range(v.shape[0]):
+            w = time_weights(t[k], p[k], ids[k], self._last[k], self.corr_time_s, self.corr_path_m)
+            out[k] = w / shared_counts(t[k], p[k], ids[k], self.corr_length_m, self.same_time_s)
+        return out
+
+    def _update(self, c: np.ndarray, p: np.ndarray, v: np.ndarray, unit: np.ndarray | None = None) -> None:
+        """Fold the readings in (steps 1-2 of the module docstring); no readings: nothing to fold.
+        ``unit``: each reading's weight from its time (:meth:`_timed_weights`, applied times
+        ``time_temper``); None: the per-update tempering (``temper``, ``corr_length_m``)."""
         if v.shape[1] == 0:
             self.collapsed = np.zeros(v.shape[0], dtype=bool)
             self.since_collapse = self.since_collapse + 1
             return
+        if unit is None:
+            applied, again, unit = self._tempers(p, recent=True), self._tempers(p), np.ones(v.shape)
+        else:
+            applied = again = self.time_temper * unit
         ll = self._loglik(self.parts, p, v)
         best = ll.mean(axis=2).max(axis=1)  # the best particle's mean log-likelihood per reading
         collapsed = (-best > self.collapse_nats) & (v.shape[1] >= 4)
-        self.logw = self.logw + np.einsum("kpm,km->kp", ll, self._tempers(p, recent=True))
+        self.logw = self.logw + np.einsum("kpm,km->kp", ll, applied)
         self.collapsed = collapsed
         self.since_collapse = np.where(collapsed, 0, self.since_collapse + 1)
         if collapsed.any():
             idx = np.flatnonzero(collapsed)
             self.collapses[idx] += 1
             self._seed_prior(idx, c)
-            for bp, bv in self._buf[-self.memory:] + [(p, v)]:
-                self.logw[idx] += np.einsum("kpm,km->kp", self._loglik(self.parts[idx], bp[idx], bv[idx]),
-                                            self._tempers(bp[idx]))
+            for bp, bv, bw, _ in self._buf[-self.memory:] + [(p, v, again, unit)]:
+                self.logw[idx] += np.einsum("kpm,km->kp", self._loglik(self.parts[idx], bp[idx], bv[idx]), bw[idx])
         self.logw -= self.logw.max(axis=1, keepdims=True)
         self.logw -= np.log(np.exp(self.logw).sum(axis=1, keepdims=True))
-        self._buf = (self._buf + [(p, v)])[-self.memory:]
+        self._buf = (self._buf + [(p, v, again, unit)])[-self.memory:]
 
     def _circular(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean ``(K, 5)`` (the angle's circular mean) and deviations ``(K, P, 5)`` (wrapped)."""
@@ -342,6 +392,7 @@ class SteSeeker:
         """Model check (class docstring, ``misfit_z``) of the buffered readings on the particles ``sub``."""
         pos = np.concatenate([b[0] for b in self._buf], axis=1)
         val = np.concatenate([b[1] for b in self._buf], axis=1)
+        u = np.concatenate([b[3] for b in self._buf], axis=1)  # a reading's share of independent evidence
         mu, g = plume_mean(sub, pos, **self.model)
         if self.patchy:
             d, e, var = deviance_patchy(hit_probability(mu, g, **self.patchy_kw).mean(axis=1),
@@ -349,7 +400,7 @@ class SteSeeker:
         else:
             spread = self.steady_kw["noise_std"] ** 2 + self.steady_kw["rel_error"] ** 2 * (mu * mu).mean(axis=1)
             d, e, var = deviance_steady(mu.mean(axis=1), spread + mu.var(axis=1), val, background=self.background)
-        self.fit_z = (d.sum(axis=1) - e.sum(axis=1)) / np.sqrt(np.maximum(var.sum(axis=1), 1e-12))
+        self.fit_z = np.sum(u * (d - e), axis=1) / np.sqrt(np.maximum(np.sum(u * var, axis=1), 1e-12))
         self.misfit = self.fit_z > self.misfit_z
         self.arrival = (self.region95_m <= self.region_m) & (self.since_collapse > self.memory) & ~self.misfit
 
@@ -408,20 +459,72 @@ class SteSeeker:
         best = np.take_along_axis(cand, np.argmax(info, axis=1)[:, None, None], axis=1)[:, 0]
         return np.where((self.region95_m < self.exploit_m)[:, None], self.estimate_enu, best)
 
-    def propose(self, centre, positions, values) -> np.ndarray:
-        """Next centres ``(K, 3)`` from centres ``(K, 3)``, positions ``(K, N, 3)``, readings ``(K, N)``."""
+    #: :meth:`propose` takes the readings' times and sensors (:func:`estimator.seekers.propose_readings`)
+    takes_times = True
+
+    def propose(self, centre, positions, values, times_s=None, sensor_ids=None) -> np.ndarray:
+        """Next centres ``(K, 3)`` from centres ``(K, 3)``, positions ``(K, M, 3)``, readings ``(K, M)``.
+
+        ``times_s`` ``(K, M)``: when each reading was taken (s, any epoch); each reading is then
+        weighted by its share of independent evidence (:mod:`estimator.ste_tempering`), so every
+        reading since takeoff can be given, densely; ``sensor_ids`` ``(K, M)`` which sensor took it
+        (None: column ``m`` is sensor ``m``). Without times: the per-update tempering (``temper``,
+        ``corr_length_m``), calibrated for one reading per vehicle per update.
+        """
         c, p, v = seeker_inputs(centre, positions, values)
+        t, ids = self._times(times_s, sensor_ids, v.shape)
+        if t is not None and not self.timed:
+            p, v, t, ids = self._first_per_sensor(p, v, t, ids)
         if self._k != c.shape[0]:
             self._init_state(c)
         self.iterations += 1
         self.hits += np.sum(v - self.background > self.threshold, axis=1)
-        self._update(c, p, v)
+        self._update(c, p, v, None if t is None else self._timed_weights(p, v, t, ids))
         self._summarise()
         sub = self._subsample()
         self._check_fit(sub)
-        nxt = self._next_centre(c, self._size_formation(p, c), sub)
+        nxt = self._next_centre(c, self._size_formation(self._formation_points(p, t, ids), c), sub)
         self._resample()
         return nxt
+
+    @staticmethod
+    def _times(times_s, sensor_ids, shape) -> tuple:
+        """``(times (K, M), sensor ids (K, M))`` checked, or ``(None, None)`` without times."""
+        if times_s is None:
+            return None, None
+        t = np.asarray(times_s, dtype=float).reshape(shape)
+        if not np.all(np.isfinite(t)):
+            raise ValueError("times_s must be finite")
+        ids = np.broadcast_to(np.arange(shape[1]), shape) if sensor_ids is None else np.asarray(sensor_ids)
+        if ids.shape != shape:
+            raise ValueError(f"sensor_ids must have the readings' shape {shape}, got {ids.shape}")
+        return t, ids
+
+    @staticmethod
+    def _first_per_sensor(p: np.ndarray, v: np.ndarray, t: np.ndarray, ids: np.ndarray) -> tuple:
+        """Each sensor's earliest reading of the update (the same sensors in every trial), without
+        times: ``(positions, values, None, None)``; the per-update tempering takes them."""
+        keep = []
+        for k in range(p.shape[0]):
+            order = np.lexsort((t[k], ids[k]))
+            keep.append(order[np.r_[True, ids[k][order][1:] != ids[k][order][:-1]]])
+        if len({len(x) for x in keep}) != 1:
+            raise ValueError("every trial's update needs readings of the same number of sensors")
+        idx = np.sort(np.stack(keep), axis=1)
+        return np.take_along_axis(p, idx[..., None], axis=1), np.take_along_axis(v, idx, axis=1), None, None
+
+    @staticmethod
+    def _formation_points(p: np.ndarray, t, ids) -> np.ndarray:
+        """Where the formation's vehicles are for the move's information: the readings' positions,
+        or with times each sensor's newest reading (the same sensors in every trial, else all readings)."""
+        if t is None:
+            return p
+        last = []
+        for k in range(p.shape[0]):
+            order = np.lexsort((t[k], ids[k]))
+            newest = order[np.r_[ids[k][order][1:] != ids[k][order][:-1], True]]
+            last.append(p[k, newest])
+        return np.stack(last) if len({len(x) for x in last}) == 1 else p
 
     # ------------------------------------------------------------------ the estimate, reported
     def source_estimate(self, k: int = 0, plan_map: bool = True) -> SourceEstimate | None:

@@ -14,7 +14,8 @@ simple kinematic model of what :mod:`mission.flight.seek_moving` does:
   (or is within ``arrival_tol_m`` of it) and at least ``1 / rate_hz`` after the last one; the
   seeker gets every reading since the last estimate, at the positions where they were taken (or,
   with ``sensor_lag_s``, where the vehicle was that long before), and its proposal, capped at
-  ``gamma_m``, becomes the new ``c``.
+  ``gamma_m``, becomes the new ``c``. A seeker that takes reading times (``ste``,
+  :func:`estimator.seekers.propose_readings`) gets each reading's time and vehicle too.
 
 The first estimate is made at rest at the start from one reading per vehicle, as in the mission.
 A time-dependent field (``field.time_dependent``: the intermittent plume) is read at the trial's
@@ -31,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.seekers import cap_move, make_seeker
+from estimator.seekers import cap_move, make_seeker, propose_readings
 
 __all__ = ["MovingRun", "simulate_moving"]
 
@@ -178,7 +179,10 @@ def _one_trial(seeker, field, c0, offsets, rng, out: dict, j: int, p: dict, t0_s
         placed = _placed(trial, len(vals), p["lag_s"])
         values = np.concatenate(vals)
         out["m"][it, j] = len(values)
-        c = cap_move(c[None], seeker.propose(c[None], placed[None], values[None]), p["gamma_m"])[0]
+        times = np.repeat(np.asarray(trial.hist_t[-len(vals):]), len(offsets))  # (ticks * N,), as ``placed``
+        sensors = np.tile(np.arange(len(offsets)), len(vals))
+        c = cap_move(c[None], propose_readings(seeker, c[None], placed[None], values[None], times[None],
+                                               sensors[None]), p["gamma_m"])[0]
         radius = getattr(seeker, "formation_radius_m", None)
         if radius is not None:
             trial.slots = _scaled_slots(offsets, float(np.asarray(radius).ravel()[0]))

@@ -268,6 +268,25 @@ def test_a_collapse_is_an_event_and_the_mission_goes_on():
     assert level == "warning" and "posterior collapsed" in message and fields["collapses"] == 1
 
 
+def test_every_reading_goes_to_ste_with_its_time_and_vehicle():
+    """The mission no longer thins ste's readings (STE_READINGS_PER_VEHICLE None): each update's readings,
+    every one, reach the filter with their times and vehicles, which weigh them
+    (estimator.ste_tempering: 3 s of 10 Hz readings per vehicle about 1.6 units each, not 30)."""
+    assert seek.STE_READINGS_PER_VEHICLE is None
+    run = _seek_with(_MissionSeeker("ste", 270.0, "intermittent", particles=300, info_particles=64))
+    rng = np.random.default_rng(1)
+    sysids = np.repeat([11, 12, 13, 14], 30)
+    times = 1767225600.0 + np.tile(np.arange(30) * 0.1, 4)
+    hover = np.array([[20.0, 3.0, 10.0], [20.0, -3.0, 10.0], [23.0, 0.0, 10.0], [17.0, 0.0, 10.0]])
+    pos = np.repeat(hover, 30, axis=0) + rng.normal(size=(120, 3)) * 0.05
+    centre = asyncio.run(run._propose(0, pos, np.zeros(120), list(times), list(sysids)))
+    assert np.all(np.isfinite(centre))
+    filt = run.seeker.seeker
+    assert sorted(filt._last[0]) == [11, 12, 13, 14]
+    assert filt._buf[-1][0].shape == (1, 120, 3)  # every reading in the update
+    assert filt._buf[-1][3].sum() == pytest.approx(4 * (1.0 + 2.9 / 5.0), rel=0.05)
+
+
 def test_a_seeker_error_holds_and_is_logged():
     run = _seek_with(_MissionSeeker("ste", particles=300, info_particles=64))
     held = asyncio.run(run._propose(3, np.zeros((8, 3)), np.full(8, np.nan)))
@@ -289,6 +308,7 @@ def test_the_adapter_reports_the_posterior():
 
 # ----------------------------------------------------------------------------- a whole mission
 @pytest.mark.slow
+@pytest.mark.timeout(600)  # every reading to the filter: ~6 s of its CPU per mission, more on a loaded machine
 def test_run_ste_on_the_intermittent_plume_converges_near_the_source(tmp_path, capsys):
     """``swarmseek run --seeker ste --field intermittent`` (seed 1, lock-step; a typical seed of the
     ten in docs/seekers.md): converged on its posterior's 95 % region (at most the default 1 m), the

@@ -52,9 +52,10 @@ from mission.flight.state import MissionError
 __all__ = ["seek", "make_estimator", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
 
 #: With moving sampling the ``ste`` seeker gets at most this many of each vehicle's readings per update
-#: (:func:`mission.flight.seek_moving.thin_evenly`): its filter's tempering assumes about one reading per
-#: vehicle per update (more made it overconfident), and its CPU (docs/seekers.md, "ste in missions")
-STE_READINGS_PER_VEHICLE = 1
+#: (:func:`mission.flight.seek_moving.thin_evenly`); None: every reading, each with its time and vehicle,
+#: weighed by the independent evidence it carries (:mod:`estimator.ste_tempering`; docs/seekers.md,
+#: "ste in missions"). The thinning (1 before the filter took reading times) stays as an option.
+STE_READINGS_PER_VEHICLE = None
 
 
 def make_seeker(kind: str, wind_from_deg: float | None = None, plume_mode: str = "steady", **ste):
@@ -126,16 +127,20 @@ class _MissionSeeker:
         self.seeker.reset()
         self._clear()
 
-    def step(self, centre, positions, values, gamma_m: float) -> np.ndarray:
-        """The next centre; the same centre (hold) if the seeker cannot propose one, with ``self.failure`` set."""
-        from estimator.seekers import cap_move
+    def step(self, centre, positions, values, gamma_m: float, times_s=None, sensor_ids=None) -> np.ndarray:
+        """The next centre; the same centre (hold) if the seeker cannot propose one, with ``self.failure`` set.
+        ``times_s`` and ``sensor_ids`` (one per reading): when and by which vehicle each reading was
+        taken, for a seeker that takes them (:func:`estimator.seekers.propose_readings`)."""
+        from estimator.seekers import cap_move, propose_readings
 
         c = np.asarray(centre, dtype=float)[None]
         self.failure = self.arrival = None
         self.collapsed = None
+        t = None if times_s is None else np.asarray(times_s, dtype=float)[None]
+        ids = None if sensor_ids is None else np.asarray(sensor_ids)[None]
         try:
-            new = self.seeker.propose(c, np.asarray(positions, dtype=float).reshape(1, -1, 3),
-                                      np.asarray(values, dtype=float)[None])
+            new = propose_readings(self.seeker, c, np.asarray(positions, dtype=float).reshape(1, -1, 3),
+                                   np.asarray(values, dtype=float)[None], t, ids)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
             self.failure = f"seeker {self.seeker.name} proposed no centre ({exc}); holding"
             return c[0]
@@ -442,9 +447,10 @@ class _Seek:
         if self.seeker is None:  # the paper's step with the plan's estimator (robust included)
             proposed = seek_step(self.centre, grad, sk.eps, sk.gamma_m)
         else:
-            if self.samples is not None and self.seeker.converges_itself:  # ste: its CPU (docs/seekers.md)
-                kept, positions = thin_evenly(kept, positions, STE_READINGS_PER_VEHICLE)
-            proposed = await self._propose(k, positions, [r.value for r in kept])
+            if self.samples is not None and self.seeker.converges_itself and STE_READINGS_PER_VEHICLE:
+                kept, positions = thin_evenly(kept, positions, STE_READINGS_PER_VEHICLE)  # an option (above)
+            proposed = await self._propose(k, positions, [r.value for r in kept], [r.time_s for r in kept],
+                                           [r.sysid for r in kept])
         new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))
         own = None if self.seeker is None else self.seeker.arrival
@@ -485,16 +491,18 @@ class _Seek:
         if new is not None:
             co.state.update_slots(new)
 
-    async def _propose(self, k: int, positions, values) -> np.ndarray:
-        """The seeker's next centre (capped at ``gamma_m``); its failure (a hold) and a collapse of its
-        posterior (re-seeded from the prior about the formation) are events of the mission log. The
-        ``ste`` seeker's update (tens of ms and more) runs in the loop's executor."""
+    async def _propose(self, k: int, positions, values, times_s=None, sysids=None) -> np.ndarray:
+        """The seeker's next centre (capped at ``gamma_m``) from the readings ``values`` taken (to be) at
+        ``positions``, at ``times_s`` by vehicles ``sysids`` (for a seeker that takes reading times); its
+        failure (a hold) and a collapse of its posterior (re-seeded from the prior about the formation)
+        are events of the mission log. The ``ste`` seeker's update (tens of ms and more) runs in the
+        loop's executor."""
         sk = self.seeker
         if sk.converges_itself:
             proposed = await asyncio.get_running_loop().run_in_executor(
-                None, sk.step, self.centre.copy(), positions, values, self.sk.gamma_m)
+                None, sk.step, self.centre.copy(), positions, values, self.sk.gamma_m, times_s, sysids)
         else:
-            proposed = sk.step(self.centre, positions, values, self.sk.gamma_m)
+            proposed = sk.step(self.centre, positions, values, self.sk.gamma_m, times_s, sysids)
         if sk.failure:
             self.co.event(f"iteration {k + 1}: {sk.failure}", level="warning")
         if sk.collapsed:
