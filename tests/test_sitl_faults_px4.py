@@ -159,9 +159,12 @@ def test_px4_kill_and_link_cut_in_one_mission(tmp_path):
     # the ground station heard the cut within its 1 s link timeout (+ a check period and load)
     assert 0.0 < cut["lost"]["t_s"] - cut["t_cut"] < 3.0, figures
     assert 0.0 < kill["lost"]["t_s"] - kill["t_kill"] < 3.0, figures
-    # PX4's own offboard-loss failsafe (COM_OBL_RC_ACT 0, no RC): hold, armed, until re-engaged
-    after_cut = [m for _, m, a in cut["px4_modes"]]
-    assert after_cut[0] in ("POSCTL", "LOITER") and "OFFBOARD" in after_cut[1:], figures
+    # PX4's own offboard-loss failsafe (COM_OBL_RC_ACT 0 = position mode, no RC): POSCTL, armed,
+    # holding, until the ground station re-engaged OFFBOARD; then landed by the mission's end
+    after_cut = [(m, a) for _, m, a in cut["px4_modes"]]
+    assert after_cut[:2] == [("POSCTL", True), ("OFFBOARD", True)], figures
+    assert ("LAND", True) in after_cut[2:], figures
+    assert summary["lost"][0]["reason"] == "link", summary["lost"]
     assert killed_state.get("heard", 0.0) < kill["t_kill"] + 0.5, killed_state
     assert dropped["up"] > 0 and dropped["down"] > 0, dropped
     error_m = float(np.linalg.norm(np.asarray(summary["estimate_enu"]) - np.asarray(_SOURCE)))
