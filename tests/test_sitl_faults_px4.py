@@ -119,7 +119,10 @@ def test_px4_kill_and_link_cut_in_one_mission(tmp_path):
     from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
     from mission.sim.sitl_plan import seeker_settings, write_plan
 
-    seeking = dict(_SEEKING, **seeker_settings("model"))
+    # a 30-iteration convergence window (10 in the plain mission): the seek must not end before
+    # both faults are in (on a host at load average 40 it converged 14 iterations in, while the
+    # cut vehicle waited to be re-admitted)
+    seeking = dict(_SEEKING, convergence_window=30, **seeker_settings("model"))
     zenoh = f"tcp/127.0.0.1:{_free_tcp_port()}"
     cfg = SitlFleetConfig(flavour="px4", n=5, sitl_dir=sitl_dir, speedup=_SPEEDUP).free()
     log_dir = tmp_path / "logs"
