@@ -1,7 +1,7 @@
 """Faults against REAL PX4 firmware (PX4 SIH, ``SWARMSEEK_PX4_SITL``): whole ``swarmseek fly`` missions
 with one ``swarmseek sensor`` per vehicle, each a subprocess, and a fault injected mid-mission.
 
-* ``test_px4_kill_and_link_cut_in_one_mission``: 5 vehicles at 3x, ``[faults] readmit = true``.
+* ``test_px4_kill_and_link_cut_in_one_mission``: 5 vehicles at 2x, ``[faults] readmit = true``.
   Vehicle 5's API link goes through a UDP relay in the test (the plan points its connection at the
   relay); after seek iteration 2 the relay drops everything both ways until PX4 itself has left
   OFFBOARD (heard on its own GCS link, not through the relay) and at least ``_CUT_S`` wall seconds
@@ -36,7 +36,9 @@ import pytest
 from sitl_px4_fault_support import FlyRun, GcsListener, UdpRelay, free_udp_port
 from sitl_support import audit_failure_context, require_sitl
 
-_SPEEDUP = 3.0
+#: 2x, not the 3x of tests/test_sitl_px4.py: 5 instances plus 5 sensors; on a host at load average
+#: 25-30 a 3x fleet fell so far behind that PX4's 1 s offboard-loss timer took over 30 s of wall time
+_SPEEDUP = 2.0
 _SOURCE = (6.0, 12.0, 13.0)
 _START = (0.0, 20.0, 15.0)
 _NOISE = 0.005
@@ -79,26 +81,26 @@ def _cut_and_restore(run: FlyRun, relay: UdpRelay, gcs: GcsListener, sysid: int)
     run.wait_for(lambda recs: len(_iterations(recs)) >= 2, 240.0, "seek iteration 2")
     t_cut = time.time()
     relay.cut.set()
-    lost = run.wait_for(lambda recs: _events(recs, sysid, "lost:"), 30.0, f"vehicle {sysid} declared lost")[0]
-    deadline = time.monotonic() + 30.0
+    lost = run.wait_for(lambda recs: _events(recs, sysid, "lost:"), 90.0, f"vehicle {sysid} declared lost")[0]
+    deadline = time.monotonic() + 120.0  # generous: a loaded host slows PX4's simulated time down
     while not [m for m in gcs.modes(sysid, t_cut) if m[1] != "OFFBOARD"]:
-        assert time.monotonic() < deadline, f"PX4 {sysid} stayed OFFBOARD 30 s without its ground station"
+        assert time.monotonic() < deadline, f"PX4 {sysid} stayed OFFBOARD 120 s without its ground station"
         time.sleep(0.05)
     while time.time() < t_cut + _CUT_S:
         time.sleep(0.05)
     relay.cut.clear()
     t_restore = time.time()
-    back = run.wait_for(lambda recs: _events(recs, sysid, "re-admitted:"), 60.0, f"vehicle {sysid} re-admitted")[0]
+    back = run.wait_for(lambda recs: _events(recs, sysid, "re-admitted:"), 120.0, f"vehicle {sysid} re-admitted")[0]
     return {"t_cut": t_cut, "t_restore": t_restore, "lost": lost, "readmitted": back}
 
 
 def _kill_after_next_iteration(run: FlyRun, vehicle) -> dict:
     """SIGKILL ``vehicle``'s PX4 at the first iteration after the re-admission; its loss event."""
     k0 = len(_iterations(run.records()))
-    run.wait_for(lambda recs: len(_iterations(recs)) > k0, 60.0, "an iteration after the re-admission")
+    run.wait_for(lambda recs: len(_iterations(recs)) > k0, 120.0, "an iteration after the re-admission")
     t_kill = time.time()
     os.killpg(vehicle.pid, signal.SIGKILL)
-    lost = run.wait_for(lambda recs: _events(recs, vehicle.sysid, "lost:"), 30.0,
+    lost = run.wait_for(lambda recs: _events(recs, vehicle.sysid, "lost:"), 90.0,
                         f"vehicle {vehicle.sysid} declared lost after the kill")[0]
     return {"t_kill": t_kill, "lost": lost, "iteration": k0}
 
@@ -113,7 +115,7 @@ def _wait_down(gcs: GcsListener, sysids, timeout_s: float) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(480)
+@pytest.mark.timeout(900)
 def test_px4_kill_and_link_cut_in_one_mission(tmp_path):
     sitl_dir = require_sitl("px4")
     from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
@@ -137,7 +139,7 @@ def test_px4_kill_and_link_cut_in_one_mission(tmp_path):
             with FlyRun(fleet, plan, log_dir, _SOURCE, zenoh=zenoh, noise=_NOISE) as run:
                 cut = _cut_and_restore(run, relay, gcs, cut_v.sysid)
                 kill = _kill_after_next_iteration(run, kill_v)
-                status = run.wait_end(300.0)
+                status = run.wait_end(420.0)
                 output, summary = run.output(), run.summary()
             dropped = dict(relay.dropped)
         living = [v.sysid for v in fleet.vehicles if v is not kill_v]
