@@ -2,7 +2,8 @@
 with one ``swarmseek sensor`` per vehicle, each a subprocess, and a fault injected mid-mission.
 
 * ``test_px4_kill_and_link_cut_in_one_mission``: 5 vehicles at 2x, ``[faults] readmit = true``.
-  Vehicle 5's API link goes through a UDP relay in the test (the plan points its connection at the
+  PX4's offboard-loss action set to hold (``COM_OBL_RC_ACT = 5``; the default 0 descends and
+  lands without RC, docs/faults.md). Vehicle 5's API link goes through a UDP relay in the test (the plan points its connection at the
   relay); after seek iteration 2 the relay drops everything both ways until PX4 itself has left
   OFFBOARD (heard on its own GCS link, not through the relay) and at least ``_CUT_S`` wall seconds
   have passed, then forwards again. The ground station declares it lost, re-forms for 4, and
@@ -126,7 +127,11 @@ def test_px4_kill_and_link_cut_in_one_mission(tmp_path):
     # cut vehicle waited to be re-admitted)
     seeking = dict(_SEEKING, convergence_window=30, **seeker_settings("model"))
     zenoh = f"tcp/127.0.0.1:{_free_tcp_port()}"
-    cfg = SitlFleetConfig(flavour="px4", n=5, sitl_dir=sitl_dir, speedup=_SPEEDUP).free()
+    # COM_OBL_RC_ACT = 5 (hold): with PX4's default 0 (position mode) and no RC, PX4 v1.16 SIH shows
+    # POSCTL but descends at about 0.5 m/s and lands (measured, docs/faults.md): whether the vehicle
+    # is re-admitted or found landed is then a race with the ground station's next re-formation
+    cfg = SitlFleetConfig(flavour="px4", n=5, sitl_dir=sitl_dir, speedup=_SPEEDUP,
+                          params={"COM_OBL_RC_ACT": 5}).free()
     log_dir = tmp_path / "logs"
     with SitlFleet(cfg) as fleet, GcsListener(14550 + cfg.port_offset, [v.sysid for v in fleet.vehicles]) as gcs:
         cut_v, kill_v = fleet.vehicles[4], fleet.vehicles[1]
@@ -167,10 +172,10 @@ def test_px4_kill_and_link_cut_in_one_mission(tmp_path):
     for fault, t_fault in ((cut, cut["t_cut"]), (kill, kill["t_kill"])):
         assert fault["lost"]["t_s"] > t_fault and fault["lost"]["reason"] == "link", figures
         assert fault["lost"]["latency_s"] >= 1.0, figures
-    # PX4's own offboard-loss failsafe (COM_OBL_RC_ACT 0 = position mode, no RC): POSCTL, armed,
-    # holding, until the ground station re-engaged OFFBOARD; then landed by the mission's end
+    # PX4's own offboard-loss failsafe (COM_OBL_RC_ACT 5): hold (AUTO.LOITER), armed, until the
+    # ground station re-engaged OFFBOARD; then landed by the mission's end
     after_cut = [(m, a) for _, m, a in cut["px4_modes"]]
-    assert after_cut[:2] == [("POSCTL", True), ("OFFBOARD", True)], figures
+    assert after_cut[:2] == [("LOITER", True), ("OFFBOARD", True)], figures
     assert ("LAND", True) in after_cut[2:], figures
     assert summary["lost"][0]["reason"] == "link", summary["lost"]
     # the killed PX4 stayed silent (its last heartbeat, stamped when the listener read it, came soon
