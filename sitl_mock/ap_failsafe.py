@@ -5,8 +5,9 @@ the autopilot in failsafe (HEARTBEAT system_status CRITICAL) and switches to the
 parameters ask for:
 
 * offboard loss (PX4): no setpoint for ``COM_OF_LOSS_T`` s in OFFBOARD -> ``COM_OBL_RC_ACT``
-  (0 Position mode, ``POSCTL``, holding where it is: what real PX4 v1.16 SIH does without RC,
-  measured by ``tests/test_sitl_faults_px4.py``; 3 Return, 4 Land, otherwise Hold);
+  (0 Position mode, ``POSCTL``: the mode real PX4 v1.16 SIH reports, measured by
+  ``tests/test_sitl_faults_px4.py``; the mock holds there, while real PX4 without RC descends at
+  about 0.5 m/s and lands: a difference left open, docs/faults.md; 3 Return, 4 Land, otherwise Hold);
 * GCS loss: no GCS heartbeat for ``FS_GCS_TIMEOUT`` (ArduPilot, heartbeats from
   ``MAV_GCS_SYSID``) or ``COM_DL_LOSS_T`` (PX4, any MAV_TYPE_GCS) -> ``FS_GCS_ENABLE`` /
   ``NAV_DLL_ACT``; only after a GCS has been heard once;

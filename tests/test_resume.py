@@ -93,7 +93,7 @@ def test_gcs_stop_each_vehicle_does_what_its_autopilot_does(tmp_path):
         elapsed = fleet.clock.time() - t_stop
     finally:
         fleet.stop()
-    assert modes[1] == ("POSCTL", True)  # PX4, COM_OBL_RC_ACT = 0: position mode, holds (as real PX4 SIH)
+    assert modes[1] == ("POSCTL", True)  # PX4, COM_OBL_RC_ACT = 0: position mode (the mode real PX4 SIH reports)
     assert modes[3] == ("GUIDED", True)         # ArduPilot GUIDED without setpoints: holds
     assert drift3 < 1.0, (drift3, elapsed)
     assert modes[2][0] == "AUTO.LAND"           # PX4, COM_OBL_RC_ACT = 4: land
