@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import select
+import signal
 import socket
 import subprocess
 import sys
@@ -38,8 +39,11 @@ class UdpRelay:
 
     PX4 sends from ``127.0.0.1:14580+i+K`` to ``127.0.0.1:vehicle_port`` (14540+i+K): the relay binds
     that port, forwards to the ground station's ``udpin`` port ``gcs_port`` from a socket of its own,
-    and sends the ground station's frames back to the address PX4 sent from. While :attr:`cut` is
-    set, every datagram either way is dropped (counted).
+    and sends the ground station's frames back to the address PX4 sent from. It runs in its own
+    process (``python tests/sitl_px4_fault_support.py VEHICLE_PORT GCS_PORT``): a thread of the test
+    process, sharing its interpreter with the log polling, stalled for over 1 s on a loaded host
+    and the ground station lost the vehicle before any cut. SIGUSR1 cuts (every datagram either way
+    dropped, counted), SIGUSR2 restores; on SIGTERM it prints its counts as JSON and exits.
 
     Parameters
     ----------
@@ -50,60 +54,86 @@ class UdpRelay:
     """
 
     def __init__(self, vehicle_port: int, gcs_port: int):
-        self.gcs_port = gcs_port
-        self._vside = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._gside = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        try:
-            self._vside.bind(("127.0.0.1", vehicle_port))
-        except OSError as exc:
-            self.close()
-            raise RuntimeError(f"relay: cannot bind the vehicle side 127.0.0.1:{vehicle_port}: {exc}") from None
-        self._gside.bind(("127.0.0.1", 0))
-        self._vehicle_addr = None
-        self._stop = threading.Event()
-        self.cut = threading.Event()
-        self.forwarded = {"up": 0, "down": 0}
-        self.dropped = {"up": 0, "down": 0}
-        self._thread = threading.Thread(target=self._run, name="udp-relay", daemon=True)
+        self.vehicle_port, self.gcs_port = vehicle_port, gcs_port
+        self.proc: subprocess.Popen | None = None
+        self.counts: dict = {}
 
     def __enter__(self) -> UdpRelay:
-        self._thread.start()
+        self.proc = subprocess.Popen([sys.executable, __file__, str(self.vehicle_port), str(self.gcs_port)],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     start_new_session=True)
+        line = self.proc.stdout.readline()
+        if line.strip() != "ready":
+            self.close()
+            raise RuntimeError(f"relay did not start: {line.strip()} {self.proc.stderr.read()[-500:]}")
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def cut(self, on: bool) -> None:
+        """Cut (True) or restore (False) the link both ways."""
+        self.proc.send_signal(signal.SIGUSR1 if on else signal.SIGUSR2)
+
     def close(self) -> None:
-        """Stop the thread and close both sockets."""
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=5.0)
-        self._vside.close()
-        self._gside.close()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            ready, _, _ = select.select([self._vside, self._gside], [], [], 0.1)
-            for sock in ready:
-                try:
-                    data, addr = sock.recvfrom(65535)
-                except OSError:
-                    continue
-                if sock is self._vside:
-                    self._vehicle_addr = addr
-                    self._pass("down", data, self._gside, ("127.0.0.1", self.gcs_port))
-                elif self._vehicle_addr is not None:
-                    self._pass("up", data, self._vside, self._vehicle_addr)
-
-    def _pass(self, way: str, data: bytes, sock: socket.socket, addr) -> None:
-        if self.cut.is_set():
-            self.dropped[way] += 1
+        """Stop the relay process and keep its counts (:attr:`counts`: forwarded, dropped)."""
+        if self.proc is None:
             return
+        if self.proc.poll() is None:
+            self.proc.terminate()
         try:
-            sock.sendto(data, addr)
-            self.forwarded[way] += 1
-        except OSError:
-            self.dropped[way] += 1
+            out, _ = self.proc.communicate(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            stop_groups([self.proc])
+            out = ""
+        for line in (out or "").splitlines():
+            if line.startswith("{"):
+                self.counts = json.loads(line)
+        self.proc = None
+
+
+def _relay_main(vehicle_port: int, gcs_port: int) -> None:
+    """The relay process (see :class:`UdpRelay`)."""
+    state = {"cut": False, "stop": False}
+    counts = {"forwarded": {"up": 0, "down": 0}, "dropped": {"up": 0, "down": 0}}
+    signal.signal(signal.SIGUSR1, lambda *_: state.update(cut=True))
+    signal.signal(signal.SIGUSR2, lambda *_: state.update(cut=False))
+    signal.signal(signal.SIGTERM, lambda *_: state.update(stop=True))
+    vside = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gside = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        vside.bind(("127.0.0.1", vehicle_port))
+    except OSError as exc:
+        print(f"cannot bind the vehicle side 127.0.0.1:{vehicle_port}: {exc}", flush=True)
+        return
+    gside.bind(("127.0.0.1", 0))
+    print("ready", flush=True)
+    vehicle_addr = None
+    while not state["stop"]:
+        try:
+            ready, _, _ = select.select([vside, gside], [], [], 0.1)
+        except InterruptedError:
+            continue
+        for sock in ready:
+            try:
+                data, addr = sock.recvfrom(65535)
+            except OSError:
+                continue
+            if sock is vside:
+                vehicle_addr, way, out, dest = addr, "down", gside, ("127.0.0.1", gcs_port)
+            elif vehicle_addr is not None:
+                way, out, dest = "up", vside, vehicle_addr
+            else:
+                continue
+            if state["cut"]:
+                counts["dropped"][way] += 1
+                continue
+            try:
+                out.sendto(data, dest)
+                counts["forwarded"][way] += 1
+            except OSError:
+                counts["dropped"][way] += 1
+    print(json.dumps(counts), flush=True)
 
 
 class GcsListener:
@@ -209,6 +239,8 @@ class FlyRun:
         self.sensors: list[subprocess.Popen] = []
         self.fly: subprocess.Popen | None = None
         self.started = 0.0
+        self._offset = 0
+        self._records: list[dict] = []
 
     def __enter__(self) -> FlyRun:
         try:
@@ -241,8 +273,21 @@ class FlyRun:
         stop_groups(([self.fly] if self.fly is not None else []) + self.sensors)
 
     def records(self, kind: str | None = None) -> list[dict]:
-        """The mission log's records (of type ``kind``)."""
-        return [r for r in log_records(self.log) if kind is None or r.get("type") == kind]
+        """The mission log's records (of type ``kind``), read on from where the last call stopped."""
+        try:
+            with open(self.log, "rb") as f:
+                f.seek(self._offset)
+                chunk = f.read()
+        except FileNotFoundError:
+            chunk = b""
+        end = chunk.rfind(b"\n") + 1  # a partly written last line waits for the next call
+        for line in chunk[:end].splitlines():
+            try:
+                self._records.append(json.loads(line))
+            except ValueError:
+                continue
+        self._offset += end
+        return [r for r in self._records if kind is None or r.get("type") == kind]
 
     def wait_for(self, predicate, timeout_s: float, what: str):
         """Poll ``predicate(records)`` until truthy; fail with ``what`` and the output on a timeout or
@@ -256,7 +301,7 @@ class FlyRun:
                 raise AssertionError(f"fly ended (exit {self.fly.returncode}) before {what}:\n{self.output()}")
             if time.monotonic() > deadline:
                 raise AssertionError(f"timed out after {timeout_s} s waiting for {what}:\n{self.output()}")
-            time.sleep(0.05)
+            time.sleep(0.2)
 
     def wait_end(self, timeout_s: float) -> int:
         """``fly``'s exit status; killed (its group) after ``timeout_s``, then the assertion fails."""
@@ -276,3 +321,7 @@ class FlyRun:
         """The log's ``summary`` record."""
         found = self.records("summary")
         return found[-1] if found else None
+
+
+if __name__ == "__main__":
+    _relay_main(int(sys.argv[1]), int(sys.argv[2]))
