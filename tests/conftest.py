@@ -7,7 +7,7 @@ around them instead of both workers ending on one long file each. Order only: ev
 from __future__ import annotations
 
 #: the files of the longest tests, longest first (``python -m pytest --durations=40``)
-LONG_FIRST = ("test_sitl_ardupilot.py", "test_sitl_px4.py", "test_conformance_px4.py",
+LONG_FIRST = ("test_sitl_faults_px4.py", "test_sitl_ardupilot.py", "test_sitl_px4.py", "test_conformance_px4.py",
               "test_ctl_processes.py", "test_gcs_faults_signals.py", "test_layers.py",
               "test_conformance_ardupilot.py", "test_gcs_faults_output.py")
 

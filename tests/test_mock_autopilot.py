@@ -198,7 +198,10 @@ def test_ardupilot_guided_velocity_target_times_out_and_stops():
     assert h.ap.mode_name == "GUIDED"
 
 
-@pytest.mark.parametrize("obl_action,expected_mode", [(0, "AUTO.LOITER"), (3, "AUTO.RTL"), (4, "AUTO.LAND")])
+#: COM_OBL_RC_ACT 0 (PX4's default, position mode): real PX4 v1.16 SIH reports POSCTL (measured by
+#: tests/test_sitl_faults_px4.py runs); it then descends and lands without RC, the mock holds there
+#: (a difference left open, docs/faults.md)
+@pytest.mark.parametrize("obl_action,expected_mode", [(0, "POSCTL"), (3, "AUTO.RTL"), (4, "AUTO.LAND")])
 def test_px4_offboard_loss_failsafe(obl_action, expected_mode):
     h = Harness("px4", COM_OBL_RC_ACT=obl_action)
     h.airborne(10.0)
@@ -209,6 +212,10 @@ def test_px4_offboard_loss_failsafe(obl_action, expected_mode):
     h.run(1.0)  # COM_OF_LOSS_T = 1 s without setpoints
     assert h.ap.mode_name == expected_mode
     assert h.ap.failsafe == "offboard"
+    if obl_action == 0:  # the mock's position mode without a pilot: holds where it is, armed
+        h.run(5.0)
+        assert h.ap.mode_name == "POSCTL" and h.mc.armed
+        assert np.linalg.norm(h.mc.velocity_ned_m_s) < 0.05
 
 
 @pytest.mark.parametrize("personality,param,value,expected_mode", [

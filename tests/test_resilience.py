@@ -37,6 +37,7 @@ class _Vehicle:
 @pytest.mark.parametrize("flavour, mode, age_s, armed, commanded, expected", [
     ("px4", "OFFBOARD", 0.05, True, False, None),
     ("px4", "AUTO.LOITER", 0.05, True, False, None),       # offboard loss: re-engaged, not lost
+    ("px4", "POSCTL", 0.05, True, False, None),            # offboard loss, COM_OBL_RC_ACT 0 (real PX4 SIH)
     ("px4", "AUTO.RTL", 0.05, True, False, "left"),        # battery failsafe
     ("px4", "AUTO.LAND", 0.05, True, True, None),          # we asked for it
     ("ardupilot", "LOITER", 0.05, True, False, None),

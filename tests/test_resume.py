@@ -83,7 +83,7 @@ def test_gcs_stop_each_vehicle_does_what_its_autopilot_does(tmp_path):
         t_stop = fleet.clock.time()
         where3 = fleet.vehicle(3).true_position_enu()
         v = {s: fleet.vehicle(s) for s in range(1, n + 1)}
-        ok = _wait(fleet, lambda: (v[1].mode_name == "AUTO.LOITER" and v[2].mode_name in ("AUTO.LAND",)
+        ok = _wait(fleet, lambda: (v[1].mode_name == "POSCTL" and v[2].mode_name in ("AUTO.LAND",)
                                    and v[4].mode_name == "RTL"), 30.0)
         modes = {s: v[s].mode_name for s in v}
         assert ok, modes
@@ -93,7 +93,7 @@ def test_gcs_stop_each_vehicle_does_what_its_autopilot_does(tmp_path):
         elapsed = fleet.clock.time() - t_stop
     finally:
         fleet.stop()
-    assert modes[1] == ("AUTO.LOITER", True)    # PX4, COM_OBL_RC_ACT = 0: hold
+    assert modes[1] == ("POSCTL", True)  # PX4, COM_OBL_RC_ACT = 0: position mode (the mode real PX4 SIH reports)
     assert modes[3] == ("GUIDED", True)         # ArduPilot GUIDED without setpoints: holds
     assert drift3 < 1.0, (drift3, elapsed)
     assert modes[2][0] == "AUTO.LAND"           # PX4, COM_OBL_RC_ACT = 4: land
@@ -115,7 +115,7 @@ def test_resume_after_a_gcs_stop_goes_on_and_converges(tmp_path):
     log_path = tmp_path / "m.jsonl"
     try:
         run_fleet(fleet, lambda world: _fly_then_stop(plan, fleet, log_path, stop_after=4, world=world))
-        assert _wait(fleet, lambda: all(v.mode_name == "AUTO.LOITER" for v in fleet.vehicles), 30.0), \
+        assert _wait(fleet, lambda: all(v.mode_name == "POSCTL" for v in fleet.vehicles), 30.0), \
             [v.mode_name for v in fleet.vehicles]
         state = load_resume_state(log_path)
         assert state.iteration >= 4 and len(state.slot_offsets) == n
