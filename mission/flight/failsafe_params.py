@@ -33,7 +33,7 @@ PARAMS = {
 }
 _AP_GCS = {0: "nothing (failsafe disabled): holds its last target", 1: "RTL", 2: "RTL", 3: "SmartRTL or RTL",
            4: "SmartRTL or land", 5: "land", 6: "DO_LAND_START mission or RTL", 7: "brake or land"}
-_PX4_OBL = {0: "position mode (hold without a pilot)", 1: "altitude mode (hold without a pilot)",
+_PX4_OBL = {0: "position mode (a pilot's mode; PX4 v1.16 SIH without RC then descended and landed)", 1: "altitude mode (hold without a pilot)",
             2: "manual mode (hold without a pilot)", 3: "return", 4: "land", 5: "hold",
             6: "flight termination", 7: "disarm"}
 _PX4_OBL_HOLDS = {0, 1, 2, 5}
