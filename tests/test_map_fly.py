@@ -30,7 +30,7 @@ from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from wait_helpers import wait_until
 
-pytestmark = [pytest.mark.timeout(500), pytest.mark.slow]
+pytestmark = pytest.mark.timeout(500)
 
 ROOT = Path(__file__).resolve().parents[1]
 #: wall seconds for one condition seen on the page (takeoff and assembly of 4 vehicles on a loaded host)
@@ -139,6 +139,7 @@ def _fleet_and_plan(tmp_path: Path):
     return fleet, plan, endpoint
 
 
+@pytest.mark.slow
 def test_fly_map_streams_every_vehicle_pauses_from_the_page_and_resume_serves_it(tmp_path):
     fleet, plan, endpoint = _fleet_and_plan(tmp_path)
     log = tmp_path / "log" / "mission.jsonl"
@@ -201,3 +202,55 @@ def test_fly_and_resume_refuse_a_map_port_in_use_before_anything_is_armed(tmp_pa
         err = capsys.readouterr().err
         assert f"swarmseek resume: --map: cannot serve the map on 127.0.0.1:{port}" in err, err
         assert stopped.read_text() == before                         # nothing re-engaged
+
+
+async def _page_commands_through(url: str, put_state) -> tuple[dict, dict]:
+    """Read the page's stream until a state arrives (``put_state()`` publishes one every 0.1 s
+    meanwhile: the map subscribes once attached), then press Pause; the state and the answer."""
+    timeout = aiohttp.ClientTimeout(total=None, sock_read=60)
+    async with aiohttp.ClientSession(timeout=timeout) as http:
+        async with http.get(url + "events") as resp:
+            events = _events(resp)
+            event, config = await asyncio.wait_for(events.__anext__(), 60)
+            assert event == "config"
+
+            async def publish():
+                while True:
+                    put_state()
+                    await asyncio.sleep(0.1)
+            publisher = asyncio.create_task(publish())
+            try:
+                state = await _state_until(events, lambda s: True, "a state published on the mission's session")
+            finally:
+                publisher.cancel()
+            return state, await _command(http, url, config, "pause")
+
+
+def test_the_map_reads_and_commands_through_the_missions_own_session_under_access_control(tmp_path):
+    """A plan with authentication and access control (only ``ops`` may command): the map attached
+    to the coordinator's own session receives its state and its Pause reaches the coordinator,
+    with no endpoint or credential of its own; the session is the mission's to close."""
+    from mission.telemetry.map_live import MapThread
+    from mission.telemetry.map_server import MapAccess
+    from mission.telemetry.state_pub import STATE_SCHEMA, state_key
+    from test_ctl_access import _Coordinator, _free_port, _plan
+
+    plan = _plan(tmp_path, _free_port(), {"sensor_usernames": ["sensor1"], "monitor_usernames": ["viewer", "ops"],
+                                          "commander_usernames": ["ops"]})
+    coord = _Coordinator(plan)
+    thread = MapThread(plan.fleet, "127.0.0.1", 0, access=MapAccess("127.0.0.1"), sender="map:tester",
+                       config={"tile_url": None, "truth_enu": None, "replay": None})
+    try:
+        url = thread.start()
+        thread.attach(coord.session)
+        state = {"schema": STATE_SCHEMA, "phase": "seek", "vehicles": [{"sysid": 1, "position_enu": [1.0, 2.0, 9.0]}]}
+        seen, ack = asyncio.run(_page_commands_through(
+            url, lambda: coord.session.put(state_key(plan.fleet), json.dumps(state).encode())))
+        assert seen["vehicles"] == state["vehicles"] and ack["accepted"], ack
+        assert coord.commands == [("pause", "map:tester")]
+        coord.session.put(state_key(plan.fleet), json.dumps({**state, "final": True}).encode())
+        thread.stop()
+        assert thread.got_final() and not coord.session.is_closed()  # the mission closes its own session
+    finally:
+        thread.stop()
+        coord.close()
