@@ -13,7 +13,9 @@ import sys
 __all__ = ["COMMANDS", "build_parser", "main", "version_text"]
 
 #: the commands that fly a mission: SIGPIPE is blocked before anything starts a thread
-#: (:func:`mission.telemetry.terminal.sigpipe_blocked`; docs/faults.md)
+#: (:func:`mission.telemetry.terminal.sigpipe_blocked`; docs/faults.md) and their terminal is best
+#: effort (they fly on); any other command whose stdout or stderr reader goes away (``| head -1``)
+#: ends quietly with status 141 (:func:`mission.telemetry.terminal.silence_broken_pipes`)
 FLYING_COMMANDS = ("run", "fly", "resume")
 
 #: subcommand -> (module, one-line help)
@@ -118,6 +120,12 @@ def _main(argv: list[str]) -> int:
     except KeyboardInterrupt:
         print("swarmseek: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `swarmseek simulate | head -1`: the reader is gone, end quietly
+        from mission.telemetry.terminal import SIGPIPE_STATUS, silence_broken_pipes
+
+        if not silence_broken_pipes():
+            raise  # not the terminal's pipe: a fault of the command, shown
+        return SIGPIPE_STATUS
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -14,13 +14,14 @@ import argparse
 import asyncio
 from pathlib import Path
 
+from mission.cli.cmd_map import add_map_option, start_map_thread
 from mission.cli.common import add_mission_outputs, add_plan_argument, load_plan_or_fail, run_or_fail, security_or_fail
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
 from mission.core.clock import WallClock
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
-from mission.telemetry.state_pub import WALL_CLOCK_RATE_HZ
+from mission.telemetry.state_pub import MAP_RATE_HZ, WALL_CLOCK_RATE_HZ
 from mission.flight.operator_stop import run_until_stopped
 from mission.link.forward import ForwardAddressError, forwarding, plan_with_outs, resolve_outs
 from mission.telemetry.mission_log import MissionLog
@@ -37,37 +38,47 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``fly`` options."""
     add_plan_argument(parser)
     add_mission_outputs(parser, "fly")
+    add_map_option(parser)
 
 
 async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True, forward_addresses=None,
-              terminal=None):
+              terminal=None, map_thread=None):
     """Open the plan's zenoh session, fly the mission, close; returns the MissionResult.
 
     ``forward_addresses``: the plan's ``[forward] out`` resolved before the loop started
     (:func:`mission.link.forward.resolve_outs`; any missing are resolved before connecting).
     ``terminal``: the :class:`~mission.telemetry.terminal.Terminal` whose losses the mission log tells.
+    ``map_thread``: ``--map``'s :class:`~mission.telemetry.map_live.MapThread` (see :func:`fly_logged`).
     """
     clock = clock or WallClock()
     return await fly_logged(plan, MissionLog(Path(log_dir) / "mission.jsonl", clock), clock=clock,
                             display=display, tlog_dir=Path(log_dir) / "tlogs" if tlog else None,
-                            forward_addresses=forward_addresses, terminal=terminal)
+                            forward_addresses=forward_addresses, terminal=terminal, map_thread=map_thread)
 
 
 async def fly_logged(plan, log, *, clock, display=None, tlog_dir=None, forward_addresses=None, terminal=None,
-                     resume_state=None):
+                     resume_state=None, map_thread=None):
     """Open the plan's zenoh session, fly the mission into ``log`` (closed at the end) with the
     operator's stop handlers (:func:`mission.flight.operator_stop.run_until_stopped`; from
     ``resume_state`` when resuming), its keys on a terminal and the ``--out`` forwarding; close.
-    Returns the MissionResult. ``fly`` and ``resume`` both fly this way."""
+    Returns the MissionResult. ``fly`` and ``resume`` both fly this way.
+
+    ``map_thread`` (``--map``, already serving): handed this session once open (the map reads the
+    state publication and sends the page's commands through it; the state is published at
+    ``MAP_RATE_HZ`` then), and stopped before the session closes (its pages keep the outcome)."""
     session = None
     try:
         with told_to(terminal, log):
             session = await open_session(plan.zenoh)  # off the loop
-            co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display,
-                             tlog_dir=tlog_dir, state_rate_hz=WALL_CLOCK_RATE_HZ)
+            if map_thread is not None:
+                map_thread.attach(session)
+            co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display, tlog_dir=tlog_dir,
+                             state_rate_hz=WALL_CLOCK_RATE_HZ if map_thread is None else MAP_RATE_HZ)
             return await forwarding(co, with_keys(co, display, run_until_stopped(co, resume_state)),
                                     forward_addresses)  # --out; keys on a terminal
     finally:
+        if map_thread is not None:
+            await map_thread.detach()  # the map shows the outcome and lets go of the session
         log.close()
         if session is not None:
             session.close()
@@ -103,12 +114,19 @@ def _main(args, terminal) -> int:
     status = security_or_fail(plan, _PROG)  # warns on every start (the plan's refusals came with it)
     if status is not None:
         return status
+    map_thread, status = start_map_thread(args, plan.fleet, _PROG)  # a port in use: nothing armed
+    if status is not None:
+        return status
     announce_log("fly", log_dir / "mission.jsonl", args.json)
     display = Display(quiet=args.json)
-    result, status = run_or_fail(
-        _PROG, lambda: asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog,
-                                       forward_addresses=addresses, terminal=terminal)),
-        lambda exc: f"{zenoh_open_message(exc, plan.zenoh)}; nothing armed")
+    try:
+        result, status = run_or_fail(
+            _PROG, lambda: asyncio.run(fly(plan, log_dir=log_dir, display=display, tlog=not args.no_tlog,
+                                           forward_addresses=addresses, terminal=terminal, map_thread=map_thread)),
+            lambda exc: f"{zenoh_open_message(exc, plan.zenoh)}; nothing armed")
+    finally:
+        if map_thread is not None:
+            map_thread.stop()
     if result is None:
         return status
     from mission.flight.operator_stop import exit_status

@@ -9,7 +9,8 @@ of ``swarmseek ctl``. Bound to any address other than loopback the page is read-
 served (e.g. the port is in use) or the log cannot be read, 3 the zenoh endpoint was not
 reached within ``--wait-s``.
 
-``run --map [HOST:]PORT`` starts the same server beside the mission (:func:`start_map_thread`).
+``run``, ``fly`` and ``resume --map [HOST:]PORT`` start the same server beside the mission, fed
+through the mission's own zenoh session (:func:`start_map_thread`).
 """
 from __future__ import annotations
 
@@ -18,7 +19,6 @@ import asyncio
 import signal
 import socket
 import sys
-import time
 from pathlib import Path
 
 from mission.cli.cmd_watch import add_zenoh_options, open_zenoh
@@ -63,7 +63,7 @@ def tile_url(text: str) -> str:
 
 
 def add_map_option(parser: argparse.ArgumentParser) -> None:
-    """``--map [HOST:]PORT`` and its ``--map-password-file`` / ``--map-tile-url`` (``run``)."""
+    """``--map [HOST:]PORT`` and its ``--map-password-file`` / ``--map-tile-url`` (``run``, ``fly``, ``resume``)."""
     parser.add_argument("--map", type=bind_address, default=None, metavar="[HOST:]PORT",
                         help="serve the live map on this address (127.0.0.1 unless HOST; port 0: any free port; "
                              "the URL is printed; docs/operator.md)")
@@ -189,39 +189,20 @@ def _replay(args) -> int:
 
 # ----------------------------------------------------------------------------- run --map
 def free_local_port() -> int:
-    """A TCP port free on 127.0.0.1 now (for the mission's zenoh listen endpoint the map reaches)."""
+    """A TCP port free on 127.0.0.1 now."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
 
-def _client_opener(endpoint: str):
-    """``open(stopped)``: a zenoh client session of ``endpoint``, tried every 0.3 s until it opens
-    or ``stopped()`` (then None)."""
-    def open_session(stopped):
-        import json
-
-        import zenoh
-
-        from wire.zenoh_config import zenoh_config
-
-        while not stopped():
-            conf = zenoh_config(listen=[], connect=[endpoint])
-            conf.insert_json5("mode", json.dumps("client"))
-            try:
-                return zenoh.open(conf)
-            except zenoh.ZError:
-                time.sleep(0.3)
-        return None
-    return open_session
-
-
 def start_map_thread(args, fleet: str, prog: str, truth_enu=None):
-    """Start ``--map``'s server (``run``): ``(MapThread, None)``, ``(None, None)`` without
-    ``--map``, or ``(None, exit status)`` once the problem is printed as one line.
+    """Start ``--map``'s server (``run``, ``fly``, ``resume``): ``(MapThread, None)``, ``(None, None)``
+    without ``--map``, or ``(None, exit status)`` once the problem is printed as one line.
 
-    The mission listens on ``tcp/127.0.0.1:PORT`` (a free port added to ``args.zenoh_listen``)
-    and the map is a zenoh client of it, on its own thread."""
+    The server is bound here, before anything flies (a port in use is refused with nothing
+    armed); it reads the state and sends the page's commands through the mission's own zenoh
+    session, which the mission hands over once open (:meth:`MapThread.attach`): no endpoint is
+    added to the plan and no credential is read (docs/operator.md, "The live map")."""
     if getattr(args, "map", None) is None:
         return None, None
     from mission.telemetry.map_live import MapThread
@@ -231,15 +212,12 @@ def start_map_thread(args, fleet: str, prog: str, truth_enu=None):
     sender, sender_problem = _sender(argparse.Namespace(sender=None))
     if problem or sender_problem:
         return None, fail(prog, f"--map-password-file: {problem}" if problem else sender_problem)
-    endpoint = f"tcp/127.0.0.1:{free_local_port()}"
-    args.zenoh_listen = [*(getattr(args, "zenoh_listen", None) or []), endpoint]
     config = {"tile_url": args.map_tile_url, "replay": None,
               "truth_enu": None if truth_enu is None else [float(x) for x in truth_enu]}
-    thread = MapThread(_client_opener(endpoint), fleet, host, port, access=access, sender=sender, config=config)
+    thread = MapThread(fleet, host, port, access=access, sender=sender, config=config)
     try:
         url = thread.start()
     except OSError as exc:
         return None, fail(prog, f"--map: cannot serve the map on {host}:{port}: {exc.strerror or exc}", 1)
     print(f"{prog}: live map at {url}", file=sys.stderr, flush=True)
     return thread, None
-

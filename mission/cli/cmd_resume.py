@@ -21,6 +21,7 @@ import asyncio
 from pathlib import Path
 
 from mission.cli.cmd_fly import fly_logged
+from mission.cli.cmd_map import add_map_option, start_map_thread
 from mission.cli.common import add_mission_outputs, load_plan_or_fail, run_or_fail, security_or_fail
 from mission.link.forward import ForwardAddressError, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
@@ -42,10 +43,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plan", type=path_arg, default=None,
                         help="plan file (default: the plan recorded in the log)")
     add_mission_outputs(parser, "resume", log_dir=False, forward=False)
+    add_map_option(parser)
 
 
 async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: bool = True,
-                 forward_addresses=None, terminal=None):
+                 forward_addresses=None, terminal=None, map_thread=None):
     """Resume the mission of ``log_path``; returns the MissionResult.
 
     Parameters
@@ -64,6 +66,8 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
         (:func:`mission.link.forward.resolve_outs`; any missing are resolved before connecting).
     terminal : mission.telemetry.terminal.Terminal, optional
         Its losses are told to the mission log.
+    map_thread : mission.telemetry.map_live.MapThread, optional
+        ``--map``'s server, fed through the mission's session (:func:`mission.cli.cmd_fly.fly_logged`).
 
     Raises
     ------
@@ -76,7 +80,8 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     clock = clock or WallClock()
     return await fly_logged(state.plan, MissionLog(log_path, clock), clock=clock, display=display,
                             tlog_dir=log_path.parent / "tlogs" if tlog else None,
-                            forward_addresses=forward_addresses, terminal=terminal, resume_state=state)
+                            forward_addresses=forward_addresses, terminal=terminal, resume_state=state,
+                            map_thread=map_thread)
 
 
 def main(args) -> int:
@@ -112,15 +117,23 @@ def _main(args, terminal) -> int:
     from mission.cli.paths import announce_log, summary_log_line
     from mission.core.zenoh_errors import clean_zenoh_error
 
+    map_thread = None
+    if flown is not None:  # (without a plan record resume says why it cannot go on)
+        map_thread, status = start_map_thread(args, flown.fleet, _PROG)  # a port in use: nothing re-engaged
+        if status is not None:
+            return status
     announce_log("resume", args.log, args.json)
     display = Display(quiet=args.json)
     try:
         result, status = run_or_fail(
             _PROG, lambda: asyncio.run(resume(args.log, plan=plan, display=display, tlog=not args.no_tlog,
-                                              forward_addresses=addresses, terminal=terminal)),
+                                              forward_addresses=addresses, terminal=terminal, map_thread=map_thread)),
             lambda exc: f"cannot open the zenoh session: {clean_zenoh_error(exc)}")
     except ResumeError as exc:
         return fail(_PROG, str(exc))
+    finally:
+        if map_thread is not None:
+            map_thread.stop()
     if result is None:
         return status
     from mission.flight.operator_stop import exit_status

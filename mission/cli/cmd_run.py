@@ -300,9 +300,10 @@ def _make_fleet(args, plan, ports, field, clock):
     return fleet
 
 
-async def _fly(args, plan, fleet, setup, display, world=None, terminal=None):
+async def _fly(args, plan, fleet, setup, display, world=None, terminal=None, map_thread=None):
     """Fly ``plan`` against the started ``fleet`` (``args.log_dir`` created, ``args.forward_addresses``
-    resolved: :func:`main`); returns the MissionResult (``terminal``: see :func:`mission.cli.cmd_fly.fly`)."""
+    resolved: :func:`main`); returns the MissionResult (``terminal``: see :func:`mission.cli.cmd_fly.fly`;
+    ``map_thread``: ``--map``'s, handed the mission's zenoh session, stopped before it closes)."""
     source, start, eps = setup
     log_dir = Path(args.log_dir)
     session = None
@@ -310,6 +311,8 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None):
     try:
         with told_to(terminal, log):
             session = await open_session(plan.zenoh)  # off the loop
+            if map_thread is not None:
+                map_thread.attach(session)
             log.event("embedded mock fleet", personality=args.personality, n=args.n, field=args.field_name,
                       field_model=repr(fleet.field), sensor_response=args.sensor_response,
                       source_enu=source, start_enu=start, noise=args.noise,
@@ -332,6 +335,8 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None):
                       vehicle_rejections=result.vehicle_rejections)
             return result
     finally:
+        if map_thread is not None:
+            await map_thread.detach()  # the map shows the outcome and lets go of the session
         log.close()
         if session is not None:
             session.close()
@@ -377,10 +382,11 @@ def run_embedded(args, display=None, terminal=None, map_thread=None):
     fleet.start(thread=realtime)
     try:
         if realtime:
-            return asyncio.run(_fly(args, plan, fleet, (source, start, eps), display, terminal=terminal))
+            return asyncio.run(_fly(args, plan, fleet, (source, start, eps), display, terminal=terminal,
+                                    map_thread=map_thread))
         world = EmbeddedWorld(fleet)
-        result = run_lockstep(lambda: _fly(args, plan, fleet, (source, start, eps), display, world, terminal),
-                              clock, world)
+        result = run_lockstep(lambda: _fly(args, plan, fleet, (source, start, eps), display, world, terminal,
+                                           map_thread), clock, world)
         if world.stalls:
             print(f"swarmseek run: warning: {world.stalls} lock-step waits for zenoh ran out "
                   "(a reading was lost; this run may not be reproducible)", file=sys.stderr)

@@ -1,10 +1,13 @@
 """The live map fed by zenoh: the state publication into a :class:`~mission.telemetry.map_feed.MapFeed`,
-the page's commands out as ``swarmseek ctl``'s, and the map server on its own thread (``run --map``).
+the page's commands out as ``swarmseek ctl``'s, and the map server on its own thread (``--map`` of
+``run``, ``fly`` and ``resume``).
 
 :func:`pump_states` reads the state publication through the same subscriber as ``swarmseek watch``
 (:class:`mission.telemetry.watch.StateWatcher`), in the executor so that the server's loop never
-blocks. :class:`MapThread` runs the server and its zenoh session on a thread of their own: a
-mission on the lock-step loop is not touched (the map schedules nothing on the mission's loop).
+blocks. :class:`MapThread` runs the server on a thread of its own, reading the state through
+the mission's own zenoh session once the mission hands it over (:meth:`MapThread.attach`): no
+endpoint is added to the plan and no credential is read; a mission on the lock-step loop is not
+touched (the map schedules nothing on the mission's loop).
 """
 from __future__ import annotations
 
@@ -17,7 +20,7 @@ from mission.telemetry.map_feed import MapFeed
 from mission.telemetry.map_server import DESTRUCTIVE, FEED, MapAccess, MapServer, make_app
 from mission.telemetry.watch import CommandTimeout, StateWatcher, send_command
 
-__all__ = ["pump_states", "zenoh_commander", "live_feed", "serve_live", "MapThread"]
+__all__ = ["pump_states", "zenoh_commander", "live_feed", "serve_live", "SessionHandoff", "MapThread"]
 
 _SOURCE_SILENT_S = 3.0
 
@@ -71,12 +74,15 @@ def live_feed(fleet: str, access: MapAccess, config: dict) -> MapFeed:
 
 async def serve_live(open_session: Callable[[], object], fleet: str, host: str, port: int, *,
                      access: MapAccess, sender: str, config: dict,
-                     ready: Callable[[MapServer], None], stop: asyncio.Event) -> None:
+                     ready: Callable[[MapServer], None], stop: asyncio.Event,
+                     close_session: bool = True) -> None:
     """Serve the map of ``fleet`` on ``host:port`` until ``stop`` is set.
 
     Binds first (``ready(server)`` is then called: :attr:`MapServer.url`, ``server.app[FEED]``),
     then opens the zenoh session (``open_session()``, in the executor: it may wait for the
-    mission's endpoint) and streams the state. Raises ``OSError`` when the address cannot be bound.
+    mission's endpoint, or for the mission to hand its own session over) and streams the state;
+    the session is closed at the end if ``close_session`` (not the mission's own). Raises
+    ``OSError`` when the address cannot be bound.
     """
     holder: list = []
     feed = live_feed(fleet, access, config)
@@ -96,26 +102,55 @@ async def serve_live(open_session: Callable[[], object], fleet: str, host: str, 
         if watcher is not None:
             watcher.close()
         await server.stop()
-        if holder:
+        if holder and close_session:
             holder[0].close()
 
 
+class SessionHandoff:
+    """The mission's own zenoh session, handed to the map's thread once the mission opened it.
+
+    :meth:`open` (the map's thread) waits until :meth:`offer` (the mission) or until its
+    ``stopped()`` is true (then None: the mission never opened its session)."""
+
+    def __init__(self):
+        self._ready = threading.Event()
+        self._session = None
+
+    @property
+    def offered(self) -> bool:
+        """Whether the mission's session was handed over."""
+        return self._ready.is_set()
+
+    def offer(self, session) -> None:
+        """The mission's session is open: the map may subscribe and query through it."""
+        self._session = session
+        self._ready.set()
+
+    def open(self, stopped: Callable[[], bool]):
+        """The offered session, or None once ``stopped()`` (checked every 0.2 s)."""
+        while not self._ready.wait(0.2):
+            if stopped():
+                return None
+        return self._session
+
+
 class MapThread:
-    """The live map of ``run --map`` / ``fly --map``: its own zenoh session and loop on a thread.
+    """The live map of ``--map`` (``run``, ``fly``, ``resume``): its server and loop on a thread,
+    reading and commanding through the mission's own zenoh session.
 
     Parameters
     ----------
-    open_session : callable
-        ``open_session(stopped)`` opens the zenoh session the map reads and commands through
-        (on the thread; it may retry until the mission's endpoint is up, and gives up, returning
-        None, once ``stopped()`` is true).
     fleet, host, port, access, sender, config
         As :func:`serve_live`.
+
+    The server binds at :meth:`start` (before the mission opens anything); the mission hands
+    its zenoh session over with :meth:`attach` and takes it back with :meth:`stop` (before it
+    closes it): the map only subscribes to the state publication and queries the control key
+    on that session, and never closes it.
     """
 
-    def __init__(self, open_session: Callable, fleet: str, host: str, port: int, *,
-                 access: MapAccess, sender: str, config: dict):
-        self._open = open_session
+    def __init__(self, fleet: str, host: str, port: int, *, access: MapAccess, sender: str, config: dict):
+        self._handoff = SessionHandoff()
         self._args = (fleet, host, port)
         self._kw = {"access": access, "sender": sender, "config": config}
         self._bound = threading.Event()
@@ -142,8 +177,8 @@ class MapThread:
     async def _serve(self) -> None:
         self._loop, self._stop = asyncio.get_running_loop(), asyncio.Event()
         try:
-            await serve_live(lambda: self._open(self._stopping.is_set), *self._args, **self._kw,
-                             ready=self._ready, stop=self._stop)
+            await serve_live(lambda: self._handoff.open(self._stopping.is_set), *self._args, **self._kw,
+                             ready=self._ready, stop=self._stop, close_session=False)
         except OSError as exc:
             self.error = exc
         finally:
@@ -153,9 +188,15 @@ class MapThread:
         self.url, self.feed = server.url, server.app[FEED]
         self._bound.set()
 
+    def attach(self, session) -> None:
+        """The mission's zenoh session is open: read its state publication and command through it."""
+        self._handoff.offer(session)
+
     def stop(self, final_wait_s: float = 3.0) -> None:
-        """Stop serving, once the mission's last snapshot reached the map (at most ``final_wait_s``)."""
-        deadline = time.monotonic() + final_wait_s
+        """Stop serving (and let go of the mission's session), once the mission's last snapshot
+        reached the map (at most ``final_wait_s``; none when the session was never attached).
+        Idempotent; blocking (on an event loop: :meth:`detach`)."""
+        deadline = time.monotonic() + (final_wait_s if self._handoff.offered else 0.0)
         while time.monotonic() < deadline and self.error is None and not self.got_final():
             time.sleep(0.05)
         self._stopping.set()
@@ -165,6 +206,11 @@ class MapThread:
             except RuntimeError:
                 pass  # the loop already ended
         self._thread.join(timeout=10.0)
+
+    async def detach(self) -> None:
+        """:meth:`stop` in the executor: the mission calls it before it closes its session, so
+        that the map shows the mission's last snapshot (its outcome) and lets go of the session."""
+        await asyncio.get_running_loop().run_in_executor(None, self.stop)
 
     def set_truth(self, truth_enu) -> None:
         """The simulated source (ENU m), drawn on every page from now on."""
@@ -184,3 +230,4 @@ class MapThread:
         """Whether the mission's last snapshot (``final``) has been received."""
         feed = self.feed
         return feed is not None and feed.latest is not None and bool(feed.latest.get("final"))
+

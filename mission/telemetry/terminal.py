@@ -27,7 +27,11 @@ from collections.abc import Iterator
 from typing import IO, Callable
 
 __all__ = ["TerminalStream", "Terminal", "best_effort_terminal", "alert", "told_to", "block_sigpipe",
-           "sigpipe_blocked"]
+           "sigpipe_blocked", "SIGPIPE_STATUS", "silence_broken_pipes"]
+
+#: the exit status of a command whose reader went away (``| head -1``): 128 + SIGPIPE, what a
+#: shell reports for a program that SIGPIPE ended
+SIGPIPE_STATUS = 128 + 13
 
 
 class TerminalStream:
@@ -189,6 +193,39 @@ def block_sigpipe() -> bool:
     if signal.SIGPIPE in signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGPIPE]):
         return False  # already blocked by someone else: theirs to undo
     return True
+
+
+def _broken_pipe(fd: int) -> bool:
+    """Whether ``fd`` is the write end of a pipe whose reader is gone (poll: POLLERR)."""
+    import select
+
+    try:
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (OSError, ValueError):
+        return False
+
+
+def silence_broken_pipes() -> bool:
+    """After a ``BrokenPipeError``: point stdout and stderr, where their reader is gone, at
+    ``/dev/null`` (so that the interpreter's last flush at exit has nowhere to fail, as the
+    Python documentation advises for SIGPIPE); returns whether either was (False: the broken pipe
+    was something else, e.g. a socket, and is not the terminal's)."""
+    gone = False
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            fd = stream.fileno()
+        except (AttributeError, OSError, ValueError):
+            continue
+        if _broken_pipe(fd):
+            gone = True
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(devnull, fd)
+            finally:
+                os.close(devnull)
+    return gone
 
 
 def told_to(terminal: Terminal | None, log):
