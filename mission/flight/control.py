@@ -200,8 +200,8 @@ class MissionControl:
         if not self.paused:
             return
         by = self._paused_by
-        held = {s: co.ramp.setpoint(s) for s in co.ramp.sysids}
-        co.ramp.set_goals(held)  # the formation is settled at its slots: hold these setpoints
+        held = {s: co.gate.setpoint(s) for s in co.gate.sysids}
+        co.gate.set_goals(held)  # the formation is settled at its slots: hold these setpoints
         co.event(f"paused by {by}: the formation holds at iteration {co.state.iteration}", sender=by)
         t0 = co.clock.time()
         self._holding = True

@@ -176,8 +176,8 @@ def still_armed(co, link_timeout_s: float) -> list[dict]:
 async def _command_land(co, sysid: int, v, timeout_s: float) -> str | None:
     """Release ``sysid`` from the stream and command LAND; the error text, or None."""
     co.state.release(sysid, "landing (end of mission)")
-    if co.ramp is not None and sysid in co.ramp.sysids:
-        co.ramp.remove(sysid)
+    if co.gate is not None and sysid in co.gate.sysids:
+        co.gate.remove(sysid)
     try:
         await asyncio.wait_for(v.land(), timeout=timeout_s)
     except (asyncio.TimeoutError, OSError, RuntimeError, ValueError) as exc:

@@ -96,7 +96,7 @@ async def takeoff(co) -> None:
                                         plan.formation.seed)
     _plan_slots(co, offsets)
     setpoint_stream(co, list(co.vehicles.values()))
-    co.ramp.start()  # the safety gate: moves, checks and sends the setpoints
+    co.gate.start()  # the safety gate: moves, checks and sends the setpoints
     order = sorted(co.vehicles, key=lambda s: (co.state.layer_alt_m[s], s))
     waits = []
     for i, sysid in enumerate(order):
@@ -132,7 +132,7 @@ async def _hold_after_climb(co, sysid, start, layer_alt):
     v = co.vehicles[sysid]
     target = np.array([start[0], start[1], layer_alt])
     if v.flavour == "px4":
-        co.ramp.add(sysid, target)  # PX4 offboard: setpoints must keep streaming from now on
+        co.gate.add(sysid, target)  # PX4 offboard: setpoints must keep streaming from now on
 
     def _near():
         if sysid in co.state.lost:
@@ -148,8 +148,8 @@ async def _hold_after_climb(co, sysid, start, layer_alt):
         lose_failed(co, sysid, str(exc))
     if sysid in co.state.lost:
         return
-    if sysid not in co.ramp.sysids:
-        co.ramp.add(sysid, target)
+    if sysid not in co.gate.sysids:
+        co.gate.add(sysid, target)
     co.state.set_status(sysid, "holding")
 
 
@@ -162,7 +162,7 @@ async def assemble(co) -> None:
     """
     co.set_phase("assemble")
     plan = co.plan
-    sysids = sorted(s for s in co.vehicles if s not in co.state.lost and s in co.ramp.sysids)
+    sysids = sorted(s for s in co.vehicles if s not in co.state.lost and s in co.gate.sysids)
     if len(sysids) < 4:
         raise MissionError(f"vehicles {sorted(co.state.lost)} lost before the formation was assembled: "
                            f"{len(sysids)} left, a formation needs 4")
@@ -214,7 +214,7 @@ async def _return_home(co) -> None:
     """The mission's own return (:func:`return_home` without an operator's order)."""
     co.set_phase("return", behaviour=co.plan.return_behaviour)
     plan = co.plan
-    flying = [s for s in sorted(co.state.airborne) if co.ramp is not None and s in co.ramp.sysids]
+    flying = [s for s in sorted(co.state.airborne) if co.gate is not None and s in co.gate.sysids]
     land_here: set[int] = set()
     if flying:
         land_here = await fly_return(co, flying)
@@ -248,8 +248,8 @@ async def _command_down(co, order, rtl: bool, land_only, stagger_s: float, waits
         except MissionError as exc:
             co.event(str(exc), level="error")
             continue
-        if co.ramp is not None and sysid in co.ramp.sysids:
-            co.ramp.remove(sysid)
+        if co.gate is not None and sysid in co.gate.sysids:
+            co.gate.remove(sysid)
         co.state.set_status(sysid, "returning" if by_rtl else "landing")
         waits.append(asyncio.ensure_future(_wait_landed(co, sysid)))
 

@@ -25,9 +25,9 @@ def lose_failed(co, sysid: int, detail: str) -> None:
         return
     now = co.clock.time()
     loss = VehicleLoss(sysid, "failed", detail, now, now, co.state.phase)
-    if co.ramp is not None and sysid in co.ramp.sysids:
-        loss.last_setpoint_enu = co.ramp.setpoint(sysid)
-        co.ramp.remove(sysid)
+    if co.gate is not None and sysid in co.gate.sysids:
+        loss.last_setpoint_enu = co.gate.setpoint(sysid)
+        co.gate.remove(sysid)
     co.state.declare_lost(loss, f"lost (failed in {co.state.phase})")
     co.event(f"vehicle {sysid} lost: failed in {co.state.phase}: {detail}; the others go on, it is commanded to land",
              level="warning", sysid=sysid, reason="failed", detected_s=now, since_s=now)
@@ -50,9 +50,9 @@ def laggards(co, sysids, tol_m: float) -> list[int]:
     """Vehicles of ``sysids`` (not lost) farther than ``tol_m`` from their setpoint, or without a position."""
     out = []
     for s in sysids:
-        if s in co.state.lost or co.ramp is None or s not in co.ramp.sysids:
+        if s in co.state.lost or co.gate is None or s not in co.gate.sysids:
             continue
         p = co.telemetry_position(s)
-        if p is None or float(np.linalg.norm(np.asarray(p) - co.ramp.setpoint(s))) > tol_m:
+        if p is None or float(np.linalg.norm(np.asarray(p) - co.gate.setpoint(s))) > tol_m:
             out.append(s)
     return out
