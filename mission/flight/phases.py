@@ -20,7 +20,6 @@ from mission.flight.readiness_autopilot import arm_and_takeoff
 from mission.flight.return_clear import fly_clear, fly_return
 from mission.flight.control import OperatorStop
 from mission.flight.state import MissionError
-from mission.flight.takeoff_loss import laggards, lose_failed
 from mission.flight.layers import shared_layers
 from mission.flight.targets import assign_slots
 
@@ -117,7 +116,7 @@ async def takeoff(co) -> None:
         except OperatorStop:
             raise  # the operator ended the mission: nobody failed
         except MissionError as exc:
-            lose_failed(co, sysid, str(exc))
+            co.takeoff_loss().lose_failed(sysid, str(exc))
             continue
         co.state.set_airborne(sysid, "taking off")
         co.event(f"vehicle {sysid} taking off to {rel_alt:.1f} m above home", sysid=sysid)
@@ -145,7 +144,7 @@ async def _hold_after_climb(co, sysid, start, layer_alt):
     except OperatorStop:
         raise
     except MissionError as exc:
-        lose_failed(co, sysid, str(exc))
+        co.takeoff_loss().lose_failed(sysid, str(exc))
     if sysid in co.state.lost:
         return
     if sysid not in co.gate.sysids:
@@ -175,11 +174,11 @@ async def assemble(co) -> None:
     except OperatorStop:
         raise  # the operator ended the mission: nobody failed
     except MissionError as exc:
-        late = laggards(co, sysids, plan.seeking.arrival_tol_m)
+        late = co.takeoff_loss().laggards(sysids, plan.seeking.arrival_tol_m)
         if not late:
             raise
         for s in late:
-            lose_failed(co, s, str(exc))
+            co.takeoff_loss().lose_failed(s, str(exc))
         sysids = [s for s in sysids if s not in co.state.lost]
         if len(sysids) < 4:
             raise MissionError(f"vehicles {sorted(co.state.lost)} lost during the assembly: {len(sysids)} left, "
