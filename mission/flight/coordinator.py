@@ -19,12 +19,14 @@ from mission.core.plan_types import Plan
 from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
 from mission.flight.control import MissionControl, open_control_channel, operator_command
+from mission.flight.landing_guard import LandingGuard
 from mission.flight.loss import watch_losses
 from mission.flight.services import Fleet
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
-from mission.flight.readiness_mission import not_ready_message
+from mission.flight.readiness_mission import MissionChecks, not_ready_message
 from mission.flight.resume import resume_mission
 from mission.flight.state import MissionError, MissionState
+from mission.flight.takeoff_loss import TakeoffLoss
 from mission.safety.gate import SafetyGate
 from mission.flight.watchdog import watchdog
 from mission.telemetry.link_report import link_rejections, unknown_sysids
@@ -282,6 +284,22 @@ class Coordinator:
         """Every security finding of the plan, for the mission log's ``plan`` record."""
         return [f.to_json() for f in self.security]
 
+    def landing_guard(self) -> LandingGuard:
+        """The never-abandon check (:class:`mission.flight.landing_guard.LandingGuard`) over the
+        vehicles, the gate and the log of this mission now."""
+        return LandingGuard(self.state, self.fleet, self.gate, self.clock, self.plan.faults, self.log, self)
+
+    def readiness_checks(self) -> MissionChecks:
+        """The mission-wide preflight checks (:class:`mission.flight.readiness_mission.MissionChecks`)
+        over this mission's vehicles, readings and zenoh session now."""
+        return MissionChecks(self.state, self.fleet, self.plan, self.clock, self.store, self.session,
+                             self.zenoh_problem, self.readings_subscribed, self)
+
+    def takeoff_loss(self) -> TakeoffLoss:
+        """The takeoff's and the assembly's losses (:class:`mission.flight.takeoff_loss.TakeoffLoss`)
+        over this mission's vehicles and gate now."""
+        return TakeoffLoss(self.state, self.fleet, self.gate, self.clock, self, self.task_failed)
+
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
         deadline = self.clock.time() + timeout_s
@@ -394,7 +412,7 @@ class Coordinator:
             if resume_state is None:
                 await connect_phase.connect(self, required=True)
                 await connect_phase.preflight(self)
-                problem = not_ready_message(self)
+                problem = not_ready_message(self.state)
                 if problem:
                     raise MissionError(f"preflight failed: {problem}")
                 await phases.takeoff(self)
