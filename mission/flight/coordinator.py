@@ -311,7 +311,7 @@ class Coordinator:
 
     def command(self, command: str, sender: str) -> dict:
         """An operator command (zenoh, terminal key): :func:`mission.flight.control.operator_command`."""
-        return operator_command(self, command, sender, self._state_pub)
+        return operator_command(self.control, self.state.phase, self, command, sender, self._state_pub)
 
     # ----------------------------------------------------------------- mission entry points
     def _start_background(self) -> None:
@@ -331,7 +331,8 @@ class Coordinator:
                 report=self.task_failed)
             self._state_pub.start()
         if self._control_channel is None:
-            self._control_channel = open_control_channel(self)
+            self._control_channel = open_control_channel(self.session, self.plan.control, self.plan.fleet,
+                                                         self.command, self.task_failed)
 
     async def stop_background(self) -> None:
         """Stop what runs beside the phases: watchdog, loss monitor, ramp, streamer, control
