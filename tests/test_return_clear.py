@@ -166,6 +166,7 @@ class _FakeCoordinator:
         self.plan = SimpleNamespace(min_separation_m=SEP_M, return_behaviour=return_behaviour,
                                     seeking=SimpleNamespace(arrival_tol_m=0.35))
         self.envelope = None
+        self.fleet = SimpleNamespace(vehicles={}, telemetry_position=self.telemetry_position)
         self.events: list = []
         self.track: list = []
 
@@ -198,7 +199,7 @@ def test_fly_return_flies_clear_and_says_so(monkeypatch, obstacle, level, land_h
     from mission.flight import return_clear
 
     obs = np.zeros((0, 3)) if obstacle is None else np.array([obstacle])
-    monkeypatch.setattr(return_clear, "obstacles", lambda co: obs)
+    monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: obs)
     co = _FakeCoordinator(START, HOMES, LAYERS)
     got = asyncio.run(return_clear.fly_return(co, co.sysids))
     assert got == land_here
@@ -216,7 +217,7 @@ def test_fly_clear_assembles_round_a_vehicle_lost_during_the_takeoff(monkeypatch
 
     above_homes = np.c_[HOMES[:, :2], LAYERS]                   # after the takeoff
     obs = np.array([[10.0, 0.2, 8.0]])                           # lost climbing, on vehicle 1's way
-    monkeypatch.setattr(return_clear, "obstacles", lambda co: obs)
+    monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: obs)
     co = _FakeCoordinator(above_homes, HOMES, LAYERS)
     co.state.phase = "assemble"
     asyncio.run(return_clear.fly_clear(co, co.sysids, dict(zip(co.sysids, START)), 0.35))
@@ -241,7 +242,7 @@ def test_fly_return_replans_after_a_loss_on_the_way(monkeypatch):
             co.gate.remove(3)
 
     co.clock.on_tick = _tick
-    monkeypatch.setattr(return_clear, "obstacles", lambda co: np.array(hovering).reshape(-1, 3))
+    monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: np.array(hovering).reshape(-1, 3))
     asyncio.run(return_clear.fly_return(co, co.sysids))
     warnings = [m for lv, m in co.events if lv == "warning"]
     assert warnings == ["return: a vehicle was lost on the way; re-planning from where the others are"]
@@ -305,7 +306,7 @@ def _whole_mission(tmp_path, keep_clear, monkeypatch):
     from sitl_mock.fleet import MockFleet
 
     if not keep_clear:
-        monkeypatch.setattr(return_clear, "obstacles", lambda co: np.zeros((0, 3)))
+        monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: np.zeros((0, 3)))
     n = 4                                    # one lost: 3 left, the seek ends and they return
     # a row of homes west-north-west (found by search with the shared
     # layers of mission.flight.layers): a survivor flies home at its layer straight through the slot of

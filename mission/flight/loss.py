@@ -303,7 +303,7 @@ async def survivor_slots(co, centre_enu, sysids: list[int], gone: list[int], who
         co.event(f"{len(sysids) - len(gone)} {who} left: the symmetric formation needs an even number; "
                  f"switching to the CVT formation{switch_note}", level="warning")
         co.state.set_formation_kind(kind)
-    obs = obstacles(co)
+    obs = obstacles(co.state.lost, co.fleet, co.clock.time())
     if len(obs):
         new, ok = await loop.run_in_executor(None, functools.partial(
             clear_offsets, new, centre_enu, obs, plan.min_separation_m + OBSTACLE_MARGIN_M,

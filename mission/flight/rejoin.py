@@ -35,7 +35,7 @@ def clear_goals(co, centre_enu, sysids: list[int]) -> bool:
     Called by the seek before each iteration's move; logs an event when it rotates. Returns
     False if no clear rotation was found (the goals are then the best found).
     """
-    obs = obstacles(co)
+    obs = obstacles(co.state.lost, co.fleet, co.clock.time())
     if not len(obs):
         return True
     sep = co.plan.min_separation_m + OBSTACLE_MARGIN_M
@@ -134,7 +134,7 @@ async def readmit(co, centre_enu, sysids: list[int], returning: list[int]) -> li
         readmitted_offsets, co.state.formation_kind, {s: co.state.slot_offsets[s] for s in members},
         {s: co.gate.setpoint(s) - centre for s in joined}, plan.formation.radius_m))
     everyone = sorted(new)
-    obs = obstacles(co)
+    obs = obstacles(co.state.lost, co.fleet, co.clock.time())
     if len(obs):
         new, _ = clear_offsets(new, centre, obs, plan.min_separation_m + OBSTACLE_MARGIN_M,
                                allow_tilt=kind == "cvt")

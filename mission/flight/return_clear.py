@@ -84,7 +84,7 @@ async def _plan_and_fly(co, flying, goal, layers, tol_m, what, names, landing=No
     sep = co.plan.min_separation_m
     clearance = sep + OBSTACLE_MARGIN_M
     fence = None if co.envelope is None else co.envelope.fence
-    obs = obstacles(co)
+    obs = obstacles(co.state.lost, co.fleet, co.clock.time())
     start = np.array([co.gate.setpoint(s) for s in flying])
     co.gate.set_goals({s: start[i] for i, s in enumerate(flying)})  # hold while planning
     try:
@@ -190,7 +190,7 @@ async def fly_return(co, sysids: list[int]) -> set[int]:
             break
         homes = np.array([co.state.home_enu[s] for s in flying])
         layers = _return_layers(co, flying, homes)
-        spots, moved, _ = landing_spots(homes, layers, obstacles(co), plan_cfg.min_separation_m + OBSTACLE_MARGIN_M,
+        spots, moved, _ = landing_spots(homes, layers, obstacles(co.state.lost, co.fleet, co.clock.time()), plan_cfg.min_separation_m + OBSTACLE_MARGIN_M,
                                         plan_cfg.min_separation_m, fence=fence,
                                         rtl=plan_cfg.return_behaviour == "rtl")
         land_here = {s for i, s in enumerate(flying) if moved[i]}
