@@ -432,7 +432,7 @@ class Coordinator:
             outcome, message = "aborted", f"unexpected error in phase {self.state.phase}: {type(exc).__name__}: {exc}"
             self._aborting(message, traceback=traceback.format_exc())
         except asyncio.CancelledError:  # Ctrl-C, SIGTERM, a cancelled task: mission_end counts them
-            return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self),
+            return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self.state.interrupts),
                                            interrupted=True)
         return await mission_end.close(self, outcome, message)
 

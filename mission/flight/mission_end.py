@@ -29,9 +29,9 @@ def _uncancel() -> None:
         task.uncancel()
 
 
-def interrupted_message(co) -> str:
-    """``interrupted (SIGINT)``, ``interrupted (SIGINT, SIGINT)``... or ``interrupted``."""
-    names = co.state.interrupts
+def interrupted_message(names) -> str:
+    """``interrupted (SIGINT)``, ``interrupted (SIGINT, SIGINT)``... or ``interrupted``: ``names``
+    are the interrupts the mission state counted (``MissionState.interrupts``)."""
     return "interrupted" + (f" ({', '.join(names)})" if names else "")
 
 
