@@ -142,7 +142,8 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
     t0 = co.clock.time()
     try:
         tp = await loop.run_in_executor(None, functools.partial(
-            plan_clear_transfer, start, goal, obstacles(co.state.lost, co.fleet, co.clock.time()), plan.min_separation_m, 0.8 * plan.max_speed_m_s,
+            plan_clear_transfer, start, goal, obstacles(co.state.lost, co.fleet, co.clock.time()),
+            plan.min_separation_m, 0.8 * plan.max_speed_m_s,
             fence=fence))
     except (TransferError, ValueError) as exc:
         tp = None

@@ -190,7 +190,8 @@ async def fly_return(co, sysids: list[int]) -> set[int]:
             break
         homes = np.array([co.state.home_enu[s] for s in flying])
         layers = _return_layers(co, flying, homes)
-        spots, moved, _ = landing_spots(homes, layers, obstacles(co.state.lost, co.fleet, co.clock.time()), plan_cfg.min_separation_m + OBSTACLE_MARGIN_M,
+        flying_lost = obstacles(co.state.lost, co.fleet, co.clock.time())
+        spots, moved, _ = landing_spots(homes, layers, flying_lost, plan_cfg.min_separation_m + OBSTACLE_MARGIN_M,
                                         plan_cfg.min_separation_m, fence=fence,
                                         rtl=plan_cfg.return_behaviour == "rtl")
         land_here = {s for i, s in enumerate(flying) if moved[i]}
