@@ -125,10 +125,10 @@ def test_pause_holds_the_formation_then_continue_converges(tmp_path):
         assert ack["accepted"], ack
         await _until(lambda: co.control.holding, 30.0, "the pause to hold")
         k, centre = co.state.iteration, np.array(co.state.centre_enu)
-        setpoints = {s: co.ramp.setpoint(s).copy() for s in co.ramp.sysids}
+        setpoints = {s: co.gate.setpoint(s).copy() for s in co.gate.sysids}
         t0 = asyncio.get_running_loop().time()
         await asyncio.sleep(20.0)  # simulated: the mission must not step while paused
-        held = (co.state.iteration, np.array(co.state.centre_enu), {s: co.ramp.setpoint(s) for s in co.ramp.sysids})
+        held = (co.state.iteration, np.array(co.state.centre_enu), {s: co.gate.setpoint(s) for s in co.gate.sysids})
         positions = {s: co.telemetry_position(s) for s in setpoints}
         assert co.command("continue", "bob@ops")["accepted"]
         return k, centre, setpoints, held, positions, asyncio.get_running_loop().time() - t0

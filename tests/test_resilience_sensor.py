@@ -65,7 +65,7 @@ class _Estimate:
 def _co(faults=FaultsPlan(), retired=(), lost=(), under=range(1, 9)):
     state = SimpleNamespace(lost={s: None for s in lost}, retired={s: None for s in retired},
                             slot_offsets={s: np.array([float(s), 0.0, 0.0]) for s in range(1, 9)})
-    return SimpleNamespace(plan=SimpleNamespace(faults=faults), ramp=SimpleNamespace(sysids=set(under)), state=state)
+    return SimpleNamespace(plan=SimpleNamespace(faults=faults), gate=SimpleNamespace(sysids=set(under)), state=state)
 
 
 @pytest.mark.parametrize("code, reason", [(4, "noisy"), (1, "stuck")])

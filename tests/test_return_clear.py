@@ -131,7 +131,7 @@ class _FakeClock:
 
     def __init__(self):
         self.t = 1000.0
-        self.ramp = None
+        self.gate = None
         self.speedup = 1.0
         self.on_tick = None
 
@@ -142,8 +142,8 @@ class _FakeClock:
         steps = max(1, int(round(dt_s / 0.1)))
         for _ in range(steps):
             self.t += dt_s / steps
-            if self.ramp is not None:
-                self.ramp.step(dt_s / steps)
+            if self.gate is not None:
+                self.gate.step(dt_s / steps)
             if self.on_tick is not None:
                 self.on_tick(self.t)
         await asyncio.sleep(0)
@@ -155,17 +155,18 @@ class _FakeCoordinator:
 
         self.clock = _FakeClock()
         streamer = SimpleNamespace(set_target=lambda s, p: None, remove=lambda s: None)
-        self.ramp = SafetyGate(streamer, self.clock, 3.0, rate_hz=10.0)
-        self.clock.ramp = self.ramp
+        self.gate = SafetyGate(streamer, self.clock, 3.0, rate_hz=10.0)
+        self.clock.gate = self.gate
         self.sysids = list(range(1, len(start) + 1))
         for s, p in zip(self.sysids, start):
-            self.ramp.add(s, p)
+            self.gate.add(s, p)
         self.state = SimpleNamespace(home_enu=dict(zip(self.sysids, homes)),
                                      layer_alt_m=dict(zip(self.sysids, layers)), phase="return", lost={},
                                      status={})
         self.plan = SimpleNamespace(min_separation_m=SEP_M, return_behaviour=return_behaviour,
                                     seeking=SimpleNamespace(arrival_tol_m=0.35))
         self.envelope = None
+        self.fleet = SimpleNamespace(vehicles={}, telemetry_position=self.telemetry_position)
         self.events: list = []
         self.track: list = []
 
@@ -173,10 +174,10 @@ class _FakeCoordinator:
         self.events.append((level, message))
 
     def update_odometry(self):
-        self.track.append(np.array([self.ramp.setpoint(s) for s in self.ramp.sysids]))
+        self.track.append(np.array([self.gate.setpoint(s) for s in self.gate.sysids]))
 
     def telemetry_position(self, sysid):
-        return self.ramp.setpoint(sysid)
+        return self.gate.setpoint(sysid)
 
     async def wait_until(self, predicate, timeout_s, what, poll_s=0.1):
         from mission.flight.state import MissionError
@@ -198,11 +199,11 @@ def test_fly_return_flies_clear_and_says_so(monkeypatch, obstacle, level, land_h
     from mission.flight import return_clear
 
     obs = np.zeros((0, 3)) if obstacle is None else np.array([obstacle])
-    monkeypatch.setattr(return_clear, "obstacles", lambda co: obs)
+    monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: obs)
     co = _FakeCoordinator(START, HOMES, LAYERS)
     got = asyncio.run(return_clear.fly_return(co, co.sysids))
     assert got == land_here
-    end = np.array([co.ramp.setpoint(s) for s in co.sysids])
+    end = np.array([co.gate.setpoint(s) for s in co.sysids])
     assert np.allclose(end[:, 2], LAYERS, atol=1e-6)                      # above the spots at the layers
     assert [lv for lv, m in co.events if "return" in m] == ([] if level is None else [level])
     if level == "info":
@@ -216,11 +217,11 @@ def test_fly_clear_assembles_round_a_vehicle_lost_during_the_takeoff(monkeypatch
 
     above_homes = np.c_[HOMES[:, :2], LAYERS]                   # after the takeoff
     obs = np.array([[10.0, 0.2, 8.0]])                           # lost climbing, on vehicle 1's way
-    monkeypatch.setattr(return_clear, "obstacles", lambda co: obs)
+    monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: obs)
     co = _FakeCoordinator(above_homes, HOMES, LAYERS)
     co.state.phase = "assemble"
     asyncio.run(return_clear.fly_clear(co, co.sysids, dict(zip(co.sysids, START)), 0.35))
-    assert np.allclose([co.ramp.setpoint(s) for s in co.sysids], START, atol=1e-6)
+    assert np.allclose([co.gate.setpoint(s) for s in co.sysids], START, atol=1e-6)
     assert [(lv, m.split(":")[0]) for lv, m in co.events] == [
         ("info", "assembly re-planned around 1 position(s) of lost vehicles still flying")]
     assert np.linalg.norm(np.array(co.track) - obs[0], axis=-1).min() >= CLEAR_M - 0.05
@@ -236,17 +237,17 @@ def test_fly_return_replans_after_a_loss_on_the_way(monkeypatch):
 
     def _tick(t):
         if t >= t_loss and 3 not in co.state.lost:              # vehicle 3 falls silent mid-way and hovers
-            hovering.append(co.ramp.setpoint(3))
+            hovering.append(co.gate.setpoint(3))
             co.state.lost[3] = object()
-            co.ramp.remove(3)
+            co.gate.remove(3)
 
     co.clock.on_tick = _tick
-    monkeypatch.setattr(return_clear, "obstacles", lambda co: np.array(hovering).reshape(-1, 3))
+    monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: np.array(hovering).reshape(-1, 3))
     asyncio.run(return_clear.fly_return(co, co.sysids))
     warnings = [m for lv, m in co.events if lv == "warning"]
     assert warnings == ["return: a vehicle was lost on the way; re-planning from where the others are"]
     assert hovering and hovering[0][0] > START[2, 0]                 # it was on its way home
-    end = np.array([co.ramp.setpoint(s) for s in (1, 2)])
+    end = np.array([co.gate.setpoint(s) for s in (1, 2)])
     assert np.allclose(end, GOAL[:2], atol=1e-6)
 
 
@@ -305,7 +306,7 @@ def _whole_mission(tmp_path, keep_clear, monkeypatch):
     from sitl_mock.fleet import MockFleet
 
     if not keep_clear:
-        monkeypatch.setattr(return_clear, "obstacles", lambda co: np.zeros((0, 3)))
+        monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: np.zeros((0, 3)))
     n = 4                                    # one lost: 3 left, the seek ends and they return
     # a row of homes west-north-west (found by search with the shared
     # layers of mission.flight.layers): a survivor flies home at its layer straight through the slot of

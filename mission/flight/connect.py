@@ -153,8 +153,8 @@ async def preflight(co, timeout_s: float = 30.0) -> None:
     from mission.flight.failsafe_params import check_failsafe_params
     from mission.flight.readiness_autopilot import wait_autopilots_ready
 
-    await check_failsafe_params(co)
-    await wait_autopilots_ready(co, plan.preflight.autopilot_ready_timeout_s)
+    await check_failsafe_params(co.state, co.vehicles, plan.preflight, co.simulated_fleet, co)
+    await wait_autopilots_ready(co.state, co.vehicles, co.clock, co, plan.preflight.autopilot_ready_timeout_s)
     await _sensor_check(co)
     for sysid in sorted(co.state.readiness):
         r = co.state.readiness[sysid]
@@ -217,6 +217,4 @@ async def _sensor_check(co) -> None:
     """The mission-wide checks: zenoh, a reading from every sensor, start and paths inside the
     fence (:mod:`mission.flight.readiness_mission`; a missing reading fails the vehicle's
     readiness unless ``[preflight] require_readings = false``)."""
-    from mission.flight.readiness_mission import check
-
-    await check(co)
+    await co.readiness_checks().check()

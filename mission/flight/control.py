@@ -30,6 +30,8 @@ from collections import deque
 from dataclasses import dataclass
 
 from mission.core.clock import cancel_and_wait
+from mission.core.plan_types import ControlPlan
+from mission.flight.services import Events
 from mission.flight.state import MissionError
 
 __all__ = ["COMMANDS", "MissionControl", "OperatorStop", "Ack", "check_sender", "operator_command",
@@ -200,8 +202,8 @@ class MissionControl:
         if not self.paused:
             return
         by = self._paused_by
-        held = {s: co.ramp.setpoint(s) for s in co.ramp.sysids}
-        co.ramp.set_goals(held)  # the formation is settled at its slots: hold these setpoints
+        held = {s: co.gate.setpoint(s) for s in co.gate.sysids}
+        co.gate.set_goals(held)  # the formation is settled at its slots: hold these setpoints
         co.event(f"paused by {by}: the formation holds at iteration {co.state.iteration}", sender=by)
         t0 = co.clock.time()
         self._holding = True
@@ -234,24 +236,27 @@ class MissionControl:
             raise
 
 
-def operator_command(co, command: str, sender: str, state_pub=None) -> dict:
-    """Submit an operator command to the coordinator ``co``: decided, logged, shown above the
-    table and published at once (``state_pub``); returns the acknowledgement dict."""
-    ack = co.control.submit(command, sender, co.state.phase)
-    co.event(f"operator {ack.sender}: {ack.command} {'accepted' if ack.accepted else 'rejected'}: "
-             f"{ack.reason}", level="info" if ack.accepted else "warning")
+def operator_command(control: MissionControl, phase: str, events: Events, command: str, sender: str,
+                     state_pub=None) -> dict:
+    """Submit an operator command to the mission's ``control`` in ``phase``: decided, logged
+    (``events``), shown above the table and published at once (``state_pub``); returns the
+    acknowledgement dict."""
+    ack = control.submit(command, sender, phase)
+    events.event(f"operator {ack.sender}: {ack.command} {'accepted' if ack.accepted else 'rejected'}: "
+                 f"{ack.reason}", level="info" if ack.accepted else "warning")
     if state_pub is not None:
         state_pub.publish_now()
     return ack.to_json()
 
 
-def open_control_channel(co):
-    """The started zenoh :class:`~mission.telemetry.control_channel.ControlChannel` of ``co``
-    (None without a session or with ``[control] remote = false``)."""
-    if co.session is None or not co.plan.control.remote:
+def open_control_channel(session, control_plan: ControlPlan, fleet: str, on_command, report):
+    """The started zenoh :class:`~mission.telemetry.control_channel.ControlChannel` of the
+    ``fleet`` (None without a ``session`` or with ``[control] remote = false``): each command
+    goes to ``on_command(command, sender)``, a failure to ``report(message)``."""
+    if session is None or not control_plan.remote:
         return None
     from mission.telemetry.control_channel import ControlChannel
 
-    channel = ControlChannel(co.session, co.plan.fleet, co.command, report=co.task_failed)
+    channel = ControlChannel(session, fleet, on_command, report=report)
     channel.start()
     return channel

@@ -3,7 +3,7 @@
 One asyncio task drives the phases (``mission.flight.phases`` and ``mission.flight.seek`` hold their code);
 the mission clock is injected (``WallClock`` against real vehicles, the mock fleet's
 ``SimClock`` when embedded). Around it run: the safety gate (:class:`~mission.safety.gate.SafetyGate`,
-``co.ramp``: speed-limited, safety-checked setpoints, sent every tick through the
+``co.gate``: speed-limited, safety-checked setpoints, sent every tick through the
 :class:`~mission.vehicle.streamer.SetpointStreamer`), the zenoh readings subscription
 (:mod:`mission.telemetry.readings`) and the state publisher (:mod:`mission.telemetry.state_pub`, which also feeds the
 display). Every phase change, event and seeking iteration goes to the mission log.
@@ -19,11 +19,15 @@ from mission.core.plan_types import Plan
 from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
 from mission.flight.control import MissionControl, open_control_channel, operator_command
+from mission.flight.landing_guard import LandingGuard
 from mission.flight.loss import watch_losses
+from mission.flight.services import Fleet
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
-from mission.flight.readiness_mission import not_ready_message
+from mission.flight.readiness_mission import MissionChecks, not_ready_message
 from mission.flight.resume import resume_mission
 from mission.flight.state import MissionError, MissionState
+from mission.flight.takeoff_loss import TakeoffLoss
+from mission.safety.gate import SafetyGate
 from mission.flight.watchdog import watchdog
 from mission.telemetry.link_report import link_rejections, unknown_sysids
 from mission.telemetry.mission_log import MissionLog, to_jsonable
@@ -93,10 +97,11 @@ class Coordinator:
         self.endpoints: dict[str, object] = {}
         self._endpoint_watchers: list = []  # callables told of each endpoint (watch_endpoints)
         self.poller = None  # mission.link.poller.UdpPoller when many UDP endpoints (connect)
-        self.vehicles: dict[int, object] = {}
-        self.ids = {v.sysid: v.id for v in plan.vehicles}
+        self.fleet = Fleet({v.sysid: v.id for v in plan.vehicles})
+        self.vehicles = self.fleet.vehicles  # the fleet's dict (by sysid), not a copy
+        self.ids = self.fleet.ids
         self.streamer = None
-        self.ramp = None
+        self.gate: SafetyGate | None = None
         self.envelope = None
         self.store = ReadingStore(
             plan.fleet, [v.sysid for v in plan.vehicles], plan.origin, clock,
@@ -132,7 +137,7 @@ class Coordinator:
 
     def add_vehicle(self, vehicle) -> None:
         """A vehicle link attached (by its ``sysid``; closed at the end)."""
-        self.vehicles[vehicle.sysid] = vehicle
+        self.fleet.add(vehicle)
 
     def use_poller(self, poller) -> None:
         """The UDP poller reading every UDP endpoint (closed at the end)."""
@@ -142,9 +147,16 @@ class Coordinator:
         """The safety envelope every setpoint batch is checked against (None: no fence)."""
         self.envelope = envelope
 
-    def use_setpoints(self, streamer, ramp) -> None:
-        """The setpoint streamer and the ramp feeding it (stopped at the end)."""
-        self.streamer, self.ramp = streamer, ramp
+    def use_setpoints(self, streamer, gate: SafetyGate) -> None:
+        """The setpoint streamer and the safety gate feeding it (stopped at the end)."""
+        self.streamer, self.gate = streamer, gate
+
+    @property
+    def ramp(self) -> SafetyGate | None:
+        """The safety gate under its old name, read only by the seeker's modules
+        (:mod:`mission.flight.seek`, :mod:`mission.flight.seek_moving`) until they move to
+        :attr:`gate`; nothing else uses it."""
+        return self.gate
 
     @property
     def readings_subscribed(self) -> bool:
@@ -158,13 +170,7 @@ class Coordinator:
 
     def telemetry_position(self, sysid: int):
         """The vehicle's telemetry position (mission ENU m), or None (unknown vehicle, no telemetry yet)."""
-        v = self.vehicles.get(sysid)
-        if v is None:
-            return None
-        try:
-            return v.position_enu_m()
-        except Exception:  # noqa: BLE001 - no telemetry yet
-            return None
+        return self.fleet.telemetry_position(sysid)
 
     def set_phase(self, name: str, **fields) -> None:
         """Enter a phase: log it, show it."""
@@ -214,9 +220,9 @@ class Coordinator:
                          relative_alt_m=st.relative_alt_m, battery_pct=st.battery_remaining_pct,
                          link_age_s=round(float(v.link_age_s()), 3),
                          position_enu=None if pos is None else np.round(np.asarray(pos, float), 3))
-                if self.streamer is not None and self.ramp is not None and vp.sysid in self.ramp.sysids:
+                if self.streamer is not None and self.gate is not None and vp.sysid in self.gate.sysids:
                     d["setpoint_rate_hz"] = self.streamer.measured_rate_hz(vp.sysid)
-                    d["setpoint_enu"] = np.round(self.ramp.setpoint(vp.sysid), 3)
+                    d["setpoint_enu"] = np.round(self.gate.setpoint(vp.sysid), 3)
             out.append(d)
         return out
 
@@ -278,6 +284,22 @@ class Coordinator:
         """Every security finding of the plan, for the mission log's ``plan`` record."""
         return [f.to_json() for f in self.security]
 
+    def landing_guard(self) -> LandingGuard:
+        """The never-abandon check (:class:`mission.flight.landing_guard.LandingGuard`) over the
+        vehicles, the gate and the log of this mission now."""
+        return LandingGuard(self.state, self.fleet, self.gate, self.clock, self.plan.faults, self.log, self)
+
+    def readiness_checks(self) -> MissionChecks:
+        """The mission-wide preflight checks (:class:`mission.flight.readiness_mission.MissionChecks`)
+        over this mission's vehicles, readings and zenoh session now."""
+        return MissionChecks(self.state, self.fleet, self.plan, self.clock, self.store, self.session,
+                             self.zenoh_problem, self.readings_subscribed, self)
+
+    def takeoff_loss(self) -> TakeoffLoss:
+        """The takeoff's and the assembly's losses (:class:`mission.flight.takeoff_loss.TakeoffLoss`)
+        over this mission's vehicles and gate now."""
+        return TakeoffLoss(self.state, self.fleet, self.gate, self.clock, self, self.task_failed)
+
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
         deadline = self.clock.time() + timeout_s
@@ -289,7 +311,7 @@ class Coordinator:
 
     def command(self, command: str, sender: str) -> dict:
         """An operator command (zenoh, terminal key): :func:`mission.flight.control.operator_command`."""
-        return operator_command(self, command, sender, self._state_pub)
+        return operator_command(self.control, self.state.phase, self, command, sender, self._state_pub)
 
     # ----------------------------------------------------------------- mission entry points
     def _start_background(self) -> None:
@@ -309,7 +331,8 @@ class Coordinator:
                 report=self.task_failed)
             self._state_pub.start()
         if self._control_channel is None:
-            self._control_channel = open_control_channel(self)
+            self._control_channel = open_control_channel(self.session, self.plan.control, self.plan.fleet,
+                                                         self.command, self.task_failed)
 
     async def stop_background(self) -> None:
         """Stop what runs beside the phases: watchdog, loss monitor, ramp, streamer, control
@@ -317,8 +340,8 @@ class Coordinator:
         for name in ("_watchdog_task", "_loss_task"):
             await stop_watched(getattr(self, name))  # a failure was told when it happened
             setattr(self, name, None)
-        if self.ramp is not None:
-            await self.ramp.stop()
+        if self.gate is not None:
+            await self.gate.stop()
         if self.streamer is not None:
             try:
                 await self.streamer.stop()
@@ -390,7 +413,7 @@ class Coordinator:
             if resume_state is None:
                 await connect_phase.connect(self, required=True)
                 await connect_phase.preflight(self)
-                problem = not_ready_message(self)
+                problem = not_ready_message(self.state)
                 if problem:
                     raise MissionError(f"preflight failed: {problem}")
                 await phases.takeoff(self)
@@ -409,7 +432,7 @@ class Coordinator:
             outcome, message = "aborted", f"unexpected error in phase {self.state.phase}: {type(exc).__name__}: {exc}"
             self._aborting(message, traceback=traceback.format_exc())
         except asyncio.CancelledError:  # Ctrl-C, SIGTERM, a cancelled task: mission_end counts them
-            return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self),
+            return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self.state.interrupts),
                                            interrupted=True)
         return await mission_end.close(self, outcome, message)
 
@@ -440,7 +463,7 @@ class Coordinator:
         result = mission_result(self.state, outcome, message, now_s=self.clock.time(),
                                 readings=self.store.counts() | {"last_errors": self.store.last_errors()},
                                 log_path=None if self.log is None else str(self.log.path),
-                                separation_interventions=getattr(self.ramp, "separation_interventions", 0),
+                                separation_interventions=getattr(self.gate, "separation_interventions", 0),
                                 origin=self.plan.origin)
         result.link_rejections = self.link_rejections()
         result.unknown_sysids = self.unknown_sysids()

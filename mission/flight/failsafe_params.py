@@ -22,6 +22,9 @@ from __future__ import annotations
 import asyncio
 from dataclasses import dataclass
 
+from mission.core.plan_types import PreflightPlan
+from mission.flight.services import Events
+from mission.flight.state import MissionState
 from mission.vehicle.prearm_params import read_params
 
 __all__ = ["FailsafeAssessment", "PARAMS", "assess", "check_failsafe_params", "report_lines"]
@@ -102,42 +105,43 @@ def assess(flavour: str, values: dict) -> FailsafeAssessment:
     return FailsafeAssessment(dict(values), missing, action, hovers)
 
 
-async def _read_one(co, sysid: int, v, timeout_s: float) -> FailsafeAssessment:
+async def _read_one(events: Events, sysid: int, v, timeout_s: float) -> FailsafeAssessment:
     names = PARAMS.get(v.flavour, ())
     try:
         values = await read_params(v, names, timeout_s) if names else {}
     except Exception as exc:  # noqa: BLE001 - link errors: reported as unknown
-        co.event(f"vehicle {sysid}: failsafe parameters not read ({exc})", level="warning", sysid=sysid)
+        events.event(f"vehicle {sysid}: failsafe parameters not read ({exc})", level="warning", sysid=sysid)
         values = {}
     return assess(v.flavour, values)
 
 
-async def check_failsafe_params(co, timeout_s: float = 5.0) -> dict[int, FailsafeAssessment]:
+async def check_failsafe_params(state: MissionState, vehicles: dict, preflight: PreflightPlan, simulated: bool,
+                                events: Events, timeout_s: float = 5.0) -> dict[int, FailsafeAssessment]:
     """Read, report and judge every connected vehicle's ground-station-loss failsafe.
 
-    Each vehicle's readiness gets a warning (or, with ``require_gcs_failsafe``, a failed
-    ``gcs_failsafe`` check) when it would hover forever or its parameters could not be read.
-    For ``swarmseek run``'s embedded mock fleet (``co.simulated_fleet``), which ends with the
-    ground station, an unconfigured failsafe is said once, as what it is, and is no warning.
+    Each vehicle's readiness (in ``state``) gets a warning (or, with the plan's
+    ``preflight.require_gcs_failsafe``, a failed ``gcs_failsafe`` check) when it would hover
+    forever or its parameters could not be read. For ``swarmseek run``'s embedded mock fleet
+    (``simulated``), which ends with the ground station, an unconfigured failsafe is said once, as
+    what it is, and is no warning. ``vehicles``: the connected vehicles by system id.
     """
-    require = co.plan.preflight.require_gcs_failsafe
-    simulated = co.simulated_fleet
-    sysids = sorted(co.vehicles)
-    found = await asyncio.gather(*(_read_one(co, s, co.vehicles[s], timeout_s) for s in sysids))
+    require = preflight.require_gcs_failsafe
+    sysids = sorted(vehicles)
+    found = await asyncio.gather(*(_read_one(events, s, vehicles[s], timeout_s) for s in sysids))
     out = dict(zip(sysids, found))
     for sysids_, message, level, hovers in report_lines(out, require=require, simulated=simulated):
-        co.event(message, level=level, sysids=sysids_, failsafe={s: out[s].values for s in sysids_},
+        events.event(message, level=level, sysids=sysids_, failsafe={s: out[s].values for s in sysids_},
                  hovers_forever=hovers)
     for s, a in out.items():
         bad = a.hovers_forever is not False
-        r = co.state.readiness.get(s)
+        r = state.readiness.get(s)
         if r is None:
             continue
         if require:
             r.checks["gcs_failsafe"] = not bad
             if bad:
                 r.problems.append(f"ground-station-loss failsafe required by the plan: {a.action}")
-            co.state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
+            state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
         elif bad and not (simulated and a.hovers_forever):
             r.warnings.append(f"if the ground station dies: {a.action}")
     return out

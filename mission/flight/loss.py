@@ -177,7 +177,7 @@ async def watch_losses(co, period_s: float = 0.1) -> None:
             await asyncio.sleep(0)
             continue
         now = co.clock.time()
-        watched = co.state.airborne | set(co.state.lost) | set(co.ramp.sysids if co.ramp is not None else ())
+        watched = co.state.airborne | set(co.state.lost) | set(co.gate.sysids if co.gate is not None else ())
         for sysid in sorted(watched):
             v = co.vehicles.get(sysid)
             if v is None:
@@ -224,9 +224,9 @@ async def _check(co, sysid: int, v, seen_armed: bool, engaged_s: float) -> Vehic
 
 def _declare_lost(co, loss: VehicleLoss) -> None:
     sysid = loss.sysid
-    if co.ramp is not None and sysid in co.ramp.sysids:
-        loss.last_setpoint_enu = co.ramp.setpoint(sysid)
-        co.ramp.remove(sysid)
+    if co.gate is not None and sysid in co.gate.sysids:
+        loss.last_setpoint_enu = co.gate.setpoint(sysid)
+        co.gate.remove(sysid)
     co.state.declare_lost(loss, f"lost ({loss.reason}: {loss.detail})")
     co.event(f"vehicle {sysid} lost: {loss.detail}; detected {loss.latency_s:.2f} s after its last sign "
              f"(phase {loss.phase})", level="warning", sysid=sysid, reason=loss.reason,
@@ -273,7 +273,7 @@ async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
     Computes the survivors' slots (:func:`survivor_slots`), then :func:`mission.flight.motion.transfer_to`. Returns
     the survivors; with fewer than 4 nothing is flown (the caller ends the mission).
     """
-    survivors = [s for s in sysids if s not in co.state.lost and co.ramp is not None and s in co.ramp.sysids]
+    survivors = [s for s in sysids if s not in co.state.lost and co.gate is not None and s in co.gate.sysids]
     if len(survivors) < 4:
         return survivors
     lost_here = [s for s in sysids if s not in survivors]
@@ -303,7 +303,7 @@ async def survivor_slots(co, centre_enu, sysids: list[int], gone: list[int], who
         co.event(f"{len(sysids) - len(gone)} {who} left: the symmetric formation needs an even number; "
                  f"switching to the CVT formation{switch_note}", level="warning")
         co.state.set_formation_kind(kind)
-    obs = obstacles(co)
+    obs = obstacles(co.state.lost, co.fleet, co.clock.time())
     if len(obs):
         new, ok = await loop.run_in_executor(None, functools.partial(
             clear_offsets, new, centre_enu, obs, plan.min_separation_m + OBSTACLE_MARGIN_M,

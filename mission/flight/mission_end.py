@@ -8,18 +8,16 @@ cancelling the task is the same thing) and are counted:
 1. the first stops the mission: the vehicles fly the controlled return (the plan's ``return``);
    one that arrives while the return is already flying lets it go on;
 2. the next one during the return lands every airborne vehicle where it is, now
-   (:func:`mission.flight.landing_guard.land_now`);
+   (:meth:`mission.flight.landing_guard.LandingGuard.land_now`);
 3. the next one stops waiting for the LAND confirmations.
 
-Then :func:`mission.flight.landing_guard.secure` checks the never-abandon invariant (and reports
+Then :meth:`mission.flight.landing_guard.LandingGuard.secure` checks the never-abandon invariant (and reports
 any vehicle still airborne), the background tasks and links stop, the phase becomes ``done`` and
 the ``summary`` record is written: also when interrupted (then the cancellation goes on after it).
 """
 from __future__ import annotations
 
 import asyncio
-
-from mission.flight.landing_guard import land_now, secure
 
 __all__ = ["close", "interrupted_message"]
 
@@ -31,9 +29,9 @@ def _uncancel() -> None:
         task.uncancel()
 
 
-def interrupted_message(co) -> str:
-    """``interrupted (SIGINT)``, ``interrupted (SIGINT, SIGINT)``... or ``interrupted``."""
-    names = co.state.interrupts
+def interrupted_message(names) -> str:
+    """``interrupted (SIGINT)``, ``interrupted (SIGINT, SIGINT)``... or ``interrupted``: ``names``
+    are the interrupts the mission state counted (``MissionState.interrupts``)."""
     return "interrupted" + (f" ({', '.join(names)})" if names else "")
 
 
@@ -60,7 +58,7 @@ async def _return(co, interrupts: int) -> int:
             co.event("interrupted again: LANDING every airborne vehicle where it is (no return flight)",
                      level="error")
             try:
-                await land_now(co)
+                await co.landing_guard().land_now()
             except asyncio.CancelledError:
                 _uncancel()
                 interrupts += 1
@@ -91,7 +89,7 @@ async def close(co, outcome: str, message: str, *, interrupted: bool = False):
     if co.return_on_interrupt or not interrupted:
         interrupts = await _return(co, interrupts)
     why = f"mission {message}" if message.startswith(outcome) else f"mission {outcome}: {message}"
-    left, cut_short = await secure(co, why, land=co.return_on_interrupt or not interrupts)
+    left, cut_short = await co.landing_guard().secure(why, land=co.return_on_interrupt or not interrupts)
     interrupts += int(cut_short)
     co.state.set_ending(outcome, message)  # in the last snapshot (a watcher's map shows the outcome)
     try:

@@ -24,7 +24,7 @@ __all__ = ["fly_timed", "keep_out", "move_and_wait", "paced", "parked", "retried
 
 def setpoint_stream(co, vehicles: list) -> None:
     """Give the coordinator a setpoint streamer for ``vehicles`` and the safety gate driving it
-    (not started: ``co.ramp.start()`` starts both).
+    (not started: ``co.gate.start()`` starts both).
 
     The gate (:class:`mission.safety.gate.SafetyGate`) moves, checks and sends every vehicle's
     setpoint at ``setpoint_rate_hz``, in one task: the one speed limiter.
@@ -68,18 +68,18 @@ async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_
 
     Lost vehicles (``co.state.lost``, also those lost while waiting) are not waited for.
     """
-    goals = {s: g for s, g in goals.items() if s not in co.state.lost and s in co.ramp.sysids}
-    co.ramp.set_goals(goals)
+    goals = {s: g for s, g in goals.items() if s not in co.state.lost and s in co.gate.sysids}
+    co.gate.set_goals(goals)
     if timeout_s is None:
-        far = max((float(np.linalg.norm(co.ramp.setpoint(s) - g)) for s, g in goals.items()), default=0.0)
-        timeout_s = 20.0 + 3.0 * far / min(co.ramp.max_speed_m_s, co.ramp.max_vertical_speed_m_s)
+        far = max((float(np.linalg.norm(co.gate.setpoint(s) - g)) for s, g in goals.items()), default=0.0)
+        timeout_s = 20.0 + 3.0 * far / min(co.gate.max_speed_m_s, co.gate.max_vertical_speed_m_s)
 
     def _arrived():
         co.update_odometry()
         for s, g in goals.items():
-            if s in co.state.lost or s not in co.ramp.sysids:
+            if s in co.state.lost or s not in co.gate.sysids:
                 continue
-            if not co.ramp.at_goal(s):
+            if not co.gate.at_goal(s):
                 return False
             p = co.telemetry_position(s)
             if p is None or float(np.linalg.norm(np.asarray(p) - g)) > tol_m:
@@ -92,7 +92,7 @@ async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_
 def parked(co) -> list[int]:
     """Vehicles whose sensor was retired, still under the mission's setpoints (sorted)."""
     retired = co.state.retired
-    return sorted(s for s in retired if s not in co.state.lost and co.ramp is not None and s in co.ramp.sysids)
+    return sorted(s for s in retired if s not in co.state.lost and co.gate is not None and s in co.gate.sysids)
 
 
 async def keep_out(co, sysid: int, v, why: str) -> None:
@@ -128,21 +128,22 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
     still = parked(co)
     # a vehicle lost (and taken off the ramp) since the caller chose ``sysids`` is not flown: on the
     # wall clock that can happen while the slots were being computed
-    sysids = [s for s in sysids if s in co.ramp.sysids]
+    sysids = [s for s in sysids if s in co.gate.sysids]
     members = [s for s in sysids if s not in still]  # the formation's (sensing) vehicles
-    extra = [s for s in still if s not in sysids and s in co.ramp.sysids]
+    extra = [s for s in still if s not in sysids and s in co.gate.sysids]
     sysids = list(sysids) + extra
     new_offsets = {**new_offsets, **{s: np.zeros(3) for s in extra}}
     plan = co.plan
     loop = asyncio.get_running_loop()
     centre = np.asarray(centre_enu, dtype=float)
-    start = np.array([co.ramp.setpoint(s) for s in sysids])
+    start = np.array([co.gate.setpoint(s) for s in sysids])
     goal = np.array([centre + new_offsets[s] for s in sysids])
     fence = None if co.envelope is None else co.envelope.fence
     t0 = co.clock.time()
     try:
         tp = await loop.run_in_executor(None, functools.partial(
-            plan_clear_transfer, start, goal, obstacles(co), plan.min_separation_m, 0.8 * plan.max_speed_m_s,
+            plan_clear_transfer, start, goal, obstacles(co.state.lost, co.fleet, co.clock.time()),
+            plan.min_separation_m, 0.8 * plan.max_speed_m_s,
             fence=fence))
     except (TransferError, ValueError) as exc:
         tp = None
@@ -191,7 +192,7 @@ async def fly_timed(co, sysids: list[int], times_s, waypoints_enu) -> None:
     for. Lost vehicles are skipped.
     """
     wps = np.asarray(waypoints_enu, dtype=float)
-    ramp = co.ramp
+    ramp = co.gate
     times = _ramp_times(times_s, wps, 0.8 * ramp.max_speed_m_s,
                         0.8 * getattr(ramp, "max_vertical_speed_m_s", ramp.max_speed_m_s))
     t0 = co.clock.time()

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from mission.flight.modes import LEFT_MODES
+from mission.flight.services import Fleet
 
 __all__ = ["OBSTACLE_MARGIN_M", "OBSTACLE_TTL_S", "clear_offsets", "obstacles", "plan_clear_transfer",
            "segment_clearance"]
@@ -23,26 +24,27 @@ OBSTACLE_MARGIN_M = 0.5
 OBSTACLE_TTL_S = 600.0
 
 
-def obstacles(co) -> np.ndarray:
+def obstacles(lost: dict, fleet: Fleet, now_s: float) -> np.ndarray:
     """``(K, 3)`` positions (mission ENU m) to keep clear of: lost vehicles still flying.
 
     A vehicle lost by its link (``reason == "link"``) that was last seen armed and above 1 m,
     whose last frame is less than :data:`OBSTACLE_TTL_S` old (its live position once heard
     again), and not re-admitted. Vehicles that left (RTL/LAND) fly away and are not included.
+    ``lost``: the mission state's losses by system id; ``now_s``: the mission clock's time.
     """
-    now = co.clock.time()
+    now = now_s
     pts = []
-    for sysid, loss in co.state.lost.items():
+    for sysid, loss in lost.items():
         if loss.reason != "link" or now - loss.since_s > OBSTACLE_TTL_S:
             continue
-        v = co.vehicles.get(sysid)
+        v = fleet.vehicles.get(sysid)
         if v is None:
             continue
         st = v.state
         alt = getattr(st, "relative_alt_m", None)
         if not st.armed or (alt is not None and alt < 1.0) or st.mode in LEFT_MODES.get(v.flavour, ()):
             continue
-        pos = co.telemetry_position(sysid)
+        pos = fleet.telemetry_position(sysid)
         for p in (pos, loss.last_setpoint_enu):
             if p is not None and np.all(np.isfinite(np.asarray(p, dtype=float))):
                 pts.append(np.asarray(p, dtype=float))

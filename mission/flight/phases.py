@@ -20,7 +20,6 @@ from mission.flight.readiness_autopilot import arm_and_takeoff
 from mission.flight.return_clear import fly_clear, fly_return
 from mission.flight.control import OperatorStop
 from mission.flight.state import MissionError
-from mission.flight.takeoff_loss import laggards, lose_failed
 from mission.flight.layers import shared_layers
 from mission.flight.targets import assign_slots
 
@@ -96,7 +95,7 @@ async def takeoff(co) -> None:
                                         plan.formation.seed)
     _plan_slots(co, offsets)
     setpoint_stream(co, list(co.vehicles.values()))
-    co.ramp.start()  # the safety gate: moves, checks and sends the setpoints
+    co.gate.start()  # the safety gate: moves, checks and sends the setpoints
     order = sorted(co.vehicles, key=lambda s: (co.state.layer_alt_m[s], s))
     waits = []
     for i, sysid in enumerate(order):
@@ -117,7 +116,7 @@ async def takeoff(co) -> None:
         except OperatorStop:
             raise  # the operator ended the mission: nobody failed
         except MissionError as exc:
-            lose_failed(co, sysid, str(exc))
+            co.takeoff_loss().lose_failed(sysid, str(exc))
             continue
         co.state.set_airborne(sysid, "taking off")
         co.event(f"vehicle {sysid} taking off to {rel_alt:.1f} m above home", sysid=sysid)
@@ -132,7 +131,7 @@ async def _hold_after_climb(co, sysid, start, layer_alt):
     v = co.vehicles[sysid]
     target = np.array([start[0], start[1], layer_alt])
     if v.flavour == "px4":
-        co.ramp.add(sysid, target)  # PX4 offboard: setpoints must keep streaming from now on
+        co.gate.add(sysid, target)  # PX4 offboard: setpoints must keep streaming from now on
 
     def _near():
         if sysid in co.state.lost:
@@ -145,11 +144,11 @@ async def _hold_after_climb(co, sysid, start, layer_alt):
     except OperatorStop:
         raise
     except MissionError as exc:
-        lose_failed(co, sysid, str(exc))
+        co.takeoff_loss().lose_failed(sysid, str(exc))
     if sysid in co.state.lost:
         return
-    if sysid not in co.ramp.sysids:
-        co.ramp.add(sysid, target)
+    if sysid not in co.gate.sysids:
+        co.gate.add(sysid, target)
     co.state.set_status(sysid, "holding")
 
 
@@ -162,7 +161,7 @@ async def assemble(co) -> None:
     """
     co.set_phase("assemble")
     plan = co.plan
-    sysids = sorted(s for s in co.vehicles if s not in co.state.lost and s in co.ramp.sysids)
+    sysids = sorted(s for s in co.vehicles if s not in co.state.lost and s in co.gate.sysids)
     if len(sysids) < 4:
         raise MissionError(f"vehicles {sorted(co.state.lost)} lost before the formation was assembled: "
                            f"{len(sysids)} left, a formation needs 4")
@@ -175,11 +174,11 @@ async def assemble(co) -> None:
     except OperatorStop:
         raise  # the operator ended the mission: nobody failed
     except MissionError as exc:
-        late = laggards(co, sysids, plan.seeking.arrival_tol_m)
+        late = co.takeoff_loss().laggards(sysids, plan.seeking.arrival_tol_m)
         if not late:
             raise
         for s in late:
-            lose_failed(co, s, str(exc))
+            co.takeoff_loss().lose_failed(s, str(exc))
         sysids = [s for s in sysids if s not in co.state.lost]
         if len(sysids) < 4:
             raise MissionError(f"vehicles {sorted(co.state.lost)} lost during the assembly: {len(sysids)} left, "
@@ -214,7 +213,7 @@ async def _return_home(co) -> None:
     """The mission's own return (:func:`return_home` without an operator's order)."""
     co.set_phase("return", behaviour=co.plan.return_behaviour)
     plan = co.plan
-    flying = [s for s in sorted(co.state.airborne) if co.ramp is not None and s in co.ramp.sysids]
+    flying = [s for s in sorted(co.state.airborne) if co.gate is not None and s in co.gate.sysids]
     land_here: set[int] = set()
     if flying:
         land_here = await fly_return(co, flying)
@@ -248,8 +247,8 @@ async def _command_down(co, order, rtl: bool, land_only, stagger_s: float, waits
         except MissionError as exc:
             co.event(str(exc), level="error")
             continue
-        if co.ramp is not None and sysid in co.ramp.sysids:
-            co.ramp.remove(sysid)
+        if co.gate is not None and sysid in co.gate.sysids:
+            co.gate.remove(sysid)
         co.state.set_status(sysid, "returning" if by_rtl else "landing")
         waits.append(asyncio.ensure_future(_wait_landed(co, sysid)))
 

@@ -17,7 +17,8 @@ import asyncio
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from mission.flight.state import MissionError
+from mission.flight.services import Clock, Events
+from mission.flight.state import MissionError, MissionState
 
 __all__ = ["autopilot_problems", "wait_autopilots_ready", "arm_and_takeoff"]
 
@@ -51,14 +52,16 @@ def _summary(waiting: dict[int, list[str]]) -> str:
     return "; ".join(f"vehicle {s}: {p[0]}" for s, p in sorted(waiting.items()))
 
 
-async def wait_autopilots_ready(co, timeout_s: float) -> None:
+async def wait_autopilots_ready(state: MissionState, vehicles: dict, clock: Clock, events: Events,
+                                timeout_s: float) -> None:
     """Wait (at most ``timeout_s`` mission-clock seconds) until every connected vehicle's
-    autopilot is ready; then set the ``autopilot`` check of each vehicle's readiness."""
-    clock = co.clock
+    autopilot is ready (``vehicles``: by system id); then set the ``autopilot`` check of each
+    vehicle's readiness in ``state``."""
+    connected = vehicles
     start = clock.time()
     # a vehicle that already failed another check is not waited for (its autopilot is still judged)
-    failed = {s for s in co.vehicles if (r := co.state.readiness.get(s)) is not None and not r.ready}
-    vehicles = {s: v for s, v in co.vehicles.items() if s not in failed}
+    failed = {s for s in connected if (r := state.readiness.get(s)) is not None and not r.ready}
+    vehicles = {s: v for s, v in connected.items() if s not in failed}
     last_progress = start
     last_probe: dict[int, float] = {}
     probes: set = set()
@@ -76,28 +79,28 @@ async def wait_autopilots_ready(co, timeout_s: float) -> None:
                 task.add_done_callback(probes.discard)
         if now - last_progress >= _PROGRESS_EVERY_S:
             last_progress = now
-            co.event(f"preflight: waiting for the autopilots' own readiness ({now - start:.0f} of "
+            events.event(f"preflight: waiting for the autopilots' own readiness ({now - start:.0f} of "
                      f"{timeout_s:.0f} s): {_summary(waiting)}", waiting=sorted(waiting))
         await clock.sleep(_POLL_S)
     for task in list(probes):
         task.cancel()
     waited_s = clock.time() - start
     if not waiting and vehicles:
-        co.event(f"preflight: every autopilot is ready (waited {waited_s:.1f} s)", waited_s=waited_s)
+        events.event(f"preflight: every autopilot is ready (waited {waited_s:.1f} s)", waited_s=waited_s)
     now = clock.time()
-    waiting.update({s: p for s in failed if (p := autopilot_problems(co.vehicles[s], now))})
-    for s in co.vehicles:
-        r = co.state.readiness.get(s)
+    waiting.update({s: p for s in failed if (p := autopilot_problems(connected[s], now))})
+    for s in connected:
+        r = state.readiness.get(s)
         if r is None:
             continue
         r.checks["autopilot"] = s not in waiting
-        status = getattr(co.vehicles[s], "prearm", None)
+        status = getattr(connected[s], "prearm", None)
         if status is not None:
             r.warnings.extend(n for n in status.notes() if n not in r.warnings)
         if s in waiting:
             waited = f"after {timeout_s:.0f} s" if s not in failed else "(not waited for)"
             r.problems.append(f"autopilot not ready {waited}: " + "; ".join(waiting[s]))
-        co.state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
+        state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
 
 
 async def _confirm_mode(co, v, mode: str) -> None:

@@ -35,12 +35,12 @@ def clear_goals(co, centre_enu, sysids: list[int]) -> bool:
     Called by the seek before each iteration's move; logs an event when it rotates. Returns
     False if no clear rotation was found (the goals are then the best found).
     """
-    obs = obstacles(co)
+    obs = obstacles(co.state.lost, co.fleet, co.clock.time())
     if not len(obs):
         return True
     sep = co.plan.min_separation_m + OBSTACLE_MARGIN_M
     offsets = {s: co.state.slot_offsets[s] for s in sysids}
-    start = {s: co.ramp.setpoint(s) for s in sysids if s in co.ramp.sysids}
+    start = {s: co.gate.setpoint(s) for s in sysids if s in co.gate.sysids}
     if len(start) != len(sysids):
         start = None
     new, ok = clear_offsets(offsets, centre_enu, obs, sep, start_enu=start,
@@ -61,7 +61,7 @@ async def fly_rotation(co, centre_enu, sysids: list[int], before: dict[int, np.n
     (:func:`mission.flight.motion.transfer_to`) every path is planned and checked. ``before``: the slot
     offsets before :func:`clear_goals`. Nothing is flown when nothing rotated.
     """
-    members = [s for s in sysids if s not in co.state.lost and co.ramp is not None and s in co.ramp.sysids]
+    members = [s for s in sysids if s not in co.state.lost and co.gate is not None and s in co.gate.sysids]
     if all(np.allclose(before[s], co.state.slot_offsets[s]) for s in members if s in before):
         return
     await transfer_to(co, members, {s: co.state.slot_offsets[s] for s in members}, centre_enu,
@@ -132,9 +132,9 @@ async def readmit(co, centre_enu, sysids: list[int], returning: list[int]) -> li
     loop = asyncio.get_running_loop()
     new, kind = await loop.run_in_executor(None, functools.partial(
         readmitted_offsets, co.state.formation_kind, {s: co.state.slot_offsets[s] for s in members},
-        {s: co.ramp.setpoint(s) - centre for s in joined}, plan.formation.radius_m))
+        {s: co.gate.setpoint(s) - centre for s in joined}, plan.formation.radius_m))
     everyone = sorted(new)
-    obs = obstacles(co)
+    obs = obstacles(co.state.lost, co.fleet, co.clock.time())
     if len(obs):
         new, _ = clear_offsets(new, centre, obs, plan.min_separation_m + OBSTACLE_MARGIN_M,
                                allow_tilt=kind == "cvt")
@@ -163,13 +163,13 @@ async def _rejoin_one(co, sysid: int) -> bool:
     want = GUIDED_MODES[v.flavour]
     co.state.begin_reengaging(sysid)  # the watchdog must not race us
     try:
-        co.ramp.add(sysid, np.asarray(pos, dtype=float))
+        co.gate.add(sysid, np.asarray(pos, dtype=float))
         co.state.unrelease(sysid)
         await co.clock.sleep(0.5)  # a few setpoints first: PX4 refuses OFFBOARD without them
         await asyncio.wait_for(v.set_mode(want), timeout=30.0)
         await co.wait_until(lambda: v.state.mode == want, 10.0, f"vehicle {sysid} in {want}")
     except Exception as exc:  # noqa: BLE001 - CommandError, MissionError, timeout: kept out
-        co.ramp.remove(sysid)
+        co.gate.remove(sysid)
         co.state.release(sysid)
         await keep_out(co, sysid, v, f"could not re-engage {want}: {exc}")
         return False

@@ -116,7 +116,7 @@ class MissionResult:
         record of :mod:`mission.flight.landing_guard`; empty when every vehicle is down or landing).
     still_armed : list
         Vehicles still armed at the end though landed or landing (after the wait for their disarm,
-        :func:`mission.flight.landing_guard.await_disarm`); the mission is then not ``ok`` (exit 1).
+        :meth:`mission.flight.landing_guard.LandingGuard.await_disarm`); the mission is then not ``ok`` (exit 1).
     interrupted_by : list
         The signals (``SIGINT``, ``SIGTERM``) that interrupted the mission, in order
         (:mod:`mission.flight.operator_stop`).

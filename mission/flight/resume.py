@@ -345,9 +345,9 @@ async def _reengage(co, flying: list[int]) -> None:
     """Setpoints at each flying vehicle's position first, then OFFBOARD (PX4) or GUIDED (ArduPilot)."""
     setpoint_stream(co, [co.vehicles[s] for s in flying])
     for s in flying:
-        co.ramp.add(s, co.telemetry_position(s))
+        co.gate.add(s, co.telemetry_position(s))
         co.state.set_airborne(s, "re-engaging")
-    co.ramp.start()  # the safety gate: moves, checks and sends the setpoints
+    co.gate.start()  # the safety gate: moves, checks and sends the setpoints
     await co.clock.sleep(0.5)  # setpoints flowing before OFFBOARD (PX4 requires it)
     for s in flying:
         v = co.vehicles[s]

@@ -162,7 +162,7 @@ async def retire_sensor(co, centre_enu, sysids: list[int], info: RetiredSensor) 
     """
     sysid = info.sysid
     remaining = [s for s in sysids if s != sysid and s not in co.state.lost]
-    why = ("the vehicle was lost" if sysid in co.state.lost or sysid not in co.ramp.sysids
+    why = ("the vehicle was lost" if sysid in co.state.lost or sysid not in co.gate.sysids
            else f"{len(remaining)} other sensing vehicles left, a formation needs 4" if len(remaining) < 4
            else f"vehicle {parked(co)[0]} is already parked at the centre" if parked(co) else None)
     if why is not None:  # a loss or a parking since the watch was made: the seek's rules apply

@@ -84,17 +84,17 @@ async def _plan_and_fly(co, flying, goal, layers, tol_m, what, names, landing=No
     sep = co.plan.min_separation_m
     clearance = sep + OBSTACLE_MARGIN_M
     fence = None if co.envelope is None else co.envelope.fence
-    obs = obstacles(co)
-    start = np.array([co.ramp.setpoint(s) for s in flying])
-    co.ramp.set_goals({s: start[i] for i, s in enumerate(flying)})  # hold while planning
+    obs = obstacles(co.state.lost, co.fleet, co.clock.time())
+    start = np.array([co.gate.setpoint(s) for s in flying])
+    co.gate.set_goals({s: start[i] for i, s in enumerate(flying)})  # hold while planning
     try:
         plan = await asyncio.get_running_loop().run_in_executor(None, functools.partial(
-            plan_clear_return, start, goal, layers, obs, sep, clearance, co.ramp.max_speed_m_s,
-            co.ramp.max_vertical_speed_m_s, fence))
+            plan_clear_return, start, goal, layers, obs, sep, clearance, co.gate.max_speed_m_s,
+            co.gate.max_vertical_speed_m_s, fence))
     except Exception as exc:  # noqa: BLE001 - never block the move: the plain layered legs
         co.event(f"{what}: planning around the lost vehicles failed ({exc}); flying the plain layered legs",
                  level="warning")
-        plan = plan_clear_return(start, goal, layers, np.zeros((0, 3)), sep, clearance, co.ramp.max_speed_m_s)
+        plan = plan_clear_return(start, goal, layers, np.zeros((0, 3)), sep, clearance, co.gate.max_speed_m_s)
         obs = np.zeros((0, 3))
     if len(obs):
         worst, spots_ok = plan.clearance_m, True
@@ -129,7 +129,7 @@ async def fly_clear(co, sysids: list[int], goals: dict[int, np.ndarray], tol_m: 
         A vehicle did not reach a goal in time (:func:`mission.flight.motion.move_and_wait`).
     """
     for _ in range(_MAX_REPLANS + 1):
-        flying = [s for s in sysids if s not in co.state.lost and s in co.ramp.sysids]
+        flying = [s for s in sysids if s not in co.state.lost and s in co.gate.sysids]
         if not flying:
             return
         goal = np.array([goals[s] for s in flying], dtype=float)
@@ -149,7 +149,7 @@ def _return_layers(co, flying: list[int], homes) -> np.ndarray:
     if none fit.
     """
     layers = np.array([co.state.layer_alt_m[s] for s in flying])
-    start = np.array([co.ramp.setpoint(s) for s in flying])
+    start = np.array([co.gate.setpoint(s) for s in flying])
     sep = co.plan.min_separation_m
     if layers_keep_apart(start, homes, layers, sep):
         return layers
@@ -185,12 +185,13 @@ async def fly_return(co, sysids: list[int]) -> set[int]:
     fence = None if co.envelope is None else co.envelope.fence
     land_here: set[int] = set()
     for _ in range(_MAX_REPLANS + 1):
-        flying = [s for s in sysids if s not in co.state.lost and s in co.ramp.sysids]
+        flying = [s for s in sysids if s not in co.state.lost and s in co.gate.sysids]
         if not flying:
             break
         homes = np.array([co.state.home_enu[s] for s in flying])
         layers = _return_layers(co, flying, homes)
-        spots, moved, _ = landing_spots(homes, layers, obstacles(co), plan_cfg.min_separation_m + OBSTACLE_MARGIN_M,
+        flying_lost = obstacles(co.state.lost, co.fleet, co.clock.time())
+        spots, moved, _ = landing_spots(homes, layers, flying_lost, plan_cfg.min_separation_m + OBSTACLE_MARGIN_M,
                                         plan_cfg.min_separation_m, fence=fence,
                                         rtl=plan_cfg.return_behaviour == "rtl")
         land_here = {s for i, s in enumerate(flying) if moved[i]}

@@ -30,9 +30,9 @@ async def watchdog(co, period_s: float = 0.1) -> None:
             next_status_s = co.clock.time() + co.status_period_s
             co.log.write("status", phase=co.state.phase, centre_enu=co.state.centre_enu, vehicles=co.vehicle_status(),
                          link_rejections=co.link_rejections(), unknown_sysids=co.unknown_sysids())
-        if co.state.phase not in ("assemble", "seek", "finish", "return") or co.ramp is None:
+        if co.state.phase not in ("assemble", "seek", "finish", "return") or co.gate is None:
             continue
-        for sysid in co.ramp.sysids:
+        for sysid in co.gate.sysids:
             v = co.vehicles.get(sysid)
             want = GUIDED_MODES.get(getattr(v, "flavour", None))
             if (v is None or want is None or sysid in co.state.reengaging or sysid in co.state.released

@@ -1,0 +1,76 @@
+"""The narrow services a phase is handed instead of the coordinator.
+
+A phase of :mod:`mission.flight` is an object constructed with exactly what it uses: the
+:class:`~mission.flight.state.MissionState`, the plan sections it reads, the mission clock, the
+safety gate (:class:`mission.safety.gate.SafetyGate`), the :class:`Fleet` of connected vehicles,
+the mission log and the few coordinator services below, each a :class:`typing.Protocol` that says
+what the phase may call. Only :mod:`mission.flight.coordinator` (which builds the phases) holds the
+coordinator; it satisfies these protocols structurally.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+__all__ = ["Clock", "Events", "Fleet", "PhaseEvents", "Waiter"]
+
+
+class Clock(Protocol):
+    """The mission clock (wall, scaled or lock-step: ``docs/architecture.md``)."""
+
+    def time(self) -> float:
+        """Seconds of mission clock."""
+
+    async def sleep(self, dt_s: float) -> None:
+        """Wait ``dt_s`` seconds of mission clock."""
+
+
+class Events(Protocol):
+    """Tell the operator: an ``event`` record in the mission log, a line on the display."""
+
+    def event(self, message: str, level: str = "info", **fields: Any) -> None:
+        """Log and show an event."""
+
+
+class PhaseEvents(Events, Protocol):
+    """:class:`Events`, and entering a phase (a ``phase`` record, the state publication)."""
+
+    def set_phase(self, name: str, **fields: Any) -> None:
+        """Enter a phase: log it, show it."""
+
+
+class Waiter(Protocol):
+    """Wait on the mission clock for a condition; an operator's stop ends the wait."""
+
+    async def wait_until(self, predicate: Callable[[], bool], timeout_s: float, what: str,
+                         poll_s: float = 0.1) -> None:
+        """Poll ``predicate()`` until true; MissionError after ``timeout_s``."""
+
+
+class Fleet:
+    """The vehicles connected to this ground station, by system id, and their plan ids.
+
+    Parameters
+    ----------
+    ids : dict[int, str]
+        The plan's vehicle id of each system id.
+    """
+
+    def __init__(self, ids: dict[int, str]) -> None:
+        self.ids = dict(ids)
+        self.vehicles: dict[int, Any] = {}
+
+    def add(self, vehicle) -> None:
+        """A connected vehicle (a :class:`mission.vehicle.vehicle_link.VehicleLink`)."""
+        self.vehicles[vehicle.sysid] = vehicle
+
+    def telemetry_position(self, sysid: int) -> np.ndarray | None:
+        """The vehicle's telemetry position (mission ENU m), or None (unknown vehicle, no telemetry yet)."""
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return None
+        try:
+            return v.position_enu_m()
+        except Exception:  # noqa: BLE001 - no telemetry yet
+            return None
