@@ -152,13 +152,6 @@ class Coordinator:
         self.streamer, self.gate = streamer, gate
 
     @property
-    def ramp(self) -> SafetyGate | None:
-        """The safety gate under its old name, read only by the seeker's modules
-        (:mod:`mission.flight.seek`, :mod:`mission.flight.seek_moving`) until they move to
-        :attr:`gate`; nothing else uses it."""
-        return self.gate
-
-    @property
     def readings_subscribed(self) -> bool:
         """The zenoh readings subscription is running (False in a dry run without a session)."""
         return self._subscriber is not None

@@ -234,7 +234,7 @@ class _Seek:
         # the formation's vehicles: those under setpoints, and those lost since their slot was
         # given (the loop re-forms without them first)
         self.sysids = sorted(s for s in co.state.slot_offsets
-                             if (s in co.ramp.sysids or s in co.state.lost) and s not in co.state.retired)
+                             if (s in co.gate.sysids or s in co.state.lost) and s not in co.state.retired)
         flying = [s for s in self.sysids if s not in co.state.lost]
         if len(flying) < 4:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
@@ -470,7 +470,7 @@ class _Seek:
                          spread_m=co.state.spread_m, distance_flown_m=co.state.distance_flown_m,
                          readings=readings,
                          positions_enu={s: co.telemetry_position(s) for s in everyone},
-                         setpoints_enu={s: co.ramp.setpoint(s) for s in everyone},
+                         setpoints_enu={s: co.gate.setpoint(s) for s in everyone},
                          suspects=_suspects(self.check or self.estimate, used), status=co.vehicle_status())
         self.centre = new_centre
         co.state.move_centre(new_centre)

@@ -120,8 +120,8 @@ class MovingSampling:
         clear_goals(co, run.centre, run.sysids)
         await fly_rotation(co, run.centre, run.sysids, before)
         goals = {s: g for s, g in formation_goals(co, run.centre, run.sysids).items()
-                 if s not in co.state.lost and s in co.ramp.sysids}
-        co.ramp.set_goals(goals)  # through the ramp and the safety envelope, as in stop and go
+                 if s not in co.state.lost and s in co.gate.sysids}
+        co.gate.set_goals(goals)  # through the safety gate and its envelope, as in stop and go
         members = [s for s in run.sysids if s in goals]
         target = np.mean([goals[s] for s in members], axis=0) if members else np.asarray(run.centre, dtype=float)
         start = self._centroid(members)
