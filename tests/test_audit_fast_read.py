@@ -163,3 +163,21 @@ def test_mission_log_prefilter_keeps_every_plan_record(tmp_path, line):
     want = [r for r in iter_mission_log(path) if r.get("type") == "plan"]
     got = [r for r in iter_mission_log(path, prefilter=audit_read._PLAN_LINE) if r.get("type") == "plan"]
     assert got == want
+
+
+@pytest.mark.parametrize("cut", [0, 1, 5, 13])
+def test_split_records_wanted_equals_filtered_plain(tmp_path, cut):
+    """Skipping unwanted records uncopied gives the plain split, filtered (a cut last record too)."""
+    log_dir = _write_log(tmp_path, n_vehicles=1, n_points=40)
+    path = log_dir / "tlogs" / "vehicle-1.tlog"
+    if cut:
+        path.write_bytes(path.read_bytes()[:-cut])
+    wanted = {mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT, mavlink.MAVLINK_MSG_ID_HEARTBEAT}
+
+    def msgid(frame):
+        return frame[5] if frame[0] == 0xFE else int.from_bytes(frame[7:10], "little")
+
+    plain = audit_read._split_records(path)
+    got = audit_read._split_records(path, wanted)
+    assert got == [r for r in plain if msgid(r[1]) in wanted]
+    assert 0 < len(got) < len(plain)

@@ -213,21 +213,21 @@ def _split_records(path: Path, wanted=None):
         data = Path(path).read_bytes()
     except OSError as exc:
         raise AuditError(f"{path}: cannot be read: {exc}") from None
-    out, i = [], 0
-    while i + 10 <= len(data):
-        stamp_us = int.from_bytes(data[i:i + 8], "big")
+    out, i, n = [], 0, len(data)
+    while i + 10 <= n:
         magic, length = data[i + 8], data[i + 9]
         if magic == 0xFD:
-            size = 12 + length + (13 if i + 10 < len(data) and data[i + 10] & 0x01 else 0)
+            size = 12 + length + (13 if i + 10 < n and data[i + 10] & 0x01 else 0)
         elif magic == 0xFE:
             size = 8 + length
         else:
             raise AuditError(f"{path}: record at byte {i} starts with 0x{magic:02X}, not a MAVLink frame "
                              f"(not a tlog, or corrupt)")
-        if i + 8 + size > len(data):
+        if i + 8 + size > n:
             break
-        if wanted is None or (data[i + 13] if magic == 0xFE else int.from_bytes(data[i + 15:i + 18], "little")) in wanted:
-            out.append((stamp_us * 1e-6, data[i + 8:i + 8 + size]))
+        if wanted is None or (data[i + 13] if magic == 0xFE else
+                              data[i + 15] | data[i + 16] << 8 | data[i + 17] << 16) in wanted:
+            out.append((int.from_bytes(data[i:i + 8], "big") * 1e-6, data[i + 8:i + 8 + size]))
         i += 8 + size
     return out
 
