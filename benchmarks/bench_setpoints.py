@@ -256,6 +256,24 @@ async def run_mavsdk(n: int, port_base: int, shared: bool, rate_hz: float, windo
         mavsdk.destroy()
 
 
+def _start_profile(path: str | None):
+    """A running ``cProfile.Profile`` when ``path`` is given (the window's CPU figure then includes its overhead)."""
+    if not path:
+        return None
+    import cProfile
+
+    prof = cProfile.Profile(time.process_time)   # CPU time: a loaded machine's preemptions are not counted
+    prof.enable()
+    return prof
+
+
+def _stop_profile(prof, path: str | None) -> None:
+    """Stop ``prof`` and write its stats to ``path`` (read with ``python -m pstats PATH``)."""
+    if prof is not None:
+        prof.disable()
+        prof.dump_stats(path)
+
+
 def _load_callable(spec: str | None):
     if not spec:
         return None
@@ -266,7 +284,7 @@ def _load_callable(spec: str | None):
 
 
 async def _coordinator_main(stack: str, n: int, port_base: int, rate_hz: float, duration_s: float, warmup_s: float,
-                            extra_load: str | None = None):
+                            extra_load: str | None = None, profile: str | None = None):
     loop = asyncio.get_running_loop()
     queue: asyncio.Queue = asyncio.Queue()
     threading.Thread(target=_stdin_commands, args=(loop, queue), daemon=True).start()
@@ -276,9 +294,11 @@ async def _coordinator_main(stack: str, n: int, port_base: int, rate_hz: float, 
         await asyncio.sleep(warmup_s)
         print("MARK", flush=True)          # the driver forwards it to the vehicles
         assert await queue.get() == "GO"
+        prof = _start_profile(profile)
         wall0, cpu0, t0 = time.perf_counter(), time.process_time(), os.times()
         await asyncio.sleep(duration_s)
         wall1, cpu1, t1 = time.perf_counter(), time.process_time(), os.times()
+        _stop_profile(prof, profile)
         print("END", flush=True)
         return {"cpu_cores": (cpu1 - cpu0) / (wall1 - wall0), "rss_mb": _rss_mb(), "rss0_mb": rss0,
                 "sys_cores": (t1.system - t0.system) / (wall1 - wall0)}
@@ -332,7 +352,7 @@ def _expect(proc, prefix: str, timeout_s: float) -> str:
 
 
 def run_case(stack: str, n: int, rate_hz: float, duration_s: float, warmup_s: float,
-             extra_load: str | None = None) -> dict:
+             extra_load: str | None = None, profile: str | None = None) -> dict:
     """One benchmark case in fresh processes; returns the combined measurements."""
     port_base = free_port_block(n + 1)  # UDP, below the ephemeral range
     shared = "-shared" in stack or stack == "bare-pymavlink"
@@ -343,7 +363,8 @@ def run_case(stack: str, n: int, rate_hz: float, duration_s: float, warmup_s: fl
         _expect(vehicles, "READY", 60)
         coordinator = _spawn(["--role", "coordinator", "--stack", stack, "--n", str(n), "--port-base",
                               str(port_base), "--rate", str(rate_hz), "--duration", str(duration_s),
-                              "--warmup", str(warmup_s)] + (["--extra-load", extra_load] if extra_load else []))
+                              "--warmup", str(warmup_s)] + (["--extra-load", extra_load] if extra_load else [])
+                             + (["--profile", profile] if profile else []))
         _expect(coordinator, "MARK", 180)
         vehicles.stdin.write("MARK\n")
         coordinator.stdin.write("GO\n")
@@ -407,19 +428,23 @@ def main(argv=None) -> int:
     parser.add_argument("--json", action="store_true", help="also print the rows as JSON")
     parser.add_argument("--extra-load", metavar="MODULE:FUNCTION",
                         help="async extra_load(vehicles, streamer, clock) run during the window (swarmseek stacks)")
+    parser.add_argument("--profile", metavar="PATH",
+                        help="cProfile the coordinator over the window into PATH (one N and stack; "
+                             "read with python -m pstats PATH)")
     args = parser.parse_args(argv)
     if args.role == "vehicles":
         asyncio.run(_vehicles_main(args.n[0], args.port_base, args.shared))
         return 0
     if args.role == "coordinator":
         asyncio.run(_coordinator_main(args.stack, args.n[0], args.port_base, args.rate, args.duration, args.warmup,
-                                      args.extra_load))
+                                      args.extra_load, args.profile))
         return 0
     rows = []
     for n in args.n:
         for stack in args.stacks:
             try:
-                row = run_case(stack, n, args.rate, args.duration, args.warmup, args.extra_load)
+                row = run_case(stack, n, args.rate, args.duration, args.warmup, args.extra_load,
+                               profile=os.path.abspath(args.profile) if args.profile else None)
             except Exception as exc:  # one failed case (e.g. MAVSDK collapsing) still prints the others
                 row = {"stack": stack, "n": n, "error": str(exc)[:200]}
             rows.append(row)

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from formation.geodesy import enu_to_geodetic, geodetic_to_enu, ned_to_enu
+from mission.link.fast_decode import decode_single_frame
 
 __all__ = ["AuditError", "AuditViolation", "VehicleSetpoints", "load_plan_limits", "find_tlogs",
            "read_vehicle_setpoints"]
@@ -24,6 +25,7 @@ __all__ = ["AuditError", "AuditViolation", "VehicleSetpoints", "load_plan_limits
 #: the ground station's quarantine log (``mission.link.tlog.QUARANTINE_NAME``; spelled out here:
 #: the audit reads the files independently of the code that wrote them)
 _QUARANTINE_STEM = "quarantine"
+_PLAN_LINE = ("plan", "\\u")           # a plan record's line holds its type's text, or a JSON escape
 _POS_IGNORE = 0x7                      # type_mask bits 0..2: ignore x, y, z
 _FRAME_LOCAL_NED = 1
 _FRAME_GLOBAL_INT = 5
@@ -142,7 +144,9 @@ def load_plan_limits(log_dir: Path) -> dict:
     if not path.is_file():
         raise AuditError(f"{log_dir}: no mission log (mission.jsonl) to take the plan from")
     try:
-        plans = [r for r in iter_mission_log(path) if r.get("type") == "plan" and not r.get("dry_run")]
+        # only lines that can hold a plan record are parsed (a long mission's log is mostly others)
+        plans = [r for r in iter_mission_log(path, prefilter=_PLAN_LINE)
+                 if r.get("type") == "plan" and not r.get("dry_run")]
     except OSError as exc:
         raise AuditError(f"{path}: cannot be read: {exc}") from None
     if not plans:
@@ -194,8 +198,11 @@ def _local_to_mission(ned, local_origin, mission_origin) -> np.ndarray:
     return geodetic_to_enu(lat, lon, alt, mission_origin)
 
 
-def _split_records(path: Path):
+def _split_records(path: Path, wanted=None):
     """``(t_s, frame)`` records; a truncated last record (a crash while writing) is dropped.
+
+    ``wanted``: a set of message ids; the records of other messages are checked and skipped
+    (not copied out), the fast path of a reader that decodes a few message types.
 
     Raises
     ------
@@ -206,20 +213,21 @@ def _split_records(path: Path):
         data = Path(path).read_bytes()
     except OSError as exc:
         raise AuditError(f"{path}: cannot be read: {exc}") from None
-    out, i = [], 0
-    while i + 10 <= len(data):
-        stamp_us = int.from_bytes(data[i:i + 8], "big")
+    out, i, n = [], 0, len(data)
+    while i + 10 <= n:
         magic, length = data[i + 8], data[i + 9]
         if magic == 0xFD:
-            size = 12 + length + (13 if i + 10 < len(data) and data[i + 10] & 0x01 else 0)
+            size = 12 + length + (13 if i + 10 < n and data[i + 10] & 0x01 else 0)
         elif magic == 0xFE:
             size = 8 + length
         else:
             raise AuditError(f"{path}: record at byte {i} starts with 0x{magic:02X}, not a MAVLink frame "
                              f"(not a tlog, or corrupt)")
-        if i + 8 + size > len(data):
+        if i + 8 + size > n:
             break
-        out.append((stamp_us * 1e-6, data[i + 8:i + 8 + size]))
+        if wanted is None or (data[i + 13] if magic == 0xFE else
+                              data[i + 15] | data[i + 16] << 8 | data[i + 17] << 16) in wanted:
+            out.append((int.from_bytes(data[i:i + 8], "big") * 1e-6, data[i + 8:i + 8 + size]))
         i += 8 + size
     return out
 
@@ -234,6 +242,28 @@ def following_setpoints(heartbeat) -> bool:
     return heartbeat.custom_mode in _ARDUPILOT_GUIDED
 
 
+def _decode_frame(mav, frame, path, t_s: float, msgid: int):
+    """The message of one tlog frame (``mav``: a pymavlink parser of the ``common`` dialect).
+
+    A valid MAVLink 2 frame of a fixed-layout message is decoded with ``struct`` by
+    :func:`~mission.link.fast_decode.decode_single_frame` (the same fields as pymavlink's decode:
+    ``tests/test_audit_fast_read.py``); anything else (MAVLink 1, bad CRC, ...) by pymavlink.
+
+    Raises
+    ------
+    AuditError
+        pymavlink cannot decode the frame.
+    """
+    msg = decode_single_frame(frame)
+    if msg is not None:
+        return msg
+    try:
+        return mav.decode(bytearray(frame))
+    except Exception as exc:  # noqa: BLE001 - pymavlink raises MAVError, struct.error...
+        raise AuditError(f"{path}: a frame stamped {t_s:.3f} (message id {msgid}) cannot be decoded: "
+                         f"{exc}") from None
+
+
 def _read_tlog(path, sysid, gcs_sysid):
     """Decode the setpoints, HOME_POSITION and the vehicle's own HEARTBEAT frames of one tlog."""
     from pymavlink.dialects.v20 import common as mavlink
@@ -242,15 +272,9 @@ def _read_tlog(path, sysid, gcs_sysid):
               mavlink.MAVLINK_MSG_ID_HOME_POSITION, mavlink.MAVLINK_MSG_ID_HEARTBEAT}
     mav = mavlink.MAVLink(None)
     events = []
-    for t_s, frame in _split_records(path):
+    for t_s, frame in _split_records(path, wanted):
         msgid = frame[5] if frame[0] == 0xFE else int.from_bytes(frame[7:10], "little")
-        if msgid not in wanted:
-            continue
-        try:
-            msg = mav.decode(bytearray(frame))
-        except Exception as exc:  # noqa: BLE001 - pymavlink raises MAVError, struct.error...
-            raise AuditError(f"{path}: a frame stamped {t_s:.3f} (message id {msgid}) cannot be decoded: "
-                             f"{exc}") from None
+        msg = _decode_frame(mav, frame, path, t_s, msgid)
         src = msg.get_srcSystem()
         if msgid == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
             if src == sysid and msg.get_srcComponent() == 1:

@@ -231,10 +231,23 @@ class MissionLog:
         self.close()
 
 
-def iter_mission_log(path: str | Path) -> Iterator[dict]:
-    """Yield the records of a mission log; a truncated or corrupt line is skipped."""
+def iter_mission_log(path: str | Path, prefilter: tuple[str, ...] | None = None) -> Iterator[dict]:
+    """Yield the records of a mission log; a truncated or corrupt line is skipped.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``mission.jsonl`` file.
+    prefilter : tuple of str, optional
+        A fast path for a reader that wants some records only: a line holding none of these
+        substrings is skipped without being parsed. The caller's filter on the records must be
+        one such a line cannot pass (e.g. ``("plan", "\\u")`` for ``type == "plan"``: the
+        type's text, or a JSON escape that could spell it).
+    """
     with open(path, "r", encoding="utf-8", errors="replace") as fh:
         for line in fh:
+            if prefilter is not None and not any(sub in line for sub in prefilter):
+                continue
             line = line.strip()
             if not line:
                 continue
