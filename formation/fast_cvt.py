@@ -32,12 +32,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
-from .spherical_cells import _cells_unit
+from .spherical_cells import _cells_unit, _Triangulation
 
 __all__ = ["CVTResult", "solve_cvt", "METHODS"]
 
 #: Accepted values of ``method``.
-METHODS = ("lbfgs", "lbfgs-scipy", "lloyd")
+METHODS = ("fast", "lbfgs", "lbfgs-scipy", "lloyd")
 
 
 @dataclass(frozen=True)
@@ -80,6 +80,21 @@ class _Evaluator:
     def __call__(self, p, with_energy=True):
         self.count += 1
         _, _, cint, energy = _cells_unit(p, with_energy)
+        cent = cint / np.linalg.norm(cint, axis=1)[:, None]
+        move = float(np.max(np.linalg.norm(cent - p, axis=1)))
+        return energy, cint, cent, move
+
+
+class _CachedEvaluator(_Evaluator):
+    """As :class:`_Evaluator`, but keeps the Delaunay triangulation between evaluations."""
+
+    def __init__(self):
+        super().__init__()
+        self.triangulation = _Triangulation()
+
+    def __call__(self, p, with_energy=True):
+        self.count += 1
+        _, cint, energy = self.triangulation.cells(p, with_energy)
         cent = cint / np.linalg.norm(cint, axis=1)[:, None]
         move = float(np.max(np.linalg.norm(cent - p, axis=1)))
         return energy, cint, cent, move
@@ -283,6 +298,10 @@ def solve_cvt(points, method="lbfgs", tol=1e-10, max_iter=20000):
     -------
     CVTResult
     """
+    if method == "fast":
+        ev = _CachedEvaluator()
+        p, energy, move, it = _lbfgs(points, tol, max_iter, ev, warm_lloyd=0)
+        return CVTResult(p, energy, move, it, ev.count, bool(move < tol), method)
     ev = _Evaluator()
     if method == "lloyd":
         out = _lloyd(points, tol, max_iter, ev)

@@ -193,6 +193,90 @@ def _cells_unit(p, with_energy=True):
     return tri, areas, cint, energy
 
 
+class _Triangulation:
+    """Delaunay triangulation of unit generators, reused while it stays Delaunay.
+
+    Between two nearby configurations (consecutive solver steps) the Delaunay triangulation
+    rarely changes, so :meth:`cells` checks it (every facet outward, every edge locally
+    Delaunay) and only then skips the ``ConvexHull``; otherwise it rebuilds. Arrays are stored
+    component-major (``(3, m)``) for cheap gathers. Same formulas as :func:`_cells_unit`.
+    """
+
+    def __init__(self):
+        self.rebuilds = 0
+        self._tri = None
+
+    def _rebuild(self, p):
+        tri, nbr, _, flip = _oriented_hull(p)
+        swap = [0, 2, 1]  # make every facet counter-clockwise seen from outside
+        tri = np.where(flip[:, None], tri[:, swap], tri)
+        nbr = np.where(flip[:, None], nbr[:, swap], nbr)
+        f_idx = np.repeat(np.arange(tri.shape[0]), 3)
+        k_idx = np.tile(np.arange(3), tri.shape[0])
+        g_idx = nbr.ravel()
+        keep = f_idx < g_idx
+        f_idx, k_idx, g_idx = f_idx[keep], k_idx[keep], g_idx[keep]
+        self._f, self._g = f_idx, g_idx
+        # the vertex of facet g across the edge it shares with f (for the in-circle test)
+        self._opposite = tri[g_idx, np.argmax(nbr[g_idx] == f_idx[:, None], axis=1)]
+        self._owner = np.concatenate([tri[f_idx, (k_idx + 2) % 3], tri[f_idx, (k_idx + 1) % 3]])
+        self._tri = np.ascontiguousarray(tri.T)
+        self.rebuilds += 1
+
+    def _unit_normals(self, pt):
+        """Unit outward facet normals, or ``None`` if the triangulation is no longer Delaunay."""
+        a, b, c = (pt.take(t, axis=1) for t in self._tri)
+        w = _cross_t(b - a, c - a)
+        w /= np.sqrt(np.sum(w * w, axis=0))
+        if np.any(np.sum(w * a, axis=0) <= 0.0):  # a facet turned inside out
+            return None
+        height = np.sum(
+            w.take(self._f, axis=1) * (pt.take(self._opposite, axis=1) - a.take(self._f, axis=1)),
+            axis=0,
+        )
+        return None if np.any(height > 1e-12) else w
+
+    def cells(self, p, with_energy=True):
+        """Centroid integrals (and areas, energy) of unit generators ``p``, as ``_cells_unit``."""
+        n = p.shape[0]
+        pt = np.ascontiguousarray(p.T)
+        w = None if self._tri is None else self._unit_normals(pt)
+        if w is None:
+            self._rebuild(p)
+            w = self._unit_normals(pt)
+            if w is None:  # co-circular ties beyond 1e-12: trust qhull's facets
+                a, b, c = (pt.take(t, axis=1) for t in self._tri)
+                w = _cross_t(b - a, c - a)
+                w /= np.sqrt(np.sum(w * w, axis=0))
+        a, b = w.take(self._f, axis=1), w.take(self._g, axis=1)
+        cross = _cross_t(a, b)
+        sin_ab = np.sqrt(np.sum(cross * cross, axis=0))
+        cos_ab = np.sum(a * b, axis=0)
+        safe = sin_ab > 1e-300
+        ratio = np.where(safe, np.arctan2(sin_ab, cos_ab) / np.where(safe, sin_ab, 1.0), 1.0)
+        term = (0.5 * ratio) * cross
+        cint = np.stack(
+            [np.bincount(self._owner, np.concatenate([t, -t]), minlength=n) for t in term], axis=1
+        )
+        if not with_energy:
+            return None, cint, None
+        m = self._f.shape[0]
+        pv, pu = pt.take(self._owner[:m], axis=1), pt.take(self._owner[m:], axis=1)
+        sum_ab = a + b
+        tri_ccw = np.arctan2(np.sum(pv * cross, axis=0), 1.0 + cos_ab + np.sum(pv * sum_ab, axis=0))
+        tri_cw = np.arctan2(-np.sum(pu * cross, axis=0), 1.0 + cos_ab + np.sum(pu * sum_ab, axis=0))
+        areas = 2.0 * np.bincount(self._owner, np.concatenate([tri_ccw, tri_cw]), minlength=n)
+        energy = float(np.sum(2.0 * areas - 2.0 * _dot(p, cint)))
+        return areas, cint, energy
+
+
+def _cross_t(a, b):
+    """Cross products of component-major ``(3, m)`` arrays."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
+
+
 def _accumulate(owner, values, n):
     """Sum rows of ``values`` (``(m,)`` or ``(m, 3)``) per owner index into ``n`` bins."""
     if values.ndim == 1:
