@@ -6,8 +6,12 @@ the constrained centroid of a cell is the radial projection of its exact mass ce
 
 ``method="auto"`` (the default) keeps the established solver (``"lbfgs"`` from a random start)
 below :data:`FAST_MIN_N` generators, so every formation a mission can fly (n <= 254) and every
-paper figure stays exactly as before, and uses the fast path (``"fast"``: a seeded rotation of
-a Fibonacci sphere, L-BFGS with the Delaunay triangulation kept by edge flips) from there on.
+paper figure stays bit-identical, and uses the fast path (``"fast"``: a seeded rotation of a
+Fibonacci sphere, L-BFGS with the Delaunay triangulation kept by edge flips) from there on.
+Below 500 a single Fibonacci start can end in a worse local minimum than a random start (seen
+at n = 16: d_min -3.3 %; n = 256: d_min -1.2..-4.0 %, energy +0.03..+0.09 %); from n = 300 to
+2000 (tested seeds) its d_min was 1.6-8.5 % larger and its energy within +-0.22 %
+(``benchmarks/bench_cvt.py``, docs/science.md).
 """
 from __future__ import annotations
 
@@ -32,7 +36,7 @@ __all__ = [
 _DEFAULT_MAX_ITER = 200_000
 
 #: Smallest ``n`` for which ``method="auto"`` uses ``"fast"`` (above every mission formation).
-FAST_MIN_N = 256
+FAST_MIN_N = 500
 
 
 def _check_n(n):
@@ -216,7 +220,7 @@ def cvt_sphere(
         Solver: ``"lloyd"`` is plain exact Lloyd; ``"lbfgs"`` minimises the CVT energy with
         L-BFGS (``"lbfgs-scipy"``: scipy's L-BFGS-B); ``"fast"`` is L-BFGS from a rotated
         Fibonacci sphere with the triangulation kept between steps; ``"auto"`` (default):
-        ``"fast"`` if ``n >= FAST_MIN_N`` (256), else ``"lbfgs"``. All stop on the same rule.
+        ``"fast"`` if ``n >= FAST_MIN_N`` (500), else ``"lbfgs"``. All stop on the same rule.
     tol : float, optional
         Lloyd move tolerance (on the unit sphere).
     max_iter : int, optional
