@@ -190,7 +190,7 @@ def _survivor_mask(lost, n):
     return mask
 
 
-def reconfigure(current_offsets, lost, radius, method="lbfgs", tol=1e-10):
+def reconfigure(current_offsets, lost, radius, method="auto", tol=1e-10):
     """CVT formation for the survivors of a loss, warm-started, with minimum-travel assignment.
 
     Parameters
@@ -201,7 +201,7 @@ def reconfigure(current_offsets, lost, radius, method="lbfgs", tol=1e-10):
         Index (or indices, or a length-``n`` mask) of the lost vehicle(s).
     radius : float
         Radius ``D`` of the new formation (metres).
-    method : {"lbfgs", "lbfgs-scipy", "lloyd"}, optional
+    method : {"auto", "fast", "lbfgs", "lbfgs-scipy", "lloyd"}, optional
         CVT solver (see :func:`formation.cvt_sphere`).
     tol : float, optional
         Lloyd move tolerance of the CVT solve.

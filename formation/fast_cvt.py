@@ -15,6 +15,12 @@ below ``tol``. So a result of any method is a Lloyd fixed point to ``tol``.
   Its Armijo test allows for the rounding floor of the energy (~64 eps * 8 pi): near a CVT the
   energy decrease of a step (~1e-19 at a 1e-10 move) is far below the rounding error of the
   energy itself, so a strict energy line search stalls around a move of 1e-9..1e-8.
+* ``"fast"``: the same L-BFGS without the Lloyd warm-up (the caller gives a near-uniform start,
+  e.g. :func:`formation.cvt.fibonacci_start`), with the Delaunay triangulation kept between
+  evaluations and repaired by Lawson flips (:class:`formation.spherical_cells._Triangulation`:
+  ~11x cheaper per evaluation at n = 1000 than a ``ConvexHull`` each time) and with dot products
+  that OpenBLAS keeps on one thread. Profile of ``"lbfgs"`` at n = 1000 (cProfile, 568
+  evaluations): ``ConvexHull`` 75 % of the time, the rest of the cell arithmetic 15 %.
 * ``"lbfgs-scipy"``: ``scipy.optimize.minimize(method="L-BFGS-B")`` on ``E(x / |x|)`` with
   unconstrained 3-vectors ``x``; its strict line search does stall as described, and an
   Anderson-accelerated Lloyd polish finishes the job. Kept for comparison: per iteration its
@@ -27,17 +33,18 @@ line search ever fails): started from random generators it is not energy-monoton
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
 
-from .spherical_cells import _cells_unit
+from .spherical_cells import _cells_unit, _Triangulation
 
 __all__ = ["CVTResult", "solve_cvt", "METHODS"]
 
 #: Accepted values of ``method``.
-METHODS = ("lbfgs", "lbfgs-scipy", "lloyd")
+METHODS = ("fast", "lbfgs", "lbfgs-scipy", "lloyd")
 
 
 @dataclass(frozen=True)
@@ -80,6 +87,21 @@ class _Evaluator:
     def __call__(self, p, with_energy=True):
         self.count += 1
         _, _, cint, energy = _cells_unit(p, with_energy)
+        cent = cint / np.linalg.norm(cint, axis=1)[:, None]
+        move = float(np.max(np.linalg.norm(cent - p, axis=1)))
+        return energy, cint, cent, move
+
+
+class _CachedEvaluator(_Evaluator):
+    """As :class:`_Evaluator`, but keeps the Delaunay triangulation between evaluations."""
+
+    def __init__(self):
+        super().__init__()
+        self.triangulation = _Triangulation()
+
+    def __call__(self, p, with_energy=True):
+        self.count += 1
+        _, cint, energy = self.triangulation.cells(p, with_energy)
         cent = cint / np.linalg.norm(cint, axis=1)[:, None]
         move = float(np.max(np.linalg.norm(cent - p, axis=1)))
         return energy, cint, cent, move
@@ -138,17 +160,28 @@ def _tangent_gradient(p, cint):
     return (-2.0 * (cint - np.einsum("ij,ij->i", p, cint)[:, None] * p)).ravel()
 
 
-def _two_loop(g, pairs, h0):
+def _serial_dot(a, b, chunk=8192):
+    """Dot product of 1-D arrays in chunks that OpenBLAS computes on one thread.
+
+    OpenBLAS threads ``ddot`` above 10 000 entries; on a busy machine the threads' spinning
+    cost ~10x the CPU time of the product (measured at 30 000 entries, i.e. n = 10 000).
+    """
+    if a.shape[0] <= chunk:
+        return float(np.dot(a, b))
+    return float(sum(np.dot(a[i : i + chunk], b[i : i + chunk]) for i in range(0, a.shape[0], chunk)))
+
+
+def _two_loop(g, pairs, h0, dot=np.dot):
     """L-BFGS two-loop recursion: ``-H g`` with initial inverse Hessian ``diag(h0)``."""
     q = g.copy()
     alphas = []
     for s, y, rho in reversed(pairs):
-        a = rho * np.dot(s, q)
+        a = rho * dot(s, q)
         alphas.append(a)
         q -= a * y
     r = h0 * q
     for (s, y, rho), a in zip(pairs, reversed(alphas)):
-        b = rho * np.dot(y, r)
+        b = rho * dot(y, r)
         r += (a - b) * s
     return -r
 
@@ -165,12 +198,15 @@ def _warm_lloyd_steps(n):
     return 300
 
 
-def _lbfgs(p, tol, max_iter, ev, warm_lloyd=None, memory=20, max_backtracks=12, scale_h0=True):
+def _lbfgs(
+    p, tol, max_iter, ev, warm_lloyd=None, memory=20, max_backtracks=12, scale_h0=True, dot=np.dot
+):
     """Riemannian L-BFGS on the product of unit spheres, Lloyd-preconditioned.
 
     Retraction ``p <- unit(p + a d)``, identity vector transport, initial inverse Hessian
     ``diag(1 / (2 |c_i|))`` (one Lloyd step), Armijo backtracking with an allowance for the
-    energy's rounding floor; Anderson polish when the line search stalls.
+    energy's rounding floor; Anderson polish when the line search stalls. ``dot`` computes
+    the dot products of flattened vectors (``np.dot``, or :func:`_serial_dot` for large n).
     """
     if warm_lloyd is None:
         warm_lloyd = _warm_lloyd_steps(p.shape[0])
@@ -185,13 +221,13 @@ def _lbfgs(p, tol, max_iter, ev, warm_lloyd=None, memory=20, max_backtracks=12, 
         h0 = np.repeat(0.5 / np.linalg.norm(cint, axis=1), 3)
         if pairs and scale_h0:
             s_last, y_last, rho_last = pairs[-1]
-            h0 *= 1.0 / (rho_last * float(np.dot(y_last, h0 * y_last)))
-        d = _two_loop(g, pairs, h0)
-        gd = float(np.dot(g, d))
+            h0 *= 1.0 / (rho_last * float(dot(y_last, h0 * y_last)))
+        d = _two_loop(g, pairs, h0, dot)
+        gd = float(dot(g, d))
         if not gd < 0.0:
             pairs.clear()
             d = -h0 * g
-            gd = float(np.dot(g, d))
+            gd = float(dot(g, d))
         alpha = 1.0
         for _ in range(max_backtracks):
             q = p + alpha * d.reshape(n, 3)
@@ -212,8 +248,8 @@ def _lbfgs(p, tol, max_iter, ev, warm_lloyd=None, memory=20, max_backtracks=12, 
         g1 = _tangent_gradient(q, c1)
         s_vec = (q - p).ravel()
         y_vec = g1 - g
-        sy = float(np.dot(s_vec, y_vec))
-        if sy > 1e-12 * float(np.linalg.norm(s_vec) * np.linalg.norm(y_vec)):
+        sy = float(dot(s_vec, y_vec))
+        if sy > 1e-12 * math.sqrt(float(dot(s_vec, s_vec))) * math.sqrt(float(dot(y_vec, y_vec))):
             pairs.append((s_vec, y_vec, 1.0 / sy))
             if len(pairs) > memory:
                 pairs.pop(0)
@@ -283,6 +319,10 @@ def solve_cvt(points, method="lbfgs", tol=1e-10, max_iter=20000):
     -------
     CVTResult
     """
+    if method == "fast":
+        ev = _CachedEvaluator()
+        p, energy, move, it = _lbfgs(points, tol, max_iter, ev, warm_lloyd=0, dot=_serial_dot)
+        return CVTResult(p, energy, move, it, ev.count, bool(move < tol), method)
     ev = _Evaluator()
     if method == "lloyd":
         out = _lloyd(points, tol, max_iter, ev)

@@ -27,6 +27,7 @@ vectorised arithmetic.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -191,6 +192,137 @@ def _cells_unit(p, with_energy=True):
     areas = _accumulate(owner, np.concatenate([tri_ccw, tri_cw]), n)
     energy = float(np.sum(2.0 * areas - 2.0 * _dot(p, cint)))
     return tri, areas, cint, energy
+
+
+class _Triangulation:
+    """Delaunay triangulation of unit generators, kept up to date between nearby calls.
+
+    Between two nearby configurations (consecutive solver steps) the Delaunay triangulation
+    changes by a few edge flips at most. :meth:`cells` checks it (every facet outward, every
+    edge locally Delaunay: the vertex across it lies below the facet's plane), repairs the
+    edges that fail by Lawson flips, and calls ``ConvexHull`` only to start or if the repair
+    does not give a valid triangulation (a closed, outward, locally Delaunay triangulation of
+    points on the sphere is their convex hull). Arrays are component-major (``(3, m)``) for
+    cheap gathers; the formulas are those of :func:`_cells_unit`.
+    """
+
+    _TIE = 1e-12  # co-circular tolerance of the in-circle test (unit sphere)
+
+    def __init__(self):
+        self.rebuilds = 0
+        self.flips = 0
+        self._rows = None
+
+    def _rebuild(self, p):
+        tri, nbr, _, flip = _oriented_hull(p)
+        swap = [0, 2, 1]  # make every facet counter-clockwise seen from outside
+        self._rows = np.where(flip[:, None], tri[:, swap], tri)
+        self._nbr = np.where(flip[:, None], nbr[:, swap], nbr)
+        self._derive()
+        self.rebuilds += 1
+
+    def _derive(self):
+        """Edge arrays from the facets ``_rows`` and neighbours ``_nbr``."""
+        tri, nbr = self._rows, self._nbr
+        f_idx = np.repeat(np.arange(tri.shape[0]), 3)
+        k_idx = np.tile(np.arange(3), tri.shape[0])
+        g_idx = nbr.ravel()
+        keep = f_idx < g_idx
+        f_idx, k_idx, g_idx = f_idx[keep], k_idx[keep], g_idx[keep]
+        self._f, self._g = f_idx, g_idx
+        # the vertex of facet g across the edge it shares with f (for the in-circle test)
+        self._opposite = tri[g_idx, np.argmax(nbr[g_idx] == f_idx[:, None], axis=1)]
+        self._owner = np.concatenate([tri[f_idx, (k_idx + 2) % 3], tri[f_idx, (k_idx + 1) % 3]])
+        self._tri = np.ascontiguousarray(tri.T)
+
+    def _check(self, pt):
+        """Unit facet normals, the edges (f, g) that are not locally Delaunay, all outward?"""
+        a, b, c = (pt.take(t, axis=1) for t in self._tri)
+        w = _cross_t(b - a, c - a)
+        w /= np.sqrt(np.sum(w * w, axis=0))
+        outward = bool(np.all(np.sum(w * a, axis=0) > 0.0))
+        height = np.sum(
+            w.take(self._f, axis=1) * (pt.take(self._opposite, axis=1) - a.take(self._f, axis=1)),
+            axis=0,
+        )
+        bad = height > self._TIE
+        return w, list(zip(self._f[bad].tolist(), self._g[bad].tolist())), outward
+
+    def _flip(self, p, f, g):
+        """Lawson flip of the edge shared by facets ``f`` and ``g`` if it is not Delaunay."""
+        tri, nbr = self._rows, self._nbr
+        k, m = int(np.argmax(nbr[f] == g)), int(np.argmax(nbr[g] == f))
+        if nbr[f, k] != g or nbr[g, m] != f:
+            return []  # no longer adjacent (an earlier flip changed them)
+        a, b, c, d = tri[f, k], tri[f, (k + 1) % 3], tri[f, (k + 2) % 3], tri[g, m]
+        if _height(*p[[a, b, c, d]].tolist()) <= self._TIE:
+            return []
+        n_fb, n_fc = nbr[f, (k + 1) % 3], nbr[f, (k + 2) % 3]
+        n_gc, n_gb = nbr[g, (m + 1) % 3], nbr[g, (m + 2) % 3]
+        tri[f], nbr[f] = (a, b, d), (n_gc, g, n_fc)  # f = (a, b, d), g = (a, d, c): both CCW
+        tri[g], nbr[g] = (a, d, c), (n_gb, n_fb, f)
+        nbr[n_gc][nbr[n_gc] == g] = f
+        nbr[n_fb][nbr[n_fb] == f] = g
+        self.flips += 1
+        return [(f, n_gc), (f, n_fc), (g, n_gb), (g, n_fb)]
+
+    def _update(self, p, pt):
+        """Unit facet normals of a Delaunay triangulation of ``p`` (flips, else ``ConvexHull``)."""
+        if self._rows is not None:
+            w, bad, outward = self._check(pt)
+            if outward and bad:
+                for _ in range(4 * p.shape[0]):  # Lawson's flips terminate; cap them anyway
+                    if not bad:
+                        break
+                    bad.extend(self._flip(p, *bad.pop()))
+                self._derive()
+                w, bad, outward = self._check(pt)
+            if outward and not bad:
+                return w
+        self._rebuild(p)
+        return self._check(pt)[0]  # qhull's facets as they are (co-circular ties)
+
+    def cells(self, p, with_energy=True):
+        """Centroid integrals (and areas, energy) of unit generators ``p``, as ``_cells_unit``."""
+        n = p.shape[0]
+        pt = np.ascontiguousarray(p.T)
+        w = self._update(p, pt)
+        a, b = w.take(self._f, axis=1), w.take(self._g, axis=1)
+        cross = _cross_t(a, b)
+        sin_ab = np.sqrt(np.sum(cross * cross, axis=0))
+        cos_ab = np.sum(a * b, axis=0)
+        safe = sin_ab > 1e-300
+        ratio = np.where(safe, np.arctan2(sin_ab, cos_ab) / np.where(safe, sin_ab, 1.0), 1.0)
+        term = (0.5 * ratio) * cross
+        cint = np.stack(
+            [np.bincount(self._owner, np.concatenate([t, -t]), minlength=n) for t in term], axis=1
+        )
+        if not with_energy:
+            return None, cint, None
+        m = self._f.shape[0]
+        pv, pu = pt.take(self._owner[:m], axis=1), pt.take(self._owner[m:], axis=1)
+        sum_ab = a + b
+        tri_ccw = np.arctan2(np.sum(pv * cross, axis=0), 1.0 + cos_ab + np.sum(pv * sum_ab, axis=0))
+        tri_cw = np.arctan2(-np.sum(pu * cross, axis=0), 1.0 + cos_ab + np.sum(pu * sum_ab, axis=0))
+        areas = 2.0 * np.bincount(self._owner, np.concatenate([tri_ccw, tri_cw]), minlength=n)
+        energy = float(np.sum(2.0 * areas - 2.0 * _dot(p, cint)))
+        return areas, cint, energy
+
+
+def _height(a, b, c, d):
+    """Signed distance of ``d`` above the plane of the triangle ``(a, b, c)`` (3-lists)."""
+    u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]]
+    v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]]
+    w = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+    norm = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    return (w[0] * (d[0] - a[0]) + w[1] * (d[1] - a[1]) + w[2] * (d[2] - a[2])) / norm
+
+
+def _cross_t(a, b):
+    """Cross products of component-major ``(3, m)`` arrays."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
 
 
 def _accumulate(owner, values, n):

@@ -19,6 +19,8 @@ from formation import (
     spherical_cells,
     symmetric_cylinder,
 )
+from formation.cvt import FAST_MIN_N, fibonacci_start
+from formation.spherical_cells import _Triangulation
 
 
 def _fibonacci(m):
@@ -182,3 +184,72 @@ def test_bad_arguments(kwargs, match):
 def test_degenerate_generators(points, match):
     with pytest.raises(ValueError, match=match):
         spherical_cells(points)
+
+
+# --- fast path (method="fast"): same quality as the plain solver, same cells -----------------
+
+
+@pytest.mark.parametrize("n", [8, 20, 100, 500])
+def test_fast_path_same_quality_as_plain(n):
+    plain = cvt_sphere_result(n, seed=0, method="lbfgs")
+    fast = cvt_sphere_result(n, seed=0, method="fast")
+    assert plain.converged and fast.converged
+    assert fast.method == "fast"
+    # a Lloyd fixed point (checked with the plain exact cells, not the fast evaluator)
+    step = constrained_centroids(fast.points) - fast.points
+    assert np.max(np.linalg.norm(step, axis=1)) < 1e-9
+    # quality: energy not more than 1 % higher, d_min not more than 1 % lower
+    assert fast.energy <= plain.energy * 1.01
+    assert metrics(fast.points).d_min >= metrics(plain.points).d_min * 0.99
+    assert abs(fast.energy - cvt_energy(fast.points)) < 1e-12
+    assert fast.evaluations < plain.evaluations
+
+
+def test_fast_path_deterministic_for_a_seed():
+    a = cvt_sphere_result(300, seed=3, method="fast")
+    b = cvt_sphere_result(300, seed=3, method="fast")
+    np.testing.assert_array_equal(a.points, b.points)
+    c = cvt_sphere_result(300, seed=4, method="fast")
+    assert not np.allclose(a.points, c.points)  # another seed: another orientation
+
+
+def test_auto_method_switches_at_fast_min_n():
+    assert cvt_sphere_result(FAST_MIN_N - 1, seed=0, max_iter=1).method == "lbfgs"
+    assert cvt_sphere_result(FAST_MIN_N, seed=0, max_iter=1).method == "fast"
+    # below the switch the default is exactly the plain solver (mission formations unchanged)
+    np.testing.assert_array_equal(cvt_sphere(12, seed=2), cvt_sphere(12, seed=2, method="lbfgs"))
+
+
+@pytest.mark.parametrize("n", [8, 30, 400])
+def test_kept_triangulation_matches_convex_hull_cells(n):
+    rng = np.random.default_rng(n)
+    p = fibonacci_start(n, 1)
+    tri = _Triangulation()
+    spacing = math.sqrt(4.0 * math.pi / n)
+    for _ in range(60):
+        p = p + 0.03 * spacing * rng.normal(size=p.shape)
+        p /= np.linalg.norm(p, axis=1)[:, None]
+        areas, cint, energy = tri.cells(p)
+        ref = spherical_cells(p)
+        np.testing.assert_allclose(cint, ref.centroid_integrals, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(areas, ref.areas, rtol=0, atol=1e-13)
+        assert energy == pytest.approx(ref.energy, abs=1e-13)
+    assert tri.flips > 0  # the repair path was exercised, not only fresh hulls
+
+
+def test_fibonacci_start_is_rotated_unit_points():
+    a, b = fibonacci_start(50, 0), fibonacci_start(50, 1)
+    np.testing.assert_allclose(np.linalg.norm(a, axis=1), 1.0, rtol=1e-14)
+    # a rotation keeps every pairwise distance
+    np.testing.assert_allclose(
+        np.linalg.norm(a[:, None] - a[None], axis=2),
+        np.linalg.norm(b[:, None] - b[None], axis=2),
+        atol=1e-12,
+    )
+
+
+def test_warm_start_fast_keeps_a_cvt():
+    p = cvt_sphere(FAST_MIN_N, seed=0)
+    res = cvt_from(p, method="fast")
+    assert res.converged and res.iterations <= 1
+    np.testing.assert_allclose(res.points, p, atol=1e-9)
