@@ -10,15 +10,13 @@ is written, and stopping processes for sure.
 """
 from __future__ import annotations
 
-import json
 import subprocess
 import threading
 import time
-from pathlib import Path
 
 from wait_helpers import wait_until
 
-__all__ = ["COPTER_MODES", "VehicleWatch", "records", "stop_procs", "watch_connection"]
+__all__ = ["COPTER_MODES", "VehicleWatch", "stop_procs", "watch_connection"]
 
 #: ArduCopter custom modes met here
 COPTER_MODES = {0: "STABILIZE", 3: "AUTO", 4: "GUIDED", 5: "LOITER", 6: "RTL", 9: "LAND", 17: "BRAKE",
@@ -118,19 +116,6 @@ class VehicleWatch:
         """Disarmed, below 1 m above home."""
         modes, alt = self.snapshot()
         return bool(modes) and not modes[-1][2] and alt is not None and abs(alt) < 1.0
-
-
-def records(log: Path) -> list[dict]:
-    """The complete records of a mission log being written (a partial last line left out)."""
-    if not log.exists():
-        return []
-    out = []
-    for line in log.read_text(errors="replace").splitlines():
-        try:
-            out.append(json.loads(line))
-        except ValueError:
-            break
-    return out
 
 
 def stop_procs(procs) -> None:

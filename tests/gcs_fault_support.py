@@ -80,7 +80,7 @@ def _env() -> dict:
     return env
 
 
-def _records(log: Path) -> list[dict]:
+def records(log: Path) -> list[dict]:
     """The complete records of a mission log being written (a partial last line is left out)."""
     if not log.exists():
         return []
@@ -94,7 +94,7 @@ def _records(log: Path) -> list[dict]:
 
 
 def _seeking(log: Path):
-    return lambda: any(r["type"] == "iteration" for r in _records(log))
+    return lambda: any(r["type"] == "iteration" for r in records(log))
 
 
 class _Drain(threading.Thread):
@@ -247,13 +247,13 @@ class _Run:
         """Wait for ``run`` to exit; every vehicle down, per its summary (the ``--json`` one on stdout
         when the log could not take it) and, when the log is whole, per its statuses."""
         status = self.proc.wait(timeout=200)
-        records = _records(self.log)
-        logged = [r for r in records if r["type"] == "summary"]
+        recs = records(self.log)
+        logged = [r for r in recs if r["type"] == "summary"]
         summary = logged[-1] if logged else json.loads(self.out.text())
         assert summary["airborne_left"] == [] and summary.get("still_armed", []) == [], summary
         if logged:
             last = {}
-            for r in records:
+            for r in recs:
                 if r["type"] == "status_change":
                     last[r["sysid"]] = r["status"]
             assert last == {s: "landed" for s in range(1, N + 1)}, last
@@ -266,13 +266,13 @@ class _Run:
 
 
 def _summary(log: Path) -> dict:
-    summaries = [r for r in _records(log) if r["type"] == "summary"]
+    summaries = [r for r in records(log) if r["type"] == "summary"]
     assert len(summaries) == 1, "one summary record"
     return summaries[0]
 
 
 def _events(log: Path) -> list[str]:
-    return [r.get("message", "") for r in _records(log) if r["type"] == "event"]
+    return [r.get("message", "") for r in records(log) if r["type"] == "event"]
 
 
 def _closed_stdout(m: _Fly) -> None:
@@ -281,7 +281,7 @@ def _closed_stdout(m: _Fly) -> None:
     summary = _summary(m.log)
     assert status == (0 if summary["outcome"] == "converged" else 1), (status, summary["outcome"], m.err.text())
     assert summary["outcome"] in ("converged", "max_iterations") and summary["airborne_left"] == []
-    lost = [r for r in _records(m.log) if r.get("terminal_lost") == "stdout"]
+    lost = [r for r in records(m.log) if r.get("terminal_lost") == "stdout"]
     assert len(lost) == 1 and "BrokenPipeError" in lost[0]["message"]
     assert "Traceback" not in m.err.text() and "Exception ignored" not in m.err.text()
 
@@ -293,7 +293,7 @@ def _closed_stderr_then_sigterm(m: _Fly) -> None:
     assert m.finish() == 143
     summary = _summary(m.log)
     assert summary["outcome"] == "interrupted" and summary["interrupted_by"] == ["SIGTERM"]
-    lost = [r for r in _records(m.log) if r.get("terminal_lost") == "stderr"]
+    lost = [r for r in records(m.log) if r.get("terminal_lost") == "stderr"]
     assert len(lost) == 1 and "BrokenPipeError" in lost[0]["message"]
     assert json.loads(m.out.text())["outcome"] == "interrupted"  # stdout still works
 
@@ -309,7 +309,7 @@ def _signal_mid_seek(sig: signal.Signals, status: int):
         assert summary["airborne_left"] == []
         assert any(f"interrupted ({sig.name})" in e for e in _events(m.log))
         assert f"swarmseek: {sig.name}: stopping the mission" in m.err.text()
-        landed = {r["sysid"] for r in _records(m.log) if r["type"] == "status_change" and r["status"] == "landed"}
+        landed = {r["sysid"] for r in records(m.log) if r["type"] == "status_change" and r["status"] == "landed"}
         assert landed == set(range(1, N + 1))
     return case
 
@@ -323,7 +323,7 @@ def _log_size_limit(m: _Fly) -> None:
     assert "cannot write the mission log" in err and "File too large" in err, err[-2000:]
     assert "bringing every vehicle home" in err
     assert m.log.stat().st_size <= limit_b
-    phases = [r["phase"] for r in _records(m.log) if r["type"] == "phase"]
+    phases = [r["phase"] for r in records(m.log) if r["type"] == "phase"]
     assert "seek" in phases  # the limit tripped mid-mission, with vehicles in the air
 
 

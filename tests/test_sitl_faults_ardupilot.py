@@ -43,7 +43,8 @@ from pathlib import Path
 
 import pytest
 
-from ap_fault_support import COPTER_MODES, VehicleWatch, records, stop_procs, watch_connection
+from ap_fault_support import COPTER_MODES, VehicleWatch, stop_procs, watch_connection
+from gcs_fault_support import records
 from sitl_support import audit_failure_context, require_sitl
 from wait_helpers import wait_until
 
