@@ -10,7 +10,20 @@ import asyncio
 import numpy as np
 
 from formation.geodesy import geodetic_to_enu
+# imported with the module, not in the mission's event loop: a first import there holds the loop
+# (tests/test_loop_debug.py found vehicle_link's 0.04-0.1 s in the first connect task)
+from mission.core.uri import parse_connection
+from mission.flight.failsafe_params import check_failsafe_params
+from mission.flight.readiness_autopilot import wait_autopilots_ready
 from mission.flight.state import MissionError, VehicleReadiness
+from mission.link.endpoint import MavEndpoint
+from mission.link.endpoint_registry import SysidRegistry
+from mission.link.poller import UdpPoller
+from mission.safety.envelope import SafetyEnvelope
+from mission.safety.fence import Geofence
+from mission.vehicle.prearm import extra_rates_hz
+from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, VehicleLink
+from mission.vehicle.wind import wind_rates_hz
 
 __all__ = ["build_envelope", "connect", "preflight"]
 
@@ -21,8 +34,6 @@ def build_envelope(plan):
     """The plan's :class:`mission.safety.envelope.SafetyEnvelope`, or None when no fence polygon is given."""
     if not plan.geofence.polygon_en_m:
         return None
-    from mission.safety.fence import Geofence
-    from mission.safety.envelope import SafetyEnvelope
 
     fence = Geofence(np.asarray(plan.geofence.polygon_en_m, dtype=float),
                      plan.geofence.min_alt_m, plan.geofence.max_alt_m)
@@ -32,9 +43,6 @@ def build_envelope(plan):
 # ------------------------------------------------------------------------------------ connect
 async def connect(co, required: bool = True) -> None:
     """Open each distinct connection once and attach every vehicle of the plan to it."""
-    from mission.core.uri import parse_connection
-    from mission.link.endpoint_registry import SysidRegistry
-    from mission.link.poller import UdpPoller
 
     co.set_phase("connect")
     plan = co.plan
@@ -65,7 +73,6 @@ async def connect(co, required: bool = True) -> None:
 async def _open(co, uri: str, vehicles: list, registry, problems: list[str]) -> None:
     """Open the endpoint of ``uri`` for ``vehicles`` (the only system ids it accepts); on failure
     every vehicle on it is not ready (``no link``)."""
-    from mission.link.endpoint import MavEndpoint
 
     try:
         co.add_endpoint(uri, await MavEndpoint.open(uri, clock=co.clock, tlog_dir=co.tlog_dir,
@@ -81,9 +88,6 @@ async def _open(co, uri: str, vehicles: list, registry, problems: list[str]) -> 
 
 async def _attach(co, vp, problems: list[str]) -> None:
     """Attach vehicle ``vp`` to its endpoint (heartbeat, autopilot version, telemetry rates)."""
-    from mission.vehicle.prearm import extra_rates_hz
-    from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, VehicleLink
-    from mission.vehicle.wind import wind_rates_hz
 
     ep = co.endpoints.get(vp.connection)
     if ep is None:
@@ -150,8 +154,6 @@ async def preflight(co, timeout_s: float = 30.0) -> None:
         raise MissionError(f"preflight: the safety envelope cannot be built: {exc}") from None
 
     await asyncio.gather(*(_check_vehicle(co, s, v, envelope, timeout_s) for s, v in co.vehicles.items()))
-    from mission.flight.failsafe_params import check_failsafe_params
-    from mission.flight.readiness_autopilot import wait_autopilots_ready
 
     await check_failsafe_params(co.state, co.vehicles, plan.preflight, co.simulated_fleet, co)
     await wait_autopilots_ready(co.state, co.vehicles, co.clock, co, plan.preflight.autopilot_ready_timeout_s)
