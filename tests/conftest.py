@@ -8,6 +8,9 @@ average with two workers). Order only: every test runs.
 """
 from __future__ import annotations
 
+#: ``--cpu-hogs N``: the suite beside N CPU-bound processes (tests/cpu_hogs_plugin.py)
+pytest_plugins = ["cpu_hogs_plugin"]
+
 #: the files of the longest tests, longest first (``python -m pytest --durations=40``)
 LONG_FIRST = ("test_sitl_faults_px4.py", "test_sitl_faults_ardupilot.py", "test_map_fly.py", "test_sitl_ardupilot.py",
               "test_sitl_px4.py", "test_conformance_px4.py", "test_map_browser.py", "test_ctl_processes.py",
