@@ -149,6 +149,7 @@ alt_m = {DEFAULT_ORIGIN[2]}
 type = "cvt"
 radius_m = 4.0
 [seeking]
+seeker = "gradient"  # the paper's slow ascent: a seek long enough for the faults and commands
 eps = 50.0
 gamma_m = 1.0
 rate_hz = 2.0

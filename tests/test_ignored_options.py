@@ -73,7 +73,7 @@ def test_run_warns_once_for_eps_the_seeker_does_not_use(argv, warned, capsys):
     ({"plume_mode": "intermittent"}, "seeking.plume_mode"),
     ({"seeker": "model", "plume_mode": "steady"}, "seeking.plume_mode"),
     ({"seeker": "newton", "wind_from_deg": 270.0}, "seeking.wind_from_deg"),
-    ({"replan_fraction": 0.3}, "seeking.replan_fraction"),                      # the plans' default: stop and go
+    ({"seeker": "gradient", "replan_fraction": 0.3}, "seeking.replan_fraction"),  # the paper's seeker: stop and go
     ({"seeker": "model", "sampling": "stop_and_go", "sensor_lag_s": 0.5}, "seeking.sensor_lag_s"),
     ({"seeker": "plume", "replan_fraction": 0.3}, "seeking.replan_fraction"),
 ])

@@ -123,7 +123,10 @@ def test_plan_selects_moving_sampling(doc):
     doc["seeking"].update(seeker="model", sampling="moving", replan_fraction=0.3, sensor_lag_s=1.5)
     sk = parse_plan(doc).seeking
     assert (sk.sampling, sk.replan_fraction, sk.sensor_lag_s) == ("moving", 0.3, 1.5)
-    assert parse_plan(tomllib.loads(SAMPLE.read_text())).seeking.sampling == "stop_and_go"  # plans' default
+    assert parse_plan(tomllib.loads(SAMPLE.read_text())).seeking.sampling == "moving"  # the model seeker's default
+    doc["seeking"].update(seeker="gradient")
+    del doc["seeking"]["sampling"], doc["seeking"]["replan_fraction"], doc["seeking"]["sensor_lag_s"]
+    assert parse_plan(doc).seeking.sampling == "stop_and_go"  # the paper's seeker samples at rest
 
 
 @pytest.mark.parametrize("changes, key, why", [

@@ -88,7 +88,8 @@ def test_ste_keys_are_refused_for_another_seeker(doc, key, value):
 def test_a_bad_ste_plan_exits_2_before_connecting(tmp_path, doc, capsys):
     """``fly`` with a NaN noise: one line naming the key, exit 2 (nothing connected: the plan's
     vehicles are not listening anywhere)."""
-    text = SAMPLE.read_text().replace("[seeking]\n", '[seeking]\nseeker = "ste"\nsampling = "moving"\n'
+    text = re.sub(r"^seeker = .*\n", "", SAMPLE.read_text(), count=1, flags=re.M)
+    text = text.replace("[seeking]\n", '[seeking]\nseeker = "ste"\nsampling = "moving"\n'
                                       "sensor_noise_std = nan\n", 1)
     path = tmp_path / "p.toml"
     path.write_text(text)

@@ -24,7 +24,7 @@ from mission.cli.common import add_mission_outputs
 from mission.link.forward import ForwardAddressError, forwarding, plan_with_outs, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
-from mission.core.plan_types import SeekingPlan
+from mission.core.plan_types import SeekingPlan, best_seeker
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
 from mission.flight.operator_stop import run_until_stopped
@@ -115,13 +115,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 #: ``--seeker`` when not given, by ``--field``: the best measured in whole missions there
 #: (docs/seekers.md, "ste in missions"; README, "Seeking faster"); ``model`` for the others
-_DEFAULT_SEEKER = {"plume": "ste", "intermittent": "ste"}
-
-
 def _resolve_seeker(args) -> str:
-    """``--seeker``, or when not given the best measured for the field (:data:`_DEFAULT_SEEKER`)."""
+    """``--seeker``, or when not given the best measured for the field (as a plan's default:
+    :func:`mission.core.plan_types.best_seeker`)."""
     if args.seeker is None:
-        args.seeker = _DEFAULT_SEEKER.get(getattr(args, "field", None), "model")
+        args.seeker = best_seeker(getattr(args, "field", None))
     return args.seeker
 
 

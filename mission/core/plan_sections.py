@@ -15,7 +15,7 @@ from estimator.ste_model import BRIGGS_RURAL
 from formation.geodesy import geodetic_to_enu
 from mission.core.fence_file import FenceFile, FenceFileError, fence_in_mission_frame, read_fence_file
 from mission.core.plan_checks import Checker, check_connection, join_key, polygon_area, show_value
-from mission.core.plan_types import (PLUME_MODES, SAMPLINGS, ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
+from mission.core.plan_types import (PLUME_MODES, SAMPLINGS, ControlPlan, best_seeker, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
                                      PreflightPlan, SeekingPlan, VehiclePlan)
 from mission.core.signing_config import SigningConfig, signing_config_from_table
 from wire.signing import SigningError
@@ -161,13 +161,16 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
     p = "seeking"
     c.unknown(t, tuple(SeekingPlan.__dataclass_fields__), p)
     d = SeekingPlan()
+    seeker = c.string(t, "seeker", p, best_seeker(_field_type(doc)), choices=_SEEKERS)
     vals = dict(
         eps=c.number(t, "eps", p, d.eps, low=0, low_open=True),
-        gamma_m=c.number(t, "gamma_m", p, d.gamma_m, low=0, low_open=True, high=100),
+        gamma_m=c.number(t, "gamma_m", p, d.gamma_m if seeker == "gradient" else NON_GRADIENT_GAMMA_M,
+                         low=0, low_open=True, high=100),
         estimator=c.string(t, "estimator", p, d.estimator, choices=_ESTIMATORS),
-        seeker=c.string(t, "seeker", p, d.seeker, choices=_SEEKERS),
-        sampling=c.string(t, "sampling", p, d.sampling, choices=SAMPLINGS),
-        plume_mode=c.string(t, "plume_mode", p, d.plume_mode, choices=PLUME_MODES),
+        seeker=seeker,
+        sampling=c.string(t, "sampling", p, "moving" if seeker in MOVING_SEEKERS else "stop_and_go",
+                          choices=SAMPLINGS),
+        plume_mode=c.string(t, "plume_mode", p, _default_plume_mode(doc, d), choices=PLUME_MODES),
         replan_fraction=c.number(t, "replan_fraction", p, d.replan_fraction, low=0, low_open=True, high=1),
         sensor_lag_s=c.number(t, "sensor_lag_s", p, d.sensor_lag_s, low=0, high=60),
         rate_hz=c.number(t, "rate_hz", p, d.rate_hz, low=0, low_open=True, high=50),
@@ -199,6 +202,18 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
     return SeekingPlan(start_enu_m=start, wind_from_deg=wind, **vals)
 
 
+def _field_type(doc: dict) -> str | None:
+    """The plan's ``[field] type`` as written (checked by ``parse_field``), or None."""
+    field = doc.get("field")
+    kind = field.get("type") if isinstance(field, dict) else None
+    return kind if isinstance(kind, str) else None
+
+
+def _default_plume_mode(doc: dict, d: SeekingPlan) -> str:
+    """``intermittent`` on the intermittent plume (hits and misses), else the dataclass default."""
+    return "intermittent" if _field_type(doc) == "intermittent" else d.plume_mode
+
+
 def _ste_keys(c: Checker, t: dict, d: SeekingPlan) -> dict:
     """The ``ste`` seeker's ``[seeking]`` keys (:class:`~mission.core.plan_types.SeekingPlan`), checked."""
     p = "seeking"
@@ -211,6 +226,10 @@ def _ste_keys(c: Checker, t: dict, d: SeekingPlan) -> dict:
         region_m=c.number(t, "region_m", p, d.region_m, low=0, low_open=True, high=100),
     )
 
+
+#: ``gamma_m`` when the plan gives none, for every seeker but the paper's ``gradient`` (whose default
+#: is the paper's 0.1 m): their steps are bounded by their own trust region or passes (as ``swarmseek run``)
+NON_GRADIENT_GAMMA_M = 20.0
 
 _STE = 'seeker = "ste"'
 _PLUME_OR_STE = 'seeker = "plume" or "ste"'
