@@ -237,7 +237,7 @@ def test_swarmseek_run_json_has_the_rejection_fields(tmp_path, capsys):
 def test_steady_refused_traffic_is_reported_at_doubling_intervals():
     """A companion's forwarded frames refused every second: reported at 1, 2, 4 ... s, up to 60 s;
     a new kind is reported at once and resets the interval."""
-    from mission.flight.watchdog import _RejectionReport
+    from mission.flight.faults.watchdog import _RejectionReport
 
     class _Co:
         status_period_s = 1.0

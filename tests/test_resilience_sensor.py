@@ -1,4 +1,4 @@
-"""A faulty sensor retired during the mission (``[faults] faulty_sensor``, :mod:`mission.flight.retire`).
+"""A faulty sensor retired during the mission (``[faults] faulty_sensor``, :mod:`mission.flight.faults.retire`).
 
 Unit: the watch maps the rule's pick to a sysid with its reason and noise figures, is only
 made for the robust estimator with ``retire`` and while nobody is parked; the goals park the
@@ -29,7 +29,7 @@ from mission.flight.coordinator import _plan_json
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.core.plan_types import FaultsPlan
-from mission.flight.retire import (
+from mission.flight.faults.retire import (
     PARKED_STATUS,
     RetiredSensor,
     SensorWatch,
@@ -152,7 +152,7 @@ def test_parked_vehicle_goes_to_the_centre_unless_lost():
     ([1, 2, 3, 4, 5, 7], (), (6,), "vehicle 6 is already parked at the centre"),
 ])
 def test_retirement_is_refused_when_things_changed_since_the_estimate(sysids, lost, retired, why):
-    from mission.flight.retire import retire_sensor
+    from mission.flight.faults.retire import retire_sensor
 
     co = _co(retired=retired, lost=lost, under=[s for s in range(1, 9) if s not in lost])
     events = []

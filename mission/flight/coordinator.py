@@ -19,16 +19,16 @@ from mission.core.plan_types import Plan
 from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
 from mission.flight.control import MissionControl, open_control_channel, operator_command
-from mission.flight.landing_guard import LandingGuard
-from mission.flight.loss import watch_losses
+from mission.flight.faults.landing_guard import LandingGuard
+from mission.flight.faults.loss import watch_losses
 from mission.flight.services import Fleet
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import MissionChecks, not_ready_message
 from mission.flight.resume import resume_mission
 from mission.flight.state import MissionError, MissionState
-from mission.flight.takeoff_loss import TakeoffLoss
+from mission.flight.faults.takeoff_loss import TakeoffLoss
 from mission.safety.gate import SafetyGate
-from mission.flight.watchdog import watchdog
+from mission.flight.faults.watchdog import watchdog
 from mission.telemetry.link_report import link_rejections, unknown_sysids
 from mission.telemetry.mission_log import MissionLog, to_jsonable
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber
@@ -278,7 +278,7 @@ class Coordinator:
         return [f.to_json() for f in self.security]
 
     def landing_guard(self) -> LandingGuard:
-        """The never-abandon check (:class:`mission.flight.landing_guard.LandingGuard`) over the
+        """The never-abandon check (:class:`mission.flight.faults.landing_guard.LandingGuard`) over the
         vehicles, the gate and the log of this mission now."""
         return LandingGuard(self.state, self.fleet, self.gate, self.clock, self.plan.faults, self.log, self)
 
@@ -289,7 +289,7 @@ class Coordinator:
                              self.zenoh_problem, self.readings_subscribed, self)
 
     def takeoff_loss(self) -> TakeoffLoss:
-        """The takeoff's and the assembly's losses (:class:`mission.flight.takeoff_loss.TakeoffLoss`)
+        """The takeoff's and the assembly's losses (:class:`mission.flight.faults.takeoff_loss.TakeoffLoss`)
         over this mission's vehicles and gate now."""
         return TakeoffLoss(self.state, self.fleet, self.gate, self.clock, self, self.task_failed)
 
@@ -393,7 +393,7 @@ class Coordinator:
         Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
         False (a ground station that just stops: the vehicles do what their autopilot does); a
         second cancellation lands them where they are (:mod:`mission.flight.mission_end`). Every
-        path ends with the never-abandon check (:mod:`mission.flight.landing_guard`) and a
+        path ends with the never-abandon check (:mod:`mission.flight.faults.landing_guard`) and a
         ``summary`` record; a cancelled run then raises CancelledError (``state.final_result``
         holds its result).
         """

@@ -29,17 +29,17 @@ import asyncio
 import numpy as np
 
 from mission.flight.control import OperatorStop
-from mission.flight.loss import reform
+from mission.flight.faults.loss import reform
 from mission.flight.motion import move_and_wait, paced, parked
 from estimator.estimate import reported_estimate
 from mission.flight.result import estimate_fields, geodetic_point, region_text
-from mission.flight.rejoin import (
+from mission.flight.faults.rejoin import (
     clear_goals,
     fly_rotation,
     pending_readmissions,
     readmit,
 )
-from mission.flight.retire import (
+from mission.flight.faults.retire import (
     formation_goals,
     keep_out_retired,
     make_watch,
@@ -200,13 +200,13 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     at the geofence for a whole convergence window: the source is probably outside),
     ``too_few_vehicles`` (vehicles were lost and fewer than 4 are left: the caller brings the
     others home). After a loss the formation is re-formed for the survivors
-    (:func:`mission.flight.loss.reform`) before the next iteration; a returning vehicle is re-admitted
-    (``[faults] readmit = true``, :func:`mission.flight.rejoin.readmit`); every iteration's slots are
-    rotated clear of lost vehicles still flying (:func:`mission.flight.rejoin.clear_goals`). Whatever the
+    (:func:`mission.flight.faults.loss.reform`) before the next iteration; a returning vehicle is re-admitted
+    (``[faults] readmit = true``, :func:`mission.flight.faults.rejoin.readmit`); every iteration's slots are
+    rotated clear of lost vehicles still flying (:func:`mission.flight.faults.rejoin.clear_goals`). Whatever the
     seeker, the faulty-sensor detector (:mod:`mission.flight.sensor_check`) keeps the readings of the
     sensors it excludes out of the seeker's input, and a sensor it keeps naming is retired
     (``faulty_sensor = "retire"``, the default): its vehicle is parked at the centre,
-    its readings ignored, the others re-formed (:mod:`mission.flight.retire`); only sensing vehicles
+    its readings ignored, the others re-formed (:mod:`mission.flight.faults.retire`); only sensing vehicles
     count towards the 4.
     """
     co.set_phase("seek")

@@ -36,8 +36,8 @@ import numpy as np
 
 from mission.flight.control import OperatorStop
 from mission.flight.motion import paced
-from mission.flight.rejoin import clear_goals, fly_rotation
-from mission.flight.retire import formation_goals
+from mission.flight.faults.rejoin import clear_goals, fly_rotation
+from mission.flight.faults.retire import formation_goals
 from mission.flight.state import MissionError
 
 __all__ = ["MovingSampling", "lagged_positions", "moving_sampling", "thin_evenly"]

@@ -22,9 +22,9 @@ Rules (see ``docs/faults.md``):
 * **coming back** (link heard again after a link loss): with ``[faults] readmit = false`` the
   vehicle is kept out and commanded to land or RTL (the plan's ``return``), once; with
   ``readmit = true`` and during the seek, armed, airborne and not in RTL/LAND, it is re-admitted
-  at the start of the next iteration (:func:`mission.flight.rejoin.readmit`).
+  at the start of the next iteration (:func:`mission.flight.faults.rejoin.readmit`).
 * A lost vehicle that still flies is an obstacle for the re-formed slots and the transfers
-  (:mod:`mission.flight.rejoin`).
+  (:mod:`mission.flight.faults.rejoin`).
 """
 from __future__ import annotations
 

@@ -39,7 +39,7 @@ async def watchdog(co, period_s: float = 0.1) -> None:
                     or sysid in co.state.lost or v.state.mode == want):
                 continue
             if v.state.mode in LEFT_MODES.get(v.flavour, ()) or v.link_age_s() > co.plan.faults.link_timeout_s:
-                continue  # left the mission or silent: mission.flight.loss decides, never re-engaged
+                continue  # left the mission or silent: mission.flight.faults.loss decides, never re-engaged
             if not v.state.armed:
                 continue
             co.state.begin_reengaging(sysid)

@@ -12,7 +12,7 @@ vehicles would remain, is *retired* (:func:`retire_sensor`):
   guarantees ``formation.radius_m >= min_separation_m``, so the centre is at least the
   separation from every slot); it moves with the formation and comes home with the others;
 * its readings are ignored from then on (the seek estimates from the sensing vehicles only);
-* the sensing vehicles are re-formed (:func:`mission.flight.loss.reformed_offsets` with the retired
+* the sensing vehicles are re-formed (:func:`mission.flight.faults.loss.reformed_offsets` with the retired
   vehicle passed as lost: warm-started CVT, a symmetric formation left with an odd number
   switches to CVT) and a separation-keeping transfer is flown in which the retired vehicle
   flies to the centre (:func:`mission.flight.motion.transfer_to`, which also keeps every parked vehicle
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mission.flight.loss import survivor_slots
+from mission.flight.faults.loss import survivor_slots
 from mission.flight.motion import keep_out, parked, transfer_to
 
 __all__ = [
