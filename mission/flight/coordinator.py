@@ -28,7 +28,7 @@ from mission.flight.resume import resume_mission
 from mission.flight.state import MissionError, MissionState
 from mission.flight.faults.takeoff_loss import TakeoffLoss
 from mission.safety.gate import SafetyGate
-from mission.flight.faults.watchdog import watchdog
+from mission.flight.faults.watchdog import Watchdog
 from mission.telemetry.link_report import link_rejections, unknown_sysids
 from mission.telemetry.mission_log import MissionLog, to_jsonable
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber
@@ -311,7 +311,9 @@ class Coordinator:
         from mission.telemetry.state_pub import StatePublisher
 
         if self._watchdog_task is None:
-            self._watchdog_task = spawn(watchdog(self), "the watchdog", self.task_failed)
+            watchdog = Watchdog(self.state, self.fleet, lambda: self.gate, self.clock, self.plan.faults, self, self.log,
+                                self.status_period_s, self, self.task_failed)
+            self._watchdog_task = spawn(watchdog.run(), "the watchdog", self.task_failed)
         if self._loss_task is None:
             self._loss_task = spawn(watch_losses(self), "the loss detection", self.task_failed)
 
