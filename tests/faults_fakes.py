@@ -146,15 +146,18 @@ def fleet_of(vehicles: list[FakeVehicle]) -> Fleet:
     return fleet
 
 
-def ring(n: int, radius_m: float = 5.0, alt_m: float = 10.0) -> dict[int, np.ndarray]:
-    """Slot offsets of ``n`` vehicles (sysids 1..n) on a horizontal ring, ENU m."""
+def ring(n: int, radius_m: float = 5.0) -> dict[int, np.ndarray]:
+    """Slot offsets of ``n`` vehicles (sysids 1..n) on the sphere of ``radius_m``, alternately
+    above and below the equator (a CVT needs generators off one great circle), ENU m."""
     a = 2 * np.pi * np.arange(n) / n
-    return {k + 1: np.array([radius_m * np.cos(a[k]), radius_m * np.sin(a[k]), 0.0]) for k in range(n)}
+    el = np.where(np.arange(n) % 2 == 0, 0.5, -0.5)
+    return {k + 1: radius_m * np.array([np.cos(el[k]) * np.cos(a[k]), np.cos(el[k]) * np.sin(a[k]), np.sin(el[k])])
+            for k in range(n)}
 
 
-def flying_state(n: int, clock: FakeClock, phase: str = "seek") -> MissionState:
-    """A mission state of ``n`` airborne vehicles in a ring formation, in ``phase``."""
-    state = MissionState(range(1, n + 1), clock=clock)
+def flying_state(n: int, clock: FakeClock, phase: str = "seek", kind: str = "cvt") -> MissionState:
+    """A mission state of ``n`` airborne vehicles in a ring formation (of type ``kind``), in ``phase``."""
+    state = MissionState(range(1, n + 1), clock=clock, formation_kind=kind)
     state.set_formation(ring(n), {s: 10.0 + s for s in range(1, n + 1)})
     for s in range(1, n + 1):
         state.set_airborne(s, "flying")

@@ -9,8 +9,10 @@ import asyncio
 import numpy as np
 from faults_fakes import FakeClock, FakeGate, FakeMotion, FakeVehicle, Recorder, fleet_of, flying_state, ring
 
-from mission.core.plan_types import FaultsPlan
+from mission.core.plan_types import FaultsPlan, FormationPlan
+from mission.flight.faults.loss import LossMonitor, Reformation
 from mission.flight.faults.watchdog import Watchdog
+from mission.flight.state import VehicleLoss
 
 
 class _Status:
@@ -69,3 +71,77 @@ def test_the_watchdog_reengages_a_vehicle_in_hold_and_leaves_a_failsafe_alone():
     assert status.odometry > 0
     assert any("MAVLink frames rejected: " in m for m in rec.messages("warning"))
     assert any("vehicle 1 left OFFBOARD" in m for m in rec.messages("warning"))
+
+
+def _monitor(n: int, readmit: bool = False):
+    clock = FakeClock(100.0)
+    state = flying_state(n, clock)
+    vehicles = [FakeVehicle(s, ring(n)[s]) for s in range(1, n + 1)]
+    gate = FakeGate({s: ring(n)[s] for s in range(1, n + 1)})
+    rec, motion = Recorder(), FakeMotion(state, gate)
+    monitor = LossMonitor(state, fleet_of(vehicles), lambda: gate, clock, FaultsPlan(readmit=readmit), "land",
+                          motion, rec, rec.report)
+    return clock, state, vehicles, gate, rec, motion, monitor
+
+
+def _watch(monitor, predicate, what: str) -> None:
+    async def main():
+        task = asyncio.create_task(monitor.run(period_s=0.1))
+        try:
+            await _until(predicate, what)
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+
+    asyncio.run(main())
+
+
+def test_the_loss_monitor_declares_a_silent_vehicle_and_a_failsafe_lost():
+    clock, state, vehicles, gate, rec, motion, monitor = _monitor(5)
+    vehicles[1].age_s = 3.0                # silent for 3 s > link_timeout_s
+    vehicles[3].state.mode = "AUTO.RTL"    # a failsafe, reported by 2 heartbeats
+    _watch(monitor, lambda: {2, 4} <= set(state.lost), "vehicles 2 and 4 lost")
+    assert state.lost[2].reason == "link" and state.lost[4].reason == "left"
+    assert state.lost[2].latency_s == 3.0
+    np.testing.assert_allclose(state.lost[2].last_setpoint_enu, ring(5)[2])
+    assert gate.sysids == [1, 3, 5] and set(state.lost) == {2, 4}
+    assert sum("lost:" in m for m in rec.messages("warning")) == 2
+
+
+def test_the_loss_monitor_keeps_out_a_vehicle_heard_again_without_readmit():
+    clock, state, vehicles, gate, rec, motion, monitor = _monitor(4)
+    vehicles[0].age_s = 3.0
+    _watch(monitor, lambda: 1 in state.lost, "vehicle 1 lost")
+    vehicles[0].age_s = 0.0                # heard again
+    _watch(monitor, lambda: motion.calls, "vehicle 1 kept out")
+    assert motion.calls == [("keep_out", 1, "faults.readmit = false")]
+    assert state.lost[1].came_back_s is not None and not state.lost[1].readmit_pending
+
+
+def test_a_reformation_flies_the_survivors_to_new_slots_and_switches_an_odd_symmetric_formation():
+    clock = FakeClock()
+    state = flying_state(6, clock, kind="symmetric")
+    vehicles = [FakeVehicle(s, ring(6)[s]) for s in range(1, 7)]
+    gate = FakeGate({s: ring(6)[s] for s in range(1, 7) if s != 3})
+    state.declare_lost(VehicleLoss(3, "left", "switched to AUTO.RTL", 0.0, 0.0, "seek"))
+    rec, motion = Recorder(), FakeMotion(state, gate)
+    reform = Reformation(state, fleet_of(vehicles), gate, clock, FormationPlan(radius_m=5.0), 1.5, motion, rec)
+    survivors = asyncio.run(reform.reform(np.zeros(3), [1, 2, 3, 4, 5, 6]))
+    assert survivors == [1, 2, 4, 5, 6]
+    assert [c[:2] for c in motion.calls] == [("transfer_to", [1, 2, 4, 5, 6])]
+    assert state.formation_kind == "cvt"
+    assert any("switching to the CVT formation" in m for m in rec.messages("warning"))
+    slots = np.array([state.slot_offsets[s] for s in survivors])
+    np.testing.assert_allclose(np.linalg.norm(slots, axis=1), 5.0, atol=1e-6)
+    gaps = [np.linalg.norm(a - b) for i, a in enumerate(slots) for b in slots[i + 1:]]
+    assert min(gaps) > 1.5
+
+
+def test_a_reformation_below_four_flies_nothing():
+    clock = FakeClock()
+    state = flying_state(4, clock)
+    gate = FakeGate({s: ring(4)[s] for s in (1, 2, 3)})
+    state.declare_lost(VehicleLoss(4, "link", "silent", 0.0, 0.0, "seek"))
+    motion = FakeMotion(state, gate)
+    reform = Reformation(state, fleet_of([]), gate, clock, FormationPlan(), 1.5, motion, Recorder())
+    assert asyncio.run(reform.reform(np.zeros(3), [1, 2, 3, 4])) == [1, 2, 3] and motion.calls == []

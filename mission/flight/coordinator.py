@@ -17,10 +17,10 @@ from mission.core.tasks import spawn, stop_watched
 from mission.core.plan_security import check_security
 from mission.core.plan_types import Plan
 from mission.flight import connect as connect_phase
-from mission.flight import mission_end, phases, seek
+from mission.flight import mission_end, motion, phases, seek
 from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.faults.landing_guard import LandingGuard
-from mission.flight.faults.loss import watch_losses
+from mission.flight.faults.loss import LossMonitor, Reformation
 from mission.flight.services import Fleet
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import MissionChecks, not_ready_message
@@ -293,6 +293,17 @@ class Coordinator:
         over this mission's vehicles and gate now."""
         return TakeoffLoss(self.state, self.fleet, self.gate, self.clock, self, self.task_failed)
 
+    def motion(self) -> "_BoundMotion":
+        """The motion primitives (:class:`mission.flight.services.Motion`) flown on this mission's gate."""
+        return _BoundMotion(self)
+
+    def reformation(self) -> Reformation:
+        """The formation re-formed for the vehicles left (:class:`mission.flight.faults.loss.Reformation`)
+        over this mission's vehicles and gate now."""
+        plan = self.plan
+        return Reformation(self.state, self.fleet, self.gate, self.clock, plan.formation, plan.min_separation_m,
+                           self.motion(), self)
+
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
         deadline = self.clock.time() + timeout_s
@@ -315,7 +326,9 @@ class Coordinator:
                                 self.status_period_s, self, self.task_failed)
             self._watchdog_task = spawn(watchdog.run(), "the watchdog", self.task_failed)
         if self._loss_task is None:
-            self._loss_task = spawn(watch_losses(self), "the loss detection", self.task_failed)
+            monitor = LossMonitor(self.state, self.fleet, lambda: self.gate, self.clock, self.plan.faults,
+                                  self.plan.return_behaviour, self.motion(), self, self.task_failed)
+            self._loss_task = spawn(monitor.run(), "the loss detection", self.task_failed)
 
         if self.session is not None and self._subscriber is None:
             self._subscriber = ReadingSubscriber(self.session, self.store)
@@ -463,6 +476,35 @@ class Coordinator:
         result.link_rejections = self.link_rejections()
         result.unknown_sysids = self.unknown_sysids()
         return result
+
+
+class _BoundMotion:
+    """:mod:`mission.flight.motion`'s primitives bound to one coordinator: the
+    :class:`~mission.flight.services.Motion` the fault responses are handed."""
+
+    def __init__(self, co: Coordinator) -> None:
+        self.co = co
+
+    async def move_and_wait(self, goals, tol_m: float, timeout_s: float | None = None,
+                            what: str = "vehicles to reach their goals") -> None:
+        """:func:`mission.flight.motion.move_and_wait`."""
+        await motion.move_and_wait(self.co, goals, tol_m, timeout_s, what)
+
+    async def fly_timed(self, sysids, times_s, waypoints_enu) -> None:
+        """:func:`mission.flight.motion.fly_timed`."""
+        await motion.fly_timed(self.co, sysids, times_s, waypoints_enu)
+
+    async def transfer_to(self, sysids, new_offsets, centre_enu, what: str, lost_here) -> None:
+        """:func:`mission.flight.motion.transfer_to`."""
+        await motion.transfer_to(self.co, sysids, new_offsets, centre_enu, what, lost_here)
+
+    async def keep_out(self, sysid: int, v, why: str) -> None:
+        """:func:`mission.flight.motion.keep_out`."""
+        await motion.keep_out(self.co, sysid, v, why)
+
+    def parked(self) -> list[int]:
+        """:func:`mission.flight.motion.parked`."""
+        return motion.parked(self.co)
 
 
 def _plan_json(plan: Plan) -> dict:

@@ -29,7 +29,6 @@ import asyncio
 import numpy as np
 
 from mission.flight.control import OperatorStop
-from mission.flight.faults.loss import reform
 from mission.flight.motion import move_and_wait, paced, parked
 from estimator.estimate import reported_estimate
 from mission.flight.result import estimate_fields, geodetic_point, region_text
@@ -200,7 +199,7 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     at the geofence for a whole convergence window: the source is probably outside),
     ``too_few_vehicles`` (vehicles were lost and fewer than 4 are left: the caller brings the
     others home). After a loss the formation is re-formed for the survivors
-    (:func:`mission.flight.faults.loss.reform`) before the next iteration; a returning vehicle is re-admitted
+    (:meth:`mission.flight.faults.loss.Reformation.reform`) before the next iteration; a returning vehicle is re-admitted
     (``[faults] readmit = true``, :func:`mission.flight.faults.rejoin.readmit`); every iteration's slots are
     rotated clear of lost vehicles still flying (:func:`mission.flight.faults.rejoin.clear_goals`). Whatever the
     seeker, the faulty-sensor detector (:mod:`mission.flight.sensor_check`) keeps the readings of the
@@ -294,7 +293,7 @@ class _Seek:
         """Re-form without lost vehicles, re-admit returning ones; the end when fewer than 4 are left."""
         co = self.co
         if any(s in co.state.lost for s in self.sysids):
-            self.sysids = await reform(co, self.centre, self.sysids)
+            self.sysids = await co.reformation().reform(self.centre, self.sysids)
             if len(self.sysids) < 4:
                 return "too_few_vehicles", (f"vehicles {sorted(co.state.lost)} lost: {len(self.sysids)} left, a "
                                             "formation needs 4; ending the mission, the others come home")

@@ -9,15 +9,15 @@ Rules (see ``docs/faults.md``):
   part in the mission: RTL or LAND (PX4 ``AUTO.RTL`` / ``AUTO.LAND``, ArduPilot ``RTL``,
   ``SMART_RTL``, ``LAND``): a failsafe (low battery, geofence, GCS loss) or a pilot. The
   coordinator does not fight it. Any *other* mode change (PX4 offboard loss -> hold, ArduPilot
-  GUIDED -> LOITER/BRAKE) is re-engaged by the watchdog (``mission.flight.coordinator``). A vehicle
+  GUIDED -> LOITER/BRAKE) is re-engaged by the watchdog (:mod:`mission.flight.faults.watchdog`). A vehicle
   that disarms in the air (not commanded) also left. Without signing a heartbeat proves nothing,
   so a mode change or a disarm counts only when corroborated by the vehicle's own stream: two
   heartbeats in a row (the endpoint delivers only those from the vehicle's pinned address) say
   so; after the first one the coordinator asks for an immediate HEARTBEAT
   (``VehicleLink.request_heartbeat``), so a real failsafe is confirmed within a round trip.
-* A lost vehicle is taken off the setpoint stream, released (never re-engaged) and no longer
+* :class:`LossMonitor` detects. A lost vehicle is taken off the setpoint stream, released (never re-engaged) and no longer
   waited for (one still armed in OFFBOARD/GUIDED with its link alive is commanded to land or
-  RTL, the plan's ``return``: never left hovering under its last setpoint); the seek loop re-forms the formation for the survivors (:func:`reformed_offsets`)
+  RTL, the plan's ``return``: never left hovering under its last setpoint); the seek loop re-forms the formation for the survivors (:class:`Reformation`, :func:`reformed_offsets`)
   and flies a separation-keeping transfer (:func:`mission.safety.envelope.plan_transfer`) to it.
 * **coming back** (link heard again after a link loss): with ``[faults] readmit = false`` the
   vehicle is kept out and commanded to land or RTL (the plan's ``return``), once; with
@@ -33,14 +33,17 @@ import functools
 
 import numpy as np
 
+from typing import Callable
+
+from mission.core.plan_types import FaultsPlan, FormationPlan
 from mission.core.tasks import spawn
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
-from mission.flight.motion import keep_out, transfer_to
 from mission.flight.obstacles import OBSTACLE_MARGIN_M, clear_offsets, obstacles
-from mission.flight.state import VehicleLoss
+from mission.flight.services import Clock, Events, Fleet, Motion
+from mission.flight.state import MissionState, VehicleLoss
+from mission.safety.gate import SafetyGate
 
-__all__ = ["CORROBORATING_HEARTBEATS", "classify_loss", "reform", "reformed_offsets", "survivor_slots",
-           "watch_losses"]
+__all__ = ["CORROBORATING_HEARTBEATS", "LossMonitor", "Reformation", "classify_loss", "reformed_offsets"]
 
 #: heartbeats in a row that must report a mode change or a disarm before the vehicle "left"
 CORROBORATING_HEARTBEATS = 2
@@ -156,161 +159,217 @@ def reformed_offsets(kind: str, offsets: dict[int, np.ndarray], lost, radius_m: 
     return out, "cvt"
 
 
-async def watch_losses(co, period_s: float = 0.1) -> None:
-    """Detect lost vehicles every ``period_s`` of the mission clock (task run by the coordinator).
+class LossMonitor:
+    """Detects lost vehicles every ``period_s`` of the mission clock (a task the coordinator runs).
 
-    Only vehicles under the mission's setpoints, or airborne and not yet released, are watched,
-    from the takeoff on. A detection logs a ``vehicle lost`` event with its latency, takes the
-    vehicle off the stream and marks it lost in the mission state; the seek loop re-forms.
+    Parameters
+    ----------
+    state : MissionState
+        The phase, who is airborne, released, lost; where a loss is declared.
+    fleet : Fleet
+        The connected vehicles.
+    gate : callable
+        ``gate()``: the safety gate now (None before the setpoints stream); a lost vehicle is
+        taken off it. The monitor runs from before the connection to the end.
+    clock : Clock
+        The mission clock.
+    faults : FaultsPlan
+        ``link_timeout_s``, ``readmit``.
+    return_behaviour : {"land", "rtl"}
+        The plan's ``return``: what a released vehicle still in OFFBOARD/GUIDED is commanded.
+    motion : Motion
+        ``keep_out`` for a vehicle heard again that is not re-admitted.
+    events : Events
+        Each loss, release and return is told as an event.
+    report : callable
+        ``report(message)``: a failed background command (:func:`mission.core.tasks.spawn`).
     """
-    faults = co.plan.faults
-    seen_armed: set[int] = set()
-    engaged_s: dict[int, float] = {}  # when the watch of each vehicle began (its takeoff commanded)
-    while True:
-        t_before = co.clock.time()
-        await co.clock.sleep(period_s)
-        if co.state.phase not in ("takeoff", "assemble", "seek", "finish", "return"):
-            continue
-        if co.clock.time() - t_before > period_s + 0.5 * faults.link_timeout_s:
-            # this task woke up late: the event loop was busy and frames may be waiting in the
-            # sockets; a silence measured now could be the loop's, not the vehicles'
-            await asyncio.sleep(0)
-            continue
-        now = co.clock.time()
-        watched = co.state.airborne | set(co.state.lost) | set(co.gate.sysids if co.gate is not None else ())
-        for sysid in sorted(watched):
-            v = co.vehicles.get(sysid)
-            if v is None:
-                continue
-            loss = co.state.lost.get(sysid)
-            if loss is not None:
-                await _maybe_came_back(co, v, loss, now)
-                continue
-            if sysid in co.state.released:
-                continue  # commanded by the coordinator to land / RTL
-            if v.state.armed:
-                seen_armed.add(sysid)
-            loss = await _check(co, sysid, v, sysid in seen_armed, engaged_s.setdefault(sysid, now))
-            if loss is not None:
-                _declare_lost(co, loss)
 
+    def __init__(self, state: MissionState, fleet: Fleet, gate: Callable[[], SafetyGate | None], clock: Clock,
+                 faults: FaultsPlan, return_behaviour: str, motion: Motion, events: Events,
+                 report: Callable[[str], None]) -> None:
+        self.state, self.fleet, self.gate, self.clock = state, fleet, gate, clock
+        self.faults, self.rtl = faults, return_behaviour == "rtl"
+        self.motion, self.events, self.report = motion, events, report
 
-async def _check(co, sysid: int, v, seen_armed: bool, engaged_s: float) -> VehicleLoss | None:
-    """The loss of ``v`` found now, or None (an unconfirmed "left" asks the vehicle to confirm)."""
-    timeout_s = co.plan.faults.link_timeout_s
-    now = co.clock.time()
-    found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s)
-    if found is not None and found[0] == "link":
-        # let the event loop read whatever is pending before concluding
-        await asyncio.sleep(0)
-        await asyncio.sleep(0)
-        now = co.clock.time()
+    async def run(self, period_s: float = 0.1) -> None:
+        """Watch until cancelled.
+
+        Only vehicles under the mission's setpoints, or airborne and not yet released, are watched,
+        from the takeoff on. A detection logs a ``vehicle lost`` event with its latency, takes the
+        vehicle off the stream and marks it lost in the mission state; the seek loop re-forms.
+        """
+        seen_armed: set[int] = set()
+        engaged_s: dict[int, float] = {}  # when the watch of each vehicle began (its takeoff commanded)
+        while True:
+            t_before = self.clock.time()
+            await self.clock.sleep(period_s)
+            if self.state.phase not in ("takeoff", "assemble", "seek", "finish", "return"):
+                continue
+            if self.clock.time() - t_before > period_s + 0.5 * self.faults.link_timeout_s:
+                # this task woke up late: the event loop was busy and frames may be waiting in the
+                # sockets; a silence measured now could be the loop's, not the vehicles'
+                await asyncio.sleep(0)
+                continue
+            now = self.clock.time()
+            gate = self.gate()
+            watched = self.state.airborne | set(self.state.lost) | set(gate.sysids if gate is not None else ())
+            for sysid in sorted(watched):
+                v = self.fleet.vehicles.get(sysid)
+                if v is None:
+                    continue
+                loss = self.state.lost.get(sysid)
+                if loss is not None:
+                    await self._maybe_came_back(v, loss, now)
+                    continue
+                if sysid in self.state.released:
+                    continue  # commanded by the coordinator to land / RTL
+                if v.state.armed:
+                    seen_armed.add(sysid)
+                loss = await self._check(sysid, v, sysid in seen_armed, engaged_s.setdefault(sysid, now))
+                if loss is not None:
+                    self._declare_lost(loss)
+
+    async def _check(self, sysid: int, v, seen_armed: bool, engaged_s: float) -> VehicleLoss | None:
+        """The loss of ``v`` found now, or None (an unconfirmed "left" asks the vehicle to confirm)."""
+        timeout_s = self.faults.link_timeout_s
+        now = self.clock.time()
         found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s)
-    if found is None:
-        return None
-    reason, detail = found
-    if reason == "unconfirmed":  # one heartbeat said so: ask the vehicle itself, decide on its answer
-        request = getattr(v, "request_heartbeat", None)
-        if request is not None:
-            request()
-        return None
-    if reason == "link":
-        since = now - float(v.link_age_s())
-    else:  # the first of the heartbeats that reported it
-        hb = getattr(v, "status_since_s", None) or getattr(v.state, "last_heartbeat_s", None)
-        since = now if hb is None else min(now, float(hb))
-    return VehicleLoss(sysid, reason, detail, now, since, co.state.phase)
+        if found is not None and found[0] == "link":
+            # let the event loop read whatever is pending before concluding
+            await asyncio.sleep(0)
+            await asyncio.sleep(0)
+            now = self.clock.time()
+            found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s)
+        if found is None:
+            return None
+        reason, detail = found
+        if reason == "unconfirmed":  # one heartbeat said so: ask the vehicle itself, decide on its answer
+            request = getattr(v, "request_heartbeat", None)
+            if request is not None:
+                request()
+            return None
+        if reason == "link":
+            since = now - float(v.link_age_s())
+        else:  # the first of the heartbeats that reported it
+            hb = getattr(v, "status_since_s", None) or getattr(v.state, "last_heartbeat_s", None)
+            since = now if hb is None else min(now, float(hb))
+        return VehicleLoss(sysid, reason, detail, now, since, self.state.phase)
+
+    def _declare_lost(self, loss: VehicleLoss) -> None:
+        sysid = loss.sysid
+        gate = self.gate()
+        if gate is not None and sysid in gate.sysids:
+            loss.last_setpoint_enu = gate.setpoint(sysid)
+            gate.remove(sysid)
+        self.state.declare_lost(loss, f"lost ({loss.reason}: {loss.detail})")
+        self.events.event(f"vehicle {sysid} lost: {loss.detail}; detected {loss.latency_s:.2f} s after its last sign "
+                          f"(phase {loss.phase})", level="warning", sysid=sysid, reason=loss.reason,
+                          latency_s=round(loss.latency_s, 3), detected_s=loss.detected_s, since_s=loss.since_s)
+        v = self.fleet.vehicles.get(sysid)
+        if v is not None and loss.reason == "left" and v.state.armed and v.state.mode == GUIDED_MODES.get(v.flavour):
+            spawn(self._settle_released(sysid, v), f"settling released vehicle {sysid}", self.report)
+
+    async def _settle_released(self, sysid: int, v) -> None:
+        """A vehicle released while still armed in OFFBOARD/GUIDED is told to land (or RTL), once:
+        off the stream it would hover at its last setpoint (ArduPilot GUIDED has no setpoint timeout)."""
+        what = "RTL" if self.rtl else "land"
+        self.events.event(f"vehicle {sysid} released while still in {v.state.mode}: commanded to {what}",
+                          level="warning", sysid=sysid)
+        try:
+            await asyncio.wait_for(v.rtl() if self.rtl else v.land(), timeout=30.0)
+        except Exception as exc:  # noqa: BLE001 - CommandError, link, timeout: reported
+            self.events.event(f"vehicle {sysid}: {what} after its release failed: {exc}", level="error", sysid=sysid)
+
+    async def _maybe_came_back(self, v, loss: VehicleLoss, now: float) -> None:
+        if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
+            return
+        state = self.state
+        alt = getattr(v.state, "relative_alt_m", None)
+        readmissible = (self.faults.readmit and state.phase == "seek" and v.state.armed
+                        and (alt is None or alt >= 1.0) and v.state.mode not in LEFT_MODES.get(v.flavour, ()))
+        state.came_back(loss.sysid, now, readmit=readmissible)
+        if readmissible:
+            self.events.event(f"vehicle {loss.sysid} is heard again after its link loss; re-admitted at the next "
+                              "iteration (faults.readmit = true)", level="warning", sysid=loss.sysid)
+            return
+        if self.faults.readmit:
+            why = f"faults.readmit = true, but not re-admissible (phase {state.phase}, mode {v.state.mode})"
+        else:
+            why = "faults.readmit = false"
+        await self.motion.keep_out(loss.sysid, v, why)
 
 
-def _declare_lost(co, loss: VehicleLoss) -> None:
-    sysid = loss.sysid
-    if co.gate is not None and sysid in co.gate.sysids:
-        loss.last_setpoint_enu = co.gate.setpoint(sysid)
-        co.gate.remove(sysid)
-    co.state.declare_lost(loss, f"lost ({loss.reason}: {loss.detail})")
-    co.event(f"vehicle {sysid} lost: {loss.detail}; detected {loss.latency_s:.2f} s after its last sign "
-             f"(phase {loss.phase})", level="warning", sysid=sysid, reason=loss.reason,
-             latency_s=round(loss.latency_s, 3), detected_s=loss.detected_s, since_s=loss.since_s)
-    v = co.vehicles.get(sysid)
-    if v is not None and loss.reason == "left" and v.state.armed and v.state.mode == GUIDED_MODES.get(v.flavour):
-        spawn(_settle_released(co, sysid, v), f"settling released vehicle {sysid}", co.task_failed)
+class Reformation:
+    """The formation re-formed for the vehicles left (after a loss, a retired sensor).
 
-
-async def _settle_released(co, sysid: int, v) -> None:
-    """A vehicle released while still armed in OFFBOARD/GUIDED is told to land (or RTL), once:
-    off the stream it would hover at its last setpoint (ArduPilot GUIDED has no setpoint timeout)."""
-    rtl = co.plan.return_behaviour == "rtl"
-    co.event(f"vehicle {sysid} released while still in {v.state.mode}: commanded to "
-             f"{'RTL' if rtl else 'land'}", level="warning", sysid=sysid)
-    try:
-        await asyncio.wait_for(v.rtl() if rtl else v.land(), timeout=30.0)
-    except Exception as exc:  # noqa: BLE001 - CommandError, link, timeout: reported
-        co.event(f"vehicle {sysid}: {'RTL' if rtl else 'land'} after its release failed: {exc}",
-                 level="error", sysid=sysid)
-
-
-async def _maybe_came_back(co, v, loss: VehicleLoss, now: float) -> None:
-    if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
-        return
-    alt = getattr(v.state, "relative_alt_m", None)
-    readmissible = (co.plan.faults.readmit and co.state.phase == "seek" and v.state.armed
-                    and (alt is None or alt >= 1.0) and v.state.mode not in LEFT_MODES.get(v.flavour, ()))
-    co.state.came_back(loss.sysid, now, readmit=readmissible)
-    if readmissible:
-        co.event(f"vehicle {loss.sysid} is heard again after its link loss; re-admitted at the next "
-                 "iteration (faults.readmit = true)", level="warning", sysid=loss.sysid)
-        return
-    if co.plan.faults.readmit:
-        why = f"faults.readmit = true, but not re-admissible (phase {co.state.phase}, mode {v.state.mode})"
-    else:
-        why = "faults.readmit = false"
-    await keep_out(co, loss.sysid, v, why)
-
-
-async def reform(co, centre_enu, sysids: list[int]) -> list[int]:
-    """Re-form the formation about ``centre_enu`` for the vehicles of ``sysids`` not lost.
-
-    Computes the survivors' slots (:func:`survivor_slots`), then :func:`mission.flight.motion.transfer_to`. Returns
-    the survivors; with fewer than 4 nothing is flown (the caller ends the mission).
+    Parameters
+    ----------
+    state : MissionState
+        Who is lost, the slots and the formation type (changed here).
+    fleet : Fleet
+        The connected vehicles (lost vehicles still flying are obstacles).
+    gate : SafetyGate
+        Who is under setpoints.
+    clock : Clock
+        The mission clock.
+    formation : FormationPlan
+        ``radius_m``, ``seed`` of a fresh symmetric formation.
+    min_separation_m : float
+        The plan's separation (plus :data:`~mission.flight.obstacles.OBSTACLE_MARGIN_M` from obstacles).
+    motion : Motion
+        ``transfer_to``: the separation-keeping transfer to the new slots.
+    events : Events
+        A switch of formation type and a rotation clear of obstacles are told.
     """
-    survivors = [s for s in sysids if s not in co.state.lost and co.gate is not None and s in co.gate.sysids]
-    if len(survivors) < 4:
-        return survivors
-    lost_here = [s for s in sysids if s not in survivors]
-    new, kind = await survivor_slots(co, centre_enu, sysids, lost_here, "vehicles",
-                                     " (and the Theorem 2 estimator)")
-    await transfer_to(co, survivors, new, centre_enu, f"re-forming for {len(survivors)} vehicles ({kind})",
-                      lost_here)
-    return [s for s in survivors if s not in co.state.lost]
 
+    def __init__(self, state: MissionState, fleet: Fleet, gate: SafetyGate, clock: Clock, formation: FormationPlan,
+                 min_separation_m: float, motion: Motion, events: Events) -> None:
+        self.state, self.fleet, self.gate, self.clock = state, fleet, gate, clock
+        self.formation, self.min_separation_m = formation, float(min_separation_m)
+        self.motion, self.events = motion, events
 
-async def survivor_slots(co, centre_enu, sysids: list[int], gone: list[int], who: str = "vehicles",
-                         switch_note: str = "") -> tuple[dict[int, np.ndarray], str]:
-    """New slot offsets for ``sysids`` without ``gone``, and the formation type.
+    async def reform(self, centre_enu, sysids: list[int]) -> list[int]:
+        """Re-form the formation about ``centre_enu`` for the vehicles of ``sysids`` not lost.
 
-    :func:`reformed_offsets` (a switch from symmetric to CVT is logged, ``who`` and
-    ``switch_note`` in its message), rotated about the centre clear of the lost vehicles still
-    flying (:func:`mission.flight.obstacles.clear_offsets`, logged). Both run in a worker thread: the CVT
-    solve takes 0.1-0.3 s of CPU and the event loop must keep streaming setpoints (at 10x,
-    0.1 s of wall time is PX4's 1 s offboard-loss timeout).
-    """
-    plan = co.plan
-    loop = asyncio.get_running_loop()
-    new, kind = await loop.run_in_executor(None, functools.partial(
-        reformed_offsets, co.state.formation_kind, {s: co.state.slot_offsets[s] for s in sysids}, gone,
-        plan.formation.radius_m, plan.formation.seed))
-    if kind != co.state.formation_kind:
-        co.event(f"{len(sysids) - len(gone)} {who} left: the symmetric formation needs an even number; "
-                 f"switching to the CVT formation{switch_note}", level="warning")
-        co.state.set_formation_kind(kind)
-    obs = obstacles(co.state.lost, co.fleet, co.clock.time())
-    if len(obs):
-        new, ok = await loop.run_in_executor(None, functools.partial(
-            clear_offsets, new, centre_enu, obs, plan.min_separation_m + OBSTACLE_MARGIN_M,
-            allow_tilt=kind == "cvt"))
-        co.event(f"re-formed slots rotated clear of {len(obs)} position(s) of lost vehicles still flying"
-                 + ("" if ok else " (no rotation keeps the full clearance)"),
-                 level="info" if ok else "warning", obstacles=obs)
-    return new, kind
+        Computes the survivors' slots (:meth:`survivor_slots`), then the motion's ``transfer_to``.
+        Returns the survivors; with fewer than 4 nothing is flown (the caller ends the mission).
+        """
+        lost = self.state.lost
+        survivors = [s for s in sysids if s not in lost and self.gate is not None and s in self.gate.sysids]
+        if len(survivors) < 4:
+            return survivors
+        lost_here = [s for s in sysids if s not in survivors]
+        new, kind = await self.survivor_slots(centre_enu, sysids, lost_here, "vehicles",
+                                              " (and the Theorem 2 estimator)")
+        await self.motion.transfer_to(survivors, new, centre_enu,
+                                      f"re-forming for {len(survivors)} vehicles ({kind})", lost_here)
+        return [s for s in survivors if s not in self.state.lost]
 
+    async def survivor_slots(self, centre_enu, sysids: list[int], gone: list[int], who: str = "vehicles",
+                             switch_note: str = "") -> tuple[dict[int, np.ndarray], str]:
+        """New slot offsets for ``sysids`` without ``gone``, and the formation type.
 
+        :func:`reformed_offsets` (a switch from symmetric to CVT is logged, ``who`` and
+        ``switch_note`` in its message), rotated about the centre clear of the lost vehicles still
+        flying (:func:`mission.flight.obstacles.clear_offsets`, logged). Both run in a worker thread: the CVT
+        solve takes 0.1-0.3 s of CPU and the event loop must keep streaming setpoints (at 10x,
+        0.1 s of wall time is PX4's 1 s offboard-loss timeout).
+        """
+        state, loop = self.state, asyncio.get_running_loop()
+        new, kind = await loop.run_in_executor(None, functools.partial(
+            reformed_offsets, state.formation_kind, {s: state.slot_offsets[s] for s in sysids}, gone,
+            self.formation.radius_m, self.formation.seed))
+        if kind != state.formation_kind:
+            self.events.event(f"{len(sysids) - len(gone)} {who} left: the symmetric formation needs an even number; "
+                              f"switching to the CVT formation{switch_note}", level="warning")
+            state.set_formation_kind(kind)
+        obs = obstacles(state.lost, self.fleet, self.clock.time())
+        if len(obs):
+            new, ok = await loop.run_in_executor(None, functools.partial(
+                clear_offsets, new, centre_enu, obs, self.min_separation_m + OBSTACLE_MARGIN_M,
+                allow_tilt=kind == "cvt"))
+            self.events.event(f"re-formed slots rotated clear of {len(obs)} position(s) of lost vehicles still flying"
+                              + ("" if ok else " (no rotation keeps the full clearance)"),
+                              level="info" if ok else "warning", obstacles=obs)
+        return new, kind

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mission.flight.faults.loss import survivor_slots
 from mission.flight.motion import keep_out, parked, transfer_to
 
 __all__ = [
@@ -168,7 +167,7 @@ async def retire_sensor(co, centre_enu, sysids: list[int], info: RetiredSensor) 
     if why is not None:  # a loss or a parking since the watch was made: the seek's rules apply
         co.event(f"vehicle {sysid}'s sensor not retired: {why}", level="warning", sysid=sysid, reason=info.reason)
         return list(sysids)
-    new, kind = await survivor_slots(co, centre_enu, sysids, [s for s in sysids if s not in remaining],
+    new, kind = await co.reformation().survivor_slots(centre_enu, sysids, [s for s in sysids if s not in remaining],
                                      "sensing vehicles")
     co.state.retire(info, status=PARKED_STATUS)
     ratio = info.ratio
