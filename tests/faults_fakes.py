@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from mission.flight.services import Fleet
-from mission.flight.state import MissionState
+from mission.flight.state import MissionError, MissionState
 
 
 class FakeClock:
@@ -39,6 +39,18 @@ class Recorder:
 
     def messages(self, level: str | None = None) -> list[str]:
         return [m for lv, m, _ in self.events if level is None or lv == level]
+
+
+class FakeWaiter:
+    """Waits by checking once on its clock's time (a condition not met is a timeout)."""
+
+    def __init__(self) -> None:
+        self.waited: list[str] = []
+
+    async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
+        self.waited.append(what)
+        if not predicate():
+            raise MissionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
 
 
 class FakeVehicle:

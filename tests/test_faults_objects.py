@@ -7,10 +7,21 @@ from __future__ import annotations
 import asyncio
 
 import numpy as np
-from faults_fakes import FakeClock, FakeGate, FakeMotion, FakeVehicle, Recorder, fleet_of, flying_state, ring
+from faults_fakes import (
+    FakeClock,
+    FakeGate,
+    FakeMotion,
+    FakeVehicle,
+    FakeWaiter,
+    Recorder,
+    fleet_of,
+    flying_state,
+    ring,
+)
 
 from mission.core.plan_types import FaultsPlan, FormationPlan
 from mission.flight.faults.loss import LossMonitor, Reformation
+from mission.flight.faults.rejoin import Rejoin, pending_readmissions
 from mission.flight.faults.watchdog import Watchdog
 from mission.flight.state import VehicleLoss
 
@@ -145,3 +156,60 @@ def test_a_reformation_below_four_flies_nothing():
     motion = FakeMotion(state, gate)
     reform = Reformation(state, fleet_of([]), gate, clock, FormationPlan(), 1.5, motion, Recorder())
     assert asyncio.run(reform.reform(np.zeros(3), [1, 2, 3, 4])) == [1, 2, 3] and motion.calls == []
+
+
+def _returning(n: int, back: FakeVehicle):
+    """``n`` flying vehicles and ``back`` (sysid n + 1) lost by its link and heard again, re-admissible."""
+    clock = FakeClock(50.0)
+    state = flying_state(n + 1, clock)
+    vehicles = [FakeVehicle(s, ring(n + 1)[s]) for s in range(1, n + 1)] + [back]
+    gate = FakeGate({s: ring(n + 1)[s] for s in range(1, n + 1)})
+    state.declare_lost(VehicleLoss(n + 1, "link", "silent", 40.0, 39.0, "seek"))
+    state.came_back(n + 1, 45.0, readmit=True)
+    rec, motion, waiter = Recorder(), FakeMotion(state, gate), FakeWaiter()
+    rejoin = Rejoin(state, fleet_of(vehicles), gate, clock, FaultsPlan(readmit=True), FormationPlan(radius_m=5.0),
+                    1.5, motion, waiter, rec)
+    return state, gate, rec, motion, waiter, rejoin
+
+
+def test_a_returning_vehicle_is_reengaged_and_readmitted_into_a_grown_formation():
+    back = FakeVehicle(5, [0.0, 0.0, 12.0], mode="AUTO.LOITER")
+    state, gate, rec, motion, waiter, rejoin = _returning(4, back)
+    assert pending_readmissions(state, FaultsPlan(readmit=True)) == [5]
+    assert pending_readmissions(state, FaultsPlan(readmit=False)) == []
+    members = asyncio.run(rejoin.readmit(np.zeros(3), [1, 2, 3, 4], [5]))
+    assert members == [1, 2, 3, 4, 5]
+    assert back.commands == ["mode OFFBOARD"] and waiter.waited == ["vehicle 5 in OFFBOARD"]
+    assert 5 not in state.lost and 5 in gate.sysids and 5 not in state.reengaging
+    assert [c[:2] for c in motion.calls] == [("transfer_to", [1, 2, 3, 4, 5])]
+    assert state.readmitted[-1]["sysid"] == 5
+    assert any("vehicle 5 re-admitted" in m for m in rec.messages())
+
+
+def test_a_returning_vehicle_on_the_ground_is_kept_out():
+    back = FakeVehicle(5, [0.0, 0.0, 0.0], armed=False, alt_m=0.0)
+    state, gate, rec, motion, waiter, rejoin = _returning(4, back)
+    assert asyncio.run(rejoin.readmit(np.zeros(3), [1, 2, 3, 4], [5])) == [1, 2, 3, 4]
+    assert [c[:2] for c in motion.calls] == [("keep_out", 5)] and back.commands == []
+    assert 5 not in gate.sysids
+
+
+def test_a_goal_near_a_lost_vehicle_still_flying_rotates_the_slots():
+    clock = FakeClock(10.0)
+    state = flying_state(5, clock)
+    centre = np.array([0.0, -6.0, 0.0])  # the next iteration's centre: slot 1's goal is next to the lost vehicle
+    near = centre + ring(5)[1] * 1.05
+    hovering = FakeVehicle(5, near, mode="AUTO.LOITER")  # lost by its link, hovering
+    vehicles = [FakeVehicle(s, ring(5)[s]) for s in range(1, 5)] + [hovering]
+    gate = FakeGate({s: ring(5)[s] for s in range(1, 5)})
+    state.declare_lost(VehicleLoss(5, "link", "silent", 9.0, 8.0, "seek", last_setpoint_enu=near))
+    rec, motion = Recorder(), FakeMotion(state, gate)
+    rejoin = Rejoin(state, fleet_of(vehicles), gate, clock, FaultsPlan(), FormationPlan(radius_m=5.0), 1.5,
+                    motion, FakeWaiter(), rec)
+    before = {s: state.slot_offsets[s].copy() for s in range(1, 5)}
+    ok = rejoin.clear_goals(centre, [1, 2, 3, 4])
+    clearance = min(np.linalg.norm(centre + state.slot_offsets[s] - near) for s in range(1, 5))
+    assert ok and clearance >= 1.5 + 0.5, clearance
+    asyncio.run(rejoin.fly_rotation(centre, [1, 2, 3, 4], before))
+    assert [c[:2] for c in motion.calls] == [("transfer_to", [1, 2, 3, 4])]
+    assert any("formation rotated" in m for m in rec.messages())

@@ -21,6 +21,7 @@ from mission.flight import mission_end, motion, phases, seek
 from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.faults.landing_guard import LandingGuard
 from mission.flight.faults.loss import LossMonitor, Reformation
+from mission.flight.faults.rejoin import Rejoin
 from mission.flight.services import Fleet
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import MissionChecks, not_ready_message
@@ -303,6 +304,13 @@ class Coordinator:
         plan = self.plan
         return Reformation(self.state, self.fleet, self.gate, self.clock, plan.formation, plan.min_separation_m,
                            self.motion(), self)
+
+    def rejoin(self) -> Rejoin:
+        """Lost vehicles kept clear of, returning ones re-admitted (:class:`mission.flight.faults.rejoin.Rejoin`)
+        over this mission's vehicles and gate now."""
+        plan = self.plan
+        return Rejoin(self.state, self.fleet, self.gate, self.clock, plan.faults, plan.formation,
+                      plan.min_separation_m, self.motion(), self, self)
 
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""

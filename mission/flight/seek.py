@@ -32,12 +32,7 @@ from mission.flight.control import OperatorStop
 from mission.flight.motion import move_and_wait, paced, parked
 from estimator.estimate import reported_estimate
 from mission.flight.result import estimate_fields, geodetic_point, region_text
-from mission.flight.faults.rejoin import (
-    clear_goals,
-    fly_rotation,
-    pending_readmissions,
-    readmit,
-)
+from mission.flight.faults.rejoin import pending_readmissions
 from mission.flight.faults.retire import (
     formation_goals,
     keep_out_retired,
@@ -200,8 +195,8 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     ``too_few_vehicles`` (vehicles were lost and fewer than 4 are left: the caller brings the
     others home). After a loss the formation is re-formed for the survivors
     (:meth:`mission.flight.faults.loss.Reformation.reform`) before the next iteration; a returning vehicle is re-admitted
-    (``[faults] readmit = true``, :func:`mission.flight.faults.rejoin.readmit`); every iteration's slots are
-    rotated clear of lost vehicles still flying (:func:`mission.flight.faults.rejoin.clear_goals`). Whatever the
+    (``[faults] readmit = true``, :meth:`mission.flight.faults.rejoin.Rejoin.readmit`); every iteration's slots are
+    rotated clear of lost vehicles still flying (:meth:`mission.flight.faults.rejoin.Rejoin.clear_goals`). Whatever the
     seeker, the faulty-sensor detector (:mod:`mission.flight.sensor_check`) keeps the readings of the
     sensors it excludes out of the seeker's input, and a sensor it keeps naming is retired
     (``faulty_sensor = "retire"``, the default): its vehicle is parked at the centre,
@@ -298,9 +293,9 @@ class _Seek:
                 return "too_few_vehicles", (f"vehicles {sorted(co.state.lost)} lost: {len(self.sysids)} left, a "
                                             "formation needs 4; ending the mission, the others come home")
             self._new_estimator()
-        returning = await keep_out_retired(co, pending_readmissions(co))
+        returning = await keep_out_retired(co, pending_readmissions(co.state, co.plan.faults))
         if returning:
-            self.sysids = await readmit(co, self.centre, self.sysids, returning)
+            self.sysids = await co.rejoin().readmit(self.centre, self.sysids, returning)
             self._new_estimator()
         return None
 
@@ -311,8 +306,8 @@ class _Seek:
             return await self.moving.move(self, k)
         co, sk = self.co, self.sk
         before = {s: co.state.slot_offsets[s].copy() for s in self.sysids}
-        clear_goals(co, self.centre, self.sysids)  # a few ms at most: slots clear of lost vehicles still flying
-        await fly_rotation(co, self.centre, self.sysids, before)  # a rotation is flown as a planned transfer
+        co.rejoin().clear_goals(self.centre, self.sysids)  # a few ms at most: slots clear of lost vehicles still flying
+        await co.rejoin().fly_rotation(self.centre, self.sysids, before)  # a rotation is flown as a planned transfer
         goals = formation_goals(co, self.centre, self.sysids)  # parked vehicles (retired sensors) at the centre
         try:
             await move_and_wait(co, goals, sk.arrival_tol_m,

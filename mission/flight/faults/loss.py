@@ -22,7 +22,7 @@ Rules (see ``docs/faults.md``):
 * **coming back** (link heard again after a link loss): with ``[faults] readmit = false`` the
   vehicle is kept out and commanded to land or RTL (the plan's ``return``), once; with
   ``readmit = true`` and during the seek, armed, airborne and not in RTL/LAND, it is re-admitted
-  at the start of the next iteration (:func:`mission.flight.faults.rejoin.readmit`).
+  at the start of the next iteration (:meth:`mission.flight.faults.rejoin.Rejoin.readmit`).
 * A lost vehicle that still flies is an obstacle for the re-formed slots and the transfers
   (:mod:`mission.flight.faults.rejoin`).
 """
