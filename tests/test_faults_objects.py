@@ -22,6 +22,7 @@ from faults_fakes import (
 from mission.core.plan_types import FaultsPlan, FormationPlan
 from mission.flight.faults.loss import LossMonitor, Reformation
 from mission.flight.faults.rejoin import Rejoin, pending_readmissions
+from mission.flight.faults.retire import PARKED_STATUS, RetiredSensor, Retirement
 from mission.flight.faults.watchdog import Watchdog
 from mission.flight.state import VehicleLoss
 
@@ -213,3 +214,26 @@ def test_a_goal_near_a_lost_vehicle_still_flying_rotates_the_slots():
     asyncio.run(rejoin.fly_rotation(centre, [1, 2, 3, 4], before))
     assert [c[:2] for c in motion.calls] == [("transfer_to", [1, 2, 3, 4])]
     assert any("formation rotated" in m for m in rec.messages())
+
+
+def test_a_retired_sensor_parks_its_vehicle_at_the_centre_and_a_returning_retired_vehicle_is_kept_out():
+    clock = FakeClock(30.0)
+    state = flying_state(6, clock)
+    vehicles = [FakeVehicle(s, ring(6)[s]) for s in range(1, 7)]
+    fleet, gate = fleet_of(vehicles), FakeGate({s: ring(6)[s] for s in range(1, 7)})
+    rec, motion = Recorder(), FakeMotion(state, gate)
+    reformation = Reformation(state, fleet, gate, clock, FormationPlan(radius_m=5.0), 1.5, motion, rec)
+    retirement = Retirement(state, fleet, gate, FaultsPlan(), reformation, motion, rec)
+    assert retirement.make_watch(object(), [1, 2, 3, 4, 5, 6]) is not None
+    info = RetiredSensor(3, "stuck", 0.05, 0.01, 12, 20, 30.0)
+    sensing = asyncio.run(retirement.retire_sensor(np.zeros(3), [1, 2, 3, 4, 5, 6], info))
+    assert sensing == [1, 2, 4, 5, 6] and state.retired[3] == info and state.status[3] == PARKED_STATUS
+    assert [c[:2] for c in motion.calls] == [("transfer_to", [1, 2, 4, 5, 6, 3])]
+    np.testing.assert_allclose(state.slot_offsets[3], 0.0)
+    assert any("vehicle 3's sensor retired (stuck" in m for m in rec.messages("warning"))
+    centre = np.array([1.0, 2.0, 12.0])
+    goals = retirement.formation_goals(centre, sensing)
+    assert sorted(goals) == [1, 2, 3, 4, 5, 6] and np.allclose(goals[3], centre)
+    assert retirement.make_watch(object(), sensing) is None  # one parking place: the centre
+    assert asyncio.run(retirement.keep_out_retired([3, 4])) == [4]
+    assert motion.calls[-1] == ("keep_out", 3, "its sensor was retired")

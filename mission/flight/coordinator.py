@@ -22,6 +22,7 @@ from mission.flight.control import MissionControl, open_control_channel, operato
 from mission.flight.faults.landing_guard import LandingGuard
 from mission.flight.faults.loss import LossMonitor, Reformation
 from mission.flight.faults.rejoin import Rejoin
+from mission.flight.faults.retire import Retirement
 from mission.flight.services import Fleet
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import MissionChecks, not_ready_message
@@ -311,6 +312,11 @@ class Coordinator:
         plan = self.plan
         return Rejoin(self.state, self.fleet, self.gate, self.clock, plan.faults, plan.formation,
                       plan.min_separation_m, self.motion(), self, self)
+
+    def retirement(self) -> Retirement:
+        """Faulty sensors retired, their vehicles parked (:class:`mission.flight.faults.retire.Retirement`)
+        over this mission's vehicles and gate now."""
+        return Retirement(self.state, self.fleet, self.gate, self.plan.faults, self.reformation(), self.motion(), self)
 
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""

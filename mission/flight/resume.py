@@ -302,7 +302,7 @@ async def rejoin(co, state: ResumeState) -> None:
         else:
             flying.append(sysid)
     await _reengage(co, flying)
-    restore_retired(co, state.retired)
+    restore_retired(co.state, state.retired)
     co.event(("resumed" if state.go_on else f"taken over to bring the vehicles home (the log ends "
                                              f"{state.ending} in phase {state.last_phase!r})") + f" at iteration {state.iteration} from centre "
              f"({co.state.centre_enu[0]:.2f}, {co.state.centre_enu[1]:.2f}, {co.state.centre_enu[2]:.2f}) m with vehicles "

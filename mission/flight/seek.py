@@ -33,12 +33,6 @@ from mission.flight.motion import move_and_wait, paced, parked
 from estimator.estimate import reported_estimate
 from mission.flight.result import estimate_fields, geodetic_point, region_text
 from mission.flight.faults.rejoin import pending_readmissions
-from mission.flight.faults.retire import (
-    formation_goals,
-    keep_out_retired,
-    make_watch,
-    retire_sensor,
-)
 from mission.flight.seek_moving import moving_sampling, thin_evenly
 from mission.flight.sensor_check import make_check
 from mission.flight.state import MissionError
@@ -244,7 +238,7 @@ class _Seek:
         self.moving = moving_sampling(co, sk)
         self.samples = None  # with moving sampling: the readings the seeker gets this iteration
         self.check = make_check(co.plan.faults, self.estimate, self.sysids)
-        self.watch = make_watch(co, self.check, self.sysids)
+        self.watch = co.retirement().make_watch(self.check, self.sysids)
         self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
                                           min_signal_fraction=sk.min_signal_fraction)
         self.arrival = ArrivalSignal()  # the convergence test's signal when the seeker has none
@@ -264,7 +258,7 @@ class _Seek:
             self.est_kind = "cvt"
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
         self.check = make_check(self.co.plan.faults, self.estimate, self.sysids)
-        self.watch = make_watch(self.co, self.check, self.sysids)
+        self.watch = self.co.retirement().make_watch(self.check, self.sysids)
 
     async def iteration(self, k: int) -> tuple[str, str] | None:
         """One iteration: re-form, move, readings, estimate, step; ``(outcome, message)`` when it ends."""
@@ -280,7 +274,7 @@ class _Seek:
             return None
         ended = await self._step(k, *found)
         if ended is None and found[-1] is not None:
-            self.sysids = await retire_sensor(self.co, self.centre, self.sysids, found[-1])
+            self.sysids = await self.co.retirement().retire_sensor(self.centre, self.sysids, found[-1])
             self._new_estimator(symmetric_to_cvt=False)
         return ended
 
@@ -293,7 +287,7 @@ class _Seek:
                 return "too_few_vehicles", (f"vehicles {sorted(co.state.lost)} lost: {len(self.sysids)} left, a "
                                             "formation needs 4; ending the mission, the others come home")
             self._new_estimator()
-        returning = await keep_out_retired(co, pending_readmissions(co.state, co.plan.faults))
+        returning = await co.retirement().keep_out_retired(pending_readmissions(co.state, co.plan.faults))
         if returning:
             self.sysids = await co.rejoin().readmit(self.centre, self.sysids, returning)
             self._new_estimator()
@@ -308,7 +302,7 @@ class _Seek:
         before = {s: co.state.slot_offsets[s].copy() for s in self.sysids}
         co.rejoin().clear_goals(self.centre, self.sysids)  # a few ms at most: slots clear of lost vehicles still flying
         await co.rejoin().fly_rotation(self.centre, self.sysids, before)  # a rotation is flown as a planned transfer
-        goals = formation_goals(co, self.centre, self.sysids)  # parked vehicles (retired sensors) at the centre
+        goals = co.retirement().formation_goals(self.centre, self.sysids)  # parked vehicles (retired sensors) at the centre
         try:
             await move_and_wait(co, goals, sk.arrival_tol_m,
                                 timeout_s=20.0 + 3.0 * sk.gamma_m / co.plan.max_speed_m_s,
