@@ -24,6 +24,7 @@ from mission.flight.faults.loss import LossMonitor, Reformation
 from mission.flight.faults.rejoin import Rejoin
 from mission.flight.faults.retire import Retirement
 from mission.flight.services import Fleet
+from mission.flight.return_clear import ReturnClear
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import MissionChecks, not_ready_message
 from mission.flight.resume import resume_mission
@@ -317,6 +318,14 @@ class Coordinator:
         """Faulty sensors retired, their vehicles parked (:class:`mission.flight.faults.retire.Retirement`)
         over this mission's vehicles and gate now."""
         return Retirement(self.state, self.fleet, self.gate, self.plan.faults, self.reformation(), self.motion(), self)
+
+    def return_clear(self) -> ReturnClear:
+        """The return and the assembly's legs clear of lost vehicles still flying
+        (:class:`mission.flight.return_clear.ReturnClear`) over this mission's vehicles and gate now."""
+        plan = self.plan
+        return ReturnClear(self.state, self.fleet, self.gate, self.clock, plan.min_separation_m,
+                           plan.seeking.arrival_tol_m, plan.geofence.max_alt_m, plan.return_behaviour,
+                           None if self.envelope is None else self.envelope.fence, self.motion(), self)
 
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
