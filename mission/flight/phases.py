@@ -111,7 +111,8 @@ async def takeoff(co) -> None:
             held["xy"] = v.position_enu_m()
 
         try:  # arming refusals retried with the autopilot's words, ArduPilot's mode re-checked
-            await arm_and_takeoff(co, sysid, v, rel_alt, before_takeoff=_note_start)
+            await arm_and_takeoff(sysid, v, rel_alt, co.clock, co, co.plan.preflight.autopilot_ready_timeout_s,
+                                  before_takeoff=_note_start)
         except OperatorStop:
             raise  # the operator ended the mission: nobody failed
         except MissionError as exc:
