@@ -237,3 +237,50 @@ def test_a_retired_sensor_parks_its_vehicle_at_the_centre_and_a_returning_retire
     assert retirement.make_watch(object(), sensing) is None  # one parking place: the centre
     assert asyncio.run(retirement.keep_out_retired([3, 4])) == [4]
     assert motion.calls[-1] == ("keep_out", 3, "its sensor was retired")
+
+
+def test_the_loss_monitor_marks_a_vehicle_heard_again_for_readmission():
+    clock, state, vehicles, gate, rec, motion, monitor = _monitor(4, readmit=True)
+    vehicles[2].age_s = 3.0
+    _watch(monitor, lambda: 3 in state.lost, "vehicle 3 lost")
+    vehicles[2].age_s = 0.0                # heard again, armed, in the air, not returning: re-admissible
+    _watch(monitor, lambda: state.lost[3].came_back_s is not None, "vehicle 3 heard again")
+    assert state.lost[3].readmit_pending and motion.calls == []
+    assert pending_readmissions(state, FaultsPlan(readmit=True)) == [3]
+
+
+class _Log:
+    def __init__(self) -> None:
+        self.records: list[tuple[str, dict]] = []
+
+    def write(self, kind: str, **fields) -> None:
+        self.records.append((kind, fields))
+
+
+class _Refusing(FakeVehicle):
+    async def set_mode(self, mode: str) -> None:
+        self.commands.append(f"mode {mode}")
+        raise RuntimeError("MAV_RESULT_DENIED")
+
+
+def test_the_watchdog_writes_status_records_and_reports_a_refused_reengagement():
+    clock = FakeClock()
+    state = flying_state(4, clock)
+    vehicles = [_Refusing(1, ring(4)[1], mode="AUTO.LOITER")] + [FakeVehicle(s, ring(4)[s]) for s in (2, 3, 4)]
+    gate = FakeGate({s: ring(4)[s] for s in range(1, 5)})
+    rec, log = Recorder(), _Log()
+    dog = Watchdog(state, fleet_of(vehicles), lambda: gate, clock, FaultsPlan(), _Status(), log, 1.0, rec,
+                   rec.report)
+
+    async def main():
+        task = asyncio.create_task(dog.run(period_s=0.01))
+        try:
+            await _until(lambda: len(vehicles[0].commands) >= 2, "a second attempt")
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+
+    asyncio.run(main())
+    assert any("vehicle 1: could not re-engage OFFBOARD: MAV_RESULT_DENIED" in m for m in rec.messages("error"))
+    assert state.reengaged.get(1, 0) == 0          # refused: not counted, retried (two attempts seen)
+    assert log.records and log.records[0][0] == "status" and log.records[0][1]["phase"] == "seek"
