@@ -64,7 +64,7 @@ ESTIMATORS = ("symmetric eq.3", "CVT Thm 2", "CVT robust", "CVT robust+retire", 
 #: named stuck, or noisy at 3x the median noise or more, for ``RETIRE_AFTER`` consecutive
 #: iterations is retired, its robot parked at the formation centre, and the others re-formed into
 #: an (N-1)-point CVT (warm-started :func:`formation.reconfigure`), as the mission does
-#: (``mission.flight.retire``)
+#: (``mission.flight.faults.retire``)
 RETIRE = "CVT robust+retire"
 RETIRE_AFTER = 20
 #: not in the default table: weighted least squares with the TRUE noise variances (a bound on

@@ -10,7 +10,7 @@ noise of the others, that costs +14 % on the final error of an 8-robot CVT forma
 :class:`SensorRetirement` is the rule that turns a persistent suspect into a *retired* sensor:
 named for one of ``reasons`` at ``after_updates`` consecutive updates, and only while at least
 ``min_sensors`` would remain. The caller then re-forms the formation without it (the mission
-parks the vehicle at the formation centre, :mod:`mission.flight.retire`) and starts a fresh estimator
+parks the vehicle at the formation centre, :mod:`mission.flight.faults.retire`) and starts a fresh estimator
 and a fresh rule for the others. By default only ``stuck`` and ``noisy`` (at ``min_noise_ratio``
 times the median noise or more) retire a sensor:
 

@@ -267,7 +267,7 @@ def test_a_mode_change_counts_only_when_the_vehicles_own_stream_repeats_it():
     """From the pinned address too, one AUTO.LAND heartbeat is "unconfirmed" (the coordinator asks
     for a heartbeat); the vehicle's next one decides."""
     from fuzz_helpers import FakeClock
-    from mission.flight.loss import classify_loss
+    from mission.flight.faults.loss import classify_loss
     from mission.vehicle.vehicle_link import VehicleLink
 
     clock = FakeClock()

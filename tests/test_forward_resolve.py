@@ -104,13 +104,8 @@ def test_forwarding_resolves_before_the_work_starts(lookups):
     """A caller that did not resolve (a library user): ``forwarding`` resolves in a worker thread,
     before the mission's coroutine starts; a failure leaves it never started."""
 
-    class _Co:
-        plan = plan_with_outs(load_plan(SAMPLE), [NOWHERE])
-        events: list = []
-
-        def event(self, text, **_kw):
-            self.events.append(text)
-
+    plan = plan_with_outs(load_plan(SAMPLE), [NOWHERE])
+    events, watched = [], []
     started = []
 
     async def work():
@@ -118,8 +113,10 @@ def test_forwarding_resolves_before_the_work_starts(lookups):
 
     coro = work()
     with pytest.raises(ForwardAddressError, match="does not resolve"):
-        asyncio.run(forwarding(_Co(), coro))
+        asyncio.run(forwarding(coro, plan.forward, [v.sysid for v in plan.vehicles],
+                               lambda text, **_kw: events.append(text), watched.append))
     assert started == [] and coro.cr_frame is None        # closed, never run (no "never awaited" warning)
+    assert events == [] and watched == []                 # nothing started, nothing attached
 
 
 def _plan_file(tmp_path, out: str) -> Path:

@@ -237,14 +237,12 @@ def test_swarmseek_run_json_has_the_rejection_fields(tmp_path, capsys):
 def test_steady_refused_traffic_is_reported_at_doubling_intervals():
     """A companion's forwarded frames refused every second: reported at 1, 2, 4 ... s, up to 60 s;
     a new kind is reported at once and resets the interval."""
-    from mission.flight.watchdog import _RejectionReport
+    from mission.flight.faults.watchdog import RejectionReport
 
-    class _Co:
-        status_period_s = 1.0
+    class _Links:  # the links, the clock and the events in one fake
 
         def __init__(self):
             self.t, self.counts, self.events = 0.0, {"unplanned_sysid": 0}, []
-            self.clock = self
 
         def time(self):
             return self.t
@@ -258,8 +256,8 @@ def test_steady_refused_traffic_is_reported_at_doubling_intervals():
         def event(self, message, level="info", **fields):
             self.events.append((self.t, message))
 
-    co = _Co()
-    report = _RejectionReport(co)
+    co = _Links()
+    report = RejectionReport(co, co, co, status_period_s=1.0)
     for step in range(400):  # 200 s, 2 checks a second, 1 refused frame a second
         co.t = step * 0.5
         if step % 2 == 0:

@@ -10,7 +10,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 #: modules whose functions are handed the mission state, the fleet, the gate... and never ``co``
-NARROW = ["landing_guard", "readiness_mission", "failsafe_params", "takeoff_loss", "obstacles", "services"]
+NARROW = ["faults/landing_guard", "readiness_mission", "failsafe_params", "faults/takeoff_loss", "obstacles", "services",
+          "faults/loss", "faults/rejoin", "faults/retire", "faults/watchdog", "return_clear", "readiness_autopilot"]
 
 
 def _takes_co(path: Path) -> list[str]:

@@ -274,7 +274,7 @@ class _Vehicle:
 def test_arming_retried_with_the_autopilot_words_and_mode_set_again():
     co = _Co(timeout_s=30.0)
     v = _Vehicle(co, refusals=4)
-    asyncio.run(arm_and_takeoff(co, 3, v, 10.0))
+    asyncio.run(arm_and_takeoff(3, v, 10.0, co.clock, co, co.plan.preflight.autopilot_ready_timeout_s))
     assert [c[0] for c in v.calls].count("arm") == 5
     assert v.calls[-2:] == [("mode", "GUIDED"), ("takeoff", "GUIDED", 10.0)]  # re-set after arming
     warnings = [m for lvl, m in co.events if lvl == "warning"]
@@ -287,7 +287,7 @@ def test_arming_gives_up_at_the_timeout():
     co = _Co(timeout_s=5.0)
     v = _Vehicle(co, refusals=1000)
     with pytest.raises(MissionError, match=r"takeoff of vehicle 3 failed \(arming refused for 5 s\)"):
-        asyncio.run(arm_and_takeoff(co, 3, v, 10.0))
+        asyncio.run(arm_and_takeoff(3, v, 10.0, co.clock, co, co.plan.preflight.autopilot_ready_timeout_s))
     assert 5.0 <= co.clock.t <= 7.0
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
-from mission.flight.loss import classify_loss, reformed_offsets
+from mission.flight.faults.loss import classify_loss, reformed_offsets
 from mission.telemetry.mission_log import read_mission_log
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet

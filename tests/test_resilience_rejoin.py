@@ -1,4 +1,4 @@
-"""Returning vehicles and lost vehicles that still fly (``mission.flight.rejoin``): the geometry
+"""Returning vehicles and lost vehicles that still fly (``mission.flight.faults.rejoin``): the geometry
 (clearance of slots and paths, transfers with fixed obstacles, N+1 formations), then two whole
 missions against the mock fleet: a vehicle re-admitted after its link comes back
 (``[faults] readmit = true``), and survivors keeping clear of a vehicle hovering in hold."""
@@ -14,7 +14,7 @@ from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fle
 from mission.telemetry.mission_log import read_mission_log
 from mission.core.plan_types import FaultsPlan
 from mission.flight.obstacles import clear_offsets, plan_clear_transfer, segment_clearance
-from mission.flight.rejoin import readmitted_offsets
+from mission.flight.faults.rejoin import readmitted_offsets
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock

@@ -1,4 +1,4 @@
-"""A faulty sensor retired during the mission (``[faults] faulty_sensor``, :mod:`mission.flight.retire`).
+"""A faulty sensor retired during the mission (``[faults] faulty_sensor``, :mod:`mission.flight.faults.retire`).
 
 Unit: the watch maps the rule's pick to a sysid with its reason and noise figures, is only
 made for the robust estimator with ``retire`` and while nobody is parked; the goals park the
@@ -29,14 +29,7 @@ from mission.flight.coordinator import _plan_json
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.core.plan_types import FaultsPlan
-from mission.flight.retire import (
-    PARKED_STATUS,
-    RetiredSensor,
-    SensorWatch,
-    formation_goals,
-    make_watch,
-    restore_retired,
-)
+from mission.flight.faults.retire import PARKED_STATUS, RetiredSensor, Retirement, SensorWatch, restore_retired
 from mission.flight.motion import parked
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
@@ -66,6 +59,21 @@ def _co(faults=FaultsPlan(), retired=(), lost=(), under=range(1, 9)):
     state = SimpleNamespace(lost={s: None for s in lost}, retired={s: None for s in retired},
                             slot_offsets={s: np.array([float(s), 0.0, 0.0]) for s in range(1, 9)})
     return SimpleNamespace(plan=SimpleNamespace(faults=faults), gate=SimpleNamespace(sysids=set(under)), state=state)
+
+
+class _Events:
+    def __init__(self):
+        self.messages = []
+
+    def event(self, message, level="info", **fields):
+        self.messages.append(message)
+
+
+def _retirement(co, events=None) -> Retirement:
+    """A :class:`Retirement` over ``co``'s state and gate; its motion's ``parked`` is
+    :func:`mission.flight.motion.parked` of the same (no transfer is flown in these tests)."""
+    motion = SimpleNamespace(parked=lambda: parked(co))
+    return Retirement(co.state, None, co.gate, co.plan.faults, None, motion, events or _Events())
 
 
 @pytest.mark.parametrize("code, reason", [(4, "noisy"), (1, "stuck")])
@@ -129,7 +137,7 @@ def test_watch_for_retire_and_a_free_centre_whatever_the_estimator(kind, faults,
     sysids = [s for s in range(1, 9) if s not in retired]
     check = make_check(faults, make_estimator(kind, len(sysids)), sysids)
     assert (check is None) == (faults.faulty_sensor == "off")
-    watch = make_watch(co, check, sysids)
+    watch = _retirement(co).make_watch(check, sysids)
     assert (watch is not None) == made
     if made:
         assert watch.rule.after_updates == faults.retire_after
@@ -139,11 +147,11 @@ def test_watch_for_retire_and_a_free_centre_whatever_the_estimator(kind, faults,
 def test_parked_vehicle_goes_to_the_centre_unless_lost():
     centre = np.array([1.0, 2.0, 10.0])
     co = _co(retired=(6,))
-    goals = formation_goals(co, centre, [1, 2, 3, 4, 5, 7, 8])
+    goals = _retirement(co).formation_goals(centre, [1, 2, 3, 4, 5, 7, 8])
     assert sorted(goals) == list(range(1, 9))
     assert np.allclose(goals[6], centre) and np.allclose(goals[2], centre + [2.0, 0.0, 0.0])
     co_lost = _co(retired=(6,), lost=(6,))
-    assert parked(co_lost) == [] and 6 not in formation_goals(co_lost, centre, [1, 2, 3, 4, 5, 7, 8])
+    assert parked(co_lost) == [] and 6 not in _retirement(co_lost).formation_goals(centre, [1, 2, 3, 4, 5, 7, 8])
 
 
 @pytest.mark.parametrize("sysids, lost, retired, why", [
@@ -152,14 +160,11 @@ def test_parked_vehicle_goes_to_the_centre_unless_lost():
     ([1, 2, 3, 4, 5, 7], (), (6,), "vehicle 6 is already parked at the centre"),
 ])
 def test_retirement_is_refused_when_things_changed_since_the_estimate(sysids, lost, retired, why):
-    from mission.flight.retire import retire_sensor
-
     co = _co(retired=retired, lost=lost, under=[s for s in range(1, 9) if s not in lost])
-    events = []
-    co.event = lambda message, level="info", **fields: events.append(message)
+    events = _Events()
     info = RetiredSensor(3, "noisy", 0.05, 0.01, 30, 20, 100.0)
-    assert asyncio.run(retire_sensor(co, np.zeros(3), sysids, info)) == sysids
-    assert events == [f"vehicle 3's sensor not retired: {why}"] and 3 not in co.state.retired
+    assert asyncio.run(_retirement(co, events).retire_sensor(np.zeros(3), sysids, info)) == sysids
+    assert events.messages == [f"vehicle 3's sensor not retired: {why}"] and 3 not in co.state.retired
 
 
 @pytest.mark.parametrize("climb_m, planned_s, expected_s", [
@@ -200,10 +205,10 @@ def test_resume_reads_the_retired_sensor_back(tmp_path):
     state = load_resume_state(tmp_path / "m.jsonl")
     assert sorted(state.retired) == [4] and state.retired[4]["reason"] == "noisy"
     assert np.allclose(state.slot_offsets[4], 0.0) and sorted(state.slot_offsets) == [1, 2, 3, 4, 5, 6]
-    co = SimpleNamespace(state=SimpleNamespace(retired={}, lost={}, status={}))
-    restore_retired(co, state.retired)
-    assert co.state.retired[4] == RetiredSensor(4, "noisy", 0.05, 0.01, 12, 10, 30.0)
-    assert co.state.status[4] == PARKED_STATUS
+    mission_state = SimpleNamespace(retired={}, lost={}, status={})
+    restore_retired(mission_state, state.retired)
+    assert mission_state.retired[4] == RetiredSensor(4, "noisy", 0.05, 0.01, 12, 10, 30.0)
+    assert mission_state.status[4] == PARKED_STATUS
 
 
 # ------------------------------------------------------------------------ against the mock

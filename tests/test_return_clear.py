@@ -188,6 +188,17 @@ class _FakeCoordinator:
                 raise MissionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
             await self.clock.sleep(poll_s)
 
+    def return_clear(self):
+        """The :class:`~mission.flight.return_clear.ReturnClear` over this fake: its gate, state and
+        clock, the real motion primitives (:mod:`mission.flight.motion`) flown on them."""
+        from mission.flight import motion
+        from mission.flight.return_clear import ReturnClear
+
+        moves = SimpleNamespace(move_and_wait=lambda *a, **k: motion.move_and_wait(self, *a, **k),
+                                fly_timed=lambda *a, **k: motion.fly_timed(self, *a, **k))
+        return ReturnClear(self.state, self.fleet, self.gate, self.clock, SEP_M, 0.35, 30.0,
+                           self.plan.return_behaviour, None, moves, self)
+
 
 @pytest.mark.parametrize("obstacle, level, land_here", [
     (None, None, set()),
@@ -201,7 +212,7 @@ def test_fly_return_flies_clear_and_says_so(monkeypatch, obstacle, level, land_h
     obs = np.zeros((0, 3)) if obstacle is None else np.array([obstacle])
     monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: obs)
     co = _FakeCoordinator(START, HOMES, LAYERS)
-    got = asyncio.run(return_clear.fly_return(co, co.sysids))
+    got = asyncio.run(co.return_clear().fly_return(co.sysids))
     assert got == land_here
     end = np.array([co.gate.setpoint(s) for s in co.sysids])
     assert np.allclose(end[:, 2], LAYERS, atol=1e-6)                      # above the spots at the layers
@@ -220,7 +231,7 @@ def test_fly_clear_assembles_round_a_vehicle_lost_during_the_takeoff(monkeypatch
     monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: obs)
     co = _FakeCoordinator(above_homes, HOMES, LAYERS)
     co.state.phase = "assemble"
-    asyncio.run(return_clear.fly_clear(co, co.sysids, dict(zip(co.sysids, START)), 0.35))
+    asyncio.run(co.return_clear().fly_clear(co.sysids, dict(zip(co.sysids, START)), 0.35))
     assert np.allclose([co.gate.setpoint(s) for s in co.sysids], START, atol=1e-6)
     assert [(lv, m.split(":")[0]) for lv, m in co.events] == [
         ("info", "assembly re-planned around 1 position(s) of lost vehicles still flying")]
@@ -243,7 +254,7 @@ def test_fly_return_replans_after_a_loss_on_the_way(monkeypatch):
 
     co.clock.on_tick = _tick
     monkeypatch.setattr(return_clear, "obstacles", lambda lost, fleet, now_s: np.array(hovering).reshape(-1, 3))
-    asyncio.run(return_clear.fly_return(co, co.sysids))
+    asyncio.run(co.return_clear().fly_return(co.sysids))
     warnings = [m for lv, m in co.events if lv == "warning"]
     assert warnings == ["return: a vehicle was lost on the way; re-planning from where the others are"]
     assert hovering and hovering[0][0] > START[2, 0]                 # it was on its way home

@@ -321,8 +321,9 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None, map
                              state_rate_hz=_state_rate_hz(args, world))
             if world is not None:
                 world.store = co.store
-            result = await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal
-                                      getattr(args, "forward_addresses", None))
+            work = with_keys(co.command, co.say, display, run_until_stopped(co))  # keys on a terminal
+            result = await forwarding(work, plan.forward, [v.sysid for v in plan.vehicles], co.event,  # --out
+                                      co.watch_endpoints, getattr(args, "forward_addresses", None))
             result.true_source_enu = [float(x) for x in source]
             result.true_source_geodetic = geodetic_point(plan.origin, source)
             if result.estimate_enu is not None:

@@ -229,7 +229,7 @@ class FaultsPlan:
     readmit : bool
         A lost vehicle whose link comes back is kept out and commanded to land / RTL per
         ``return`` (False, the default); True: re-admitted into the formation if it comes back
-        during the seek, armed and airborne (``mission.flight.rejoin``).
+        during the seek, armed and airborne (``mission.flight.faults.rejoin``).
     link_timeout_s : float
         A vehicle silent for this long (mission clock) is lost (default 1.0; detection within
         ``link_timeout_s`` + 0.1 s).
@@ -240,7 +240,7 @@ class FaultsPlan:
         :class:`estimator.retire.SensorRetirement` (stuck; noisy at 3x the median) for
         ``retire_after`` consecutive iterations is retired, its vehicle parked at the
         formation centre and the others re-formed (``retire``, the default,
-        :mod:`mission.flight.retire`); ``keep``: detection only, the vehicle keeps its slot;
+        :mod:`mission.flight.faults.retire`); ``keep``: detection only, the vehicle keeps its slot;
         ``off``: no detection (the plan's estimator alone, every reading to the seeker).
     retire_after : int
         Consecutive iterations a sensor must be named before it is retired (default 20).

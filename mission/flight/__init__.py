@@ -6,8 +6,11 @@ Inside, imports go one way only (no cycle, lazy imports included)::
     state, modes, targets                    the mission's state and types, flight modes, the ramp
       <- result, obstacles                   the end result; lost vehicles as obstacles
       <- motion                              retried commands, move-and-wait, timed plans, transfers
-      <- loss, return_plan, return_clear     losses and re-forming; the return planned clear
-      <- rejoin, retire, watchdog            re-admission; retired sensors; re-engaging
+      <- faults.loss, return_plan, return_clear   losses and re-forming; the return planned clear
+      <- faults.rejoin, faults.retire, faults.watchdog  re-admission; retired sensors; re-engaging
       <- connect, phases, seek               connect/preflight; takeoff, assemble, return; the seek
       <- resume <- coordinator               resuming from a log; the coordinator
+
+The fault responses (vehicle loss in flight and in takeoff, re-admission, retired sensors, the
+watchdog, the landing guard) are grouped in :mod:`mission.flight.faults`.
 """

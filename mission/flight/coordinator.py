@@ -17,18 +17,21 @@ from mission.core.tasks import spawn, stop_watched
 from mission.core.plan_security import check_security
 from mission.core.plan_types import Plan
 from mission.flight import connect as connect_phase
-from mission.flight import mission_end, phases, seek
+from mission.flight import mission_end, motion, phases, seek
 from mission.flight.control import MissionControl, open_control_channel, operator_command
-from mission.flight.landing_guard import LandingGuard
-from mission.flight.loss import watch_losses
+from mission.flight.faults.landing_guard import LandingGuard
+from mission.flight.faults.loss import LossMonitor, Reformation
+from mission.flight.faults.rejoin import Rejoin
+from mission.flight.faults.retire import Retirement
 from mission.flight.services import Fleet
+from mission.flight.return_clear import ReturnClear
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import MissionChecks, not_ready_message
 from mission.flight.resume import resume_mission
 from mission.flight.state import MissionError, MissionState
-from mission.flight.takeoff_loss import TakeoffLoss
+from mission.flight.faults.takeoff_loss import TakeoffLoss
 from mission.safety.gate import SafetyGate
-from mission.flight.watchdog import watchdog
+from mission.flight.faults.watchdog import Watchdog
 from mission.telemetry.link_report import link_rejections, unknown_sysids
 from mission.telemetry.mission_log import MissionLog, to_jsonable
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber
@@ -278,7 +281,7 @@ class Coordinator:
         return [f.to_json() for f in self.security]
 
     def landing_guard(self) -> LandingGuard:
-        """The never-abandon check (:class:`mission.flight.landing_guard.LandingGuard`) over the
+        """The never-abandon check (:class:`mission.flight.faults.landing_guard.LandingGuard`) over the
         vehicles, the gate and the log of this mission now."""
         return LandingGuard(self.state, self.fleet, self.gate, self.clock, self.plan.faults, self.log, self)
 
@@ -289,9 +292,40 @@ class Coordinator:
                              self.zenoh_problem, self.readings_subscribed, self)
 
     def takeoff_loss(self) -> TakeoffLoss:
-        """The takeoff's and the assembly's losses (:class:`mission.flight.takeoff_loss.TakeoffLoss`)
+        """The takeoff's and the assembly's losses (:class:`mission.flight.faults.takeoff_loss.TakeoffLoss`)
         over this mission's vehicles and gate now."""
         return TakeoffLoss(self.state, self.fleet, self.gate, self.clock, self, self.task_failed)
+
+    def motion(self) -> "_BoundMotion":
+        """The motion primitives (:class:`mission.flight.services.Motion`) flown on this mission's gate."""
+        return _BoundMotion(self)
+
+    def reformation(self) -> Reformation:
+        """The formation re-formed for the vehicles left (:class:`mission.flight.faults.loss.Reformation`)
+        over this mission's vehicles and gate now."""
+        plan = self.plan
+        return Reformation(self.state, self.fleet, self.gate, self.clock, plan.formation, plan.min_separation_m,
+                           self.motion(), self)
+
+    def rejoin(self) -> Rejoin:
+        """Lost vehicles kept clear of, returning ones re-admitted (:class:`mission.flight.faults.rejoin.Rejoin`)
+        over this mission's vehicles and gate now."""
+        plan = self.plan
+        return Rejoin(self.state, self.fleet, self.gate, self.clock, plan.faults, plan.formation,
+                      plan.min_separation_m, self.motion(), self, self)
+
+    def retirement(self) -> Retirement:
+        """Faulty sensors retired, their vehicles parked (:class:`mission.flight.faults.retire.Retirement`)
+        over this mission's vehicles and gate now."""
+        return Retirement(self.state, self.fleet, self.gate, self.plan.faults, self.reformation(), self.motion(), self)
+
+    def return_clear(self) -> ReturnClear:
+        """The return and the assembly's legs clear of lost vehicles still flying
+        (:class:`mission.flight.return_clear.ReturnClear`) over this mission's vehicles and gate now."""
+        plan = self.plan
+        return ReturnClear(self.state, self.fleet, self.gate, self.clock, plan.min_separation_m,
+                           plan.seeking.arrival_tol_m, plan.geofence.max_alt_m, plan.return_behaviour,
+                           None if self.envelope is None else self.envelope.fence, self.motion(), self)
 
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
@@ -311,9 +345,13 @@ class Coordinator:
         from mission.telemetry.state_pub import StatePublisher
 
         if self._watchdog_task is None:
-            self._watchdog_task = spawn(watchdog(self), "the watchdog", self.task_failed)
+            watchdog = Watchdog(self.state, self.fleet, lambda: self.gate, self.clock, self.plan.faults, self, self.log,
+                                self.status_period_s, self, self.task_failed)
+            self._watchdog_task = spawn(watchdog.run(), "the watchdog", self.task_failed)
         if self._loss_task is None:
-            self._loss_task = spawn(watch_losses(self), "the loss detection", self.task_failed)
+            monitor = LossMonitor(self.state, self.fleet, lambda: self.gate, self.clock, self.plan.faults,
+                                  self.plan.return_behaviour, self.motion(), self, self.task_failed)
+            self._loss_task = spawn(monitor.run(), "the loss detection", self.task_failed)
 
         if self.session is not None and self._subscriber is None:
             self._subscriber = ReadingSubscriber(self.session, self.store)
@@ -393,7 +431,7 @@ class Coordinator:
         Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
         False (a ground station that just stops: the vehicles do what their autopilot does); a
         second cancellation lands them where they are (:mod:`mission.flight.mission_end`). Every
-        path ends with the never-abandon check (:mod:`mission.flight.landing_guard`) and a
+        path ends with the never-abandon check (:mod:`mission.flight.faults.landing_guard`) and a
         ``summary`` record; a cancelled run then raises CancelledError (``state.final_result``
         holds its result).
         """
@@ -461,6 +499,35 @@ class Coordinator:
         result.link_rejections = self.link_rejections()
         result.unknown_sysids = self.unknown_sysids()
         return result
+
+
+class _BoundMotion:
+    """:mod:`mission.flight.motion`'s primitives bound to one coordinator: the
+    :class:`~mission.flight.services.Motion` the fault responses are handed."""
+
+    def __init__(self, co: Coordinator) -> None:
+        self.co = co
+
+    async def move_and_wait(self, goals, tol_m: float, timeout_s: float | None = None,
+                            what: str = "vehicles to reach their goals") -> None:
+        """:func:`mission.flight.motion.move_and_wait`."""
+        await motion.move_and_wait(self.co, goals, tol_m, timeout_s, what)
+
+    async def fly_timed(self, sysids, times_s, waypoints_enu) -> None:
+        """:func:`mission.flight.motion.fly_timed`."""
+        await motion.fly_timed(self.co, sysids, times_s, waypoints_enu)
+
+    async def transfer_to(self, sysids, new_offsets, centre_enu, what: str, lost_here) -> None:
+        """:func:`mission.flight.motion.transfer_to`."""
+        await motion.transfer_to(self.co, sysids, new_offsets, centre_enu, what, lost_here)
+
+    async def keep_out(self, sysid: int, v, why: str) -> None:
+        """:func:`mission.flight.motion.keep_out`."""
+        await motion.keep_out(self.co, sysid, v, why)
+
+    def parked(self) -> list[int]:
+        """:func:`mission.flight.motion.parked`."""
+        return motion.parked(self.co)
 
 
 def _plan_json(plan: Plan) -> dict:

@@ -8,10 +8,10 @@ cancelling the task is the same thing) and are counted:
 1. the first stops the mission: the vehicles fly the controlled return (the plan's ``return``);
    one that arrives while the return is already flying lets it go on;
 2. the next one during the return lands every airborne vehicle where it is, now
-   (:meth:`mission.flight.landing_guard.LandingGuard.land_now`);
+   (:meth:`mission.flight.faults.landing_guard.LandingGuard.land_now`);
 3. the next one stops waiting for the LAND confirmations.
 
-Then :meth:`mission.flight.landing_guard.LandingGuard.secure` checks the never-abandon invariant (and reports
+Then :meth:`mission.flight.faults.landing_guard.LandingGuard.secure` checks the never-abandon invariant (and reports
 any vehicle still airborne), the background tasks and links stop, the phase becomes ``done`` and
 the ``summary`` record is written: also when interrupted (then the cancellation goes on after it).
 """

@@ -120,7 +120,7 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
     the speed limit so that the ramp keeps up), flown leg by leg (interpolated goals every 0.1 s
     of the mission clock); then ``co.state.slot_offsets`` is updated and the formation settles.
     Without a separation-keeping plan the vehicles fly straight under the safety envelope.
-    Vehicles parked at the centre (retired sensors, :mod:`mission.flight.retire`) not in ``sysids`` are
+    Vehicles parked at the centre (retired sensors, :mod:`mission.flight.faults.retire`) not in ``sysids`` are
     part of the transfer too, at the new centre.
     """
     from mission.safety.transfer import TransferError

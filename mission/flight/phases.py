@@ -17,7 +17,6 @@ import numpy as np
 from formation.geodesy import geodetic_to_enu
 from mission.flight.motion import retried, setpoint_stream
 from mission.flight.readiness_autopilot import arm_and_takeoff
-from mission.flight.return_clear import fly_clear, fly_return
 from mission.flight.control import OperatorStop
 from mission.flight.state import MissionError
 from mission.flight.layers import shared_layers
@@ -112,7 +111,8 @@ async def takeoff(co) -> None:
             held["xy"] = v.position_enu_m()
 
         try:  # arming refusals retried with the autopilot's words, ArduPilot's mode re-checked
-            await arm_and_takeoff(co, sysid, v, rel_alt, before_takeoff=_note_start)
+            await arm_and_takeoff(sysid, v, rel_alt, co.clock, co, co.plan.preflight.autopilot_ready_timeout_s,
+                                  before_takeoff=_note_start)
         except OperatorStop:
             raise  # the operator ended the mission: nobody failed
         except MissionError as exc:
@@ -157,7 +157,7 @@ async def _hold_after_climb(co, sysid, start, layer_alt):
 async def assemble(co) -> None:
     """Fly from the takeoff layers into the formation at the start point (layered transfer).
 
-    The legs keep clear of lost vehicles still flying (:func:`mission.flight.return_clear.fly_clear`).
+    The legs keep clear of lost vehicles still flying (:meth:`mission.flight.return_clear.ReturnClear.fly_clear`).
     """
     co.set_phase("assemble")
     plan = co.plan
@@ -170,7 +170,7 @@ async def assemble(co) -> None:
     # a vehicle that cannot reach its slot in time is lost, the others go on (if 4 are left)
     goals = {s: centre + co.state.slot_offsets[s] for s in sysids}
     try:
-        await fly_clear(co, sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
+        await co.return_clear().fly_clear(sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
     except OperatorStop:
         raise  # the operator ended the mission: nobody failed
     except MissionError as exc:
@@ -183,7 +183,7 @@ async def assemble(co) -> None:
         if len(sysids) < 4:
             raise MissionError(f"vehicles {sorted(co.state.lost)} lost during the assembly: {len(sysids)} left, "
                                "a formation needs 4") from None
-        await fly_clear(co, sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
+        await co.return_clear().fly_clear(sysids, goals, plan.seeking.arrival_tol_m, what="assembly")
     co.state.move_centre(centre)
     for s in sysids:
         co.state.set_status(s, "in formation")
@@ -195,7 +195,7 @@ async def return_home(co) -> None:
     """Back over the homes by layers, then land (or RTL), staggered by ``stagger_s``.
 
     The paths, the descents included, keep ``min_separation_m + OBSTACLE_MARGIN_M`` from lost
-    vehicles still flying (:func:`mission.flight.return_clear.fly_return`); a vehicle whose home is
+    vehicles still flying (:meth:`mission.flight.return_clear.ReturnClear.fly_return`); a vehicle whose home is
     obstructed lands beside it. An operator's ``land`` / ``rtl`` (:mod:`mission.flight.control`)
     replaces it, also half-way: every airborne vehicle is commanded to LAND / RTL at once.
     """
@@ -216,7 +216,7 @@ async def _return_home(co) -> None:
     flying = [s for s in sorted(co.state.airborne) if co.gate is not None and s in co.gate.sysids]
     land_here: set[int] = set()
     if flying:
-        land_here = await fly_return(co, flying)
+        land_here = await co.return_clear().fly_return(flying)
     await _land_staggered(co, sorted(co.state.airborne, key=lambda s: co.state.layer_alt_m.get(s, 0.0)),
                           rtl=plan.return_behaviour == "rtl", land_only=land_here)
 

@@ -103,7 +103,7 @@ async def wait_autopilots_ready(state: MissionState, vehicles: dict, clock: Cloc
         state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
 
 
-async def _confirm_mode(co, v, mode: str) -> None:
+async def _confirm_mode(v, mode: str) -> None:
     """Set ``mode`` and wait for a heartbeat that reports it (CommandError if none does)."""
     await v.set_mode(mode)
     if v.state.mode != mode:
@@ -111,26 +111,29 @@ async def _confirm_mode(co, v, mode: str) -> None:
         await v.wait_for(lambda st: st.mode == mode, _MODE_CONFIRM_S, f"mode {mode} in its heartbeat")
 
 
-async def _ardupilot_takeoff(co, v, rel_alt_m: float, before_takeoff) -> None:
+async def _ardupilot_takeoff(v, rel_alt_m: float, before_takeoff, events: Events) -> None:
     """GUIDED (confirmed), arm, GUIDED again if the RC changed it, takeoff at once."""
-    await _confirm_mode(co, v, "GUIDED")
+    await _confirm_mode(v, "GUIDED")
     await v.arm()
     if v.state.mode != "GUIDED":
-        co.event(f"vehicle {v.sysid}: mode {v.state.mode} after arming; setting GUIDED again",
-                 level="warning", sysid=v.sysid)
+        events.event(f"vehicle {v.sysid}: mode {v.state.mode} after arming; setting GUIDED again",
+                     level="warning", sysid=v.sysid)
         await v.set_mode("GUIDED")
     before_takeoff()
     await v.command_long(_M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, float(rel_alt_m), timeout_s=2.0)
 
 
-async def arm_and_takeoff(co, sysid: int, v, rel_alt_m: float, before_takeoff=lambda: None) -> None:
+async def arm_and_takeoff(sysid: int, v, rel_alt_m: float, clock: Clock, events: Events, timeout_s: float,
+                          before_takeoff=lambda: None) -> None:
     """Arm vehicle ``v`` and command its takeoff to ``rel_alt_m`` above home.
+
+    ``clock``: the mission clock; ``events``: each new refusal reason is told there; ``timeout_s``:
+    the plan's ``[preflight] autopilot_ready_timeout_s``.
 
     ``before_takeoff()`` is called right before the takeoff command of each attempt (PX4: right
     before ``v.takeoff``, which starts holding where the vehicle is), with no await in between.
 
-    Arming refusals are retried (every second) until ``[preflight] autopilot_ready_timeout_s``
-    after the first attempt, each new reason shown (and logged) with the autopilot's own words;
+    Arming refusals are retried (every second) until ``timeout_s`` after the first attempt, each new reason shown (and logged) with the autopilot's own words;
     other failures (no ACK, link errors) are retried :data:`_MAX_OTHER_FAILURES` times.
 
     Raises
@@ -138,14 +141,13 @@ async def arm_and_takeoff(co, sysid: int, v, rel_alt_m: float, before_takeoff=la
     MissionError
         Still refused at the timeout, or too many other failures.
     """
-    timeout_s = co.plan.preflight.autopilot_ready_timeout_s
-    deadline = co.clock.time() + timeout_s
+    deadline = clock.time() + timeout_s
     other = 0
     shown: str | None = None
     while True:
         try:
             if v.flavour == "ardupilot":
-                await _ardupilot_takeoff(co, v, rel_alt_m, before_takeoff)
+                await _ardupilot_takeoff(v, rel_alt_m, before_takeoff, events)
             else:
                 before_takeoff()
                 await v.takeoff(rel_alt_m)
@@ -154,7 +156,7 @@ async def arm_and_takeoff(co, sysid: int, v, rel_alt_m: float, before_takeoff=la
             refused = getattr(exc, "command", None) == _M.MAV_CMD_COMPONENT_ARM_DISARM \
                 and getattr(exc, "result", None) is not None
             other += not refused
-            now = co.clock.time()
+            now = clock.time()
             if other >= _MAX_OTHER_FAILURES or now >= deadline:
                 why = f"(arming refused for {timeout_s:.0f} s)" if refused else f"after {other} rounds of retries"
                 raise MissionError(f"takeoff of vehicle {sysid} failed {why}: {exc}") from None
@@ -162,7 +164,7 @@ async def arm_and_takeoff(co, sysid: int, v, rel_alt_m: float, before_takeoff=la
             reason = says or str(exc)
             if reason != shown:
                 shown = reason
-                co.event(f"vehicle {sysid}: {'arming refused' if refused else 'takeoff failed'}: {reason}; "
-                         f"retrying for up to {deadline - now:.0f} s", level="warning", sysid=sysid,
-                         autopilot_says=says)
-            await co.clock.sleep(1.0 if refused else 0.5)
+                events.event(f"vehicle {sysid}: {'arming refused' if refused else 'takeoff failed'}: {reason}; "
+                             f"retrying for up to {deadline - now:.0f} s", level="warning", sysid=sysid,
+                             autopilot_says=says)
+            await clock.sleep(1.0 if refused else 0.5)

@@ -96,7 +96,7 @@ class MissionResult:
         Preflight result per vehicle.
     lost : list
         Vehicles lost during the mission: ``sysid``, ``reason`` (``link`` / ``left``),
-        ``detail``, ``phase``, ``latency_s`` (see :mod:`mission.flight.loss`).
+        ``detail``, ``phase``, ``latency_s`` (see :mod:`mission.flight.faults.loss`).
     link_rejections : dict
         MAVLink frames the ground station's links refused, by kind (non-zero only:
         ``unsigned``, ``bad_signature``, ``replayed``, ``bad_crc``, ``malformed``...; see
@@ -113,10 +113,10 @@ class MissionResult:
         needed; per vehicle in the mission log's ``separation enforcement`` events).
     airborne_left : list
         Vehicles still airborne with no landing behaviour at the end (the ``airborne_left``
-        record of :mod:`mission.flight.landing_guard`; empty when every vehicle is down or landing).
+        record of :mod:`mission.flight.faults.landing_guard`; empty when every vehicle is down or landing).
     still_armed : list
         Vehicles still armed at the end though landed or landing (after the wait for their disarm,
-        :meth:`mission.flight.landing_guard.LandingGuard.await_disarm`); the mission is then not ``ok`` (exit 1).
+        :meth:`mission.flight.faults.landing_guard.LandingGuard.await_disarm`); the mission is then not ``ok`` (exit 1).
     interrupted_by : list
         The signals (``SIGINT``, ``SIGTERM``) that interrupted the mission, in order
         (:mod:`mission.flight.operator_stop`).
@@ -147,7 +147,7 @@ class MissionResult:
     max_loop_lag_s: float | None = None
     lost: list = field(default_factory=list)
     readmitted: list = field(default_factory=list)  # sysid, lost_s, came_back_s, readmitted_s
-    retired: list = field(default_factory=list)  # retired sensors: mission.flight.retire.RetiredSensor
+    retired: list = field(default_factory=list)  # retired sensors: mission.flight.faults.retire.RetiredSensor
     link_rejections: dict = field(default_factory=dict)
     unknown_sysids: list = field(default_factory=list)
     vehicle_rejections: dict = field(default_factory=dict)

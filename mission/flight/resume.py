@@ -6,7 +6,7 @@ vehicles lost so far (``vehicle N lost`` events), the formation type in use, and
 progress (the last ``iteration`` record: its ``k``, ``new_centre_enu``, ``distance_flown_m``; the
 last ``convergence_window`` centres prefill the convergence monitor), and the retired sensors
 (``vehicle N's sensor retired`` events: those vehicles stay parked at the centre, their readings
-ignored, :mod:`mission.flight.retire`).
+ignored, :mod:`mission.flight.faults.retire`).
 
 The resumed coordinator reconnects, and re-engages every vehicle still flying (armed, above
 1 m, not in RTL/LAND): setpoints at its current position first, then OFFBOARD (PX4) or GUIDED
@@ -49,7 +49,7 @@ from mission.flight.connect import build_envelope, connect
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.motion import retried, setpoint_stream
 from mission.flight.resume_endings import classify_ending
-from mission.flight.retire import restore_retired
+from mission.flight.faults.retire import restore_retired
 from mission.flight.state import MissionError, VehicleLoss
 from wire.signing import SigningError
 
@@ -85,7 +85,7 @@ class ResumeState:
     embedded : dict or None
         The ``embedded mock fleet`` event of a ``swarmseek run`` log (source, seed...).
     retired : dict
-        Sysid -> the fields of its ``sensor retired`` event (:class:`mission.flight.retire.RetiredSensor`).
+        Sysid -> the fields of its ``sensor retired`` event (:class:`mission.flight.faults.retire.RetiredSensor`).
     go_on : bool
         The seek goes on (the log was cut in the takeoff, assembly or seek, or a ground station
         told to just stop was interrupted there); False (finished, returning, aborted,
@@ -302,7 +302,7 @@ async def rejoin(co, state: ResumeState) -> None:
         else:
             flying.append(sysid)
     await _reengage(co, flying)
-    restore_retired(co, state.retired)
+    restore_retired(co.state, state.retired)
     co.event(("resumed" if state.go_on else f"taken over to bring the vehicles home (the log ends "
                                              f"{state.ending} in phase {state.last_phase!r})") + f" at iteration {state.iteration} from centre "
              f"({co.state.centre_enu[0]:.2f}, {co.state.centre_enu[1]:.2f}, {co.state.centre_enu[2]:.2f}) m with vehicles "

@@ -29,22 +29,10 @@ import asyncio
 import numpy as np
 
 from mission.flight.control import OperatorStop
-from mission.flight.loss import reform
 from mission.flight.motion import move_and_wait, paced, parked
 from estimator.estimate import reported_estimate
 from mission.flight.result import estimate_fields, geodetic_point, region_text
-from mission.flight.rejoin import (
-    clear_goals,
-    fly_rotation,
-    pending_readmissions,
-    readmit,
-)
-from mission.flight.retire import (
-    formation_goals,
-    keep_out_retired,
-    make_watch,
-    retire_sensor,
-)
+from mission.flight.faults.rejoin import pending_readmissions
 from mission.flight.seek_moving import moving_sampling, thin_evenly
 from mission.flight.sensor_check import make_check
 from mission.flight.state import MissionError
@@ -200,13 +188,13 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     at the geofence for a whole convergence window: the source is probably outside),
     ``too_few_vehicles`` (vehicles were lost and fewer than 4 are left: the caller brings the
     others home). After a loss the formation is re-formed for the survivors
-    (:func:`mission.flight.loss.reform`) before the next iteration; a returning vehicle is re-admitted
-    (``[faults] readmit = true``, :func:`mission.flight.rejoin.readmit`); every iteration's slots are
-    rotated clear of lost vehicles still flying (:func:`mission.flight.rejoin.clear_goals`). Whatever the
+    (:meth:`mission.flight.faults.loss.Reformation.reform`) before the next iteration; a returning vehicle is re-admitted
+    (``[faults] readmit = true``, :meth:`mission.flight.faults.rejoin.Rejoin.readmit`); every iteration's slots are
+    rotated clear of lost vehicles still flying (:meth:`mission.flight.faults.rejoin.Rejoin.clear_goals`). Whatever the
     seeker, the faulty-sensor detector (:mod:`mission.flight.sensor_check`) keeps the readings of the
     sensors it excludes out of the seeker's input, and a sensor it keeps naming is retired
     (``faulty_sensor = "retire"``, the default): its vehicle is parked at the centre,
-    its readings ignored, the others re-formed (:mod:`mission.flight.retire`); only sensing vehicles
+    its readings ignored, the others re-formed (:mod:`mission.flight.faults.retire`); only sensing vehicles
     count towards the 4.
     """
     co.set_phase("seek")
@@ -250,7 +238,7 @@ class _Seek:
         self.moving = moving_sampling(co, sk)
         self.samples = None  # with moving sampling: the readings the seeker gets this iteration
         self.check = make_check(co.plan.faults, self.estimate, self.sysids)
-        self.watch = make_watch(co, self.check, self.sysids)
+        self.watch = co.retirement().make_watch(self.check, self.sysids)
         self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
                                           min_signal_fraction=sk.min_signal_fraction)
         self.arrival = ArrivalSignal()  # the convergence test's signal when the seeker has none
@@ -270,7 +258,7 @@ class _Seek:
             self.est_kind = "cvt"
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
         self.check = make_check(self.co.plan.faults, self.estimate, self.sysids)
-        self.watch = make_watch(self.co, self.check, self.sysids)
+        self.watch = self.co.retirement().make_watch(self.check, self.sysids)
 
     async def iteration(self, k: int) -> tuple[str, str] | None:
         """One iteration: re-form, move, readings, estimate, step; ``(outcome, message)`` when it ends."""
@@ -286,7 +274,7 @@ class _Seek:
             return None
         ended = await self._step(k, *found)
         if ended is None and found[-1] is not None:
-            self.sysids = await retire_sensor(self.co, self.centre, self.sysids, found[-1])
+            self.sysids = await self.co.retirement().retire_sensor(self.centre, self.sysids, found[-1])
             self._new_estimator(symmetric_to_cvt=False)
         return ended
 
@@ -294,14 +282,14 @@ class _Seek:
         """Re-form without lost vehicles, re-admit returning ones; the end when fewer than 4 are left."""
         co = self.co
         if any(s in co.state.lost for s in self.sysids):
-            self.sysids = await reform(co, self.centre, self.sysids)
+            self.sysids = await co.reformation().reform(self.centre, self.sysids)
             if len(self.sysids) < 4:
                 return "too_few_vehicles", (f"vehicles {sorted(co.state.lost)} lost: {len(self.sysids)} left, a "
                                             "formation needs 4; ending the mission, the others come home")
             self._new_estimator()
-        returning = await keep_out_retired(co, pending_readmissions(co))
+        returning = await co.retirement().keep_out_retired(pending_readmissions(co.state, co.plan.faults))
         if returning:
-            self.sysids = await readmit(co, self.centre, self.sysids, returning)
+            self.sysids = await co.rejoin().readmit(self.centre, self.sysids, returning)
             self._new_estimator()
         return None
 
@@ -312,9 +300,9 @@ class _Seek:
             return await self.moving.move(self, k)
         co, sk = self.co, self.sk
         before = {s: co.state.slot_offsets[s].copy() for s in self.sysids}
-        clear_goals(co, self.centre, self.sysids)  # a few ms at most: slots clear of lost vehicles still flying
-        await fly_rotation(co, self.centre, self.sysids, before)  # a rotation is flown as a planned transfer
-        goals = formation_goals(co, self.centre, self.sysids)  # parked vehicles (retired sensors) at the centre
+        co.rejoin().clear_goals(self.centre, self.sysids)  # a few ms at most: slots clear of lost vehicles still flying
+        await co.rejoin().fly_rotation(self.centre, self.sysids, before)  # a rotation is flown as a planned transfer
+        goals = co.retirement().formation_goals(self.centre, self.sysids)  # parked vehicles (retired sensors) at the centre
         try:
             await move_and_wait(co, goals, sk.arrival_tol_m,
                                 timeout_s=20.0 + 3.0 * sk.gamma_m / co.plan.max_speed_m_s,

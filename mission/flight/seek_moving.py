@@ -36,8 +36,6 @@ import numpy as np
 
 from mission.flight.control import OperatorStop
 from mission.flight.motion import paced
-from mission.flight.rejoin import clear_goals, fly_rotation
-from mission.flight.retire import formation_goals
 from mission.flight.state import MissionError
 
 __all__ = ["MovingSampling", "lagged_positions", "moving_sampling", "thin_evenly"]
@@ -117,9 +115,9 @@ class MovingSampling:
         """
         co, sk = self.co, run.sk
         before = {s: co.state.slot_offsets[s].copy() for s in run.sysids}
-        clear_goals(co, run.centre, run.sysids)
-        await fly_rotation(co, run.centre, run.sysids, before)
-        goals = {s: g for s, g in formation_goals(co, run.centre, run.sysids).items()
+        co.rejoin().clear_goals(run.centre, run.sysids)
+        await co.rejoin().fly_rotation(run.centre, run.sysids, before)
+        goals = {s: g for s, g in co.retirement().formation_goals(run.centre, run.sysids).items()
                  if s not in co.state.lost and s in co.gate.sysids}
         co.gate.set_goals(goals)  # through the safety gate and its envelope, as in stop and go
         members = [s for s in run.sysids if s in goals]

@@ -21,7 +21,7 @@ seeker:
   it cost fault-free missions: 10 default `run` seeds ended 0.145 m from the source on average
   (max 0.264) instead of 0.071 (max 0.127), healthy sensors named ``biased`` in 93 of 204
   iterations; with the paper's gradient step an N = 6 mission ended 2.65 m away instead of 0.11;
-* its suspect codes and noise estimates feed the retirement rule (:mod:`mission.flight.retire`,
+* its suspect codes and noise estimates feed the retirement rule (:mod:`mission.flight.faults.retire`,
   ``retire`` only) and the ``suspects`` of the logged iteration.
 
 ``faulty_sensor = "off"``: no detector (the plan's estimator alone; the seekers get every reading).

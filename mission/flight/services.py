@@ -13,7 +13,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-__all__ = ["Clock", "Events", "Fleet", "PhaseEvents", "Waiter"]
+__all__ = ["Clock", "Events", "Fleet", "Motion", "PhaseEvents", "Waiter"]
 
 
 class Clock(Protocol):
@@ -46,6 +46,30 @@ class Waiter(Protocol):
     async def wait_until(self, predicate: Callable[[], bool], timeout_s: float, what: str,
                          poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` until true; MissionError after ``timeout_s``."""
+
+
+class Motion(Protocol):
+    """The motion primitives of :mod:`mission.flight.motion` a phase may use (goals flown on the gate).
+
+    Lost vehicles are skipped by every one of them; ``sysids``: system ids, positions in mission ENU m.
+    """
+
+    async def move_and_wait(self, goals: dict[int, np.ndarray], tol_m: float, timeout_s: float | None = None,
+                            what: str = "vehicles to reach their goals") -> None:
+        """Set the goals on the gate and wait until every vehicle is within ``tol_m`` of its own."""
+
+    async def fly_timed(self, sysids: list[int], times_s, waypoints_enu) -> None:
+        """Feed a synchronous plan's interpolated positions to the gate as goals."""
+
+    async def transfer_to(self, sysids: list[int], new_offsets: dict, centre_enu, what: str,
+                          lost_here: list[int]) -> None:
+        """A separation-keeping transfer to ``centre_enu + new_offsets``; the slots adopted."""
+
+    async def keep_out(self, sysid: int, v, why: str) -> None:
+        """Keep a returning lost vehicle out of the formation and command it to land (or RTL)."""
+
+    def parked(self) -> list[int]:
+        """Vehicles whose sensor was retired, still under the mission's setpoints (sorted)."""
 
 
 class Fleet:

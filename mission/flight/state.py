@@ -351,7 +351,7 @@ class MissionState:
         self.set_status(sysid, "re-admitted")
 
     def retire(self, info, status: str | None = None, sysid: int | None = None) -> None:
-        """Record a retired sensor (``mission.flight.retire.RetiredSensor``); ``status``: the vehicle's new status."""
+        """Record a retired sensor (``mission.flight.faults.retire.RetiredSensor``); ``status``: the vehicle's new status."""
         key = self._known(info.sysid if sysid is None else sysid)
         self._retired[key] = info
         if status is not None:

@@ -233,32 +233,45 @@ def plan_with_outs(plan, outs):
     return replace(plan, forward=replace(plan.forward, out=tuple(plan.forward.out) + tuple(outs)))
 
 
-async def forwarding(co, work, addresses: dict | None = None):
-    """Await ``work`` (the coordinator ``co``'s run) while the plan's ``[forward]`` runs; the
-    start and the counts at the end are events of the mission (its log, the display).
+async def forwarding(work, forward, sysids: list[int], event, watch_endpoints, addresses: dict | None = None):
+    """Await ``work`` (a mission's run) while the plan's ``[forward]`` runs; the start and the
+    counts at the end are events of the mission (its log, the display).
 
-    ``addresses``: the forward addresses resolved before the loop started (:func:`resolve_outs`);
-    any missing are resolved in a worker thread here, before ``work`` starts (so before any
-    vehicle is contacted: a :class:`ForwardAddressError` then leaves ``work`` never started).
+    Parameters
+    ----------
+    work : coroutine
+        The mission (never started when the forward addresses do not resolve).
+    forward : mission.core.plan_types.ForwardPlan
+        The plan's ``[forward]`` (``out``, ``allow_commands``); no ``out``: ``work`` alone.
+    sysids : list of int
+        The plan's vehicles (the system ids a client's frames may be relayed to).
+    event : callable
+        ``event(message, level="info", **fields)``: the mission's events.
+    watch_endpoints : callable
+        ``watch_endpoints(watcher)``: calls ``watcher(endpoint)`` for every MAVLink endpoint of the
+        mission, open now or later (the forwarder attaches to each).
+    addresses : dict, optional
+        The forward addresses resolved before the loop started (:func:`resolve_outs`); any
+        missing are resolved in a worker thread here, before ``work`` starts (so before any
+        vehicle is contacted: a :class:`ForwardAddressError` then leaves ``work`` never started).
     """
-    fwd = co.plan.forward
-    if not fwd.out:
+    if not forward.out:
         return await work
-    missing = [o for o in fwd.out if o not in (addresses or {})]
+    missing = [o for o in forward.out if o not in (addresses or {})]
     try:
         resolved = {**(addresses or {}), **(await asyncio.to_thread(resolve_outs, missing) if missing else {})}
     except BaseException:
         work.close()  # never started: no "coroutine was never awaited"
         raise
-    forwarder = Forwarder(fwd.out, fwd.allow_commands, [v.sysid for v in co.plan.vehicles],
-                          on_first_drop=lambda text: co.event(text, level="warning"), addresses=resolved)
+    forwarder = Forwarder(forward.out, forward.allow_commands, list(sysids),
+                          on_first_drop=lambda text: event(text, level="warning"), addresses=resolved)
     forwarder.start()
-    co.watch_endpoints(forwarder.attach)  # at once, no polling task: nothing on the mission's clock
-    co.event(f"forwarding MAVLink to {', '.join(fwd.out)} "
-             f"({'commands relayed' if fwd.allow_commands else 'read-only: client frames dropped'})",
-             forward_out=list(fwd.out), allow_commands=fwd.allow_commands)
+    watch_endpoints(forwarder.attach)  # at once, no polling task: nothing on the mission's clock
+    event(f"forwarding MAVLink to {', '.join(forward.out)} "
+          f"({'commands relayed' if forward.allow_commands else 'read-only: client frames dropped'})",
+          forward_out=list(forward.out), allow_commands=forward.allow_commands)
     try:
         return await work
     finally:
         await forwarder.close()
-        co.event(forwarder.summary(), forward=dict(forwarder.counters))
+        event(forwarder.summary(), forward=dict(forwarder.counters))

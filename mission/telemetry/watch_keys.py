@@ -125,12 +125,16 @@ class TerminalKeys:
         self._fd = None
 
 
-async def with_keys(co, display, work):
-    """Await ``work`` (the coordinator's ``run()``) with the operator keys read while ``display``
-    draws its table on a terminal (nothing read otherwise)."""
+async def with_keys(command, say, display, work):
+    """Await ``work`` (a mission's run) with the operator keys read while ``display`` draws its
+    table on a terminal (nothing read otherwise).
+
+    ``command(command, sender)``: an operator command (the mission's); ``say(text)``: a line shown
+    above the display (:class:`TerminalKeys`).
+    """
     keys = None
     if display is not None and getattr(display, "tty", False) and not getattr(display, "quiet", True):
-        keys = TerminalKeys(co.command, co.say)
+        keys = TerminalKeys(command, say)
         if not keys.start():
             keys = None
     try:

@@ -92,7 +92,7 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
     status_heartbeats : int
         How many autopilot heartbeats in a row (all from the vehicle's pinned address: the
         endpoint delivers no other) reported the current ``state.mode`` and ``state.armed``: a
-        change reported once is not yet corroborated (``mission.flight.loss`` waits for 2).
+        change reported once is not yet corroborated (``mission.flight.faults.loss`` waits for 2).
     status_since_s : float or None
         Clock time of the first of those heartbeats.
     """

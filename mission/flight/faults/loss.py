@@ -1,0 +1,375 @@
+"""Vehicle loss: detection, the re-formed formation for the survivors, and returning vehicles.
+
+Rules (see ``docs/faults.md``):
+
+* **link lost**: no MAVLink message from the vehicle for ``[faults] link_timeout_s`` (1 s) of
+  the mission clock (crash, link cut, vehicle switched off). Checked every 0.1 s of the mission
+  clock, hence detected within 1.1 s of the last frame heard.
+* **left the mission**: the autopilot switched, without being asked, to a mode that ends its
+  part in the mission: RTL or LAND (PX4 ``AUTO.RTL`` / ``AUTO.LAND``, ArduPilot ``RTL``,
+  ``SMART_RTL``, ``LAND``): a failsafe (low battery, geofence, GCS loss) or a pilot. The
+  coordinator does not fight it. Any *other* mode change (PX4 offboard loss -> hold, ArduPilot
+  GUIDED -> LOITER/BRAKE) is re-engaged by the watchdog (:mod:`mission.flight.faults.watchdog`). A vehicle
+  that disarms in the air (not commanded) also left. Without signing a heartbeat proves nothing,
+  so a mode change or a disarm counts only when corroborated by the vehicle's own stream: two
+  heartbeats in a row (the endpoint delivers only those from the vehicle's pinned address) say
+  so; after the first one the coordinator asks for an immediate HEARTBEAT
+  (``VehicleLink.request_heartbeat``), so a real failsafe is confirmed within a round trip.
+* :class:`LossMonitor` detects. A lost vehicle is taken off the setpoint stream, released (never re-engaged) and no longer
+  waited for (one still armed in OFFBOARD/GUIDED with its link alive is commanded to land or
+  RTL, the plan's ``return``: never left hovering under its last setpoint); the seek loop re-forms the formation for the survivors (:class:`Reformation`, :func:`reformed_offsets`)
+  and flies a separation-keeping transfer (:func:`mission.safety.envelope.plan_transfer`) to it.
+* **coming back** (link heard again after a link loss): with ``[faults] readmit = false`` the
+  vehicle is kept out and commanded to land or RTL (the plan's ``return``), once; with
+  ``readmit = true`` and during the seek, armed, airborne and not in RTL/LAND, it is re-admitted
+  at the start of the next iteration (:meth:`mission.flight.faults.rejoin.Rejoin.readmit`).
+* A lost vehicle that still flies is an obstacle for the re-formed slots and the transfers
+  (:mod:`mission.flight.faults.rejoin`).
+"""
+from __future__ import annotations
+
+import asyncio
+import functools
+
+import numpy as np
+
+from typing import Callable
+
+from mission.core.plan_types import FaultsPlan, FormationPlan
+from mission.core.tasks import spawn
+from mission.flight.modes import GUIDED_MODES, LEFT_MODES
+from mission.flight.obstacles import OBSTACLE_MARGIN_M, clear_offsets, obstacles
+from mission.flight.services import Clock, Events, Fleet, Motion
+from mission.flight.state import MissionState, VehicleLoss
+from mission.safety.gate import SafetyGate
+
+__all__ = ["CORROBORATING_HEARTBEATS", "LossMonitor", "Reformation", "classify_loss", "reformed_offsets"]
+
+#: heartbeats in a row that must report a mode change or a disarm before the vehicle "left"
+CORROBORATING_HEARTBEATS = 2
+
+#: a RTL/LAND mode reported since before the mission engaged the vehicle (ArduPilot stays in RTL
+#: after an RTL landing) is no mode change; it counts only if it lasts this long after engagement
+STALE_MODE_GRACE_S = 3.0
+
+
+def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
+                  seen_armed: bool = True, engaged_s: float | None = None) -> tuple[str, str] | None:
+    """``(reason, detail)`` if ``vehicle`` is lost, else None.
+
+    Parameters
+    ----------
+    vehicle
+        A ``mission.vehicle.vehicle_link.VehicleLink`` (``link_age_s()``, ``flavour``, ``state.mode``,
+        ``state.armed``).
+    now_s : float
+        Mission clock now (unused by the rules, kept for callers' logging).
+    link_timeout_s : float
+        Silence after which the link is lost.
+    commanded : bool
+        The coordinator itself asked this vehicle to land / RTL (then it did not "leave").
+    seen_armed : bool
+        The vehicle has been seen armed since its takeoff command (a disarmed state before
+        that is the arming still on its way, not a vehicle that left).
+    engaged_s : float, optional
+        Mission clock when the mission engaged the vehicle (its takeoff or re-engagement
+        commanded). A RTL/LAND mode reported by heartbeats that began before it is what the
+        vehicle was doing on the ground (ArduPilot stays in RTL after an RTL landing), not a
+        mode change: it counts only once it outlasts :data:`STALE_MODE_GRACE_S` after ``engaged_s``
+        (the vehicle did not take the mission's mode).
+
+    Returns
+    -------
+    tuple of str or None
+        ``("link", detail)``, ``("left", detail)``, or ``("unconfirmed", detail)`` when the
+        mode or disarm that would make it "left" was reported by fewer than
+        :data:`CORROBORATING_HEARTBEATS` heartbeats in a row (``vehicle.status_heartbeats``;
+        vehicles without it count as corroborated): not a loss yet.
+    """
+    age = float(vehicle.link_age_s())
+    if age > link_timeout_s:
+        return "link", f"no MAVLink frame for {age:.2f} s"
+    if commanded:
+        return None
+    mode = vehicle.state.mode
+    if mode in LEFT_MODES.get(vehicle.flavour, ()):
+        since = getattr(vehicle, "status_since_s", None)
+        if engaged_s is not None and since is not None and since < engaged_s:
+            if now_s - engaged_s < STALE_MODE_GRACE_S:
+                return None  # still reporting the mode it had before the takeoff: not a change
+            detail = f"still in {mode} {now_s - engaged_s:.1f} s after the mission engaged it"
+        else:
+            detail = f"switched to {mode} by itself (failsafe)"
+    elif seen_armed and not vehicle.state.armed:
+        detail = "disarmed in the air"
+    else:
+        return None
+    if getattr(vehicle, "status_heartbeats", CORROBORATING_HEARTBEATS) < CORROBORATING_HEARTBEATS:
+        return "unconfirmed", detail
+    return "left", detail
+
+
+def reformed_offsets(kind: str, offsets: dict[int, np.ndarray], lost, radius_m: float,
+                     seed: int = 0) -> tuple[dict[int, np.ndarray], str]:
+    """New slot offsets of the survivors and the formation type used.
+
+    Parameters
+    ----------
+    kind : {"cvt", "symmetric"}
+        The current formation type.
+    offsets : dict
+        Current offset (from the formation centre) of every vehicle of the formation, lost
+        ones included, by sysid.
+    lost : iterable of int
+        Sysids that left the formation.
+    radius_m : float
+    seed : int
+        Seed of a fresh symmetric formation.
+
+    Returns
+    -------
+    (dict, str)
+        Survivor sysid -> new offset, and ``cvt`` or ``symmetric``. CVT: warm-started
+        :func:`formation.reconfigure` (minimum travel, rotation allowed). Symmetric: a new
+        symmetric cylinder if the survivors are an even number >= 4, else switch to CVT.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 4 survivors.
+    """
+    import formation
+
+    sysids = sorted(offsets)
+    lost = set(lost)
+    survivors = [s for s in sysids if s not in lost]
+    if len(survivors) < 4:
+        raise ValueError(f"a formation needs at least 4 vehicles, {len(survivors)} left")
+    x = np.array([offsets[s] for s in sysids], dtype=float)
+    if kind == "symmetric" and len(survivors) % 2 == 0:
+        slots = np.asarray(formation.symmetric_cylinder(len(survivors), radius_m), dtype=float)
+        xs = x[[sysids.index(s) for s in survivors]]
+        perm, _ = formation.assign_slots(xs, slots, allow_rotation=False)
+        return {s: slots[perm[k]] for k, s in enumerate(survivors)}, "symmetric"
+    mask = np.array([s in lost for s in sysids])
+    rec = formation.reconfigure(x, mask, radius_m)
+    out = {}
+    for k, idx in enumerate(rec.survivors):
+        out[sysids[int(idx)]] = np.asarray(rec.slots[int(rec.assignment[k])], dtype=float)
+    return out, "cvt"
+
+
+class LossMonitor:
+    """Detects lost vehicles every ``period_s`` of the mission clock (a task the coordinator runs).
+
+    Parameters
+    ----------
+    state : MissionState
+        The phase, who is airborne, released, lost; where a loss is declared.
+    fleet : Fleet
+        The connected vehicles.
+    gate : callable
+        ``gate()``: the safety gate now (None before the setpoints stream); a lost vehicle is
+        taken off it. The monitor runs from before the connection to the end.
+    clock : Clock
+        The mission clock.
+    faults : FaultsPlan
+        ``link_timeout_s``, ``readmit``.
+    return_behaviour : {"land", "rtl"}
+        The plan's ``return``: what a released vehicle still in OFFBOARD/GUIDED is commanded.
+    motion : Motion
+        ``keep_out`` for a vehicle heard again that is not re-admitted.
+    events : Events
+        Each loss, release and return is told as an event.
+    report : callable
+        ``report(message)``: a failed background command (:func:`mission.core.tasks.spawn`).
+    """
+
+    def __init__(self, state: MissionState, fleet: Fleet, gate: Callable[[], SafetyGate | None], clock: Clock,
+                 faults: FaultsPlan, return_behaviour: str, motion: Motion, events: Events,
+                 report: Callable[[str], None]) -> None:
+        self.state, self.fleet, self.gate, self.clock = state, fleet, gate, clock
+        self.faults, self.rtl = faults, return_behaviour == "rtl"
+        self.motion, self.events, self.report = motion, events, report
+
+    async def run(self, period_s: float = 0.1) -> None:
+        """Watch until cancelled.
+
+        Only vehicles under the mission's setpoints, or airborne and not yet released, are watched,
+        from the takeoff on. A detection logs a ``vehicle lost`` event with its latency, takes the
+        vehicle off the stream and marks it lost in the mission state; the seek loop re-forms.
+        """
+        seen_armed: set[int] = set()
+        engaged_s: dict[int, float] = {}  # when the watch of each vehicle began (its takeoff commanded)
+        while True:
+            t_before = self.clock.time()
+            await self.clock.sleep(period_s)
+            if self.state.phase not in ("takeoff", "assemble", "seek", "finish", "return"):
+                continue
+            if self.clock.time() - t_before > period_s + 0.5 * self.faults.link_timeout_s:
+                # this task woke up late: the event loop was busy and frames may be waiting in the
+                # sockets; a silence measured now could be the loop's, not the vehicles'
+                await asyncio.sleep(0)
+                continue
+            now = self.clock.time()
+            gate = self.gate()
+            watched = self.state.airborne | set(self.state.lost) | set(gate.sysids if gate is not None else ())
+            for sysid in sorted(watched):
+                v = self.fleet.vehicles.get(sysid)
+                if v is None:
+                    continue
+                loss = self.state.lost.get(sysid)
+                if loss is not None:
+                    await self._maybe_came_back(v, loss, now)
+                    continue
+                if sysid in self.state.released:
+                    continue  # commanded by the coordinator to land / RTL
+                if v.state.armed:
+                    seen_armed.add(sysid)
+                loss = await self._check(sysid, v, sysid in seen_armed, engaged_s.setdefault(sysid, now))
+                if loss is not None:
+                    self._declare_lost(loss)
+
+    async def _check(self, sysid: int, v, seen_armed: bool, engaged_s: float) -> VehicleLoss | None:
+        """The loss of ``v`` found now, or None (an unconfirmed "left" asks the vehicle to confirm)."""
+        timeout_s = self.faults.link_timeout_s
+        now = self.clock.time()
+        found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s)
+        if found is not None and found[0] == "link":
+            # let the event loop read whatever is pending before concluding
+            await asyncio.sleep(0)
+            await asyncio.sleep(0)
+            now = self.clock.time()
+            found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s)
+        if found is None:
+            return None
+        reason, detail = found
+        if reason == "unconfirmed":  # one heartbeat said so: ask the vehicle itself, decide on its answer
+            request = getattr(v, "request_heartbeat", None)
+            if request is not None:
+                request()
+            return None
+        if reason == "link":
+            since = now - float(v.link_age_s())
+        else:  # the first of the heartbeats that reported it
+            hb = getattr(v, "status_since_s", None) or getattr(v.state, "last_heartbeat_s", None)
+            since = now if hb is None else min(now, float(hb))
+        return VehicleLoss(sysid, reason, detail, now, since, self.state.phase)
+
+    def _declare_lost(self, loss: VehicleLoss) -> None:
+        sysid = loss.sysid
+        gate = self.gate()
+        if gate is not None and sysid in gate.sysids:
+            loss.last_setpoint_enu = gate.setpoint(sysid)
+            gate.remove(sysid)
+        self.state.declare_lost(loss, f"lost ({loss.reason}: {loss.detail})")
+        self.events.event(f"vehicle {sysid} lost: {loss.detail}; detected {loss.latency_s:.2f} s after its last sign "
+                          f"(phase {loss.phase})", level="warning", sysid=sysid, reason=loss.reason,
+                          latency_s=round(loss.latency_s, 3), detected_s=loss.detected_s, since_s=loss.since_s)
+        v = self.fleet.vehicles.get(sysid)
+        if v is not None and loss.reason == "left" and v.state.armed and v.state.mode == GUIDED_MODES.get(v.flavour):
+            spawn(self._settle_released(sysid, v), f"settling released vehicle {sysid}", self.report)
+
+    async def _settle_released(self, sysid: int, v) -> None:
+        """A vehicle released while still armed in OFFBOARD/GUIDED is told to land (or RTL), once:
+        off the stream it would hover at its last setpoint (ArduPilot GUIDED has no setpoint timeout)."""
+        what = "RTL" if self.rtl else "land"
+        self.events.event(f"vehicle {sysid} released while still in {v.state.mode}: commanded to {what}",
+                          level="warning", sysid=sysid)
+        try:
+            await asyncio.wait_for(v.rtl() if self.rtl else v.land(), timeout=30.0)
+        except Exception as exc:  # noqa: BLE001 - CommandError, link, timeout: reported
+            self.events.event(f"vehicle {sysid}: {what} after its release failed: {exc}", level="error", sysid=sysid)
+
+    async def _maybe_came_back(self, v, loss: VehicleLoss, now: float) -> None:
+        if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
+            return
+        state = self.state
+        alt = getattr(v.state, "relative_alt_m", None)
+        readmissible = (self.faults.readmit and state.phase == "seek" and v.state.armed
+                        and (alt is None or alt >= 1.0) and v.state.mode not in LEFT_MODES.get(v.flavour, ()))
+        state.came_back(loss.sysid, now, readmit=readmissible)
+        if readmissible:
+            self.events.event(f"vehicle {loss.sysid} is heard again after its link loss; re-admitted at the next "
+                              "iteration (faults.readmit = true)", level="warning", sysid=loss.sysid)
+            return
+        if self.faults.readmit:
+            why = f"faults.readmit = true, but not re-admissible (phase {state.phase}, mode {v.state.mode})"
+        else:
+            why = "faults.readmit = false"
+        await self.motion.keep_out(loss.sysid, v, why)
+
+
+class Reformation:
+    """The formation re-formed for the vehicles left (after a loss, a retired sensor).
+
+    Parameters
+    ----------
+    state : MissionState
+        Who is lost, the slots and the formation type (changed here).
+    fleet : Fleet
+        The connected vehicles (lost vehicles still flying are obstacles).
+    gate : SafetyGate
+        Who is under setpoints.
+    clock : Clock
+        The mission clock.
+    formation : FormationPlan
+        ``radius_m``, ``seed`` of a fresh symmetric formation.
+    min_separation_m : float
+        The plan's separation (plus :data:`~mission.flight.obstacles.OBSTACLE_MARGIN_M` from obstacles).
+    motion : Motion
+        ``transfer_to``: the separation-keeping transfer to the new slots.
+    events : Events
+        A switch of formation type and a rotation clear of obstacles are told.
+    """
+
+    def __init__(self, state: MissionState, fleet: Fleet, gate: SafetyGate, clock: Clock, formation: FormationPlan,
+                 min_separation_m: float, motion: Motion, events: Events) -> None:
+        self.state, self.fleet, self.gate, self.clock = state, fleet, gate, clock
+        self.formation, self.min_separation_m = formation, float(min_separation_m)
+        self.motion, self.events = motion, events
+
+    async def reform(self, centre_enu, sysids: list[int]) -> list[int]:
+        """Re-form the formation about ``centre_enu`` for the vehicles of ``sysids`` not lost.
+
+        Computes the survivors' slots (:meth:`survivor_slots`), then the motion's ``transfer_to``.
+        Returns the survivors; with fewer than 4 nothing is flown (the caller ends the mission).
+        """
+        lost = self.state.lost
+        survivors = [s for s in sysids if s not in lost and self.gate is not None and s in self.gate.sysids]
+        if len(survivors) < 4:
+            return survivors
+        lost_here = [s for s in sysids if s not in survivors]
+        new, kind = await self.survivor_slots(centre_enu, sysids, lost_here, "vehicles",
+                                              " (and the Theorem 2 estimator)")
+        await self.motion.transfer_to(survivors, new, centre_enu,
+                                      f"re-forming for {len(survivors)} vehicles ({kind})", lost_here)
+        return [s for s in survivors if s not in self.state.lost]
+
+    async def survivor_slots(self, centre_enu, sysids: list[int], gone: list[int], who: str = "vehicles",
+                             switch_note: str = "") -> tuple[dict[int, np.ndarray], str]:
+        """New slot offsets for ``sysids`` without ``gone``, and the formation type.
+
+        :func:`reformed_offsets` (a switch from symmetric to CVT is logged, ``who`` and
+        ``switch_note`` in its message), rotated about the centre clear of the lost vehicles still
+        flying (:func:`mission.flight.obstacles.clear_offsets`, logged). Both run in a worker thread: the CVT
+        solve takes 0.1-0.3 s of CPU and the event loop must keep streaming setpoints (at 10x,
+        0.1 s of wall time is PX4's 1 s offboard-loss timeout).
+        """
+        state, loop = self.state, asyncio.get_running_loop()
+        new, kind = await loop.run_in_executor(None, functools.partial(
+            reformed_offsets, state.formation_kind, {s: state.slot_offsets[s] for s in sysids}, gone,
+            self.formation.radius_m, self.formation.seed))
+        if kind != state.formation_kind:
+            self.events.event(f"{len(sysids) - len(gone)} {who} left: the symmetric formation needs an even number; "
+                              f"switching to the CVT formation{switch_note}", level="warning")
+            state.set_formation_kind(kind)
+        obs = obstacles(state.lost, self.fleet, self.clock.time())
+        if len(obs):
+            new, ok = await loop.run_in_executor(None, functools.partial(
+                clear_offsets, new, centre_enu, obs, self.min_separation_m + OBSTACLE_MARGIN_M,
+                allow_tilt=kind == "cvt"))
+            self.events.event(f"re-formed slots rotated clear of {len(obs)} position(s) of lost vehicles still flying"
+                              + ("" if ok else " (no rotation keeps the full clearance)"),
+                              level="info" if ok else "warning", obstacles=obs)
+        return new, kind
