@@ -14,8 +14,8 @@ from companion.line_input import LineSplitter, parse_reading_line
 from companion.publisher import Publisher, PublisherError
 from formation.geodesy import geodetic_to_enu
 from mission.telemetry.reading_format import decode_reading, sensor_key
-from publish_support import HOME_ENU, ORIGIN, NoFixAutopilot, free_tcp_port, ground_station, mock_autopilot
-from wait_helpers import wait_until
+from tests.companion.publish_support import HOME_ENU, ORIGIN, NoFixAutopilot, free_tcp_port, ground_station, mock_autopilot
+from tests.support.wait_helpers import wait_until
 
 TIMEOUT_S = 60.0
 

@@ -16,12 +16,12 @@ import zenoh
 from companion.publisher import Publisher
 from formation.geodesy import geodetic_to_enu
 from mission.cli import main as swarmseek
-from publish_support import (HOME_ENU, ORIGIN, LineSensor, NoFixAutopilot, free_tcp_port, ground_station,
+from tests.companion.publish_support import (HOME_ENU, ORIGIN, LineSensor, NoFixAutopilot, free_tcp_port, ground_station,
                              mock_autopilot)
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 from wire.zenoh_config import zenoh_config
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT_S = 60.0
 
 

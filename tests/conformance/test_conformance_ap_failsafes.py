@@ -5,15 +5,15 @@ scripted the same against the mock's "ardupilot" personality and one real ArduCo
 ``REACTION_TOL_S`` autopilot seconds, the same modes once landed and disarmed, no new arming after the battery failsafe.
 
 Needs ``SWARMSEEK_ARDUPILOT_SITL`` (skipped without it; a failure under CI=true). Run alone:
-``SWARMSEEK_ARDUPILOT_SITL=../shared/sitl/ardupilot python -m pytest -n 0 -s tests/test_conformance_ap_failsafes.py``.
+``SWARMSEEK_ARDUPILOT_SITL=../shared/sitl/ardupilot python -m pytest -n 0 -s tests/conformance/test_conformance_ap_failsafes.py``.
 """
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
-from conformance.ap_failsafes import differences, observe
-from sitl_support import require_sitl
+from tests.conformance.ap_failsafes import differences, observe
+from tests.support.sitl_support import require_sitl
 
 
 @pytest.mark.slow

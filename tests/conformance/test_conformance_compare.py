@@ -6,10 +6,10 @@ from __future__ import annotations
 import copy
 
 import pytest
-from conformance.check import DOC_PATH
-from conformance.compare import compare
-from conformance.known import KNOWN_DIFFERENCES, documented_keys
-from conformance.targets import observe_mock
+from tests.conformance.check import DOC_PATH
+from tests.conformance.compare import compare
+from tests.conformance.known import KNOWN_DIFFERENCES, documented_keys
+from tests.conformance.targets import observe_mock
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,8 @@ Needs ``SWARMSEEK_PX4_SITL`` (skipped without it; a failure under CI=true).
 from __future__ import annotations
 
 import pytest
-from conformance.check import assert_conforms
-from sitl_support import require_sitl
+from tests.conformance.check import assert_conforms
+from tests.support.sitl_support import require_sitl
 
 FLAVOUR = "px4"
 

@@ -1,5 +1,5 @@
 """The mock's ArduPilot failsafes as real ArduCopter does them (measured by
-tests/test_conformance_ap_failsafes.py on real SITL), without SITL: the scripted session of
+tests/conformance/test_conformance_ap_failsafes.py on real SITL), without SITL: the scripted session of
 tests/conformance/ap_failsafes.py against one mock ArduPilot. A fence breach (``FENCE_ALT_MAX``
 below the vehicle, ``FENCE_TYPE`` 3) switches to RTL at once; ``SIM_BATT_VOLTAGE`` below
 ``BATT_LOW_VOLT`` switches to LAND after ``BATT_LOW_TIMER`` (10 s), and the battery failsafe stays
@@ -7,7 +7,7 @@ latched: no new arming.
 """
 from __future__ import annotations
 
-from conformance.ap_failsafes import observe
+from tests.conformance.ap_failsafes import observe
 
 
 def test_mock_ardupilot_fence_and_voltage_failsafes():

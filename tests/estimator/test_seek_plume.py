@@ -147,7 +147,7 @@ def test_plan_keys_and_cli_flags(tmp_path):
     assert ap.parse_args([]).seek_wind_from is None
     with pytest.raises(SystemExit):
         ap.parse_args(["--seek-wind-from", "400"])
-    plan_text = (Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml").read_text()
+    plan_text = (Path(__file__).resolve().parents[2] / "mission" / "examples" / "sitl_plan.toml").read_text()
     good = tmp_path / "plan.toml"
     good.write_text(plan_text.replace("[seeking]", '[seeking]\nseeker = "plume"\nwind_from_deg = 250.0', 1))
     sk = load_plan(good).seeking
@@ -239,7 +239,7 @@ def test_plan_plume_mode_is_checked():
     from mission.core.plan import parse_plan
     from mission.core.plan_types import PlanError
 
-    doc = tomllib.loads((Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml").read_text())
+    doc = tomllib.loads((Path(__file__).resolve().parents[2] / "mission" / "examples" / "sitl_plan.toml").read_text())
     assert parse_plan(doc).seeking.plume_mode == "steady"
     doc["seeking"].update(seeker="plume", plume_mode="intermittent")
     assert parse_plan(doc).seeking.plume_mode == "intermittent"

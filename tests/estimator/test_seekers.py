@@ -147,7 +147,7 @@ def test_time_model_stop_and_go():
 
 
 def test_bench_measures_and_wilson():
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     import bench_seekers
 
     lo, hi = bench_seekers.wilson(95, 100)
@@ -173,7 +173,7 @@ def test_plan_key_and_cli_flags(tmp_path):
     with pytest.raises(SystemExit) as exc:
         ap.parse_args(["--seeker", "simplex"])
     assert exc.value.code == 2
-    plan_text = (Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml").read_text()
+    plan_text = (Path(__file__).resolve().parents[2] / "mission" / "examples" / "sitl_plan.toml").read_text()
     assert "[seeking]" in plan_text
     good = tmp_path / "plan.toml"
     good.write_text(plan_text.replace("[seeking]", '[seeking]\nseeker = "newton"', 1))

@@ -15,7 +15,7 @@ from mission.telemetry.terminal import SIGPIPE_STATUS
 
 pytestmark = pytest.mark.timeout(300)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: ``swarmseek paper`` with its figures' computation (minutes) replaced by a summary of the same
 #: shape: what is under test is the command's printing of it to a reader that went away
 _PAPER = """

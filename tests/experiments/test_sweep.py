@@ -169,7 +169,7 @@ def test_ctrl_c_stops_the_sweep_with_its_rows_kept(tmp_path, jobs):
     import sys
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     rows_path = tmp_path / "rows.jsonl"
     proc = subprocess.Popen([sys.executable, "-m", "mission", "run", *_SHORT, "--seeds", "0-5", "--jobs", jobs,
                              "--log-dir", str(tmp_path / "logs"), "--sweep-out", str(rows_path)],

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import ast
 import functools
+import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 #: the ground station's rooms, lowest first: a room may import only rooms before it
 MISSION_LAYERS = ["core", "link", "vehicle", "telemetry", "safety", "flight", "sim", "cli"]
@@ -128,7 +129,7 @@ def test_the_check_sees_an_upward_or_forbidden_import(tmp_path, monkeypatch, whe
     bad.parent.mkdir(parents=True, exist_ok=True)
     (bad.parent / "__init__.py").write_text("")
     bad.write_text(source)
-    monkeypatch.setattr(__import__(__name__), "ROOT", fake_root)
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", fake_root)
     problems = _violations()
     assert any(expected in p and where in p for p in problems), problems
 
@@ -139,7 +140,7 @@ def test_the_run_command_may_import_the_simulated_world(tmp_path, monkeypatch):
         (tmp_path / package).mkdir(exist_ok=True)
     (tmp_path / "mission" / "cli").mkdir()
     (tmp_path / "mission" / "cli" / "cmd_run.py").write_text("from sitl_mock.fleet import MockFleet\n")
-    monkeypatch.setattr(__import__(__name__), "ROOT", tmp_path)
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     assert _violations() == []
 
 
@@ -237,7 +238,7 @@ def test_the_shim_checks_see_a_planted_shim(tmp_path, monkeypatch):
         "from wire.real import thing\nfrom wire import real\n\n__all__ = [\"thing\", \"real\"]\n")
     (tmp_path / "mission" / "user.py").write_text(
         "def f():\n    from wire.shim import thing, real\n")
-    monkeypatch.setattr(__import__(__name__), "ROOT", tmp_path)
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     assert _reexports() == [
         "wire/shim.py: __all__ re-exports thing (defined in wire.real); import it from there"]
     assert _imports_through_a_shim() == [

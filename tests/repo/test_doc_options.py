@@ -1,6 +1,6 @@
 """The command-line options README.md and docs/*.md name exist, in the command that takes them.
 
-``tests/test_readme_commands.py`` parses the complete commands; this file checks what it cannot:
+``tests/repo/test_readme_commands.py`` parses the complete commands; this file checks what it cannot:
 
 * every ``--flag`` inside a ``swarmseek CMD ...`` command, elided ones (``...``) and inline ones
   in docs/*.md included, is an option of ``CMD`` (``run|simulate|sitl``: of each), and a choice
@@ -23,7 +23,7 @@ import pytest
 
 from mission.cli import COMMANDS, build_parser
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 FLAG = re.compile(r"(?<![\w-])(--[a-z][a-z0-9-]*)(?:[ =]([^\s`,;)]+))?")
 

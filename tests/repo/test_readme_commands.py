@@ -17,7 +17,7 @@ import pytest
 
 from mission.cli import COMMANDS, build_parser
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_PLAN = str(ROOT / "mission" / "examples" / "sitl_plan.toml")
 #: options whose value is a file the user provides (certificates, keys): made empty, chmod 600
 USER_FILE_OPTIONS = ("--zenoh-tls-ca", "--zenoh-tls-cert", "--zenoh-tls-key", "--zenoh-password-file",

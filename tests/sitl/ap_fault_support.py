@@ -1,4 +1,4 @@
-"""Helpers of tests/test_sitl_faults_ardupilot.py: watch a real ArduCopter SITL vehicle on its own
+"""Helpers of tests/sitl/test_sitl_faults_ardupilot.py: watch a real ArduCopter SITL vehicle on its own
 MAVLink port (not the ground station's) and change its parameters there, mid-mission.
 
 :class:`VehicleWatch` connects to a spare SERIAL port of one SITL instance (SERIAL2, the port
@@ -14,7 +14,7 @@ import subprocess
 import threading
 import time
 
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 
 __all__ = ["COPTER_MODES", "VehicleWatch", "stop_procs", "watch_connection"]
 

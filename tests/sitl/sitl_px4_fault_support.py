@@ -1,4 +1,4 @@
-"""Fixtures of the PX4 SIH fault tests (``tests/test_sitl_faults_px4.py``): a UDP relay that can cut
+"""Fixtures of the PX4 SIH fault tests (``tests/sitl/test_sitl_faults_px4.py``): a UDP relay that can cut
 one vehicle's link both ways, a listener on PX4's own GCS link (what the autopilots say, heard
 beside the ground station, not through it), and a ``swarmseek fly`` mission run step by step so
 that faults can be injected at seek iterations.
@@ -40,7 +40,7 @@ class UdpRelay:
     PX4 sends from ``127.0.0.1:14580+i+K`` to ``127.0.0.1:vehicle_port`` (14540+i+K): the relay binds
     that port, forwards to the ground station's ``udpin`` port ``gcs_port`` from a socket of its own,
     and sends the ground station's frames back to the address PX4 sent from. It runs in its own
-    process (``python tests/sitl_px4_fault_support.py VEHICLE_PORT GCS_PORT``): a thread of the test
+    process (``python tests/sitl/sitl_px4_fault_support.py VEHICLE_PORT GCS_PORT``): a thread of the test
     process, sharing its interpreter with the log polling, stalled for over 1 s on a loaded host
     and the ground station lost the vehicle before any cut. SIGUSR1 cuts (every datagram either way
     dropped, counted), SIGUSR2 restores; on SIGTERM it prints its counts as JSON and exits.

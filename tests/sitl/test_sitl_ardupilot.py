@@ -14,7 +14,7 @@ only sees as vehicles that track well. ``FS_GCS_TIMEOUT`` is scaled with it (it 
 seconds, the ground station's heartbeat comes once a wall second).
 
 Run alone: ``SWARMSEEK_ARDUPILOT_SITL=../shared/sitl/ardupilot python -m pytest -n 0 -s
-tests/test_sitl_ardupilot.py``.
+tests/sitl/test_sitl_ardupilot.py``.
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sitl_support import audit_failure_context, require_sitl
+from tests.support.sitl_support import audit_failure_context, require_sitl
 
 _N = 4
 _RADIUS_M = 2.0

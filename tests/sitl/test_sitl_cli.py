@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from mission.cli import main as cli_main
-from sitl_support import require_sitl
+from tests.support.sitl_support import require_sitl
 
 
 @pytest.mark.parametrize("argv, message", [

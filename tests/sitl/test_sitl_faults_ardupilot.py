@@ -27,7 +27,7 @@ of the whole log (both sessions). Printed: the autopilot's reaction time and the
 detection latency of each failsafe (wall seconds).
 
 Run alone: ``SWARMSEEK_ARDUPILOT_SITL=../shared/sitl/ardupilot python -m pytest -n 0 -s
-tests/test_sitl_faults_ardupilot.py``.
+tests/sitl/test_sitl_faults_ardupilot.py``.
 """
 from __future__ import annotations
 
@@ -43,10 +43,10 @@ from pathlib import Path
 
 import pytest
 
-from ap_fault_support import COPTER_MODES, VehicleWatch, stop_procs, watch_connection
-from gcs_fault_support import records
-from sitl_support import audit_failure_context, require_sitl
-from wait_helpers import wait_until
+from tests.sitl.ap_fault_support import COPTER_MODES, VehicleWatch, stop_procs, watch_connection
+from tests.support.gcs_fault_support import records
+from tests.support.sitl_support import audit_failure_context, require_sitl
+from tests.support.wait_helpers import wait_until
 
 _N = 5
 #: simulation speed-up of the SITL instances (wall clock for the ground station)

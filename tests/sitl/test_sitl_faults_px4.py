@@ -4,7 +4,7 @@ with one ``swarmseek sensor`` per vehicle, each a subprocess, and a fault inject
 * The kill + link-cut mission (5 vehicles at 2x, a UDP relay cutting vehicle 5's link, then one PX4
   SIGKILLed; docs/faults.md) is out of the suite: its end-state check ('LAND' seen on a living
   vehicle) failed once on a quiet machine (stop 28). Its code is in git history (commit 1d53d07..
-  the fpx4 merge) and ``tests/sitl_px4_fault_support.py`` keeps the relay and the run helpers.
+  the fpx4 merge) and ``tests/sitl/sitl_px4_fault_support.py`` keeps the relay and the run helpers.
 * ``test_px4_vehicle_that_cannot_arm``: 4 vehicles, one whose pre-arm checks fail
   (``SYS_HAS_MAG = 2``: PX4 SIH has one compass: "Preflight Fail: Found 1 compass (required: 2)").
   ``fly`` arms nothing: aborted in preflight naming the vehicle and PX4's words, exit 1; no vehicle
@@ -22,8 +22,8 @@ import time
 
 import pytest
 
-from sitl_px4_fault_support import FlyRun, GcsListener
-from sitl_support import require_sitl
+from tests.sitl.sitl_px4_fault_support import FlyRun, GcsListener
+from tests.support.sitl_support import require_sitl
 
 _SOURCE = (6.0, 12.0, 13.0)
 _START = (0.0, 20.0, 15.0)

@@ -10,7 +10,7 @@ the ground station's log); ``swarmseek audit`` is clean and counts exactly the 4
 
 Seeker: the plan ``swarmseek sitl`` writes, ``model`` with ``gamma_m = 20`` m, sampling while
 moving (:func:`mission.sim.sitl_plan.seeker_settings`); the paper's gradient ascent is flown
-against real ArduCopter (``tests/test_sitl_ardupilot.py``).
+against real ArduCopter (``tests/sitl/test_sitl_ardupilot.py``).
 
 Tolerance: ``experiments.offline_seek.simulate_seeker`` runs the same seeker, formation (same CVT
 offsets, same orientation), field, start, gamma, noise and convergence test with perfect tracking
@@ -36,7 +36,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from sitl_support import audit_failure_context, require_sitl
+from tests.support.sitl_support import audit_failure_context, require_sitl
 
 _SPEEDUP = 3.0
 _ON_GROUND = 1  # MAV_LANDED_STATE_ON_GROUND

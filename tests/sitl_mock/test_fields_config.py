@@ -20,7 +20,7 @@ from sitl_mock.fields_filament import FilamentPlume
 from sitl_mock.fields_gaussian import SumField
 from sitl_mock.fields_config import field_from_table, make_field
 
-SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
+SAMPLE = Path(__file__).resolve().parents[2] / "mission" / "examples" / "sitl_plan.toml"
 FIELD = {"type": "plume", "source_enu_m": [5.0, 20.0, 15.0], "wind_from_deg": 200.0, "stability": "B",
          "ground_reflection": False, "sensor_time_constant_s": 0.5, "sensor_detection_floor": 0.002}
 

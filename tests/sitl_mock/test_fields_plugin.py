@@ -22,7 +22,7 @@ from sitl_mock.cli_args import field_from_args
 from sitl_mock.fields_grid import GridField, load_grid
 from sitl_mock.fields_plugin import FieldPlugin, FieldPluginError, PluginField, load_plugin, probe_field
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples" / "fields"
 SOURCE = (6.0, -4.0, 13.0)
 

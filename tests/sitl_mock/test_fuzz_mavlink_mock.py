@@ -32,9 +32,9 @@ from sitl_mock.dynamics_params import DynamicsParams
 from sitl_mock.dynamics import Multicopter
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import VehicleLinks, make_parser
-from fuzz_helpers import (run_autopilot, ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad, is_valid_for, message_class,
+from tests.support.fuzz_helpers import (run_autopilot, ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad, is_valid_for, message_class,
                           mutated, reference_parse, state_repr)
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 
 _M = mavlink
 SYSID = 1

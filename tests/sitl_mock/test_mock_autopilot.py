@@ -199,7 +199,7 @@ def test_ardupilot_guided_velocity_target_times_out_and_stops():
 
 
 #: COM_OBL_RC_ACT 0 (PX4's default, position mode): real PX4 v1.16 SIH reports POSCTL (measured by
-#: tests/test_sitl_faults_px4.py runs); it then descends and lands without RC, the mock holds there
+#: tests/sitl/test_sitl_faults_px4.py runs); it then descends and lands without RC, the mock holds there
 #: (a difference left open, docs/faults.md)
 @pytest.mark.parametrize("obl_action,expected_mode", [(0, "POSCTL"), (3, "AUTO.RTL"), (4, "AUTO.LAND")])
 def test_px4_offboard_loss_failsafe(obl_action, expected_mode):

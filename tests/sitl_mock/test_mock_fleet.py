@@ -13,7 +13,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from mission.sim.embedded import free_port_block
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import PortInUseError
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 
 SPEEDUP = 5.0
 

@@ -6,7 +6,7 @@ setpoints at 20 Hz of wall time. PX4's default offboard-loss timeout (``COM_OF_L
 then half a wall second: on a loaded host (CI runs the suite with ``-n 2`` on 2 cores) a stall of
 the setpoint stream that long is ordinary, and the autopilot rightly falls back to Hold
 (``AUTO.LOITER``) before the test asked for it. These tests are about MAVSDK's interoperability,
-not that failsafe (tests/test_mock_autopilot.py covers it), so the PX4 vehicle gets a loss timeout
+not that failsafe (tests/sitl_mock/test_mock_autopilot.py covers it), so the PX4 vehicle gets a loss timeout
 a loaded host can meet, and the test checks that no failsafe fired.
 
 Every wait is a condition poll with a generous wall-clock timeout (:data:`WAIT_S`): the mock's
@@ -23,7 +23,7 @@ from mavsdk.plugins.offboard import Offboard, PositionNedYaw
 from mavsdk.plugins.telemetry import FlightMode, Telemetry
 
 from sitl_mock.fleet import MockFleet
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 
 #: wall seconds for any one condition (a loaded 2-core host, the simulation at 2x)
 WAIT_S = 90.0

@@ -15,7 +15,7 @@ import pytest
 
 import zenoh  # noqa: E402  (a project dependency)
 
-from tls_helpers import make_pki, write_private  # noqa: E402  (cryptography: the [test] extra)
+from tests.support.tls_helpers import make_pki, write_private  # noqa: E402  (cryptography: the [test] extra)
 
 from mission.cli import main as swarmseek  # noqa: E402
 from mission.core.clock import WallClock  # noqa: E402

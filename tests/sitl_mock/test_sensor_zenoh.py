@@ -14,7 +14,7 @@ from sitl_mock.faults import FaultSet
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.sensor import SignalSensor
 from wire.zenoh_config import zenoh_config
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 
 TIMEOUT_S = 30.0
 

@@ -31,7 +31,7 @@ from sitl_mock.dynamics import Multicopter
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import make_parser
 from wire.signing import signing_timestamp
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 
 KEY = bytes(range(1, 33))
 OTHER_KEY = bytes(range(101, 133))

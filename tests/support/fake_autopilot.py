@@ -1,6 +1,6 @@
 """A tiny fake MAVLink autopilot for tests and benchmarks of the ground-station links (test
-support, not shipped: ``from fake_autopilot import ...`` in tests, and ``benchmarks/bench_setpoints.py``
-puts ``tests/`` on its path).
+support, not shipped: ``from tests.support.fake_autopilot import ...`` in tests and in
+``benchmarks/bench_setpoints.py``).
 
 Not a simulator (that is ``sitl_mock``): a :class:`FakeAutopilot` answers commands (ACCEPTED by
 default; configurable drops, denials and IN_PROGRESS), reports its mode, armed state, a position

@@ -9,7 +9,7 @@ from mission.sim.embedded_world import EmbeddedWorld
 from mission.sim.lockstep import VirtualClock, run_lockstep
 from mission.telemetry.mission_log import MissionLog
 
-from invariants import check_never_abandoned
+from tests.support.invariants import check_never_abandoned
 
 __all__ = ["fly", "run_fleet", "run_with_saboteur"]
 

@@ -1,4 +1,4 @@
-"""Shared by tests/test_gcs_faults_output.py and tests/test_gcs_faults_signals.py (split in two files
+"""Shared by tests/mission/flight/test_gcs_faults_output.py and tests/mission/flight/test_gcs_faults_signals.py (split in two files
 so that the two pytest-xdist workers each take a part). The ground station's own faults never
 abandon a vehicle: a ``swarmseek fly`` process
 whose stdout or stderr is a closed pipe, that gets SIGHUP or a SIGPIPE sent by another process
@@ -27,10 +27,10 @@ from mission.sim.embedded import DEFAULT_ORIGIN, fleet_ports, free_port_block
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
-from invariants import abandoned
-from wait_helpers import wait_until
+from tests.support.invariants import abandoned
+from tests.support.wait_helpers import wait_until
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SOURCE = np.array([6.0, 4.0, 10.0])
 N = 4
 #: the mission log's size limit of the size-limited case: above what connect, preflight, takeoff

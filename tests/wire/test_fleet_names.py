@@ -21,7 +21,7 @@ from mission.core.plan_types import PlanError
 from companion.sensor_wire import sensor_key
 from wire.fleet_name import FLEET_NAME_MAX_CHARS, check_fleet_name, fleet_name_problem
 
-SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
+SAMPLE = Path(__file__).resolve().parents[2] / "mission" / "examples" / "sitl_plan.toml"
 
 BAD = [
     ("", "must not be empty"),

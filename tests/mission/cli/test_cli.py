@@ -11,7 +11,7 @@ import pytest
 from mission.cli import main as cli_main
 from mission.telemetry.mission_log import MissionLog
 
-SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
+SAMPLE = Path(__file__).resolve().parents[3] / "mission" / "examples" / "sitl_plan.toml"
 
 
 class _Clock:

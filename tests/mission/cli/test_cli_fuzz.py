@@ -29,7 +29,7 @@ from mission.cli import COMMANDS, build_parser
 from mission.cli import main as cli_main
 from mission.sim.sitl_plan import to_toml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "mission" / "examples" / "sitl_plan.toml"
 #: exit statuses the commands document (0 ok, 1 failed, 2 invalid options, 3 nobody answered)
 STATUSES = {0, 1, 2, 3}

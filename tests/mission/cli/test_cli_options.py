@@ -13,7 +13,7 @@ import pytest
 from mission.cli import main as cli_main
 from mission.telemetry.mission_log import MissionLog
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "mission" / "examples" / "sitl_plan.toml"
 
 

@@ -20,7 +20,7 @@ from mission.cli.cmd_run import _check_args, configure
 from mission.core.plan import parse_plan
 from mission.core.plan_types import PlanError
 
-SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
+SAMPLE = Path(__file__).resolve().parents[3] / "mission" / "examples" / "sitl_plan.toml"
 
 
 def _run_args(*argv):

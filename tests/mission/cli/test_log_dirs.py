@@ -64,7 +64,7 @@ def test_run_and_fly_exit_2_on_a_log_dir_of_another_mission(tmp_path, capsys, co
     from pathlib import Path
 
     (tmp_path / "mission.jsonl").write_text('{"t_s": 1, "type": "plan", "plan": {}}\n')
-    plan = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
+    plan = Path(__file__).resolve().parents[3] / "mission" / "examples" / "sitl_plan.toml"
     argv = ["run"] if command == "run" else ["fly", "--plan", str(plan)]
     assert cli_main(argv + ["--log-dir", str(tmp_path)]) == 2
     err = capsys.readouterr().err
@@ -76,7 +76,7 @@ def test_fly_says_where_its_log_is_at_the_start_and_in_the_summary(tmp_path, cap
     gives up after the heartbeat timeout, and says where its log is first and last, as ``run``."""
     import socket
 
-    from test_cli import _write_plan
+    from tests.mission.cli.test_cli import _write_plan
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

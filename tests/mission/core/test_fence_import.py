@@ -23,7 +23,7 @@ from mission.core.fence_file import (MAX_FENCE_FILE_BYTES, MAX_FENCE_VERTICES, F
 from mission.core.plan import load_plan
 from mission.core.plan_types import PlanError
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "mission" / "examples"
+EXAMPLES = Path(__file__).resolve().parents[3] / "mission" / "examples"
 KML_PLAN, QGC_PLAN = EXAMPLES / "fence_kml_plan.toml", EXAMPLES / "fence_qgc_plan.toml"
 CMAC = (-35.363261, 149.165230, 584.0)
 #: the example fences as drawn (east, north) m about CMAC, before their vertices were rounded to 1e-7 deg
@@ -283,7 +283,7 @@ def test_dry_run_shows_the_conversion_of_each_example(tmp_path, capsys, plan_pat
 def test_a_plan_with_each_example_fence_is_ready_against_a_mock_fleet(plan_path):
     """The imported fence in a whole dry-run: a mock fleet at the file's origin, every vehicle
     ready, the start and the paths to the slots inside the imported fence, nothing armed."""
-    from fly_helpers import run_fleet
+    from tests.support.fly_helpers import run_fleet
     from mission.cli.cmd_dryrun import dry_run
     from mission.sim.embedded import embedded_plan, fleet_ports
     from mission.sim.lockstep import VirtualClock

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import copy
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -11,12 +10,7 @@ import pytest
 from mission.core.plan_types import PLAN_VERSION, Plan, PlanError
 from mission.core.plan import load_plan, parse_plan
 
-SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
-
-
-@pytest.fixture()
-def doc() -> dict:
-    return tomllib.loads(SAMPLE.read_text())
+SAMPLE = Path(__file__).resolve().parents[3] / "mission" / "examples" / "sitl_plan.toml"
 
 
 def _keys(exc: PlanError) -> list[str]:

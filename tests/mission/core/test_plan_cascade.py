@@ -3,7 +3,6 @@ earlier problem already explains (issue 25: a bad vehicle entry also said "a for
 least 4 vehicles, got 3")."""
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import pytest
@@ -12,12 +11,7 @@ from mission.cli import main as cli_main
 from mission.core.plan import parse_plan
 from mission.core.plan_types import PlanError
 
-SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
-
-
-@pytest.fixture()
-def doc() -> dict:
-    return tomllib.loads(SAMPLE.read_text())
+SAMPLE = Path(__file__).resolve().parents[3] / "mission" / "examples" / "sitl_plan.toml"
 
 
 def _problems(doc: dict) -> list[tuple[str, str]]:

@@ -26,13 +26,13 @@ from mission.core.plan import load_plan, parse_plan
 from mission.core.plan_security import PlanSecurityError, check_security, refusals
 from mission.core.plan_types import PlanError
 from mission.telemetry.control_channel import ControlChannel
-from tls_helpers import make_pki, write_private
+from tests.support.tls_helpers import make_pki, write_private
 from wire.loopback import host_is_loopback, zenoh_endpoint_host, zenoh_endpoint_is_loopback
 from wire.zenoh_flags import plain_network_warning
 
 pytestmark = pytest.mark.timeout(180)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "mission" / "examples" / "sitl_plan.toml"
 
 

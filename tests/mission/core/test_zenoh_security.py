@@ -11,7 +11,6 @@ import os
 import socket
 import threading
 import time
-import tomllib
 from pathlib import Path
 
 import pytest
@@ -27,9 +26,8 @@ from wire.zenoh_secrets import ZenohSecurityError, read_password_file
 
 import zenoh  # noqa: E402  (a project dependency)
 
-from tls_helpers import make_pki, write_private  # noqa: E402  (cryptography: the [test] extra)
+from tests.support.tls_helpers import make_pki, write_private  # noqa: E402  (cryptography: the [test] extra)
 
-SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
 DELIVER_TIMEOUT_S = 20.0
 REFUSED_WINDOW_S = 2.0
 
@@ -47,11 +45,6 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-@pytest.fixture()
-def doc() -> dict:
-    return tomllib.loads(SAMPLE.read_text())
 
 
 def _keys(exc: PlanError) -> list[str]:

@@ -19,8 +19,8 @@ from mission.telemetry.mission_log import MissionLog, read_mission_log
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
-from fly_helpers import fly, run_fleet
-from invariants import abandoned, reported_airborne
+from tests.support.fly_helpers import fly, run_fleet
+from tests.support.invariants import abandoned, reported_airborne
 
 pytestmark = pytest.mark.timeout(300)
 

@@ -49,7 +49,7 @@ def _phase_is(name):
 def test_signals_to_a_running_mission(tmp_path, signals, status):
     log_dir = tmp_path / "logs"
     log = log_dir / "mission.jsonl"
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[3]))
     proc = subprocess.Popen([sys.executable, "-m", "mission", "run", "--n", "4",
                              "--json", "--no-tlog", "--log-dir", str(log_dir), "--seed", "1"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)

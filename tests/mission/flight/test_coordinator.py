@@ -315,7 +315,7 @@ def test_state_publisher_puts_json_snapshots_on_the_documented_key():
 def test_seek_load_runs_the_seek_work_until_cancelled(monkeypatch):
     """The benchmark load (benchmarks/seek_load.py): readings validated, setpoints ramped through
     the envelope, estimates."""
-    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[3] / "benchmarks"))
     from mission.core.clock import WallClock
     from seek_load import seek_load
 

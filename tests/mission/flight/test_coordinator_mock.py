@@ -15,7 +15,7 @@ from mission.sim.lockstep import VirtualClock
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
-from fly_helpers import run_fleet
+from tests.support.fly_helpers import run_fleet
 
 
 def _fleet(n, ports, source, **kw):

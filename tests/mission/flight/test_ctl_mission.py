@@ -7,7 +7,7 @@ import asyncio
 import numpy as np
 import pytest
 
-from fly_helpers import fly, run_fleet
+from tests.support.fly_helpers import fly, run_fleet
 from mission.flight.control import COMMANDS, MissionControl, OperatorStop
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.sim.lockstep import VirtualClock

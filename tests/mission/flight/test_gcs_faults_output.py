@@ -1,6 +1,6 @@
 """The ground station's own faults, output side: ``swarmseek fly`` with a closed stdout,
 a closed stderr (then SIGTERM), a mission log on a size-limited file system; ``run`` under nohup.
-Helpers and the cases' checks: tests/gcs_fault_support.py."""
+Helpers and the cases' checks: tests/support/gcs_fault_support.py."""
 from __future__ import annotations
 
 import json
@@ -10,8 +10,8 @@ import sys
 
 import pytest
 
-from wait_helpers import wait_until
-from gcs_fault_support import _Fly, _Run, _closed_stderr_then_sigterm, _closed_stdout, _env, _log_size_limit, _seeking
+from tests.support.wait_helpers import wait_until
+from tests.support.gcs_fault_support import _Fly, _Run, _closed_stderr_then_sigterm, _closed_stdout, _env, _log_size_limit, _seeking
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]
 

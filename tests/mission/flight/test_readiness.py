@@ -24,11 +24,11 @@ from mission.sim.lockstep import VirtualClock
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
-from fly_helpers import fly, run_fleet
+from tests.support.fly_helpers import fly, run_fleet
 
 pytestmark = pytest.mark.timeout(300)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "mission" / "examples" / "sitl_plan.toml"
 
 

@@ -15,7 +15,7 @@ from mission.telemetry.mission_log import read_mission_log
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
-from fly_helpers import fly as _fly, run_fleet
+from tests.support.fly_helpers import fly as _fly, run_fleet
 
 pytestmark = pytest.mark.timeout(400)
 
@@ -227,7 +227,7 @@ def test_plan_faults_section_is_checked(faults, problem):
     from mission.core.plan_types import PlanError
     from mission.core.plan import parse_plan
 
-    doc = tomllib.loads((Path(__file__).parents[1] / "mission/examples/sitl_plan.toml").read_text())
+    doc = tomllib.loads((Path(__file__).parents[3] / "mission/examples/sitl_plan.toml").read_text())
     assert parse_plan(doc).faults.readmit is False          # default: kept out
     assert parse_plan({**doc, "faults": {"readmit": True}}).faults.readmit is True
     doc["faults"] = faults

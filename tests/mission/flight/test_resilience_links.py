@@ -19,7 +19,7 @@ from mission.telemetry.mission_log import read_mission_log
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
-from fly_helpers import fly as _fly, run_fleet
+from tests.support.fly_helpers import fly as _fly, run_fleet
 
 
 

@@ -18,7 +18,7 @@ from mission.flight.rejoin import readmitted_offsets
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
-from fly_helpers import fly as _fly, run_fleet
+from tests.support.fly_helpers import fly as _fly, run_fleet
 
 pytestmark = pytest.mark.timeout(400)
 

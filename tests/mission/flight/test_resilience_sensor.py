@@ -41,7 +41,7 @@ from mission.flight.motion import parked
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
-from fly_helpers import run_with_saboteur
+from tests.support.fly_helpers import run_with_saboteur
 
 _NOISY = 3
 _LEAVING = 6

@@ -17,7 +17,7 @@ from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
 
-from fly_helpers import run_fleet
+from tests.support.fly_helpers import run_fleet
 
 pytestmark = pytest.mark.timeout(400)
 

@@ -1,6 +1,6 @@
 """``resume`` judges a vehicle "flying" on its altitude, so it waits for one.
 
-Seen on real ArduCopter SITL (tests/test_sitl_faults_ardupilot.py): the resumed ground station got
+Seen on real ArduCopter SITL (tests/sitl/test_sitl_faults_ardupilot.py): the resumed ground station got
 LOCAL_POSITION_NED (a position: ``position_ok``) before the home and the first GLOBAL_POSITION_INT,
 so the altitude above home was still unknown and 4 of 5 vehicles hovering 13 m up were declared
 "not flying", then landed where they were. :func:`mission.flight.resume._why_not_flying` now waits

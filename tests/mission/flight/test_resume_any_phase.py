@@ -11,9 +11,9 @@ from mission.cli.cmd_resume import resume
 from mission.flight.resume import ResumeError, load_resume_state
 from mission.telemetry.mission_log import read_mission_log
 
-from fly_helpers import run_fleet
-from invariants import abandoned
-from test_abandon import _fly_with, _settle, _setup, _wait_phase
+from tests.support.fly_helpers import run_fleet
+from tests.support.invariants import abandoned
+from tests.mission.flight.test_abandon import _fly_with, _settle, _setup, _wait_phase
 
 pytestmark = pytest.mark.timeout(400)
 

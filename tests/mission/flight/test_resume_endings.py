@@ -199,10 +199,10 @@ def test_resume_of_a_log_aborted_by_an_internal_error_brings_the_hovering_vehicl
     from mission.cli.cmd_resume import resume
     from mission.telemetry.mission_log import read_mission_log
 
-    from fly_helpers import run_fleet
-    from invariants import abandoned
-    from test_abandon import _fly_with, _settle, _setup
-    from test_resume_any_phase import _stop_in
+    from tests.support.fly_helpers import run_fleet
+    from tests.support.invariants import abandoned
+    from tests.mission.flight.test_abandon import _fly_with, _settle, _setup
+    from tests.mission.flight.test_resume_any_phase import _stop_in
 
     plan, fleet = _setup("ardupilot", return_behaviour="land", max_iterations=6)
     log_path = tmp_path / "m.jsonl"

@@ -17,7 +17,7 @@ from mission.flight.obstacles import OBSTACLE_MARGIN_M
 from mission.flight.return_plan import landing_spots, path_clearance, plan_clear_return
 from mission.safety.fence import Geofence
 from mission.flight.targets import layered_transfer
-from fly_helpers import fly, run_fleet
+from tests.support.fly_helpers import fly, run_fleet
 
 pytestmark = pytest.mark.timeout(300)
 

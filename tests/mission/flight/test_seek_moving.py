@@ -20,7 +20,7 @@ from mission.telemetry.mission_log import read_mission_log
 from mission.telemetry.reading_format import Reading
 from sitl_mock.fields_gaussian import sigma2
 
-SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
+SAMPLE = Path(__file__).resolve().parents[3] / "mission" / "examples" / "sitl_plan.toml"
 
 
 def _fly(tmp_path, capsys, name: str, *options) -> tuple[dict, list[dict]]:
@@ -86,7 +86,7 @@ def test_lagged_sensor_is_compensated_when_moving(tmp_path, capsys):
 def test_envelope_clamps_the_moving_centre_at_the_fence(tmp_path):
     """Source outside the fence: with moving sampling the centre is still held at the fence
     (``stopped_at_fence``) and no setpoint left it (audit of the .tlogs)."""
-    from fly_helpers import run_with_saboteur
+    from tests.support.fly_helpers import run_with_saboteur
 
     from mission.safety.audit import audit_mission
     from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
@@ -112,11 +112,6 @@ def test_envelope_clamps_the_moving_centre_at_the_fence(tmp_path):
     assert report.min_fence_margin_m < 1.0, report.format_text()  # pushed against the fence
     its = [r for r in read_mission_log(tmp_path / "mission.jsonl") if r["type"] == "iteration"]
     assert max(len(it["readings"]) for it in its) > n  # it did sample while moving
-
-
-@pytest.fixture()
-def doc() -> dict:
-    return tomllib.loads(SAMPLE.read_text())
 
 
 def test_plan_selects_moving_sampling(doc):

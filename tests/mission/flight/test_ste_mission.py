@@ -8,7 +8,6 @@ import copy
 import json
 import math
 import re
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -25,13 +24,8 @@ from mission.flight.seek_moving import MovingSampling, thin_evenly
 from mission.telemetry.mission_log import read_mission_log
 from mission.telemetry.reading_format import Reading
 
-SAMPLE = Path(__file__).resolve().parents[1] / "mission" / "examples" / "sitl_plan.toml"
+SAMPLE = Path(__file__).resolve().parents[3] / "mission" / "examples" / "sitl_plan.toml"
 _STE = {"seeker": "ste", "sampling": "moving", "gamma_m": 20.0}
-
-
-@pytest.fixture()
-def doc() -> dict:
-    return tomllib.loads(SAMPLE.read_text())
 
 
 def _with(doc: dict, **seeking) -> dict:

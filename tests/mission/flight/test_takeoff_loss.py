@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fly_helpers import run_with_saboteur
+from tests.support.fly_helpers import run_with_saboteur
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.sim.lockstep import VirtualClock
 from mission.telemetry.mission_log import read_mission_log
@@ -50,7 +50,7 @@ def test_vehicle_failing_its_takeoff_is_lost_and_the_others_go_on(tmp_path):
     landed = sorted(e["sysid"] for e in events if e["message"].endswith("landed"))
     assert landed == [1, 2, 3, 4]
     # 4 vehicles are left: the N = 4 estimate is biased (docs/mission.md); offline, N = 4 CVT of radius
-    # 2 m, random orientations, noise 0.005: 99th percentile 3.0 m (tests/test_sitl_px4.py's method)
+    # 2 m, random orientations, noise 0.005: 99th percentile 3.0 m (tests/sitl/test_sitl_px4.py's method)
     assert float(np.linalg.norm(np.asarray(result.estimate_enu) - _SOURCE)) < 3.5
 
 

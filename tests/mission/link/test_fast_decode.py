@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from pymavlink.generator import mavcrc
 
 import mission.link.endpoint_receive as endpoint_receive
-from fuzz_helpers import (ALL_MESSAGE_CLASSES, SIGNED_REGIONS, FakeClock, encode, frames, message_class, messages,
+from tests.support.fuzz_helpers import (ALL_MESSAGE_CLASSES, SIGNED_REGIONS, FakeClock, encode, frames, message_class, messages,
                           mutate_signed, mutated, sign, state_repr)
 from mission.link.endpoint import MavEndpoint
 from mission.core.uri import parse_connection

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fly_helpers import run_with_saboteur
+from tests.support.fly_helpers import run_with_saboteur
 from mission.core.clock import WallClock
 from mission.core.uri import parse_connection
 from mission.link.endpoint import MavEndpoint
@@ -37,7 +37,7 @@ from mission.sim.lockstep import VirtualClock
 from mission.telemetry.mission_log import read_mission_log
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
-from wait_helpers import wait_until_async
+from tests.support.wait_helpers import wait_until_async
 
 pytestmark = [pytest.mark.timeout(600)]
 
@@ -266,7 +266,7 @@ def test_the_quarantine_log_stops_at_its_cap_and_counts_the_drops(tmp_path):
 def test_a_mode_change_counts_only_when_the_vehicles_own_stream_repeats_it():
     """From the pinned address too, one AUTO.LAND heartbeat is "unconfirmed" (the coordinator asks
     for a heartbeat); the vehicle's next one decides."""
-    from fuzz_helpers import FakeClock
+    from tests.support.fuzz_helpers import FakeClock
     from mission.flight.loss import classify_loss
     from mission.vehicle.vehicle_link import VehicleLink
 
@@ -299,7 +299,7 @@ def test_a_mode_change_counts_only_when_the_vehicles_own_stream_repeats_it():
 def test_a_planned_vehicles_frames_before_its_heartbeat_wait_for_its_pin(tmp_path):
     """Telemetry may come before the first HEARTBEAT: held, then logged in the vehicle's tlog if it
     came from the pinned address, quarantined (``foreign_address``) if not."""
-    from fuzz_helpers import FakeClock
+    from tests.support.fuzz_helpers import FakeClock
 
     ep = MavEndpoint(parse_connection("udpin:127.0.0.1:0"), clock=FakeClock(), heartbeat_hz=0,
                      tlog_dir=tmp_path, planned_sysids=[3])

@@ -20,11 +20,11 @@ from mission.core.plan_types import PlanError
 from mission.core.plan import parse_plan
 from mission.link.forward import Forwarder, plan_with_outs
 from mission.telemetry.mission_log import read_mission_log
-from wait_helpers import wait_until, wait_until_async
+from tests.support.wait_helpers import wait_until, wait_until_async
 
 pytestmark = pytest.mark.timeout(180)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "mission" / "examples" / "sitl_plan.toml"
 
 

@@ -26,7 +26,7 @@ from mission.link.forward import ForwardAddressError, Forwarder, forwarding, pla
 
 pytestmark = pytest.mark.timeout(120)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "mission" / "examples" / "sitl_plan.toml"
 NOWHERE = "udp:qgc.swarmseek.invalid:14550"
 

@@ -20,7 +20,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fuzz_helpers import (ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad, message_class, mutated,
+from tests.support.fuzz_helpers import (ALL_MESSAGE_CLASSES, FakeClock, encode, frames, is_bad, message_class, mutated,
                           reference_parse, state_repr)
 from mission.core.clock import WallClock
 from mission.link.endpoint import MavEndpoint
@@ -28,7 +28,7 @@ from mission.core.uri import parse_connection
 from mission.link.poller import UdpPoller
 from mission.link.tlog import read_tlog_records
 from mission.vehicle.vehicle_link import VehicleLink
-from wait_helpers import wait_until_async
+from tests.support.wait_helpers import wait_until_async
 
 _M = mavlink
 #: NaN and infinite telemetry make numpy warn while the state is updated; that is expected here

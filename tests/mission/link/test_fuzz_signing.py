@@ -26,7 +26,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fuzz_helpers import (run_autopilot, SIGNED_REGIONS, FakeClock, SigningOracle, encode, message_class, messages,
+from tests.support.fuzz_helpers import (run_autopilot, SIGNED_REGIONS, FakeClock, SigningOracle, encode, message_class, messages,
                           mutate_signed, reference_parse, sign, state_repr)
 from mission.link.endpoint_registry import LinkError
 from mission.link.endpoint import MavEndpoint

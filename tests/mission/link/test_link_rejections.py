@@ -20,7 +20,7 @@ import time
 import numpy as np
 import pytest
 import zenoh
-from fly_helpers import run_fleet
+from tests.support.fly_helpers import run_fleet
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mission.core.plan_types import replace_plan

@@ -13,8 +13,8 @@ from mission.link.endpoint_registry import LinkError, SysidRegistry
 from mission.link.endpoint import MavEndpoint
 from mission.link.poller import UdpPoller
 from mission.vehicle.vehicle_link import VehicleLink
-from fake_autopilot import FakeAutopilot, FakeUdpVehicle
-from wait_helpers import wait_until_async
+from tests.support.fake_autopilot import FakeAutopilot, FakeUdpVehicle
+from tests.support.wait_helpers import wait_until_async
 
 ORIGIN = (45.0, 5.0, 200.0)
 

@@ -17,7 +17,7 @@ from mission.link.signing import apply_signing
 from mission.vehicle.vehicle_link import VehicleLink
 from sitl_mock.fleet import MockFleet
 from sitl_mock.transport import make_parser
-from wait_helpers import wait_until_async
+from tests.support.wait_helpers import wait_until_async
 
 KEY = bytes(range(1, 33))
 OTHER_KEY = bytes(range(101, 133))

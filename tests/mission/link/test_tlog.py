@@ -11,8 +11,8 @@ from mission.core.clock import WallClock
 from mission.link.endpoint import MavEndpoint
 from mission.link.tlog import TlogSet, read_tlog_records, tlog_record
 from mission.vehicle.vehicle_link import VehicleLink
-from fake_autopilot import FakeAutopilot, FakeUdpVehicle
-from wait_helpers import wait_until_async
+from tests.support.fake_autopilot import FakeAutopilot, FakeUdpVehicle
+from tests.support.wait_helpers import wait_until_async
 
 ORIGIN = (45.0, 5.0, 200.0)
 

@@ -29,7 +29,7 @@ from mission.core.plan_types import GeofencePlan
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
-from fly_helpers import run_with_saboteur
+from tests.support.fly_helpers import run_with_saboteur
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 

@@ -9,7 +9,7 @@ import pytest
 from mission.cli import main as cli_main
 from mission.safety.audit_read import AuditError
 from mission.safety.audit import audit_mission
-from test_audit import _line, _plan, _write_log
+from tests.mission.safety.test_audit import _line, _plan, _write_log
 
 
 def _planned(sysids):

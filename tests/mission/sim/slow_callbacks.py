@@ -1,6 +1,6 @@
 """Run a ``swarmseek`` command with asyncio's debug mode on and time every event-loop callback.
 
-``python tests/slow_callbacks.py REPORT.json run --n 8 ...`` runs ``swarmseek run ...`` in this
+``python tests/mission/sim/slow_callbacks.py REPORT.json run --n 8 ...`` runs ``swarmseek run ...`` in this
 fresh interpreter (so first-call imports happen where the command does them) with
 ``PYTHONASYNCIODEBUG=1`` (set by the caller: every loop is in debug mode,
 ``slow_callback_duration`` 0.1 s), and writes ``REPORT.json``: the exit status, the number of

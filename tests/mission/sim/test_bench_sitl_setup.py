@@ -23,7 +23,7 @@ _VEHICLES = [SimpleNamespace(sysid=i + 1, connection=f"udpin:127.0.0.1:{14540 + 
 
 @pytest.fixture
 def bench(monkeypatch):
-    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[3] / "benchmarks"))
     import bench_sitl
     return bench_sitl
 

@@ -20,7 +20,7 @@ import pytest
 
 from mission.cli import main as cli_main
 
-from fly_helpers import run_fleet
+from tests.support.fly_helpers import run_fleet
 
 _FLIGHT_MARGIN_M = 0.5
 _NOISE = 0.005

@@ -2,7 +2,7 @@
 asyncio's debug mode on (``PYTHONASYNCIODEBUG=1``: ``loop.set_debug(True)``, ``slow_callback_duration``
 0.1 s) must log no ``Executing <callback> took X seconds`` warning on the ``asyncio`` logger.
 
-What is measured, and why (``tests/slow_callbacks.py`` does it): asyncio's own check times a
+What is measured, and why (``tests/mission/sim/slow_callbacks.py`` does it): asyncio's own check times a
 callback with ``loop.time()``, which on the lock-step loop is simulated time and never moves during
 a callback; and wall time on a loaded 2-core machine counts the time the OS kept the thread
 waiting for a core. So each callback is also timed by what it did to the loop's thread: its CPU
@@ -35,9 +35,9 @@ from pathlib import Path
 import pytest
 
 from mission.sim.lockstep import LockstepEventLoop, VirtualClock
-from slow_callbacks import CallbackTimer
+from tests.mission.sim.slow_callbacks import CallbackTimer
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _burn_cpu_s(dt_s: float) -> None:
@@ -75,7 +75,7 @@ def test_the_timer_catches_busy_and_blocked_callbacks_but_not_executor_work():
 
 def _debug_run(tmp_path: Path, k: int) -> dict:
     report = tmp_path / f"report-{k}.json"
-    cmd = [sys.executable, str(ROOT / "tests" / "slow_callbacks.py"), str(report), "run", "--json",
+    cmd = [sys.executable, str(Path(__file__).with_name("slow_callbacks.py")), str(report), "run", "--json",
            "--log-dir", str(tmp_path / f"run-{k}")]
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONASYNCIODEBUG="1")
     p = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)

@@ -18,12 +18,12 @@ import pytest
 from mission.core.plan_types import PlanError
 from mission.core.plan import parse_plan
 from mission.telemetry.control_channel import ControlChannel, control_key, parse_request
-from tls_helpers import write_private
-from wait_helpers import wait_until
+from tests.support.tls_helpers import write_private
+from tests.support.wait_helpers import wait_until
 
 pytestmark = pytest.mark.timeout(120)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SAMPLE = ROOT / "mission" / "examples" / "sitl_plan.toml"
 
 

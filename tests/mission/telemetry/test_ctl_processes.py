@@ -22,11 +22,11 @@ import pytest
 from mission.sim.embedded import fleet_ports
 from sitl_mock.fleet import DEFAULT_ORIGIN
 from mission.telemetry.mission_log import read_mission_log
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 
 pytestmark = [pytest.mark.timeout(400), pytest.mark.slow]
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 #: wall seconds `ctl` waits to reach the ground station and for its answer (a cold process on a loaded host)
 CTL_WAIT_S = 60.0
 #: wall seconds for one condition seen through `watch` (snapshots, the hold, the next iteration)

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fuzz_helpers import FakeClock
+from tests.support.fuzz_helpers import FakeClock
 from formation.geodesy import enu_to_geodetic
 from mission.sim.embedded import free_port_block
 from mission.telemetry.reading_format import (
@@ -30,7 +30,7 @@ from mission.telemetry.reading_format import (
 )
 from mission.telemetry.readings import ReadingStore, ReadingSubscriber
 from companion.sensor_wire import encode_reading
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 
 FLEET = "demo"
 ORIGIN = (45.19, 5.72, 230.0)

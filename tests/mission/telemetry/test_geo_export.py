@@ -22,7 +22,7 @@ from mission.core.plan import load_plan
 from mission.telemetry.geo_export import REGION_VERTICES
 from mission.telemetry.mission_log import read_mission_log, to_jsonable
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 KML_NS = {"k": "http://www.opengis.net/kml/2.2"}
 #: written to 1e-8 deg and 1 mm: compared within a little more
 DEG_TOL, ALT_TOL_M = 2e-8, 2e-3

@@ -25,11 +25,11 @@ from pathlib import Path
 import pytest
 
 from mission.telemetry.mission_log import read_mission_log
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 
 pytestmark = [pytest.mark.timeout(400), pytest.mark.slow]
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 WAIT_S = 120.0
 
 

@@ -20,19 +20,19 @@ import aiohttp
 import numpy as np
 import pytest
 
-from gcs_fault_support import N, _env, _plan_toml
-from invariants import abandoned
+from tests.support.gcs_fault_support import N, _env, _plan_toml
+from tests.support.invariants import abandoned
 from mission.cli import main as cli_main
 from mission.flight.coordinator import _plan_json
 from mission.sim.embedded import DEFAULT_ORIGIN, fleet_ports, free_port_block
 from mission.telemetry.mission_log import read_mission_log
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
-from wait_helpers import wait_until
+from tests.support.wait_helpers import wait_until
 
 pytestmark = pytest.mark.timeout(500)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 #: wall seconds for one condition seen on the page (takeoff and assembly of 4 vehicles on a loaded host)
 PAGE_WAIT_S = 180.0
 #: far from the start (0, 0, 10) for 1 m steps: the seek goes on until the page's commands end it
@@ -233,7 +233,7 @@ def test_the_map_reads_and_commands_through_the_missions_own_session_under_acces
     from mission.telemetry.map_live import MapThread
     from mission.telemetry.map_server import MapAccess
     from mission.telemetry.state_pub import STATE_SCHEMA, state_key
-    from test_ctl_access import _Coordinator, _free_port, _plan
+    from tests.mission.telemetry.test_ctl_access import _Coordinator, _free_port, _plan
 
     plan = _plan(tmp_path, _free_port(), {"sensor_usernames": ["sensor1"], "monitor_usernames": ["viewer", "ops"],
                                           "commander_usernames": ["ops"]})

@@ -1,6 +1,6 @@
 """The live map's server without a browser: who may command (loopback, password, origin, CSRF), the
 feed of snapshots to the pages, the replay of a mission log, and the ``map`` command's bad input
-(one line, non-zero exit). The browser itself: tests/test_map_browser.py."""
+(one line, non-zero exit). The browser itself: tests/mission/telemetry/test_map_browser.py."""
 from __future__ import annotations
 
 import argparse
@@ -24,7 +24,7 @@ from mission.telemetry.map_feed import MapFeed
 from mission.telemetry.map_replay import MissionLogReplay, ReplayError, ReplayPlayer
 from mission.telemetry.map_server import MapAccess, is_loopback, make_app
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_bind_and_tile_url_options():

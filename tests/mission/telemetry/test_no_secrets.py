@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from fly_helpers import run_fleet
-from tls_helpers import write_private
+from tests.support.fly_helpers import run_fleet
+from tests.support.tls_helpers import write_private
 
 from mission.core.plan_types import replace_plan
 from mission.core.signing_config import signing_config_from_table

@@ -278,8 +278,8 @@ def test_live_table_and_line_show_the_region():
 def test_state_publication_carries_the_region(tmp_path):
     """A lock-step mission against the mock fleet (model seeker): the snapshots published on zenoh
     during the seek carry the estimate's region and basis, as ``watch`` shows them."""
-    from fly_helpers import run_fleet
-    from test_coordinator_mock import _fleet, _fly
+    from tests.support.fly_helpers import run_fleet
+    from tests.mission.flight.test_coordinator_mock import _fleet, _fly
 
     from mission.sim.embedded import embedded_plan, fleet_ports
     from mission.telemetry.display import format_table

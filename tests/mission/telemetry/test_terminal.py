@@ -1,7 +1,7 @@
 """The ground station's own faults, piece by piece: a best-effort terminal, a mission log
 that fails without raising, background tasks whose failure is told, a state publication and a live
 display that never stop a mission. The whole ``fly`` process under these faults:
-``tests/test_gcs_faults_output.py tests/test_gcs_faults_signals.py``."""
+``tests/mission/flight/test_gcs_faults_output.py tests/mission/flight/test_gcs_faults_signals.py``."""
 from __future__ import annotations
 
 import asyncio
@@ -22,7 +22,7 @@ from mission.telemetry.terminal import Terminal, alert, best_effort_terminal
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
-from fly_helpers import run_fleet
+from tests.support.fly_helpers import run_fleet
 
 
 class _Clock:

@@ -17,11 +17,11 @@ from mission.telemetry.display import format_line, format_table
 from mission.telemetry.state_pub import STATE_SCHEMA, StatePublisher, state_key
 from mission.telemetry.watch import StateWatcher
 from mission.telemetry.watch_keys import KeyDecoder, TerminalKeys
-from wait_helpers import wait_until, wait_until_async
+from tests.support.wait_helpers import wait_until, wait_until_async
 
 pytestmark = pytest.mark.timeout(120)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _port() -> int:

@@ -28,8 +28,8 @@ from sitl_mock.ap_prearm import EKF_FLAGS_NO_GPS, EKF_FLAGS_OK, PREARM_REPORT_IN
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
-from fly_helpers import fly, run_fleet
-from test_mock_autopilot import Harness
+from tests.support.fly_helpers import fly, run_fleet
+from tests.sitl_mock.test_mock_autopilot import Harness
 
 _PREARM = mav.MAV_SYS_STATUS_PREARM_CHECK
 _GPS = mav.MAV_SYS_STATUS_SENSOR_GPS

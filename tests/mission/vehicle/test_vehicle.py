@@ -17,9 +17,9 @@ from mission.link.endpoint import MavEndpoint
 from mission.vehicle.streamer import SetpointStreamer
 from mission.vehicle.state import CommandError, command_name
 from mission.vehicle.vehicle_link import VehicleLink
-from fake_autopilot import FakeAutopilot, FakeUdpVehicle
+from tests.support.fake_autopilot import FakeAutopilot, FakeUdpVehicle
 from mission.vehicle.frames import MissionToLocal, mode_name, resolve_mode
-from wait_helpers import wait_until_async
+from tests.support.wait_helpers import wait_until_async
 
 ORIGIN = (45.0, 5.0, 200.0)
 ARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
