@@ -1,5 +1,5 @@
 """One bad plan value is reported once, at its key: the checks that span sections skip what an
-earlier problem already explains (issue 25: a bad vehicle entry also said "a formation needs at
+earlier problem already explains (a bad vehicle entry once also said "a formation needs at
 least 4 vehicles, got 3")."""
 from __future__ import annotations
 

@@ -111,7 +111,7 @@ def test_the_sample_plan_and_loopback_plans_have_no_finding():
 
 
 @pytest.mark.parametrize("zenoh", [
-    {"listen": ["tcp/0.0.0.0:7447"]},                       # the issue's scenario
+    {"listen": ["tcp/0.0.0.0:7447"]},                       # every interface: open to the network
     {"listen": ["tcp/127.0.0.1:7447", "tcp/192.168.1.10:7447"]},
     {"connect": ["tcp/192.168.1.20:7447"]},                 # a peer it connects to
     {"mode": "client", "connect": ["tcp/router.example:7447"]},  # through a router
@@ -285,7 +285,7 @@ def _write_plan(tmp_path: Path, doc: dict, name: str = "plan.toml") -> Path:
 
 
 @pytest.mark.parametrize("command", [["dry-run", "--timeout", "1"], ["fly", "--no-tlog"]])
-def test_the_commands_refuse_the_issue_scenario_with_one_line(tmp_path, command):
+def test_the_commands_refuse_a_plan_listening_on_every_interface_with_one_line(tmp_path, command):
     plan = _write_plan(tmp_path, {"mode": "peer", "listen": ["tcp/0.0.0.0:7447"]})
     log_dir = ["--log-dir", str(tmp_path / "logs")] if command[0] == "fly" else []
     p = _swarmseek(*command, "--plan", str(plan), *log_dir)

@@ -1,6 +1,6 @@
 """The embedded mock fleet's unconfigured ground-station-loss failsafe is said once, in the
-mock's words, as information (issue 25: ``run`` warned for all 8 mock vehicles that "nothing
-brings it down"); real vehicles (``fly``, ``dry-run``) keep the warning naming each vehicle."""
+mock's words, as information (``run`` once warned for each of its 8 mock vehicles that
+"nothing brings it down"); real vehicles (``fly``, ``dry-run``) keep the warning naming each vehicle."""
 from __future__ import annotations
 
 import pytest

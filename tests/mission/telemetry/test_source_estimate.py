@@ -1,5 +1,5 @@
-"""Every seeker's source estimate with its 95 % region (issue 18, "uncertainty everywhere"):
-the typed estimate and its checks, each seeker's definition, the region in the summary, --json,
+"""Every seeker's source estimate with its 95 % region, wherever the estimate
+appears: the typed estimate and its checks, each seeker's definition, the region in the summary, --json,
 the mission log, the live table, the state publication, and the plots' posterior heat map."""
 from __future__ import annotations
 
