@@ -4,7 +4,9 @@ The longest files (real-SITL missions, conformance against real firmware, wall-c
 processes: 40-180 s a test) are handed out first, so that the short files fill the other worker
 around them instead of the workers ending on one long file each. Three workers on two cores: the
 real-SITL and wall-clock files mostly wait on real time (the whole suite used about 1.1 cores on
-average with two workers). Order only: every test runs.
+average with two workers). Order only: every test runs. pytest-xdist hands files out in this order
+only with ``--no-loadscope-reorder`` (pyproject.toml): by default (since 3.5) it sorts them by
+their number of tests, most first, which put a 7-test 80 s file behind hundreds of short ones.
 
 The suite is laid out like the code (``tests/__init__.py``); fixtures shared by one folder are in
 that folder's ``conftest.py``.
