@@ -6,7 +6,7 @@ around them instead of the workers ending on one long file each. Three workers o
 real-SITL and wall-clock files mostly wait on real time (the whole suite used about 1.1 cores on
 average with two workers). Order only: every test runs. pytest-xdist hands files out in this order
 only with ``--no-loadscope-reorder`` (pyproject.toml): by default (since 3.5) it sorts them by
-their number of tests, most first, which put a 7-test 80 s file behind hundreds of short ones.
+their number of tests, most first, which puts a long file of few tests behind the many short ones.
 
 The suite is laid out like the code (``tests/__init__.py``); fixtures shared by one folder are in
 that folder's ``conftest.py``.
