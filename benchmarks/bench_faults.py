@@ -244,7 +244,7 @@ SCENARIOS = {
     "stuck_plain": lambda: scenario("sensor 2 stuck, Theorem 2 (no robust)", n=8, initial=[(2, "sensor_stuck", True)]),
     "spike_robust": lambda: scenario("sensor 5 spiking (20 %, 0.5), robust", n=8, estimator="robust",
                                      initial=[(5, "sensor_spike_prob", 0.2), (5, "sensor_spike_size", 0.5)]),
-    # as tests/test_resilience_sensor.py: N = 8, D = 2 m, noise 0.005 and 0.025 on vehicle 3, source
+    # as tests/mission/flight/test_resilience_sensor.py: N = 8, D = 2 m, noise 0.005 and 0.025 on vehicle 3, source
     # 24 m away, retire_after = 5, retire_min_noise_ratio = 2, convergence 0.5 m. At D = 4 m (the
     # other rows) the field's curvature across the formation dominates the leave-one-out errors:
     # the noisy sensor's estimated noise is 1.1-1.3x the median, it is not retired (noisy_retire_d4)

@@ -2,7 +2,7 @@
 
 For every N and every stack, three processes:
 
-* the *vehicles* (``--role vehicles``): N fake autopilots (``tests/fake_autopilot.py``), one UDP
+* the *vehicles* (``--role vehicles``): N fake autopilots (``tests/support/fake_autopilot.py``), one UDP
   socket each, sending telemetry like an autopilot at the rates the mission asks for
   (GLOBAL_POSITION_INT and LOCAL_POSITION_NED 5 Hz; HEARTBEAT, SYS_STATUS, EXTENDED_SYS_STATE
   1 Hz) and time-stamping every setpoint they receive (``time.perf_counter``): the intervals and
@@ -82,8 +82,7 @@ def _stdin_commands(loop, queue) -> None:
 
 # ---------------------------------------------------------------------------------- vehicles
 async def _vehicles_main(n: int, port_base: int, shared: bool) -> None:
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
-    from fake_autopilot import FakeAutopilot, FakeUdpVehicle
+    from tests.support.fake_autopilot import FakeAutopilot, FakeUdpVehicle
     from formation.geodesy import enu_to_geodetic
 
     fakes = []

@@ -6,7 +6,7 @@
         --seeker ste --sampling moving --field intermittent
 
 Starts the fleet (:class:`mission.sim.sitl_fleet.SitlFleet`, free ports), writes the plan of
-``tests/test_sitl_px4.py`` (CVT radius 2 m, source (6, 12, 13) m, start (0, 20, 15) m, noise
+``tests/sitl/test_sitl_px4.py`` (CVT radius 2 m, source (6, 12, 13) m, start (0, 20, 15) m, noise
 0.005), runs one ``swarmseek sensor`` per vehicle and ``swarmseek fly`` as subprocesses
 (:func:`mission.sim.sitl_mission.fly_sitl_mission`) and prints one JSON line: outcome, error,
 iterations, mission time, wall time of ``fly``, CPU seconds of ``fly``, of the sensors and of

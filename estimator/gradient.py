@@ -27,7 +27,7 @@ were actually taken, relative to the centre ``c``) and readings ``s_i``:
   (``s_c`` := the mean of the readings, with the *uncentred* ``M``) has the same numerator but
   ``M^-1`` in place of ``M_c^-1``; it is exact only when ``rbar = sum d_i = 0`` and otherwise
   carries the bias ``-M^-1 rbar (rbar . grad) / N`` (relative error up to 3.2e-4 and 2.6e-4
-  for the CVTs with ``||rbar|| ~ 0.1 D``, N = 11 and 13; ``tests/test_centred_moment.py``). It stays available
+  for the CVTs with ``||rbar|| ~ 0.1 D``, N = 11 and 13; ``tests/estimator/test_centred_moment.py``). It stays available
   as ``centred=False`` (the paper's formula, used to reproduce the paper).
 
 So ``g = W^T s - s_c b`` with weights ``W`` (N, 3) and ``b`` (3,): ``W = M^-1 d_i``,

@@ -32,7 +32,7 @@ _DEFAULT_STARTS = {"sigma1": "10,50,10", "sigma2": "20,-20,5"}
 #: the convergence test of the paper's gradient run (gamma 0.1 m: hundreds of small steps)
 PAPER_WINDOW, PAPER_TOL_M = 400, 1.0
 #: a mission plan's convergence test (``[seeking] convergence_window`` and ``convergence_tol_m``'s
-#: defaults, :class:`mission.core.plan_types.SeekingPlan`; tests/test_sweep_simulate.py checks they agree)
+#: defaults, :class:`mission.core.plan_types.SeekingPlan`; tests/experiments/test_sweep_simulate.py checks they agree)
 MISSION_WINDOW, MISSION_TOL_M = 12, 0.5
 
 

@@ -177,7 +177,7 @@ class TangentFrame:
     these methods about 1.3 us and 4 us (``python benchmarks/bench_geodesy.py``). Each method is
     ``pymap3d.geodetic2enu`` / ``pymap3d.enu2geodetic`` written out on floats with the same
     operations in the same order, so the result is bit-identical to theirs
-    (``tests/test_geodesy.py`` checks it on random points and on a grid): :func:`math.radians`,
+    (``tests/formation/test_geodesy.py`` checks it on random points and on a grid): :func:`math.radians`,
     :func:`math.degrees`, :func:`math.sin`, :func:`math.cos` and :func:`math.sqrt` give numpy's
     float64 results, while ``hypot``, ``arctan``, ``arctan2`` and ``tan`` stay numpy's (with
     SIMD loops they may differ from :mod:`math`'s in the last bit). The origin's ECEF position and

@@ -5,7 +5,7 @@ for every number of points, unlike the subdivision mesh cited by the paper); eac
 assigned to its nearest generator, a cell's centroid is the mean of its mesh points, projected
 radially on the sphere. The result is a CVT of the *mesh*, so it differs from the exact CVT
 (:func:`formation.cvt_sphere`) by the discretisation error: measure it with
-:func:`formation.cvt_energy` (see ``tests/test_formation_mesh.py`` and
+:func:`formation.cvt_energy` (see ``tests/formation/test_formation_distributed.py`` and
 ``benchmarks/bench_cvt.py``).
 """
 from __future__ import annotations

@@ -6,7 +6,7 @@ parameters ask for:
 
 * offboard loss (PX4): no setpoint for ``COM_OF_LOSS_T`` s in OFFBOARD -> ``COM_OBL_RC_ACT``
   (0 Position mode, ``POSCTL``: the mode real PX4 v1.16 SIH reports, measured by
-  ``tests/test_sitl_faults_px4.py``; the mock holds there, while real PX4 without RC descends at
+  ``tests/sitl/test_sitl_faults_px4.py``; the mock holds there, while real PX4 without RC descends at
   about 0.5 m/s and lands: a difference left open, docs/faults.md; 3 Return, 4 Land, otherwise Hold);
 * GCS loss: no GCS heartbeat for ``FS_GCS_TIMEOUT`` (ArduPilot, heartbeats from
   ``MAV_GCS_SYSID``) or ``COM_DL_LOSS_T`` (PX4, any MAV_TYPE_GCS) -> ``FS_GCS_ENABLE`` /

@@ -328,7 +328,7 @@ class MockFleet:
         Called between the steps of a catch-up too: on a starved host a run of up to
         ``_MAX_CATCHUP_STEPS`` steps (with their sensor publications, which may block on a slow
         zenoh peer) took over a wall second, and a ground station heard nothing from any vehicle
-        for that long and declared the whole fleet lost (``tests/test_ctl_processes.py`` under load).
+        for that long and declared the whole fleet lost (``tests/mission/telemetry/test_ctl_processes.py`` under load).
         """
         t_io = self.clock.time()
         for v in self.vehicles:

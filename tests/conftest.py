@@ -4,22 +4,51 @@ The longest files (real-SITL missions, conformance against real firmware, wall-c
 processes: 40-180 s a test) are handed out first, so that the short files fill the other worker
 around them instead of the workers ending on one long file each. Three workers on two cores: the
 real-SITL and wall-clock files mostly wait on real time (the whole suite used about 1.1 cores on
-average with two workers). Order only: every test runs.
+average with two workers). Order only: every test runs. pytest-xdist hands files out in this order
+only with ``--no-loadscope-reorder`` (pyproject.toml): by default (since 3.5) it sorts them by
+their number of tests, most first, which puts a long file of few tests behind the many short ones.
+
+The suite is laid out like the code (``tests/__init__.py``); fixtures shared by one folder are in
+that folder's ``conftest.py``.
 """
 from __future__ import annotations
 
-#: ``--cpu-hogs N``: the suite beside N CPU-bound processes (tests/cpu_hogs_plugin.py)
-pytest_plugins = ["cpu_hogs_plugin"]
+#: ``--cpu-hogs N``: the suite beside N CPU-bound processes (tests/support/cpu_hogs_plugin.py)
+pytest_plugins = ["tests.support.cpu_hogs_plugin"]
 
-#: the files of the longest tests, longest first (``python -m pytest --durations=40``)
-LONG_FIRST = ("test_sitl_faults_px4.py", "test_sitl_faults_ardupilot.py", "test_map_fly.py", "test_sitl_ardupilot.py",
-              "test_sitl_px4.py", "test_conformance_px4.py", "test_map_browser.py", "test_ctl_processes.py",
-              "test_gcs_faults_signals.py", "test_conformance_ap_failsafes.py", "test_layers.py",
-              "test_conformance_ardupilot.py", "test_gcs_faults_output.py")
+from pathlib import Path
+
+import pytest
+
+TESTS_DIR = Path(__file__).resolve().parent
+
+#: the files of the longest tests, longest first (``python -m pytest --durations=40``), relative to tests/
+LONG_FIRST = ("sitl/test_sitl_faults_px4.py", "sitl/test_sitl_faults_ardupilot.py",
+              "mission/telemetry/test_map_fly.py", "sitl/test_sitl_ardupilot.py", "sitl/test_sitl_px4.py",
+              "conformance/test_conformance_px4.py", "mission/telemetry/test_map_browser.py",
+              "mission/telemetry/test_ctl_processes.py", "mission/flight/test_gcs_faults_signals.py",
+              "conformance/test_conformance_ap_failsafes.py", "mission/flight/test_layers.py",
+              "conformance/test_conformance_ardupilot.py", "mission/flight/test_gcs_faults_output.py")
+
+
+def pytest_configure(config):
+    """Refuse to run with a :data:`LONG_FIRST` entry that names no file (a test file moved or renamed)."""
+    missing = [name for name in LONG_FIRST if not (TESTS_DIR / name).is_file()]
+    if missing:
+        raise pytest.UsageError(f"tests/conftest.py LONG_FIRST names files that do not exist: {', '.join(missing)}")
+
+
+def _relative(path: Path) -> str:
+    """``path`` relative to tests/ (``/``-separated), or its full path when it is outside."""
+    try:
+        return path.resolve().relative_to(TESTS_DIR).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def pytest_collection_modifyitems(session, config, items):
     """Put the files of :data:`LONG_FIRST` first, in that order; the rest keep theirs."""
     rank = {name: i for i, name in enumerate(LONG_FIRST)}
     order = {id(item): i for i, item in enumerate(items)}
-    items.sort(key=lambda item: (rank.get(item.path.name, len(LONG_FIRST)), order[id(item)]))
+    where = {path: _relative(path) for path in {item.path for item in items}}
+    items.sort(key=lambda item: (rank.get(where[item.path], len(LONG_FIRST)), order[id(item)]))

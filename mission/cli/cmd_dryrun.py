@@ -17,7 +17,7 @@ import json
 import zenoh
 
 # the mission's modules are imported with the command, before any event loop starts: a first import
-# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+# inside the loop is one callback of 0.3 s (tests/mission/sim/test_loop_debug.py)
 from mission.core.clock import WallClock
 from mission.core.zenoh_errors import zenoh_open_message
 from mission.core.zenoh_open import open_session

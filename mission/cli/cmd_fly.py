@@ -17,7 +17,7 @@ from pathlib import Path
 from mission.cli.cmd_map import add_map_option, start_map_thread
 from mission.cli.common import add_mission_outputs, add_plan_argument, load_plan_or_fail, run_or_fail, security_or_fail
 # the mission's modules are imported with the command, before any event loop starts: a first import
-# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+# inside the loop is one callback of 0.3 s (tests/mission/sim/test_loop_debug.py)
 from mission.core.clock import WallClock
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator

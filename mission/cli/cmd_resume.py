@@ -25,7 +25,7 @@ from mission.cli.cmd_map import add_map_option, start_map_thread
 from mission.cli.common import add_mission_outputs, load_plan_or_fail, run_or_fail, security_or_fail
 from mission.link.forward import ForwardAddressError, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
-# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+# inside the loop is one callback of 0.3 s (tests/mission/sim/test_loop_debug.py)
 from mission.core.clock import WallClock
 from mission.flight.resume import load_resume_state
 from mission.telemetry.mission_log import MissionLog

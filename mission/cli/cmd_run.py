@@ -23,7 +23,7 @@ from mission.cli.cmd_map import add_map_option, start_map_thread
 from mission.cli.common import add_mission_outputs
 from mission.link.forward import ForwardAddressError, forwarding, plan_with_outs, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
-# inside the loop is one callback of 0.3 s (tests/test_loop_debug.py)
+# inside the loop is one callback of 0.3 s (tests/mission/sim/test_loop_debug.py)
 from mission.core.plan_types import SeekingPlan, best_seeker
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator

@@ -1,7 +1,7 @@
 """Opening the plan's zenoh session from inside the event loop without blocking it.
 
 ``zenoh.open`` blocks while it binds its listeners and connects to its endpoints (0.5 s of wall
-time measured in a lock-step ``swarmseek run``: ``tests/test_loop_debug.py``); run inside a
+time measured in a lock-step ``swarmseek run``: ``tests/mission/sim/test_loop_debug.py``); run inside a
 coroutine it stalls every other callback of the loop. :func:`open_session` runs it in the loop's
 executor (a worker thread; inline, in zero simulated time, on a lock-step loop).
 """

@@ -11,7 +11,7 @@ import numpy as np
 
 from formation.geodesy import geodetic_to_enu
 # imported with the module, not in the mission's event loop: a first import there holds the loop
-# (tests/test_loop_debug.py found vehicle_link's 0.04-0.1 s in the first connect task)
+# (tests/mission/sim/test_loop_debug.py found vehicle_link's 0.04-0.1 s in the first connect task)
 from mission.core.uri import parse_connection
 from mission.flight.failsafe_params import check_failsafe_params
 from mission.flight.readiness_autopilot import wait_autopilots_ready

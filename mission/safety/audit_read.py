@@ -247,7 +247,7 @@ def _decode_frame(mav, frame, path, t_s: float, msgid: int):
 
     A valid MAVLink 2 frame of a fixed-layout message is decoded with ``struct`` by
     :func:`~mission.link.fast_decode.decode_single_frame` (the same fields as pymavlink's decode:
-    ``tests/test_audit_fast_read.py``); anything else (MAVLink 1, bad CRC, ...) by pymavlink.
+    ``tests/mission/safety/test_audit_fast_read.py``); anything else (MAVLink 1, bad CRC, ...) by pymavlink.
 
     Raises
     ------

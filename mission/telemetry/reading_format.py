@@ -198,7 +198,7 @@ def _orjson_loads(payload):
 
     orjson is several times faster than :func:`json.loads` and returns the same value on what it
     accepts (strict UTF-8, correctly rounded floats, the last of duplicate keys; checked by
-    ``tests/test_reading_fast_paths.py``), except integers beyond 64 bits, which it reads as
+    ``tests/mission/telemetry/test_reading_fast_paths.py``), except integers beyond 64 bits, which it reads as
     floats (hence :func:`_fast_decode`'s exact-type rule). What it refuses (NaN and Infinity
     literals, lone surrogates, numbers beyond the float range, bad input) goes to
     :func:`json.loads` as before.

@@ -2,10 +2,10 @@
 
 Conventions (checked against the MAVLink definitions and the firmware's senders):
 
-* WIND_COV (#231, common): ``wind_x`` / ``wind_y`` / ``wind_z`` are the wind's velocity, NED m/s
+* WIND_COV (message id 231, common): ``wind_x`` / ``wind_y`` / ``wind_z`` are the wind's velocity, NED m/s
   (the direction the air moves TO): a wind from the west (270 degrees) at 3 m/s is
   ``wind_x = 0, wind_y = +3``. PX4 fills them from EKF2's wind states.
-* WIND (#168, ardupilotmega): ``direction`` is where the wind comes FROM, degrees (ArduPilot sends
+* WIND (message id 168, ardupilotmega): ``direction`` is where the wind comes FROM, degrees (ArduPilot sends
   ``degrees(atan2(-wind.y, -wind.x))``, -180..180: the same wind is ``-90``), ``speed`` the
   length of the wind vector (m/s), ``speed_z`` its NED down component.
 

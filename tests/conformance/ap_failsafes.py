@@ -18,7 +18,7 @@ autopilot seconds: within ``REACTION_TOL_S``).
 """
 from __future__ import annotations
 
-from conformance.client import Client, ConformanceError, Observation
+from tests.conformance.client import Client, ConformanceError, Observation
 from mission.sim.embedded import free_port_block
 
 __all__ = ["REACTION_TOL_S", "differences", "observe", "run_failsafes"]

@@ -5,9 +5,9 @@ import logging
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from conformance.compare import EVENT_ORDER, compare
-from conformance.known import KNOWN_DIFFERENCES, documented_keys
-from conformance.targets import observe_mock, observe_sitl
+from tests.conformance.compare import EVENT_ORDER, compare
+from tests.conformance.known import KNOWN_DIFFERENCES, documented_keys
+from tests.conformance.targets import observe_mock, observe_sitl
 
 __all__ = ["DOC_PATH", "assert_conforms", "check_conformance"]
 

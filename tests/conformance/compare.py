@@ -136,7 +136,7 @@ def _compare_messages(mock, sitl) -> list[Difference]:
         in_mock = mock.message_counts.get(name, 0) > 0
         if not in_mock and (in_sitl or name in COORDINATOR_MESSAGES):
             diffs.append(Difference(f"message:{name}", in_mock, in_sitl))
-    from conformance.script import COORDINATOR_RATES_HZ
+    from tests.conformance.script import COORDINATOR_RATES_HZ
     for name in COORDINATOR_RATES_HZ:
         a, b = mock.rates_hz.get(name, 0.0), sitl.rates_hz.get(name, 0.0)
         if not (a > 0 and b > 0 and 1 / RATE_FACTOR <= a / b <= RATE_FACTOR):

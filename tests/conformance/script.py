@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 import math
 
-from conformance.client import Client, ConformanceError, Observation
+from tests.conformance.client import Client, ConformanceError, Observation
 
 __all__ = ["COORDINATOR_RATES_HZ", "FLAVOUR", "UNSUPPORTED_COMMANDS", "run_script"]
 

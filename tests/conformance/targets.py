@@ -7,7 +7,7 @@ does the same with one real SITL instance started through :mod:`mission.sim.sitl
 """
 from __future__ import annotations
 
-from conformance.script import run_script
+from tests.conformance.script import run_script
 from mission.sim.embedded import free_port_block
 
 __all__ = ["MOCK_SPEEDUP", "SITL_SPEEDUP", "mock_param_names", "observe_mock", "observe_sitl"]

@@ -1,0 +1,1 @@
+"""Tests of ``experiments`` (``swarmseek paper``, ``swarmseek simulate``, sweeps over seeds)."""

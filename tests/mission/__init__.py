@@ -1,0 +1,1 @@
+"""Tests of ``mission``, the ground station, one package per room."""

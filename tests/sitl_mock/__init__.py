@@ -1,0 +1,1 @@
+"""Tests of ``sitl_mock``, the simulated world."""

@@ -1,0 +1,1 @@
+"""Helpers shared by the tests of several rooms (whole missions, waiting, fuzzing, test PKI, SITL lookup)."""
