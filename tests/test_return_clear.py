@@ -154,7 +154,7 @@ class _FakeCoordinator:
         from mission.safety.gate import SafetyGate
 
         self.clock = _FakeClock()
-        streamer = SimpleNamespace(set_target=lambda s, p: None, set_targets=lambda s, p: None, remove=lambda s: None)
+        streamer = SimpleNamespace(set_target=lambda s, p: None, remove=lambda s: None)
         self.gate = SafetyGate(streamer, self.clock, 3.0, rate_hz=10.0)
         self.clock.gate = self.gate
         self.sysids = list(range(1, len(start) + 1))

@@ -179,10 +179,6 @@ class _Streamer:
         self.targets[sysid] = np.asarray(p, dtype=float).copy()
         self.history.append((sysid, self.targets[sysid]))
 
-    def set_targets(self, sysids, positions):
-        for sysid, p in zip(sysids, positions):
-            self.set_target(sysid, p)
-
     def remove(self, sysid):
         self.targets.pop(sysid, None)
 

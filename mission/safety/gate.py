@@ -36,8 +36,7 @@ class SafetyGate:
     Parameters
     ----------
     streamer : mission.vehicle.streamer.SetpointStreamer
-        Receives ``set_target(sysid, position_enu_m)``, ``set_targets(sysids, positions_enu_m)`` (every
-        moved batch) and ``remove(sysid)``; its ``tick()`` sends
+        Receives ``set_target(sysid, position_enu_m)`` and ``remove(sysid)``; its ``tick()`` sends
         every tick's batch (the gate's task is the stream: do not start the streamer's own).
     clock
         Mission clock.
@@ -164,10 +163,9 @@ class SafetyGate:
         new = prev + delta * scale
         if self.envelope is not None and max_step > 0:
             new = self._apply_envelope(prev, new, dt_s, sysids)
-        cmd = self._cmd
         for s, p in zip(sysids, new):
-            cmd[s] = p
-        self.streamer.set_targets(sysids, new)
+            self._cmd[s] = p
+            self.streamer.set_target(s, p)
         self.batches += 1
         # settled when this batch moved nothing and nothing is left to move: the envelope has
         # passed these very setpoints (it is a function of the two batches only)

@@ -99,35 +99,6 @@ class SetpointStreamer:
         track.target = (e, n, u)
         track.yaw = None if yaw_rad is None else float(yaw_rad)
 
-    def set_targets(self, sysids, positions_enu_m) -> None:
-        """:meth:`set_target` (no yaw) of ``sysids[k]`` to row ``k`` of ``positions_enu_m``, for every k.
-
-        The safety gate's batch, every tick: one finiteness check and one ``tolist`` for the
-        ``(N, 3)`` batch instead of N calls; a batch with a non-finite value goes through
-        :meth:`set_target` one by one (same targets set, same error).
-
-        Raises
-        ------
-        KeyError
-            An unknown system id (the targets before it are set, as one by one).
-        ValueError
-            Not an ``(N, 3)`` batch, or a non-finite setpoint.
-        """
-        rows = np.asarray(positions_enu_m, dtype=float)
-        if rows.shape != (len(sysids), 3):
-            raise ValueError(f"setpoints must be ({len(sysids)}, 3) for {len(sysids)} vehicles, got {rows.shape}")
-        if not np.isfinite(rows).all():
-            for sysid, row in zip(sysids, rows):
-                self.set_target(sysid, row)
-            return
-        tracks = self._tracks
-        for sysid, row in zip(sysids, rows.tolist()):
-            track = tracks.get(sysid)
-            if track is None:
-                raise KeyError(f"vehicle {sysid} is not in this streamer (known: {sorted(tracks)})")
-            track.target = tuple(row)
-            track.yaw = None
-
     def target(self, sysid: int):
         """The current target of ``sysid`` as ``(east_m, north_m, up_m)``, or None."""
         return self._tracks[sysid].target
