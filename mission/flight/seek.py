@@ -29,6 +29,7 @@ import asyncio
 import numpy as np
 
 from mission.flight.control import OperatorStop
+from mission.flight.fence_reach import source_in_reach
 from mission.flight.motion import move_and_wait, paced, parked
 from estimator.estimate import reported_estimate
 from mission.flight.result import estimate_fields, geodetic_point, region_text
@@ -184,8 +185,10 @@ async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
     ``start_iteration`` and ``history`` (the last centres, oldest first) resume a stopped seek
     (:mod:`mission.flight.resume`): iterations are numbered on, the convergence monitor is prefilled.
 
-    Outcomes: ``converged``, ``max_iterations``, ``stopped_at_fence`` (the centre has been held
-    at the geofence for a whole convergence window: the source is probably outside),
+    Outcomes: ``converged`` (also with the centre held at the fence shrunk by the radius when the
+    source is inside the formation, :mod:`mission.flight.fence_reach`), ``max_iterations``,
+    ``stopped_at_fence`` (the centre has been held at the geofence with the source out of the
+    formation's reach, at convergence or for a whole convergence window: it is probably outside),
     ``too_few_vehicles`` (vehicles were lost and fewer than 4 are left: the caller brings the
     others home). After a loss the formation is re-formed for the survivors
     (:meth:`mission.flight.faults.loss.Reformation.reform`) before the next iteration; a returning vehicle is re-admitted
@@ -250,7 +253,8 @@ class _Seek:
         self.period_s = 1.0 / sk.rate_hz
         self.last_estimate_t = -np.inf
         self.failures = 0
-        self.at_fence = 0
+        self.at_fence = 0  # consecutive iterations with the centre held at the (shrunk) fence
+        self.beyond_reach = 0  # ... of them with the source out of the formation's reach (fence_reach)
 
     def _new_estimator(self, symmetric_to_cvt: bool = True) -> None:
         """A fresh estimator (and retirement watch) for the current members."""
@@ -418,6 +422,15 @@ class _Seek:
             co.event(clamp.message, level="warning")
         return np.asarray(clamp.centre_enu, dtype=float)
 
+    def _in_reach(self, requested, held) -> bool:
+        """Whether the source is within reach of the formation held at ``held`` though the seeker
+        asked for ``requested`` (:func:`mission.flight.fence_reach.source_in_reach`)."""
+        own = getattr(getattr(self.seeker, "seeker", None), "source_estimate", None)
+        own = None if own is None else own(0)
+        co = self.co
+        return source_in_reach(held, requested, None if own is None else own.enu, co.envelope.formation_radius_m,
+                               self.sk.convergence_tol_m, co.envelope.fence)
+
     def _seeker_inputs(self, aligned: dict, used: list[int]) -> tuple[list, list]:
         """This iteration's readings (logged) and where the seeker takes them to be: each vehicle's aligned
         one, or every one since the last estimate (:meth:`~mission.flight.seek_moving.MovingSampling.collect`)."""
@@ -449,6 +462,8 @@ class _Seek:
             converged = bool(own)
         # the source estimate with its 95 % region: the seeker's own, else the monitor's mean of the centres
         source = reported_estimate(getattr(self.seeker, "seeker", None), self.monitor)
+        held = self.at_fence and not self._in_reach(proposed, new_centre)
+        self.beyond_reach = self.beyond_reach + 1 if held else 0
         co.state.record_iteration(k + 1, grad, step_m, source, self.monitor.spread_m)
         if co.log is not None:
             everyone = self.sysids + parked(co)
@@ -502,17 +517,21 @@ class _Seek:
     def _ended(self, k: int, converged: bool) -> tuple[str, str] | None:
         """``(outcome, message)`` when the seek ends after iteration ``k``, else None."""
         centre, co = self.centre, self.co
-        if converged and self.at_fence:
+        if converged and self.beyond_reach:
             return "stopped_at_fence", (f"stopped at the geofence after {k + 1} iterations, centre held at "
                                         f"({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}) m: the "
                                         "source is probably outside the fence (shrunk by the radius)")
         if converged:
             e = co.state.estimate_enu
+            held = (" (the centre held at the fence shrunk by the formation radius, the source inside the "
+                    "formation)") if self.at_fence else ""
             return "converged", (f"converged after {k + 1} iterations: source at ({e[0]:.2f}, {e[1]:.2f}, "
-                                 f"{e[2]:.2f}) m, {region_text(co.state.estimate_region95_m)}, spread {co.state.spread_m:.2f} m")
-        if self.at_fence >= self.sk.convergence_window:
+                                 f"{e[2]:.2f}) m, {region_text(co.state.estimate_region95_m)}, spread "
+                                 f"{co.state.spread_m:.2f} m{held}")
+        if self.beyond_reach >= self.sk.convergence_window:
             return "stopped_at_fence", ("the formation centre has been held at the geofence for "
-                                        f"{self.at_fence} iterations: the source is probably outside the fence")
+                                        f"{self.beyond_reach} iterations, the source out of the formation's reach: "
+                                        "it is probably outside the fence")
         return None
 
 

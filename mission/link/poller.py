@@ -14,10 +14,8 @@ endpoints opened without one use ordinary asyncio datagram transports.
 from __future__ import annotations
 
 import asyncio
-import fcntl
 import select
 import socket
-import termios
 from typing import Callable
 
 from mission.core.tasks import spawn
@@ -27,15 +25,6 @@ __all__ = ["UdpPoller"]
 
 _MAX_DATAGRAMS_PER_SOCKET = 256
 _DATAGRAM_BYTES = 65535
-_NONE_QUEUED = bytes(4)   # FIONREAD's int 0
-
-
-def _queued_bytes(fd: int) -> bytes:
-    """FIONREAD of a UDP socket (Linux): the size of its next queued datagram, as the C int's bytes."""
-    try:
-        return fcntl.ioctl(fd, termios.FIONREAD, _NONE_QUEUED)
-    except OSError:
-        return b""   # unknown: read on until BlockingIOError
 
 
 class UdpPoller:
@@ -83,47 +72,43 @@ class UdpPoller:
             self._epoll.unregister(fd)
 
     def poll_once(self) -> int:
-        """Read every socket that has data now; returns the number of datagrams handled."""
+        """Read every socket that has data now; returns the number of datagrams handled.
+
+        In rounds: one datagram from each socket epoll reports readable, then epoll is asked
+        again, until none is (or ``_MAX_DATAGRAMS_PER_SOCKET`` rounds: the per-socket cap). Every
+        queued datagram, empty ones included, is read in this poll, each socket's in order, with
+        one ``epoll_wait`` per round for all the sockets instead of a ``FIONREAD`` per datagram
+        (at N = 100 most sockets hold one datagram per poll: 1000 ``ioctl`` calls a second saved).
+        """
         handled = 0
         entries = self._entries
-        for fd, _ in self._epoll.poll(0):
-            entry = entries.get(fd)
-            if entry is None:
-                continue
-            handled += self._drain(fd, *entry)
+        poll = self._epoll.poll
+        ready = poll(0)
+        rounds = 0
+        while ready and rounds < _MAX_DATAGRAMS_PER_SOCKET:
+            for fd, _ in ready:
+                entry = entries.get(fd)
+                if entry is not None:
+                    handled += self._read_one(*entry)
+            rounds += 1
+            ready = poll(0)
         self.polls += 1
         self.datagrams += handled
         return handled
 
-    def _drain(self, fd: int, sock: socket.socket, on_datagram: Callable) -> int:
-        """Read ``sock`` dry (at most ``_MAX_DATAGRAMS_PER_SOCKET``); returns the datagrams handled.
-
-        After each datagram, ``FIONREAD`` (the size of the next queued datagram, 0 when none)
-        says whether to read again, which is cheaper than a ``recvfrom`` failing with
-        ``BlockingIOError``. FIONREAD is also 0 for a queued *empty* datagram: after one was
-        read, the socket is read until ``BlockingIOError`` as before, so empty datagrams cannot
-        slow the draining down (one left queued is read at the next poll, as epoll reports it).
-        """
-        handled = 0
-        recvfrom = sock.recvfrom
-        trust_fionread = True
-        for _ in range(_MAX_DATAGRAMS_PER_SOCKET):
-            try:
-                data, addr = recvfrom(_DATAGRAM_BYTES)
-            except (BlockingIOError, InterruptedError):
-                break
-            except OSError:      # e.g. ICMP port unreachable reported on a later recv
-                continue
-            handled += 1
-            try:
-                on_datagram(data, addr)
-            except Exception:  # never let one socket's consumer stop every endpoint's polling
-                self.errors += 1
-            if not data:
-                trust_fionread = False
-            if trust_fionread and _queued_bytes(fd) == _NONE_QUEUED:
-                break
-        return handled
+    def _read_one(self, sock: socket.socket, on_datagram: Callable) -> int:
+        """Read one datagram from ``sock`` and hand it on; 1 if one was read, else 0."""
+        try:
+            data, addr = sock.recvfrom(_DATAGRAM_BYTES)
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError:      # e.g. ICMP port unreachable reported on a later recv
+            return 0
+        try:
+            on_datagram(data, addr)
+        except Exception:  # never let one socket's consumer stop every endpoint's polling
+            self.errors += 1
+        return 1
 
     async def _run(self) -> None:
         loop = asyncio.get_running_loop()
