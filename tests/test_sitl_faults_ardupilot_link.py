@@ -177,7 +177,7 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
         status, out = run.finish()
         final = {s: w.snapshot() for s, w in run.watches.items()}
         failsafe_events = [e["message"] for e in run.events() if "if the ground station dies" in e["message"]]
-        armed_after = _armed_modes_after(watch, t_cut)
+        armed_after = _armed_modes_after(watch, t_fs)
     relay_counts = relay.counts
     print(f"\nArduCopter SITL x5 (speed-up {AP_SPEEDUP:g}) link cut: ArduCopter "
           f"{COPTER_MODES.get(next(md for t, md, _ in final[sysid][0] if t >= t_fs), '?')} {t_fs - t_cut:.2f} s after "
