@@ -10,8 +10,9 @@ process; each vehicle watched on its own spare port (SERIAL2, :class:`ap_fault_s
   station reaches vehicle 3 through a TCP relay (``tests/ap_tcp_relay.py``, its own process) that
   drops every byte both ways after seek iteration 2, until ArduCopter has left GUIDED by itself and
   the ground station has declared the loss; then forwards again. The failsafe parameters are the
-  ones the preflight checks and reports (``FS_GCS_ENABLE`` 5 (land, the SITL fleet's default),
-  ``FS_GCS_TIMEOUT`` ArduCopter's default). Asserted: lost (``link``) after the cut; ArduCopter
+  ones the preflight checks and reports (``FS_GCS_ENABLE`` 5 (land) and ``FS_GCS_TIMEOUT`` 10 s x
+  the speed-up, the SITL fleet's defaults; the other vehicles get 120 s: a loaded host stalls the
+  ground station's heartbeats for seconds, and the test is about the cut one). Asserted: lost (``link``) after the cut; ArduCopter
   switched to LAND (never back to GUIDED while armed); heard again: kept out (in LAND: not
   re-admissible), never re-admitted; the mission goes on with 4 and ends by itself; every vehicle
   disarmed on the ground, the cut one in LAND; summary consistent with the exit status;
@@ -56,6 +57,9 @@ _START_TIMEOUT_S = 300.0
 _LAND, _RTL = 9, 6
 #: ArduCopter refuses to arm below this pack voltage; its simulated pack gives 12.6 V
 _ARM_VOLT_V = 13.0
+#: ArduCopter's maximum FS_GCS_TIMEOUT (simulated s), set where the GCS failsafe is not under test:
+#: on a host at load 25 the ground station's heartbeats stopped for over 10 wall seconds
+_FS_GCS_TIMEOUT_MAX_S = 120.0
 #: the arming refusals are retried this long (wall seconds): also preflight's wait for the EKFs
 _READY_TIMEOUT_S = 30.0
 
@@ -160,6 +164,9 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
         cut_v = fleet.vehicles[2]
         relay = stack.enter_context(TcpRelay(int(cut_v.connection.rsplit(":", 1)[1])))
         run = _Run(fleet, tmp_path, stack)
+        for v in fleet.vehicles:  # the others must not land if a loaded host stalls the ground station
+            if v is not cut_v:
+                run.watches[v.sysid].set_param("FS_GCS_TIMEOUT", _FS_GCS_TIMEOUT_MAX_S)
         vehicles = [dataclasses.replace(v, connection=relay.connection) if v is cut_v else v for v in fleet.vehicles]
         run.start(vehicles, {"faults": {"readmit": True}, "seeking": {"max_iterations": 25},
                              "preflight": {"autopilot_ready_timeout_s": 180.0}})
@@ -206,7 +213,7 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
 def test_ardupilot_vehicle_that_never_arms(tmp_path):
     require_sitl("ardupilot")
     t_test = time.monotonic()
-    with _fleet(tmp_path, 4) as fleet, contextlib.ExitStack() as stack:
+    with _fleet(tmp_path, 4, {"FS_GCS_TIMEOUT": _FS_GCS_TIMEOUT_MAX_S}) as fleet, contextlib.ExitStack() as stack:
         run = _Run(fleet, tmp_path, stack)
         # 3 wall s between two takeoffs at speed-up 3: room to set the parameter before the last one's turn
         run.start(fleet.vehicles, {"stagger_s": 3.0 * AP_SPEEDUP,
