@@ -53,7 +53,7 @@ AP_SPEEDUP = float(os.environ.get("SWARMSEEK_TEST_AP_SPEEDUP", "3"))
 _SOURCE = (8.0, 36.0, 14.0)
 _NOISE = 0.005
 #: wall seconds for ``fly`` to start, pass its preflight and assemble on a loaded host
-_START_TIMEOUT_S = 300.0
+_START_TIMEOUT_S = 480.0
 _LAND, _RTL = 9, 6
 #: ArduCopter refuses to arm below this pack voltage; its simulated pack gives 12.6 V
 _ARM_VOLT_V = 13.0
@@ -209,7 +209,7 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(900)
+@pytest.mark.timeout(1200)
 def test_ardupilot_vehicle_that_never_arms(tmp_path):
     require_sitl("ardupilot")
     t_test = time.monotonic()

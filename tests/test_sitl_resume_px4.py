@@ -69,7 +69,7 @@ def _kill_and_resume(run: FlyRun) -> dict:
         its = [r for r in rs if r["type"] == "iteration"]
         return its if len(its) >= 2 else None
 
-    iterations = run.wait_for(two_iterations, 300.0, "two seek iterations")
+    iterations = run.wait_for(two_iterations, 600.0, "two seek iterations")  # 220 s to the seek at load 58
     k_killed = iterations[-1]["k"]
     t_kill = time.time()
     run.fly.send_signal(signal.SIGKILL)
@@ -96,7 +96,7 @@ def _json_out(run: FlyRun) -> dict:
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(900)
+@pytest.mark.timeout(1200)
 def test_px4_gcs_killed_and_resumed(tmp_path):
     sitl_dir = require_sitl("px4")
     from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
