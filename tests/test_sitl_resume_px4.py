@@ -113,7 +113,7 @@ def test_px4_gcs_killed_and_resumed(tmp_path):
                                 overrides={"seeking": dict(_SEEKING, **seeker_settings("model"))})
         with FlyRun(fleet, plan, log_dir, _SOURCE, zenoh=zenoh, noise=_NOISE) as run:
             kill = _kill_and_resume(run)
-            status = run.wait_end(400.0)
+            status = run.wait_end(600.0)
             records = run.records()
         wait_until(lambda: all(gcs.down(v.sysid) for v in fleet.vehicles), 120.0,
                    "every vehicle disarmed on the ground (PX4's land detector)", poll_s=0.2)
