@@ -170,7 +170,7 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
         vehicles = [dataclasses.replace(v, connection=relay.connection) if v is cut_v else v for v in fleet.vehicles]
         # radius 3 m (the mock's fault tests' radius): with the SITL plan's 2 m the 4 others' re-formation
         # around the lost vehicle deadlocked in the separation hold in 2 of 2 runs (docs/faults.md, open)
-        run.start(vehicles, {"faults": {"readmit": True}, "seeking": {"max_iterations": 25},
+        run.start(vehicles, {"faults": {"readmit": True}, "seeking": {"max_iterations": 15},
                              "formation": {"radius_m": 3.0},
                              "preflight": {"autopilot_ready_timeout_s": 180.0}})
         run.wait(lambda: sum(r["type"] == "iteration" for r in run.recs()) >= 2, "two seek iterations",
