@@ -48,6 +48,8 @@ _PARAMS = {"COM_OBL_RC_ACT": 5}
 #: simulated seconds without a ground-station heartbeat before PX4 lands (NAV_DLL_ACT 3)
 _DL_LOSS_T_S = 120
 _ON_GROUND = 1  # MAV_LANDED_STATE_ON_GROUND
+#: PX4's hold (AUTO.LOITER) as pymavlink's mode_string_v10 names it
+_HOLD = "LOITER"
 
 
 def _free_tcp_port() -> int:
@@ -121,7 +123,7 @@ def test_px4_gcs_killed_and_resumed(tmp_path):
         final = {v.sysid: gcs.state(v.sysid) for v in fleet.vehicles}
     out = _json_out(run)
     t_resumed = kill["resumed"]["t_s"]
-    hold_s = {s: next((t - kill["t_kill"] for t, m, _ in ms if m == "AUTO.LOITER"), None) for s, ms in modes.items()}
+    hold_s = {s: next((t - kill["t_kill"] for t, m, _ in ms if m == _HOLD), None) for s, ms in modes.items()}
     error_m = float(np.linalg.norm(np.asarray(out["estimate_enu"]) - np.asarray(_SOURCE))) \
         if out.get("estimate_enu") else None
     print("\nPX4 SIH x4 GCS killed + resume:", json.dumps({
@@ -146,7 +148,7 @@ def _check(records: list, out: dict, status: int, kill: dict, modes: dict, final
     for sysid, ms in modes.items():
         names = [m for _, m, _ in ms]
         # PX4 held by itself while no ground station streamed, then the resume re-engaged OFFBOARD
-        assert "AUTO.LOITER" in names and "OFFBOARD" in names[names.index("AUTO.LOITER"):], (sysid, ms)
+        assert _HOLD in names and "OFFBOARD" in names[names.index(_HOLD):], (sysid, ms)
         assert all(armed for t, m, armed in ms if t < t_resume), (sysid, ms)  # nobody landed meanwhile
     assert out["lost"] == [] and out["airborne_left"] == [] and out.get("still_armed", []) == [], out
     assert out["outcome"] in ("converged", "max_iterations"), out["message"]
