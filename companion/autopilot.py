@@ -1,11 +1,18 @@
 """The autopilot's position over MAVLink, for a sensor riding on it (virtual or real).
 
 Plain blocking pymavlink: :func:`open_mavlink` opens any pymavlink connection string,
-:func:`wait_heartbeat` waits for the autopilot's heartbeat (sending the ground-station heartbeat
+:func:`wait_heartbeat` waits for the autopilot's heartbeat (sending the heartbeat
 that ``udpout`` links and PX4 need), and :class:`PositionStream` reads the autopilot's
 GLOBAL_POSITION_INT, asking for the rate it needs with MAV_CMD_SET_MESSAGE_INTERVAL until the
 positions flow (again, after a silence), skipping the zeros an autopilot sends before its first
-GPS fix. :class:`AutopilotTelemetry` runs a stream on its own thread and keeps the latest fix
+GPS fix.
+
+The sensor's own heartbeat says *onboard controller* (MAV_TYPE_ONBOARD_CONTROLLER) from system id
+:data:`COMPANION_SYSID`, never a ground station's: ArduPilot takes any heartbeat from system id
+``MAV_GCS_SYSID`` (255) as its ground station's and PX4 any MAV_TYPE_GCS one, so a sensor sending
+255 / GCS on the vehicle's second port kept the autopilot's ground-station-loss failsafe
+(``FS_GCS_ENABLE``, ``NAV_DLL_ACT``) from ever firing: measured on ArduCopter SITL, a vehicle whose
+ground-station link was cut hovered in GUIDED for good (docs/faults.md). :class:`AutopilotTelemetry` runs a stream on its own thread and keeps the latest fix
 for :class:`companion.publisher.Publisher`; ``swarmseek sensor`` (:mod:`sitl_mock.virtual_sensor`)
 reads a stream in its main loop.
 """
@@ -18,13 +25,19 @@ from dataclasses import dataclass
 from typing import Callable
 
 __all__ = ["AutopilotError", "AutopilotTelemetry", "PositionFix", "PositionStream", "close_mavlink",
-           "connection_arg", "open_mavlink", "receive", "send_gcs_heartbeat", "sysid_arg", "wait_heartbeat"]
+           "connection_arg", "open_mavlink", "receive", "send_heartbeat", "sysid_arg", "wait_heartbeat",
+           "COMPANION_SYSID"]
 
 _MSG_ID_GLOBAL_POSITION_INT = 33
 _MAV_CMD_SET_MESSAGE_INTERVAL = 511
 _MAV_TYPE_GCS = 6
+_MAV_TYPE_ONBOARD_CONTROLLER = 18
+#: the sensor's MAVLink system id: not a ground station's (255, ArduPilot's ``MAV_GCS_SYSID``
+#: default), not a vehicle's; component 158 (MAV_COMP_ID_PERIPHERAL)
+COMPANION_SYSID = 254
+_COMPANION_COMPID = 158
 _MAV_AUTOPILOT_INVALID = 8
-_GCS_HEARTBEAT_PERIOD_S = 1.0
+_HEARTBEAT_PERIOD_S = 1.0
 _REREQUEST_PERIOD_S = 3.0
 _SILENCE_WARN_S = 5.0
 _NET_PREFIXES = ("tcp:", "tcpin:", "udp:", "udpin:", "udpout:", "udpbcast:")
@@ -63,7 +76,7 @@ def connection_arg(text: str) -> str:
 
 # ----------------------------------------------------------------------------- the link
 def open_mavlink(connection: str, retries: int):
-    """A pymavlink connection (source system 255, component 158, reconnecting TCP).
+    """A pymavlink connection (source system :data:`COMPANION_SYSID`, component 158, reconnecting TCP).
 
     Raises
     ------
@@ -73,7 +86,7 @@ def open_mavlink(connection: str, retries: int):
     from pymavlink import mavutil
 
     try:
-        return mavutil.mavlink_connection(connection, source_system=255, source_component=158,
+        return mavutil.mavlink_connection(connection, source_system=COMPANION_SYSID, source_component=_COMPANION_COMPID,
                                           autoreconnect=True, retries=retries, reconnect_delay=0.5)
     except (OSError, ValueError, ImportError) as exc:
         raise AutopilotError(f"cannot open MAVLink connection {connection!r}: {exc}") from None
@@ -92,9 +105,9 @@ def close_mavlink(conn) -> None:
         pass
 
 
-def send_gcs_heartbeat(conn) -> None:
-    """Send one ground-station HEARTBEAT."""
-    conn.mav.heartbeat_send(_MAV_TYPE_GCS, _MAV_AUTOPILOT_INVALID, 0, 0, 0)
+def send_heartbeat(conn) -> None:
+    """Send one HEARTBEAT of an onboard controller (not a ground station's: see the module's text)."""
+    conn.mav.heartbeat_send(_MAV_TYPE_ONBOARD_CONTROLLER, _MAV_AUTOPILOT_INVALID, 0, 0, 0)
 
 
 def receive(conn, types, timeout_s: float):
@@ -124,8 +137,8 @@ def wait_heartbeat(conn, sysid: int | None, timeout_s: float):
     next_hb = 0.0
     while time.monotonic() < deadline:
         if time.monotonic() >= next_hb:
-            send_gcs_heartbeat(conn)  # lets udpout links and PX4 know we are here
-            next_hb = time.monotonic() + _GCS_HEARTBEAT_PERIOD_S
+            send_heartbeat(conn)  # lets udpout links and PX4 know we are here
+            next_hb = time.monotonic() + _HEARTBEAT_PERIOD_S
         msg = receive(conn, ["HEARTBEAT"], 0.2)
         if msg is None:
             continue
@@ -193,8 +206,8 @@ class PositionStream:
 
     def _upkeep(self, now: float) -> None:
         if now >= self._next_hb:
-            send_gcs_heartbeat(self.conn)
-            self._next_hb = now + _GCS_HEARTBEAT_PERIOD_S
+            send_heartbeat(self.conn)
+            self._next_hb = now + _HEARTBEAT_PERIOD_S
         if now - self._last_position > _SILENCE_WARN_S and not self._silent:
             self._silent, self._flowing = True, False  # ask again: the autopilot may have rebooted
             self.log(f"no GLOBAL_POSITION_INT from sysid {self.sysid} for {_SILENCE_WARN_S:g} s; still trying")

@@ -25,9 +25,12 @@ from mission.vehicle.prearm import extra_rates_hz
 from mission.vehicle.vehicle_link import DEFAULT_RATES_HZ, VehicleLink
 from mission.vehicle.wind import wind_rates_hz
 
-__all__ = ["build_envelope", "connect", "preflight"]
+__all__ = ["build_envelope", "connect", "preflight", "standby_refusal", "wait_standby", "REFUSAL_SETTLE_S"]
 
 _MAV_STATE_STANDBY = 3
+#: clock seconds an autopilot not in STANDBY must keep saying why it will not arm before the
+#: preflight stops waiting for STANDBY (a booting PX4 may say so for a moment, then be ready)
+REFUSAL_SETTLE_S = 2.0
 
 
 def build_envelope(plan):
@@ -195,17 +198,16 @@ async def _check_vehicle(co, sysid: int, v, envelope, timeout_s: float) -> None:
         co.event(f"vehicle {sysid}: battery level not reported; not checked", level="warning")
     elif not r.checks["battery"]:
         r.problems.append(f"battery {batt:.0f} % below {co.plan.min_battery_pct:.0f} %")
-    # an autopilot still booting reports UNINIT/BOOT/CALIBRATING for a while (PX4 SIH just after
-    # start): waited for like the position, within the same deadline
-    while (not v.state.armed and v.state.system_status not in (None, _MAV_STATE_STANDBY)
-           and co.clock.time() < deadline):
-        await co.clock.sleep(0.2)
+    waited_from = co.clock.time()
+    reason = await wait_standby(v, co.clock, deadline)
     st = v.state.system_status
     r.checks["armable"] = (not v.state.armed) and st in (None, _MAV_STATE_STANDBY)
     if v.state.armed:
         r.problems.append("already armed (flying from an earlier mission? `swarmseek resume LOG` brings it home)")
     elif not r.checks["armable"]:
-        r.problems.append(f"system status {st} (not STANDBY)")
+        r.problems.append(f"system status {st} (not STANDBY)" + (f"; {reason}" if reason else ""))
+        co.event(f"vehicle {sysid}: system status {st} (not STANDBY) after {co.clock.time() - waited_from:.1f} s"
+                 + (f": {reason}" if reason else ""), level="warning", sysid=sysid, reason=reason)
     if home is not None and envelope is not None:
         h = geodetic_to_enu(home[0], home[1], home[2], co.plan.origin)
         inside = bool(envelope.fence.contains(np.array([h[0], h[1], co.plan.geofence.min_alt_m + 0.01])))
@@ -213,6 +215,50 @@ async def _check_vehicle(co, sysid: int, v, envelope, timeout_s: float) -> None:
         if not inside:
             r.problems.append(f"home ({h[0]:.1f}, {h[1]:.1f}) m is outside the geofence")
     co.state.set_readiness(r, "ready" if r.ready else "not ready: " + "; ".join(r.problems))
+
+
+def standby_refusal(v, now_s: float) -> str | None:
+    """Why vehicle ``v``'s autopilot says it will not arm: its last pre-arm / arming refusal
+    STATUSTEXT while recent, else its SYS_STATUS pre-arm check bit unhealthy; None when it says
+    nothing (or the link has no pre-arm status, e.g. a test double)."""
+    status = getattr(v, "prearm", None)
+    if status is None:
+        return None
+    says = status.autopilot_says(now_s)
+    if says:
+        return f"autopilot says: {says!r}"
+    if status.prearm_check_fails():
+        return "the autopilot's pre-arm checks fail (SYS_STATUS PREARM_CHECK unhealthy)"
+    return None
+
+
+async def wait_standby(v, clock, deadline_s: float) -> str | None:
+    """Wait until vehicle ``v`` reports STANDBY (or is armed, or reports no status).
+
+    An autopilot still booting reports UNINIT/BOOT/CALIBRATING for a while (PX4 SIH just after
+    start): that is waited for, until ``deadline_s`` (clock time). A PX4 whose pre-arm checks
+    fail stays in UNINIT for good: the wait ends as soon as the autopilot has said why
+    (:func:`standby_refusal`) for :data:`REFUSAL_SETTLE_S` in a row, not at the deadline.
+
+    Returns
+    -------
+    str or None
+        The autopilot's reason when the vehicle is still not in STANDBY at the end, else None.
+    """
+    def waiting() -> bool:
+        return not v.state.armed and v.state.system_status not in (None, _MAV_STATE_STANDBY)
+
+    said_since = None
+    while waiting() and clock.time() < deadline_s:
+        now = clock.time()
+        if standby_refusal(v, now) is None:
+            said_since = None
+        elif said_since is None:
+            said_since = now
+        elif now - said_since >= REFUSAL_SETTLE_S:
+            break
+        await clock.sleep(0.2)
+    return standby_refusal(v, clock.time()) if waiting() else None
 
 
 async def _sensor_check(co) -> None:

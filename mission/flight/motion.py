@@ -15,7 +15,7 @@ import functools
 
 import numpy as np
 
-from mission.flight.obstacles import obstacles, plan_clear_transfer
+from mission.flight.obstacles import obstacles, plan_survivor_transfer
 from mission.flight.state import MissionError
 from mission.safety.gate import SafetyGate
 
@@ -115,9 +115,10 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
                       lost_here: list[int]) -> None:
     """Fly ``sysids`` from their setpoints to ``centre_enu + new_offsets`` and adopt those slots.
 
-    The transfer is planned by :func:`mission.flight.obstacles.plan_clear_transfer` (separation kept
-    between the vehicles and from the lost vehicles still flying, inside the fence, at 80 % of
-    the speed limit so that the ramp keeps up), flown leg by leg (interpolated goals every 0.1 s
+    The transfer is planned by :func:`mission.flight.obstacles.plan_survivor_transfer` (separation kept
+    between the vehicles and from the lost vehicles still flying, or, when no plan keeps clear of
+    those, between the vehicles only; inside the fence, at 80 % of the speed limit so that the
+    ramp keeps up), flown leg by leg (interpolated goals every 0.1 s
     of the mission clock); then ``co.state.slot_offsets`` is updated and the formation settles.
     Without a separation-keeping plan the vehicles fly straight under the safety envelope.
     Vehicles parked at the centre (retired sensors, :mod:`mission.flight.faults.retire`) not in ``sysids`` are
@@ -141,14 +142,17 @@ async def transfer_to(co, sysids: list[int], new_offsets: dict, centre_enu, what
     fence = None if co.envelope is None else co.envelope.fence
     t0 = co.clock.time()
     try:
-        tp = await loop.run_in_executor(None, functools.partial(
-            plan_clear_transfer, start, goal, obstacles(co.state.lost, co.fleet, co.clock.time()),
+        tp, not_clear = await loop.run_in_executor(None, functools.partial(
+            plan_survivor_transfer, start, goal, obstacles(co.state.lost, co.fleet, co.clock.time()),
             plan.min_separation_m, 0.8 * plan.max_speed_m_s,
             fence=fence))
     except (TransferError, ValueError) as exc:
-        tp = None
+        tp = not_clear = None
         co.event(f"{what}: no separation-keeping transfer ({exc}); flying straight to the new "
                  "slots under the safety envelope", level="warning")
+    if not_clear:
+        co.event(f"{what}: {not_clear}; the transfer keeps the survivors' separation only",
+                 level="warning")
     if tp is not None:
         co.event(f"{what}: transfer {tp.strategy}, {tp.duration_s:.1f} s, closest approach "
                  f"{tp.min_separation_m:.2f} m", survivors=members, lost=lost_here, strategy=tp.strategy,

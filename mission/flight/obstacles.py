@@ -16,7 +16,7 @@ from mission.flight.modes import LEFT_MODES
 from mission.flight.services import Fleet
 
 __all__ = ["OBSTACLE_MARGIN_M", "OBSTACLE_TTL_S", "clear_offsets", "obstacles", "plan_clear_transfer",
-           "segment_clearance"]
+           "plan_survivor_transfer", "segment_clearance"]
 
 #: extra clearance (tracking error of the survivors and of the hovering vehicle)
 OBSTACLE_MARGIN_M = 0.5
@@ -189,6 +189,39 @@ def plan_clear_transfer(start, goal, obstacle_points, min_separation_m: float, m
             return tp
         errors.append(f"{strategy} (movers only): passes too close to an obstacle")
     raise TransferError("no transfer keeping clear of the lost vehicles still flying (" + "; ".join(errors) + ")")
+
+
+def plan_survivor_transfer(start, goal, obstacle_points, min_separation_m: float, max_speed_m_s: float,
+                           fence=None):
+    """:func:`plan_clear_transfer`; when no plan keeps clear of the obstacles, a plan that keeps
+    the movers' separation between themselves only (:func:`mission.safety.transfer.plan_transfer`).
+
+    Found on ArduCopter SITL: 5 vehicles in a CVT of radius 2 m, one lost by a link cut and
+    assumed hovering in the formation; no transfer of the 4 others kept clear of it, they flew
+    straight under the safety envelope, two of them met (1.26 m), the envelope held both at their
+    previous setpoints, and the mission aborted 32 s later: the formation never settled. Flying
+    straight keeps no clearance from the obstacles either; this plan at least keeps the movers
+    apart, so the envelope never has to hold two of them against each other.
+
+    Returns
+    -------
+    tuple of (TransferPlan, str or None)
+        The plan, and why it does not keep clear of the obstacles (None: it does).
+
+    Raises
+    ------
+    TransferError
+        Not even the movers alone can keep their separation.
+    """
+    from mission.safety.transfer import TransferError, plan_transfer
+
+    try:
+        return plan_clear_transfer(start, goal, obstacle_points, min_separation_m, max_speed_m_s, fence=fence), None
+    except TransferError as exc:
+        if not len(np.asarray(obstacle_points, dtype=float).reshape(-1, 3)):
+            raise
+        why = str(exc)
+    return plan_transfer(start, goal, min_separation_m, max_speed_m_s, fence=fence), why
 
 
 def _plan_with_fixed(start, goal, obs, min_separation_m: float, max_speed_m_s: float, fence, clear_m: float,

@@ -45,6 +45,10 @@ from mission.sim.sitl_settings import FLAVOURS, SitlSetupError, resolve_sitl_dir
 __all__ = ["SitlFleetConfig", "SitlFleet", "SitlVehicle", "sigterm_as_interrupt"]
 
 _PR_SET_PDEATHSIG = 1
+#: FS_GCS_TIMEOUT of a SITL fleet at real time (PX4's COM_DL_LOSS_T; ArduCopter's default is 5)
+#: and ArduCopter's maximum (seconds)
+_AP_FS_GCS_TIMEOUT_S = 10.0
+_AP_FS_GCS_TIMEOUT_MAX_S = 120.0
 
 
 @dataclass(frozen=True)
@@ -104,8 +108,18 @@ class SitlFleetConfig:
                                  f"(PX4 gives every instance from 10 on the same API port)")
 
     def all_params(self) -> dict:
-        """The flavour's default parameters updated with :attr:`params`."""
-        return {**DEFAULT_PARAMS[self.flavour], **self.params}
+        """The flavour's default parameters updated with :attr:`params`.
+
+        ArduPilot: ``FS_GCS_TIMEOUT`` (simulated seconds) is 10 s times the speed-up unless given,
+        as PX4's start-up script sets ``COM_DL_LOSS_T`` (ArduCopter's default is 5 s): the ground
+        station's 1 Hz heartbeat is wall clock, and at speed-up 3 ArduCopter's 5 s is 1.7 wall
+        seconds, which a loaded host's stall of the ground station exceeded (ArduCopter SITL
+        landed two hovering vehicles, "GCS Failsafe": docs/faults.md).
+        """
+        scaled = {}
+        if self.flavour == "ardupilot":
+            scaled["FS_GCS_TIMEOUT"] = round(min(_AP_FS_GCS_TIMEOUT_S * self.speedup, _AP_FS_GCS_TIMEOUT_MAX_S), 3)
+        return {**DEFAULT_PARAMS[self.flavour], **scaled, **self.params}
 
     def free(self) -> SitlFleetConfig:
         """This configuration with instance numbers and a port offset that are free on this host."""

@@ -134,6 +134,10 @@ class PrearmStatus:
             return None
         return self.last_refusal[1]
 
+    def prearm_check_fails(self) -> bool:
+        """True when SYS_STATUS says the pre-arm checks are enabled and unhealthy."""
+        return self.health is not None and bool((self.enabled or 0) & ~self.health & PREARM_BIT)
+
     def notes(self) -> list[str]:
         """What the autopilot reports unhealthy but flies with (:data:`_NOT_BLOCKING`): warnings."""
         if self.health is None:

@@ -103,6 +103,12 @@ class VehicleWatch:
         wait_until(echoed, timeout_s, f"vehicle {self.sysid} to take {name} = {value}", poll_s=0.05)
         return t
 
+    def send_param(self, name: str, value: float) -> float:
+        """One PARAM_SET of ``name`` (REAL32), not waiting for its echo (a starved watch may miss
+        it: check the parameter's effect instead); returns ``time.time()`` of the send."""
+        self.conn.mav.param_set_send(self.sysid, 1, name.encode(), float(value), 9)
+        return time.time()
+
     def snapshot(self) -> tuple[list[tuple[float, int, bool]], float | None]:
         """A copy of (:attr:`modes`, :attr:`rel_alt_m`)."""
         with self._lock:

@@ -284,6 +284,12 @@ class LossMonitor:
     async def _maybe_came_back(self, v, loss: VehicleLoss, now: float) -> None:
         if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
             return
+        hb_s = getattr(v.state, "last_heartbeat_s", None)
+        if hb_s is not None and hb_s <= loss.detected_s:
+            # judged on its first heartbeat since the loss: until then its mode is the one from before
+            # the cut (ArduCopter SITL: a vehicle that had switched to LAND by itself was first called
+            # re-admissible on a position frame, in GUIDED, then kept out at the next iteration)
+            return
         state = self.state
         alt = getattr(v.state, "relative_alt_m", None)
         readmissible = (self.faults.readmit and state.phase == "seek" and v.state.armed

@@ -86,6 +86,17 @@ def test_ardupilot_specs_ports_and_parameter_file(tmp_path):
     assert "FS_GCS_ENABLE 5" in parm and "LOG_BACKEND_TYPE 0" in parm
 
 
+@pytest.mark.parametrize("speedup, params, timeout_s", [(1.0, {}, 10.0), (3.0, {}, 30.0), (40.0, {}, 120.0),
+                                                     (3.0, {"FS_GCS_TIMEOUT": 120.0}, 120.0)])
+def test_ardupilot_gcs_failsafe_timeout_scaled_by_the_speedup(speedup, params, timeout_s):
+    """FS_GCS_TIMEOUT is simulated time, the ground station's heartbeat wall time: 10 s (PX4's
+    COM_DL_LOSS_T) times the speed-up (capped at ArduCopter's maximum 120 s), unless given."""
+    cfg = SitlFleetConfig(flavour="ardupilot", n=1, speedup=speedup, params=params)
+    assert cfg.all_params().get("FS_GCS_TIMEOUT") == timeout_s
+    assert cfg.all_params()["FS_GCS_ENABLE"] == 5
+    assert "FS_GCS_TIMEOUT" not in SitlFleetConfig(flavour="px4", n=1, speedup=speedup).all_params()
+
+
 @pytest.mark.parametrize("kwargs, message", [
     ({"flavour": "betaflight", "n": 4}, "unknown SITL flavour"),
     ({"flavour": "px4", "n": 0}, "at least 1 vehicle"),
