@@ -104,7 +104,8 @@ def report(tr: dict) -> None:
         print(f"| {name} | {ok.mean():.2f} | {med:.1f} | {rat:.2f} |")
     reg = tr["region"]
     phases = {"region >= 3 m": reg >= 3.0, "region 1-3 m": (reg < 3.0) & ~tr["arrival"], "arrived": tr["arrival"]}
-    print("| phase | share of time before the end | iteration, s (mean) | centre step, m (mean) | hits per iteration | exploiting |")
+    print("| phase | share of time before the end | iteration, s (mean) | centre step, m (mean) "
+          "| hits per iteration | exploiting |")
     print("|---|---|---|---|---|---|")
     total = tr["iter_s"].sum()
     for name, m in phases.items():
