@@ -100,6 +100,11 @@ class SteSeeker:
     prior_radius_m, prior_height_m : float
         The prior over the release: uniform in a vertical cylinder of this radius and half-height
         about the first centre (not below ``ground_alt_m``).
+    prior_upwind_deg : float or None
+        The formation starts downwind of the release (the usual approach, and the benchmark's and
+        ``swarmseek run``'s starts): the first prior's release is in the sector of this half-angle
+        up each particle's own wind from the first centre (so it holds with the wind not given
+        too); None: the whole disk. A re-seed after a collapse uses the whole disk.
     amplitude_range : (float, float)
         The prior of ``A`` (the release-point mean), log-uniform.
     stability, source_radius_m, ground_alt_m :
@@ -189,7 +194,7 @@ class SteSeeker:
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
                  corr_iterations: int = 0, path_samples: int = 1, corr_time_s: float = 5.0,
                  corr_path_m: float | None = None, time_temper: float = 1.0, same_time_s: float = 0.25,
-                 timed: bool | None = None, seed: int = 0):
+                 timed: bool | None = None, prior_upwind_deg: float | None = None, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -213,6 +218,9 @@ class SteSeeker:
                           ground_alt_m=float(ground_alt_m), smooth=self.patchy)
         self.prior_radius_m = _positive("prior_radius_m", prior_radius_m)
         self.prior_height_m = _positive("prior_height_m", prior_height_m)
+        if prior_upwind_deg is not None and not 0 < float(prior_upwind_deg) <= 180:
+            raise ValueError(f"prior_upwind_deg must be in (0, 180] or None, got {prior_upwind_deg!r}")
+        self.prior_upwind_deg = None if prior_upwind_deg is None else float(prior_upwind_deg)
         noise = _positive("noise_std", noise_std)
         self.background = _positive("background", background, allow_zero=True)
         self.threshold = max(3.0 * noise, _positive("detection_floor", detection_floor, allow_zero=True))
@@ -268,19 +276,28 @@ class SteSeeker:
         self.iterations = 0
         self._buf: list = []  # the last ``memory`` updates: (positions, values, applied weights, unit weights)
         self._last: list = [{} for _ in range(k)]  # per trial: sensor -> its newest (time_s, position)
-        self._seed_prior(np.arange(k), c)
+        self._seed_prior(np.arange(k), c, upwind=True)
 
-    def _seed_prior(self, idx: np.ndarray, c: np.ndarray) -> None:
-        """Particles of trials ``idx`` drawn from the prior about centres ``c[idx]``, equal weights."""
+    def _seed_prior(self, idx: np.ndarray, c: np.ndarray, upwind: bool = False) -> None:
+        """Particles of trials ``idx`` drawn from the prior about centres ``c[idx]``, equal weights;
+        with ``upwind`` and ``prior_upwind_deg``, in the sector up each particle's wind only."""
         n, p, rng = len(idx), self.particles, self.rng
         r = self.prior_radius_m * np.sqrt(rng.uniform(0.0, 1.0, (n, p)))
-        phi = rng.uniform(0.0, 2.0 * np.pi, (n, p))
+        sector = upwind and self.prior_upwind_deg is not None
+        theta = self._wind_prior((n, p)) if sector else None
+        if sector:
+            half = np.deg2rad(self.prior_upwind_deg)
+            phi = theta + np.pi + rng.uniform(-half, half, (n, p))
+        else:
+            phi = rng.uniform(0.0, 2.0 * np.pi, (n, p))
         ground = self.model["ground_alt_m"] + 0.1
         z_lo = np.maximum(c[idx, 2] - self.prior_height_m, ground)[:, None]
         z_hi = np.maximum(c[idx, 2] + self.prior_height_m, ground + 1.0)[:, None]
-        parts = np.stack([c[idx, 0, None] + r * np.cos(phi), c[idx, 1, None] + r * np.sin(phi),
-                          rng.uniform(0.0, 1.0, (n, p)) * (z_hi - z_lo) + z_lo,
-                          rng.uniform(*self.log_amp, (n, p)), self._wind_prior((n, p))], axis=-1)
+        z = rng.uniform(0.0, 1.0, (n, p)) * (z_hi - z_lo) + z_lo
+        log_a = rng.uniform(*self.log_amp, (n, p))
+        theta = self._wind_prior((n, p)) if theta is None else theta
+        parts = np.stack([c[idx, 0, None] + r * np.cos(phi), c[idx, 1, None] + r * np.sin(phi), z, log_a, theta],
+                         axis=-1)
         self.parts[idx] = parts
         self.logw[idx] = -np.log(p)
 

@@ -163,6 +163,23 @@ def test_bench_measures_and_wilson():
     assert row["readings_median"] % 8 == 0
 
 
+def test_bench_start_range_option(capsys):
+    """``--start-m lo,hi``: the start distances drawn in that range; a bad range exits 2 with one line."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import bench_seekers
+
+    assert bench_seekers._start_range("20,40") == (20.0, 40.0)
+    starts, dist = bench_seekers._starts(np.zeros(3), 200, np.random.default_rng(1), (1.0, 0.0), (20.0, 40.0))
+    assert dist.min() >= 20.0 and dist.max() <= 40.0
+    assert np.allclose(np.linalg.norm(starts, axis=1), dist)
+    assert np.all(starts[:, 0] > 0)  # downwind
+    for bad in ("40,20", "0,10", "20", "a,b", "nan,40"):
+        with pytest.raises(SystemExit) as exc:
+            bench_seekers.main(["--start-m", bad, "--trials", "1"])
+        assert exc.value.code == 2
+        assert "--start-m" in capsys.readouterr().err
+
+
 def test_plan_key_and_cli_flags(tmp_path):
     from mission.cli.cmd_run import _resolve_seeker, configure
     from mission.core.plan import load_plan

@@ -267,3 +267,29 @@ def test_an_update_without_readings_changes_nothing_and_warns_nothing():
         s.propose(c, np.zeros((1, 0, 3)), np.zeros((1, 0)))
     np.testing.assert_array_equal(s.logw, before)
     assert not s.collapsed[0] and np.isfinite(s.region95_m[0])
+
+
+def test_upwind_prior_puts_the_release_up_each_particles_wind():
+    """``prior_upwind_deg``: the first prior's release lies in the sector up the particle's own wind
+    from the first centre (wind given or not); a collapse re-seeds from the whole disk."""
+    c = np.array([[30.0, 0.0, 15.0]])
+    given = SteSeeker(wind_from_deg=270.0, wind_std_deg=0.0, patchy=True, prior_upwind_deg=30.0, seed=4)
+    given._init_state(c)
+    rel = given.parts[0, :, :2] - c[0, :2]
+    bearing = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]))  # wind toward east: upwind is west, 180 deg
+    assert np.all(np.abs((bearing % 360.0) - 180.0) <= 30.0 + 1e-9)
+    assert np.all(np.linalg.norm(rel, axis=1) <= given.prior_radius_m + 1e-9)
+    free = SteSeeker(patchy=True, prior_upwind_deg=45.0, seed=4)
+    free._init_state(c)
+    rel = free.parts[0, :, :2] - c[0, :2]
+    up = free.parts[0, :, 4] + np.pi  # each particle's upwind direction
+    off = (np.arctan2(rel[:, 1], rel[:, 0]) - up + np.pi) % (2.0 * np.pi) - np.pi
+    assert np.all(np.abs(off) <= np.deg2rad(45.0) + 1e-9)
+    assert np.ptp(rel[:, 0]) > 100.0 and np.ptp(rel[:, 1]) > 100.0  # marginally the whole disk
+    free._seed_prior(np.array([0]), c)  # a re-seed (collapse): the disk, whatever the wind
+    rel = free.parts[0, :, :2] - c[0, :2]
+    off = (np.arctan2(rel[:, 1], rel[:, 0]) - free.parts[0, :, 4] - np.pi + np.pi) % (2.0 * np.pi) - np.pi
+    assert np.mean(np.abs(off) > np.deg2rad(90.0)) > 0.4
+    for bad in (0.0, -10.0, 200.0, float("nan")):
+        with pytest.raises(ValueError, match="prior_upwind_deg"):
+            SteSeeker(prior_upwind_deg=bad)
