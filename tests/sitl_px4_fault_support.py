@@ -148,6 +148,8 @@ class GcsListener:
         self._conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=253)
         self.latest: dict = {s: {} for s in sysids}
         self.changes: list[tuple[float, int, str, bool]] = []
+        self.alt_track: dict = {s: [] for s in sysids}
+        self.landed_track: dict = {s: [] for s in sysids}
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="gcs-listener", daemon=True)
@@ -180,9 +182,12 @@ class GcsListener:
                 self.changes.append((time.time(), s, mode, armed))
             state.update(mode=mode, armed=armed, heard=time.time())
         elif kind == "EXTENDED_SYS_STATE":
+            if state.get("landed_state") != msg.landed_state:
+                self.landed_track[s].append((time.time(), msg.landed_state))
             state["landed_state"] = msg.landed_state
         else:
             state["alt"] = msg.relative_alt / 1000.0
+            self.alt_track[s].append((time.time(), state["alt"]))
 
     def state(self, sysid: int) -> dict:
         """A copy of the latest state of ``sysid``."""
@@ -193,6 +198,26 @@ class GcsListener:
         """``(time, mode, armed)`` changes of ``sysid`` from ``since`` (time.time()) on."""
         with self._lock:
             return [(t, m, a) for t, s, m, a in self.changes if s == sysid and t >= since]
+
+    def alts(self, sysid: int, since: float = 0.0) -> list[tuple[float, float]]:
+        """``(time, relative altitude m)`` of ``sysid`` heard from ``since`` (time.time()) on."""
+        with self._lock:
+            return [(t, a) for t, a in self.alt_track[sysid] if t >= since]
+
+    def landed_states(self, sysid: int, since: float = 0.0) -> list[tuple[float, int]]:
+        """``(time, MAV_LANDED_STATE)`` changes of ``sysid`` from ``since`` (time.time()) on."""
+        with self._lock:
+            return [(t, x) for t, x in self.landed_track[sysid] if t >= since]
+
+    def wait(self, predicate, timeout_s: float, what: str) -> None:
+        """Poll ``predicate(self)`` every 0.2 s until truthy; fail naming ``what`` and every
+        vehicle's latest state after ``timeout_s`` wall seconds."""
+        deadline = time.monotonic() + timeout_s
+        while not predicate(self):
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out after {timeout_s} s waiting for {what}: "
+                                     f"{ {s: self.state(s) for s in self.latest} }")
+            time.sleep(0.2)
 
     def down(self, sysid: int) -> bool:
         """PX4 says the vehicle is disarmed and its land detector says on the ground."""

@@ -250,7 +250,14 @@ async def _settle_released(co, sysid: int, v) -> None:
 
 
 async def _maybe_came_back(co, v, loss: VehicleLoss, now: float) -> None:
+    """A vehicle lost by its link and heard again is judged (re-admitted or kept out) once a
+    HEARTBEAT came after the loss: its first frames back may be positions while its mode and
+    armed state are still the ones from before the loss (real PX4 SIH, disarmed on the ground
+    after its offboard-loss descent, was judged "OFFBOARD, armed" and commanded to land)."""
     if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
+        return
+    heartbeat_s = getattr(v.state, "last_heartbeat_s", None)
+    if heartbeat_s is None or heartbeat_s <= loss.detected_s:
         return
     alt = getattr(v.state, "relative_alt_m", None)
     readmissible = (co.plan.faults.readmit and co.state.phase == "seek" and v.state.armed
@@ -261,7 +268,9 @@ async def _maybe_came_back(co, v, loss: VehicleLoss, now: float) -> None:
                  "iteration (faults.readmit = true)", level="warning", sysid=loss.sysid)
         return
     if co.plan.faults.readmit:
-        why = f"faults.readmit = true, but not re-admissible (phase {co.state.phase}, mode {v.state.mode})"
+        why = (f"faults.readmit = true, but not re-admissible (phase {co.state.phase}, mode {v.state.mode}, "
+               f"{'armed' if v.state.armed else 'disarmed'}"
+               f"{'' if alt is None else f', {alt:.1f} m above home'})")
     else:
         why = "faults.readmit = false"
     await keep_out(co, loss.sysid, v, why)
