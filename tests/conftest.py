@@ -11,7 +11,8 @@ from __future__ import annotations
 #: the files of the longest tests, longest first (``python -m pytest --durations=40``)
 LONG_FIRST = ("test_sitl_faults_px4.py", "test_sitl_faults_ardupilot.py", "test_map_fly.py", "test_sitl_ardupilot.py",
               "test_sitl_px4.py", "test_conformance_px4.py", "test_map_browser.py", "test_ctl_processes.py",
-              "test_gcs_faults_signals.py", "test_conformance_ap_failsafes.py", "test_layers.py",
+              "test_gcs_faults_signals.py", "test_conformance_ap_failsafes.py", "test_conformance_px4_failsafes.py",
+              "test_layers.py",
               "test_conformance_ardupilot.py", "test_gcs_faults_output.py")
 
 
