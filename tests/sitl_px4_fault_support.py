@@ -150,6 +150,8 @@ class GcsListener:
         self.changes: list[tuple[float, int, str, bool]] = []
         self.alt_track: dict = {s: [] for s in sysids}
         self.landed_track: dict = {s: [] for s in sysids}
+        self.battery_track: dict = {s: [] for s in sysids}
+        self.texts: list[tuple[float, int, str]] = []
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="gcs-listener", daemon=True)
@@ -165,8 +167,8 @@ class GcsListener:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            msg = self._conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT", "EXTENDED_SYS_STATE"],
-                                        blocking=True, timeout=0.2)
+            msg = self._conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT", "EXTENDED_SYS_STATE",
+                                              "SYS_STATUS", "STATUSTEXT"], blocking=True, timeout=0.2)
             if msg is None or msg.get_srcSystem() not in self.latest or msg.get_srcComponent() != 1:
                 continue
             with self._lock:
@@ -181,6 +183,12 @@ class GcsListener:
             if (state.get("mode"), state.get("armed")) != (mode, armed):
                 self.changes.append((time.time(), s, mode, armed))
             state.update(mode=mode, armed=armed, heard=time.time())
+        elif kind == "SYS_STATUS":
+            if state.get("battery_pct") != msg.battery_remaining:
+                self.battery_track[s].append((time.time(), msg.battery_remaining))
+            state["battery_pct"] = msg.battery_remaining
+        elif kind == "STATUSTEXT":
+            self.texts.append((time.time(), s, msg.text.rstrip("\x00")))
         elif kind == "EXTENDED_SYS_STATE":
             if state.get("landed_state") != msg.landed_state:
                 self.landed_track[s].append((time.time(), msg.landed_state))
@@ -208,6 +216,16 @@ class GcsListener:
         """``(time, MAV_LANDED_STATE)`` changes of ``sysid`` from ``since`` (time.time()) on."""
         with self._lock:
             return [(t, x) for t, x in self.landed_track[sysid] if t >= since]
+
+    def batteries(self, sysid: int, since: float = 0.0) -> list[tuple[float, int]]:
+        """``(time, battery %)`` changes of ``sysid`` (SYS_STATUS) from ``since`` on."""
+        with self._lock:
+            return [(t, b) for t, b in self.battery_track[sysid] if t >= since]
+
+    def statustexts(self, sysid: int, since: float = 0.0) -> list[tuple[float, str]]:
+        """``(time, text)`` of ``sysid``'s STATUSTEXTs from ``since`` on."""
+        with self._lock:
+            return [(t, x) for t, s, x in self.texts if s == sysid and t >= since]
 
     def wait(self, predicate, timeout_s: float, what: str) -> None:
         """Poll ``predicate(self)`` every 0.2 s until truthy; fail naming ``what`` and every

@@ -262,3 +262,99 @@ def test_px4_vehicle_that_cannot_arm(tmp_path):
     assert all(st.get("armed") is False for st in final.values()), final
     audit = _audit(log_dir)
     assert audit.returncode == _AUDIT_INCOMPLETE, audit.stdout[-2000:] + audit.stderr[-2000:]
+
+
+#: parameters of every instance from boot for the failsafe mission: PX4's own low-battery action
+#: "return at critical, land at emergency" (COM_LOW_BAT_ACT 3) with a low return altitude, and its
+#: geofence action land (GF_ACTION 5); the fence itself is off (GF_MAX_VER_DIST 0) until lowered
+_FAILSAFE_PARAMS = {"COM_LOW_BAT_ACT": 3, "RTL_RETURN_ALT": 15.0, "RTL_DESCEND_ALT": 10.0, "GF_ACTION": 5}
+#: SIH's simulated battery drains from the arming at 100 % / SIM_BAT_DRAIN (60 s) down to
+#: SIM_BAT_MIN_PCT (50 % by default); lowered to this mid-seek it goes on draining: with 6 PX4
+#: reported 7 % and stayed there, not under BAT_CRIT_THR (7 %): no failsafe (measured)
+_BATTERY_MIN_PCT = 3.0
+#: the geofence's height above home set mid-seek on a vehicle flying 11-17 m up
+_FENCE_MAX_VER_M = 8.0
+_FAILSAFE_MODES = ("RTL", "LAND")
+
+
+def _px4_param(fleet, vehicle, name: str, value: float) -> float:
+    """``px4-param set`` on ``vehicle``'s instance; its wall time."""
+    t = time.time()
+    done = subprocess.run([str(fleet.run_dir / "px4-bin" / "px4-param"), "--instance", str(vehicle.instance),
+                           "set", name, str(value)], capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0, (name, done.stdout + done.stderr)
+    return t
+
+
+def _px4_failsafe(run: FlyRun, gcs: GcsListener, fleet, vehicle, name: str, value: float) -> dict:
+    """Set ``name`` on ``vehicle``; wait for PX4's failsafe mode (heard on its GCS link) and the
+    ground station's loss event. Wall seconds."""
+    assert run.fly.poll() is None, f"fly ended before {name} was set:\n{run.output()}"
+    t_set = _px4_param(fleet, vehicle, name, value)
+    gcs.wait(lambda g: [m for m in g.modes(vehicle.sysid, t_set) if m[1] in _FAILSAFE_MODES and m[2]], 240.0,
+             f"PX4 {vehicle.sysid} in {_FAILSAFE_MODES} after {name} = {value}")
+    t_mode, mode, _ = next(m for m in gcs.modes(vehicle.sysid, t_set) if m[1] in _FAILSAFE_MODES and m[2])
+    lost = run.wait_for(lambda recs: _events(recs, vehicle.sysid, "lost:"), 120.0,
+                        f"vehicle {vehicle.sysid} declared lost after its failsafe")[0]
+    return {"t_set": t_set, "t_mode": t_mode, "mode": mode, "lost": lost,
+            "battery_pct": [(round(t - t_set, 2), b) for t, b in gcs.batteries(vehicle.sysid, t_set)][:8],
+            "px4_texts": [(round(t - t_set, 2), x) for t, x in gcs.statustexts(vehicle.sysid, t_set)][:8],
+            "modes_before": [(round(t - t_set, 2), m, a) for t, m, a in gcs.modes(vehicle.sysid, t_set) if t < t_mode],
+            "reaction_s": round(t_mode - t_set, 2), "detect_s": round(lost["t_s"] - t_mode, 2)}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1200)
+def test_px4_battery_and_geofence_failsafes_in_one_mission(tmp_path):
+    """5 vehicles at 2x. After seek iteration 2, SIH's simulated battery of one vehicle is let down
+    (``SIM_BAT_MIN_PCT``): PX4 returns (COM_LOW_BAT_ACT 3) by itself; the ground station calls it
+    "left", does not fight it, re-forms for 4. At the next iteration another vehicle's geofence is
+    lowered under it (``GF_MAX_VER_DIST``): PX4 lands (GF_ACTION 5); "left"; 3 left: the seek ends
+    ``too_few_vehicles`` (exit 1), the three come home and land. Checked: the outcome, PX4's modes
+    (never OFFBOARD again after its failsafe), every vehicle disarmed on the ground, the audit."""
+    sitl_dir = require_sitl("px4")
+    from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
+    from mission.sim.sitl_plan import seeker_settings, write_plan
+
+    # the seek must outlast both failsafes (it converged 24 s in, before PX4's battery failsafe
+    # acted): a convergence window longer than the iteration cap; with 3 left it ends anyway
+    seeking = dict(_SEEKING, convergence_window=400, max_iterations=300, **seeker_settings("model"))
+    zenoh = f"tcp/127.0.0.1:{_free_tcp_port()}"
+    cfg = SitlFleetConfig(flavour="px4", n=5, sitl_dir=sitl_dir, speedup=_SPEEDUP, params=_FAILSAFE_PARAMS).free()
+    log_dir = tmp_path / "logs"
+    with SitlFleet(cfg) as fleet, GcsListener(14550 + cfg.port_offset, [v.sysid for v in fleet.vehicles]) as gcs:
+        bat_v, fence_v = fleet.vehicles[2], fleet.vehicles[3]
+        plan = write_plan(tmp_path / "plan.toml", fleet.vehicles, fleet.origin, flavour="px4", zenoh_endpoint=zenoh,
+                          speedup=_SPEEDUP, overrides={"seeking": seeking})
+        with FlyRun(fleet, plan, log_dir, _SOURCE, zenoh=zenoh, noise=_NOISE) as run:
+            run.wait_for(lambda recs: len(_iterations(recs)) >= 2, 300.0, "seek iteration 2")
+            battery = _px4_failsafe(run, gcs, fleet, bat_v, "SIM_BAT_MIN_PCT", _BATTERY_MIN_PCT)
+            run.wait_for(lambda recs: [r for r in _iterations(recs) if r["t_s"] > battery["lost"]["t_s"]], 180.0,
+                         "an iteration with 4 vehicles after the battery failsafe")
+            fence = _px4_failsafe(run, gcs, fleet, fence_v, "GF_MAX_VER_DIST", _FENCE_MAX_VER_M)
+            status = run.wait_end(600.0)
+            output, summary = run.output(), run.summary()
+        _wait_down(gcs, [v.sysid for v in fleet.vehicles], 240.0)
+        after = {ev["lost"]["sysid"]: [(m, a) for _, m, a in gcs.modes(ev["lost"]["sysid"], ev["t_mode"])]
+                 for ev in (battery, fence)}
+        final = {v.sysid: gcs.state(v.sysid) for v in fleet.vehicles}
+    figures = {name: {k: ev[k] for k in ("mode", "reaction_s", "detect_s", "modes_before", "battery_pct", "px4_texts")}
+               | {"latency_s": ev["lost"]["latency_s"], "reason": ev["lost"]["reason"],
+                  "modes_after": after[ev["lost"]["sysid"]]} for name, ev in (("battery", battery), ("fence", fence))}
+    figures.update(exit=status, outcome=summary and summary["outcome"], iterations=len(_iterations(run.records())))
+    print("PX4 SIH battery + geofence:", json.dumps(figures))
+    assert status == 1, (status, output)
+    assert summary is not None and summary["outcome"] == "too_few_vehicles", (summary, output)
+    assert sorted(e["sysid"] for e in summary["lost"]) == sorted([bat_v.sysid, fence_v.sysid]), summary["lost"]
+    assert summary.get("airborne_left", []) == [] and summary.get("still_armed", []) == [], summary
+    for name, ev in (("battery", battery), ("fence", fence)):
+        # "left": PX4's own failsafe, not fought (never OFFBOARD again while armed)
+        assert ev["lost"]["reason"] == "left", figures
+        assert ("OFFBOARD", True) not in after[ev["lost"]["sysid"]], figures
+    assert battery["mode"] in _FAILSAFE_MODES and fence["mode"] == "LAND", figures
+    assert any("re-forming for 4" in r.get("message", "") for r in run.records("event")), "no re-formation for 4"
+    for sysid, st in final.items():
+        assert st.get("armed") is False and abs(st.get("alt", 99.0)) < 1.0, (sysid, st)
+    audit = _audit(log_dir)
+    assert audit.returncode == 0, (audit.stdout[-3000:] + audit.stderr[-2000:] + "\n"
+                                   + audit_failure_context(log_dir))
