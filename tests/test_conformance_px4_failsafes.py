@@ -40,7 +40,7 @@ def test_mock_offboard_loss_descends_as_real_px4():
     mock = observe("mock")
     print("\nmock: offboard loss", mock.details["offboard_loss"])
     _check_px4_behaviour(mock.details["offboard_loss"])
-    assert mock.details["offboard_loss"]["reaction_s"] < 2.5
+    assert mock.details["offboard_loss"]["reaction_s"] < 2.5  # COM_OF_LOSS_T 1 s + a heartbeat
 
 
 @pytest.mark.slow

@@ -1,7 +1,7 @@
 """Faults against REAL PX4 firmware (PX4 SIH, ``SWARMSEEK_PX4_SITL``): whole ``swarmseek fly`` missions
 with one ``swarmseek sensor`` per vehicle, each a subprocess, and a fault injected mid-mission.
 
-* ``test_px4_link_cut_then_kill_in_one_mission``: 6 vehicles at 2x with the fleet's failsafe
+* ``test_px4_link_cut_then_kill_in_one_mission``: 6 vehicles (speed-up ``_SPEEDUP``) with the fleet's failsafe
   parameters as the preflight reads them (PX4's default offboard-loss action ``COM_OBL_RC_ACT = 0``,
   position mode; ``NAV_DLL_ACT = 3``, land after ``COM_DL_LOSS_T`` 10 s), ``[faults] readmit = true``.
   Vehicle 6's API link goes through a UDP relay in the test (the plan points its connection at the
@@ -45,15 +45,21 @@ import pytest
 from sitl_px4_fault_support import FlyRun, GcsListener, UdpRelay, free_udp_port
 from sitl_support import audit_failure_context, require_sitl
 
-#: 2x, not the 3x of tests/test_sitl_px4.py: 6 instances plus 6 sensors; on a host at load average
-#: 25-30 a 3x fleet fell so far behind that PX4's 1 s offboard-loss timer took over 30 s of wall time
-_SPEEDUP = 2.0
+#: simulation speed-up of the fault missions: 1 (real time) by default, not the 3x of
+#: tests/test_sitl_px4.py: 6 instances plus 6 sensors; at 2x, on this 2-core host at load average
+#: 41 (other work), PX4 SIH and the sensors fell so far behind that no reading came for minutes and
+#: PX4 lost its offboard setpoints (at load 15-30 the 2x runs passed); at 3x and load 25-30 PX4's
+#: 1 s offboard-loss timer took over 30 s of wall time
+_SPEEDUP = float(os.environ.get("SWARMSEEK_TEST_PX4_SPEEDUP", "1"))
 
 _SOURCE = (6.0, 12.0, 13.0)
 _START = (0.0, 20.0, 15.0)
 _NOISE = 0.005
 _SEEKING = {"eps": 50.0, "convergence_window": 10, "convergence_tol_m": 0.5, "arrival_tol_m": 0.7,
             "start_enu_m": list(_START)}
+#: the plan's link timeout in the link-cut mission: 2 s, not the default 1 s: at load average 35 the
+#: relay process stalled 1.25 s during the takeoff and the vehicle was lost before any cut
+_LINK_TIMEOUT_S = 2.0
 #: the documented exit status of a mission that converged with a vehicle lost and unheard at the end
 #: (its state unknown: reported airborne, ``airborne_left``; docs/mission.md "Exit status")
 _EXIT_VEHICLE_UNACCOUNTED = 1
@@ -90,6 +96,8 @@ def _iterations(records) -> list[dict]:
 def _cut_until_down(run: FlyRun, relay: UdpRelay, gcs: GcsListener, sysid: int) -> dict:
     """Cut the relay after iteration 2; restore it once PX4 has come down and disarmed by itself."""
     run.wait_for(lambda recs: len(_iterations(recs)) >= 2, 240.0, "seek iteration 2")
+    early = _events(run.records(), sysid, "lost:")
+    assert not early, f"vehicle {sysid} lost before the cut (a stalled host or relay): {early[0]['message']}"
     t_cut = time.time()
     relay.cut(True)
     lost = run.wait_for(lambda recs: _events(recs, sysid, "lost:"), 90.0, f"vehicle {sysid} declared lost")[0]
@@ -174,7 +182,8 @@ def test_px4_link_cut_then_kill_in_one_mission(tmp_path):
             planned = [dataclasses.replace(v, connection=f"udpin:127.0.0.1:{relay_port}") if v is cut_v else v
                        for v in fleet.vehicles]
             plan = write_plan(tmp_path / "plan.toml", planned, fleet.origin, flavour="px4", zenoh_endpoint=zenoh,
-                              speedup=_SPEEDUP, overrides={"seeking": seeking, "faults": {"readmit": True}})
+                              speedup=_SPEEDUP, overrides={"seeking": seeking,
+                                                           "faults": {"readmit": True, "link_timeout_s": _LINK_TIMEOUT_S}})
             with FlyRun(fleet, plan, log_dir, _SOURCE, zenoh=zenoh, noise=_NOISE) as run:
                 cut = _cut_until_down(run, relay, gcs, cut_v.sysid)
                 kill = _kill_after_next_iteration(run, kill_v)
@@ -201,10 +210,10 @@ def test_px4_link_cut_then_kill_in_one_mission(tmp_path):
     assert summary["readmitted"] == [], summary["readmitted"]
     assert [e["sysid"] for e in summary["airborne_left"]] == [kill_v.sysid], summary["airborne_left"]
     # each loss declared after its fault, once the vehicle had been silent for the plan's link
-    # timeout (1 s; no upper bound on wall time: a loaded host delays detection, docs/faults.md)
+    # timeout (no upper bound on wall time: a loaded host delays detection, docs/faults.md)
     for fault, t_fault in ((cut, cut["t_cut"]), (kill, kill["t_kill"])):
         assert fault["lost"]["t_s"] > t_fault, figures
-        assert fault["lost"]["latency_s"] >= 1.0, figures
+        assert fault["lost"]["latency_s"] >= _LINK_TIMEOUT_S, figures
     # PX4's own failsafe with the preflight-checked parameters: position mode without RC, came down
     # and disarmed on the ground, by itself (the link was cut until then); heard again: kept out
     _check_px4_came_down(figures, cut_modes)
@@ -314,7 +323,7 @@ class FoughtPx4Failsafe(AssertionError):
                           "ground station's watchdog takes that hold for its own setpoint pause and re-engages "
                           "OFFBOARD once (docs/faults.md); any other failure fails the test")
 def test_px4_battery_and_geofence_failsafes_in_one_mission(tmp_path):
-    """5 vehicles at 2x. After seek iteration 2, SIH's simulated battery of one vehicle is let down
+    """5 vehicles (speed-up ``_SPEEDUP``). After seek iteration 2, SIH's simulated battery of one vehicle is let down
     (``SIM_BAT_MIN_PCT``): PX4 returns (COM_LOW_BAT_ACT 3) by itself; the ground station calls it
     "left", does not fight it, re-forms for 4. At the next iteration another vehicle's geofence is
     lowered under it (``GF_MAX_VER_DIST``): PX4 holds (AUTO.LOITER, ``COM_FAIL_ACT_T``) then lands
