@@ -17,10 +17,12 @@ with one ``swarmseek sensor`` per vehicle, each a subprocess, and a fault inject
   lost, re-formed for 4, the mission converges with 4. Checked: the outcome and exit status (1:
   converged, one vehicle unheard at the end, ``airborne_left``; docs/mission.md), both losses in
   the summary and no re-admission, the detection latencies, what PX4 did after the cut (its modes,
-  a descent to the ground, disarmed, never OFFBOARD again), every living vehicle landed and disarmed
+  a descent to the ground, disarmed, never armed again), every living vehicle landed and disarmed
   (PX4's own land detector), one ``.tlog`` per planned vehicle, ``swarmseek audit`` clean.
   (Before: 5 vehicles with ``COM_OBL_RC_ACT = 5`` and a re-admission; its check of a LAND mode at
   the end failed once; stop 28.)
+* ``test_px4_battery_and_geofence_failsafes_in_one_mission``: PX4's own low-battery failsafe
+  (SIH's battery let down) and geofence breach in one 5-vehicle mission (its docstring).
 * ``test_px4_vehicle_that_cannot_arm``: 4 vehicles, one whose pre-arm checks fail
   (``SYS_HAS_MAG = 2``: PX4 SIH has one compass: "Preflight Fail: Found 1 compass (required: 2)").
   ``fly`` arms nothing: aborted in preflight naming the vehicle and PX4's words, exit 1; no vehicle
