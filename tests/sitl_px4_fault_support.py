@@ -81,8 +81,8 @@ class UdpRelay:
             return
         if self.proc.poll() is None:
             self.proc.terminate()
-        try:
-            out, _ = self.proc.communicate(timeout=5.0)
+        try:  # generous: at load average 30 its counts did not come within 5 s
+            out, _ = self.proc.communicate(timeout=30.0)
         except subprocess.TimeoutExpired:
             stop_groups([self.proc])
             out = ""
