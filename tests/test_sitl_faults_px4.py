@@ -166,8 +166,17 @@ def _wait_down(gcs: GcsListener, sysids, timeout_s: float) -> None:
     gcs.wait(lambda g: all(g.down(s) for s in sysids), timeout_s, f"{sysids} disarmed on the ground")
 
 
+class SeparationDeadlock(AssertionError):
+    """The mission aborted: two vehicles held by the separation envelope until a settle timeout
+    (an open ground-station defect, docs/faults.md "Open")."""
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
+@pytest.mark.xfail(raises=SeparationDeadlock, strict=False,
+                   reason="open: after the kill, a re-formation's pair held by the separation envelope until "
+                          "the settle timeout aborts the mission (2 of 6 runs; docs/faults.md); any other "
+                          "failure fails the test")
 def test_px4_link_cut_then_kill_in_one_mission(tmp_path):
     sitl_dir = require_sitl("px4")
     from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
@@ -206,6 +215,10 @@ def test_px4_link_cut_then_kill_in_one_mission(tmp_path):
                     "estimate_enu": summary and summary.get("estimate_enu"),
                     "iterations": len(_iterations(run.records()))})
     print("PX4 SIH link cut + kill:", json.dumps(figures))
+    _check_px4_came_down(figures, cut_modes)  # PX4's own behaviour, whatever the ground station did
+    if summary is not None and summary["outcome"] == "aborted" and "to settle" in summary.get("message", "") \
+            and summary.get("separation_interventions", 0) > 0:
+        raise SeparationDeadlock(f"{summary['message']} ({summary['separation_interventions']} separation holds)")
     assert status == _EXIT_VEHICLE_UNACCOUNTED, (status, output)
     assert summary is not None and summary["outcome"] == "converged", (summary, output)
     assert sorted(e["sysid"] for e in summary["lost"]) == sorted([kill_v.sysid, cut_v.sysid]), summary["lost"]
@@ -217,9 +230,8 @@ def test_px4_link_cut_then_kill_in_one_mission(tmp_path):
     for fault, t_fault in ((cut, cut["t_cut"]), (kill, kill["t_kill"])):
         assert fault["lost"]["t_s"] > t_fault, figures
         assert fault["lost"]["latency_s"] >= _LINK_TIMEOUT_S, figures
-    # PX4's own failsafe with the preflight-checked parameters: position mode without RC, came down
-    # and disarmed on the ground, by itself (the link was cut until then); heard again: kept out
-    _check_px4_came_down(figures, cut_modes)
+    # PX4's own failsafe with the preflight-checked parameters (checked above: position mode without
+    # RC, came down and disarmed on the ground by itself, the link cut until then); heard again: kept out
     assert cut_final.get("armed") is False and cut_final.get("alt", 99.0) < 1.0, cut_final
     assert "kept out" in cut["back"]["message"] and "disarmed" in cut["back"]["message"], cut["back"]
     # the killed PX4 stayed silent (its last heartbeat came soon after the kill at the latest)
