@@ -5,9 +5,10 @@ the autopilot in failsafe (HEARTBEAT system_status CRITICAL) and switches to the
 parameters ask for:
 
 * offboard loss (PX4): no setpoint for ``COM_OF_LOSS_T`` s in OFFBOARD -> ``COM_OBL_RC_ACT``
-  (0 Position mode, ``POSCTL``: the mode real PX4 v1.16 SIH reports, measured by
-  ``tests/sitl/test_sitl_faults_px4.py``; the mock holds there, while real PX4 without RC descends at
-  about 0.5 m/s and lands: a difference left open, docs/faults.md; 3 Return, 4 Land, otherwise Hold);
+  (0 Position mode: as real PX4 v1.16 SIH without RC, measured by ``tests/sitl/test_sitl_faults_px4.py``
+  and ``tests/conformance/test_conformance_px4_failsafes.py``, it shows ``POSCTL`` and descends at
+  ``MPC_LAND_SPEED`` to the ground, lands, disarms and then shows OFFBOARD again;
+  3 Return, 4 Land, otherwise Hold);
 * GCS loss: no GCS heartbeat for ``FS_GCS_TIMEOUT`` (ArduPilot, heartbeats from
   ``MAV_GCS_SYSID``) or ``COM_DL_LOSS_T`` (PX4, any MAV_TYPE_GCS) -> ``FS_GCS_ENABLE`` /
   ``NAV_DLL_ACT``; only after a GCS has been heard once;
@@ -56,7 +57,20 @@ def _failsafe(ap, t_s: float, reason: str, action: str, text: str) -> None:
         return
     target = {"hold": pers.hold_mode, "rtl": pers.rtl_mode, "land": pers.land_mode,
               "position": "POSCTL"}[action]
+    previous = ap.mode_name
     ap_flight.enter_mode(ap, target, t_s)
+    if action == "position" and ap_flight_state.airborne(ap):
+        _descend_without_pilot(ap, previous)
+
+
+def _descend_without_pilot(ap, previous_mode: str) -> None:
+    """PX4's position mode without RC (the mock has none): it shows POSCTL but descends at
+    ``MPC_LAND_SPEED`` straight down, landed state IN_AIR until ON_GROUND (not LANDING), lands and
+    disarms after ``COM_DISARM_LAND``; then it shows ``previous_mode`` again (real PX4 v1.16 SIH,
+    measured: 0.71 m/s, docs/faults.md)."""
+    fs = ap.flight
+    fs.descent_without_pilot, fs.mode_before_failsafe = True, previous_mode
+    ap.mc.command_land(fast_high=False)
 
 
 def _check_gcs_loss(ap, t_s: float) -> None:

@@ -133,9 +133,19 @@ def disarm(ap, t_s: float, forced: bool = False) -> int:
 
 
 def disarm_now(ap, why: str) -> None:
-    """Disarm without checks (landing detected, failsafe, command) and announce why."""
+    """Disarm without checks (landing detected, failsafe, command) and announce why.
+
+    After PX4's descent without a pilot (offboard loss, position mode without RC) the failsafe
+    ends with the flight: the heartbeat shows the mode it had left again (OFFBOARD), as real
+    PX4 v1.16 SIH does (tests/sitl/test_sitl_faults_px4.py, tests/conformance/test_conformance_px4_failsafes.py).
+    """
     ap.mc.disarm()
     fs = ap.flight
+    if fs.descent_without_pilot:
+        ap.mode_name = fs.mode_before_failsafe or ap.mode_name
+        fs.descent_without_pilot, fs.mode_before_failsafe = False, None
+        if ap.failsafe == "offboard":
+            ap.failsafe = None
     fs.idle_since_s = None
     fs.takeoff_alt_m = None
     fs.has_flown = False
@@ -165,6 +175,7 @@ def enter_mode(ap, mode_name: str, t_s: float) -> None:
     fs = ap.flight
     previous = ap.mode_name
     ap.mode_name = mode_name
+    fs.descent_without_pilot, fs.mode_before_failsafe = False, None
     b = ap.personality.behaviour(mode_name)
     mc = ap.mc
     if b != "rtl":

@@ -54,6 +54,10 @@ class FlightState:
     mission_target_ned: np.ndarray | None = None
     mission_alt_m: float = 0.0
     prearm_report_s: float | None = None
+    #: PX4 offboard loss with COM_OBL_RC_ACT 0 and no RC: shown as POSCTL, descending at
+    #: MPC_LAND_SPEED to the ground; the mode shown again once disarmed (the one it left, OFFBOARD)
+    descent_without_pilot: bool = False
+    mode_before_failsafe: str | None = None
 
 
 def is_ardupilot(ap) -> bool:

@@ -194,8 +194,8 @@ def px4_param_specs(sysid: int, dyn) -> list[ParamSpec]:
 
     ``COM_LOW_BAT_ACT`` defaults to 3 (return at critical, land at emergency) so that the
     low-battery fault acts; the offboard-loss action ``COM_OBL_RC_ACT`` 0 (position mode) switches
-    to ``POSCTL``, the mode real PX4 v1.16 SIH reports (it then descends and lands without RC; the
-    mock holds: docs/faults.md); 1 and 2 (altitude / manual, not measured) fall back to Hold.
+    to ``POSCTL`` and, without RC, descends at ``MPC_LAND_SPEED`` and lands, as real PX4 v1.16 SIH
+    (docs/faults.md); 1 and 2 (altitude / manual, not measured) fall back to Hold.
     """
     return [
         ParamSpec("MAV_SYS_ID", sysid, _INT32, 1, 255),

@@ -194,7 +194,7 @@ class MockAutopilot:
             return mavlink2.MAV_LANDED_STATE_ON_GROUND
         if mc.mode == "takeoff":
             return mavlink2.MAV_LANDED_STATE_TAKEOFF
-        if mc.mode == "land":
+        if mc.mode == "land" and not self.flight.descent_without_pilot:
             return mavlink2.MAV_LANDED_STATE_LANDING
         return mavlink2.MAV_LANDED_STATE_IN_AIR
 

@@ -94,6 +94,7 @@ class Multicopter:
         self.battery_remaining = 1.0
         self.gps_glitch_ned_m = np.zeros(3)
         self._mode = _MODE_IDLE
+        self._land_fast_high = True       # LAND: max_speed_down above _LAND_HIGH_ALT_M
         self._tgt = (0.0, 0.0, 0.0)       # position target (NED m)
         self._vel_tgt = (0.0, 0.0, 0.0)   # velocity target or feed-forward (NED m/s)
         self._yaw_tgt: float | None = None
@@ -217,10 +218,15 @@ class Multicopter:
         self._vel_tgt = (0.0, 0.0, 0.0)
         self._mode = _MODE_TAKEOFF
 
-    def command_land(self) -> None:
-        """Hold horizontally and descend; on touchdown ``landed`` becomes True."""
+    def command_land(self, fast_high: bool = True) -> None:
+        """Hold horizontally and descend; on touchdown ``landed`` becomes True.
+
+        ``fast_high``: above ``_LAND_HIGH_ALT_M`` descend at ``max_speed_down_m_s`` (an autopilot's
+        LAND mode); False: at ``land_speed_m_s`` all the way (PX4's descent without a pilot).
+        """
         if not self._flying_allowed():
             return
+        self._land_fast_high = bool(fast_high)
         self._tgt = (self._n, self._e, 0.0)
         self._vel_tgt = (0.0, 0.0, 0.0)
         self._mode = _MODE_IDLE if self.on_ground else _MODE_LAND
@@ -317,7 +323,8 @@ class Multicopter:
             up_max = min(up_max, p.takeoff_speed_m_s)
         elif mode == _MODE_LAND:
             # descend at a constant rate until touchdown (faster high up: LAND_SPEED_HIGH)
-            cd = p.land_speed_m_s if -self._d <= _LAND_HIGH_ALT_M else max(down_max, p.land_speed_m_s)
+            fast = self._land_fast_high and -self._d > _LAND_HIGH_ALT_M
+            cd = max(down_max, p.land_speed_m_s) if fast else p.land_speed_m_s
             down_max = max(down_max, p.land_speed_m_s)
         return limit_velocity_command(cn, ce, cd, p.max_speed_h_m_s, up_max, down_max)
 

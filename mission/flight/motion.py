@@ -98,11 +98,13 @@ def parked(co) -> list[int]:
 async def keep_out(co, sysid: int, v, why: str) -> None:
     """Keep a returning vehicle out of the formation and command it to land (or RTL), once."""
     rtl = co.plan.return_behaviour == "rtl"
-    co.event(f"vehicle {sysid} is heard again after its link loss; kept out of the formation "
-             f"({why}) and commanded to {'RTL' if rtl else 'land'}", level="warning", sysid=sysid)
     if v is None or not v.state.armed:
+        co.event(f"vehicle {sysid} is heard again after its link loss; kept out of the formation "
+                 f"({why}); disarmed: not commanded", level="warning", sysid=sysid)
         co.state.keep_out(sysid, "lost (back, on the ground)")
         return
+    co.event(f"vehicle {sysid} is heard again after its link loss; kept out of the formation "
+             f"({why}) and commanded to {'RTL' if rtl else 'land'}", level="warning", sysid=sysid)
     co.state.keep_out(sysid, "kept out: " + ("returning" if rtl else "landing"))
     try:
         await asyncio.wait_for(v.rtl() if rtl else v.land(), timeout=30.0)

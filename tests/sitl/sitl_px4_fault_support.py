@@ -81,8 +81,8 @@ class UdpRelay:
             return
         if self.proc.poll() is None:
             self.proc.terminate()
-        try:
-            out, _ = self.proc.communicate(timeout=5.0)
+        try:  # generous: at load average 30 its counts did not come within 5 s
+            out, _ = self.proc.communicate(timeout=30.0)
         except subprocess.TimeoutExpired:
             stop_groups([self.proc])
             out = ""
@@ -148,6 +148,10 @@ class GcsListener:
         self._conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=253)
         self.latest: dict = {s: {} for s in sysids}
         self.changes: list[tuple[float, int, str, bool]] = []
+        self.alt_track: dict = {s: [] for s in sysids}
+        self.landed_track: dict = {s: [] for s in sysids}
+        self.battery_track: dict = {s: [] for s in sysids}
+        self.texts: list[tuple[float, int, str]] = []
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="gcs-listener", daemon=True)
@@ -163,8 +167,8 @@ class GcsListener:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            msg = self._conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT", "EXTENDED_SYS_STATE"],
-                                        blocking=True, timeout=0.2)
+            msg = self._conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT", "EXTENDED_SYS_STATE",
+                                              "SYS_STATUS", "STATUSTEXT"], blocking=True, timeout=0.2)
             if msg is None or msg.get_srcSystem() not in self.latest or msg.get_srcComponent() != 1:
                 continue
             with self._lock:
@@ -179,10 +183,19 @@ class GcsListener:
             if (state.get("mode"), state.get("armed")) != (mode, armed):
                 self.changes.append((time.time(), s, mode, armed))
             state.update(mode=mode, armed=armed, heard=time.time())
+        elif kind == "SYS_STATUS":
+            if state.get("battery_pct") != msg.battery_remaining:
+                self.battery_track[s].append((time.time(), msg.battery_remaining))
+            state["battery_pct"] = msg.battery_remaining
+        elif kind == "STATUSTEXT":
+            self.texts.append((time.time(), s, msg.text.rstrip("\x00")))
         elif kind == "EXTENDED_SYS_STATE":
+            if state.get("landed_state") != msg.landed_state:
+                self.landed_track[s].append((time.time(), msg.landed_state))
             state["landed_state"] = msg.landed_state
         else:
             state["alt"] = msg.relative_alt / 1000.0
+            self.alt_track[s].append((time.time(), state["alt"]))
 
     def state(self, sysid: int) -> dict:
         """A copy of the latest state of ``sysid``."""
@@ -193,6 +206,36 @@ class GcsListener:
         """``(time, mode, armed)`` changes of ``sysid`` from ``since`` (time.time()) on."""
         with self._lock:
             return [(t, m, a) for t, s, m, a in self.changes if s == sysid and t >= since]
+
+    def alts(self, sysid: int, since: float = 0.0) -> list[tuple[float, float]]:
+        """``(time, relative altitude m)`` of ``sysid`` heard from ``since`` (time.time()) on."""
+        with self._lock:
+            return [(t, a) for t, a in self.alt_track[sysid] if t >= since]
+
+    def landed_states(self, sysid: int, since: float = 0.0) -> list[tuple[float, int]]:
+        """``(time, MAV_LANDED_STATE)`` changes of ``sysid`` from ``since`` (time.time()) on."""
+        with self._lock:
+            return [(t, x) for t, x in self.landed_track[sysid] if t >= since]
+
+    def batteries(self, sysid: int, since: float = 0.0) -> list[tuple[float, int]]:
+        """``(time, battery %)`` changes of ``sysid`` (SYS_STATUS) from ``since`` on."""
+        with self._lock:
+            return [(t, b) for t, b in self.battery_track[sysid] if t >= since]
+
+    def statustexts(self, sysid: int, since: float = 0.0) -> list[tuple[float, str]]:
+        """``(time, text)`` of ``sysid``'s STATUSTEXTs from ``since`` on."""
+        with self._lock:
+            return [(t, x) for t, s, x in self.texts if s == sysid and t >= since]
+
+    def wait(self, predicate, timeout_s: float, what: str) -> None:
+        """Poll ``predicate(self)`` every 0.2 s until truthy; fail naming ``what`` and every
+        vehicle's latest state after ``timeout_s`` wall seconds."""
+        deadline = time.monotonic() + timeout_s
+        while not predicate(self):
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out after {timeout_s} s waiting for {what}: "
+                                     f"{ {s: self.state(s) for s in self.latest} }")
+            time.sleep(0.2)
 
     def down(self, sysid: int) -> bool:
         """PX4 says the vehicle is disarmed and its land detector says on the ground."""

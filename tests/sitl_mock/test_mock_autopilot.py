@@ -198,9 +198,9 @@ def test_ardupilot_guided_velocity_target_times_out_and_stops():
     assert h.ap.mode_name == "GUIDED"
 
 
-#: COM_OBL_RC_ACT 0 (PX4's default, position mode): real PX4 v1.16 SIH reports POSCTL (measured by
-#: tests/sitl/test_sitl_faults_px4.py runs); it then descends and lands without RC, the mock holds there
-#: (a difference left open, docs/faults.md)
+#: COM_OBL_RC_ACT 0 (PX4's default, position mode): real PX4 v1.16 SIH reports POSCTL and, without
+#: RC, descends at MPC_LAND_SPEED, lands, disarms and shows OFFBOARD again (measured by
+#: tests/sitl/test_sitl_faults_px4.py and tests/conformance/test_conformance_px4_failsafes.py)
 @pytest.mark.parametrize("obl_action,expected_mode", [(0, "POSCTL"), (3, "AUTO.RTL"), (4, "AUTO.LAND")])
 def test_px4_offboard_loss_failsafe(obl_action, expected_mode):
     h = Harness("px4", COM_OBL_RC_ACT=obl_action)
@@ -212,10 +212,39 @@ def test_px4_offboard_loss_failsafe(obl_action, expected_mode):
     h.run(1.0)  # COM_OF_LOSS_T = 1 s without setpoints
     assert h.ap.mode_name == expected_mode
     assert h.ap.failsafe == "offboard"
-    if obl_action == 0:  # the mock's position mode without a pilot: holds where it is, armed
-        h.run(5.0)
-        assert h.ap.mode_name == "POSCTL" and h.mc.armed
-        assert np.linalg.norm(h.mc.velocity_ned_m_s) < 0.05
+
+
+def test_px4_position_mode_without_rc_descends_lands_and_shows_offboard_again():
+    """Offboard loss, COM_OBL_RC_ACT 0: POSCTL, straight down at MPC_LAND_SPEED (also above 10 m,
+    where AUTO.LAND goes faster), landed state IN_AIR (not LANDING) until ON_GROUND, disarmed
+    after COM_DISARM_LAND, then OFFBOARD shown again, disarmed, failsafe over."""
+    h = Harness("px4", COM_OBL_RC_ACT=0)
+    h.airborne(10.0)
+    h.setpoint(0.0, 0.0, -14.0)
+    assert h.set_mode("OFFBOARD") == mav.MAV_RESULT_ACCEPTED
+    for _ in range(16):  # a setpoint every 0.5 s (< COM_OF_LOSS_T): climbs to 14 m in OFFBOARD
+        h.setpoint(0.0, 0.0, -14.0)
+        h.run(0.5)
+    assert h.ap.mode_name == "OFFBOARD"
+    h.run(1.5)
+    assert h.ap.mode_name == "POSCTL" and h.mc.armed
+    h.run(1.0)  # past the stop of the climb
+    alt0, t0 = -h.mc.position_ned_m[2], h.t
+    assert alt0 > 11.0
+    h.run(4.0)
+    rate = (alt0 - (-h.mc.position_ned_m[2])) / (h.t - t0)
+    assert rate == pytest.approx(h.ap.params["MPC_LAND_SPEED"], abs=0.1)
+    assert h.ap.mode_name == "POSCTL" and h.mc.armed
+    assert h.ap.landed_state() == mav.MAV_LANDED_STATE_IN_AIR
+    horizontal = np.hypot(*h.mc.position_ned_m[:2])
+    assert horizontal < 0.5
+    for _ in range(60):
+        if not h.mc.armed:
+            break
+        h.run(1.0)
+    assert not h.mc.armed and h.mc.landed
+    assert h.ap.mode_name == "OFFBOARD" and h.ap.failsafe is None
+    assert h.ap.landed_state() == mav.MAV_LANDED_STATE_ON_GROUND
 
 
 @pytest.mark.parametrize("personality,param,value,expected_mode", [

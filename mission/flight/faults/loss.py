@@ -282,13 +282,15 @@ class LossMonitor:
             self.events.event(f"vehicle {sysid}: {what} after its release failed: {exc}", level="error", sysid=sysid)
 
     async def _maybe_came_back(self, v, loss: VehicleLoss, now: float) -> None:
+        """A vehicle lost by its link and heard again is judged (re-admitted or kept out) once a
+        HEARTBEAT came after the loss: its first frames back may be positions while its mode and
+        armed state are still the ones from before the loss (ArduCopter SITL, in LAND by itself, was
+        first called re-admissible in GUIDED; real PX4 SIH, disarmed on the ground after its
+        offboard-loss descent, was judged "OFFBOARD, armed" and commanded to land)."""
         if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
             return
-        hb_s = getattr(v.state, "last_heartbeat_s", None)
-        if hb_s is not None and hb_s <= loss.detected_s:
-            # judged on its first heartbeat since the loss: until then its mode is the one from before
-            # the cut (ArduCopter SITL: a vehicle that had switched to LAND by itself was first called
-            # re-admissible on a position frame, in GUIDED, then kept out at the next iteration)
+        heartbeat_s = getattr(v.state, "last_heartbeat_s", None)
+        if heartbeat_s is None or heartbeat_s <= loss.detected_s:
             return
         state = self.state
         alt = getattr(v.state, "relative_alt_m", None)
@@ -300,7 +302,9 @@ class LossMonitor:
                               "iteration (faults.readmit = true)", level="warning", sysid=loss.sysid)
             return
         if self.faults.readmit:
-            why = f"faults.readmit = true, but not re-admissible (phase {state.phase}, mode {v.state.mode})"
+            why = (f"faults.readmit = true, but not re-admissible (phase {state.phase}, mode {v.state.mode}, "
+                   f"{'armed' if v.state.armed else 'disarmed'}"
+                   f"{'' if alt is None else f', {alt:.1f} m above home'})")
         else:
             why = "faults.readmit = false"
         await self.motion.keep_out(loss.sysid, v, why)

@@ -124,7 +124,8 @@ def test_the_loss_monitor_keeps_out_a_vehicle_heard_again_without_readmit():
     clock, state, vehicles, gate, rec, motion, monitor = _monitor(4)
     vehicles[0].age_s = 3.0
     _watch(monitor, lambda: 1 in state.lost, "vehicle 1 lost")
-    vehicles[0].age_s = 0.0                # heard again
+    vehicles[0].age_s = 0.0                # heard again, with a heartbeat since the loss
+    vehicles[0].state.last_heartbeat_s = clock.time()
     _watch(monitor, lambda: motion.calls, "vehicle 1 kept out")
     assert motion.calls == [("keep_out", 1, "faults.readmit = false")]
     assert state.lost[1].came_back_s is not None and not state.lost[1].readmit_pending
@@ -244,6 +245,7 @@ def test_the_loss_monitor_marks_a_vehicle_heard_again_for_readmission():
     vehicles[2].age_s = 3.0
     _watch(monitor, lambda: 3 in state.lost, "vehicle 3 lost")
     vehicles[2].age_s = 0.0                # heard again, armed, in the air, not returning: re-admissible
+    vehicles[2].state.last_heartbeat_s = clock.time()   # with a heartbeat since the loss
     _watch(monitor, lambda: state.lost[3].came_back_s is not None, "vehicle 3 heard again")
     assert state.lost[3].readmit_pending and motion.calls == []
     assert pending_readmissions(state, FaultsPlan(readmit=True)) == [3]

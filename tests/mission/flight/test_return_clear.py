@@ -328,7 +328,8 @@ def _whole_mission(tmp_path, keep_clear, monkeypatch):
     fleet = MockFleet(n=n, personality="px4", field=sigma2(source), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                       seed=5, home_offsets_enu=homes, udp_base_port=ports["udp_base_port"],
                       udp_bind_base_port=ports["udp_bind_base_port"], tcp_base_port=0, fleet_name="swarmseek",
-                      zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"], sensor_noise_std=0.005)
+                      zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"], sensor_noise_std=0.005,
+                      params={"COM_OBL_RC_ACT": 5})  # the cut vehicle hovers (hold); the default 0 descends
     plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 11.0), max_iterations=20)
     plan = dataclasses.replace(plan, takeoff_alt_m=6.0)
     log_path = tmp_path / "m.jsonl"
