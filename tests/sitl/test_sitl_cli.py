@@ -143,5 +143,7 @@ def test_killed_launcher_leaves_no_orphan(tmp_path):
     while not _gone(pid) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert _gone(pid), f"PX4 instance {instance} (pid {pid}) outlived its killed launcher"
-    assert px4_instance_free(instance)
-    cleanup_px4_files([instance])  # PX4 leaves its socket file when nobody cleans up after it
+    # the instance's ports are free again, unless another test's fleet (xdist) took the block at once:
+    # its lowest free instance is this one; then its files are that fleet's and stay
+    if px4_instance_free(instance):
+        cleanup_px4_files([instance])  # PX4 leaves its socket file when nobody cleans up after it

@@ -97,6 +97,7 @@ def _json_out(run: FlyRun) -> dict:
         raise AssertionError(f"resume printed no JSON summary:\n{run.output()}") from None
 
 
+@pytest.mark.unstable_mission  # a resume slower than PX4's data-link-loss timeout (10 s) finds it landed (CI, load)
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
 def test_px4_gcs_killed_and_resumed(tmp_path):
