@@ -10,7 +10,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 #: modules whose functions are handed the mission state, the fleet, the gate... and never ``co``
-NARROW = ["landing_guard", "readiness_mission", "failsafe_params", "takeoff_loss", "obstacles", "services"]
+NARROW = ["landing_guard", "readiness_mission", "failsafe_params", "takeoff_loss", "obstacles", "services", "phases"]
 
 
 def _takes_co(path: Path) -> list[str]:
@@ -34,3 +34,198 @@ def test_the_check_finds_a_function_taking_the_coordinator(tmp_path):
     sample = tmp_path / "sample.py"
     sample.write_text("def f(co, x):\n    return x\n\nclass C:\n    def g(self, co):\n        return co\n")
     assert _takes_co(sample) == ["sample.py:1 f", "sample.py:5 g"]
+
+
+# ------------------------------------------------------------------ phases built without a Coordinator
+import asyncio  # noqa: E402
+from types import SimpleNamespace  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from mission.flight.services import Fleet  # noqa: E402
+from mission.flight.state import MissionError, MissionState  # noqa: E402
+
+
+class FakeClock:
+    """A mission clock whose sleeps advance it at once (then yield to the loop)."""
+
+    def __init__(self):
+        self.t_s = 0.0
+
+    def time(self) -> float:
+        return self.t_s
+
+    async def sleep(self, dt_s: float) -> None:
+        self.t_s += max(float(dt_s), 0.0)
+        await asyncio.sleep(0)
+
+
+class FakeEvents:
+    """Events and phases, recorded."""
+
+    def __init__(self):
+        self.events: list[tuple[str, str]] = []
+        self.phases: list[str] = []
+
+    def event(self, message, level="info", **fields):
+        self.events.append((level, message))
+
+    def set_phase(self, name, **fields):
+        self.phases.append(name)
+
+
+class FakeWaiter:
+    """Polls on the fake clock; MissionError after the timeout."""
+
+    def __init__(self, clock):
+        self.clock = clock
+
+    async def wait_until(self, predicate, timeout_s, what, poll_s=0.1):
+        deadline = self.clock.time() + timeout_s
+        while not predicate():
+            if self.clock.time() > deadline:
+                raise MissionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
+            await self.clock.sleep(poll_s)
+
+
+class FakeGate:
+    """The safety gate's bookkeeping: setpoints by sysid, goals reached at once."""
+
+    def __init__(self, setpoints=None):
+        self.points = {s: np.asarray(p, float) for s, p in (setpoints or {}).items()}
+        self.started = False
+        self.max_speed_m_s = self.max_vertical_speed_m_s = 5.0
+
+    @property
+    def sysids(self):
+        return list(self.points)
+
+    def start(self):
+        self.started = True
+
+    def add(self, sysid, p):
+        self.points[sysid] = np.asarray(p, float)
+
+    def remove(self, sysid):
+        self.points.pop(sysid, None)
+
+    def setpoint(self, sysid):
+        return self.points[sysid]
+
+    def set_goals(self, goals):
+        self.points.update({s: np.asarray(g, float) for s, g in goals.items()})
+
+    def at_goal(self, sysid):
+        return True
+
+
+class FakeVehicle:
+    """A vehicle that is where it is told and lands (disarms) a few seconds after LAND / RTL."""
+
+    def __init__(self, sysid, clock, position, flavour="px4", refuse_land=False):
+        self.sysid, self.clock, self.flavour, self.refuse_land = sysid, clock, flavour, refuse_land
+        self.position = np.asarray(position, float)
+        self.state = SimpleNamespace(armed=True, landed=False, home=None, mode="OFFBOARD")
+        self.commands: list[str] = []
+        self._down_at = None
+
+    def position_enu_m(self):
+        if self._down_at is not None and self.clock.time() >= self._down_at:
+            self.state.armed, self.state.landed = False, True
+        return self.position
+
+    async def _down(self, what):
+        self.commands.append(what)
+        if self.refuse_land:
+            raise RuntimeError(f"{what} refused")
+        self._down_at = self.clock.time() + 3.0
+
+    async def land(self):
+        await self._down("land")
+
+    async def rtl(self):
+        await self._down("rtl")
+
+
+def _services(n=5):
+    clock = FakeClock()
+    state = MissionState(list(range(1, n + 1)), clock=clock)
+    fleet = Fleet({s: f"v{s}" for s in range(1, n + 1)})
+    for s in range(1, n + 1):
+        fleet.add(FakeVehicle(s, clock, (3.0 * s, 0.0, 10.0)))
+    return clock, state, fleet, FakeEvents(), FakeWaiter(clock)
+
+
+def _return_phase(plan, state, fleet, gate, clock, events, waiter, fly_return):
+    from mission.flight.control import MissionControl
+    from mission.flight.phases import ReturnHome
+
+    return ReturnHome(plan, state, fleet, gate, clock, events, waiter, MissionControl(clock), fly_return)
+
+
+def test_return_phase_runs_on_narrow_services_and_lands_every_airborne_vehicle():
+    clock, state, fleet, events, waiter = _services(5)
+    for s in fleet.vehicles:
+        state.set_airborne(s, "in formation")
+    fleet.vehicles[5].refuse_land = True  # its LAND never goes through: told, the others still land
+    gate = FakeGate({s: v.position for s, v in fleet.vehicles.items()})
+    plan = SimpleNamespace(return_behaviour="rtl", stagger_s=1.0)
+    flown = []
+
+    async def fly_return(sysids):
+        flown.append(list(sysids))
+        return {2}  # vehicle 2's home is obstructed: it must LAND, not RTL
+
+    asyncio.run(_return_phase(plan, state, fleet, gate, clock, events, waiter, fly_return).run())
+    assert flown == [[1, 2, 3, 4, 5]]
+    assert events.phases == ["return"]
+    assert fleet.vehicles[2].commands == ["land"] and fleet.vehicles[1].commands == ["rtl"]
+    assert fleet.vehicles[5].commands == ["rtl"] * 3  # three rounds, then reported
+    assert any(lvl == "error" and "RTL of vehicle 5 failed after 3 rounds" in m for lvl, m in events.events)
+    assert sorted(state.airborne) == [5] and gate.sysids == [5]
+    assert {s: state.status[s] for s in (1, 2)} == {1: "landed", 2: "landed"}
+    assert clock.time() >= 4 * plan.stagger_s  # staggered: one command after another
+
+
+def test_return_phase_lands_where_they_are_on_land_all_now():
+    clock, state, fleet, events, waiter = _services(4)
+    for s in fleet.vehicles:
+        state.set_airborne(s, "in formation")
+
+    async def no_flight(sysids):
+        raise AssertionError("land_all_now flies no return")
+
+    plan = SimpleNamespace(return_behaviour="rtl", stagger_s=5.0)
+    asyncio.run(_return_phase(plan, state, fleet, None, clock, events, waiter, no_flight).land_all_now())
+    assert all(v.commands == ["land"] for v in fleet.vehicles.values())
+    assert not state.airborne and events.phases == []
+
+
+def test_assemble_phase_loses_a_late_vehicle_and_flies_the_others_into_formation():
+    from mission.core.plan_types import SeekingPlan
+    from mission.flight.phases import Assemble
+    from mission.flight.takeoff_loss import TakeoffLoss
+
+    clock, state, fleet, events, waiter = _services(5)
+    offsets = {s: np.array([float(s), 0.0, 0.0]) for s in fleet.vehicles}
+    state.set_formation(offsets, layer_alt_m={s: 10.0 + s for s in fleet.vehicles})
+    gate = FakeGate({s: v.position for s, v in fleet.vehicles.items()})
+    seeking = SeekingPlan(start_enu_m=(1.0, 2.0, 9.0))
+    calls = []
+
+    async def fly_clear(sysids, goals, tol_m, what):
+        calls.append(list(sysids))
+        gate.set_goals({s: goals[s] for s in sysids})
+        for s in sysids:
+            if s != 4:  # vehicle 4 stays behind, far from its setpoint
+                fleet.vehicles[s].position = goals[s]
+        if len(calls) == 1:
+            raise MissionError("timed out waiting for the assembly")
+
+    losses = TakeoffLoss(state, fleet, gate, clock, events, report=lambda m: None)
+    asyncio.run(Assemble(seeking, state, gate, events, fly_clear, losses).run())
+    assert calls == [[1, 2, 3, 4, 5], [1, 2, 3, 5]]
+    assert sorted(state.lost) == [4] and 4 not in gate.sysids
+    assert np.allclose(state.centre_enu, seeking.start_point())
+    assert all(state.status[s] == "in formation" for s in (1, 2, 3, 5))
+    assert events.phases == ["assemble"] and events.events[-1][1].startswith("formation assembled at")

@@ -20,6 +20,9 @@ from mission.flight import connect as connect_phase
 from mission.flight import mission_end, phases, seek
 from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.landing_guard import LandingGuard
+from mission.flight.motion import setpoint_stream
+from mission.flight.readiness_autopilot import arm_and_takeoff
+from mission.flight.return_clear import fly_clear, fly_return
 from mission.flight.loss import watch_losses
 from mission.flight.services import Fleet
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
@@ -150,6 +153,12 @@ class Coordinator:
     def use_setpoints(self, streamer, gate: SafetyGate) -> None:
         """The setpoint streamer and the safety gate feeding it (stopped at the end)."""
         self.streamer, self.gate = streamer, gate
+
+    def open_setpoints(self, vehicles: list) -> SafetyGate:
+        """A setpoint stream for ``vehicles`` and its safety gate (:func:`mission.flight.motion.setpoint_stream`),
+        used from now on; the gate (not started)."""
+        self.use_setpoints(*setpoint_stream(vehicles, self.plan, self.clock, self.envelope, self))
+        return self.gate
 
     @property
     def readings_subscribed(self) -> bool:
@@ -293,6 +302,27 @@ class Coordinator:
         over this mission's vehicles and gate now."""
         return TakeoffLoss(self.state, self.fleet, self.gate, self.clock, self, self.task_failed)
 
+    # ----------------------------------------------------------------- the phases, built
+    def takeoff_phase(self) -> phases.Takeoff:
+        """The takeoff (:class:`mission.flight.phases.Takeoff`) of this mission's vehicles."""
+        def arm(sysid, v, rel_alt_m, before_takeoff):
+            return arm_and_takeoff(self, sysid, v, rel_alt_m, before_takeoff=before_takeoff)
+
+        return phases.Takeoff(self.plan, self.state, self.fleet, self.clock, self, self, self.open_setpoints,
+                              arm, self.takeoff_loss)
+
+    def assemble_phase(self) -> phases.Assemble:
+        """The assembly (:class:`mission.flight.phases.Assemble`) of the vehicles under the gate now."""
+        def clear(sysids, goals, tol_m, what):
+            return fly_clear(self, sysids, goals, tol_m, what=what)
+
+        return phases.Assemble(self.plan.seeking, self.state, self.gate, self, clear, self.takeoff_loss())
+
+    def return_phase(self) -> phases.ReturnHome:
+        """The return (:class:`mission.flight.phases.ReturnHome`) of the vehicles airborne now."""
+        return phases.ReturnHome(self.plan, self.state, self.fleet, self.gate, self.clock, self, self,
+                                 self.control, lambda sysids: fly_return(self, sysids))
+
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
         deadline = self.clock.time() + timeout_s
@@ -409,8 +439,8 @@ class Coordinator:
                 problem = not_ready_message(self.state)
                 if problem:
                     raise MissionError(f"preflight failed: {problem}")
-                await phases.takeoff(self)
-                await phases.assemble(self)
+                await self.takeoff_phase().run()
+                await self.assemble_phase().run()
                 outcome, message = await seek.seek(self)
             else:
                 outcome, message = await resume_mission(self, resume_state)
@@ -446,10 +476,10 @@ class Coordinator:
         if not self.state.airborne:
             return
         try:
-            await phases.return_home(self)
+            await self.return_phase().run()
         except Exception as exc:  # noqa: BLE001 - last resort: land everyone where they are
             self.event(f"return failed ({exc}); landing every vehicle where it is", level="error")
-            await phases.land_all_now(self)
+            await self.return_phase().land_all_now()
 
     def result(self, outcome: str, message: str) -> MissionResult:
         """The :class:`~mission.flight.result.MissionResult` of the mission so far."""

@@ -47,7 +47,7 @@ from mission.core.plan_types import (
 from mission.core.signing_config import SigningConfig
 from mission.flight.connect import build_envelope, connect
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
-from mission.flight.motion import retried, setpoint_stream
+from mission.flight.motion import retried
 from mission.flight.resume_endings import classify_ending
 from mission.flight.retire import restore_retired
 from mission.flight.state import MissionError, VehicleLoss
@@ -343,7 +343,7 @@ async def _why_not_flying(co, sysid: int) -> str | None:
 
 async def _reengage(co, flying: list[int]) -> None:
     """Setpoints at each flying vehicle's position first, then OFFBOARD (PX4) or GUIDED (ArduPilot)."""
-    setpoint_stream(co, [co.vehicles[s] for s in flying])
+    co.open_setpoints([co.vehicles[s] for s in flying])
     for s in flying:
         co.gate.add(s, co.telemetry_position(s))
         co.state.set_airborne(s, "re-engaging")
@@ -353,7 +353,7 @@ async def _reengage(co, flying: list[int]) -> None:
         v = co.vehicles[s]
         want = GUIDED_MODES.get(v.flavour)
         if want is not None and v.state.mode != want:
-            await retried(co, lambda v=v, want=want: v.set_mode(want), f"re-engaging {want} on vehicle {s}")
+            await retried(co, co.clock, lambda v=v, want=want: v.set_mode(want), f"re-engaging {want} on vehicle {s}")
         co.state.set_status(s, "in formation")
 
 
