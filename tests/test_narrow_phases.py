@@ -10,7 +10,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 #: modules whose functions are handed the mission state, the fleet, the gate... and never ``co``
-NARROW = ["landing_guard", "readiness_mission", "failsafe_params", "takeoff_loss", "obstacles", "services", "phases"]
+NARROW = ["landing_guard", "readiness_mission", "failsafe_params", "takeoff_loss", "obstacles", "services", "phases",
+          "connect"]
 
 
 def _takes_co(path: Path) -> list[str]:
@@ -229,3 +230,99 @@ def test_assemble_phase_loses_a_late_vehicle_and_flies_the_others_into_formation
     assert np.allclose(state.centre_enu, seeking.start_point())
     assert all(state.status[s] == "in formation" for s in (1, 2, 3, 5))
     assert events.phases == ["assemble"] and events.events[-1][1].startswith("formation assembled at")
+
+
+class FakeLinks:
+    """Where the connect phase puts its endpoints (none open here)."""
+
+    def __init__(self):
+        self.endpoints: dict = {}
+        self.poller = None
+
+    def add_endpoint(self, uri, endpoint):
+        self.endpoints[uri] = endpoint
+
+    def use_poller(self, poller):
+        self.poller = poller
+
+
+def _plan(n=2, connection=None):
+    import dataclasses
+
+    from mission.sim.embedded import embedded_plan
+
+    plan = embedded_plan(n, {"udp_base_port": 14550, "tcp_base_port": 5760, "zenoh_port": 7447})
+    if connection is not None:
+        plan = dataclasses.replace(plan, vehicles=tuple(dataclasses.replace(v, connection=connection)
+                                                        for v in plan.vehicles))
+    return plan
+
+
+@pytest.mark.parametrize("required", [True, False])
+def test_connect_phase_runs_on_narrow_services_and_reports_a_link_that_cannot_open(required):
+    from mission.flight.connect import Connect
+
+    plan = _plan(2, connection="bogus:nowhere")
+    clock = FakeClock()
+    state = MissionState([1, 2], clock=clock)
+    fleet, events, links = Fleet({1: "a", 2: "b"}), FakeEvents(), FakeLinks()
+    phase = Connect(plan, state, fleet, links, clock, events)
+
+    async def go():
+        if required:
+            with pytest.raises(MissionError, match="connect failed: bogus:nowhere"):
+                await phase.run(required=True)
+        else:
+            await phase.run(required=False)
+
+    asyncio.run(go())
+    assert events.phases == ["connect"] and not links.endpoints and not fleet.vehicles
+    assert {s: state.status[s] for s in (1, 2)} == {1: "no link", 2: "no link"}
+    assert all(not r.ready and "cannot open bogus:nowhere" in r.problems[0] for r in state.readiness.values())
+    errors = [m for lvl, m in events.events if lvl == "error"]
+    assert errors == ([] if required else [errors[0]]) and (required or "bogus:nowhere" in errors[0])
+
+
+class FakePreflightVehicle:
+    """What the preflight reads of a vehicle: link age, state, home; no parameters to read."""
+
+    flavour = "px4"
+
+    def __init__(self, battery_pct, armed=False):
+        self.state = SimpleNamespace(position_ok=True, battery_remaining_pct=battery_pct, armed=armed,
+                                     system_status=3)
+
+    def link_age_s(self):
+        return 0.2
+
+    async def wait_home(self, timeout_s):
+        from mission.sim.embedded import DEFAULT_ORIGIN
+
+        return DEFAULT_ORIGIN
+
+
+def test_preflight_phase_runs_on_narrow_services_and_judges_each_vehicle():
+    from mission.flight.connect import Preflight
+
+    plan = _plan(3)
+    clock = FakeClock()
+    state = MissionState([1, 2, 3], clock=clock)
+    fleet, events = Fleet({1: "a", 2: "b", 3: "c"}), FakeEvents()
+    for sysid, v in ((1, FakePreflightVehicle(80.0)), (2, FakePreflightVehicle(10.0)),
+                     (3, FakePreflightVehicle(90.0, armed=True))):
+        v.sysid = sysid
+        fleet.add(v)
+    checked = []
+
+    class Checks:
+        async def check(self):
+            checked.append(sorted(state.readiness))
+
+    envelope = asyncio.run(Preflight(plan, state, fleet, clock, events, Checks).run(timeout_s=2.0))
+    assert envelope is not None and envelope.fence.contains(np.array([0.0, 0.0, 10.0]))
+    assert checked == [[1, 2, 3]] and events.phases == ["preflight"]
+    r = state.readiness
+    assert r[1].ready and r[1].checks["home_in_fence"]
+    assert not r[2].ready and r[2].problems == ["battery 10 % below 30 %"]
+    assert not r[3].ready and r[3].problems[0].startswith("already armed")
+    assert any(m == "vehicle 1 (px41): ready" for _, m in events.events)

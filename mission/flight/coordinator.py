@@ -16,7 +16,7 @@ import numpy as np
 from mission.core.tasks import spawn, stop_watched
 from mission.core.plan_security import check_security
 from mission.core.plan_types import Plan
-from mission.flight import connect as connect_phase
+from mission.flight.connect import Connect, Preflight
 from mission.flight import mission_end, phases, seek
 from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.landing_guard import LandingGuard
@@ -303,6 +303,15 @@ class Coordinator:
         return TakeoffLoss(self.state, self.fleet, self.gate, self.clock, self, self.task_failed)
 
     # ----------------------------------------------------------------- the phases, built
+    def connect_phase(self) -> Connect:
+        """The connect phase (:class:`mission.flight.connect.Connect`) of this mission's plan."""
+        return Connect(self.plan, self.state, self.fleet, self, self.clock, self, self.tlog_dir)
+
+    def preflight_phase(self) -> Preflight:
+        """The preflight (:class:`mission.flight.connect.Preflight`) of the connected vehicles."""
+        return Preflight(self.plan, self.state, self.fleet, self.clock, self, self.readiness_checks,
+                         self.simulated_fleet)
+
     def takeoff_phase(self) -> phases.Takeoff:
         """The takeoff (:class:`mission.flight.phases.Takeoff`) of this mission's vehicles."""
         def arm(sysid, v, rel_alt_m, before_takeoff):
@@ -397,8 +406,8 @@ class Coordinator:
             self.log.write("plan", plan=_plan_json(self.plan), dry_run=True, security_check=self._security_json())
         self._start_background()
         try:
-            await connect_phase.connect(self, required=False)
-            await connect_phase.preflight(self)
+            await self.connect_phase().run(required=False)
+            self.use_envelope(await self.preflight_phase().run())
         except MissionError as exc:
             self.event(str(exc), level="error")
         finally:
@@ -434,8 +443,8 @@ class Coordinator:
         outcome, message = "aborted", ""
         try:
             if resume_state is None:
-                await connect_phase.connect(self, required=True)
-                await connect_phase.preflight(self)
+                await self.connect_phase().run(required=True)
+                self.use_envelope(await self.preflight_phase().run())
                 problem = not_ready_message(self.state)
                 if problem:
                     raise MissionError(f"preflight failed: {problem}")

@@ -45,7 +45,7 @@ from mission.core.plan_types import (
     VehiclePlan,
 )
 from mission.core.signing_config import SigningConfig
-from mission.flight.connect import build_envelope, connect
+from mission.flight.connect import build_envelope
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.motion import retried
 from mission.flight.resume_endings import classify_ending
@@ -286,7 +286,7 @@ async def rejoin(co, state: ResumeState) -> None:
     mission.flight.state.MissionError
         Fewer than 4 vehicles can be re-engaged (those that can are still brought home).
     """
-    await connect(co, required=False)
+    await co.connect_phase().run(required=False)
     co.use_envelope(build_envelope(co.plan))
     co.state.resume_seek(state.iteration, state.centre_enu, state.distance_flown_m)
     co.state.set_formation(state.slot_offsets, layer_alt_m=state.layer_alt_m, kind=state.formation_kind)
