@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: modules whose functions are handed the mission state, the fleet, the gate... and never ``co``
 NARROW = ["landing_guard", "readiness_mission", "failsafe_params", "takeoff_loss", "obstacles", "services", "phases",
-          "connect"]
+          "connect", "mission_end", "operator_stop"]
 
 
 def _takes_co(path: Path) -> list[str]:
@@ -326,3 +326,96 @@ def test_preflight_phase_runs_on_narrow_services_and_judges_each_vehicle():
     assert not r[2].ready and r[2].problems == ["battery 10 % below 30 %"]
     assert not r[3].ready and r[3].problems[0].startswith("already armed")
     assert any(m == "vehicle 1 (px41): ready" for _, m in events.events)
+
+
+class FakeGuard:
+    """The never-abandon check: records what it was asked."""
+
+    def __init__(self, calls, left=()):
+        self.calls, self.left = calls, list(left)
+
+    async def secure(self, why, land=True):
+        self.calls.append(("secure", why, land))
+        return self.left, False
+
+    async def land_now(self):
+        self.calls.append(("land_now",))
+
+
+def _mission_end(calls, return_home, return_on_interrupt=True, left=()):
+    from mission.flight.mission_end import MissionEnd
+
+    clock = FakeClock()
+    state, events = MissionState([1, 2, 3, 4], clock=clock), FakeEvents()
+
+    async def stop_background():
+        calls.append(("stop",))
+
+    def result(outcome, message):
+        calls.append(("result", outcome, message))
+        return SimpleNamespace(outcome=outcome, message=message)
+
+    end = MissionEnd(state, events, return_home, lambda: FakeGuard(calls, left), stop_background, result,
+                     None, return_on_interrupt)
+    return end, state, events
+
+
+def test_mission_end_runs_on_narrow_services_return_secure_stop_summary_in_order():
+    calls = []
+
+    async def return_home():
+        calls.append(("return",))
+
+    end, state, events = _mission_end(calls, return_home, left=[3])
+    result = asyncio.run(end.run("converged", "converged after 4 iterations"))
+    assert calls == [("return",), ("secure", "mission converged after 4 iterations", True), ("stop",),
+                     ("result", "converged", "converged after 4 iterations")]
+    assert result.airborne_left == [3] and result.interrupted_by == [] and state.final_result is result
+    assert state.ending["outcome"] == "converged" and events.phases == ["done"]
+
+
+@pytest.mark.parametrize("return_on_interrupt", [True, False])
+def test_mission_end_of_an_interrupted_mission_lands_at_the_next_interrupt_and_goes_on_cancelling(
+        return_on_interrupt):
+    calls = []
+
+    async def return_home():
+        calls.append(("return",))
+        raise asyncio.CancelledError()  # another interrupt during the return
+
+    end, state, events = _mission_end(calls, return_home, return_on_interrupt)
+
+    async def go():
+        with pytest.raises(asyncio.CancelledError):
+            await end.run("interrupted", "interrupted (SIGINT)", interrupted=True)
+
+    asyncio.run(go())
+    if return_on_interrupt:  # the return, cut by the second interrupt: every vehicle lands where it is
+        assert calls[:3] == [("return",), ("land_now",), ("secure", "mission interrupted (SIGINT)", True)]
+        assert any("LANDING every airborne vehicle" in m for _, m in events.events)
+    else:  # a ground station told to just stop: no return, no landing
+        assert calls[0] == ("secure", "mission interrupted (SIGINT)", False)
+    assert calls[-2:] == [("stop",), ("result", "interrupted", "interrupted (SIGINT)")]
+    assert events.phases == ["aborted", "done"] and state.final_result is not None
+
+
+def test_run_until_stopped_takes_the_mission_coroutine_its_state_and_log():
+    from mission.flight.operator_stop import run_until_stopped
+
+    clock = FakeClock()
+    state = MissionState([1], clock=clock)
+
+    async def mission():
+        return "the result"
+
+    async def stopped():
+        task = asyncio.current_task()
+        state.note_interrupt("SIGTERM")
+        state.finish(SimpleNamespace(outcome="interrupted"))
+        task.get_loop().call_soon(task.cancel)
+        await asyncio.sleep(10)
+
+    assert asyncio.run(run_until_stopped(mission(), state)) == "the result"
+    # a cancellation after a counted stop returns the result the mission left in its state
+    assert asyncio.run(run_until_stopped(stopped(), state)).outcome == "interrupted"
+

@@ -74,8 +74,8 @@ async def fly_logged(plan, log, *, clock, display=None, tlog_dir=None, forward_a
                 map_thread.attach(session)
             co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display, tlog_dir=tlog_dir,
                              state_rate_hz=WALL_CLOCK_RATE_HZ if map_thread is None else MAP_RATE_HZ)
-            return await forwarding(co, with_keys(co, display, run_until_stopped(co, resume_state)),
-                                    forward_addresses)  # --out; keys on a terminal
+            mission = run_until_stopped(co.run(resume_state), co.state, co.log)
+            return await forwarding(co, with_keys(co, display, mission), forward_addresses)  # --out; keys on a terminal
     finally:
         if map_thread is not None:
             await map_thread.detach()  # the map shows the outcome and lets go of the session

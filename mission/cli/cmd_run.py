@@ -323,7 +323,8 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None, map
                              state_rate_hz=_state_rate_hz(args, world))
             if world is not None:
                 world.store = co.store
-            result = await forwarding(co, with_keys(co, display, run_until_stopped(co)),  # --out; keys on a terminal
+            mission = run_until_stopped(co.run(), co.state, co.log)
+            result = await forwarding(co, with_keys(co, display, mission),  # --out; keys on a terminal
                                       getattr(args, "forward_addresses", None))
             result.true_source_enu = [float(x) for x in source]
             result.true_source_geodetic = geodetic_point(plan.origin, source)

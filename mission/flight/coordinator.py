@@ -17,7 +17,8 @@ from mission.core.tasks import spawn, stop_watched
 from mission.core.plan_security import check_security
 from mission.core.plan_types import Plan
 from mission.flight.connect import Connect, Preflight
-from mission.flight import mission_end, phases, seek
+from mission.flight import phases, seek
+from mission.flight.mission_end import MissionEnd, interrupted_message
 from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.landing_guard import LandingGuard
 from mission.flight.motion import setpoint_stream
@@ -332,6 +333,11 @@ class Coordinator:
         return phases.ReturnHome(self.plan, self.state, self.fleet, self.gate, self.clock, self, self,
                                  self.control, lambda sysids: fly_return(self, sysids))
 
+    def mission_end(self) -> MissionEnd:
+        """The mission's end (:class:`mission.flight.mission_end.MissionEnd`): return, secure, stop, summarise."""
+        return MissionEnd(self.state, self, self.return_safely, self.landing_guard, self.stop_background,
+                          self.result, self.log, self.return_on_interrupt)
+
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
         deadline = self.clock.time() + timeout_s
@@ -431,7 +437,7 @@ class Coordinator:
 
         Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
         False (a ground station that just stops: the vehicles do what their autopilot does); a
-        second cancellation lands them where they are (:mod:`mission.flight.mission_end`). Every
+        second cancellation lands them where they are (:class:`mission.flight.mission_end.MissionEnd`). Every
         path ends with the never-abandon check (:mod:`mission.flight.landing_guard`) and a
         ``summary`` record; a cancelled run then raises CancelledError (``state.final_result``
         holds its result).
@@ -464,13 +470,13 @@ class Coordinator:
             outcome, message = "aborted", f"unexpected error in phase {self.state.phase}: {type(exc).__name__}: {exc}"
             self._aborting(message, traceback=traceback.format_exc())
         except asyncio.CancelledError:  # Ctrl-C, SIGTERM, a cancelled task: mission_end counts them
-            return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self.state.interrupts),
-                                           interrupted=True)
-        return await mission_end.close(self, outcome, message)
+            return await self.mission_end().run("interrupted", interrupted_message(self.state.interrupts),
+                                                interrupted=True)
+        return await self.mission_end().run(outcome, message)
 
     def _aborting(self, message: str, **fields) -> None:
         """Enter the ``aborted`` phase and say why; whatever fails in saying it, the mission's end
-        (return, landing, summary: :func:`mission.flight.mission_end.close`) still follows."""
+        (return, landing, summary: :meth:`mission.flight.mission_end.MissionEnd.run`) still follows."""
         try:
             self.set_phase("aborted", reason=message)
             self.event(message, level="error", **fields)
