@@ -419,3 +419,57 @@ def test_run_until_stopped_takes_the_mission_coroutine_its_state_and_log():
     # a cancellation after a counted stop returns the result the mission left in its state
     assert asyncio.run(run_until_stopped(stopped(), state)).outcome == "interrupted"
 
+
+class FakeFlyingVehicle(FakeVehicle):
+    """A vehicle found at resume: its home is the origin, its mode set when asked."""
+
+    def __init__(self, sysid, clock, position, armed=True, mode="POSCTL", rel_alt_m=10.0):
+        super().__init__(sysid, clock, position)
+        self.state = SimpleNamespace(armed=armed, landed=False, home=None, mode=mode, position_ok=True,
+                                     relative_alt_m=rel_alt_m)
+
+    async def wait_home(self, timeout_s):
+        from mission.sim.embedded import DEFAULT_ORIGIN
+
+        return DEFAULT_ORIGIN
+
+    async def set_mode(self, mode):
+        self.commands.append(mode)
+        self.state.mode = mode
+
+
+@pytest.mark.parametrize("go_on", [True, False])
+def test_resume_phase_runs_on_narrow_services_and_reengages_the_vehicles_still_flying(go_on):
+    from mission.flight.resume import Resume, ResumeState
+
+    clock, state, fleet, events, waiter = _services(6)
+    fleet.vehicles[5] = FakeFlyingVehicle(5, clock, (0.0, 0.0, 0.0), armed=False, rel_alt_m=0.0)
+    fleet.vehicles[6] = FakeFlyingVehicle(6, clock, (0.0, 6.0, 10.0), mode="AUTO.RTL")
+    for s in range(1, 5):
+        fleet.vehicles[s] = FakeFlyingVehicle(s, clock, (3.0 * s, 0.0, 10.0))
+    plan = _plan(6)
+    resume = ResumeState(plan, 7, np.array([1.0, 2.0, 10.0]), centres=[np.array([1.0, 2.0, 10.0])],
+                         slot_offsets={s: np.array([float(s), 0.0, 0.0]) for s in range(1, 7)},
+                         layer_alt_m={s: 10.0 for s in range(1, 7)}, go_on=go_on, ending="cut")
+    gate, calls = FakeGate(), []
+
+    async def connect():
+        calls.append("connect")
+
+    async def seek(**resumed):
+        calls.append(("seek", resumed["start_iteration"], len(resumed["history"])))
+        return "converged", "converged"
+
+    phase = Resume(plan, state, fleet, clock, events, waiter, connect, lambda e: calls.append(("envelope", e is not None)),
+                   lambda vehicles: calls.append(("setpoints", sorted(v.sysid for v in vehicles))) or gate,
+                   lambda records: calls.append(("retired", records)), seek)
+    outcome = asyncio.run(phase.run(resume))
+    assert calls[:3] == ["connect", ("envelope", True), ("setpoints", [1, 2, 3, 4])]
+    assert gate.started and sorted(gate.sysids) == [1, 2, 3, 4] and sorted(state.airborne) == [1, 2, 3, 4]
+    assert all(fleet.vehicles[s].commands == ["OFFBOARD"] for s in range(1, 5))
+    assert sorted(state.lost) == [5, 6] and state.iteration == 7
+    assert "on the ground (disarmed)" in state.status[5] and "AUTO.RTL" in state.status[6]
+    if go_on:
+        assert outcome == ("converged", "converged") and calls[-1] == ("seek", 7, 1)
+    else:
+        assert outcome[0] == "recovered" and "[1, 2, 3, 4] flying: bringing them home" in outcome[1]

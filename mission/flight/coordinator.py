@@ -28,7 +28,8 @@ from mission.flight.loss import watch_losses
 from mission.flight.services import Fleet
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import MissionChecks, not_ready_message
-from mission.flight.resume import resume_mission
+from mission.flight.resume import Resume
+from mission.flight.retire import restore_retired
 from mission.flight.state import MissionError, MissionState
 from mission.flight.takeoff_loss import TakeoffLoss
 from mission.safety.gate import SafetyGate
@@ -333,6 +334,17 @@ class Coordinator:
         return phases.ReturnHome(self.plan, self.state, self.fleet, self.gate, self.clock, self, self,
                                  self.control, lambda sysids: fly_return(self, sysids))
 
+    def resume_phase(self) -> Resume:
+        """The resumed mission (:class:`mission.flight.resume.Resume`): rejoin, then seek on or come home."""
+        async def reconnect():
+            await self.connect_phase().run(required=False)
+
+        async def seek_on(**resumed):
+            return await seek.seek(self, **resumed)
+
+        return Resume(self.plan, self.state, self.fleet, self.clock, self, self, reconnect, self.use_envelope,
+                      self.open_setpoints, lambda records: restore_retired(self, records), seek_on)
+
     def mission_end(self) -> MissionEnd:
         """The mission's end (:class:`mission.flight.mission_end.MissionEnd`): return, secure, stop, summarise."""
         return MissionEnd(self.state, self, self.return_safely, self.landing_guard, self.stop_background,
@@ -458,7 +470,7 @@ class Coordinator:
                 await self.assemble_phase().run()
                 outcome, message = await seek.seek(self)
             else:
-                outcome, message = await resume_mission(self, resume_state)
+                outcome, message = await self.resume_phase().run(resume_state)
             self.set_phase("finish", outcome=outcome)
             self.event(message)
         except MissionError as exc:
