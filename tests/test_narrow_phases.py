@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: modules whose functions are handed the mission state, the fleet, the gate... and never ``co``
 NARROW = ["landing_guard", "readiness_mission", "failsafe_params", "takeoff_loss", "obstacles", "services", "phases",
-          "connect", "mission_end", "operator_stop"]
+          "connect", "mission_end", "operator_stop", "resume"]
 
 
 def _takes_co(path: Path) -> list[str]:
