@@ -122,7 +122,7 @@ def _failing(orig, after_s, exc, clock):
     ("return", 4.0, MissionError("injected failure of the return")),
 ])
 def test_an_abort_in_any_phase_brings_every_vehicle_down(tmp_path, monkeypatch, where, after_s, exc):
-    target = {"takeoff": (phases.Takeoff, "run"), "assemble": (phases.Assemble, "run"), "seek": (seek, "seek"),
+    target = {"takeoff": (phases.Takeoff, "run"), "assemble": (phases.Assemble, "run"), "seek": (seek.Seek, "run"),
               "return": (phases.ReturnHome, "run")}[where]
     plan, fleet = _setup("ardupilot", return_behaviour="land")
     monkeypatch.setattr(*target, _failing(getattr(*target), after_s, exc, fleet.clock))

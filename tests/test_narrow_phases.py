@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: modules whose functions are handed the mission state, the fleet, the gate... and never ``co``
 NARROW = ["landing_guard", "readiness_mission", "failsafe_params", "takeoff_loss", "obstacles", "services", "phases",
-          "connect", "mission_end", "operator_stop", "resume"]
+          "connect", "mission_end", "operator_stop", "resume", "seek", "seek_moving"]
 
 
 def _takes_co(path: Path) -> list[str]:
@@ -473,3 +473,95 @@ def test_resume_phase_runs_on_narrow_services_and_reengages_the_vehicles_still_f
         assert outcome == ("converged", "converged") and calls[-1] == ("seek", 7, 1)
     else:
         assert outcome[0] == "recovered" and "[1, 2, 3, 4] flying: bringing them home" in outcome[1]
+
+
+class FakeSeekFormation:
+    """The seek's formation keepers for a formation that loses nobody: moves land at once."""
+
+    def __init__(self, fleet, gate, state):
+        self.fleet, self.gate, self.state, self.moves = fleet, gate, state, 0
+
+    async def reform(self, centre_enu, sysids):
+        raise AssertionError("nobody is lost")
+
+    def pending_readmissions(self):
+        return []
+
+    async def keep_out_retired(self, returning):
+        return list(returning)
+
+    async def readmit(self, centre_enu, sysids, returning):
+        raise AssertionError("nobody returns")
+
+    def clear_goals(self, centre_enu, sysids):
+        return False
+
+    async def fly_rotation(self, centre_enu, sysids, before):
+        return None
+
+    def formation_goals(self, centre_enu, sysids):
+        return {s: np.asarray(centre_enu, float) + self.state.slot_offsets[s] for s in sysids}
+
+    def make_watch(self, check, sysids):
+        return None
+
+    async def retire_sensor(self, centre_enu, sysids, info):
+        raise AssertionError("no sensor is retired")
+
+    async def move_and_wait(self, goals, tol_m, timeout_s=None, what=""):
+        self.moves += 1
+        self.gate.set_goals(goals)
+        for s, g in goals.items():
+            self.fleet.vehicles[s].position = np.asarray(g, float)
+
+    def parked(self):
+        return []
+
+
+class FakeReadingStore:
+    """Readings of a concave field taken where the vehicles are, at the clock's time."""
+
+    def __init__(self, fleet, clock, source):
+        self.fleet, self.clock, self.source = fleet, clock, np.asarray(source, float)
+
+    def latest(self, sysid):
+        p = self.fleet.vehicles[sysid].position
+        return SimpleNamespace(sysid=sysid, time_s=self.clock.time(), position_enu_m=p,
+                               value=-float(np.sum((p - self.source) ** 2)), seq=0)
+
+    def aligned(self, t_s, window_s, sysids):
+        return {s: self.latest(s) for s in sysids}
+
+    def counts(self):
+        return {"accepted": 0, "rejected": {}}
+
+
+def test_seek_phase_runs_on_narrow_services_and_climbs_the_field():
+    import dataclasses
+
+    from mission.flight.phases import formation_offsets
+    from mission.flight.seek import Seek
+
+    clock, state, fleet, events, waiter = _services(4)
+    plan = _plan(4)
+    plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, seeker="gradient", estimator="cvt",
+                                                                 max_iterations=3, gamma_m=1.0, eps=0.1))
+    offsets = formation_offsets("cvt", 4, plan.formation.radius_m)
+    centre, source = np.array([0.0, 0.0, 12.0]), np.array([10.0, 0.0, 12.0])
+    state.set_formation({s: offsets[s - 1] for s in range(1, 5)})
+    state.move_centre(centre)
+    gate = FakeGate({s: centre + offsets[s - 1] for s in range(1, 5)})
+    formation = FakeSeekFormation(fleet, gate, state)
+    checkpoints = []
+
+    async def checkpoint():
+        checkpoints.append(clock.time())
+
+    seek = Seek(plan, state, fleet, gate, clock, events, waiter, FakeReadingStore(fleet, clock, source), None, None,
+                formation, checkpoint, lambda: [])
+    outcome, message = asyncio.run(seek.run())
+    assert (outcome, message) == ("max_iterations", "not converged after 3 iterations")
+    assert events.phases == ["seek"] and len(checkpoints) == 3 and formation.moves == 3
+    assert state.iteration == 3
+    # the gradient points at the source (+x): three capped steps of gamma_m = 1 m towards it
+    np.testing.assert_allclose(state.centre_enu, centre + [3.0, 0.0, 0.0], atol=1e-6)

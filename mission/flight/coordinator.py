@@ -17,7 +17,8 @@ from mission.core.tasks import spawn, stop_watched
 from mission.core.plan_security import check_security
 from mission.core.plan_types import Plan
 from mission.flight.connect import Connect, Preflight
-from mission.flight import phases, seek
+from mission.flight import loss, motion, phases, rejoin, retire
+from mission.flight.seek import Seek
 from mission.flight.mission_end import MissionEnd, interrupted_message
 from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.landing_guard import LandingGuard
@@ -29,7 +30,6 @@ from mission.flight.services import Fleet
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import MissionChecks, not_ready_message
 from mission.flight.resume import Resume
-from mission.flight.retire import restore_retired
 from mission.flight.state import MissionError, MissionState
 from mission.flight.takeoff_loss import TakeoffLoss
 from mission.safety.gate import SafetyGate
@@ -340,10 +340,15 @@ class Coordinator:
             await self.connect_phase().run(required=False)
 
         async def seek_on(**resumed):
-            return await seek.seek(self, **resumed)
+            return await self.seek_phase().run(**resumed)
 
         return Resume(self.plan, self.state, self.fleet, self.clock, self, self, reconnect, self.use_envelope,
-                      self.open_setpoints, lambda records: restore_retired(self, records), seek_on)
+                      self.open_setpoints, lambda records: retire.restore_retired(self, records), seek_on)
+
+    def seek_phase(self) -> Seek:
+        """The seek (:class:`mission.flight.seek.Seek`) of the formation under the gate now."""
+        return Seek(self.plan, self.state, self.fleet, self.gate, self.clock, self, self, self.store, self.envelope,
+                    self.log, _SeekFormation(self), lambda: self.control.checkpoint(self), self.vehicle_status)
 
     def mission_end(self) -> MissionEnd:
         """The mission's end (:class:`mission.flight.mission_end.MissionEnd`): return, secure, stop, summarise."""
@@ -468,7 +473,7 @@ class Coordinator:
                     raise MissionError(f"preflight failed: {problem}")
                 await self.takeoff_phase().run()
                 await self.assemble_phase().run()
-                outcome, message = await seek.seek(self)
+                outcome, message = await self.seek_phase().run()
             else:
                 outcome, message = await self.resume_phase().run(resume_state)
             self.set_phase("finish", outcome=outcome)
@@ -518,6 +523,47 @@ class Coordinator:
         result.link_rejections = self.link_rejections()
         result.unknown_sysids = self.unknown_sysids()
         return result
+
+
+class _SeekFormation:
+    """The seek's :class:`mission.flight.seek.SeekFormation`: the loss, re-admission, retirement and
+    motion functions that still take the coordinator, bound to it (until they move)."""
+
+    def __init__(self, coordinator: Coordinator) -> None:
+        self._co = coordinator
+
+    async def reform(self, centre_enu, sysids):
+        return await loss.reform(self._co, centre_enu, sysids)
+
+    def pending_readmissions(self):
+        return rejoin.pending_readmissions(self._co)
+
+    async def keep_out_retired(self, returning):
+        return await retire.keep_out_retired(self._co, returning)
+
+    async def readmit(self, centre_enu, sysids, returning):
+        return await rejoin.readmit(self._co, centre_enu, sysids, returning)
+
+    def clear_goals(self, centre_enu, sysids):
+        return rejoin.clear_goals(self._co, centre_enu, sysids)
+
+    async def fly_rotation(self, centre_enu, sysids, before):
+        await rejoin.fly_rotation(self._co, centre_enu, sysids, before)
+
+    def formation_goals(self, centre_enu, sysids):
+        return retire.formation_goals(self._co, centre_enu, sysids)
+
+    def make_watch(self, check, sysids):
+        return retire.make_watch(self._co, check, sysids)
+
+    async def retire_sensor(self, centre_enu, sysids, info):
+        return await retire.retire_sensor(self._co, centre_enu, sysids, info)
+
+    async def move_and_wait(self, goals, tol_m, timeout_s=None, what="vehicles to reach their goals"):
+        await motion.move_and_wait(self._co, goals, tol_m, timeout_s=timeout_s, what=what)
+
+    def parked(self):
+        return motion.parked(self._co)
 
 
 def _plan_json(plan: Plan) -> dict:
