@@ -565,3 +565,26 @@ def test_seek_phase_runs_on_narrow_services_and_climbs_the_field():
     assert state.iteration == 3
     # the gradient points at the source (+x): three capped steps of gamma_m = 1 m towards it
     np.testing.assert_allclose(state.centre_enu, centre + [3.0, 0.0, 0.0], atol=1e-6)
+
+
+def test_the_seek_checkpoint_holds_the_gate_while_paused_on_narrow_services():
+    from mission.flight.control import MissionControl
+
+    clock, state, fleet, events, waiter = _services(4)
+    state.set_phase("seek")
+    gate = FakeGate({s: v.position for s, v in fleet.vehicles.items()})
+    control = MissionControl(clock)
+    assert control.submit("pause", "operator", "seek").accepted
+
+    async def go():
+        held = asyncio.ensure_future(control.checkpoint(state, gate, events, clock, waiter))
+        while clock.time() < 3.0:
+            await clock.sleep(0.1)
+            assert not held.done()  # holds while paused
+        assert control.holding
+        assert control.submit("continue", "operator", "seek").accepted
+        await asyncio.wait_for(held, timeout=10.0)
+
+    asyncio.run(go())
+    assert events.events[0][1] == "paused by operator: the formation holds at iteration 0"
+    assert events.events[-1][1].startswith("continued after ") and not control.holding

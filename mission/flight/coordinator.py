@@ -348,7 +348,8 @@ class Coordinator:
     def seek_phase(self) -> Seek:
         """The seek (:class:`mission.flight.seek.Seek`) of the formation under the gate now."""
         return Seek(self.plan, self.state, self.fleet, self.gate, self.clock, self, self, self.store, self.envelope,
-                    self.log, _SeekFormation(self), lambda: self.control.checkpoint(self), self.vehicle_status)
+                    self.log, _SeekFormation(self),
+                    lambda: self.control.checkpoint(self.state, self.gate, self, self.clock, self), self.vehicle_status)
 
     def mission_end(self) -> MissionEnd:
         """The mission's end (:class:`mission.flight.mission_end.MissionEnd`): return, secure, stop, summarise."""
