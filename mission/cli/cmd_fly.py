@@ -74,7 +74,8 @@ async def fly_logged(plan, log, *, clock, display=None, tlog_dir=None, forward_a
                 map_thread.attach(session)
             co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display, tlog_dir=tlog_dir,
                              state_rate_hz=WALL_CLOCK_RATE_HZ if map_thread is None else MAP_RATE_HZ)
-            work = with_keys(co.command, co.say, display, run_until_stopped(co, resume_state))  # keys on a terminal
+            mission = run_until_stopped(co.run(resume_state), co.state, co.log)
+            work = with_keys(co.command, co.say, display, mission)  # keys on a terminal
             return await forwarding(work, plan.forward, [v.sysid for v in plan.vehicles], co.event,  # --out
                                     co.watch_endpoints, forward_addresses)
     finally:

@@ -321,7 +321,8 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None, map
                              state_rate_hz=_state_rate_hz(args, world))
             if world is not None:
                 world.store = co.store
-            work = with_keys(co.command, co.say, display, run_until_stopped(co))  # keys on a terminal
+            mission = run_until_stopped(co.run(), co.state, co.log)
+            work = with_keys(co.command, co.say, display, mission)  # keys on a terminal
             result = await forwarding(work, plan.forward, [v.sysid for v in plan.vehicles], co.event,  # --out
                                       co.watch_endpoints, getattr(args, "forward_addresses", None))
             result.true_source_enu = [float(x) for x in source]

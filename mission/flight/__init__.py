@@ -9,6 +9,7 @@ Inside, imports go one way only (no cycle, lazy imports included)::
       <- faults.loss, return_plan, return_clear   losses and re-forming; the return planned clear
       <- faults.rejoin, faults.retire, faults.watchdog  re-admission; retired sensors; re-engaging
       <- connect, phases, seek               connect/preflight; takeoff, assemble, return; the seek
+      <- bound                               motion and the seek's fault responses bound to a coordinator
       <- resume <- coordinator               resuming from a log; the coordinator
 
 The fault responses (vehicle loss in flight and in takeoff, re-admission, retired sensors, the

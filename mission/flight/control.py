@@ -18,7 +18,7 @@ loop then acts on it at its own points:
 Stops reach the phases as :class:`OperatorStop` (a :class:`~mission.flight.state.MissionError`)
 raised by :meth:`check`, which :meth:`mission.flight.coordinator.Coordinator.wait_until` calls at
 every poll: every phase before the return waits through it, so a stop takes effect within one
-poll period. ``land`` and ``rtl`` replace the return (:func:`mission.flight.phases.return_home`
+poll period. ``land`` and ``rtl`` replace the return (:class:`mission.flight.phases.ReturnHome`
 asks :attr:`landing`), and interrupt one under way (:meth:`unless_landing_ordered`).
 """
 from __future__ import annotations
@@ -31,8 +31,9 @@ from dataclasses import dataclass
 
 from mission.core.clock import cancel_and_wait
 from mission.core.plan_types import ControlPlan
-from mission.flight.services import Events
-from mission.flight.state import MissionError
+from mission.flight.services import Clock, Events, Waiter
+from mission.flight.state import MissionError, MissionState
+from mission.safety.gate import SafetyGate
 
 __all__ = ["COMMANDS", "MissionControl", "OperatorStop", "Ack", "check_sender", "operator_command",
            "open_control_channel"]
@@ -196,22 +197,24 @@ class MissionControl:
         if order is not None and phase in _BEFORE_RETURN:
             raise OperatorStop(*order)
 
-    async def checkpoint(self, co) -> None:
-        """The seek loop's iteration boundary: a stop raises, a pause holds the formation."""
-        self.check(co.state.phase)
+    async def checkpoint(self, state: MissionState, gate: SafetyGate, events: Events, clock: Clock,
+                         waiter: Waiter) -> None:
+        """The seek loop's iteration boundary: a stop raises, a pause holds the formation (``gate``'s
+        setpoints where they are, until continued: waited for on ``waiter``)."""
+        self.check(state.phase)
         if not self.paused:
             return
         by = self._paused_by
-        held = {s: co.gate.setpoint(s) for s in co.gate.sysids}
-        co.gate.set_goals(held)  # the formation is settled at its slots: hold these setpoints
-        co.event(f"paused by {by}: the formation holds at iteration {co.state.iteration}", sender=by)
-        t0 = co.clock.time()
+        held = {s: gate.setpoint(s) for s in gate.sysids}
+        gate.set_goals(held)  # the formation is settled at its slots: hold these setpoints
+        events.event(f"paused by {by}: the formation holds at iteration {state.iteration}", sender=by)
+        t0 = clock.time()
         self._holding = True
         try:
-            await co.wait_until(lambda: not self.paused, math.inf, "continue", poll_s=0.1)
+            await waiter.wait_until(lambda: not self.paused, math.inf, "continue", poll_s=0.1)
         finally:
             self._holding = False
-        co.event(f"continued after {co.clock.time() - t0:.1f} s paused", paused_s=co.clock.time() - t0)
+        events.event(f"continued after {clock.time() - t0:.1f} s paused", paused_s=clock.time() - t0)
 
     async def unless_landing_ordered(self, work, current: str | None = None) -> str | None:
         """Run ``work`` (a coroutine); when a LAND/RTL other than ``current`` is ordered meanwhile,

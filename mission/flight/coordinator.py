@@ -16,18 +16,23 @@ import numpy as np
 from mission.core.tasks import spawn, stop_watched
 from mission.core.plan_security import check_security
 from mission.core.plan_types import Plan
-from mission.flight import connect as connect_phase
-from mission.flight import mission_end, motion, phases, seek
+from mission.flight.connect import Connect, Preflight
+from mission.flight import phases
+from mission.flight.seek import Seek
+from mission.flight.mission_end import MissionEnd, interrupted_message
 from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.faults.landing_guard import LandingGuard
 from mission.flight.faults.loss import LossMonitor, Reformation
 from mission.flight.faults.rejoin import Rejoin
-from mission.flight.faults.retire import Retirement
+from mission.flight.faults.retire import Retirement, restore_retired
+from mission.flight.motion import setpoint_stream
+from mission.flight.readiness_autopilot import arm_and_takeoff
+from mission.flight.bound import BoundMotion, BoundSeekFormation
 from mission.flight.services import Fleet
 from mission.flight.return_clear import ReturnClear
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import MissionChecks, not_ready_message
-from mission.flight.resume import resume_mission
+from mission.flight.resume import Resume
 from mission.flight.state import MissionError, MissionState
 from mission.flight.faults.takeoff_loss import TakeoffLoss
 from mission.safety.gate import SafetyGate
@@ -153,6 +158,12 @@ class Coordinator:
     def use_setpoints(self, streamer, gate: SafetyGate) -> None:
         """The setpoint streamer and the safety gate feeding it (stopped at the end)."""
         self.streamer, self.gate = streamer, gate
+
+    def open_setpoints(self, vehicles: list) -> SafetyGate:
+        """A setpoint stream for ``vehicles`` and its safety gate (:func:`mission.flight.motion.setpoint_stream`),
+        used from now on; the gate (not started)."""
+        self.use_setpoints(*setpoint_stream(vehicles, self.plan, self.clock, self.envelope, self))
+        return self.gate
 
     @property
     def readings_subscribed(self) -> bool:
@@ -296,9 +307,9 @@ class Coordinator:
         over this mission's vehicles and gate now."""
         return TakeoffLoss(self.state, self.fleet, self.gate, self.clock, self, self.task_failed)
 
-    def motion(self) -> "_BoundMotion":
+    def motion(self) -> BoundMotion:
         """The motion primitives (:class:`mission.flight.services.Motion`) flown on this mission's gate."""
-        return _BoundMotion(self)
+        return BoundMotion(self)
 
     def reformation(self) -> Reformation:
         """The formation re-formed for the vehicles left (:class:`mission.flight.faults.loss.Reformation`)
@@ -326,6 +337,57 @@ class Coordinator:
         return ReturnClear(self.state, self.fleet, self.gate, self.clock, plan.min_separation_m,
                            plan.seeking.arrival_tol_m, plan.geofence.max_alt_m, plan.return_behaviour,
                            None if self.envelope is None else self.envelope.fence, self.motion(), self)
+
+    # ----------------------------------------------------------------- the phases, built
+    def connect_phase(self) -> Connect:
+        """The connect phase (:class:`mission.flight.connect.Connect`) of this mission's plan."""
+        return Connect(self.plan, self.state, self.fleet, self, self.clock, self, self.tlog_dir)
+
+    def preflight_phase(self) -> Preflight:
+        """The preflight (:class:`mission.flight.connect.Preflight`) of the connected vehicles."""
+        return Preflight(self.plan, self.state, self.fleet, self.clock, self, self.readiness_checks,
+                         self.simulated_fleet)
+
+    def takeoff_phase(self) -> phases.Takeoff:
+        """The takeoff (:class:`mission.flight.phases.Takeoff`) of this mission's vehicles."""
+        def arm(sysid, v, rel_alt_m, before_takeoff):
+            return arm_and_takeoff(sysid, v, rel_alt_m, self.clock, self,
+                                   self.plan.preflight.autopilot_ready_timeout_s, before_takeoff=before_takeoff)
+
+        return phases.Takeoff(self.plan, self.state, self.fleet, self.clock, self, self, self.open_setpoints,
+                              arm, self.takeoff_loss)
+
+    def assemble_phase(self) -> phases.Assemble:
+        """The assembly (:class:`mission.flight.phases.Assemble`) of the vehicles under the gate now."""
+        return phases.Assemble(self.plan.seeking, self.state, self.gate, self, self.return_clear().fly_clear,
+                               self.takeoff_loss())
+
+    def return_phase(self) -> phases.ReturnHome:
+        """The return (:class:`mission.flight.phases.ReturnHome`) of the vehicles airborne now."""
+        return phases.ReturnHome(self.plan, self.state, self.fleet, self.gate, self.clock, self, self,
+                                 self.control, self.return_clear().fly_return)
+
+    def resume_phase(self) -> Resume:
+        """The resumed mission (:class:`mission.flight.resume.Resume`): rejoin, then seek on or come home."""
+        async def reconnect():
+            await self.connect_phase().run(required=False)
+
+        async def seek_on(**resumed):
+            return await self.seek_phase().run(**resumed)
+
+        return Resume(self.plan, self.state, self.fleet, self.clock, self, self, reconnect, self.use_envelope,
+                      self.open_setpoints, lambda records: restore_retired(self.state, records), seek_on)
+
+    def seek_phase(self) -> Seek:
+        """The seek (:class:`mission.flight.seek.Seek`) of the formation under the gate now."""
+        return Seek(self.plan, self.state, self.fleet, self.gate, self.clock, self, self, self.store, self.envelope,
+                    self.log, BoundSeekFormation(self),
+                    lambda: self.control.checkpoint(self.state, self.gate, self, self.clock, self), self.vehicle_status)
+
+    def mission_end(self) -> MissionEnd:
+        """The mission's end (:class:`mission.flight.mission_end.MissionEnd`): return, secure, stop, summarise."""
+        return MissionEnd(self.state, self, self.return_safely, self.landing_guard, self.stop_background,
+                          self.result, self.log, self.return_on_interrupt)
 
     async def wait_until(self, predicate, timeout_s: float, what: str, poll_s: float = 0.1) -> None:
         """Poll ``predicate()`` on the mission clock until true; MissionError after ``timeout_s``."""
@@ -405,8 +467,8 @@ class Coordinator:
             self.log.write("plan", plan=_plan_json(self.plan), dry_run=True, security_check=self._security_json())
         self._start_background()
         try:
-            await connect_phase.connect(self, required=False)
-            await connect_phase.preflight(self)
+            await self.connect_phase().run(required=False)
+            self.use_envelope(await self.preflight_phase().run())
         except MissionError as exc:
             self.event(str(exc), level="error")
         finally:
@@ -430,7 +492,7 @@ class Coordinator:
 
         Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
         False (a ground station that just stops: the vehicles do what their autopilot does); a
-        second cancellation lands them where they are (:mod:`mission.flight.mission_end`). Every
+        second cancellation lands them where they are (:class:`mission.flight.mission_end.MissionEnd`). Every
         path ends with the never-abandon check (:mod:`mission.flight.faults.landing_guard`) and a
         ``summary`` record; a cancelled run then raises CancelledError (``state.final_result``
         holds its result).
@@ -442,16 +504,16 @@ class Coordinator:
         outcome, message = "aborted", ""
         try:
             if resume_state is None:
-                await connect_phase.connect(self, required=True)
-                await connect_phase.preflight(self)
+                await self.connect_phase().run(required=True)
+                self.use_envelope(await self.preflight_phase().run())
                 problem = not_ready_message(self.state)
                 if problem:
                     raise MissionError(f"preflight failed: {problem}")
-                await phases.takeoff(self)
-                await phases.assemble(self)
-                outcome, message = await seek.seek(self)
+                await self.takeoff_phase().run()
+                await self.assemble_phase().run()
+                outcome, message = await self.seek_phase().run()
             else:
-                outcome, message = await resume_mission(self, resume_state)
+                outcome, message = await self.resume_phase().run(resume_state)
             self.set_phase("finish", outcome=outcome)
             self.event(message)
         except MissionError as exc:
@@ -463,13 +525,13 @@ class Coordinator:
             outcome, message = "aborted", f"unexpected error in phase {self.state.phase}: {type(exc).__name__}: {exc}"
             self._aborting(message, traceback=traceback.format_exc())
         except asyncio.CancelledError:  # Ctrl-C, SIGTERM, a cancelled task: mission_end counts them
-            return await mission_end.close(self, "interrupted", mission_end.interrupted_message(self.state.interrupts),
-                                           interrupted=True)
-        return await mission_end.close(self, outcome, message)
+            return await self.mission_end().run("interrupted", interrupted_message(self.state.interrupts),
+                                                interrupted=True)
+        return await self.mission_end().run(outcome, message)
 
     def _aborting(self, message: str, **fields) -> None:
         """Enter the ``aborted`` phase and say why; whatever fails in saying it, the mission's end
-        (return, landing, summary: :func:`mission.flight.mission_end.close`) still follows."""
+        (return, landing, summary: :meth:`mission.flight.mission_end.MissionEnd.run`) still follows."""
         try:
             self.set_phase("aborted", reason=message)
             self.event(message, level="error", **fields)
@@ -484,10 +546,10 @@ class Coordinator:
         if not self.state.airborne:
             return
         try:
-            await phases.return_home(self)
+            await self.return_phase().run()
         except Exception as exc:  # noqa: BLE001 - last resort: land everyone where they are
             self.event(f"return failed ({exc}); landing every vehicle where it is", level="error")
-            await phases.land_all_now(self)
+            await self.return_phase().land_all_now()
 
     def result(self, outcome: str, message: str) -> MissionResult:
         """The :class:`~mission.flight.result.MissionResult` of the mission so far."""
@@ -499,35 +561,6 @@ class Coordinator:
         result.link_rejections = self.link_rejections()
         result.unknown_sysids = self.unknown_sysids()
         return result
-
-
-class _BoundMotion:
-    """:mod:`mission.flight.motion`'s primitives bound to one coordinator: the
-    :class:`~mission.flight.services.Motion` the fault responses are handed."""
-
-    def __init__(self, co: Coordinator) -> None:
-        self.co = co
-
-    async def move_and_wait(self, goals, tol_m: float, timeout_s: float | None = None,
-                            what: str = "vehicles to reach their goals") -> None:
-        """:func:`mission.flight.motion.move_and_wait`."""
-        await motion.move_and_wait(self.co, goals, tol_m, timeout_s, what)
-
-    async def fly_timed(self, sysids, times_s, waypoints_enu) -> None:
-        """:func:`mission.flight.motion.fly_timed`."""
-        await motion.fly_timed(self.co, sysids, times_s, waypoints_enu)
-
-    async def transfer_to(self, sysids, new_offsets, centre_enu, what: str, lost_here) -> None:
-        """:func:`mission.flight.motion.transfer_to`."""
-        await motion.transfer_to(self.co, sysids, new_offsets, centre_enu, what, lost_here)
-
-    async def keep_out(self, sysid: int, v, why: str) -> None:
-        """:func:`mission.flight.motion.keep_out`."""
-        await motion.keep_out(self.co, sysid, v, why)
-
-    def parked(self) -> list[int]:
-        """:func:`mission.flight.motion.parked`."""
-        return motion.parked(self.co)
 
 
 def _plan_json(plan: Plan) -> dict:

@@ -1,6 +1,6 @@
 """The end of every mission path: return, secure, summary, in that order, whatever happens.
 
-:func:`close` is the tail of :meth:`mission.flight.coordinator.Coordinator.run` on every path
+:meth:`MissionEnd.run` is the tail of :meth:`mission.flight.coordinator.Coordinator.run` on every path
 (converged, aborted, exception, interrupted). Interrupts are cancellations of the mission's task
 (Ctrl-C and SIGTERM through :func:`mission.flight.operator_stop.run_until_stopped`; a test
 cancelling the task is the same thing) and are counted:
@@ -18,8 +18,15 @@ the ``summary`` record is written: also when interrupted (then the cancellation 
 from __future__ import annotations
 
 import asyncio
+from typing import Awaitable, Callable
 
-__all__ = ["close", "interrupted_message"]
+from mission.flight.faults.landing_guard import LandingGuard
+from mission.flight.result import MissionResult
+from mission.flight.services import PhaseEvents
+from mission.flight.state import MissionState
+from mission.telemetry.mission_log import MissionLog
+
+__all__ = ["MissionEnd", "interrupted_message"]
 
 
 def _uncancel() -> None:
@@ -35,76 +42,107 @@ def interrupted_message(names) -> str:
     return "interrupted" + (f" ({', '.join(names)})" if names else "")
 
 
-async def _return(co, interrupts: int) -> int:
-    """The controlled return, kept going through one interrupt; an emergency LAND at the next.
-
-    Returns the interrupts counted so far (``interrupts`` on entry)."""
-    while True:
-        try:
-            if interrupts < 2:
-                await co.return_safely()
-            return interrupts
-        except asyncio.CancelledError:
-            _uncancel()
-            interrupts += 1
-            if not co.return_on_interrupt:  # a ground station told to just stop
-                co.event("interrupted during the return: the ground station stops; the vehicles do what "
-                         "their autopilots do", level="error")
-                return interrupts
-            if interrupts == 1:
-                co.event("interrupt during the return: the return goes on (interrupt again to LAND every "
-                         "vehicle where it is)", level="warning")
-                continue
-            co.event("interrupted again: LANDING every airborne vehicle where it is (no return flight)",
-                     level="error")
-            try:
-                await co.landing_guard().land_now()
-            except asyncio.CancelledError:
-                _uncancel()
-                interrupts += 1
-            return interrupts
-
-
-async def close(co, outcome: str, message: str, *, interrupted: bool = False):
-    """Return (unless told not to), secure, stop, summarise; returns the MissionResult.
+class MissionEnd:
+    """The end of the mission on every path: return, secure, stop, summarise.
 
     Parameters
     ----------
-    co : Coordinator
-    outcome, message : str
-        How the mission ended (``interrupted`` when its task was cancelled).
-    interrupted : bool
-        The mission's task was cancelled: the cancellation goes on (CancelledError) after the
-        summary is written.
+    state : MissionState
+        The interrupts, the ending, the result.
+    events : PhaseEvents
+    return_home : callable
+        ``await return_home()``: fly every airborne vehicle home (or land it where it is if that
+        fails: :meth:`mission.flight.coordinator.Coordinator.return_safely`).
+    landing_guard : callable
+        ``landing_guard() -> LandingGuard``: the never-abandon check over the vehicles now.
+    stop_background : callable
+        ``await stop_background()``: stop what runs beside the phases, close the links.
+    result : callable
+        ``result(outcome, message) -> MissionResult``: the mission's result so far.
+    log : MissionLog or None
+        The ``summary`` record goes there.
+    return_on_interrupt : bool
+        False: a ground station told to just stop (an interrupt brings nobody home).
     """
-    interrupts = 0
-    if interrupted:
-        _uncancel()
-        interrupts = 1
-        co.set_phase("aborted", reason=message, returning=bool(co.return_on_interrupt))
-        co.event(f"mission {message}: " + ("returning every vehicle (interrupt again to LAND them where "
-                                           "they are)" if co.return_on_interrupt else
-                                           "the ground station stops; the vehicles do what their autopilots do"),
-                 level="error")
-    if co.return_on_interrupt or not interrupted:
-        interrupts = await _return(co, interrupts)
-    why = f"mission {message}" if message.startswith(outcome) else f"mission {outcome}: {message}"
-    left, cut_short = await co.landing_guard().secure(why, land=co.return_on_interrupt or not interrupts)
-    interrupts += int(cut_short)
-    co.state.set_ending(outcome, message)  # in the last snapshot (a watcher's map shows the outcome)
-    try:
-        await co.stop_background()
-    except asyncio.CancelledError:
-        _uncancel()
-        await co.stop_background()
-    result = co.result(outcome, message)
-    result.airborne_left = left
-    result.still_armed = list(co.state.still_armed)
-    result.interrupted_by = list(co.state.interrupts)
-    co.state.finish(result)
-    co.set_phase("done")
-    if co.log is not None:
-        co.log.write("summary", sync=True, **result.to_json())
-    if interrupted or interrupts:
-        raise asyncio.CancelledError()
-    return result
+
+    def __init__(self, state: MissionState, events: PhaseEvents, return_home: Callable[[], Awaitable[None]],
+                 landing_guard: Callable[[], LandingGuard], stop_background: Callable[[], Awaitable[None]],
+                 result: Callable[[str, str], MissionResult], log: MissionLog | None = None,
+                 return_on_interrupt: bool = True) -> None:
+        self.state, self.events, self.return_home, self.landing_guard = state, events, return_home, landing_guard
+        self.stop_background, self.result, self.log = stop_background, result, log
+        self.return_on_interrupt = bool(return_on_interrupt)
+
+    async def run(self, outcome: str, message: str, *, interrupted: bool = False) -> MissionResult:
+        """Return (unless told not to), secure, stop, summarise; returns the MissionResult.
+
+        Parameters
+        ----------
+        outcome, message : str
+            How the mission ended (``interrupted`` when its task was cancelled).
+        interrupted : bool
+            The mission's task was cancelled: the cancellation goes on (CancelledError) after the
+            summary is written.
+        """
+        events, back = self.events, self.return_on_interrupt
+        interrupts = 0
+        if interrupted:
+            _uncancel()
+            interrupts = 1
+            events.set_phase("aborted", reason=message, returning=back)
+            events.event(f"mission {message}: " + ("returning every vehicle (interrupt again to LAND them where "
+                                                   "they are)" if back else
+                                                   "the ground station stops; the vehicles do what their autopilots do"),
+                         level="error")
+        if back or not interrupted:
+            interrupts = await self._return(interrupts)
+        why = f"mission {message}" if message.startswith(outcome) else f"mission {outcome}: {message}"
+        left, cut_short = await self.landing_guard().secure(why, land=back or not interrupts)
+        interrupts += int(cut_short)
+        self.state.set_ending(outcome, message)  # in the last snapshot (a watcher's map shows the outcome)
+        try:
+            await self.stop_background()
+        except asyncio.CancelledError:
+            _uncancel()
+            await self.stop_background()
+        result = self.result(outcome, message)
+        result.airborne_left = left
+        result.still_armed = list(self.state.still_armed)
+        result.interrupted_by = list(self.state.interrupts)
+        self.state.finish(result)
+        events.set_phase("done")
+        if self.log is not None:
+            self.log.write("summary", sync=True, **result.to_json())
+        if interrupted or interrupts:
+            raise asyncio.CancelledError()
+        return result
+
+    async def _return(self, interrupts: int) -> int:
+        """The controlled return, kept going through one interrupt; an emergency LAND at the next.
+
+        Returns the interrupts counted so far (``interrupts`` on entry)."""
+        events = self.events
+        while True:
+            try:
+                if interrupts < 2:
+                    await self.return_home()
+                return interrupts
+            except asyncio.CancelledError:
+                _uncancel()
+                interrupts += 1
+                if not self.return_on_interrupt:  # a ground station told to just stop
+                    events.event("interrupted during the return: the ground station stops; the vehicles do what "
+                                 "their autopilots do", level="error")
+                    return interrupts
+                if interrupts == 1:
+                    events.event("interrupt during the return: the return goes on (interrupt again to LAND every "
+                                 "vehicle where it is)", level="warning")
+                    continue
+                events.event("interrupted again: LANDING every airborne vehicle where it is (no return flight)",
+                             level="error")
+                try:
+                    await self.landing_guard().land_now()
+                except asyncio.CancelledError:
+                    _uncancel()
+                    interrupts += 1
+                return interrupts

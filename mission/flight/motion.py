@@ -1,6 +1,7 @@
 """Motion primitives shared by the phases: commands retried, goals flown and waited for, transfers.
 
 * :func:`setpoint_stream`: the setpoint streamer and the safety gate driving it;
+* :func:`update_odometry`: each vehicle's flown distance accumulated;
 * :func:`retried`: a vehicle command retried a few rounds (lossy links);
 * :func:`move_and_wait`: ramp goals set, then waited for (setpoints there, vehicles within a tolerance);
 * :func:`fly_timed`: a synchronous plan fed to the ramp as interpolated goals;
@@ -16,26 +17,35 @@ import functools
 import numpy as np
 
 from mission.flight.obstacles import obstacles, plan_survivor_transfer
-from mission.flight.state import MissionError
+from mission.core.plan_types import Plan
+from mission.flight.services import Clock, Events, Fleet
+from mission.flight.state import MissionError, MissionState
 from mission.safety.gate import SafetyGate
 
-__all__ = ["fly_timed", "keep_out", "move_and_wait", "paced", "parked", "retried", "setpoint_stream", "transfer_to"]
+__all__ = ["fly_timed", "keep_out", "move_and_wait", "paced", "parked", "retried", "setpoint_stream", "transfer_to",
+           "update_odometry"]
 
 
-def setpoint_stream(co, vehicles: list) -> None:
-    """Give the coordinator a setpoint streamer for ``vehicles`` and the safety gate driving it
-    (not started: ``co.gate.start()`` starts both).
+def setpoint_stream(vehicles: list, plan: Plan, clock: Clock, envelope, events: Events):
+    """A setpoint streamer for ``vehicles`` and the safety gate driving it: ``(streamer, gate)``
+    (not started: ``gate.start()`` starts both).
 
-    The gate (:class:`mission.safety.gate.SafetyGate`) moves, checks and sends every vehicle's
-    setpoint at ``setpoint_rate_hz``, in one task: the one speed limiter.
+    The gate (:class:`mission.safety.gate.SafetyGate`) moves, checks (against ``envelope``, a
+    :class:`mission.safety.envelope.SafetyEnvelope` or None) and sends every vehicle's setpoint
+    at the plan's ``setpoint_rate_hz``, in one task: the one speed limiter. Its violations are
+    warning events.
     """
     from mission.vehicle.streamer import SetpointStreamer
 
-    plan = co.plan
-    streamer = SetpointStreamer(vehicles, rate_hz=plan.setpoint_rate_hz, clock=co.clock)
-    ramp = SafetyGate(streamer, co.clock, plan.max_speed_m_s,
-                      envelope=co.envelope, on_violation=lambda m: co.event(m, level="warning"))
-    co.use_setpoints(streamer, ramp)
+    streamer = SetpointStreamer(vehicles, rate_hz=plan.setpoint_rate_hz, clock=clock)
+    gate = SafetyGate(streamer, clock, plan.max_speed_m_s,
+                      envelope=envelope, on_violation=lambda m: events.event(m, level="warning"))
+    return streamer, gate
+
+
+def update_odometry(state: MissionState, fleet: Fleet) -> None:
+    """Accumulate each vehicle's flown distance (``state``) from its telemetry position."""
+    state.add_positions({s: fleet.telemetry_position(s) for s in fleet.vehicles})
 
 
 async def paced(clock, period_s: float, last_s: float) -> float:
@@ -48,7 +58,7 @@ async def paced(clock, period_s: float, last_s: float) -> float:
     return t_s
 
 
-async def retried(co, action, what: str, attempts: int = 3):
+async def retried(events: Events, clock: Clock, action, what: str, attempts: int = 3):
     """Run ``action()`` (a command coroutine, itself retried by ``command_long``) up to ``attempts``
     times: on a lossy link (20 % each way) one command with its 4 sends fails 1.7 % of the
     time; three rounds make it 5e-6. The commands used (mode, arm, takeoff, land) are idempotent."""
@@ -58,8 +68,8 @@ async def retried(co, action, what: str, attempts: int = 3):
         except Exception as exc:  # noqa: BLE001 - CommandError or link error
             if i + 1 == attempts:
                 raise MissionError(f"{what} failed after {attempts} rounds of retries: {exc}") from None
-            co.event(f"{what}: {exc}; trying again", level="warning")
-            await co.clock.sleep(0.5)
+            events.event(f"{what}: {exc}; trying again", level="warning")
+            await clock.sleep(0.5)
 
 
 async def move_and_wait(co, goals: dict[int, np.ndarray], tol_m: float, timeout_s: float | None = None,

@@ -1,6 +1,7 @@
 """Signals and a failing mission log during a mission: told, counted, never abandoning a vehicle.
 
-:func:`run_until_stopped` runs :meth:`~mission.flight.coordinator.Coordinator.run` with handlers
+:func:`run_until_stopped` runs :meth:`~mission.flight.coordinator.Coordinator.run` (the coroutine, with the
+mission's state and log) with handlers
 for SIGINT, SIGTERM and SIGHUP on the running event loop (main thread only; elsewhere the signals
 keep their default behaviour), and for a SIGPIPE sent by another process (``kill -PIPE``; see
 :mod:`mission.telemetry.terminal`: the SIGPIPE a write to a closed pipe raises is not a stop).
@@ -24,7 +25,10 @@ import os
 import signal
 import sys
 import threading
+from typing import Coroutine
 
+from mission.flight.state import MissionState
+from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.terminal import alert
 
 __all__ = ["run_until_stopped", "exit_status", "SIGNAL_EXIT", "LOG_FAILURE"]
@@ -45,18 +49,21 @@ _TOLD = {1: "stopping the mission: every vehicle returns (Ctrl-C again: LAND the
          2: "LANDING every vehicle where it is now (Ctrl-C again: stop waiting for the confirmations)"}
 
 
-async def run_until_stopped(co, resume_state=None):
-    """``co.run(resume_state)`` under the stop handlers; returns the MissionResult.
+async def run_until_stopped(mission: Coroutine, state: MissionState, log: MissionLog | None = None):
+    """The ``mission`` coroutine (a coordinator's ``run(resume_state)``) under the stop handlers;
+    returns its MissionResult.
 
-    A run cut short by a stop still returns its result (:attr:`MissionState.final_result <mission.flight.state.MissionState.final_result>`,
+    Each stop is counted in ``state`` (its ``interrupts``) and cancels the mission's task once; a
+    ``log`` that cannot be written any more stops it too. A run cut short by a stop still returns
+    its result (:attr:`MissionState.final_result <mission.flight.state.MissionState.final_result>`,
     whose ``summary`` record is in the log); a cancellation from anything else propagates.
     """
     loop = asyncio.get_running_loop()
-    task = loop.create_task(co.run(resume_state))
+    task = loop.create_task(mission)
     cancels = []
 
     def _stop(name: str) -> None:
-        co.state.note_interrupt(name)
+        state.note_interrupt(name)
         cancels.append(name)
         task.cancel()
 
@@ -65,31 +72,31 @@ async def run_until_stopped(co, resume_state=None):
         print(f"\nswarmseek: {sig.name}: {_TOLD.get(len(cancels), 'stopping now')}", file=sys.stderr, flush=True)
 
     def _on_log_failure(exc: OSError) -> None:
-        ending = co.state.phase in _ENDING or bool(cancels)
-        alert(f"swarmseek: ERROR: cannot write the mission log {co.log.path} ({type(exc).__name__}: {exc}); "
+        ending = state.phase in _ENDING or bool(cancels)
+        alert(f"swarmseek: ERROR: cannot write the mission log {log.path} ({type(exc).__name__}: {exc}); "
               + ("the vehicles are already on their way home; nothing more is logged" if ending else
                  "bringing every vehicle home (the plan's return); nothing more is logged"))
         if ending:
-            co.state.note_interrupt(LOG_FAILURE)  # for the exit status; the return goes on as it is
+            state.note_interrupt(LOG_FAILURE)  # for the exit status; the return goes on as it is
         else:
             _stop(LOG_FAILURE)
 
     installed = _install(loop, _on_signal)
     pipe = _PipeSignals(loop, _on_signal)
-    if co.log is not None:
-        co.log.on_error = _on_log_failure
-        if co.log.error is not None:  # it failed before the mission started: nothing will be armed
-            _on_log_failure(co.log.error)
+    if log is not None:
+        log.on_error = _on_log_failure
+        if log.error is not None:  # it failed before the mission started: nothing will be armed
+            _on_log_failure(log.error)
     try:
         return await task
     except asyncio.CancelledError:
-        if co.state.interrupts and co.state.final_result is not None and not _self_cancelled():
-            return co.state.final_result
+        if state.interrupts and state.final_result is not None and not _self_cancelled():
+            return state.final_result
         raise
     finally:
         pipe.stop()
-        if co.log is not None:
-            co.log.on_error = None
+        if log is not None:
+            log.on_error = None
         for sig in installed:
             loop.remove_signal_handler(sig)
 

@@ -1,6 +1,6 @@
 """Ready to seek, not only ready to fly: the mission-wide preflight checks.
 
-Run at the end of the preflight (:func:`mission.flight.connect.preflight`), after each vehicle's
+Run at the end of the preflight (:class:`mission.flight.connect.Preflight`), after each vehicle's
 own checks; ``swarmseek dry-run`` prints each of them, ``fly`` arms nothing when one fails
 (:func:`not_ready_message`); :class:`MissionChecks` runs them:
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 import asyncio
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Awaitable, Callable
 
 import numpy as np
 
@@ -45,15 +46,16 @@ from mission.core.plan_types import (
     VehiclePlan,
 )
 from mission.core.signing_config import SigningConfig
-from mission.flight.connect import build_envelope, connect
+from mission.flight.connect import build_envelope
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
-from mission.flight.motion import retried, setpoint_stream
+from mission.flight.motion import retried
 from mission.flight.resume_endings import classify_ending
-from mission.flight.faults.retire import restore_retired
-from mission.flight.state import MissionError, VehicleLoss
+from mission.flight.services import Clock, Events, Fleet, Waiter
+from mission.flight.state import MissionError, MissionState, VehicleLoss
+from mission.safety.gate import SafetyGate
 from wire.signing import SigningError
 
-__all__ = ["ResumeError", "ResumeState", "plan_from_json", "load_resume_state", "rejoin", "resume_mission"]
+__all__ = ["Resume", "ResumeError", "ResumeState", "plan_from_json", "load_resume_state"]
 
 
 class ResumeError(ValueError):
@@ -278,94 +280,127 @@ def _seek_progress(records: list[dict], plan: Plan):
             float(last.get("distance_flown_m") or 0.0))
 
 
-async def rejoin(co, state: ResumeState) -> None:
-    """Reconnect and re-engage the vehicles still flying (the coordinator's ``run`` with a state).
+class Resume:
+    """The resumed mission: reconnect, re-engage the vehicles still flying, then seek on
+    (``state.go_on``) or bring them home.
 
-    Raises
-    ------
-    mission.flight.state.MissionError
-        Fewer than 4 vehicles can be re-engaged (those that can are still brought home).
+    Parameters
+    ----------
+    plan : Plan
+        The origin, the fence.
+    state : MissionState
+        Set from the log's formation, seek progress and losses.
+    fleet : Fleet
+    clock : Clock
+    events : Events
+    waiter : Waiter
+    connect : callable
+        ``await connect()``: the connect phase (not required: a vehicle that cannot be reached is lost).
+    use_envelope : callable
+        ``use_envelope(envelope)``: the mission's safety envelope from now on.
+    open_setpoints : callable
+        ``open_setpoints(vehicles) -> SafetyGate``: the setpoint stream and its safety gate (not started).
+    restore_retired : callable
+        ``restore_retired(records)``: the retired sensors of the log (:mod:`mission.flight.faults.retire`).
+    seek : callable
+        ``await seek(start_iteration=k, history=centres) -> (outcome, message)``: the seek phase.
     """
-    await connect(co, required=False)
-    co.use_envelope(build_envelope(co.plan))
-    co.state.resume_seek(state.iteration, state.centre_enu, state.distance_flown_m)
-    co.state.set_formation(state.slot_offsets, layer_alt_m=state.layer_alt_m, kind=state.formation_kind)
-    now = co.clock.time()
-    for s in state.lost:
-        co.state.declare_lost(VehicleLoss(s, "link", "lost before the ground station stopped", now, now, "resume"))
-    flying = []
-    for sysid in sorted(co.state.slot_offsets):
-        reason = await _why_not_flying(co, sysid)
-        if reason is not None:
-            co.state.declare_lost(VehicleLoss(sysid, "left", reason, now, now, "resume"), f"lost ({reason})")
-            co.event(f"vehicle {sysid} lost: {reason}; not re-engaged", level="warning", sysid=sysid)
-        else:
-            flying.append(sysid)
-    await _reengage(co, flying)
-    restore_retired(co.state, state.retired)
-    co.event(("resumed" if state.go_on else f"taken over to bring the vehicles home (the log ends "
-                                             f"{state.ending} in phase {state.last_phase!r})") + f" at iteration {state.iteration} from centre "
-             f"({co.state.centre_enu[0]:.2f}, {co.state.centre_enu[1]:.2f}, {co.state.centre_enu[2]:.2f}) m with vehicles "
-             f"{flying}", iteration=state.iteration, centre_enu=co.state.centre_enu, vehicles=flying,
-             lost=sorted(co.state.lost), retired=sorted(co.state.retired))
-    sensing = [s for s in flying if s not in co.state.retired]
-    if state.go_on and len(sensing) < 4:
-        raise MissionError(f"only {len(sensing)} sensing vehicles can be re-engaged ({sensing}); a formation "
-                           "needs 4: bringing them home")
-    await asyncio.sleep(0)
 
+    def __init__(self, plan: Plan, state: MissionState, fleet: Fleet, clock: Clock, events: Events, waiter: Waiter,
+                 connect: Callable[[], Awaitable[None]], use_envelope: Callable[[Any], None],
+                 open_setpoints: Callable[[list], SafetyGate], restore_retired: Callable[[dict], None],
+                 seek: Callable[..., Awaitable[tuple[str, str]]]) -> None:
+        self.plan, self.state, self.fleet, self.clock, self.events, self.waiter = plan, state, fleet, clock, events, waiter
+        self.connect, self.use_envelope, self.open_setpoints = connect, use_envelope, open_setpoints
+        self.restore_retired, self.seek = restore_retired, seek
 
-async def _why_not_flying(co, sysid: int) -> str | None:
-    """Why a vehicle of the stopped formation cannot be re-engaged (None: it can); records its home."""
-    v = co.vehicles.get(sysid)
-    if v is None:
-        return "not connected at resume"
-    reason = None
-    try:
-        home = await v.wait_home(10.0)
-    except Exception as exc:  # noqa: BLE001 - CommandError: reported as the reason
-        home, reason = None, f"no home position at resume ({exc})"
-    # its altitude too: a position may come first (real ArduCopter at resume: 4 of 5 hovering
-    # vehicles were taken for "not flying" on the altitude of before their first GLOBAL_POSITION_INT)
-    await co.wait_until(lambda: v.state.position_ok and v.state.relative_alt_m is not None, 10.0,
-                        f"vehicle {sysid} position and altitude")
-    st = v.state
-    if home is not None:
-        co.state.set_home(sysid, geodetic_to_enu(home[0], home[1], home[2], co.plan.origin))
-    if reason is None and not st.armed:
-        reason = "on the ground (disarmed)"
-    elif reason is None and st.mode in LEFT_MODES.get(v.flavour, ()):
-        reason = f"in {st.mode} (its autopilot's failsafe while the ground station was away)"
-    elif reason is None and (st.relative_alt_m is None or st.relative_alt_m < 1.0):
-        reason = "not flying"
-    return reason
+    async def run(self, resume: ResumeState) -> tuple[str, str]:
+        """Rejoin, then seek on (``resume.go_on``) or bring the vehicles home; ``(outcome, message)``."""
+        await self.rejoin(resume)
+        if resume.go_on:
+            return await self.seek(start_iteration=resume.iteration, history=resume.centres)
+        flying = sorted(self.state.airborne)
+        if not flying:
+            return "recovered", "no vehicle of the stopped mission is flying: nothing to bring home"
+        return "recovered", (f"the stopped mission ({resume.ending}, last phase {resume.last_phase!r}) left vehicles "
+                             f"{flying} flying: bringing them home")
 
+    async def rejoin(self, resume: ResumeState) -> None:
+        """Reconnect and re-engage the vehicles still flying.
 
-async def _reengage(co, flying: list[int]) -> None:
-    """Setpoints at each flying vehicle's position first, then OFFBOARD (PX4) or GUIDED (ArduPilot)."""
-    setpoint_stream(co, [co.vehicles[s] for s in flying])
-    for s in flying:
-        co.gate.add(s, co.telemetry_position(s))
-        co.state.set_airborne(s, "re-engaging")
-    co.gate.start()  # the safety gate: moves, checks and sends the setpoints
-    await co.clock.sleep(0.5)  # setpoints flowing before OFFBOARD (PX4 requires it)
-    for s in flying:
-        v = co.vehicles[s]
-        want = GUIDED_MODES.get(v.flavour)
-        if want is not None and v.state.mode != want:
-            await retried(co, lambda v=v, want=want: v.set_mode(want), f"re-engaging {want} on vehicle {s}")
-        co.state.set_status(s, "in formation")
+        Raises
+        ------
+        mission.flight.state.MissionError
+            Fewer than 4 vehicles can be re-engaged (those that can are still brought home).
+        """
+        state = self.state
+        await self.connect()
+        self.use_envelope(build_envelope(self.plan))
+        state.resume_seek(resume.iteration, resume.centre_enu, resume.distance_flown_m)
+        state.set_formation(resume.slot_offsets, layer_alt_m=resume.layer_alt_m, kind=resume.formation_kind)
+        now = self.clock.time()
+        for s in resume.lost:
+            state.declare_lost(VehicleLoss(s, "link", "lost before the ground station stopped", now, now, "resume"))
+        flying = []
+        for sysid in sorted(state.slot_offsets):
+            reason = await self.why_not_flying(sysid)
+            if reason is not None:
+                state.declare_lost(VehicleLoss(sysid, "left", reason, now, now, "resume"), f"lost ({reason})")
+                self.events.event(f"vehicle {sysid} lost: {reason}; not re-engaged", level="warning", sysid=sysid)
+            else:
+                flying.append(sysid)
+        await self._reengage(flying)
+        self.restore_retired(resume.retired)
+        c = state.centre_enu
+        self.events.event(("resumed" if resume.go_on else f"taken over to bring the vehicles home (the log ends "
+                           f"{resume.ending} in phase {resume.last_phase!r})") + f" at iteration {resume.iteration} "
+                          f"from centre ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) m with vehicles "
+                          f"{flying}", iteration=resume.iteration, centre_enu=c, vehicles=flying,
+                          lost=sorted(state.lost), retired=sorted(state.retired))
+        sensing = [s for s in flying if s not in state.retired]
+        if resume.go_on and len(sensing) < 4:
+            raise MissionError(f"only {len(sensing)} sensing vehicles can be re-engaged ({sensing}); a formation "
+                               "needs 4: bringing them home")
+        await asyncio.sleep(0)
 
+    async def why_not_flying(self, sysid: int) -> str | None:
+        """Why a vehicle of the stopped formation cannot be re-engaged (None: it can); records its home."""
+        v = self.fleet.vehicles.get(sysid)
+        if v is None:
+            return "not connected at resume"
+        reason = None
+        try:
+            home = await v.wait_home(10.0)
+        except Exception as exc:  # noqa: BLE001 - CommandError: reported as the reason
+            home, reason = None, f"no home position at resume ({exc})"
+        # its altitude too: a position may come first (real ArduCopter at resume: 4 of 5 hovering
+        # vehicles were taken for "not flying" on the altitude of before their first GLOBAL_POSITION_INT)
+        await self.waiter.wait_until(lambda: v.state.position_ok and v.state.relative_alt_m is not None, 10.0,
+                                     f"vehicle {sysid} position and altitude")
+        st = v.state
+        if home is not None:
+            self.state.set_home(sysid, geodetic_to_enu(home[0], home[1], home[2], self.plan.origin))
+        if reason is None and not st.armed:
+            reason = "on the ground (disarmed)"
+        elif reason is None and st.mode in LEFT_MODES.get(v.flavour, ()):
+            reason = f"in {st.mode} (its autopilot's failsafe while the ground station was away)"
+        elif reason is None and (st.relative_alt_m is None or st.relative_alt_m < 1.0):
+            reason = "not flying"
+        return reason
 
-async def resume_mission(co, state: ResumeState) -> tuple[str, str]:
-    """Rejoin, then seek on (``state.go_on``) or bring the vehicles home; ``(outcome, message)``."""
-    from mission.flight import seek
-
-    await rejoin(co, state)
-    if state.go_on:
-        return await seek.seek(co, start_iteration=state.iteration, history=state.centres)
-    flying = sorted(co.state.airborne)
-    if not flying:
-        return "recovered", "no vehicle of the stopped mission is flying: nothing to bring home"
-    return "recovered", (f"the stopped mission ({state.ending}, last phase {state.last_phase!r}) left vehicles "
-                         f"{flying} flying: bringing them home")
+    async def _reengage(self, flying: list[int]) -> None:
+        """Setpoints at each flying vehicle's position first, then OFFBOARD (PX4) or GUIDED (ArduPilot)."""
+        vehicles = self.fleet.vehicles
+        gate = self.open_setpoints([vehicles[s] for s in flying])
+        for s in flying:
+            gate.add(s, self.fleet.telemetry_position(s))
+            self.state.set_airborne(s, "re-engaging")
+        gate.start()  # the safety gate: moves, checks and sends the setpoints
+        await self.clock.sleep(0.5)  # setpoints flowing before OFFBOARD (PX4 requires it)
+        for s in flying:
+            v = vehicles[s]
+            want = GUIDED_MODES.get(v.flavour)
+            if want is not None and v.state.mode != want:
+                await retried(self.events, self.clock, lambda v=v, want=want: v.set_mode(want),
+                              f"re-engaging {want} on vehicle {s}")
+            self.state.set_status(s, "in formation")

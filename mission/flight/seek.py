@@ -25,20 +25,25 @@ partly covered; the seeker gets every reading since the last estimate, where it 
 from __future__ import annotations
 
 import asyncio
+from typing import Awaitable, Callable
 
 import numpy as np
 
+from estimator.estimate import reported_estimate
+from mission.core.plan_types import Plan
 from mission.flight.control import OperatorStop
 from mission.flight.fence_reach import source_in_reach
-from mission.flight.motion import move_and_wait, paced, parked
-from estimator.estimate import reported_estimate
+from mission.flight.motion import paced
 from mission.flight.result import estimate_fields, geodetic_point, region_text
-from mission.flight.faults.rejoin import pending_readmissions
 from mission.flight.seek_moving import moving_sampling, thin_evenly
 from mission.flight.sensor_check import make_check
-from mission.flight.state import MissionError
+from mission.flight.services import Clock, Fleet, PhaseEvents, SeekFormation, Waiter
+from mission.flight.state import MissionError, MissionState
+from mission.safety.gate import SafetyGate
+from mission.telemetry.mission_log import MissionLog
+from mission.telemetry.readings import ReadingStore
 
-__all__ = ["seek", "make_estimator", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
+__all__ = ["Seek", "make_estimator", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
 
 #: With moving sampling the ``ste`` seeker gets at most this many of each vehicle's readings per update
 #: (:func:`mission.flight.seek_moving.thin_evenly`); None: every reading, each with its time and vehicle,
@@ -179,54 +184,81 @@ def make_estimator(kind: str, n: int):
     return _plain
 
 
-async def seek(co, start_iteration: int = 0, history=()) -> tuple[str, str]:
-    """Run the seek loop; returns ``(outcome, message)``.
+class Seek:
+    """The seek phase: the formation centre moved up the estimated gradient until it converges.
 
-    ``start_iteration`` and ``history`` (the last centres, oldest first) resume a stopped seek
-    (:mod:`mission.flight.resume`): iterations are numbered on, the convergence monitor is prefilled.
-
-    Outcomes: ``converged`` (also with the centre held at the fence shrunk by the radius when the
-    source is inside the formation, :mod:`mission.flight.fence_reach`), ``max_iterations``,
-    ``stopped_at_fence`` (the centre has been held at the geofence with the source out of the
-    formation's reach, at convergence or for a whole convergence window: it is probably outside),
-    ``too_few_vehicles`` (vehicles were lost and fewer than 4 are left: the caller brings the
-    others home). After a loss the formation is re-formed for the survivors
-    (:meth:`mission.flight.faults.loss.Reformation.reform`) before the next iteration; a returning vehicle is re-admitted
-    (``[faults] readmit = true``, :meth:`mission.flight.faults.rejoin.Rejoin.readmit`); every iteration's slots are
-    rotated clear of lost vehicles still flying (:meth:`mission.flight.faults.rejoin.Rejoin.clear_goals`). Whatever the
-    seeker, the faulty-sensor detector (:mod:`mission.flight.sensor_check`) keeps the readings of the
-    sensors it excludes out of the seeker's input, and a sensor it keeps naming is retired
-    (``faulty_sensor = "retire"``, the default): its vehicle is parked at the centre,
-    its readings ignored, the others re-formed (:mod:`mission.flight.faults.retire`); only sensing vehicles
-    count towards the 4.
+    Parameters
+    ----------
+    plan : Plan
+        ``[seeking]``, ``[faults]``, the speed limit, the separation, the radius, the origin.
+    state, fleet, gate, clock, events, waiter : MissionState, Fleet, SafetyGate, Clock, PhaseEvents, Waiter
+    store : ReadingStore
+        The readings.
+    envelope : SafetyEnvelope or None
+        The centre is clamped inside it.
+    log : MissionLog or None
+        Each iteration's record.
+    formation : SeekFormation
+        Losses, re-admission, retirement and the moves.
+    checkpoint : callable
+        ``await checkpoint()``: an operator's pause holds there, a stop raises (``MissionControl.checkpoint``).
+    vehicle_status : callable
+        ``vehicle_status() -> list[dict]``: every vehicle's status, for the iteration record.
     """
-    co.set_phase("seek")
-    run = _Seek(co, history)
-    co.state.begin_seek()
-    ended = None
-    for k in range(int(start_iteration), co.plan.seeking.max_iterations):
-        await co.control.checkpoint(co)  # an operator's pause holds here, a stop ends the seek
-        ended = await run.iteration(k)
-        if ended is not None:
-            break
-    co.state.end_seek()  # not on a MissionError: the seek time of an aborted mission runs to its end
-    return ended or ("max_iterations", f"not converged after {co.plan.seeking.max_iterations} iterations")
 
+    def __init__(self, plan: Plan, state: MissionState, fleet: Fleet, gate: SafetyGate, clock: Clock,
+                 events: PhaseEvents, waiter: Waiter, store: ReadingStore, envelope, log: MissionLog | None,
+                 formation: SeekFormation, checkpoint: Callable[[], Awaitable[None]],
+                 vehicle_status: Callable[[], list]) -> None:
+        self.plan, self.state, self.fleet, self.gate, self.clock = plan, state, fleet, gate, clock
+        self.events, self.waiter, self.store, self.envelope, self.log = events, waiter, store, envelope, log
+        self.formation, self.checkpoint, self.vehicle_status = formation, checkpoint, vehicle_status
 
-class _Seek:
-    """The seek loop's own state (formation members, estimator, monitor, centre) and its steps."""
+    async def run(self, start_iteration: int = 0, history=()) -> tuple[str, str]:
+        """Run the seek loop; returns ``(outcome, message)``.
 
-    def __init__(self, co, history=()):
+        ``start_iteration`` and ``history`` (the last centres, oldest first) resume a stopped seek
+        (:mod:`mission.flight.resume`): iterations are numbered on, the convergence monitor is prefilled.
+
+        Outcomes: ``converged`` (also with the centre held at the fence shrunk by the radius when the
+        source is inside the formation, :mod:`mission.flight.fence_reach`), ``max_iterations``,
+        ``stopped_at_fence`` (the centre has been held at the geofence with the source out of the
+        formation's reach, at convergence or for a whole convergence window: it is probably outside),
+        ``too_few_vehicles`` (vehicles were lost and fewer than 4 are left: the caller brings the
+        others home). After a loss the formation is re-formed for the survivors (``formation.reform``:
+        :meth:`mission.flight.faults.loss.Reformation.reform`) before the next iteration; a returning
+        vehicle is re-admitted (``[faults] readmit = true``, :meth:`mission.flight.faults.rejoin.Rejoin.readmit`);
+        every iteration's slots are rotated clear of lost vehicles still flying
+        (:meth:`mission.flight.faults.rejoin.Rejoin.clear_goals`). Whatever the seeker, the faulty-sensor
+        detector (:mod:`mission.flight.sensor_check`) keeps the readings of the sensors it excludes out
+        of the seeker's input, and a sensor it keeps naming is retired (``faulty_sensor = "retire"``,
+        the default): its vehicle is parked at the centre, its readings ignored, the others re-formed
+        (:mod:`mission.flight.faults.retire`); only sensing vehicles count towards the 4.
+        """
+        self.events.set_phase("seek")
+        self._start(history)
+        self.state.begin_seek()
+        ended = None
+        for k in range(int(start_iteration), self.plan.seeking.max_iterations):
+            await self.checkpoint()  # an operator's pause holds here, a stop ends the seek
+            ended = await self.iteration(k)
+            if ended is not None:
+                break
+        self.state.end_seek()  # not on a MissionError: the seek time of an aborted mission runs to its end
+        return ended or ("max_iterations", f"not converged after {self.plan.seeking.max_iterations} iterations")
+
+    def _start(self, history=()) -> None:
+        """The seek loop's own state (formation members, estimator, monitor, centre)."""
         from estimator import ConvergenceMonitor
         from estimator.seek_signal import ArrivalSignal
 
-        self.co = co
-        self.sk = sk = co.plan.seeking
+        state = self.state
+        self.sk = sk = self.plan.seeking
         # the formation's vehicles: those under setpoints, and those lost since their slot was
         # given (the loop re-forms without them first)
-        self.sysids = sorted(s for s in co.state.slot_offsets
-                             if (s in co.gate.sysids or s in co.state.lost) and s not in co.state.retired)
-        flying = [s for s in self.sysids if s not in co.state.lost]
+        self.sysids = sorted(s for s in state.slot_offsets
+                             if (s in self.gate.sysids or s in state.lost) and s not in state.retired)
+        flying = [s for s in self.sysids if s not in state.lost]
         if len(flying) < 4:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
         self.est_kind = sk.estimator
@@ -235,17 +267,17 @@ class _Seek:
         wind_from_deg = sk.wind_from_deg
         if sk.seeker == "ste":
             wind_from_deg, ste["wind_std_deg"], said = ste_wind(
-                sk, [v.state.snapshot() for v in co.vehicles.values()], co.clock.time())
-            co.event(said)
+                sk, [v.state.snapshot() for v in self.fleet.vehicles.values()], self.clock.time())
+            self.events.event(said)
         self.seeker = make_seeker(sk.seeker, wind_from_deg, sk.plume_mode, **ste)
-        self.moving = moving_sampling(co, sk)
+        self.moving = moving_sampling(self.clock, self.store, self.events, sk)
         self.samples = None  # with moving sampling: the readings the seeker gets this iteration
-        self.check = make_check(co.plan.faults, self.estimate, self.sysids)
-        self.watch = co.retirement().make_watch(self.check, self.sysids)
+        self.check = make_check(self.plan.faults, self.estimate, self.sysids)
+        self.watch = self.formation.make_watch(self.check, self.sysids)
         self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
                                           min_signal_fraction=sk.min_signal_fraction)
         self.arrival = ArrivalSignal()  # the convergence test's signal when the seeker has none
-        self.centre = np.asarray(co.state.centre_enu, dtype=float).copy()
+        self.centre = np.asarray(state.centre_enu, dtype=float).copy()
         for c in history:
             self.monitor.update(np.asarray(c, dtype=float))
         if not len(history):
@@ -258,11 +290,11 @@ class _Seek:
 
     def _new_estimator(self, symmetric_to_cvt: bool = True) -> None:
         """A fresh estimator (and retirement watch) for the current members."""
-        if symmetric_to_cvt and self.co.state.formation_kind == "cvt" and self.est_kind == "symmetric":
+        if symmetric_to_cvt and self.state.formation_kind == "cvt" and self.est_kind == "symmetric":
             self.est_kind = "cvt"
         self.estimate = make_estimator(self.est_kind, len(self.sysids))
-        self.check = make_check(self.co.plan.faults, self.estimate, self.sysids)
-        self.watch = self.co.retirement().make_watch(self.check, self.sysids)
+        self.check = make_check(self.plan.faults, self.estimate, self.sysids)
+        self.watch = self.formation.make_watch(self.check, self.sysids)
 
     async def iteration(self, k: int) -> tuple[str, str] | None:
         """One iteration: re-form, move, readings, estimate, step; ``(outcome, message)`` when it ends."""
@@ -271,29 +303,28 @@ class _Seek:
             return ended
         t_arrive = await self._move(k)
         await self._wait_readings(k, t_arrive)
-        if any(s in self.co.state.lost for s in self.sysids):
+        if any(s in self.state.lost for s in self.sysids):
             return None  # lost during this iteration: re-form first
         found = await self._estimate(k, t_arrive)
         if found is None:
             return None
         ended = await self._step(k, *found)
         if ended is None and found[-1] is not None:
-            self.sysids = await self.co.retirement().retire_sensor(self.centre, self.sysids, found[-1])
+            self.sysids = await self.formation.retire_sensor(self.centre, self.sysids, found[-1])
             self._new_estimator(symmetric_to_cvt=False)
         return ended
 
     async def _update_members(self) -> tuple[str, str] | None:
         """Re-form without lost vehicles, re-admit returning ones; the end when fewer than 4 are left."""
-        co = self.co
-        if any(s in co.state.lost for s in self.sysids):
-            self.sysids = await co.reformation().reform(self.centre, self.sysids)
+        if any(s in self.state.lost for s in self.sysids):
+            self.sysids = await self.formation.reform(self.centre, self.sysids)
             if len(self.sysids) < 4:
-                return "too_few_vehicles", (f"vehicles {sorted(co.state.lost)} lost: {len(self.sysids)} left, a "
+                return "too_few_vehicles", (f"vehicles {sorted(self.state.lost)} lost: {len(self.sysids)} left, a "
                                             "formation needs 4; ending the mission, the others come home")
             self._new_estimator()
-        returning = await co.retirement().keep_out_retired(pending_readmissions(co.state, co.plan.faults))
+        returning = await self.formation.keep_out_retired(self.formation.pending_readmissions())
         if returning:
-            self.sysids = await co.rejoin().readmit(self.centre, self.sysids, returning)
+            self.sysids = await self.formation.readmit(self.centre, self.sysids, returning)
             self._new_estimator()
         return None
 
@@ -302,51 +333,52 @@ class _Seek:
         sampling: set the goals and return once the move is covered enough, :mod:`mission.flight.seek_moving`)."""
         if self.moving is not None:
             return await self.moving.move(self, k)
-        co, sk = self.co, self.sk
-        before = {s: co.state.slot_offsets[s].copy() for s in self.sysids}
-        co.rejoin().clear_goals(self.centre, self.sysids)  # a few ms at most: slots clear of lost vehicles still flying
-        await co.rejoin().fly_rotation(self.centre, self.sysids, before)  # a rotation is flown as a planned transfer
-        goals = co.retirement().formation_goals(self.centre, self.sysids)  # parked vehicles (retired sensors) at the centre
+        sk = self.sk
+        before = {s: self.state.slot_offsets[s].copy() for s in self.sysids}
+        formation = self.formation
+        formation.clear_goals(self.centre, self.sysids)  # a few ms at most: slots clear of lost vehicles still flying
+        await formation.fly_rotation(self.centre, self.sysids, before)  # a rotation is flown as a planned transfer
+        goals = formation.formation_goals(self.centre, self.sysids)  # parked vehicles (retired sensors) at the centre
         try:
-            await move_and_wait(co, goals, sk.arrival_tol_m,
-                                timeout_s=20.0 + 3.0 * sk.gamma_m / co.plan.max_speed_m_s,
-                                what=f"iteration {k + 1}: the formation to settle")
+            await formation.move_and_wait(goals, sk.arrival_tol_m,
+                                          timeout_s=20.0 + 3.0 * sk.gamma_m / self.plan.max_speed_m_s,
+                                          what=f"iteration {k + 1}: the formation to settle")
         except OperatorStop:
             raise
         except MissionError as exc:
-            co.event(f"{exc}; estimating anyway", level="warning")
-        return await paced(co.clock, self.period_s, self.last_estimate_t)
+            self.events.event(f"{exc}; estimating anyway", level="warning")
+        return await paced(self.clock, self.period_s, self.last_estimate_t)
 
     async def _wait_readings(self, k: int, t_arrive: float) -> None:
         """Wait for a reading taken after the arrival from every vehicle (a warning after a while)."""
         if self.moving is not None:
             return await self.moving.wait_readings(self, k, t_arrive)
-        co, sk = self.co, self.sk
+        sk = self.sk
 
         def _fresh():
-            return all((r := co.store.latest(s)) is not None and r.time_s >= t_arrive
-                       for s in self.sysids if s not in co.state.lost)
+            return all((r := self.store.latest(s)) is not None and r.time_s >= t_arrive
+                       for s in self.sysids if s not in self.state.lost)
 
         try:
-            await co.wait_until(_fresh, max(5.0, 10 * sk.reading_window_s), "fresh readings", poll_s=0.02)
+            await self.waiter.wait_until(_fresh, max(5.0, 10 * sk.reading_window_s), "fresh readings", poll_s=0.02)
         except OperatorStop:
             raise
         except MissionError:
-            missing = [s for s in self.sysids if (r := co.store.latest(s)) is None or r.time_s < t_arrive]
-            co.event(f"iteration {k + 1}: no fresh reading from vehicles {missing}", level="warning")
+            missing = [s for s in self.sysids if (r := self.store.latest(s)) is None or r.time_s < t_arrive]
+            self.events.event(f"iteration {k + 1}: no fresh reading from vehicles {missing}", level="warning")
 
     async def _estimate(self, k: int, t_arrive: float):
         """Aligned readings and the gradient: ``(t_est, aligned, used, centroid, grad, retiring)`` or None."""
         from estimator import GeometryError
 
-        co, sk = self.co, self.sk
+        sk = self.sk
         # estimation instant: the oldest of the vehicles' newest readings, so that every vehicle
         # has a reading at or after it (robust to delivery latency, e.g. at a high speed-up)
-        latest = [co.store.latest(s) for s in self.sysids]
+        latest = [self.store.latest(s) for s in self.sysids]
         fresh = [r.time_s for r in latest if r is not None and r.time_s >= t_arrive]
-        t_est = min(fresh) if len(fresh) == len(self.sysids) else co.clock.time()
-        self.last_estimate_t = co.clock.time()
-        aligned = co.store.aligned(t_est, sk.reading_window_s, self.sysids)
+        t_est = min(fresh) if len(fresh) == len(self.sysids) else self.clock.time()
+        self.last_estimate_t = self.clock.time()
+        aligned = self.store.aligned(t_est, sk.reading_window_s, self.sysids)
         if not await self._enough(k, aligned):
             return None
         used = sorted(aligned)
@@ -361,14 +393,14 @@ class _Seek:
             grad = np.asarray(self.estimate(positions, values, centroid), dtype=float)
         except (GeometryError, ValueError) as exc:
             self.failures += 1
-            co.event(f"iteration {k + 1}: gradient not estimated: {exc}", level="warning")
+            self.events.event(f"iteration {k + 1}: gradient not estimated: {exc}", level="warning")
             if self.failures >= 20:
                 raise MissionError(f"no gradient estimate for {self.failures} iterations (last: {exc})") from None
             return None
         self.failures = 0
         grad = self._checked(k, used, positions, values, centroid, grad)
         self.samples = None if self.moving is None else self.moving.collect(used)
-        retiring = None if self.watch is None else self.watch.update(self.check, used, k + 1, co.clock.time())
+        retiring = None if self.watch is None else self.watch.update(self.check, used, k + 1, self.clock.time())
         return t_est, aligned, used, centroid, grad, retiring
 
     def _checked(self, k: int, used: list[int], positions, values, centroid, grad) -> np.ndarray:
@@ -378,11 +410,11 @@ class _Seek:
             return grad
         self.check.update(used, positions, values, centroid)
         if self.check.failure and not self.check.shared and len(used) == len(self.check.sysids):
-            self.co.event(f"iteration {k + 1}: faulty-sensor check not updated: {self.check.failure}",
+            self.events.event(f"iteration {k + 1}: faulty-sensor check not updated: {self.check.failure}",
                           level="warning")
         if self.check.newly_excluded and self.seeker is not None:
             self.seeker.reset()
-            self.co.event(f"iteration {k + 1}: sensors {sorted(self.check.newly_excluded)} excluded as faulty: "
+            self.events.event(f"iteration {k + 1}: sensors {sorted(self.check.newly_excluded)} excluded as faulty: "
                           f"their readings left out, the {self.sk.seeker} seeker's memory reset", level="warning",
                           sysids=sorted(self.check.newly_excluded))
         alt = self.check.gradient(positions, values, used)
@@ -390,36 +422,34 @@ class _Seek:
 
     async def _enough(self, k: int, aligned: dict) -> bool:
         """At least 4 aligned readings (all of them for the robust estimator); else warn and wait."""
-        co = self.co
         if len(aligned) < 4:
             self.failures += 1
-            co.event(f"iteration {k + 1}: only {len(aligned)} aligned readings (need 4); waiting",
-                     level="warning", counts=co.store.counts())
+            self.events.event(f"iteration {k + 1}: only {len(aligned)} aligned readings (need 4); waiting",
+                     level="warning", counts=self.store.counts())
             if self.failures >= 20:
                 raise MissionError(f"no usable readings for {self.failures} iterations "
-                                   f"(rejections: {co.store.counts()['rejected']})")
-            await co.clock.sleep(1.0)
+                                   f"(rejections: {self.store.counts()['rejected']})")
+            await self.clock.sleep(1.0)
             return False
         if getattr(self.estimate, "needs_all", False) and len(aligned) < len(self.sysids):
             # the robust estimator tracks each sensor by its index: estimate only with all of them
-            co.event(f"iteration {k + 1}: {len(aligned)} of {len(self.sysids)} readings aligned; the robust "
+            self.events.event(f"iteration {k + 1}: {len(aligned)} of {len(self.sysids)} readings aligned; the robust "
                      "estimator needs all; waiting", level="warning")
-            await co.clock.sleep(0.5)
+            await self.clock.sleep(0.5)
             return False
         return True
 
     def _clamped(self, new_centre: np.ndarray) -> np.ndarray:
         """The new centre held inside the safety envelope (counts the iterations at the fence)."""
-        co = self.co
-        if co.envelope is None:
+        if self.envelope is None:
             return new_centre
-        clamp = co.envelope.clamp_centre(self.centre, new_centre)
+        clamp = self.envelope.clamp_centre(self.centre, new_centre)
         if not clamp.at_boundary:
             self.at_fence = 0
             return new_centre
         self.at_fence += 1
         if self.at_fence in (1, self.sk.convergence_window):
-            co.event(clamp.message, level="warning")
+            self.events.event(clamp.message, level="warning")
         return np.asarray(clamp.centre_enu, dtype=float)
 
     def _in_reach(self, requested, held) -> bool:
@@ -427,9 +457,8 @@ class _Seek:
         asked for ``requested`` (:func:`mission.flight.fence_reach.source_in_reach`)."""
         own = getattr(getattr(self.seeker, "seeker", None), "source_estimate", None)
         own = None if own is None else own(0)
-        co = self.co
-        return source_in_reach(held, requested, None if own is None else own.enu, co.envelope.formation_radius_m,
-                               self.sk.convergence_tol_m, co.envelope.fence)
+        return source_in_reach(held, requested, None if own is None else own.enu, self.envelope.formation_radius_m,
+                               self.sk.convergence_tol_m, self.envelope.fence)
 
     def _seeker_inputs(self, aligned: dict, used: list[int]) -> tuple[list, list]:
         """This iteration's readings (logged) and where the seeker takes them to be: each vehicle's aligned
@@ -442,7 +471,7 @@ class _Seek:
         """Move the centre up the gradient, log the iteration; ``(outcome, message)`` when the seek ends."""
         from estimator import seek_step
 
-        co, sk = self.co, self.sk
+        sk = self.sk
         readings, positions = self._seeker_inputs(aligned, used)
         kept, positions = (readings, positions) if self.check is None else self.check.keep(readings, positions)
         if self.seeker is None:  # the paper's step with the plan's estimator (robust included)
@@ -464,19 +493,20 @@ class _Seek:
         source = reported_estimate(getattr(self.seeker, "seeker", None), self.monitor)
         held = self.at_fence and not self._in_reach(proposed, new_centre)
         self.beyond_reach = self.beyond_reach + 1 if held else 0
-        co.state.record_iteration(k + 1, grad, step_m, source, self.monitor.spread_m)
-        if co.log is not None:
-            everyone = self.sysids + parked(co)
-            co.log.write("iteration", k=k + 1, t_estimate_s=t_est, centre_enu=self.centre, centroid_enu=centroid,
-                         gradient=grad, new_centre_enu=new_centre, step_m=step_m, estimate_enu=co.state.estimate_enu,
-                         **estimate_fields(source), estimate_geodetic=geodetic_point(co.plan.origin, co.state.estimate_enu),
-                         spread_m=co.state.spread_m, distance_flown_m=co.state.distance_flown_m,
+        self.state.record_iteration(k + 1, grad, step_m, source, self.monitor.spread_m)
+        if self.log is not None:
+            everyone = self.sysids + self.formation.parked()
+            self.log.write("iteration", k=k + 1, t_estimate_s=t_est, centre_enu=self.centre, centroid_enu=centroid,
+                         gradient=grad, new_centre_enu=new_centre, step_m=step_m, estimate_enu=self.state.estimate_enu,
+                         **estimate_fields(source),
+                         estimate_geodetic=geodetic_point(self.plan.origin, self.state.estimate_enu),
+                         spread_m=self.state.spread_m, distance_flown_m=self.state.distance_flown_m,
                          readings=readings,
-                         positions_enu={s: co.telemetry_position(s) for s in everyone},
-                         setpoints_enu={s: co.gate.setpoint(s) for s in everyone},
-                         suspects=_suspects(self.check or self.estimate, used), status=co.vehicle_status())
+                         positions_enu={s: self.fleet.telemetry_position(s) for s in everyone},
+                         setpoints_enu={s: self.gate.setpoint(s) for s in everyone},
+                         suspects=_suspects(self.check or self.estimate, used), status=self.vehicle_status())
         self.centre = new_centre
-        co.state.move_centre(new_centre)
+        self.state.move_centre(new_centre)
         self._resize(k)
         return self._ended(k, converged)
 
@@ -485,14 +515,13 @@ class _Seek:
         about the centre (:func:`scaled_slots`), never wider than the plan's radius nor so tight that
         two slots are closer than 1.2 ``min_separation_m``; the next move flies them there."""
         want = None if self.seeker is None else self.seeker.formation_radius_m
-        members = [s for s in self.sysids if s not in self.co.state.lost and s in self.co.state.slot_offsets]
+        members = [s for s in self.sysids if s not in self.state.lost and s in self.state.slot_offsets]
         if want is None or len(members) < 2:
             return
-        co = self.co
-        new = scaled_slots({s: co.state.slot_offsets[s] for s in members}, want, co.plan.min_separation_m,
-                           co.plan.formation.radius_m)
+        new = scaled_slots({s: self.state.slot_offsets[s] for s in members}, want, self.plan.min_separation_m,
+                           self.plan.formation.radius_m)
         if new is not None:
-            co.state.update_slots(new)
+            self.state.update_slots(new)
 
     async def _propose(self, k: int, positions, values, times_s=None, sysids=None) -> np.ndarray:
         """The seeker's next centre (capped at ``gamma_m``) from the readings ``values`` taken (to be) at
@@ -507,27 +536,27 @@ class _Seek:
         else:
             proposed = sk.step(self.centre, positions, values, self.sk.gamma_m, times_s, sysids)
         if sk.failure:
-            self.co.event(f"iteration {k + 1}: {sk.failure}", level="warning")
+            self.events.event(f"iteration {k + 1}: {sk.failure}", level="warning")
         if sk.collapsed:
-            self.co.event(f"iteration {k + 1}: the {self.sk.seeker} seeker's posterior collapsed (no particle "
+            self.events.event(f"iteration {k + 1}: the {self.sk.seeker} seeker's posterior collapsed (no particle "
                           f"explained the {len(values)} readings); re-seeded from the prior about the formation "
                           f"(collapse {sk.collapses})", level="warning", collapses=sk.collapses)
         return proposed
 
     def _ended(self, k: int, converged: bool) -> tuple[str, str] | None:
         """``(outcome, message)`` when the seek ends after iteration ``k``, else None."""
-        centre, co = self.centre, self.co
+        centre = self.centre
         if converged and self.beyond_reach:
             return "stopped_at_fence", (f"stopped at the geofence after {k + 1} iterations, centre held at "
                                         f"({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}) m: the "
                                         "source is probably outside the fence (shrunk by the radius)")
         if converged:
-            e = co.state.estimate_enu
+            e = self.state.estimate_enu
             held = (" (the centre held at the fence shrunk by the formation radius, the source inside the "
                     "formation)") if self.at_fence else ""
             return "converged", (f"converged after {k + 1} iterations: source at ({e[0]:.2f}, {e[1]:.2f}, "
-                                 f"{e[2]:.2f}) m, {region_text(co.state.estimate_region95_m)}, spread "
-                                 f"{co.state.spread_m:.2f} m{held}")
+                                 f"{e[2]:.2f}) m, {region_text(self.state.estimate_region95_m)}, spread "
+                                 f"{self.state.spread_m:.2f} m{held}")
         if self.beyond_reach >= self.sk.convergence_window:
             return "stopped_at_fence", ("the formation centre has been held at the geofence for "
                                         f"{self.beyond_reach} iterations, the source out of the formation's reach: "

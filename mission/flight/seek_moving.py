@@ -35,7 +35,8 @@ from __future__ import annotations
 import numpy as np
 
 from mission.flight.control import OperatorStop
-from mission.flight.motion import paced
+from mission.flight.motion import paced, update_odometry
+from mission.flight.services import Clock, Events
 from mission.flight.state import MissionError
 
 __all__ = ["MovingSampling", "lagged_positions", "moving_sampling", "thin_evenly"]
@@ -46,8 +47,12 @@ class MovingSampling:
 
     Parameters
     ----------
-    co : mission.flight.coordinator.Coordinator
-        The mission (ramp, store, clock, telemetry, events).
+    clock : Clock
+        The mission clock.
+    store : ReadingStore
+        The readings (:class:`mission.telemetry.readings.ReadingStore`: ``history``, ``latest``).
+    events : Events
+        A reading history that overflowed is told there.
     replan_fraction : float
         Fraction of a move, in ``(0, 1]``, covered before the next estimate.
     sensor_lag_s : float
@@ -64,19 +69,20 @@ class MovingSampling:
         ``replan_fraction`` outside ``(0, 1]``, or a negative or non-finite ``sensor_lag_s``.
     """
 
-    def __init__(self, co, replan_fraction: float, sensor_lag_s: float = 0.0, since_s: float | None = None):
+    def __init__(self, clock: Clock, store, events: Events, replan_fraction: float, sensor_lag_s: float = 0.0,
+                 since_s: float | None = None):
         f = float(replan_fraction)
         if not 0.0 < f <= 1.0:
             raise ValueError(f"replan_fraction must be in (0, 1], got {replan_fraction!r}")
         lag = float(sensor_lag_s)
         if not (np.isfinite(lag) and lag >= 0.0):
             raise ValueError(f"sensor_lag_s must be a finite number >= 0, got {sensor_lag_s!r}")
-        self.co = co
+        self.clock, self.store, self.events = clock, store, events
         self.fraction = f
         self.sensor_lag_s = lag
         self.positions_enu = np.zeros((0, 3))  # where the seeker takes the collected readings to be
         self.last_used_s: dict[int, float] = {}  # per vehicle: time of the newest reading the seeker had
-        self.t_collected_s = co.clock.time() if since_s is None else float(since_s)  # a new vehicle's start
+        self.t_collected_s = clock.time() if since_s is None else float(since_s)  # a new vehicle's start
         self.since_s = None if since_s is None else float(since_s)  # every vehicle's start, when given
         self.first_s: dict[int, float] = {}  # per vehicle: the seeker gets its readings taken after this
         self.given: dict[int, set] = {}  # per vehicle: (time_s, seq) of the readings given, still in the store
@@ -100,9 +106,10 @@ class MovingSampling:
             self.last_used_s[sysid] = max(self.last_used_s.get(sysid, -np.inf), new[-1].time_s)
         return new
 
-    def _centroid(self, sysids: list[int]) -> np.ndarray | None:
+    @staticmethod
+    def _centroid(run, sysids: list[int]) -> np.ndarray | None:
         """Centroid of the vehicles' telemetry positions (None if one has none)."""
-        pos = [self.co.telemetry_position(s) for s in sysids if s not in self.co.state.lost]
+        pos = [run.fleet.telemetry_position(s) for s in sysids if s not in run.state.lost]
         if not pos or any(p is None for p in pos):
             return None
         return np.mean(np.asarray(pos, dtype=float), axis=0)
@@ -110,53 +117,51 @@ class MovingSampling:
     async def move(self, run, k: int) -> float:
         """Set the goals about ``run.centre`` and wait until the move is covered enough; that instant.
 
-        ``run`` is the seek loop (:class:`mission.flight.seek._Seek`: ``centre``, ``sysids``,
-        ``sk``, ``period_s``, ``last_estimate_t``).
+        ``run`` is the seek phase (:class:`mission.flight.seek.Seek`: its ``centre``, ``sysids``,
+        ``sk``, ``period_s``, ``last_estimate_t``; its state, fleet, gate, waiter and formation).
         """
-        co, sk = self.co, run.sk
-        before = {s: co.state.slot_offsets[s].copy() for s in run.sysids}
-        co.rejoin().clear_goals(run.centre, run.sysids)
-        await co.rejoin().fly_rotation(run.centre, run.sysids, before)
-        goals = {s: g for s, g in co.retirement().formation_goals(run.centre, run.sysids).items()
-                 if s not in co.state.lost and s in co.gate.sysids}
-        co.gate.set_goals(goals)  # through the safety gate and its envelope, as in stop and go
+        sk, state, gate = run.sk, run.state, run.gate
+        before = {s: state.slot_offsets[s].copy() for s in run.sysids}
+        run.formation.clear_goals(run.centre, run.sysids)
+        await run.formation.fly_rotation(run.centre, run.sysids, before)
+        goals = {s: g for s, g in run.formation.formation_goals(run.centre, run.sysids).items()
+                 if s not in state.lost and s in gate.sysids}
+        gate.set_goals(goals)  # through the safety gate and its envelope, as in stop and go
         members = [s for s in run.sysids if s in goals]
         target = np.mean([goals[s] for s in members], axis=0) if members else np.asarray(run.centre, dtype=float)
-        start = self._centroid(members)
+        start = self._centroid(run, members)
         left_m = sk.arrival_tol_m
         if start is not None:
             left_m = max((1.0 - self.fraction) * float(np.linalg.norm(target - start)), left_m)
 
         def _covered():
-            co.update_odometry()
-            c = self._centroid(members)
+            update_odometry(state, run.fleet)
+            c = self._centroid(run, members)
             return c is not None and float(np.linalg.norm(c - target)) <= left_m
 
         try:
-            await co.wait_until(_covered, 20.0 + 3.0 * sk.gamma_m / co.plan.max_speed_m_s,
-                                f"iteration {k + 1}: the formation to cover {self.fraction:.0%} of its move",
-                                poll_s=0.05)
+            await run.waiter.wait_until(_covered, 20.0 + 3.0 * sk.gamma_m / run.plan.max_speed_m_s,
+                                        f"iteration {k + 1}: the formation to cover {self.fraction:.0%} of its move",
+                                        poll_s=0.05)
         except OperatorStop:
             raise
         except MissionError as exc:
-            co.event(f"{exc}; estimating anyway", level="warning")
-        return await paced(co.clock, run.period_s, run.last_estimate_t)
+            self.events.event(f"{exc}; estimating anyway", level="warning")
+        return await paced(self.clock, run.period_s, run.last_estimate_t)
 
     async def wait_readings(self, run, k: int, t_s: float) -> None:
         """Wait for a reading taken at or after ``t_s`` from every sensing vehicle (a warning after a while)."""
-        co = self.co
-
         def _stale() -> list[int]:
-            return [s for s in run.sysids if s not in co.state.lost
-                    and ((r := co.store.latest(s)) is None or r.time_s < t_s)]
+            return [s for s in run.sysids if s not in run.state.lost
+                    and ((r := self.store.latest(s)) is None or r.time_s < t_s)]
 
         try:
-            await co.wait_until(lambda: not _stale(), max(5.0, 10 * run.sk.reading_window_s),
-                                "readings taken while moving", poll_s=0.02)
+            await run.waiter.wait_until(lambda: not _stale(), max(5.0, 10 * run.sk.reading_window_s),
+                                        "readings taken while moving", poll_s=0.02)
         except OperatorStop:
             raise
         except MissionError:
-            co.event(f"iteration {k + 1}: no reading while moving from vehicles {_stale()}", level="warning")
+            self.events.event(f"iteration {k + 1}: no reading while moving from vehicles {_stale()}", level="warning")
 
     def collect(self, sysids: list[int]) -> list:
         """Every reading taken since the last one the seeker had from each vehicle, oldest first per vehicle.
@@ -169,16 +174,16 @@ class MovingSampling:
         """
         out, positions, overflowed = [], [], set(self.overflowed)
         for s in sysids:
-            hist = self.co.store.history(s)
+            hist = self.store.history(s)
             new = self._new(s, hist)
             out.extend(new)
             positions.extend(lagged_positions(hist, new, self.sensor_lag_s))
-        self.t_collected_s = self.co.clock.time()
+        self.t_collected_s = self.clock.time()
         self.positions_enu = np.asarray(positions, dtype=float).reshape(-1, 3)
         if self.overflowed - overflowed:
-            self.co.event(f"vehicles {sorted(self.overflowed - overflowed)}: readings left the reading store's "
-                          "history before the seeker had them (estimates further apart than the history "
-                          "holds)", level="warning")
+            self.events.event(f"vehicles {sorted(self.overflowed - overflowed)}: readings left the reading "
+                              "store's history before the seeker had them (estimates further apart than the "
+                              "history holds)", level="warning")
         return out
 
 
@@ -217,7 +222,7 @@ def thin_evenly(readings: list, positions, per_vehicle: int) -> tuple[list, np.n
     return [readings[i] for i in keep], pos[keep]
 
 
-def moving_sampling(co, sk) -> MovingSampling | None:
+def moving_sampling(clock: Clock, store, events: Events, sk) -> MovingSampling | None:
     """A :class:`MovingSampling` for the plan's ``[seeking] sampling = "moving"``, else None.
 
     Only :data:`estimator.seekers.MOVING_SEEKERS` sample while moving (a plan cannot ask
@@ -228,8 +233,8 @@ def moving_sampling(co, sk) -> MovingSampling | None:
     if getattr(sk, "sampling", "stop_and_go") != "moving":
         return None
     if sk.seeker not in MOVING_SEEKERS:
-        co.event(f'sampling = "moving" needs the newton, model or ste seeker; the {sk.seeker} seeker samples '
+        events.event(f'sampling = "moving" needs the newton, model or ste seeker; the {sk.seeker} seeker samples '
                  "stop and go", level="warning")
         return None
     since_s = -np.inf if sk.seeker == "ste" else None  # ste: every reading since takeoff, once
-    return MovingSampling(co, sk.replan_fraction, getattr(sk, "sensor_lag_s", 0.0), since_s=since_s)
+    return MovingSampling(clock, store, events, sk.replan_fraction, getattr(sk, "sensor_lag_s", 0.0), since_s=since_s)

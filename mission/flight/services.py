@@ -13,7 +13,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-__all__ = ["Clock", "Events", "Fleet", "Motion", "PhaseEvents", "Waiter"]
+__all__ = ["Clock", "Events", "Fleet", "Motion", "PhaseEvents", "SeekFormation", "Waiter"]
 
 
 class Clock(Protocol):
@@ -98,3 +98,43 @@ class Fleet:
             return v.position_enu_m()
         except Exception:  # noqa: BLE001 - no telemetry yet
             return None
+
+
+class SeekFormation(Protocol):
+    """What the seek asks of the formation's keepers: losses (:mod:`mission.flight.faults.loss`),
+    re-admission (:mod:`mission.flight.faults.rejoin`), sensor retirement (:mod:`mission.flight.faults.retire`)
+    and the moves (:mod:`mission.flight.motion`); bound by the coordinator."""
+
+    async def reform(self, centre_enu, sysids: list[int]) -> list[int]:
+        """Re-form without the lost vehicles; the members left."""
+
+    def pending_readmissions(self) -> list[int]:
+        """Lost vehicles heard again, waiting for re-admission."""
+
+    async def keep_out_retired(self, returning: list[int]) -> list[int]:
+        """Keep returning vehicles with a retired sensor out; the others of ``returning``."""
+
+    async def readmit(self, centre_enu, sysids: list[int], returning: list[int]) -> list[int]:
+        """Re-admit ``returning`` into the formation; the members."""
+
+    def clear_goals(self, centre_enu, sysids: list[int]) -> bool:
+        """Rotate the slots clear of lost vehicles still flying (True: rotated)."""
+
+    async def fly_rotation(self, centre_enu, sysids: list[int], before: dict) -> None:
+        """Fly a rotation of the slots as a planned transfer."""
+
+    def formation_goals(self, centre_enu, sysids: list[int]) -> dict:
+        """Each member's goal about ``centre_enu``, parked vehicles at the centre."""
+
+    def make_watch(self, check, sysids: list[int]):
+        """The faulty-sensor retirement watch (None: off)."""
+
+    async def retire_sensor(self, centre_enu, sysids: list[int], info) -> list[int]:
+        """Retire a sensor: park its vehicle, re-form the others; the members."""
+
+    async def move_and_wait(self, goals: dict, tol_m: float, timeout_s: float | None = None,
+                            what: str = "vehicles to reach their goals") -> None:
+        """Set the gate's goals and wait for the vehicles there."""
+
+    def parked(self) -> list[int]:
+        """Vehicles parked at the centre (retired sensors)."""

@@ -100,13 +100,13 @@ def test_a_second_mission_after_a_landing_by_rtl_or_land_flies(tmp_path, persona
     assert len(ready) == 4
 
 
-def _failing(orig, after_s, exc):
-    """``orig`` (a phase) cut after ``after_s`` of mission time by ``exc``."""
-    async def phase(co, *args, **kwargs):
-        task = asyncio.ensure_future(orig(co, *args, **kwargs))
-        deadline = co.clock.time() + after_s
-        while not task.done() and co.clock.time() < deadline:
-            await co.clock.sleep(0.1)
+def _failing(orig, after_s, exc, clock):
+    """``orig`` (a phase's ``run``) cut after ``after_s`` of mission time (``clock``) by ``exc``."""
+    async def phase(*args, **kwargs):
+        task = asyncio.ensure_future(orig(*args, **kwargs))
+        deadline = clock.time() + after_s
+        while not task.done() and clock.time() < deadline:
+            await clock.sleep(0.1)
         if task.done():
             return task.result()
         task.cancel()
@@ -122,10 +122,10 @@ def _failing(orig, after_s, exc):
     ("return", 4.0, MissionError("injected failure of the return")),
 ])
 def test_an_abort_in_any_phase_brings_every_vehicle_down(tmp_path, monkeypatch, where, after_s, exc):
-    target = {"takeoff": (phases, "takeoff"), "assemble": (phases, "assemble"), "seek": (seek, "seek"),
-              "return": (phases, "return_home")}[where]
-    monkeypatch.setattr(*target, _failing(getattr(*target), after_s, exc))
+    target = {"takeoff": (phases.Takeoff, "run"), "assemble": (phases.Assemble, "run"), "seek": (seek.Seek, "run"),
+              "return": (phases.ReturnHome, "run")}[where]
     plan, fleet = _setup("ardupilot", return_behaviour="land")
+    monkeypatch.setattr(*target, _failing(getattr(*target), after_s, exc, fleet.clock))
     log_path = tmp_path / "m.jsonl"
     try:
         result = run_fleet(fleet, lambda world: fly(plan, fleet, log_path, world=world))

@@ -198,9 +198,9 @@ def test_moving_sampling_rejects_bad_parameters():
         clock = _Clock()
 
     with pytest.raises(ValueError, match=r"replan_fraction must be in \(0, 1\]"):
-        MovingSampling(_Co(), 0.0)
+        MovingSampling(_Co.clock, None, None, 0.0)
     with pytest.raises(ValueError, match="sensor_lag_s must be a finite number >= 0"):
-        MovingSampling(_Co(), 0.5, float("nan"))
+        MovingSampling(_Co.clock, None, None, 0.5, float("nan"))
 
 
 class _Store:
@@ -230,7 +230,7 @@ def test_collect_gives_every_new_reading_once_with_its_time_and_lagged_positions
     hist = [_reading(s, i, 0.1 * i, (0.3 * i, 0.0, 10.0) if s == 1 else (0.0, 0.3 * i, 10.0))
             for i in range(20) for s in (1, 2)]
     co = _FakeCo(hist[:20], t_s=-0.05)  # the seek starts just before the first reading
-    moving = MovingSampling(co, 0.5, sensor_lag_s=0.2)
+    moving = MovingSampling(co.clock, co.store, None, 0.5, sensor_lag_s=0.2)
     first = moving.collect([1, 2])
     assert sorted((r.sysid, r.seq) for r in first) == [(s, i) for s in (1, 2) for i in range(10)]
     co.store.readings, co.t_s = hist, 1.0

@@ -166,7 +166,7 @@ def test_moving_path_gives_every_reading_since_takeoff_once():
     several collects, with a reading that arrives late (older than ones already given) and one
     vehicle joining later, the union is every reading exactly once."""
     co = _Co()
-    moving = MovingSampling(co, 0.5, since_s=-np.inf)
+    moving = MovingSampling(co.clock, co.store, co, 0.5, since_s=-np.inf)
     for i in range(30):  # 3 s of readings before the seek starts, two vehicles at 10 Hz
         for s in (1, 2):
             co.store.add(_reading(s, i, 0.1 * i))
@@ -189,7 +189,7 @@ def test_moving_path_gives_every_reading_since_takeoff_once():
 
 def test_readings_that_left_the_store_first_are_reported():
     co = _Co()
-    moving = MovingSampling(co, 0.5, since_s=-np.inf)
+    moving = MovingSampling(co.clock, co.store, co, 0.5, since_s=-np.inf)
     co.store.add(_reading(1, 0, 0.0))
     moving.collect([1])
     co.store.hist[1] = [_reading(1, i, 0.1 * i) for i in range(50, 60)]  # 1..49 fell out of the history
@@ -244,8 +244,8 @@ class _EventCo:
 
 
 def _seek_with(seeker):
-    run = object.__new__(seek._Seek)  # only what _propose reads
-    run.co, run.seeker, run.centre = _EventCo(), seeker, np.array([0.0, 0.0, 10.0])
+    run = object.__new__(seek.Seek)  # only what _propose reads
+    run.events, run.seeker, run.centre = _EventCo(), seeker, np.array([0.0, 0.0, 10.0])
     run.sk = type("Sk", (), {"gamma_m": 20.0, "seeker": "ste"})()
     return run
 
@@ -259,7 +259,7 @@ def test_a_collapse_is_an_event_and_the_mission_goes_on():
     centre = asyncio.run(run._propose(0, pos, np.full(8, 1000.0)))
     assert np.all(np.isfinite(centre))
     assert run.seeker.collapsed and run.seeker.collapses == 1 and run.seeker.arrival is False
-    level, message, fields = run.co.events[-1]
+    level, message, fields = run.events.events[-1]
     assert level == "warning" and "posterior collapsed" in message and fields["collapses"] == 1
 
 
@@ -287,7 +287,7 @@ def test_a_seeker_error_holds_and_is_logged():
     held = asyncio.run(run._propose(3, np.zeros((8, 3)), np.full(8, np.nan)))
     np.testing.assert_array_equal(held, run.centre)
     assert run.seeker.estimate_enu is None
-    assert run.co.events and "iteration 4: seeker ste proposed no centre" in run.co.events[-1][1]
+    assert run.events.events and "iteration 4: seeker ste proposed no centre" in run.events.events[-1][1]
 
 
 def test_the_adapter_reports_the_posterior():
