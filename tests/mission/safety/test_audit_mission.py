@@ -42,20 +42,20 @@ class _SteerIntoNeighbour:
     and used again afterwards). Without the envelope's separation hold, ``a`` flies into ``b``."""
 
     def __init__(self, a=1, b=2, after_moves=3, steps=30):
-        from mission.flight import seek
+        from mission.flight.bound import BoundSeekFormation
         from mission.safety.gate import SafetyGate
 
         self.a, self.b, self.after_moves, self.left = a, b, after_moves, steps
         self.moves, self.t_start_s = 0, None
-        self._seek, self._ramp_cls = seek, SafetyGate
-        self._move, self._step = seek.move_and_wait, SafetyGate.step
+        self._formation, self._ramp_cls = BoundSeekFormation, SafetyGate  # the seek's moves go through it
+        self._move, self._step = BoundSeekFormation.move_and_wait, SafetyGate.step
 
     def __enter__(self):
         fault = self
 
-        async def move_and_wait(co, *args, **kwargs):
+        async def move_and_wait(formation, *args, **kwargs):
             fault.moves += 1
-            return await fault._move(co, *args, **kwargs)
+            return await fault._move(formation, *args, **kwargs)
 
         def step(ramp, dt_s):
             if fault.moves < fault.after_moves or fault.left <= 0 or not {fault.a, fault.b} <= set(ramp.sysids):
@@ -69,11 +69,11 @@ class _SteerIntoNeighbour:
             finally:
                 ramp.set_goal(fault.a, legit)
 
-        self._seek.move_and_wait, self._ramp_cls.step = move_and_wait, step
+        self._formation.move_and_wait, self._ramp_cls.step = move_and_wait, step
         return self
 
     def __exit__(self, *exc):
-        self._seek.move_and_wait, self._ramp_cls.step = self._move, self._step
+        self._formation.move_and_wait, self._ramp_cls.step = self._move, self._step
 
 
 class _CrashAt(threading.Thread):
