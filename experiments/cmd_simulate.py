@@ -282,8 +282,9 @@ def _simulate_seeker(args, offsets, field, start) -> _SeekerRun:
     seeker = make_seeker(args.seeker, **kw)
     run = simulate_seeker(offsets, field, np.asarray(start, dtype=float)[None], seeker,
                           gamma_m=args.gamma, iterations=args.iterations, noise_std=args.noise,
-                          rotate=False, seed=args.seed)
+                          rotate=False, seed=args.seed, own_estimates=args.seeker != "ste")
     out = _SeekerRun(run.centres, field.source_enu(), run.signal)
+    out.estimates_enu, out.regions_m, out.formation_centres = run.estimates_enu, run.regions_m, run.formation_centres
     out.posterior = seeker if getattr(seeker, "region95_m", None) is not None else None
     return out
 
@@ -441,11 +442,18 @@ def report_lines(out: dict) -> list[str]:
     test = _test_text(out)
     lines = []
     if out["converged"]:
-        lines += [f"{test} passed at iteration {out['converged_at_iteration']}: a mission would stop there",
-                  f"  estimated source {r3(out['estimated_source_enu'])} (mean of the window's centres, spread "
-                  f"{out['estimate_spread_m']:.3f} m): {out['estimate_error_m']:.3f} m from the true source",
-                  f"  centre there {r3(out['centre_at_convergence_enu'])}: "
-                  f"{out['centre_at_convergence_distance_m']:.3f} m from the true source"]
+        if out.get("converged_by") == "region":
+            lines += [f"the seeker's 95 % region held below {out['tol_m']:g} m with the formation on it "
+                      f"(estimator.seek_confirm) at iteration {out['converged_at_iteration']}: a mission would stop "
+                      f"there (the window test: {out['window_converged_at_iteration']})",
+                      f"  estimated source {r3(out['estimated_source_enu'])} (the seeker's own): "
+                      f"{out['estimate_error_m']:.3f} m from the true source"]
+        else:
+            lines += [f"{test} passed at iteration {out['converged_at_iteration']}: a mission would stop there",
+                      f"  estimated source {r3(out['estimated_source_enu'])} (mean of the window's centres, spread "
+                      f"{out['estimate_spread_m']:.3f} m): {out['estimate_error_m']:.3f} m from the true source"]
+        lines.append(f"  centre there {r3(out['centre_at_convergence_enu'])}: "
+                     f"{out['centre_at_convergence_distance_m']:.3f} m from the true source")
     else:
         lines.append(f"{test} never passed: not converged, no estimated source")
         lines += _why_not_lines(out)

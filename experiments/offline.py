@@ -242,15 +242,20 @@ def convergence_report(result: OfflineResult, *, window: int, tol_m: float, tria
     sig = None if sig is None else np.asarray(sig)[:, trial, None]
     first, est, spread = convergence_scan(centres[:, None, :], window=window, tol_m=tol_m, signal=sig,
                                           min_signal_fraction=min_signal_fraction)
-    k = int(first[0])
+    k_window = int(first[0])
+    by, k, est_k, spread_k = _declared(result, trial, k_window, est[0], float(spread[0]), tol_m, sig,
+                                       min_signal_fraction)
     converged = k >= 0
     end = k if converged and stop_at_convergence else centres.shape[0] - 1
     out = {
         "converged": converged,
         "converged_at_iteration": k if converged else None,
-        "estimated_source_enu": est[0].tolist() if converged else None,
-        "estimate_error_m": float(np.linalg.norm(est[0] - source)) if converged else None,
-        "estimate_spread_m": float(spread[0]) if converged else None,
+        "converged_by": by,
+        "window_converged_at_iteration": k_window if k_window >= 0 else None,
+        "estimated_source_enu": est_k.tolist() if converged else None,
+        "estimate_error_m": float(np.linalg.norm(est_k - source)) if converged else None,
+        "estimate_spread_m": spread_k if converged else None,
+        "seeker_estimate_error_m": _seeker_error(result, trial, k, source) if converged else None,
         "centre_at_convergence_enu": centres[k].tolist() if converged else None,
         "centre_at_convergence_distance_m": float(np.linalg.norm(centres[k] - source)) if converged else None,
         "stopped_at_convergence": bool(converged and stop_at_convergence),
@@ -273,6 +278,37 @@ def convergence_report(result: OfflineResult, *, window: int, tol_m: float, tria
     out["last_window"] = None if converged else _last_window(centres[:end + 1], sig, source, window, tol_m,
                                                              min_signal_fraction)
     return out
+
+
+def _declared(result, trial: int, k_window: int, est_window, spread_window: float, tol_m: float, sig,
+              min_signal_fraction: float):
+    """Which test ends the run first: ``(by, iteration, estimate, spread)``. The window test
+    (``by = "window"``: the window's mean and spread), or the region rule of
+    :mod:`estimator.seek_confirm` on the seeker's own estimates (``"region"``: that estimate, no
+    spread) when ``result`` has them and it passes earlier; ``(None, -1, NaN, NaN)`` when neither."""
+    from estimator.seek_confirm import region_scan
+
+    estimates = getattr(result, "estimates_enu", None)
+    k_region = -1
+    if estimates is not None:
+        use_sig = None if sig is None or min_signal_fraction <= 0 else sig
+        k_region = int(region_scan(result.centres[:, trial, None], result.formation_centres[:, trial, None],
+                                   estimates[:, trial, None], result.regions_m[:, trial, None], use_sig,
+                                   tol_m=tol_m)[0])
+    if k_region >= 0 and (k_window < 0 or k_region < k_window):
+        return "region", k_region, np.asarray(estimates[k_region, trial], dtype=float), None
+    if k_window >= 0:
+        return "window", k_window, np.asarray(est_window, dtype=float), spread_window
+    return None, -1, np.full(3, np.nan), None
+
+
+def _seeker_error(result, trial: int, k: int, source) -> float | None:
+    """The seeker's own estimate's distance to the source after iteration ``k`` (what a mission
+    reports for a seeker with one); None without one."""
+    estimates = getattr(result, "estimates_enu", None)
+    if estimates is None or not np.all(np.isfinite(estimates[k, trial])):
+        return None
+    return float(np.linalg.norm(estimates[k, trial] - source))
 
 
 def _finite_or_none(value) -> float | None:

@@ -88,6 +88,13 @@ class SeekRun:
     radii_m : ndarray, shape (T + 1, K), optional
         The formation's radius about each centre when the seeker sets it (``formation_radius_m``);
         None: ``offsets`` throughout.
+    estimates_enu : ndarray, shape (T + 1, K, 3), optional
+        The seeker's own estimate of the source after the iteration that led to each centre
+        (``source_estimate``; NaN where it has none, and at index 0); None: a seeker without one.
+    regions_m : ndarray, shape (T + 1, K), optional
+        Its 95 % region's radius (NaN where none).
+    formation_centres : ndarray, shape (T + 1, K, 3), optional
+        The centroid of where the readings of the iteration that led to each centre were taken.
     """
 
     centres: np.ndarray
@@ -95,6 +102,9 @@ class SeekRun:
     source_enu: np.ndarray
     signal: np.ndarray | None = None
     radii_m: np.ndarray | None = None
+    estimates_enu: np.ndarray | None = None
+    regions_m: np.ndarray | None = None
+    formation_centres: np.ndarray | None = None
 
     def distance_m(self) -> np.ndarray:
         """Distance of the centre to the source, (T + 1, K)."""
@@ -127,7 +137,8 @@ def _rotated(offsets: np.ndarray, trials: int, rng) -> np.ndarray:
 
 def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations: int,
                     noise_std: float = 0.0, rotate: bool = True, seed: int = 0,
-                    time_model: StopAndGo | None = None, trial_time_offset_s: float = 1.0e4) -> SeekRun:
+                    time_model: StopAndGo | None = None, trial_time_offset_s: float = 1.0e4,
+                    own_estimates: bool = False) -> SeekRun:
     """Run ``K = len(start)`` trials of ``seeker`` on ``field`` (module docstring).
 
     Parameters
@@ -154,6 +165,9 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
         Mission time of each iteration (default ``StopAndGo()``): a time-dependent field
         (``field.time_dependent``, the intermittent plume) is read at the mission time of the
         iteration plus ``trial * trial_time_offset_s`` (independent realisations per trial).
+    own_estimates : bool
+        Record the seeker's ``source_estimate`` after every iteration (``SeekRun.estimates_enu``,
+        ``regions_m``; the region rule of :mod:`estimator.seek_confirm`).
 
     Returns
     -------
@@ -179,6 +193,7 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
     radii = np.full((int(iterations) + 1, k), np.nan)
     radii[0] = np.linalg.norm(trial_off, axis=-1).mean(axis=-1)
     slots = trial_off
+    own_est = _OwnEstimates(seeker if own_estimates else None, int(iterations), k, c0)
     for t in range(int(iterations)):
         pos = centres[t][:, None, :] + slots
         vals = field.value(pos, now_s) if timed else field.value(pos)
@@ -188,6 +203,7 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
         own = getattr(seeker, "arrival", None)  # a seeker that knows (plume: holding with a detection)
         generic = arrival.signal(vals)  # kept up to date either way, as in the mission
         signal[t + 1] = generic if own is None else own
+        own_est.record(t + 1, pos)
         radius = getattr(seeker, "formation_radius_m", None)  # a seeker that sizes the formation (ste)
         radii[t + 1] = radii[t] if radius is None else radius
         new_slots = slots if radius is None else _scaled(trial_off, radii[t + 1][:, None, None])
@@ -196,4 +212,32 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
         slots = new_slots
     sized = not np.allclose(radii, radii[0])
     return SeekRun(centres, trial_off, np.asarray(field.source_enu(), dtype=float), signal,
-                   radii if sized else None)
+                   radii if sized else None, *own_est.arrays())
+
+
+class _OwnEstimates:
+    """The seeker's own estimates of the source per iteration (``source_estimate``), for the region
+    rule of :mod:`estimator.seek_confirm`; nothing for a seeker without them."""
+
+    def __init__(self, seeker, iterations: int, trials: int, c0: np.ndarray):
+        self.seeker = seeker if callable(getattr(seeker, "source_estimate", None)) else None
+        self.est = np.full((iterations + 1, trials, 3), np.nan)
+        self.region = np.full((iterations + 1, trials), np.nan)
+        self.formation = np.full((iterations + 1, trials, 3), np.nan)
+        self.formation[0] = c0
+
+    def record(self, t: int, positions: np.ndarray) -> None:
+        """After iteration ``t - 1``: each trial's estimate and the centroid of ``positions`` (K, N, 3)."""
+        self.formation[t] = positions.mean(axis=1)
+        if self.seeker is None:
+            return
+        for k in range(self.est.shape[1]):
+            e = self.seeker.source_estimate(k)
+            if e is not None and e.region95_m is not None:
+                self.est[t, k], self.region[t, k] = e.enu, e.region95_m
+
+    def arrays(self) -> tuple:
+        """``(estimates_enu, regions_m, formation_centres)``; the first two None without estimates."""
+        if self.seeker is None or not np.isfinite(self.region).any():
+            return None, None, self.formation
+        return self.est, self.region, self.formation

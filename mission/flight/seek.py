@@ -30,6 +30,7 @@ from typing import Awaitable, Callable
 import numpy as np
 
 from estimator.estimate import reported_estimate
+from estimator.seek_confirm import seeker_estimate
 from mission.core.plan_types import Plan
 from mission.flight.control import OperatorStop
 from mission.flight.fence_reach import source_in_reach
@@ -249,7 +250,7 @@ class Seek:
 
     def _start(self, history=()) -> None:
         """The seek loop's own state (formation members, estimator, monitor, centre)."""
-        from estimator import ConvergenceMonitor
+        from estimator.seek_confirm import SeekConvergenceMonitor
         from estimator.seek_signal import ArrivalSignal
 
         state = self.state
@@ -274,8 +275,8 @@ class Seek:
         self.samples = None  # with moving sampling: the readings the seeker gets this iteration
         self.check = make_check(self.plan.faults, self.estimate, self.sysids)
         self.watch = self.formation.make_watch(self.check, self.sysids)
-        self.monitor = ConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
-                                          min_signal_fraction=sk.min_signal_fraction)
+        self.monitor = SeekConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
+                                              min_signal_fraction=sk.min_signal_fraction)
         self.arrival = ArrivalSignal()  # the convergence test's signal when the seeker has none
         self.centre = np.asarray(state.centre_enu, dtype=float).copy()
         for c in history:
@@ -486,7 +487,8 @@ class Seek:
         own = None if self.seeker is None else self.seeker.arrival
         dropped = set() if self.check is None else self.check.dropped
         signal = self.arrival.signal([aligned[s].value for s in used if s not in dropped])
-        converged = self.monitor.update(new_centre, signal if own is None else own)
+        converged = self.monitor.update(new_centre, signal if own is None else own,  # estimator.seek_confirm
+                                        seeker_estimate(getattr(self.seeker, "seeker", None)), centroid)
         if self.seeker is not None and self.seeker.converges_itself:  # ste: its posterior's region
             converged = bool(own)
         # the source estimate with its 95 % region: the seeker's own, else the monitor's mean of the centres
@@ -501,6 +503,7 @@ class Seek:
                          **estimate_fields(source),
                          estimate_geodetic=geodetic_point(self.plan.origin, self.state.estimate_enu),
                          spread_m=self.state.spread_m, distance_flown_m=self.state.distance_flown_m,
+                         converged_by=self.monitor.declared_by,
                          readings=readings,
                          positions_enu={s: self.fleet.telemetry_position(s) for s in everyone},
                          setpoints_enu={s: self.gate.setpoint(s) for s in everyone},

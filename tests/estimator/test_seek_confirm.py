@@ -1,0 +1,108 @@
+"""The region rule that confirms a seek's convergence from the seeker's own 95 % region
+(estimator.seek_confirm): it declares on a tight region with the formation on it, never on a wide
+one, and the offline scan is the same maths as the online rule."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimator import ConvergenceMonitor
+from estimator.estimate import SourceEstimate
+from estimator.seek_confirm import RegionConfirmation, SeekConvergenceMonitor, region_scan, seeker_estimate
+
+SOURCE = np.array([3.0, -2.0, 10.0])
+
+
+def _est(region_m, offset=(0.0, 0.0, 0.0)):
+    return SourceEstimate(SOURCE + np.asarray(offset, dtype=float), region_m, "a fit")
+
+
+def test_declares_after_hold_iterations_on_a_tight_region_with_the_formation_on_it():
+    rule = RegionConfirmation(tol_m=0.5, hold=3)
+    near = SOURCE + [0.1, 0.0, 0.0]
+    got = [rule.update(near, _est(0.2), formation_centre_enu=SOURCE + [0.0, 0.3, 0.0]) for _ in range(3)]
+    assert got == [False, False, True]
+    assert rule.passed
+
+
+def test_never_declares_on_a_wide_region_however_steady():
+    rule = RegionConfirmation(tol_m=0.5, hold=3)
+    assert not any(rule.update(SOURCE, _est(0.51), formation_centre_enu=SOURCE) for _ in range(50))
+    mon = SeekConvergenceMonitor(window=12, tol_m=0.5, hold=3)
+    # a steady estimate with a wide region while the formation still flies (the window test cannot pass)
+    flying = [mon.update(SOURCE + [2.0 * k, 0.0, 0.0], True, _est(2.0), SOURCE) for k in range(30)]
+    assert not any(flying) and mon.declared_by is None
+
+
+def test_formation_off_the_estimate_or_no_region_does_not_declare():
+    rule = RegionConfirmation(tol_m=0.5, hold=3)
+    far = SOURCE + [0.0, 0.6, 0.0]
+    assert not any(rule.update(SOURCE, _est(0.1), formation_centre_enu=far) for _ in range(10))  # readings elsewhere
+    assert not any(rule.update(far, _est(0.1), formation_centre_enu=SOURCE) for _ in range(10))  # centre leaving
+    assert not any(rule.update(SOURCE, SourceEstimate(SOURCE, None, "centres")) for _ in range(10))
+    assert not any(rule.update(SOURCE, None) for _ in range(10))
+
+
+def test_a_break_restarts_the_count_and_a_moving_estimate_does_not_stand():
+    rule = RegionConfirmation(tol_m=0.5, hold=3)
+    seq = [_est(0.2), _est(0.2), None, _est(0.2), _est(0.2), _est(0.2)]
+    assert [rule.update(SOURCE, e) for e in seq] == [False, False, False, False, False, True]
+    rule.reset()
+    jumping = [_est(0.2, (0.0, 0.0, 0.0)), _est(0.2, (0.45, 0.0, 0.0)), _est(0.2, (0.0, 0.45, 0.0))]
+    assert not any(rule.update(e.enu, e) for e in jumping)  # each within tol of the centre, not of the others
+    rule.reset()
+    assert [rule.update(SOURCE, _est(0.2), signal=s) for s in (True, False, True, True)] == [False] * 4
+    no_sig = RegionConfirmation(tol_m=0.5, hold=3, use_signal=False)
+    assert [no_sig.update(SOURCE, _est(0.2), signal=False) for _ in range(3)] == [False, False, True]
+
+
+@pytest.mark.parametrize("kwargs", [{"tol_m": 0.0}, {"tol_m": np.nan}, {"hold": 1}, {"hold": 2.5}])
+def test_bad_parameters_are_refused(kwargs):
+    with pytest.raises(ValueError):
+        RegionConfirmation(**kwargs)
+
+
+def test_scan_is_the_online_rule():
+    rng = np.random.default_rng(7)
+    t = 200
+    centres = SOURCE + rng.normal(0.0, 0.15, (t, 3))
+    formation = centres + rng.normal(0.0, 0.1, (t, 3))
+    estimates = SOURCE + rng.normal(0.0, 0.08, (t, 3))
+    regions = rng.uniform(0.1, 0.7, t)
+    regions[rng.random(t) < 0.1] = np.nan  # iterations without an estimate
+    estimates[np.isnan(regions)] = np.nan
+    signal = rng.random(t) < 0.9
+    rule = RegionConfirmation(tol_m=0.5, hold=3)
+    online = []
+    for i in range(t):
+        e = None if np.isnan(regions[i]) else SourceEstimate(estimates[i], regions[i], "a fit")
+        online.append(rule.update(centres[i], e, formation[i], bool(signal[i])))
+    passes = np.flatnonzero(online)
+    assert passes.size > 0  # the sequence does exercise the rule
+    first = region_scan(centres[:, None], formation[:, None], estimates[:, None], regions[:, None],
+                        signal[:, None], tol_m=0.5, hold=3)
+    assert first.tolist() == [int(passes[0])]
+    assert region_scan(centres[:5, None], formation[:5, None], estimates[:5, None], np.full((5, 1), 0.9),
+                       tol_m=0.5).tolist() == [-1]
+
+
+def test_seek_monitor_says_which_test_passed_and_keeps_the_window_test():
+    mon = SeekConvergenceMonitor(window=12, tol_m=0.5, min_signal_fraction=1.0)
+    plain = ConvergenceMonitor(window=12, tol_m=0.5, min_signal_fraction=1.0)
+    for _ in range(11):  # without an estimate only the window test can pass: after 12 steady centres
+        assert mon.update(SOURCE, True) == plain.update(SOURCE, True) is False
+    assert mon.update(SOURCE, True) and mon.declared_by == "window"
+    mon.reset()
+    assert mon.declared_by is None and mon.iterations == 0
+    got = [mon.update(SOURCE + [0.1 * k, 0.0, 0.0], True, _est(0.2), SOURCE) for k in range(3)]
+    assert got == [False, False, True] and mon.declared_by == "region"
+    assert mon.iterations == 3  # the window test saw the centres too
+
+
+def test_seeker_estimate_is_the_seekers_own_or_none():
+    class WithModel:
+        def source_estimate(self, k=0):
+            return _est(0.3)
+
+    assert seeker_estimate(WithModel()).region95_m == 0.3
+    assert seeker_estimate(object()) is None and seeker_estimate(None) is None
