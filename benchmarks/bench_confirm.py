@@ -42,6 +42,7 @@ def trial(field: str, seed: int, n: int, noise: float, gamma_m: float, iteration
     args = ap.parse_args(["--n", str(n), "--field", field, "--seeker", "model", "--gamma", str(gamma_m),
                           "--noise", str(noise), "--iterations", str(iterations), "--seed", str(seed)])
     window, tol_m = 12, 0.5  # a mission plan's (simulate's defaults for this seeker)
+    args.window, args.tol = window, tol_m
     _, fld, start = _field_and_start(args)
     res = _simulate_seeker(args, formation.cvt_sphere(n, args.radius, seed=seed), fld, start)
     both = convergence_report(res, window=window, tol_m=tol_m, stop_at_convergence=True, min_signal_fraction=1.0)

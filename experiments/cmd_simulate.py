@@ -282,7 +282,8 @@ def _simulate_seeker(args, offsets, field, start) -> _SeekerRun:
     seeker = make_seeker(args.seeker, **kw)
     run = simulate_seeker(offsets, field, np.asarray(start, dtype=float)[None], seeker,
                           gamma_m=args.gamma, iterations=args.iterations, noise_std=args.noise,
-                          rotate=False, seed=args.seed, own_estimates=args.seeker != "ste")
+                          rotate=False, seed=args.seed,
+                          own_estimates=None if args.seeker == "ste" else args.tol)
     out = _SeekerRun(run.centres, field.source_enu(), run.signal)
     out.estimates_enu, out.regions_m, out.formation_centres = run.estimates_enu, run.regions_m, run.formation_centres
     out.posterior = seeker if getattr(seeker, "region95_m", None) is not None else None

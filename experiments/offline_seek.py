@@ -92,7 +92,8 @@ class SeekRun:
         The seeker's own estimate of the source after the iteration that led to each centre
         (``source_estimate``; NaN where it has none, and at index 0); None: a seeker without one.
     regions_m : ndarray, shape (T + 1, K), optional
-        Its 95 % region's radius (NaN where none).
+        Its 95 % region's radius (NaN where none or not recorded; ``inf`` where not computed: the
+        formation farther from the estimate than :func:`simulate_seeker`'s ``own_estimates``).
     formation_centres : ndarray, shape (T + 1, K, 3), optional
         The centroid of where the readings of the iteration that led to each centre were taken.
     """
@@ -138,7 +139,7 @@ def _rotated(offsets: np.ndarray, trials: int, rng) -> np.ndarray:
 def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations: int,
                     noise_std: float = 0.0, rotate: bool = True, seed: int = 0,
                     time_model: StopAndGo | None = None, trial_time_offset_s: float = 1.0e4,
-                    own_estimates: bool = False) -> SeekRun:
+                    own_estimates: float | None = None) -> SeekRun:
     """Run ``K = len(start)`` trials of ``seeker`` on ``field`` (module docstring).
 
     Parameters
@@ -165,9 +166,11 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
         Mission time of each iteration (default ``StopAndGo()``): a time-dependent field
         (``field.time_dependent``, the intermittent plume) is read at the mission time of the
         iteration plus ``trial * trial_time_offset_s`` (independent realisations per trial).
-    own_estimates : bool
-        Record the seeker's ``source_estimate`` after every iteration (``SeekRun.estimates_enu``,
-        ``regions_m``; the region rule of :mod:`estimator.seek_confirm`).
+    own_estimates : float, optional
+        Record the seeker's ``source_estimate`` after each iteration (``SeekRun.estimates_enu``,
+        ``regions_m``) for the region rule of :mod:`estimator.seek_confirm` with this tolerance
+        (metres): regions only where the formation is that close to the estimate and the region can be
+        that small (``inf`` elsewhere), nothing after the rule first passed (NaN); None: not recorded.
 
     Returns
     -------
@@ -193,7 +196,7 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
     radii = np.full((int(iterations) + 1, k), np.nan)
     radii[0] = np.linalg.norm(trial_off, axis=-1).mean(axis=-1)
     slots = trial_off
-    own_est = _OwnEstimates(seeker if own_estimates else None, int(iterations), k, c0)
+    own_est = _OwnEstimates(seeker, own_estimates, int(iterations), k, c0)
     for t in range(int(iterations)):
         pos = centres[t][:, None, :] + slots
         vals = field.value(pos, now_s) if timed else field.value(pos)
@@ -203,7 +206,7 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
         own = getattr(seeker, "arrival", None)  # a seeker that knows (plume: holding with a detection)
         generic = arrival.signal(vals)  # kept up to date either way, as in the mission
         signal[t + 1] = generic if own is None else own
-        own_est.record(t + 1, pos)
+        own_est.record(t + 1, pos, centres[t + 1], signal[t + 1])
         radius = getattr(seeker, "formation_radius_m", None)  # a seeker that sizes the formation (ste)
         radii[t + 1] = radii[t] if radius is None else radius
         new_slots = slots if radius is None else _scaled(trial_off, radii[t + 1][:, None, None])
@@ -217,27 +220,52 @@ def simulate_seeker(offsets, field, start, seeker, *, gamma_m: float, iterations
 
 class _OwnEstimates:
     """The seeker's own estimates of the source per iteration (``source_estimate``), for the region
-    rule of :mod:`estimator.seek_confirm`; nothing for a seeker without them."""
+    rule of :mod:`estimator.seek_confirm` with the tolerance ``tol_m``; nothing for a seeker without
+    them (or ``tol_m`` None). Their 95 % regions cost milliseconds each, so a region is computed only
+    where the formation's centroid and the next centre are both within ``tol_m`` of the estimate and
+    the region can be that small (a seeker's cheap ``source_point`` tells where the estimate is and a
+    lower bound of its region; elsewhere ``inf``: the rule cannot pass there),
+    and a trial records nothing after the rule (with the signal) first passed: the scan of
+    :func:`estimator.seek_confirm.region_scan`, with or without the signal, has passed by then."""
 
-    def __init__(self, seeker, iterations: int, trials: int, c0: np.ndarray):
-        self.seeker = seeker if callable(getattr(seeker, "source_estimate", None)) else None
+    def __init__(self, seeker, tol_m: float | None, iterations: int, trials: int, c0: np.ndarray):
+        from estimator.seek_confirm import RegionConfirmation
+
+        ok = tol_m is not None and callable(getattr(seeker, "source_estimate", None))
+        self.seeker, self.tol_m = (seeker if ok else None), tol_m
+        self.rules = [RegionConfirmation(tol_m, use_signal=True) for _ in range(trials)] if ok else []
         self.est = np.full((iterations + 1, trials, 3), np.nan)
         self.region = np.full((iterations + 1, trials), np.nan)
         self.formation = np.full((iterations + 1, trials, 3), np.nan)
         self.formation[0] = c0
 
-    def record(self, t: int, positions: np.ndarray) -> None:
-        """After iteration ``t - 1``: each trial's estimate and the centroid of ``positions`` (K, N, 3)."""
+    def record(self, t: int, positions: np.ndarray, centres: np.ndarray, signal: np.ndarray) -> None:
+        """After iteration ``t - 1``: each trial's estimate, the centroid of ``positions`` (K, N, 3),
+        the next ``centres`` (K, 3), the iteration's ``signal`` (K,)."""
         self.formation[t] = positions.mean(axis=1)
-        if self.seeker is None:
-            return
-        for k in range(self.est.shape[1]):
-            e = self.seeker.source_estimate(k)
-            if e is not None and e.region95_m is not None:
-                self.est[t, k], self.region[t, k] = e.enu, e.region95_m
+        for k, rule in enumerate(self.rules):
+            if not rule.passed:
+                estimate = self._estimate(t, k, centres[k])
+                rule.update(centres[k], estimate, self.formation[t, k], bool(signal[k]))
+
+    def _estimate(self, t: int, k: int, centre: np.ndarray):
+        """Trial ``k``'s estimate after iteration ``t - 1``, recorded (None: none, or not computed)."""
+        cheap = getattr(self.seeker, "source_point", None)
+        found = None if cheap is None else cheap(k)
+        if cheap is not None and found is None:
+            return None
+        if found is not None and (found[1] > self.tol_m or max(np.linalg.norm(self.formation[t, k] - found[0]),
+                                                               np.linalg.norm(centre - found[0])) > self.tol_m):
+            self.est[t, k], self.region[t, k] = found[0], np.inf
+            return None
+        e = self.seeker.source_estimate(k)
+        if e is not None and e.region95_m is not None:
+            self.est[t, k], self.region[t, k] = e.enu, e.region95_m
+            return e
+        return None
 
     def arrays(self) -> tuple:
         """``(estimates_enu, regions_m, formation_centres)``; the first two None without estimates."""
-        if self.seeker is None or not np.isfinite(self.region).any():
+        if self.seeker is None or not np.isfinite(self.est).any():
             return None, None, self.formation
         return self.est, self.region, self.formation

@@ -106,3 +106,24 @@ def test_seeker_estimate_is_the_seekers_own_or_none():
 
     assert seeker_estimate(WithModel()).region95_m == 0.3
     assert seeker_estimate(object()) is None and seeker_estimate(None) is None
+
+
+def test_offline_simulate_applies_the_region_rule_to_the_seekers_own_estimates(capsys):
+    """``swarmseek simulate`` (stop and go) ends a model run where the rule passes, before the window
+    test, and reports the seeker's own estimate there; the newton seeker has none: window test only."""
+    import json
+
+    from mission.cli import main as cli_main
+
+    common = ["simulate", "--n", "6", "--field", "sigma2", "--noise", "0.005", "--seed", "0", "--stop-at-convergence",
+              "--json"]
+    assert cli_main(common + ["--seeker", "model", "--gamma", "20", "--iterations", "60"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["converged_by"] == "region"
+    assert out["converged_at_iteration"] < out["window_converged_at_iteration"]
+    assert out["estimate_error_m"] == out["seeker_estimate_error_m"] <= out["tol_m"]
+    assert out["final_iteration"] == out["converged_at_iteration"] and out["estimate_spread_m"] is None
+    assert cli_main(common + ["--seeker", "newton", "--gamma", "20", "--iterations", "120"]) == 0
+    newton = json.loads(capsys.readouterr().out)
+    assert newton["converged_by"] == "window" and newton["seeker_estimate_error_m"] is None
+    assert newton["converged_at_iteration"] == newton["window_converged_at_iteration"]
