@@ -181,6 +181,15 @@ class SeekConvergenceMonitor(ConvergenceMonitor):
         self.region = RegionConfirmation(tol_m=tol_m, hold=hold, use_signal=min_signal_fraction > 0)
         self.declared_by: str | None = None
 
+    @property
+    def spread_m(self) -> float:
+        """RMS distance of the centres the passing test looked at to their mean: the last ``hold``
+        when the region rule declared (the window's would include the approach), else the window's."""
+        if self.declared_by != "region":
+            return super().spread_m
+        last = np.asarray(self._centres)[-self.region.hold:]
+        return float(np.sqrt(np.mean(np.sum((last - last.mean(axis=0)) ** 2, axis=-1))))
+
     def reset(self) -> None:
         """Forget every centre and estimate seen."""
         super().reset()

@@ -94,9 +94,11 @@ def test_seek_monitor_says_which_test_passed_and_keeps_the_window_test():
     assert mon.update(SOURCE, True) and mon.declared_by == "window"
     mon.reset()
     assert mon.declared_by is None and mon.iterations == 0
+    mon.update(SOURCE + [20.0, 0.0, 0.0], True)  # far away: in the window, not in the hold
     got = [mon.update(SOURCE + [0.1 * k, 0.0, 0.0], True, _est(0.2), SOURCE) for k in range(3)]
     assert got == [False, False, True] and mon.declared_by == "region"
-    assert mon.iterations == 3  # the window test saw the centres too
+    assert mon.iterations == 4  # the window test saw the centres too
+    assert mon.spread_m == pytest.approx(np.sqrt(2.0 / 3.0) * 0.1)  # the hold's three centres only
 
 
 def test_seeker_estimate_is_the_seekers_own_or_none():

@@ -38,4 +38,5 @@ def test_default_mission_is_declared_by_the_region_rule_with_the_formation_on_th
     source = np.asarray(out["true_source_enu"])
     assert abs(np.linalg.norm(np.asarray(out["estimate_enu"]) - source) - out["error_m"]) < 1e-3  # the fit's
     assert out["error_m"] <= TOL_M
+    assert out["spread_m"] <= TOL_M  # the spread of the hold's centres, not of the approach's
     assert np.linalg.norm(np.asarray(its[-1]["centroid_enu"]) - source) <= 1.0  # the formation is there
