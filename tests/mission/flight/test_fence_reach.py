@@ -1,7 +1,7 @@
 """A source the centre cannot reach (the fence shrunk by a large formation's radius) but the
 formation surrounds: the seek converges on it; ``stopped_at_fence`` only for a source out of reach.
 
-Issue 23: ``swarmseek run --n 254 --seed 0`` (radius 10.8 m, the centre's floor 12.8 m, the source at
+``swarmseek run --n 254 --seed 0`` (radius 10.8 m, the centre's floor 12.8 m, the source at
 12.25 m up) ended ``stopped_at_fence`` with the model seeker's estimate 0.02 m from the source. The
 same geometry at N = 6: ``--radius 10.5`` puts the centre's floor at 12.5 m, 0.25 m above seed 0's source.
 """
