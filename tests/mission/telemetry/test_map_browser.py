@@ -174,10 +174,10 @@ def test_the_live_map_in_a_browser(tmp_path):
             page.on("dialog", lambda d: d.accept())
             page.goto(url)
             _markers_move(page, N)
-            _pause_and_continue(page, log)
-            _read_only_page(browser, wait_until(lambda: vout.url("serving"), WAIT_S, "the read-only map"), log)
-            first = wait_until(lambda: estimate(page), WAIT_S, "an estimate with its region")
+            first = wait_until(lambda: estimate(page), WAIT_S, "an estimate with its region")  # in the seek
+            _pause_and_continue(page, log)  # the pause holds the seek until Continue: it has iterations left
             wait_until(lambda: (e := estimate(page)) is not None and e != first, WAIT_S, "the estimate to update")
+            _read_only_page(browser, wait_until(lambda: vout.url("serving"), WAIT_S, "the read-only map"), log)
             wait_until(lambda: "Mission ended" in page.inner_text("#banner"), 2 * WAIT_S, "the mission's outcome")
             browser.close()
         assert mission.wait(timeout=WAIT_S) in (0, 1)
