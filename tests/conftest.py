@@ -24,12 +24,14 @@ TESTS_DIR = Path(__file__).resolve().parent
 
 #: the files of the longest tests, longest first (``python -m pytest --durations=40``), relative to tests/
 LONG_FIRST = ("sitl/test_sitl_faults_px4.py", "sitl/test_sitl_faults_ardupilot.py",
-              "mission/telemetry/test_map_fly.py", "sitl/test_sitl_ardupilot.py", "sitl/test_sitl_px4.py",
-              "conformance/test_conformance_px4.py", "mission/telemetry/test_map_browser.py",
-              "mission/telemetry/test_ctl_processes.py", "mission/flight/test_gcs_faults_signals.py",
+              "mission/flight/test_gcs_faults_signals.py", "sitl/test_sitl_ardupilot.py", "sitl/test_sitl_px4.py",
+              "conformance/test_conformance_px4.py", "mission/flight/test_gcs_faults_output.py",
+              "mission/telemetry/test_ctl_processes.py", "mission/telemetry/test_ctl_processes_routed.py",
+              "mission/flight/test_ste_mission.py",
               "conformance/test_conformance_ap_failsafes.py", "conformance/test_conformance_px4_failsafes.py",
               "mission/flight/test_layers.py",
-              "conformance/test_conformance_ardupilot.py", "mission/flight/test_gcs_faults_output.py")
+              "conformance/test_conformance_ardupilot.py", "mission/telemetry/test_map_browser.py",
+              "mission/telemetry/test_map_fly.py")
 
 
 def pytest_configure(config):

@@ -45,6 +45,8 @@ from wire.zenoh_flags import add_endpoint_arguments
 __all__ = ["configure", "main", "run_embedded"]
 
 _PROG = "swarmseek run"
+#: wall seconds of silence from a vehicle ``run --speedup`` tolerates (:func:`link_timeout_for_speedup`)
+WALL_STALL_S = 0.5
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -250,11 +252,28 @@ def _mission_setup(args):
                          return_behaviour=args.return_behaviour, origin=DEFAULT_ORIGIN)
     plan = plan_with_outs(plan, getattr(args, "out", None))
     faulty = getattr(args, "faulty_sensor", None) or plan.faults.faulty_sensor
-    plan = dataclasses.replace(plan, faults=dataclasses.replace(plan.faults, faulty_sensor=faulty))
+    plan = dataclasses.replace(plan, faults=dataclasses.replace(
+        plan.faults, faulty_sensor=faulty, link_timeout_s=link_timeout_for_speedup(plan.faults.link_timeout_s,
+                                                                                   args.speedup)))
     if getattr(args, "zenoh_listen", None):  # reachable by `swarmseek watch` / `ctl`
         plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
     plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, **_seeking_options(args)))
     return plan, ports, field, source, start, eps
+
+
+def link_timeout_for_speedup(link_timeout_s: float, speedup: float | None) -> float:
+    """The loss timeout, simulated s, of a mission flown on the wall clock ``speedup`` times faster
+    than real time: at least :data:`WALL_STALL_S` of wall clock (``speedup`` None: lock-step or
+    real time, ``link_timeout_s`` unchanged).
+
+    The fleet and the ground station share the host: a stall of ``t`` wall seconds (a loaded
+    machine) is ``speedup * t`` simulated seconds of silence from every vehicle at once, which at
+    10x and the plan's 1 s took a 0.1 s stall for the loss of the whole fleet. A vehicle that
+    really stops talking is still declared lost, :data:`WALL_STALL_S` of wall clock later.
+    """
+    if speedup is None:
+        return link_timeout_s
+    return max(link_timeout_s, WALL_STALL_S * speedup)
 
 
 def _seeking_options(args) -> dict:

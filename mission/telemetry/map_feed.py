@@ -146,11 +146,16 @@ class MapFeed:
         """Pages connected now."""
         return len(self._clients)
 
+    def close_pages(self) -> None:
+        """End every open page's stream (the server is stopping): each queue gets ``None``, after
+        which the page's handler returns instead of waiting for a message that will not come."""
+        self._broadcast(None)
+
     def notice(self, event: str, data: dict) -> None:
         """Send a one-off message (``source``: the feed's source lost or back; ``replay``: position)."""
         self._broadcast(sse_message(event, data))
 
-    def _broadcast(self, msg: bytes) -> None:
+    def _broadcast(self, msg: bytes | None) -> None:
         for q in list(self._clients):
             while True:
                 try:

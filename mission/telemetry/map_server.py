@@ -115,15 +115,15 @@ def _static(name: str) -> bytes:
 
 
 async def _events(request: web.Request) -> web.StreamResponse:
-    """``/events``: the server-sent event stream of one page."""
+    """``/events``: the server-sent event stream of one page, until the page goes away or the
+    server stops (``None`` queued by :meth:`MapFeed.close_pages`)."""
     feed: MapFeed = request.app[FEED]
     resp = web.StreamResponse(headers={"Content-Type": "text/event-stream", "Cache-Control": "no-store",
                                        "X-Accel-Buffering": "no"})
     await resp.prepare(request)
     q = feed.subscribe()
     try:
-        while True:
-            msg = await q.get()
+        while (msg := await q.get()) is not None:
             await resp.write(msg)
     except ConnectionResetError:
         pass  # the page went away: nothing to tell
@@ -261,7 +261,9 @@ class MapServer:
         return f"http://{host}:{self.port}/"
 
     async def stop(self) -> None:
-        """Close every page's stream and stop serving."""
+        """Close every page's stream and stop serving (a page's handler that waits for its next
+        message would otherwise hold the shutdown for aiohttp's 60 s ``shutdown_timeout``)."""
         if self._runner is not None:
+            self.app[FEED].close_pages()
             await self._runner.cleanup()
             self._runner = None

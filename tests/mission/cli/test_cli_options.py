@@ -207,3 +207,21 @@ def test_ctl_and_watch_refuse_a_non_positive_time(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         build_args(argv)
     assert exc.value.code == 2 and "expected a positive number" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, link_timeout_s", [
+    ([], 1.0), (["--realtime"], 1.0), (["--speedup", "2"], 1.0), (["--speedup", "5"], 2.5), (["--speedup", "10"], 5.0),
+])
+def test_run_on_a_faster_wall_clock_declares_a_loss_after_half_a_wall_second(argv, link_timeout_s):
+    """``run --speedup S``: the loss timeout (simulated s) is at least ``S`` x 0.5 s, so that a host
+    stall (fleet and ground station alike) of under half a wall second loses no vehicle; lock-step
+    and real time keep the plan's 1 s."""
+    import argparse
+
+    from mission.cli.cmd_run import WALL_STALL_S, _mission_setup, configure
+
+    parser = argparse.ArgumentParser()
+    configure(parser)
+    args = parser.parse_args(["--n", "4", *argv])
+    plan = _mission_setup(args)[0]
+    assert WALL_STALL_S == 0.5 and plan.faults.link_timeout_s == link_timeout_s

@@ -54,7 +54,10 @@ def _offline_tolerance(formation: str, n: int, source, start, eps: float, gamma:
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("personality, formation, n, clock_args", [
     *[pytest.param(*case.values, [], id=case.id) for case in CASES],
-    pytest.param("px4", "cvt", 8, ["--speedup", "10"], id="px4-cvt-8-wallclock-10x"),
+    # 5x: a reading is late (refused, counted) after 1 s of wall clock, a vehicle lost after 0.5 s
+    # (run --speedup: mission.cli.cmd_run.link_timeout_for_speedup); at 10x a loaded host (CI:
+    # 3 workers on 2 cores) stalled the process past both
+    pytest.param("px4", "cvt", 8, ["--speedup", "5"], id="px4-cvt-8-wallclock-5x"),
 ])
 def test_mission_finds_the_source(tmp_path, capsys, personality, formation, n, clock_args):
     from mission.sim.embedded import default_eps

@@ -1,5 +1,5 @@
 """The live map as an operator uses it: headless Chromium (Debian's ``chromium``, driven by Playwright;
-no browser is downloaded) opens the page of a running mission (``run --speedup 2 --map``).
+no browser is downloaded) opens the page of a running mission (``run --n 4 --speedup 2 --map``).
 
 It checks that every vehicle's marker appears and moves, that the estimate and its region update,
 that a Pause press pauses the mission (the mission log has the command and its sender) and
@@ -31,6 +31,8 @@ pytestmark = [pytest.mark.timeout(400), pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[3]
 WAIT_S = 120.0
+#: vehicles of the mission (every one's marker must appear and move)
+N = 4
 
 
 def chromium_path() -> str | None:
@@ -156,8 +158,11 @@ def test_the_live_map_in_a_browser(tmp_path):
 
     zenoh_ep = f"tcp/127.0.0.1:{free_local_port()}"
     log = tmp_path / "mission.jsonl"
-    mission, out = swarmseek("run", "--speedup", "2", "--seed", "3", "--map", "127.0.0.1:0", "--zenoh-listen",
-                             zenoh_ep, "--log-dir", str(tmp_path), "--json")
+    # 4 vehicles, the formation starting near their homes and the source 12 m on: the same page,
+    # half the flight (a minute of simulated time, 30 s of wall clock at 2x)
+    mission, out = swarmseek("run", "--speedup", "2", "--seed", "3", "--n", str(N), "--source", "10,6,13",
+                             "--start=0,0,12", "--map", "127.0.0.1:0", "--zenoh-listen", zenoh_ep,
+                             "--log-dir", str(tmp_path), "--json")
     viewer = None
     try:
         url = wait_until(lambda: out.url("live map at"), WAIT_S, "the map's URL")
@@ -168,11 +173,11 @@ def test_the_live_map_in_a_browser(tmp_path):
             page = browser.new_page(bypass_csp=True)
             page.on("dialog", lambda d: d.accept())
             page.goto(url)
-            _markers_move(page, 8)
-            _pause_and_continue(page, log)
-            _read_only_page(browser, wait_until(lambda: vout.url("serving"), WAIT_S, "the read-only map"), log)
-            first = wait_until(lambda: estimate(page), WAIT_S, "an estimate with its region")
+            _markers_move(page, N)
+            first = wait_until(lambda: estimate(page), WAIT_S, "an estimate with its region")  # in the seek
+            _pause_and_continue(page, log)  # the pause holds the seek until Continue: it has iterations left
             wait_until(lambda: (e := estimate(page)) is not None and e != first, WAIT_S, "the estimate to update")
+            _read_only_page(browser, wait_until(lambda: vout.url("serving"), WAIT_S, "the read-only map"), log)
             wait_until(lambda: "Mission ended" in page.inner_text("#banner"), 2 * WAIT_S, "the mission's outcome")
             browser.close()
         assert mission.wait(timeout=WAIT_S) in (0, 1)

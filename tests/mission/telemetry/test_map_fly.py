@@ -20,7 +20,7 @@ import aiohttp
 import numpy as np
 import pytest
 
-from tests.support.gcs_fault_support import N, _env, _plan_toml
+from tests.support.gcs_fault_support import N, NIMBLE, _env, _plan_toml
 from tests.support.invariants import abandoned
 from mission.cli import main as cli_main
 from mission.flight.coordinator import _plan_json
@@ -135,7 +135,7 @@ def _fleet_and_plan(tmp_path: Path):
     plan = _plan_toml(tmp_path / "plan.toml", ports["udp_base_port"], f'mode = "peer"\nlisten = ["{endpoint}"]', 40)
     fleet = MockFleet(n=N, personality="px4", field=sigma2(SOURCE), origin=DEFAULT_ORIGIN, seed=3,
                       udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
-                      tcp_base_port=0, fleet_name="gcsfaults", zenoh_connect=[endpoint])
+                      tcp_base_port=0, fleet_name="gcsfaults", zenoh_connect=[endpoint], dynamics=NIMBLE)
     return fleet, plan, endpoint
 
 

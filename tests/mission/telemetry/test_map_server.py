@@ -15,6 +15,7 @@ import threading
 import urllib.request
 from pathlib import Path
 
+import aiohttp
 import pytest
 from aiohttp.test_utils import TestClient, TestServer
 
@@ -146,6 +147,29 @@ def test_the_feed_streams_every_snapshot_and_sends_a_late_page_the_history():
             resp.close()
         finally:
             await client.close()
+    asyncio.run(body())
+
+
+def test_stopping_the_server_ends_every_page_stream_open_or_abandoned():
+    """A page still reading and a page that went away without a word: stopping the server ends
+    both streams (the open page reads the end) instead of waiting for aiohttp's 60 s shutdown
+    timeout, which held ``fly --map`` and ``run --map`` 20 s at exit (two 10 s thread joins)."""
+    from mission.telemetry.map_server import MapServer
+
+    async def body():
+        feed = MapFeed({"fleet": "f"})
+        server = MapServer(make_app(feed, MapAccess("127.0.0.1"), None), "127.0.0.1", 0)
+        await server.start()
+        async with aiohttp.ClientSession() as http:
+            gone = await http.get(server.url + "events")
+            assert (await gone.content.readline()).startswith(b"event: config")
+            gone.close()                                         # the page went away
+            page = await http.get(server.url + "events")
+            feed.push(_state(1))
+            await asyncio.wait_for(server.stop(), 30.0)          # not aiohttp's 60 s
+            rest = await asyncio.wait_for(page.content.read(), 30.0)
+            assert rest.count(b"event: ") == 3 and page.content.at_eof()  # config, history, state; then the end
+            assert feed.pages == 0
     asyncio.run(body())
 
 

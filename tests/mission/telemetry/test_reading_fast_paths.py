@@ -80,7 +80,16 @@ def test_accepted_builds_the_same_frozen_reading():
 
 # ---------------------------------------------------------------------- orjson against json
 import orjson  # noqa: E402 - a dependency (pyproject.toml): a missing one must fail, not skip
-_NUMBER = st.from_regex(r"\A-?(0|[1-9][0-9]{0,24})(\.[0-9]{1,24})?([eE][+-]?[0-9]{1,3})?\Z")
+_DIGITS = "0123456789"
+#: a JSON number, ``-?(0|[1-9][0-9]{0,24})(\.[0-9]{1,24})?([eE][+-]?[0-9]{1,3})?``, built from its parts
+#: (st.from_regex of that pattern draws the same language about 5 times slower: 14 s of CI for 2000)
+_NUMBER = st.builds(
+    lambda *parts: "".join(parts),
+    st.sampled_from(["", "-"]),
+    st.one_of(st.just("0"), st.builds(str.__add__, st.sampled_from("123456789"), st.text(_DIGITS, max_size=24))),
+    st.one_of(st.just(""), st.text(_DIGITS, min_size=1, max_size=24).map("." .__add__)),
+    st.one_of(st.just(""), st.builds(lambda e, sign, digits: e + sign + digits, st.sampled_from("eE"),
+                                     st.sampled_from(["", "+", "-"]), st.text(_DIGITS, min_size=1, max_size=3))))
 _JSON_VALUES = st.recursive(
     # integers within 64 bits: beyond, orjson reads floats (test_orjson_reads_every_json_number...)
     st.one_of(st.none(), st.booleans(), st.integers(-(1 << 63), (1 << 64) - 1), st.floats(allow_nan=True),

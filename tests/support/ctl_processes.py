@@ -1,0 +1,186 @@
+"""Shared by tests/mission/telemetry/test_ctl_processes.py (peers of the ground station) and
+tests/mission/telemetry/test_ctl_processes_routed.py (through a zenoh router), split in two files
+so that two pytest-xdist workers each take one (``--dist loadfile``): ``swarmseek mock``,
+``swarmseek fly``, ``swarmseek watch`` and several ``swarmseek ctl`` in their own processes.
+
+Everything runs on the wall clock in separate processes, so every wait is a condition poll with a
+generous timeout (CI runs the suite with ``-n 3`` on 2 cores, possibly beside CPU-bound work):
+``ctl`` waits :data:`CTL_WAIT_S` for the coordinator's answer, and the plan detects a vehicle's
+loss after the longest link timeout it allows (1.4 s), so a starved mock process is less often
+taken for a lost fleet."""
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+from mission.sim.embedded import fleet_ports
+from sitl_mock.fleet import DEFAULT_ORIGIN
+from mission.telemetry.mission_log import read_mission_log
+from tests.support.wait_helpers import wait_until
+
+ROOT = Path(__file__).resolve().parents[2]
+#: wall seconds `ctl` waits to reach the ground station and for its answer (a cold process on a loaded host)
+CTL_WAIT_S = 60.0
+#: wall seconds for one condition seen through `watch` (snapshots, the hold, the next iteration)
+WATCH_WAIT_S = 120.0
+
+
+def free_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def swarmseek(*args, out: Path | None = None) -> subprocess.Popen:
+    """Start `swarmseek ARGS`; its output goes to the file ``out`` (stdout piped when None)."""
+    if out is None:
+        return subprocess.Popen([sys.executable, "-m", "mission", *args], env=_env(), cwd=ROOT,
+                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    with open(out, "w") as fh:
+        return subprocess.Popen([sys.executable, "-m", "mission", *args], env=_env(), cwd=ROOT,
+                                stdout=fh, stderr=subprocess.STDOUT, text=True)
+
+
+def ctl(endpoint, *args, fleet="swarmseek", sender="tester", wait_s=CTL_WAIT_S):
+    """Run `swarmseek ctl` (``--timeout-s wait_s``) to the end: (exit status, stdout + stderr)."""
+    p = subprocess.run([sys.executable, "-m", "mission", "ctl", fleet, *args, "--sender", sender,
+                        "--zenoh-connect", endpoint, "--timeout-s", str(wait_s)],
+                       env=_env(), cwd=ROOT, capture_output=True, text=True, timeout=2 * wait_s + 60)
+    return p.returncode, p.stdout + p.stderr
+
+
+class Lines(threading.Thread):
+    """Collects a process's stdout lines (JSON snapshots of `watch --json` are decoded)."""
+
+    def __init__(self, stream):
+        super().__init__(daemon=True)
+        self.stream, self.lines, self.states = stream, [], []
+        self.start()
+
+    def run(self):
+        for line in self.stream:
+            self.lines.append(line)
+            if line.startswith("{"):
+                try:
+                    self.states.append(json.loads(line))
+                except ValueError:
+                    pass
+
+    def last(self):
+        return self.states[-1] if self.states else {}
+
+
+def _stop(*procs):
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+def _operate(endpoint, watch: Lines, mission: subprocess.Popen, fleet: str):
+    """Pause, check the hold, continue (twice: the second is refused), then land; returns the acks."""
+    def seeking(k):
+        s = watch.last()
+        return s.get("phase") == "seek" and s.get("iteration", 0) >= k
+
+    wait_until(lambda: seeking(2) or mission.poll() is not None, 240.0, "the seek (iteration 2)", poll_s=0.2)
+    assert mission.poll() is None, "the mission ended before the seek (see its output file)"
+    rc, out = ctl(endpoint, "pause", fleet=fleet, sender="alice")
+    assert rc == 0 and "pause accepted" in out, out
+    wait_until(lambda: (watch.last().get("control") or {}).get("holding"), WATCH_WAIT_S, "the hold", poll_s=0.1)
+    n0 = len(watch.states)
+    wait_until(lambda: len(watch.states) >= n0 + 4, WATCH_WAIT_S, "4 snapshots while paused", poll_s=0.1)
+    held = [s for s in watch.states[n0 - 1:] if (s.get("control") or {}).get("holding")]
+    assert len({s["iteration"] for s in held}) == 1 and len(held) >= 4      # no step while paused
+    k = held[0]["iteration"]
+    assert ctl(endpoint, "continue", fleet=fleet, sender="bob")[0] == 0
+    rc, out = ctl(endpoint, "continue", fleet=fleet, sender="bob")
+    assert rc == 1 and "REJECTED" in out and "not paused" in out, (out, mission.poll(), watch.last().get("phase"))
+    wait_until(lambda: watch.last().get("iteration", 0) > k, WATCH_WAIT_S, "an iteration after continue", poll_s=0.1)
+    rc, out = ctl(endpoint, "land", fleet=fleet, sender="carol")
+    assert rc == 0 and "land accepted" in out, out
+
+
+def _check_log(log_path: Path):
+    commands = [(r["command"], r["sender"], r["accepted"]) for r in read_mission_log(log_path)
+                if r["type"] == "command"]
+    assert commands == [("pause", "alice", True), ("continue", "bob", True), ("continue", "bob", False),
+                        ("land", "carol", True)]
+    records = read_mission_log(log_path)
+    landed = {r["sysid"] for r in records if r["type"] == "event" and r["message"].endswith(" landed")}
+    assert landed == {1, 2, 3, 4}
+
+
+def _plan_toml(path: Path, udp_base: int, zenoh_section: str, fleet: str) -> Path:
+    vehicles = "\n".join(f'[[vehicles]]\nid = "v{i + 1}"\nsysid = {i + 1}\nconnection = "udpin:127.0.0.1:{udp_base + i}"\n'
+                         for i in range(4))
+    path.write_text(f'''version = 1
+fleet = "{fleet}"
+max_speed_m_s = 3.0
+min_separation_m = 1.5
+takeoff_alt_m = 8.0
+stagger_s = 0.5
+return = "land"
+[origin]
+lat_deg = {DEFAULT_ORIGIN[0]}
+lon_deg = {DEFAULT_ORIGIN[1]}
+alt_m = {DEFAULT_ORIGIN[2]}
+{vehicles}
+[formation]
+type = "cvt"
+radius_m = 4.0
+[seeking]
+seeker = "gradient"  # the paper's slow ascent: a seek long enough for the faults and commands
+eps = 50.0
+gamma_m = 1.0
+rate_hz = 2.0
+start_enu_m = [0.0, 0.0, 12.0]
+arrival_tol_m = 0.5
+[geofence]
+polygon_enu_m = [[-150.0, -150.0], [150.0, -150.0], [150.0, 150.0], [-150.0, 150.0]]
+min_alt_m = 3.0
+max_alt_m = 60.0
+[faults]
+link_timeout_s = 1.4
+[zenoh]
+{zenoh_section}
+''')
+    return path
+
+
+def _fly_and_operate(tmp_path, fleet: str, zenoh_section: str, endpoint: str):
+    """`swarmseek mock` and `swarmseek fly` in their own processes, `watch` and `ctl` in others."""
+    ports = fleet_ports(4, "px4")
+    plan = _plan_toml(tmp_path / "plan.toml", ports["udp_base_port"], zenoh_section, fleet)
+    mock = swarmseek("mock", "--vehicles", "4", "--personality", "px4", "--field", "sigma2", "--fleet", fleet,
+                     "--source", "10,5,12", "--udp-base-port", str(ports["udp_base_port"]),
+                     "--udp-bind-base-port", str(ports["udp_bind_base_port"]), "--tcp-base-port", "0",
+                     "--zenoh-connect", endpoint, out=tmp_path / "mock.out")
+    mission = swarmseek("fly", "--plan", str(plan), "--log-dir", str(tmp_path / "log"), "--no-tlog",
+                        out=tmp_path / "fly.out")
+    watch = swarmseek("watch", fleet, "--zenoh-connect", endpoint, "--json", "--wait-s", "120")
+    lines = Lines(watch.stdout)
+    try:
+        _operate(endpoint, lines, mission, fleet)
+        assert mission.wait(timeout=240) == 1                       # ended by the operator: not converged
+        assert watch.wait(timeout=60) == 0                          # the watcher ends with the mission
+    finally:
+        _stop(mission, watch, mock)
+    assert lines.last().get("final") is True
+    _check_log(tmp_path / "log" / "mission.jsonl")
