@@ -5,11 +5,11 @@ Inside, imports go one way only (no cycle, lazy imports included)::
 
     state, modes, targets                    the mission's state and types, flight modes, the ramp
       <- result, obstacles                   the end result; lost vehicles as obstacles
-      <- motion                              retried commands, move-and-wait, timed plans, transfers
+      <- motion                              retried commands; GateMotion: move-and-wait, timed plans, transfers
       <- faults.loss, return_plan, return_clear   losses and re-forming; the return planned clear
       <- faults.rejoin, faults.retire, faults.watchdog  re-admission; retired sensors; re-engaging
+      <- faults.responses                    the seek's fault responses and moves in one object
       <- connect, phases, seek               connect/preflight; takeoff, assemble, return; the seek
-      <- bound                               motion and the seek's fault responses bound to a coordinator
       <- resume <- coordinator               resuming from a log; the coordinator
 
 The fault responses (vehicle loss in flight and in takeoff, re-admission, retired sensors, the

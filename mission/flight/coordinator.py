@@ -23,11 +23,11 @@ from mission.flight.mission_end import MissionEnd, interrupted_message
 from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.faults.landing_guard import LandingGuard
 from mission.flight.faults.loss import LossMonitor, Reformation
+from mission.flight.faults.responses import FaultResponses
 from mission.flight.faults.rejoin import Rejoin
 from mission.flight.faults.retire import Retirement, restore_retired
-from mission.flight.motion import setpoint_stream
+from mission.flight.motion import GateMotion, setpoint_stream
 from mission.flight.readiness_autopilot import arm_and_takeoff
-from mission.flight.bound import BoundMotion, BoundSeekFormation
 from mission.flight.services import Fleet
 from mission.flight.return_clear import ReturnClear
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
@@ -307,9 +307,20 @@ class Coordinator:
         over this mission's vehicles and gate now."""
         return TakeoffLoss(self.state, self.fleet, self.gate, self.clock, self, self.task_failed)
 
-    def motion(self) -> BoundMotion:
-        """The motion primitives (:class:`mission.flight.services.Motion`) flown on this mission's gate."""
-        return BoundMotion(self)
+    def motion(self) -> GateMotion:
+        """The formation's moves (:class:`mission.flight.motion.GateMotion`) flown on this mission's gate
+        (the gate and the fence read at each move: both are set after the loss monitor is built)."""
+        plan = self.plan
+        return GateMotion(self.state, self.fleet, lambda: self.gate,
+                          lambda: None if self.envelope is None else self.envelope.fence, self.clock, self, self,
+                          return_behaviour=plan.return_behaviour, min_separation_m=plan.min_separation_m,
+                          max_speed_m_s=plan.max_speed_m_s, arrival_tol_m=plan.seeking.arrival_tol_m)
+
+    def fault_responses(self) -> FaultResponses:
+        """The seek's fault responses and moves (:class:`mission.flight.faults.responses.FaultResponses`)
+        over this mission's vehicles and gate now."""
+        return FaultResponses(self.state, self.plan.faults, self.reformation(), self.rejoin(), self.retirement(),
+                              self.motion())
 
     def reformation(self) -> Reformation:
         """The formation re-formed for the vehicles left (:class:`mission.flight.faults.loss.Reformation`)
@@ -381,7 +392,7 @@ class Coordinator:
     def seek_phase(self) -> Seek:
         """The seek (:class:`mission.flight.seek.Seek`) of the formation under the gate now."""
         return Seek(self.plan, self.state, self.fleet, self.gate, self.clock, self, self, self.store, self.envelope,
-                    self.log, BoundSeekFormation(self),
+                    self.log, self.fault_responses(),
                     lambda: self.control.checkpoint(self.state, self.gate, self, self.clock, self), self.vehicle_status)
 
     def mission_end(self) -> MissionEnd:

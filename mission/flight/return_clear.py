@@ -158,7 +158,7 @@ class ReturnClear:
         Raises
         ------
         MissionError
-            A vehicle did not reach a goal in time (:func:`mission.flight.motion.move_and_wait`).
+            A vehicle did not reach a goal in time (:meth:`mission.flight.motion.GateMotion.move_and_wait`).
         """
         for _ in range(_MAX_REPLANS + 1):
             flying = [s for s in sysids if s not in self.state.lost and s in self.gate.sysids]

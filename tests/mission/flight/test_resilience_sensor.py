@@ -30,7 +30,7 @@ from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fle
 from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.core.plan_types import FaultsPlan
 from mission.flight.faults.retire import PARKED_STATUS, RetiredSensor, Retirement, SensorWatch, restore_retired
-from mission.flight.motion import parked
+from mission.flight.motion import GateMotion
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
@@ -69,11 +69,15 @@ class _Events:
         self.messages.append(message)
 
 
+def _motion(co) -> GateMotion:
+    """The mission's :class:`GateMotion` over ``co``'s state and gate (no move is flown in these tests)."""
+    return GateMotion(co.state, None, lambda: co.gate, lambda: None, None, _Events(), None,
+                      return_behaviour="land", min_separation_m=1.5, max_speed_m_s=3.0, arrival_tol_m=0.35)
+
+
 def _retirement(co, events=None) -> Retirement:
-    """A :class:`Retirement` over ``co``'s state and gate; its motion's ``parked`` is
-    :func:`mission.flight.motion.parked` of the same (no transfer is flown in these tests)."""
-    motion = SimpleNamespace(parked=lambda: parked(co))
-    return Retirement(co.state, None, co.gate, co.plan.faults, None, motion, events or _Events())
+    """A :class:`Retirement` over ``co``'s state and gate; its motion is :func:`_motion` of the same."""
+    return Retirement(co.state, None, co.gate, co.plan.faults, None, _motion(co), events or _Events())
 
 
 @pytest.mark.parametrize("code, reason", [(4, "noisy"), (1, "stuck")])
@@ -151,7 +155,7 @@ def test_parked_vehicle_goes_to_the_centre_unless_lost():
     assert sorted(goals) == list(range(1, 9))
     assert np.allclose(goals[6], centre) and np.allclose(goals[2], centre + [2.0, 0.0, 0.0])
     co_lost = _co(retired=(6,), lost=(6,))
-    assert parked(co_lost) == [] and 6 not in _retirement(co_lost).formation_goals(centre, [1, 2, 3, 4, 5, 7, 8])
+    assert _motion(co_lost).parked() == [] and 6 not in _retirement(co_lost).formation_goals(centre, [1, 2, 3, 4, 5, 7, 8])
 
 
 @pytest.mark.parametrize("sysids, lost, retired, why", [
