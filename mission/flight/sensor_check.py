@@ -143,7 +143,7 @@ class SensorCheck:
 def make_check(faults, estimate, sysids: list[int]) -> SensorCheck | None:
     """The seek's :class:`SensorCheck`, or None with ``faulty_sensor = "off"`` or fewer than 4 vehicles.
 
-    ``estimate`` is the seek's estimate function (:func:`mission.flight.seek.make_estimator`):
+    ``estimate`` is the seek's estimate function (:func:`mission.flight.phases.seek.make_estimator`):
     when it is the robust estimator, the detector is that estimator.
     """
     if getattr(faults, "faulty_sensor", "retire") == "off" or len(sysids) < 4:

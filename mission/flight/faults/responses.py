@@ -1,6 +1,6 @@
 """The seek's fault responses and moves in one object: :class:`FaultResponses`.
 
-The seek (:class:`mission.flight.seek.Seek`) is handed a :class:`mission.flight.services.SeekFormation`;
+The seek (:class:`mission.flight.phases.seek.Seek`) is handed a :class:`mission.flight.services.SeekFormation`;
 this is the mission's: vehicle losses (:class:`mission.flight.faults.loss.Reformation`), re-admission
 (:class:`mission.flight.faults.rejoin.Rejoin`), sensor retirement
 (:class:`mission.flight.faults.retire.Retirement`) and the moves (a :class:`mission.flight.services.Motion`),

@@ -222,7 +222,7 @@ class Retirement:
 
 
 def restore_retired(state: MissionState, records: dict) -> None:
-    """Put the retired sensors read back from a mission log (:mod:`mission.flight.resume`) into ``state``.
+    """Put the retired sensors read back from a mission log (:mod:`mission.flight.phases.resume`) into ``state``.
 
     Written against mappings (``state.retired``, ``state.status``): on a
     :class:`~mission.flight.state.MissionState`, item assignment there is

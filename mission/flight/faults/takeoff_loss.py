@@ -4,7 +4,7 @@ Real firmware shows it (docs/faults.md): a PX4 SIH instance on a busy host whose
 compass time out goes to its failsafe (blind land, then STABILIZED) and never reaches its layer;
 a takeoff whose commands are never acknowledged. The vehicle is declared lost (reason
 ``failed``), taken off the setpoint stream and told to land (reported loudly if even that fails);
-the others go on, and :class:`mission.flight.phases.Assemble` ends the mission when fewer than 4
+the others go on, and :class:`mission.flight.phases.assemble.Assemble` ends the mission when fewer than 4
 are left.
 """
 from __future__ import annotations

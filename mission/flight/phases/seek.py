@@ -19,7 +19,7 @@ One iteration (design choice: *move, settle, then estimate*):
 Stop and go is the default because Theorem 2 needs the formation's shape: estimating while the
 vehicles fly uses a formation distorted by tracking lag (``cond(M)`` and the noise grow). The
 ``newton`` and ``model`` seekers fit readings taken anywhere: with ``[seeking] sampling =
-"moving"`` steps 1-2 are replaced by :mod:`mission.flight.seek_moving` (re-plan once the move is
+"moving"`` steps 1-2 are replaced by :mod:`mission.flight.phases.seek_moving` (re-plan once the move is
 partly covered; the seeker gets every reading since the last estimate, where it was taken).
 """
 from __future__ import annotations
@@ -35,7 +35,7 @@ from mission.flight.control import OperatorStop
 from mission.flight.fence_reach import source_in_reach
 from mission.flight.motion import paced
 from mission.flight.result import estimate_fields, geodetic_point, region_text
-from mission.flight.seek_moving import moving_sampling, thin_evenly
+from mission.flight.phases.seek_moving import moving_sampling, thin_evenly
 from mission.flight.sensor_check import make_check
 from mission.flight.services import Clock, Fleet, PhaseEvents, SeekFormation, Waiter
 from mission.flight.state import MissionError, MissionState
@@ -46,7 +46,7 @@ from mission.telemetry.readings import ReadingStore
 __all__ = ["Seek", "make_estimator", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
 
 #: With moving sampling the ``ste`` seeker gets at most this many of each vehicle's readings per update
-#: (:func:`mission.flight.seek_moving.thin_evenly`); None: every reading, each with its time and vehicle,
+#: (:func:`mission.flight.phases.seek_moving.thin_evenly`); None: every reading, each with its time and vehicle,
 #: weighed by the independent evidence it carries (:mod:`estimator.ste_tempering`; docs/seekers.md,
 #: "ste in missions"). The thinning (1 before the filter took reading times) stays as an option.
 STE_READINGS_PER_VEHICLE = None
@@ -218,7 +218,7 @@ class Seek:
         """Run the seek loop; returns ``(outcome, message)``.
 
         ``start_iteration`` and ``history`` (the last centres, oldest first) resume a stopped seek
-        (:mod:`mission.flight.resume`): iterations are numbered on, the convergence monitor is prefilled.
+        (:mod:`mission.flight.phases.resume`): iterations are numbered on, the convergence monitor is prefilled.
 
         Outcomes: ``converged`` (also with the centre held at the fence shrunk by the radius when the
         source is inside the formation, :mod:`mission.flight.fence_reach`), ``max_iterations``,
@@ -330,7 +330,7 @@ class Seek:
 
     async def _move(self, k: int) -> float:
         """Fly the formation to its slots about the centre and settle; the arrival time (moving
-        sampling: set the goals and return once the move is covered enough, :mod:`mission.flight.seek_moving`)."""
+        sampling: set the goals and return once the move is covered enough, :mod:`mission.flight.phases.seek_moving`)."""
         if self.moving is not None:
             return await self.moving.move(self, k)
         sk = self.sk
@@ -462,7 +462,7 @@ class Seek:
 
     def _seeker_inputs(self, aligned: dict, used: list[int]) -> tuple[list, list]:
         """This iteration's readings (logged) and where the seeker takes them to be: each vehicle's aligned
-        one, or every one since the last estimate (:meth:`~mission.flight.seek_moving.MovingSampling.collect`)."""
+        one, or every one since the last estimate (:meth:`~mission.flight.phases.seek_moving.MovingSampling.collect`)."""
         if self.samples is None:
             return [aligned[s] for s in used], [aligned[s].position_enu_m for s in used]
         return self.samples, self.moving.positions_enu

@@ -1,8 +1,7 @@
-"""The phases around the seek: takeoff, assemble, return (connect and preflight:
-:mod:`mission.flight.connect`).
+"""The takeoff: slots assigned, layers chosen, every vehicle armed and climbed to its layer.
 
-Each phase is an object built by :mod:`mission.flight.coordinator` with the narrow services it
-uses (:mod:`mission.flight.services`), and run with ``await phase.run()``. Separation during
+Built by :meth:`mission.flight.coordinator.Coordinator.takeoff_phase` with the narrow services it
+uses (:mod:`mission.flight.services`), run with ``await Takeoff(...).run()``. Separation during
 takeoff, assembly and return comes from altitude layers
 (:func:`mission.flight.layers.shared_layers`): every vehicle climbs over its own home to its
 layer, flies horizontally at that layer, then moves vertically, all vehicles finishing a step
@@ -17,39 +16,18 @@ from typing import Any, Awaitable, Callable
 import numpy as np
 
 from formation.geodesy import geodetic_to_enu
-from mission.core.plan_types import Plan, SeekingPlan
-from mission.flight.control import MissionControl, OperatorStop
+from mission.core.plan_types import Plan
+from mission.flight.control import OperatorStop
 from mission.flight.layers import shared_layers
-from mission.flight.motion import retried, update_odometry
 from mission.flight.services import Clock, Fleet, PhaseEvents, Waiter
 from mission.flight.state import MissionError, MissionState
 from mission.flight.faults.takeoff_loss import TakeoffLoss
-from mission.flight.targets import assign_slots
+from mission.flight.targets import assign_slots, solve_formation
 from mission.safety.gate import SafetyGate
 
-__all__ = ["Assemble", "ReturnHome", "Takeoff", "formation_offsets", "home_enu", "solve_formation"]
+__all__ = ["ArmAndTakeoff", "Takeoff", "home_enu"]
 
 
-def formation_offsets(kind: str, n: int, radius_m: float, seed: int = 0) -> np.ndarray:
-    """``(n, 3)`` slot offsets of the formation about its centre (ENU metres).
-
-    A CVT solve takes about 0.2 s of CPU for 8 vehicles: inside the event loop, await
-    :func:`solve_formation` instead.
-    """
-    import formation
-
-    if kind == "symmetric":
-        return np.asarray(formation.symmetric_cylinder(n, radius_m), dtype=float)
-    return np.asarray(formation.cvt_sphere(n, radius_m, seed=seed), dtype=float)
-
-
-async def solve_formation(kind: str, n: int, radius_m: float, seed: int = 0) -> np.ndarray:
-    """:func:`formation_offsets` in the loop's executor (a worker thread; inline, in zero simulated
-    time, on a lock-step loop), so the event loop never waits on the solve."""
-    return await asyncio.get_running_loop().run_in_executor(None, formation_offsets, kind, n, radius_m, seed)
-
-
-# ------------------------------------------------------------------------------------ takeoff
 def home_enu(fleet: Fleet, origin, sysid: int) -> np.ndarray:
     """The home of vehicle ``sysid`` (mission ENU m, about ``origin``); MissionError without one."""
     home = fleet.vehicles[sysid].state.home
@@ -197,174 +175,3 @@ class Takeoff:
         if sysid not in gate.sysids:
             gate.add(sysid, target)
         state.set_status(sysid, "holding")
-
-
-#: ``fly_clear(sysids, goals, tol_m, what)``: fly ``sysids`` to ``goals`` by their layers, clear of
-#: lost vehicles (:meth:`mission.flight.return_clear.ReturnClear.fly_clear`); MissionError when one is late
-FlyClear = Callable[[list, dict, float, str], Awaitable[None]]
-
-
-class Assemble:
-    """The assembly: from the takeoff layers into the formation at the start point (layered transfer).
-
-    The legs keep clear of lost vehicles still flying (``fly_clear``); a vehicle that cannot reach
-    its slot in time is lost, the others go on (if 4 are left).
-
-    Parameters
-    ----------
-    seeking : SeekingPlan
-        The plan's ``[seeking]``: the start point and ``arrival_tol_m``.
-    state : MissionState
-    gate : SafetyGate
-        The vehicles under setpoints.
-    events : PhaseEvents
-    fly_clear : FlyClear
-    losses : TakeoffLoss
-        The vehicles late at their slot are lost there.
-    """
-
-    def __init__(self, seeking: SeekingPlan, state: MissionState, gate: SafetyGate, events: PhaseEvents,
-                 fly_clear: FlyClear, losses: TakeoffLoss) -> None:
-        self.seeking, self.state, self.gate, self.events = seeking, state, gate, events
-        self.fly_clear, self.losses = fly_clear, losses
-
-    async def run(self) -> None:
-        """Fly into the formation; MissionError when fewer than 4 vehicles are left."""
-        self.events.set_phase("assemble")
-        state, tol_m = self.state, self.seeking.arrival_tol_m
-        sysids = sorted(s for s in self.gate.sysids if s not in state.lost)
-        if len(sysids) < 4:
-            raise MissionError(f"vehicles {sorted(state.lost)} lost before the formation was assembled: "
-                               f"{len(sysids)} left, a formation needs 4")
-        centre = self.seeking.start_point()
-        # the layered legs, re-planned around lost vehicles still flying (e.g. one lost in takeoff)
-        goals = {s: centre + state.slot_offsets[s] for s in sysids}
-        try:
-            await self.fly_clear(sysids, goals, tol_m, "assembly")
-        except OperatorStop:
-            raise  # the operator ended the mission: nobody failed
-        except MissionError as exc:
-            late = self.losses.laggards(sysids, tol_m)
-            if not late:
-                raise
-            for s in late:
-                self.losses.lose_failed(s, str(exc))
-            sysids = [s for s in sysids if s not in state.lost]
-            if len(sysids) < 4:
-                raise MissionError(f"vehicles {sorted(state.lost)} lost during the assembly: {len(sysids)} left, "
-                                   "a formation needs 4") from None
-            await self.fly_clear(sysids, goals, tol_m, "assembly")
-        state.move_centre(centre)
-        for s in sysids:
-            state.set_status(s, "in formation")
-        self.events.event(f"formation assembled at ({centre[0]:.1f}, {centre[1]:.1f}, {centre[2]:.1f}) m")
-
-
-# ------------------------------------------------------------------------------------- return
-#: ``fly_return(sysids) -> land_here``: bring ``sysids`` above their landing spots, clear of lost
-#: vehicles (:meth:`mission.flight.return_clear.ReturnClear.fly_return`); those that must LAND (not RTL)
-FlyReturn = Callable[[list], Awaitable[set]]
-
-
-class ReturnHome:
-    """The return: back over the homes by layers, then land (or RTL), staggered by ``stagger_s``;
-    an operator's ``land`` / ``rtl`` instead, also half-way; or every vehicle landed where it is.
-
-    Parameters
-    ----------
-    plan : Plan
-        ``return_behaviour`` and ``stagger_s``.
-    state : MissionState
-    fleet : Fleet
-    gate : SafetyGate or None
-        The vehicles under setpoints (None: the mission ended before the takeoff).
-    clock : Clock
-    events : PhaseEvents
-    waiter : Waiter
-    control : MissionControl
-        The operator's LAND / RTL orders.
-    fly_return : FlyReturn
-    """
-
-    def __init__(self, plan: Plan, state: MissionState, fleet: Fleet, gate: SafetyGate | None, clock: Clock,
-                 events: PhaseEvents, waiter: Waiter, control: MissionControl, fly_return: FlyReturn) -> None:
-        self.plan, self.state, self.fleet, self.gate, self.clock = plan, state, fleet, gate, clock
-        self.events, self.waiter, self.control, self.fly_return = events, waiter, control, fly_return
-
-    async def run(self) -> None:
-        """Fly every airborne vehicle home and land it (or the operator's LAND / RTL).
-
-        The paths, the descents included, keep ``min_separation_m + OBSTACLE_MARGIN_M`` from lost
-        vehicles still flying (``fly_return``); a vehicle whose home is obstructed lands beside it.
-        An operator's ``land`` / ``rtl`` (:mod:`mission.flight.control`) replaces it, also
-        half-way: every airborne vehicle is commanded to LAND / RTL at once.
-        """
-        order = self.control.landing
-        if order is None:
-            order = await self.control.unless_landing_ordered(self._return_home())
-        while order is not None:
-            self.events.set_phase("return", behaviour=f"{order} (operator)")
-            done = order
-            order = await self.control.unless_landing_ordered(
-                self._land_staggered(sorted(self.state.airborne), rtl=order == "rtl", stagger_s=0.0), current=done)
-
-    async def land_all_now(self) -> None:
-        """Emergency: land every airborne vehicle where it is (no stagger)."""
-        await self._land_staggered(sorted(self.state.airborne), rtl=False)
-
-    async def _return_home(self) -> None:
-        """The mission's own return (:meth:`run` without an operator's order)."""
-        self.events.set_phase("return", behaviour=self.plan.return_behaviour)
-        gate, state = self.gate, self.state
-        flying = [s for s in sorted(state.airborne) if gate is not None and s in gate.sysids]
-        land_here: set[int] = set()
-        if flying:
-            land_here = await self.fly_return(flying)
-        await self._land_staggered(sorted(state.airborne, key=lambda s: state.layer_alt_m.get(s, 0.0)),
-                                   rtl=self.plan.return_behaviour == "rtl", land_only=land_here)
-
-    async def _land_staggered(self, order, rtl: bool, land_only=frozenset(), stagger_s: float | None = None) -> None:
-        """Land (or RTL) ``order`` one after the other (``stagger_s`` apart, default the plan's);
-        vehicles in ``land_only`` land even with RTL."""
-        waits = []
-        try:
-            await self._command_down(order, rtl, land_only, self.plan.stagger_s if stagger_s is None else stagger_s,
-                                     waits)
-            await asyncio.gather(*waits)
-        finally:  # cancelled (an operator's land / rtl): no orphan waits
-            for w in waits:
-                w.cancel()
-
-    async def _command_down(self, order, rtl: bool, land_only, stagger_s: float, waits: list) -> None:
-        gate = self.gate
-        for i, sysid in enumerate(order):
-            if i and stagger_s > 0:
-                await self.clock.sleep(stagger_s)
-            v = self.fleet.vehicles[sysid]
-            self.state.release(sysid)
-            by_rtl = rtl and sysid not in land_only
-            try:
-                await retried(self.events, self.clock, (lambda v=v: v.rtl()) if by_rtl else (lambda v=v: v.land()),
-                              f"{'RTL' if by_rtl else 'land'} of vehicle {sysid}")
-            except MissionError as exc:
-                self.events.event(str(exc), level="error")
-                continue
-            if gate is not None and sysid in gate.sysids:
-                gate.remove(sysid)
-            self.state.set_status(sysid, "returning" if by_rtl else "landing")
-            waits.append(asyncio.ensure_future(self._wait_landed(sysid)))
-
-    async def _wait_landed(self, sysid: int, timeout_s: float = 180.0) -> None:
-        v = self.fleet.vehicles[sysid]
-
-        def _down():
-            update_odometry(self.state, self.fleet)
-            return (v.state.landed is True) or not v.state.armed
-
-        try:
-            await self.waiter.wait_until(_down, timeout_s, f"vehicle {sysid} to land", poll_s=0.2)
-        except MissionError as exc:
-            self.events.event(str(exc), level="error")
-            return
-        self.state.set_landed(sysid)
-        self.events.event(f"vehicle {sysid} landed", sysid=sysid)

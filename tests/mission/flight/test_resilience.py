@@ -59,7 +59,7 @@ def test_loss_rules(flavour, mode, age_s, armed, commanded, expected):
 def test_reformed_offsets_keep_radius_and_separation(kind, n, lost, kind_after):
     from formation import metrics
 
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
 
     offsets = formation_offsets(kind, n, 4.0)
     new, used = reformed_offsets(kind, {s + 1: offsets[s] for s in range(n)}, lost, 4.0)
@@ -71,7 +71,7 @@ def test_reformed_offsets_keep_radius_and_separation(kind, n, lost, kind_after):
 
 
 def test_reformed_offsets_refuse_below_four():
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
 
     offsets = formation_offsets("cvt", 5, 4.0)
     with pytest.raises(ValueError, match="at least 4 vehicles, 3 left"):

@@ -2,7 +2,7 @@
 
 Unit: the watch maps the rule's pick to a sysid with its reason and noise figures, is only
 made for the robust estimator with ``retire`` and while nobody is parked; the goals park the
-retired vehicle at the centre; ``mission.flight.resume`` reads the retired sensors back.
+retired vehicle at the centre; ``mission.flight.phases.resume`` reads the retired sensors back.
 
 Against the mock fleet (N = 8, CVT, D = 2 m, noise 0.005 on seven sensors and 0.025 on vehicle 3,
 robust estimator, ``retire_after = 5``, ``retire_min_noise_ratio = 2``: in these missions the
@@ -134,7 +134,7 @@ def test_watch_never_leaves_fewer_than_four_sensors():
     ("robust", FaultsPlan(), (6,), False),           # one parking place: the centre
 ])
 def test_watch_for_retire_and_a_free_centre_whatever_the_estimator(kind, faults, retired, made):
-    from mission.flight.seek import make_estimator
+    from mission.flight.phases.seek import make_estimator
     from mission.flight.sensor_check import make_check
 
     co = _co(faults, retired)
@@ -189,7 +189,7 @@ def test_transfer_legs_are_never_faster_than_the_ramp(climb_m, planned_s, expect
 
 
 def test_resume_reads_the_retired_sensor_back(tmp_path):
-    from mission.flight.resume import load_resume_state
+    from mission.flight.phases.resume import load_resume_state
 
     ports = {"udp_base_port": 20000, "udp_bind_base_port": 20100, "tcp_base_port": 0, "zenoh_port": 20200}
     plan = embedded_plan(6, ports, estimator="robust")

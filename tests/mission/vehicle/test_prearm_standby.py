@@ -1,4 +1,4 @@
-"""Preflight's wait for MAV_STATE_STANDBY (``mission.flight.connect.wait_standby``): a booting
+"""Preflight's wait for MAV_STATE_STANDBY (``mission.flight.phases.connect.wait_standby``): a booting
 autopilot is waited for until the deadline; one that says why it will not arm (a ``Preflight
 Fail`` / ``PreArm:`` STATUSTEXT, or the SYS_STATUS pre-arm bit unhealthy) for
 ``REFUSAL_SETTLE_S`` in a row is judged then, with its reason, not at the deadline (PX4 SIH
@@ -10,7 +10,7 @@ import asyncio
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mission.flight.connect import REFUSAL_SETTLE_S, standby_refusal, wait_standby
+from mission.flight.phases.connect import REFUSAL_SETTLE_S, standby_refusal, wait_standby
 from mission.vehicle.prearm import PrearmStatus
 
 _UNINIT, _STANDBY = 0, 3
