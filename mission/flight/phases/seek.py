@@ -29,7 +29,7 @@ from typing import Awaitable, Callable
 
 import numpy as np
 
-from estimator.estimate import reported_estimate
+from estimator.estimate import SourceEstimate
 from mission.core.plan_types import Plan
 from mission.flight.control import OperatorStop
 from mission.flight.fence_reach import source_in_reach
@@ -452,11 +452,16 @@ class Seek:
             self.events.event(clamp.message, level="warning")
         return np.asarray(clamp.centre_enu, dtype=float)
 
-    def _in_reach(self, requested, held) -> bool:
+    def _own_estimate(self) -> SourceEstimate | None:
+        """The seeker's own estimate of the source (``source_estimate(0)``; for ``ste`` a summary of
+        its whole posterior), None without a seeker or without an estimate of its own. Asked once
+        per iteration: the estimate reported is the one the fence's reach check judges."""
+        return None if self.seeker is None else self.seeker.seeker.source_estimate(0)
+
+    def _in_reach(self, requested, held, own: SourceEstimate | None) -> bool:
         """Whether the source is within reach of the formation held at ``held`` though the seeker
-        asked for ``requested`` (:func:`mission.flight.fence_reach.source_in_reach`)."""
-        own = getattr(getattr(self.seeker, "seeker", None), "source_estimate", None)
-        own = None if own is None else own(0)
+        asked for ``requested``, ``own`` the seeker's own estimate of this iteration
+        (:meth:`_own_estimate`; :func:`mission.flight.fence_reach.source_in_reach`)."""
         return source_in_reach(held, requested, None if own is None else own.enu, self.envelope.formation_radius_m,
                                self.sk.convergence_tol_m, self.envelope.fence)
 
@@ -489,9 +494,11 @@ class Seek:
         converged = self.monitor.update(new_centre, signal if own is None else own)
         if self.seeker is not None and self.seeker.converges_itself:  # ste: its posterior's region
             converged = bool(own)
-        # the source estimate with its 95 % region: the seeker's own, else the monitor's mean of the centres
-        source = reported_estimate(getattr(self.seeker, "seeker", None), self.monitor)
-        held = self.at_fence and not self._in_reach(proposed, new_centre)
+        # the source estimate with its 95 % region: the seeker's own (asked once), else the monitor's
+        # mean of the centres (the rule of :func:`estimator.estimate.reported_estimate`)
+        own = self._own_estimate()
+        source = own if own is not None else self.monitor.source_estimate()
+        held = self.at_fence and not self._in_reach(proposed, new_centre, own)
         self.beyond_reach = self.beyond_reach + 1 if held else 0
         self.state.record_iteration(k + 1, grad, step_m, source, self.monitor.spread_m)
         if self.log is not None:
