@@ -569,7 +569,7 @@ class Coordinator:
         result = mission_result(self.state, outcome, message, now_s=self.clock.time(),
                                 readings=self.store.counts() | {"last_errors": self.store.last_errors()},
                                 log_path=None if self.log is None else str(self.log.path),
-                                separation_interventions=getattr(self.gate, "separation_interventions", 0),
+                                separation_interventions=0 if self.gate is None else self.gate.separation_interventions,
                                 origin=self.plan.origin)
         result.link_rejections = self.link_rejections()
         result.unknown_sysids = self.unknown_sysids()

@@ -162,7 +162,7 @@ def _self_cancelled() -> bool:
 def exit_status(result, status: int) -> int:
     """The command's exit status: ``status`` unless a stop interrupted the mission (:data:`SIGNAL_EXIT`:
     the first stop's)."""
-    signals = getattr(result, "interrupted_by", None)
+    signals = result.interrupted_by
     if signals:
         return SIGNAL_EXIT.get(signals[0], 130)
     return status

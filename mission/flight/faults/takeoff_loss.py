@@ -65,7 +65,7 @@ class TakeoffLoss:
         try:
             await asyncio.wait_for(v.land(), timeout=30.0)
         except Exception as exc:  # noqa: BLE001 - CommandError, link, timeout: reported loudly
-            armed = getattr(v.state, "armed", None)
+            armed = v.state.armed
             self.events.event(f"vehicle {sysid}: land after its failure was not acknowledged ({exc}); "
                      f"{'IT MAY STILL BE AIRBORNE (armed)' if armed else 'it reports disarmed'}",
                      level="error", sysid=sysid)

@@ -43,7 +43,7 @@ from mission.safety.gate import SafetyGate
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.readings import ReadingStore
 
-__all__ = ["Seek", "make_estimator", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
+__all__ = ["GradientEstimate", "Seek", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
 
 #: With moving sampling the ``ste`` seeker gets at most this many of each vehicle's readings per update
 #: (:func:`mission.flight.phases.seek_moving.thin_evenly`); None: every reading, each with its time and vehicle,
@@ -159,29 +159,40 @@ class _MissionSeeker:
         self.formation_radius_m = None if radius is None else float(radius[0])
 
 
-def make_estimator(kind: str, n: int):
-    """``f(positions (N,3), values (N,), centre (3,)) -> gradient (3,)`` for the plan's estimator."""
-    import estimator
+class GradientEstimate:
+    """The seek's gradient estimate, ``estimate(positions (N,3), values (N,), centre (3,)) -> gradient (3,)``,
+    with the plan's estimator.
 
-    if kind == "robust":
+    Attributes
+    ----------
+    robust : RobustGradientEstimator or None
+        The robust estimator (``estimator = "robust"``), shared with the faulty-sensor detector
+        (:func:`mission.flight.sensor_check.make_check`); None for the others.
+    needs_all : bool
+        The estimate needs every sensor's reading (the robust estimator tracks each by its index).
+    sysids : None
+        Its sensors are the iteration's ``used`` vehicles, in order (a :class:`SensorCheck` names its own).
+    """
+
+    sysids = None
+
+    def __init__(self, kind: str, n: int) -> None:
         from estimator.robust import RobustGradientEstimator
 
-        robust = RobustGradientEstimator(n)
+        self.kind = kind
+        self.robust = RobustGradientEstimator(n) if kind == "robust" else None
+        self.needs_all = self.robust is not None
 
-        def _robust(positions, values, centre):
-            return np.asarray(robust.update(np.asarray(positions) - centre, np.asarray(values)), dtype=float)
+    def __call__(self, positions, values, centre) -> np.ndarray:
+        import estimator
 
-        _robust.robust = robust  # the faulty-sensor detector shares it (mission.flight.sensor_check)
-        _robust.suspects = lambda: list(robust.suspects)
-        _robust.suspect_codes = lambda: robust.suspect_codes
-        _robust.noise_std = lambda: robust.noise_std_estimates
-        _robust.needs_all = True
-        return _robust
+        if self.robust is not None:
+            return np.asarray(self.robust.update(np.asarray(positions) - centre, np.asarray(values)), dtype=float)
+        return estimator.gradient(positions, values, centre, method=self.kind)
 
-    def _plain(positions, values, centre):
-        return estimator.gradient(positions, values, centre, method=kind)
-
-    return _plain
+    def suspects(self) -> list | None:
+        """The robust estimator's suspects (:class:`estimator.robust.Suspect`); None for the others."""
+        return None if self.robust is None else list(self.robust.suspects)
 
 
 class Seek:
@@ -262,7 +273,7 @@ class Seek:
         if len(flying) < 4:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
         self.est_kind = sk.estimator
-        self.estimate = make_estimator(self.est_kind, len(self.sysids))
+        self.estimate = GradientEstimate(self.est_kind, len(self.sysids))
         ste = ste_options(sk) if sk.seeker == "ste" else {}
         wind_from_deg = sk.wind_from_deg
         if sk.seeker == "ste":
@@ -292,7 +303,7 @@ class Seek:
         """A fresh estimator (and retirement watch) for the current members."""
         if symmetric_to_cvt and self.state.formation_kind == "cvt" and self.est_kind == "symmetric":
             self.est_kind = "cvt"
-        self.estimate = make_estimator(self.est_kind, len(self.sysids))
+        self.estimate = GradientEstimate(self.est_kind, len(self.sysids))
         self.check = make_check(self.plan.faults, self.estimate, self.sysids)
         self.watch = self.formation.make_watch(self.check, self.sysids)
 
@@ -431,7 +442,7 @@ class Seek:
                                    f"(rejections: {self.store.counts()['rejected']})")
             await self.clock.sleep(1.0)
             return False
-        if getattr(self.estimate, "needs_all", False) and len(aligned) < len(self.sysids):
+        if self.estimate.needs_all and len(aligned) < len(self.sysids):
             # the robust estimator tracks each sensor by its index: estimate only with all of them
             self.events.event(f"iteration {k + 1}: {len(aligned)} of {len(self.sysids)} readings aligned; the robust "
                      "estimator needs all; waiting", level="warning")
@@ -594,14 +605,17 @@ def scaled_slots(offsets: dict, radius_m: float, min_separation_m: float, max_ra
     return {s: off[i] * scale for i, s in enumerate(keys)}
 
 
-def _suspects(estimate, used: list[int]) -> list[dict] | None:
-    """The faulty-sensor detector's (or the robust estimator's) suspect sensors as ``{sysid, reason, excluded, noise_std}`` (None otherwise)."""
-    get = getattr(estimate, "suspects", None)
-    if get is None:
-        return None
-    order = getattr(estimate, "sysids", used)  # the detector's sensors are its sysids
+def _suspects(source, used: list[int]) -> list[dict] | None:
+    """The suspect sensors of ``source``, the faulty-sensor detector (a
+    :class:`~mission.flight.sensor_check.SensorCheck`, its sensors its ``sysids``) or the seek's
+    :class:`GradientEstimate` (its sensors the ``used`` vehicles), as ``{sysid, reason, excluded,
+    noise_std}``; None when it has none (not the robust estimator)."""
+    order = used if source.sysids is None else source.sysids
     try:
+        found = source.suspects()
+        if found is None:
+            return None
         return [{"sysid": order[s.index], "reason": s.reason, "excluded": bool(s.excluded),
-                 "noise_std": float(s.noise_std)} for s in get()]
+                 "noise_std": float(s.noise_std)} for s in found]
     except (AttributeError, IndexError, ValueError):
         return None

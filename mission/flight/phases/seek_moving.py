@@ -230,11 +230,11 @@ def moving_sampling(clock: Clock, store, events: Events, sk) -> MovingSampling |
     """
     from estimator.seekers import MOVING_SEEKERS
 
-    if getattr(sk, "sampling", "stop_and_go") != "moving":
+    if sk.sampling != "moving":
         return None
     if sk.seeker not in MOVING_SEEKERS:
         events.event(f'sampling = "moving" needs the newton, model or ste seeker; the {sk.seeker} seeker samples '
                  "stop and go", level="warning")
         return None
     since_s = -np.inf if sk.seeker == "ste" else None  # ste: every reading since takeoff, once
-    return MovingSampling(clock, store, events, sk.replan_fraction, getattr(sk, "sensor_lag_s", 0.0), since_s=since_s)
+    return MovingSampling(clock, store, events, sk.replan_fraction, sk.sensor_lag_s, since_s=since_s)

@@ -290,14 +290,32 @@ def test_connect_phase_runs_on_narrow_services_and_reports_a_link_that_cannot_op
     assert errors == ([] if required else [errors[0]]) and (required or "bogus:nowhere" in errors[0])
 
 
+class ReadyPrearm:
+    """An autopilot's pre-arm status that reports nothing against arming."""
+
+    def problems(self, now_s):
+        return []
+
+    def notes(self):
+        return []
+
+    def autopilot_says(self, now_s):
+        return None
+
+    def prearm_check_fails(self):
+        return False
+
+
 class FakePreflightVehicle:
-    """What the preflight reads of a vehicle: link age, state, home; no parameters to read."""
+    """What the preflight reads of a vehicle: link age, state, home, a ready pre-arm status; no
+    parameters to read."""
 
     flavour = "px4"
 
     def __init__(self, battery_pct, armed=False):
         self.state = SimpleNamespace(position_ok=True, battery_remaining_pct=battery_pct, armed=armed,
                                      system_status=3)
+        self.prearm, self.uid = ReadyPrearm(), None
 
     def link_age_s(self):
         return 0.2

@@ -29,6 +29,7 @@ class _State:
 class _Vehicle:
     def __init__(self, flavour, mode, age_s=0.05, armed=True):
         self.flavour, self.state, self._age = flavour, _State(mode, armed), age_s
+        self.status_heartbeats, self.status_since_s = 2, None  # its status corroborated, since before the mission
 
     def link_age_s(self):
         return self._age

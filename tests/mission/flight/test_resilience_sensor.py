@@ -134,12 +134,12 @@ def test_watch_never_leaves_fewer_than_four_sensors():
     ("robust", FaultsPlan(), (6,), False),           # one parking place: the centre
 ])
 def test_watch_for_retire_and_a_free_centre_whatever_the_estimator(kind, faults, retired, made):
-    from mission.flight.phases.seek import make_estimator
+    from mission.flight.phases.seek import GradientEstimate
     from mission.flight.sensor_check import make_check
 
     co = _co(faults, retired)
     sysids = [s for s in range(1, 9) if s not in retired]
-    check = make_check(faults, make_estimator(kind, len(sysids)), sysids)
+    check = make_check(faults, GradientEstimate(kind, len(sysids)), sysids)
     assert (check is None) == (faults.faulty_sensor == "off")
     watch = _retirement(co).make_watch(check, sysids)
     assert (watch is not None) == made

@@ -93,9 +93,7 @@ def test_standby_armed_or_unknown_is_not_waited_for(status, armed):
     assert _run(v, clock) is None and clock.t == 0.0
 
 
-def test_an_old_text_is_not_a_reason_and_a_link_without_prearm_status_says_nothing():
+def test_an_old_text_is_not_a_reason():
     v = _Vehicle(_UNINIT)
     v.prearm.on_statustext(_text("Preflight Fail: ekf2 missing data"), 0.0)
     assert standby_refusal(v, 1.0) is not None and standby_refusal(v, 1000.0) is None
-    bare = type("V", (), {"state": v.state})()
-    assert standby_refusal(bare, 1.0) is None
