@@ -76,7 +76,7 @@ class _Vehicle:
 def gate_cost_ms(n: int, steps: int = 400) -> float:
     """CPU milliseconds per ``SafetyGate.step`` of ``n`` vehicles moving as a formation."""
     from mission.core.clock import WallClock
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
     from mission.safety.envelope import SafetyEnvelope
     from mission.safety.fence import Geofence
     from mission.safety.gate import SafetyGate

@@ -14,7 +14,7 @@ lock-step clock (:func:`mission.cli.cmd_run.run_embedded`), and reads each missi
   the seek ends; with ``moving`` sampling the commanded centre can lead it);
 * ``model_t_1m_s``: the offline time model (:class:`experiments.offline_seek.StopAndGo`) applied
   to the same mission's centre moves, to check the model against the whole mission (stop and go
-  only: ``-`` for ``moving`` sampling, ``--sampling``, :mod:`mission.flight.seek_moving`).
+  only: ``-`` for ``moving`` sampling, ``--sampling``, :mod:`mission.flight.phases.seek_moving`).
 
 Usage::
 
@@ -76,7 +76,7 @@ def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", ex
     from mission.cli.cmd_run import configure, run_embedded
     from mission.telemetry.display import Display
 
-    from mission.flight import seek
+    from mission.flight.phases import seek
 
     ap = argparse.ArgumentParser()
     configure(ap)

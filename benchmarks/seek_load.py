@@ -36,7 +36,7 @@ __all__ = ["seek_load"]
 async def seek_load(vehicles, streamer, clock, *, reading_rate_hz: float = 10.0, estimate_rate_hz: float = 2.0,
                     radius_m: float = 4.0, fleet: str = "bench") -> None:
     """Run the seek-loop work until cancelled (see the module docstring)."""
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
     from mission.safety.envelope import SafetyEnvelope
     from mission.safety.fence import Geofence
     from mission.safety.gate import SafetyGate

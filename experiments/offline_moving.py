@@ -2,7 +2,7 @@
 
 :func:`simulate_moving` flies ``K`` trials one after the other (the number of readings an
 iteration differs between trials), each with its own seeker (:mod:`estimator.seekers`), on a
-simple kinematic model of what :mod:`mission.flight.seek_moving` does:
+simple kinematic model of what :mod:`mission.flight.phases.seek_moving` does:
 
 * the formation is rigid and its centre ``x`` follows the ramp exactly: towards the commanded
   centre ``c`` at most ``speed_m_s`` horizontally and ``vertical_speed_m_s`` vertically (no

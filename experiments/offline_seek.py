@@ -9,7 +9,7 @@ mean radius (their directions kept), and the iteration's time is the longest veh
 its new slot; every other seeker keeps the given offsets. :class:`StopAndGo` turns each
 iteration's moves into mission time.
 
-The time model (what ``mission.flight.seek`` does per iteration): the ramp moves every setpoint
+The time model (what ``mission.flight.phases.seek`` does per iteration): the ramp moves every setpoint
 to its slot about the new centre at ``max_speed_m_s`` horizontally and at most
 ``max_vertical_speed_m_s`` vertically (``mission.flight.targets``), so the move takes
 ``max(|m| / v, |m_z| / v_z)``; then the vehicles settle to within ``arrival_tol_m`` and a reading

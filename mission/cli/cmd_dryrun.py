@@ -96,7 +96,7 @@ def format_geofence_conversion(conv: dict) -> list[str]:
 def format_readiness(result) -> list[str]:
     """One line per vehicle: READY / NOT READY, the checks and the problems."""
     lines = [f"check {c['name']:<15} {'ok  ' if c['ok'] else 'FAIL'} {c['detail']}"
-             for c in getattr(result, "mission_checks", [])]
+             for c in result.mission_checks]
     for r in result.readiness:
         checks = " ".join(f"{k}={'ok' if v else 'FAIL'}" for k, v in r.get("checks", {}).items())
         state = "READY    " if r.get("ready") else "NOT READY"

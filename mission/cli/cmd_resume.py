@@ -3,11 +3,11 @@
 The plan comes from the log (its ``plan`` record) or from ``--plan`` (same vehicles). The
 resumed coordinator reconnects, re-engages the vehicles still flying (no new takeoff) and goes on
 seeking from the last centre and iteration, appending to the same log (see
-:mod:`mission.flight.resume`). The mission clock is the wall clock: a ``swarmseek run`` log is
+:mod:`mission.flight.phases.resume`). The mission clock is the wall clock: a ``swarmseek run`` log is
 resumable only while its mock fleet still runs, i.e. in-process (the tests do that with
 :func:`resume`). Only a log cut in the takeoff, assembly or seek (or stopped there by a ground station told to
 just stop) seeks on; every other ending (finished, returning, aborted, interrupted with the
-return: :mod:`mission.flight.resume_endings`) is taken over to bring the vehicles still flying home
+return: :mod:`mission.flight.phases.resume_endings`) is taken over to bring the vehicles still flying home
 (outcome ``recovered``). Exit status: 0 converged, or recovered with every vehicle down or landing
 and none left armed; 1 not converged / aborted / a
 vehicle left airborne; 2 the log or plan cannot be resumed; 129 / 130 / 141 / 143 stopped by
@@ -27,7 +27,7 @@ from mission.link.forward import ForwardAddressError, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/mission/sim/test_loop_debug.py)
 from mission.core.clock import WallClock
-from mission.flight.resume import load_resume_state
+from mission.flight.phases.resume import load_resume_state
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.terminal import best_effort_terminal
 from wire.cli_args import fail, path_arg, usage_error
@@ -71,7 +71,7 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
 
     Raises
     ------
-    mission.flight.resume.ResumeError
+    mission.flight.phases.resume.ResumeError
         The log cannot be resumed.
     """
     log_path = Path(log_path)
@@ -92,7 +92,7 @@ def main(args) -> int:
 
 def _main(args, terminal) -> int:
     from mission.telemetry.display import Display, report_result
-    from mission.flight.resume import ResumeError
+    from mission.flight.phases.resume import ResumeError
 
     from mission.cli.paths import writable_file_problem
 
@@ -152,10 +152,10 @@ def _flown_plan(log_path: Path, plan):
 
     Raises
     ------
-    mission.flight.resume.ResumeError
+    mission.flight.phases.resume.ResumeError
         The log cannot be read, or its plan record is malformed.
     """
-    from mission.flight.resume import ResumeError, plan_from_json
+    from mission.flight.phases.resume import ResumeError, plan_from_json
     from mission.telemetry.mission_log import iter_mission_log
 
     if plan is not None:

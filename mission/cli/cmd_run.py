@@ -3,7 +3,7 @@
 With no options: 8 PX4-personality mock vehicles, CVT formation of radius 4 m, the paper's
 ``sigma_2`` source somewhere in a box, the formation starting 25 m away, 10x speed-up (see
 :mod:`mission.sim.embedded` for the defaults and the choice of ``eps``), the ``model`` seeker sampling
-while moving (:mod:`mission.flight.seek_moving`). Shows live progress, writes
+while moving (:mod:`mission.flight.phases.seek_moving`). Shows live progress, writes
 the mission log (and one ``.tlog`` per vehicle) under ``--log-dir``; exits 0 when the mission
 converged, 1 otherwise (stops by a signal or a failing mission log: as ``fly``, 129, 130, 141, 143,
 74). The terminal is best effort (:mod:`mission.telemetry.terminal`).

@@ -107,7 +107,7 @@ class SeekingPlan:
     sampling : str
         ``stop_and_go`` (fly to the new centre, settle, read, estimate) or ``moving`` (the
         seeker gets every reading taken since the last estimate, along the path, and the next
-        estimate is made while the formation flies: :mod:`mission.flight.seek_moving`; for the
+        estimate is made while the formation flies: :mod:`mission.flight.phases.seek_moving`; for the
         ``newton`` and ``model`` seekers only).
     replan_fraction : float
         With ``moving`` sampling: the next estimate is made once the formation has covered this

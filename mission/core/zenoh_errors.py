@@ -22,9 +22,7 @@ def zenoh_open_message(exc, zplan) -> str:
     """Why the zenoh session of ``zplan`` (:class:`mission.core.zenoh_security.ZenohPlan`) could
     not be opened, for the operator."""
     text = clean_zenoh_error(exc)
-    connect = ", ".join(getattr(zplan, "connect", ()) or ())
-    listen = ", ".join(getattr(zplan, "listen", ()) or ())
-    mode = getattr(zplan, "mode", "?")
+    connect, listen, mode = ", ".join(zplan.connect), ", ".join(zplan.listen), zplan.mode
     if "connect" in text.lower() and connect:
         return (f"cannot reach the zenoh endpoint(s) {connect} (mode {mode}): nothing answers there; is the "
                 f"zenoh router or the sensors' listener running, and is the address right? (zenoh: {text})")

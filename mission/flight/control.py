@@ -18,7 +18,7 @@ loop then acts on it at its own points:
 Stops reach the phases as :class:`OperatorStop` (a :class:`~mission.flight.state.MissionError`)
 raised by :meth:`check`, which :meth:`mission.flight.coordinator.Coordinator.wait_until` calls at
 every poll: every phase before the return waits through it, so a stop takes effect within one
-poll period. ``land`` and ``rtl`` replace the return (:class:`mission.flight.phases.ReturnHome`
+poll period. ``land`` and ``rtl`` replace the return (:class:`mission.flight.phases.return_home.ReturnHome`
 asks :attr:`landing`), and interrupt one under way (:meth:`unless_landing_ordered`).
 """
 from __future__ import annotations

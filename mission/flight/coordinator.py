@@ -1,6 +1,6 @@
 """The mission coordinator: connect, preflight, take off, assemble, seek, finish, return.
 
-One asyncio task drives the phases (``mission.flight.phases`` and ``mission.flight.seek`` hold their code);
+One asyncio task drives the phases (the package ``mission.flight.phases``, one module per phase);
 the mission clock is injected (``WallClock`` against real vehicles, the mock fleet's
 ``SimClock`` when embedded). Around it run: the safety gate (:class:`~mission.safety.gate.SafetyGate`,
 ``co.gate``: speed-limited, safety-checked setpoints, sent every tick through the
@@ -16,23 +16,25 @@ import numpy as np
 from mission.core.tasks import spawn, stop_watched
 from mission.core.plan_security import check_security
 from mission.core.plan_types import Plan
-from mission.flight.connect import Connect, Preflight
-from mission.flight import phases
-from mission.flight.seek import Seek
-from mission.flight.mission_end import MissionEnd, interrupted_message
+from mission.flight.phases.connect import Connect, Preflight
+from mission.flight.phases.assemble import Assemble
+from mission.flight.phases.return_home import ReturnHome
+from mission.flight.phases.takeoff import Takeoff
+from mission.flight.phases.seek import Seek
+from mission.flight.phases.mission_end import MissionEnd, interrupted_message
 from mission.flight.control import MissionControl, open_control_channel, operator_command
 from mission.flight.faults.landing_guard import LandingGuard
 from mission.flight.faults.loss import LossMonitor, Reformation
+from mission.flight.faults.responses import FaultResponses
 from mission.flight.faults.rejoin import Rejoin
 from mission.flight.faults.retire import Retirement, restore_retired
-from mission.flight.motion import setpoint_stream
+from mission.flight.motion import GateMotion, setpoint_stream
 from mission.flight.readiness_autopilot import arm_and_takeoff
-from mission.flight.bound import BoundMotion, BoundSeekFormation
 from mission.flight.services import Fleet
 from mission.flight.return_clear import ReturnClear
 from mission.flight.result import MissionResult, geodetic_point, mission_result, readiness_result
 from mission.flight.readiness_mission import MissionChecks, not_ready_message
-from mission.flight.resume import Resume
+from mission.flight.phases.resume import Resume
 from mission.flight.state import MissionError, MissionState
 from mission.flight.faults.takeoff_loss import TakeoffLoss
 from mission.safety.gate import SafetyGate
@@ -307,9 +309,20 @@ class Coordinator:
         over this mission's vehicles and gate now."""
         return TakeoffLoss(self.state, self.fleet, self.gate, self.clock, self, self.task_failed)
 
-    def motion(self) -> BoundMotion:
-        """The motion primitives (:class:`mission.flight.services.Motion`) flown on this mission's gate."""
-        return BoundMotion(self)
+    def motion(self) -> GateMotion:
+        """The formation's moves (:class:`mission.flight.motion.GateMotion`) flown on this mission's gate
+        (the gate and the fence read at each move: both are set after the loss monitor is built)."""
+        plan = self.plan
+        return GateMotion(self.state, self.fleet, lambda: self.gate,
+                          lambda: None if self.envelope is None else self.envelope.fence, self.clock, self, self,
+                          return_behaviour=plan.return_behaviour, min_separation_m=plan.min_separation_m,
+                          max_speed_m_s=plan.max_speed_m_s, arrival_tol_m=plan.seeking.arrival_tol_m)
+
+    def fault_responses(self) -> FaultResponses:
+        """The seek's fault responses and moves (:class:`mission.flight.faults.responses.FaultResponses`)
+        over this mission's vehicles and gate now."""
+        return FaultResponses(self.state, self.plan.faults, self.reformation(), self.rejoin(), self.retirement(),
+                              self.motion())
 
     def reformation(self) -> Reformation:
         """The formation re-formed for the vehicles left (:class:`mission.flight.faults.loss.Reformation`)
@@ -340,35 +353,35 @@ class Coordinator:
 
     # ----------------------------------------------------------------- the phases, built
     def connect_phase(self) -> Connect:
-        """The connect phase (:class:`mission.flight.connect.Connect`) of this mission's plan."""
+        """The connect phase (:class:`mission.flight.phases.connect.Connect`) of this mission's plan."""
         return Connect(self.plan, self.state, self.fleet, self, self.clock, self, self.tlog_dir)
 
     def preflight_phase(self) -> Preflight:
-        """The preflight (:class:`mission.flight.connect.Preflight`) of the connected vehicles."""
+        """The preflight (:class:`mission.flight.phases.connect.Preflight`) of the connected vehicles."""
         return Preflight(self.plan, self.state, self.fleet, self.clock, self, self.readiness_checks,
                          self.simulated_fleet)
 
-    def takeoff_phase(self) -> phases.Takeoff:
-        """The takeoff (:class:`mission.flight.phases.Takeoff`) of this mission's vehicles."""
+    def takeoff_phase(self) -> Takeoff:
+        """The takeoff (:class:`mission.flight.phases.takeoff.Takeoff`) of this mission's vehicles."""
         def arm(sysid, v, rel_alt_m, before_takeoff):
             return arm_and_takeoff(sysid, v, rel_alt_m, self.clock, self,
                                    self.plan.preflight.autopilot_ready_timeout_s, before_takeoff=before_takeoff)
 
-        return phases.Takeoff(self.plan, self.state, self.fleet, self.clock, self, self, self.open_setpoints,
+        return Takeoff(self.plan, self.state, self.fleet, self.clock, self, self, self.open_setpoints,
                               arm, self.takeoff_loss)
 
-    def assemble_phase(self) -> phases.Assemble:
-        """The assembly (:class:`mission.flight.phases.Assemble`) of the vehicles under the gate now."""
-        return phases.Assemble(self.plan.seeking, self.state, self.gate, self, self.return_clear().fly_clear,
+    def assemble_phase(self) -> Assemble:
+        """The assembly (:class:`mission.flight.phases.assemble.Assemble`) of the vehicles under the gate now."""
+        return Assemble(self.plan.seeking, self.state, self.gate, self, self.return_clear().fly_clear,
                                self.takeoff_loss())
 
-    def return_phase(self) -> phases.ReturnHome:
-        """The return (:class:`mission.flight.phases.ReturnHome`) of the vehicles airborne now."""
-        return phases.ReturnHome(self.plan, self.state, self.fleet, self.gate, self.clock, self, self,
+    def return_phase(self) -> ReturnHome:
+        """The return (:class:`mission.flight.phases.return_home.ReturnHome`) of the vehicles airborne now."""
+        return ReturnHome(self.plan, self.state, self.fleet, self.gate, self.clock, self, self,
                                  self.control, self.return_clear().fly_return)
 
     def resume_phase(self) -> Resume:
-        """The resumed mission (:class:`mission.flight.resume.Resume`): rejoin, then seek on or come home."""
+        """The resumed mission (:class:`mission.flight.phases.resume.Resume`): rejoin, then seek on or come home."""
         async def reconnect():
             await self.connect_phase().run(required=False)
 
@@ -379,13 +392,13 @@ class Coordinator:
                       self.open_setpoints, lambda records: restore_retired(self.state, records), seek_on)
 
     def seek_phase(self) -> Seek:
-        """The seek (:class:`mission.flight.seek.Seek`) of the formation under the gate now."""
+        """The seek (:class:`mission.flight.phases.seek.Seek`) of the formation under the gate now."""
         return Seek(self.plan, self.state, self.fleet, self.gate, self.clock, self, self, self.store, self.envelope,
-                    self.log, BoundSeekFormation(self),
+                    self.log, self.fault_responses(),
                     lambda: self.control.checkpoint(self.state, self.gate, self, self.clock, self), self.vehicle_status)
 
     def mission_end(self) -> MissionEnd:
-        """The mission's end (:class:`mission.flight.mission_end.MissionEnd`): return, secure, stop, summarise."""
+        """The mission's end (:class:`mission.flight.phases.mission_end.MissionEnd`): return, secure, stop, summarise."""
         return MissionEnd(self.state, self, self.return_safely, self.landing_guard, self.stop_background,
                           self.result, self.log, self.return_on_interrupt)
 
@@ -486,13 +499,13 @@ class Coordinator:
 
         Parameters
         ----------
-        resume_state : mission.flight.resume.ResumeState, optional
+        resume_state : mission.flight.phases.resume.ResumeState, optional
             Go on with a stopped mission: reconnect, re-engage the vehicles still flying (no
             preflight, no takeoff), seek from the state's centre and iteration.
 
         Cancelling the task brings the vehicles home first, unless ``return_on_interrupt`` is
         False (a ground station that just stops: the vehicles do what their autopilot does); a
-        second cancellation lands them where they are (:class:`mission.flight.mission_end.MissionEnd`). Every
+        second cancellation lands them where they are (:class:`mission.flight.phases.mission_end.MissionEnd`). Every
         path ends with the never-abandon check (:mod:`mission.flight.faults.landing_guard`) and a
         ``summary`` record; a cancelled run then raises CancelledError (``state.final_result``
         holds its result).
@@ -531,7 +544,7 @@ class Coordinator:
 
     def _aborting(self, message: str, **fields) -> None:
         """Enter the ``aborted`` phase and say why; whatever fails in saying it, the mission's end
-        (return, landing, summary: :meth:`mission.flight.mission_end.MissionEnd.run`) still follows."""
+        (return, landing, summary: :meth:`mission.flight.phases.mission_end.MissionEnd.run`) still follows."""
         try:
             self.set_phase("aborted", reason=message)
             self.event(message, level="error", **fields)
@@ -556,7 +569,7 @@ class Coordinator:
         result = mission_result(self.state, outcome, message, now_s=self.clock.time(),
                                 readings=self.store.counts() | {"last_errors": self.store.last_errors()},
                                 log_path=None if self.log is None else str(self.log.path),
-                                separation_interventions=getattr(self.gate, "separation_interventions", 0),
+                                separation_interventions=0 if self.gate is None else self.gate.separation_interventions,
                                 origin=self.plan.origin)
         result.link_rejections = self.link_rejections()
         result.unknown_sysids = self.unknown_sysids()

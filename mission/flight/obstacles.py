@@ -41,7 +41,7 @@ def obstacles(lost: dict, fleet: Fleet, now_s: float) -> np.ndarray:
         if v is None:
             continue
         st = v.state
-        alt = getattr(st, "relative_alt_m", None)
+        alt = st.relative_alt_m
         if not st.armed or (alt is not None and alt < 1.0) or st.mode in LEFT_MODES.get(v.flavour, ()):
             continue
         pos = fleet.telemetry_position(sysid)

@@ -12,7 +12,7 @@ that cannot be written any more (disk full, file size limit...) stops the missio
 with a loud message on whatever output still works.
 
 Each stop cancels the mission's task once; what a cancellation does depends on how many came
-before (:mod:`mission.flight.mission_end`): the first brings the vehicles home (the plan's
+before (:mod:`mission.flight.phases.mission_end`): the first brings the vehicles home (the plan's
 ``return``), the second lands them where they are, the third stops waiting for the LAND
 confirmations. The mission log always gets its ``summary`` (when it can still be written); the
 result's outcome is then ``interrupted`` (unless the mission had ended before the first stop)
@@ -162,7 +162,7 @@ def _self_cancelled() -> bool:
 def exit_status(result, status: int) -> int:
     """The command's exit status: ``status`` unless a stop interrupted the mission (:data:`SIGNAL_EXIT`:
     the first stop's)."""
-    signals = getattr(result, "interrupted_by", None)
+    signals = result.interrupted_by
     if signals:
         return SIGNAL_EXIT.get(signals[0], 130)
     return status

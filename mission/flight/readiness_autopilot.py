@@ -19,6 +19,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.flight.services import Clock, Events
 from mission.flight.state import MissionError, MissionState
+from mission.vehicle.state import CommandError
 
 __all__ = ["autopilot_problems", "wait_autopilots_ready", "arm_and_takeoff"]
 
@@ -32,10 +33,8 @@ _MAX_OTHER_FAILURES = 3
 
 
 def autopilot_problems(v, now_s: float) -> list[str]:
-    """Why vehicle ``v``'s autopilot is not ready to arm (empty: ready); [] for links without a
-    pre-arm status (test doubles)."""
-    status = getattr(v, "prearm", None)
-    return [] if status is None else status.problems(now_s)
+    """Why vehicle ``v``'s autopilot is not ready to arm (empty: ready)."""
+    return v.prearm.problems(now_s)
 
 
 async def _probe(v) -> None:
@@ -94,9 +93,7 @@ async def wait_autopilots_ready(state: MissionState, vehicles: dict, clock: Cloc
         if r is None:
             continue
         r.checks["autopilot"] = s not in waiting
-        status = getattr(connected[s], "prearm", None)
-        if status is not None:
-            r.warnings.extend(n for n in status.notes() if n not in r.warnings)
+        r.warnings.extend(n for n in connected[s].prearm.notes() if n not in r.warnings)
         if s in waiting:
             waited = f"after {timeout_s:.0f} s" if s not in failed else "(not waited for)"
             r.problems.append(f"autopilot not ready {waited}: " + "; ".join(waiting[s]))
@@ -153,14 +150,14 @@ async def arm_and_takeoff(sysid: int, v, rel_alt_m: float, clock: Clock, events:
                 await v.takeoff(rel_alt_m)
             return
         except Exception as exc:  # noqa: BLE001 - CommandError, LinkError: retried or reported
-            refused = getattr(exc, "command", None) == _M.MAV_CMD_COMPONENT_ARM_DISARM \
-                and getattr(exc, "result", None) is not None
+            refused = (isinstance(exc, CommandError) and exc.command == _M.MAV_CMD_COMPONENT_ARM_DISARM
+                       and exc.result is not None)
             other += not refused
             now = clock.time()
             if other >= _MAX_OTHER_FAILURES or now >= deadline:
                 why = f"(arming refused for {timeout_s:.0f} s)" if refused else f"after {other} rounds of retries"
                 raise MissionError(f"takeoff of vehicle {sysid} failed {why}: {exc}") from None
-            says = getattr(getattr(v, "prearm", None), "autopilot_says", lambda _t: None)(now)
+            says = v.prearm.autopilot_says(now)
             reason = says or str(exc)
             if reason != shown:
                 shown = reason

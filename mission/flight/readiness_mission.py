@@ -1,6 +1,6 @@
 """Ready to seek, not only ready to fly: the mission-wide preflight checks.
 
-Run at the end of the preflight (:class:`mission.flight.connect.Preflight`), after each vehicle's
+Run at the end of the preflight (:class:`mission.flight.phases.connect.Preflight`), after each vehicle's
 own checks; ``swarmseek dry-run`` prints each of them, ``fly`` arms nothing when one fails
 (:func:`not_ready_message`); :class:`MissionChecks` runs them:
 
@@ -76,7 +76,7 @@ class MissionChecks:
         self._zenoh_check()  # reported first
         offsets = None
         if len(self.fleet.vehicles) >= 4 and self.plan.geofence.polygon_en_m:  # the slots of path_problems, off the loop
-            from mission.flight.phases import solve_formation
+            from mission.flight.targets import solve_formation
 
             f = self.plan.formation
             offsets = await solve_formation(f.type, len(self.fleet.vehicles), f.radius_m, f.seed)
@@ -171,10 +171,10 @@ class MissionChecks:
         """Vehicles whose path to their slot at the start leaves ``fence`` (None: homes unknown).
 
         ``offsets``: the formation's slot offsets, solved off the event loop
-        (:func:`mission.flight.phases.solve_formation`); solved here when not given or not one per vehicle.
+        (:func:`mission.flight.targets.solve_formation`); solved here when not given or not one per vehicle.
         """
         from mission.flight.layers import shared_layers
-        from mission.flight.phases import formation_offsets
+        from mission.flight.targets import formation_offsets
         from mission.flight.targets import assign_slots
 
         plan = self.plan

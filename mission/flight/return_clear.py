@@ -1,6 +1,6 @@
 """The return phase kept clear of lost vehicles that still fly (hovering in hold).
 
-The return (:func:`mission.flight.phases.return_home`) flies every vehicle up or down to its own
+The return (:class:`mission.flight.phases.return_home.ReturnHome`) flies every vehicle up or down to its own
 altitude layer, across at that layer to above its home, then lands it (a vertical descent) or
 sends it home (RTL). A vehicle lost by its link while flying hovers where it was
 (:func:`mission.flight.obstacles.obstacles`); this module plans the return so that every path, the
@@ -158,7 +158,7 @@ class ReturnClear:
         Raises
         ------
         MissionError
-            A vehicle did not reach a goal in time (:func:`mission.flight.motion.move_and_wait`).
+            A vehicle did not reach a goal in time (:meth:`mission.flight.motion.GateMotion.move_and_wait`).
         """
         for _ in range(_MAX_REPLANS + 1):
             flying = [s for s in sysids if s not in self.state.lost and s in self.gate.sysids]

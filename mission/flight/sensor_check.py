@@ -143,9 +143,9 @@ class SensorCheck:
 def make_check(faults, estimate, sysids: list[int]) -> SensorCheck | None:
     """The seek's :class:`SensorCheck`, or None with ``faulty_sensor = "off"`` or fewer than 4 vehicles.
 
-    ``estimate`` is the seek's estimate function (:func:`mission.flight.seek.make_estimator`):
-    when it is the robust estimator, the detector is that estimator.
+    ``estimate`` is the seek's estimate (:class:`mission.flight.phases.seek.GradientEstimate`):
+    when it is the robust estimator, the detector is that estimator (``estimate.robust``).
     """
-    if getattr(faults, "faulty_sensor", "retire") == "off" or len(sysids) < 4:
+    if faults.faulty_sensor == "off" or len(sysids) < 4:
         return None
-    return SensorCheck(sysids, shared=getattr(estimate, "robust", None))
+    return SensorCheck(sysids, shared=estimate.robust)

@@ -49,7 +49,7 @@ class Waiter(Protocol):
 
 
 class Motion(Protocol):
-    """The motion primitives of :mod:`mission.flight.motion` a phase may use (goals flown on the gate).
+    """The moves a phase may use (goals flown on the gate): :class:`mission.flight.motion.GateMotion`.
 
     Lost vehicles are skipped by every one of them; ``sysids``: system ids, positions in mission ENU m.
     """
@@ -103,7 +103,7 @@ class Fleet:
 class SeekFormation(Protocol):
     """What the seek asks of the formation's keepers: losses (:mod:`mission.flight.faults.loss`),
     re-admission (:mod:`mission.flight.faults.rejoin`), sensor retirement (:mod:`mission.flight.faults.retire`)
-    and the moves (:mod:`mission.flight.motion`); bound by the coordinator."""
+    and the moves (:mod:`mission.flight.motion`): :class:`mission.flight.faults.responses.FaultResponses`."""
 
     async def reform(self, centre_enu, sysids: list[int]) -> list[int]:
         """Re-form without the lost vehicles; the members left."""

@@ -393,7 +393,7 @@ class MissionState:
         self._centre_enu = np.array(centre_enu, dtype=float)
 
     def resume_seek(self, iteration: int, centre_enu, distance_flown_m: float) -> None:
-        """Go on with a stopped seek (:mod:`mission.flight.resume`)."""
+        """Go on with a stopped seek (:mod:`mission.flight.phases.resume`)."""
         self._iteration = int(iteration)
         self.move_centre(centre_enu)
         self._distance_flown_m = float(distance_flown_m)

@@ -39,11 +39,11 @@ def link_rejections(endpoints: Iterable) -> dict[str, int]:
     Parameters
     ----------
     endpoints : iterable of MavEndpoint
-        Anything with a ``counters`` mapping.
+        The mission's endpoints (their ``counters``).
     """
     totals = dict.fromkeys(LINK_REJECTION_KINDS, 0)
     for ep in endpoints:
-        counters = getattr(ep, "counters", None) or {}
+        counters = ep.counters
         for kind in LINK_REJECTION_KINDS:
             totals[kind] += int(counters.get(kind, 0))
     return {k: n for k, n in totals.items() if n}
@@ -55,9 +55,7 @@ def unknown_sysids(endpoints: Iterable, expected: Iterable[int]) -> list[int]:
     want = set(expected)
     seen: set[int] = set()
     for ep in endpoints:
-        heard = getattr(ep, "sysids_seen", None)
-        if heard is not None:
-            seen |= set(heard())
+        seen |= set(ep.sysids_seen())
     return sorted(seen - want)
 
 

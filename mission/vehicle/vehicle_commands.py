@@ -117,7 +117,7 @@ class VehicleCommands:
         most one request per ``min_interval_s`` clock seconds; returns True if one was sent.
         """
         now = self.clock.time()
-        if now - getattr(self, "_heartbeat_request_s", -1e18) < min_interval_s:
+        if now - self._heartbeat_request_s < min_interval_s:
             return False
         self._heartbeat_request_s = now
         msg = _M.MAVLink_command_long_message(self.sysid, self.compid, _M.MAV_CMD_REQUEST_MESSAGE, 0,

@@ -118,6 +118,7 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
         self.last_rejection: str | None = None
         self.status_heartbeats = 0
         self.status_since_s: float | None = None
+        self._heartbeat_request_s = -1e18  # when request_heartbeat last asked (clock s)
         self.frame_map: MissionToLocal | None = None
         self.setpoints_sent = 0
         self._home_local = (0.0, 0.0, 0.0)

@@ -243,3 +243,92 @@ def test_the_shim_checks_see_a_planted_shim(tmp_path, monkeypatch):
         "wire/shim.py: __all__ re-exports thing (defined in wire.real); import it from there"]
     assert _imports_through_a_shim() == [
         "mission/user.py:2 imports thing from wire.shim; it is defined in wire.real"]
+
+
+#: inside ``mission.flight``: the builder (the only module that holds the coordinator) and the
+#: groups whose doors it keeps: the phases are built by the builder only, the fault responses
+#: never reach up into a phase, and nothing below the builder imports it
+FLIGHT_BUILDER = "mission.flight.coordinator"
+FLIGHT_PHASES = "mission.flight.phases"
+FLIGHT_FAULTS = "mission.flight.faults"
+
+
+def _inside(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def _flight_violations() -> list[str]:
+    """Imports that break the flight room's inner doors (docs/architecture.md, "How a phase gets
+    what it uses"): a phase imported by a flight module other than the builder or another phase;
+    a fault response importing a phase; any mission module but the commands importing the builder."""
+    found = []
+    for path, module in _modules():
+        if not _inside(module, "mission"):
+            continue
+        for line, target in _imports(path, module):
+            where = f"{path.relative_to(ROOT)}:{line} imports {target}"
+            if (_inside(target, FLIGHT_PHASES) and _inside(module, "mission.flight")
+                    and module != FLIGHT_BUILDER and not _inside(module, FLIGHT_PHASES)):
+                found.append(f"{where}: only {FLIGHT_BUILDER} builds the phases")
+            if _inside(target, FLIGHT_PHASES) and _inside(module, FLIGHT_FAULTS):
+                found.append(f"{where}: a fault response must not import a phase")
+            if (_inside(target, FLIGHT_BUILDER) and module != FLIGHT_BUILDER
+                    and not _inside(module, "mission.cli") and not _inside(module, "mission.sim")):
+                found.append(f"{where}: only the commands (mission.cli, mission.sim) use the coordinator")
+    return sorted(set(found))
+
+
+def _functions_taking_the_coordinator() -> list[str]:
+    """Functions of ``mission`` outside the builder whose first parameter (after ``self``/``cls``)
+    is the coordinator ``co``."""
+    found = []
+    for path, module in _modules():
+        if not _inside(module, "mission") or module == FLIGHT_BUILDER:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                names = [a.arg for a in node.args.posonlyargs + node.args.args]
+                names = names[1:] if names and names[0] in ("self", "cls") else names
+                if names and names[0] == "co":
+                    found.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name}(co, ...)")
+    return found
+
+
+def test_the_flight_room_keeps_its_inner_doors():
+    assert _flight_violations() == []
+
+
+def test_no_function_outside_the_builder_takes_the_coordinator():
+    """A phase, a fault response or a helper is handed narrow services, never the coordinator."""
+    assert _functions_taking_the_coordinator() == []
+
+
+@pytest.mark.parametrize("where, source, expected", [
+    ("mission/flight/return_clear.py", "def f():\n    from mission.flight.phases.seek import Seek\n",
+     "only mission.flight.coordinator builds the phases"),
+    ("mission/flight/faults/loss.py", "from mission.flight.phases.takeoff import Takeoff\n",
+     "a fault response must not import a phase"),
+    ("mission/flight/phases/seek.py", "from mission.flight.coordinator import Coordinator\n",
+     "only the commands (mission.cli, mission.sim) use the coordinator"),
+])
+def test_the_flight_check_sees_a_planted_import(tmp_path, monkeypatch, where, source, expected):
+    """Not vacuous: each inner door, broken by a planted (even lazy) import, is reported."""
+    for package in PACKAGE_RULES:
+        (tmp_path / package).mkdir(exist_ok=True)
+    bad = tmp_path / where
+    bad.parent.mkdir(parents=True, exist_ok=True)
+    bad.write_text(source)
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    problems = _flight_violations()
+    assert any(expected in p and where in p for p in problems), problems
+
+
+def test_the_coordinator_check_sees_a_planted_function(tmp_path, monkeypatch):
+    for package in PACKAGE_RULES:
+        (tmp_path / package).mkdir(exist_ok=True)
+    (tmp_path / "mission" / "flight").mkdir(parents=True)
+    (tmp_path / "mission" / "flight" / "coordinator.py").write_text("def builder(co):\n    return co\n")
+    (tmp_path / "mission" / "flight" / "helper.py").write_text(
+        "class Helper:\n    async def move(self, co, goals):\n        return goals\n\n\ndef ok(state, co):\n    pass\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    assert _functions_taking_the_coordinator() == ["mission/flight/helper.py:2 move(co, ...)"]

@@ -53,7 +53,7 @@ def _offline_tolerance() -> tuple[float, np.ndarray]:
     """(99th percentile of the offline final error, offline mean estimate) for this setting."""
     from estimator import convergence_scan
     from experiments.offline import simulate
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
     from sitl_mock.fields_gaussian import sigma2
 
     offsets = formation_offsets("cvt", _N, _RADIUS_M)

@@ -53,7 +53,7 @@ def _offline_tolerance(seeking: dict) -> tuple[float, np.ndarray]:
     from estimator import convergence_scan
     from estimator.seekers import make_seeker
     from experiments.offline_seek import simulate_seeker
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
     from sitl_mock.fields_gaussian import sigma2
 
     offsets = formation_offsets("cvt", _N, 2.0)

@@ -93,7 +93,7 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
         return None
     mode = vehicle.state.mode
     if mode in LEFT_MODES.get(vehicle.flavour, ()):
-        since = getattr(vehicle, "status_since_s", None)
+        since = vehicle.status_since_s
         if engaged_s is not None and since is not None and since < engaged_s:
             if now_s - engaged_s < STALE_MODE_GRACE_S:
                 return None  # still reporting the mode it had before the takeoff: not a change
@@ -104,7 +104,7 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
         detail = "disarmed in the air"
     else:
         return None
-    if getattr(vehicle, "status_heartbeats", CORROBORATING_HEARTBEATS) < CORROBORATING_HEARTBEATS:
+    if vehicle.status_heartbeats < CORROBORATING_HEARTBEATS:
         return "unconfirmed", detail
     return "left", detail
 
@@ -245,14 +245,12 @@ class LossMonitor:
             return None
         reason, detail = found
         if reason == "unconfirmed":  # one heartbeat said so: ask the vehicle itself, decide on its answer
-            request = getattr(v, "request_heartbeat", None)
-            if request is not None:
-                request()
+            v.request_heartbeat()
             return None
         if reason == "link":
             since = now - float(v.link_age_s())
         else:  # the first of the heartbeats that reported it
-            hb = getattr(v, "status_since_s", None) or getattr(v.state, "last_heartbeat_s", None)
+            hb = v.status_since_s or v.state.last_heartbeat_s
             since = now if hb is None else min(now, float(hb))
         return VehicleLoss(sysid, reason, detail, now, since, self.state.phase)
 
@@ -289,11 +287,11 @@ class LossMonitor:
         offboard-loss descent, was judged "OFFBOARD, armed" and commanded to land)."""
         if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
             return
-        heartbeat_s = getattr(v.state, "last_heartbeat_s", None)
+        heartbeat_s = v.state.last_heartbeat_s
         if heartbeat_s is None or heartbeat_s <= loss.detected_s:
             return
         state = self.state
-        alt = getattr(v.state, "relative_alt_m", None)
+        alt = v.state.relative_alt_m
         readmissible = (self.faults.readmit and state.phase == "seek" and v.state.armed
                         and (alt is None or alt >= 1.0) and v.state.mode not in LEFT_MODES.get(v.flavour, ()))
         state.came_back(loss.sysid, now, readmit=readmissible)

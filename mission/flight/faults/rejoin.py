@@ -189,7 +189,7 @@ class Rejoin:
         """
         v = self.fleet.vehicles.get(sysid)
         pos = self.fleet.telemetry_position(sysid)
-        alt = None if v is None else getattr(v.state, "relative_alt_m", None)
+        alt = None if v is None else v.state.relative_alt_m
         if (v is None or pos is None or not v.state.armed or (alt is not None and alt < 1.0)
                 or v.link_age_s() > self.faults.link_timeout_s or v.state.mode in LEFT_MODES.get(v.flavour, ())):
             await self.motion.keep_out(sysid, v, "no longer fit to re-join (disarmed, landed, silent or returning)")

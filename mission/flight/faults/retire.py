@@ -15,7 +15,7 @@ vehicles would remain, is *retired* (:meth:`Retirement.retire_sensor`):
 * the sensing vehicles are re-formed (:func:`mission.flight.faults.loss.reformed_offsets` with the retired
   vehicle passed as lost: warm-started CVT, a symmetric formation left with an odd number
   switches to CVT) and a separation-keeping transfer is flown in which the retired vehicle
-  flies to the centre (the motion's ``transfer_to``, :func:`mission.flight.motion.transfer_to`, which also keeps every parked vehicle
+  flies to the centre (the motion's ``transfer_to``, :meth:`mission.flight.motion.GateMotion.transfer_to`, which also keeps every parked vehicle
   in the planning of later transfers);
 * the seek starts a fresh robust estimator and a fresh rule for the remaining sensors.
 
@@ -222,7 +222,7 @@ class Retirement:
 
 
 def restore_retired(state: MissionState, records: dict) -> None:
-    """Put the retired sensors read back from a mission log (:mod:`mission.flight.resume`) into ``state``.
+    """Put the retired sensors read back from a mission log (:mod:`mission.flight.phases.resume`) into ``state``.
 
     Written against mappings (``state.retired``, ``state.status``): on a
     :class:`~mission.flight.state.MissionState`, item assignment there is

@@ -4,7 +4,7 @@ Real firmware shows it (docs/faults.md): a PX4 SIH instance on a busy host whose
 compass time out goes to its failsafe (blind land, then STABILIZED) and never reaches its layer;
 a takeoff whose commands are never acknowledged. The vehicle is declared lost (reason
 ``failed``), taken off the setpoint stream and told to land (reported loudly if even that fails);
-the others go on, and :class:`mission.flight.phases.Assemble` ends the mission when fewer than 4
+the others go on, and :class:`mission.flight.phases.assemble.Assemble` ends the mission when fewer than 4
 are left.
 """
 from __future__ import annotations
@@ -65,7 +65,7 @@ class TakeoffLoss:
         try:
             await asyncio.wait_for(v.land(), timeout=30.0)
         except Exception as exc:  # noqa: BLE001 - CommandError, link, timeout: reported loudly
-            armed = getattr(v.state, "armed", None)
+            armed = v.state.armed
             self.events.event(f"vehicle {sysid}: land after its failure was not acknowledged ({exc}); "
                      f"{'IT MAY STILL BE AIRBORNE (armed)' if armed else 'it reports disarmed'}",
                      level="error", sysid=sysid)

@@ -84,7 +84,7 @@ def guards():
     import mission.sim.sitl_fleet as sitl_fleet
     import sitl_mock.fleet as mock_fleet
     import sitl_mock.virtual_sensor as virtual_sensor
-    from mission.flight.resume import load_resume_state
+    from mission.flight.phases.resume import load_resume_state
 
     real_cvt, real_symmetric = formation.cvt_sphere, formation.symmetric_cylinder
 

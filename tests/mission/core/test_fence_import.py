@@ -309,7 +309,7 @@ def test_a_plan_with_each_example_fence_is_ready_against_a_mock_fleet(plan_path)
 
 
 def test_resume_reads_an_imported_fence_back_from_the_log_plan_record():
-    from mission.flight.resume import plan_from_json
+    from mission.flight.phases.resume import plan_from_json
     from mission.telemetry.mission_log import to_jsonable
 
     plan = load_plan(QGC_PLAN)

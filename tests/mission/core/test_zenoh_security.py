@@ -334,7 +334,7 @@ def test_security_plan_survives_the_mission_log_round_trip(doc, pki, tmp_path):
     from dataclasses import asdict
 
     from mission.telemetry.mission_log import to_jsonable
-    from mission.flight.resume import plan_from_json
+    from mission.flight.phases.resume import plan_from_json
 
     plan = _tls_plan(doc, pki, 7447, auth={"username": "coordinator", **_secrets(tmp_path)},
                      access_control={"sensor_cert_common_names": ["vehicle-1"]})

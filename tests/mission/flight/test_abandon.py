@@ -10,7 +10,7 @@ import asyncio
 import numpy as np
 import pytest
 
-from mission.flight import phases, seek
+from mission.flight.phases import assemble, return_home, seek, takeoff
 from mission.flight.coordinator import Coordinator
 from mission.flight.state import MissionError
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
@@ -122,8 +122,8 @@ def _failing(orig, after_s, exc, clock):
     ("return", 4.0, MissionError("injected failure of the return")),
 ])
 def test_an_abort_in_any_phase_brings_every_vehicle_down(tmp_path, monkeypatch, where, after_s, exc):
-    target = {"takeoff": (phases.Takeoff, "run"), "assemble": (phases.Assemble, "run"), "seek": (seek.Seek, "run"),
-              "return": (phases.ReturnHome, "run")}[where]
+    target = {"takeoff": (takeoff.Takeoff, "run"), "assemble": (assemble.Assemble, "run"), "seek": (seek.Seek, "run"),
+              "return": (return_home.ReturnHome, "run")}[where]
     plan, fleet = _setup("ardupilot", return_behaviour="land")
     monkeypatch.setattr(*target, _failing(getattr(*target), after_s, exc, fleet.clock))
     log_path = tmp_path / "m.jsonl"

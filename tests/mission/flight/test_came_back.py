@@ -15,7 +15,7 @@ import pytest
 
 from mission.core.plan_types import FaultsPlan
 from mission.flight.faults.loss import LossMonitor
-from mission.flight.motion import keep_out
+from mission.flight.motion import GateMotion
 from mission.flight.state import MissionState, VehicleLoss
 
 
@@ -58,12 +58,12 @@ def _co(readmit: bool = True):
 async def _maybe_came_back(co, v, loss, now):
     """The loss monitor's judgement, built from the test's services (no coordinator), with the
     mission's own ``keep_out`` as its motion."""
-    async def _keep_out(sysid, vehicle, why):
-        await keep_out(co, sysid, vehicle, why)
-
     events = SimpleNamespace(event=co.event)
+    motion = GateMotion(co.state, None, lambda: None, lambda: None, co.clock, events, None,
+                        return_behaviour=co.plan.return_behaviour, min_separation_m=1.5, max_speed_m_s=3.0,
+                        arrival_tol_m=0.35)
     monitor = LossMonitor(co.state, None, lambda: None, co.clock, FaultsPlan(readmit=co.plan.faults.readmit),
-                          co.plan.return_behaviour, SimpleNamespace(keep_out=_keep_out), events, lambda line: None)
+                          co.plan.return_behaviour, motion, events, lambda line: None)
     await monitor._maybe_came_back(v, loss, now)
 
 

@@ -172,7 +172,7 @@ def _simulate_ramp(batches, speed, vspeed, dt=0.05):
 @pytest.mark.parametrize("n, kind, seed", [(4, "cvt", 0), (7, "cvt", 1), (8, "cvt", 2), (8, "symmetric", 3),
                                            (12, "cvt", 4)])
 def test_layered_assembly_and_return_keep_separation(n, kind, seed):
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
     from mission.safety.envelope import pairwise_path_separation
 
     rng = np.random.default_rng(seed)

@@ -9,7 +9,7 @@ import pytest
 
 from formation import metrics
 from mission.flight.layers import LAYER_MARGIN_M, LAYER_SPACING_FACTOR, layers_keep_apart, shared_layers
-from mission.flight.phases import formation_offsets
+from mission.flight.targets import formation_offsets
 from mission.flight.targets import assign_slots
 from mission.safety.geometry import segment_distance
 from mission.sim.embedded import FENCE_MIN_ALT_M, default_radius_m, default_source_and_start, fleet_ports

@@ -9,10 +9,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[3]
 
-#: modules whose functions are handed the mission state, the fleet, the gate... and never ``co``
-NARROW = ["faults/landing_guard", "readiness_mission", "failsafe_params", "faults/takeoff_loss", "obstacles", "services",
-          "faults/loss", "faults/rejoin", "faults/retire", "faults/watchdog", "return_clear", "readiness_autopilot",
-          "phases", "connect", "mission_end", "operator_stop", "resume", "seek", "seek_moving"]
+#: every flight module but the builder (``coordinator``): its functions are handed the mission
+#: state, the fleet, the gate... and never ``co``
+FLIGHT = ROOT / "mission" / "flight"
+NARROW = sorted(str(p.relative_to(FLIGHT).with_suffix("")) for p in FLIGHT.rglob("*.py") if p.name != "coordinator.py")
 
 
 def _takes_co(path: Path) -> list[str]:
@@ -25,9 +25,15 @@ def _takes_co(path: Path) -> list[str]:
     return out
 
 
+def test_the_narrow_modules_are_the_phases_the_faults_and_their_helpers():
+    """Not vacuous: the list holds the phases, the fault responses and motion (not the builder)."""
+    assert {"phases/seek", "phases/takeoff", "faults/loss", "faults/responses", "motion"} <= set(NARROW)
+    assert "coordinator" not in NARROW
+
+
 @pytest.mark.parametrize("module", NARROW)
 def test_a_narrow_flight_module_takes_no_coordinator(module):
-    path = ROOT / "mission" / "flight" / f"{module}.py"
+    path = FLIGHT / f"{module}.py"
     assert path.is_file(), path
     assert _takes_co(path) == []
 
@@ -160,7 +166,7 @@ def _services(n=5):
 
 def _return_phase(plan, state, fleet, gate, clock, events, waiter, fly_return):
     from mission.flight.control import MissionControl
-    from mission.flight.phases import ReturnHome
+    from mission.flight.phases.return_home import ReturnHome
 
     return ReturnHome(plan, state, fleet, gate, clock, events, waiter, MissionControl(clock), fly_return)
 
@@ -205,7 +211,7 @@ def test_return_phase_lands_where_they_are_on_land_all_now():
 
 def test_assemble_phase_loses_a_late_vehicle_and_flies_the_others_into_formation():
     from mission.core.plan_types import SeekingPlan
-    from mission.flight.phases import Assemble
+    from mission.flight.phases.assemble import Assemble
     from mission.flight.faults.takeoff_loss import TakeoffLoss
 
     clock, state, fleet, events, waiter = _services(5)
@@ -261,7 +267,7 @@ def _plan(n=2, connection=None):
 
 @pytest.mark.parametrize("required", [True, False])
 def test_connect_phase_runs_on_narrow_services_and_reports_a_link_that_cannot_open(required):
-    from mission.flight.connect import Connect
+    from mission.flight.phases.connect import Connect
 
     plan = _plan(2, connection="bogus:nowhere")
     clock = FakeClock()
@@ -284,14 +290,32 @@ def test_connect_phase_runs_on_narrow_services_and_reports_a_link_that_cannot_op
     assert errors == ([] if required else [errors[0]]) and (required or "bogus:nowhere" in errors[0])
 
 
+class ReadyPrearm:
+    """An autopilot's pre-arm status that reports nothing against arming."""
+
+    def problems(self, now_s):
+        return []
+
+    def notes(self):
+        return []
+
+    def autopilot_says(self, now_s):
+        return None
+
+    def prearm_check_fails(self):
+        return False
+
+
 class FakePreflightVehicle:
-    """What the preflight reads of a vehicle: link age, state, home; no parameters to read."""
+    """What the preflight reads of a vehicle: link age, state, home, a ready pre-arm status; no
+    parameters to read."""
 
     flavour = "px4"
 
     def __init__(self, battery_pct, armed=False):
         self.state = SimpleNamespace(position_ok=True, battery_remaining_pct=battery_pct, armed=armed,
                                      system_status=3)
+        self.prearm, self.uid = ReadyPrearm(), None
 
     def link_age_s(self):
         return 0.2
@@ -303,7 +327,7 @@ class FakePreflightVehicle:
 
 
 def test_preflight_phase_runs_on_narrow_services_and_judges_each_vehicle():
-    from mission.flight.connect import Preflight
+    from mission.flight.phases.connect import Preflight
 
     plan = _plan(3)
     clock = FakeClock()
@@ -344,7 +368,7 @@ class FakeGuard:
 
 
 def _mission_end(calls, return_home, return_on_interrupt=True, left=()):
-    from mission.flight.mission_end import MissionEnd
+    from mission.flight.phases.mission_end import MissionEnd
 
     clock = FakeClock()
     state, events = MissionState([1, 2, 3, 4], clock=clock), FakeEvents()
@@ -441,7 +465,7 @@ class FakeFlyingVehicle(FakeVehicle):
 
 @pytest.mark.parametrize("go_on", [True, False])
 def test_resume_phase_runs_on_narrow_services_and_reengages_the_vehicles_still_flying(go_on):
-    from mission.flight.resume import Resume, ResumeState
+    from mission.flight.phases.resume import Resume, ResumeState
 
     clock, state, fleet, events, waiter = _services(6)
     fleet.vehicles[5] = FakeFlyingVehicle(5, clock, (0.0, 0.0, 0.0), armed=False, rel_alt_m=0.0)
@@ -540,8 +564,8 @@ class FakeReadingStore:
 def test_seek_phase_runs_on_narrow_services_and_climbs_the_field():
     import dataclasses
 
-    from mission.flight.phases import formation_offsets
-    from mission.flight.seek import Seek
+    from mission.flight.targets import formation_offsets
+    from mission.flight.phases.seek import Seek
 
     clock, state, fleet, events, waiter = _services(4)
     plan = _plan(4)

@@ -29,6 +29,7 @@ class _State:
 class _Vehicle:
     def __init__(self, flavour, mode, age_s=0.05, armed=True):
         self.flavour, self.state, self._age = flavour, _State(mode, armed), age_s
+        self.status_heartbeats, self.status_since_s = 2, None  # its status corroborated, since before the mission
 
     def link_age_s(self):
         return self._age
@@ -59,7 +60,7 @@ def test_loss_rules(flavour, mode, age_s, armed, commanded, expected):
 def test_reformed_offsets_keep_radius_and_separation(kind, n, lost, kind_after):
     from formation import metrics
 
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
 
     offsets = formation_offsets(kind, n, 4.0)
     new, used = reformed_offsets(kind, {s + 1: offsets[s] for s in range(n)}, lost, 4.0)
@@ -71,7 +72,7 @@ def test_reformed_offsets_keep_radius_and_separation(kind, n, lost, kind_after):
 
 
 def test_reformed_offsets_refuse_below_four():
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
 
     offsets = formation_offsets("cvt", 5, 4.0)
     with pytest.raises(ValueError, match="at least 4 vehicles, 3 left"):

@@ -38,7 +38,7 @@ def test_segment_clearance(a, b, p, expected):
 def test_clear_offsets_moves_slots_off_an_obstacle_on_the_sphere(kind, n, allow_tilt):
     from formation import metrics
 
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
 
     offsets = {s + 1: o for s, o in enumerate(formation_offsets(kind, n, 4.0))}
     centre = np.array([3.0, -2.0, 12.0])
@@ -77,7 +77,7 @@ def test_plan_clear_transfer_keeps_the_obstacle_fixed_and_clear():
 def test_readmitted_offsets_grow_the_formation(kind, n, kind_after):
     from formation import metrics
 
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
 
     offsets = {s + 1: o for s, o in enumerate(formation_offsets("cvt" if kind == "cvt" or n % 2 else kind, n, 4.0))}
     returning = {n + 1: np.array([1.0, 2.5, -0.5])}                       # anywhere, not on the sphere

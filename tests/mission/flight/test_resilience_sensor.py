@@ -2,7 +2,7 @@
 
 Unit: the watch maps the rule's pick to a sysid with its reason and noise figures, is only
 made for the robust estimator with ``retire`` and while nobody is parked; the goals park the
-retired vehicle at the centre; ``mission.flight.resume`` reads the retired sensors back.
+retired vehicle at the centre; ``mission.flight.phases.resume`` reads the retired sensors back.
 
 Against the mock fleet (N = 8, CVT, D = 2 m, noise 0.005 on seven sensors and 0.025 on vehicle 3,
 robust estimator, ``retire_after = 5``, ``retire_min_noise_ratio = 2``: in these missions the
@@ -30,7 +30,7 @@ from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fle
 from mission.telemetry.mission_log import MissionLog, read_mission_log
 from mission.core.plan_types import FaultsPlan
 from mission.flight.faults.retire import PARKED_STATUS, RetiredSensor, Retirement, SensorWatch, restore_retired
-from mission.flight.motion import parked
+from mission.flight.motion import GateMotion
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock
@@ -69,11 +69,15 @@ class _Events:
         self.messages.append(message)
 
 
+def _motion(co) -> GateMotion:
+    """The mission's :class:`GateMotion` over ``co``'s state and gate (no move is flown in these tests)."""
+    return GateMotion(co.state, None, lambda: co.gate, lambda: None, None, _Events(), None,
+                      return_behaviour="land", min_separation_m=1.5, max_speed_m_s=3.0, arrival_tol_m=0.35)
+
+
 def _retirement(co, events=None) -> Retirement:
-    """A :class:`Retirement` over ``co``'s state and gate; its motion's ``parked`` is
-    :func:`mission.flight.motion.parked` of the same (no transfer is flown in these tests)."""
-    motion = SimpleNamespace(parked=lambda: parked(co))
-    return Retirement(co.state, None, co.gate, co.plan.faults, None, motion, events or _Events())
+    """A :class:`Retirement` over ``co``'s state and gate; its motion is :func:`_motion` of the same."""
+    return Retirement(co.state, None, co.gate, co.plan.faults, None, _motion(co), events or _Events())
 
 
 @pytest.mark.parametrize("code, reason", [(4, "noisy"), (1, "stuck")])
@@ -130,12 +134,12 @@ def test_watch_never_leaves_fewer_than_four_sensors():
     ("robust", FaultsPlan(), (6,), False),           # one parking place: the centre
 ])
 def test_watch_for_retire_and_a_free_centre_whatever_the_estimator(kind, faults, retired, made):
-    from mission.flight.seek import make_estimator
+    from mission.flight.phases.seek import GradientEstimate
     from mission.flight.sensor_check import make_check
 
     co = _co(faults, retired)
     sysids = [s for s in range(1, 9) if s not in retired]
-    check = make_check(faults, make_estimator(kind, len(sysids)), sysids)
+    check = make_check(faults, GradientEstimate(kind, len(sysids)), sysids)
     assert (check is None) == (faults.faulty_sensor == "off")
     watch = _retirement(co).make_watch(check, sysids)
     assert (watch is not None) == made
@@ -151,7 +155,7 @@ def test_parked_vehicle_goes_to_the_centre_unless_lost():
     assert sorted(goals) == list(range(1, 9))
     assert np.allclose(goals[6], centre) and np.allclose(goals[2], centre + [2.0, 0.0, 0.0])
     co_lost = _co(retired=(6,), lost=(6,))
-    assert parked(co_lost) == [] and 6 not in _retirement(co_lost).formation_goals(centre, [1, 2, 3, 4, 5, 7, 8])
+    assert _motion(co_lost).parked() == [] and 6 not in _retirement(co_lost).formation_goals(centre, [1, 2, 3, 4, 5, 7, 8])
 
 
 @pytest.mark.parametrize("sysids, lost, retired, why", [
@@ -185,7 +189,7 @@ def test_transfer_legs_are_never_faster_than_the_ramp(climb_m, planned_s, expect
 
 
 def test_resume_reads_the_retired_sensor_back(tmp_path):
-    from mission.flight.resume import load_resume_state
+    from mission.flight.phases.resume import load_resume_state
 
     ports = {"udp_base_port": 20000, "udp_bind_base_port": 20100, "tcp_base_port": 0, "zenoh_port": 20200}
     plan = embedded_plan(6, ports, estimator="robust")

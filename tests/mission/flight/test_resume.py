@@ -12,7 +12,7 @@ import pytest
 from mission.flight.coordinator import Coordinator
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.telemetry.mission_log import MissionLog, read_mission_log
-from mission.flight.resume import ResumeError, load_resume_state, plan_from_json
+from mission.flight.phases.resume import ResumeError, load_resume_state, plan_from_json
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 from mission.sim.lockstep import VirtualClock

@@ -3,7 +3,7 @@
 Seen on real ArduCopter SITL (tests/sitl/test_sitl_faults_ardupilot.py): the resumed ground station got
 LOCAL_POSITION_NED (a position: ``position_ok``) before the home and the first GLOBAL_POSITION_INT,
 so the altitude above home was still unknown and 4 of 5 vehicles hovering 13 m up were declared
-"not flying", then landed where they were. :meth:`mission.flight.resume.Resume.why_not_flying` now waits
+"not flying", then landed where they were. :meth:`mission.flight.phases.resume.Resume.why_not_flying` now waits
 for the altitude as well as the position.
 """
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 import asyncio
 from types import SimpleNamespace
 
-from mission.flight.resume import Resume
+from mission.flight.phases.resume import Resume
 from mission.flight.state import MissionError
 
 _ORIGIN = (-35.363261, 149.165230, 584.0)

@@ -8,7 +8,7 @@ import asyncio
 import pytest
 
 from mission.cli.cmd_resume import resume
-from mission.flight.resume import ResumeError, load_resume_state
+from mission.flight.phases.resume import ResumeError, load_resume_state
 from mission.telemetry.mission_log import read_mission_log
 
 from tests.support.fly_helpers import run_fleet

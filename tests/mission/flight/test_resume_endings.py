@@ -1,5 +1,5 @@
 """What ``swarmseek resume`` does with every way a mission log can end (docs/faults.md, "What
-resume does with each ending"; mission.flight.resume_endings).
+resume does with each ending"; mission.flight.phases.resume_endings).
 
 The logs are a real lock-step mission's (``swarmseek run --n 4``) cut at each phase, or that log
 with the closing records each ending writes (the formats of mission.flight.coordinator and
@@ -13,8 +13,8 @@ import json
 import pytest
 
 from mission.cli import main as cli_main
-from mission.flight.resume import ResumeError, load_resume_state
-from mission.flight.resume_endings import ENDINGS, classify_ending
+from mission.flight.phases.resume import ResumeError, load_resume_state
+from mission.flight.phases.resume_endings import ENDINGS, classify_ending
 
 
 @pytest.fixture(scope="module")

@@ -167,6 +167,7 @@ class _FakeCoordinator:
                                     seeking=SimpleNamespace(arrival_tol_m=0.35))
         self.envelope = None
         self.fleet = SimpleNamespace(vehicles={}, telemetry_position=self.telemetry_position)
+        self.state.add_positions = lambda positions: self.update_odometry()  # the track, at each poll
         self.events: list = []
         self.track: list = []
 
@@ -190,12 +191,13 @@ class _FakeCoordinator:
 
     def return_clear(self):
         """The :class:`~mission.flight.return_clear.ReturnClear` over this fake: its gate, state and
-        clock, the real motion primitives (:mod:`mission.flight.motion`) flown on them."""
-        from mission.flight import motion
+        clock, the mission's own moves (:class:`mission.flight.motion.GateMotion`) flown on them."""
+        from mission.flight.motion import GateMotion
         from mission.flight.return_clear import ReturnClear
 
-        moves = SimpleNamespace(move_and_wait=lambda *a, **k: motion.move_and_wait(self, *a, **k),
-                                fly_timed=lambda *a, **k: motion.fly_timed(self, *a, **k))
+        moves = GateMotion(self.state, self.fleet, lambda: self.gate, lambda: None, self.clock, self, self,
+                           return_behaviour=self.plan.return_behaviour, min_separation_m=SEP_M, max_speed_m_s=3.0,
+                           arrival_tol_m=0.35)
         return ReturnClear(self.state, self.fleet, self.gate, self.clock, SEP_M, 0.35, 30.0,
                            self.plan.return_behaviour, None, moves, self)
 

@@ -1,4 +1,4 @@
-"""Sampling while moving (``[seeking] sampling = "moving"``, :mod:`mission.flight.seek_moving`):
+"""Sampling while moving (``[seeking] sampling = "moving"``, :mod:`mission.flight.phases.seek_moving`):
 whole lock-step missions, the readings the seeker gets, the envelope, plan and CLI selection."""
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from mission.cli import main as cli_main
 from mission.cli.cmd_run import _check_args, _seeking_options, configure
 from mission.core.plan_types import GeofencePlan, PlanError
 from mission.core.plan import parse_plan
-from mission.flight.seek_moving import MovingSampling, lagged_positions
+from mission.flight.phases.seek_moving import MovingSampling, lagged_positions
 from mission.telemetry.mission_log import read_mission_log
 from mission.telemetry.reading_format import Reading
 from sitl_mock.fields_gaussian import sigma2

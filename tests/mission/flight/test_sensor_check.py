@@ -20,7 +20,7 @@ from mission.cli import cmd_run
 from mission.cli import main as cli_main
 from mission.core.plan_types import FaultsPlan
 from mission.flight.sensor_check import SensorCheck, make_check
-from mission.flight.seek import make_estimator
+from mission.flight.phases.seek import GradientEstimate
 from mission.telemetry.mission_log import read_mission_log
 
 GRAD = np.array([0.3, -0.2, 0.1])
@@ -73,10 +73,10 @@ def test_no_exclusion_without_a_fault_and_other_vehicles_skip_the_update():
 
 
 def test_the_robust_estimator_is_the_detector_when_it_is_the_plans():
-    est = make_estimator("robust", 6)
+    est = GradientEstimate("robust", 6)
     check = make_check(FaultsPlan(), est, [1, 2, 3, 4, 5, 6])
     assert check.shared and check.robust is est.robust
-    assert not make_check(FaultsPlan(), make_estimator("cvt", 6), [1, 2, 3, 4, 5, 6]).shared
+    assert not make_check(FaultsPlan(), GradientEstimate("cvt", 6), [1, 2, 3, 4, 5, 6]).shared
     assert make_check(FaultsPlan(faulty_sensor="off"), est, [1, 2, 3, 4, 5, 6]) is None
 
 

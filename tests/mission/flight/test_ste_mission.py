@@ -18,9 +18,9 @@ from estimator.ste import SteSeeker
 from mission.cli import main as cli_main
 from mission.core.plan_types import PlanError
 from mission.core.plan import parse_plan
-from mission.flight import seek
-from mission.flight.seek import _MissionSeeker, make_seeker, scaled_slots, ste_options
-from mission.flight.seek_moving import MovingSampling, thin_evenly
+from mission.flight.phases import seek
+from mission.flight.phases.seek import _MissionSeeker, make_seeker, scaled_slots, ste_options
+from mission.flight.phases.seek_moving import MovingSampling, thin_evenly
 from mission.telemetry.mission_log import read_mission_log
 from mission.telemetry.reading_format import Reading
 
@@ -329,7 +329,7 @@ def test_ste_wind_prior_comes_from_the_plan_else_the_autopilots_else_none():
     prior; with neither the seeker estimates the direction (None), and each case says so."""
     from types import SimpleNamespace
 
-    from mission.flight.seek import ste_wind
+    from mission.flight.phases.seek import ste_wind
     from mission.vehicle.state import VehicleState
     from mission.vehicle.wind import WindEstimate
 

@@ -42,13 +42,13 @@ class _SteerIntoNeighbour:
     and used again afterwards). Without the envelope's separation hold, ``a`` flies into ``b``."""
 
     def __init__(self, a=1, b=2, after_moves=3, steps=30):
-        from mission.flight.bound import BoundSeekFormation
+        from mission.flight.faults.responses import FaultResponses
         from mission.safety.gate import SafetyGate
 
         self.a, self.b, self.after_moves, self.left = a, b, after_moves, steps
         self.moves, self.t_start_s = 0, None
-        self._formation, self._ramp_cls = BoundSeekFormation, SafetyGate  # the seek's moves go through it
-        self._move, self._step = BoundSeekFormation.move_and_wait, SafetyGate.step
+        self._formation, self._ramp_cls = FaultResponses, SafetyGate  # the seek's moves go through it
+        self._move, self._step = FaultResponses.move_and_wait, SafetyGate.step
 
     def __enter__(self):
         fault = self

@@ -37,7 +37,7 @@ def _offline_tolerance(formation: str, n: int, source, start, eps: float, gamma:
                        window: int, tol_m: float) -> tuple[float, np.ndarray]:
     """(99th percentile of the offline final error, offline mean estimate)."""
     from estimator import convergence_scan
-    from mission.flight.phases import formation_offsets
+    from mission.flight.targets import formation_offsets
     from sitl_mock.fields_gaussian import sigma2
     from experiments.offline import simulate
 

@@ -17,7 +17,7 @@ same callbacks in the same order), and the test fails on a callback slow in both
 
 Found and fixed with it: the formation's CVT solve (0.2 s of CPU, twice: the preflight's path
 check and the takeoff's slot plan) ran in the loop, now in the executor
-(``mission.flight.phases.solve_formation``); ``zenoh.open`` blocked the loop 0.5 s (now
+(``mission.flight.targets.solve_formation``); ``zenoh.open`` blocked the loop 0.5 s (now
 ``mission.core.zenoh_open.open_session``); the coordinator's modules were first imported inside
 the loop (0.3 s), now with the command's module.
 """

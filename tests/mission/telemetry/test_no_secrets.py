@@ -27,7 +27,7 @@ from mission.core.plan_types import replace_plan
 from mission.core.signing_config import signing_config_from_table
 from mission.core.zenoh_config import ZenohAuthPlan, ZenohPlan
 from mission.flight.coordinator import Coordinator
-from mission.flight.resume import plan_from_json
+from mission.flight.phases.resume import plan_from_json
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.sim.lockstep import VirtualClock
 from mission.telemetry.display import Display, format_summary
@@ -193,7 +193,7 @@ def test_the_serialiser_never_writes_bytes_secret_fields_or_unknown_objects():
 
 def test_resume_refuses_a_key_file_that_now_holds_another_key(tmp_path):
     from mission.core.signing_config import SigningConfig
-    from mission.flight.resume import ResumeError, _signing_from_json
+    from mission.flight.phases.resume import ResumeError, _signing_from_json
 
     key_file = write_private(tmp_path / "k", (PASSPHRASE + "\n").encode())
     logged = SigningConfig.from_key_file(key_file, link_id=3).to_json()

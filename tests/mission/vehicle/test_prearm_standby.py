@@ -1,4 +1,4 @@
-"""Preflight's wait for MAV_STATE_STANDBY (``mission.flight.connect.wait_standby``): a booting
+"""Preflight's wait for MAV_STATE_STANDBY (``mission.flight.phases.connect.wait_standby``): a booting
 autopilot is waited for until the deadline; one that says why it will not arm (a ``Preflight
 Fail`` / ``PreArm:`` STATUSTEXT, or the SYS_STATUS pre-arm bit unhealthy) for
 ``REFUSAL_SETTLE_S`` in a row is judged then, with its reason, not at the deadline (PX4 SIH
@@ -10,7 +10,7 @@ import asyncio
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mission.flight.connect import REFUSAL_SETTLE_S, standby_refusal, wait_standby
+from mission.flight.phases.connect import REFUSAL_SETTLE_S, standby_refusal, wait_standby
 from mission.vehicle.prearm import PrearmStatus
 
 _UNINIT, _STANDBY = 0, 3
@@ -93,9 +93,7 @@ def test_standby_armed_or_unknown_is_not_waited_for(status, armed):
     assert _run(v, clock) is None and clock.t == 0.0
 
 
-def test_an_old_text_is_not_a_reason_and_a_link_without_prearm_status_says_nothing():
+def test_an_old_text_is_not_a_reason():
     v = _Vehicle(_UNINIT)
     v.prearm.on_statustext(_text("Preflight Fail: ekf2 missing data"), 0.0)
     assert standby_refusal(v, 1.0) is not None and standby_refusal(v, 1000.0) is None
-    bare = type("V", (), {"state": v.state})()
-    assert standby_refusal(bare, 1.0) is None

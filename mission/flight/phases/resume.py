@@ -18,7 +18,7 @@ goes on from the last centre and iteration, appending to the same log.
 The seek goes on only for a log cut in the takeoff, assembly or seek (a ground station killed or
 crashed there) or stopped there by an interrupt of a ground station told to just stop; every other
 ending (finished, returning, aborted by an error or an operator's stop, interrupted with the
-return: :mod:`mission.flight.resume_endings`, the table in docs/faults.md) is taken over to
+return: :mod:`mission.flight.phases.resume_endings`, the table in docs/faults.md) is taken over to
 **bring the vehicles home**: the vehicles still flying are re-engaged the same way, then fly the
 return (outcome ``recovered``); if none flies, there is nothing to do (outcome ``recovered``,
 every vehicle down).
@@ -46,10 +46,10 @@ from mission.core.plan_types import (
     VehiclePlan,
 )
 from mission.core.signing_config import SigningConfig
-from mission.flight.connect import build_envelope
+from mission.flight.phases.connect import build_envelope
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.motion import retried
-from mission.flight.resume_endings import classify_ending
+from mission.flight.phases.resume_endings import classify_ending
 from mission.flight.services import Clock, Events, Fleet, Waiter
 from mission.flight.state import MissionError, MissionState, VehicleLoss
 from mission.safety.gate import SafetyGate
@@ -93,7 +93,7 @@ class ResumeState:
         told to just stop was interrupted there); False (finished, returning, aborted,
         interrupted with the return): bring the vehicles still flying home.
     ending : str
-        How the log ends (:data:`mission.flight.resume_endings.ENDINGS`).
+        How the log ends (:data:`mission.flight.phases.resume_endings.ENDINGS`).
     """
 
     plan: Plan

@@ -40,7 +40,7 @@ ENDINGS = {"finished": False, "returning": False, "aborted": False, "interrupted
            "stopped": True, "cut": True, "before_takeoff": False}
 _FLYING = ("takeoff", "assemble", "seek")
 _NOT_DECIDING = ("connect", "preflight", "done")
-#: the event :meth:`mission.flight.mission_end.MissionEnd.run` writes when a ground station told to just stop
+#: the event :meth:`mission.flight.phases.mission_end.MissionEnd.run` writes when a ground station told to just stop
 #: is interrupted (older logs have no ``returning`` field in their ``aborted`` phase record)
 _JUST_STOPS = "the ground station stops; the vehicles do what their autopilots do"
 

@@ -108,7 +108,7 @@ class Connect:
         for sysid, v in self.fleet.vehicles.items():
             self.events.event(f"vehicle {sysid} ({self.fleet.ids[sysid]}): {v.flavour} on "
                               f"{self._plan_vehicles[sysid].connection}",
-                              sysid=sysid, flavour=v.flavour, uid=getattr(v, "uid", None))
+                              sysid=sysid, flavour=v.flavour, uid=v.uid)
         if problems and required:
             raise MissionError("connect failed: " + "; ".join(problems))
         for p in problems:
@@ -158,7 +158,7 @@ class Connect:
     def _duplicate_uids(self) -> str | None:
         seen: dict[int, int] = {}
         for sysid, v in self.fleet.vehicles.items():
-            uid = getattr(v, "uid", None)
+            uid = v.uid
             if not uid:
                 continue
             if uid in seen:
@@ -290,10 +290,8 @@ class Preflight:
 def standby_refusal(v, now_s: float) -> str | None:
     """Why vehicle ``v``'s autopilot says it will not arm: its last pre-arm / arming refusal
     STATUSTEXT while recent, else its SYS_STATUS pre-arm check bit unhealthy; None when it says
-    nothing (or the link has no pre-arm status, e.g. a test double)."""
-    status = getattr(v, "prearm", None)
-    if status is None:
-        return None
+    nothing."""
+    status = v.prearm
     says = status.autopilot_says(now_s)
     if says:
         return f"autopilot says: {says!r}"

@@ -1,6 +1,6 @@
 """Sampling while moving: the seek loop's move and readings with ``[seeking] sampling = "moving"``.
 
-Stop and go (:mod:`mission.flight.seek`) flies the formation to the new centre, waits until every
+Stop and go (:mod:`mission.flight.phases.seek`) flies the formation to the new centre, waits until every
 vehicle is within ``arrival_tol_m`` of its slot, then estimates from one reading per vehicle.
 With ``moving`` sampling (the ``newton``, ``model`` and ``ste`` seekers only), one iteration is:
 
@@ -117,7 +117,7 @@ class MovingSampling:
     async def move(self, run, k: int) -> float:
         """Set the goals about ``run.centre`` and wait until the move is covered enough; that instant.
 
-        ``run`` is the seek phase (:class:`mission.flight.seek.Seek`: its ``centre``, ``sysids``,
+        ``run`` is the seek phase (:class:`mission.flight.phases.seek.Seek`: its ``centre``, ``sysids``,
         ``sk``, ``period_s``, ``last_estimate_t``; its state, fleet, gate, waiter and formation).
         """
         sk, state, gate = run.sk, run.state, run.gate
@@ -204,7 +204,7 @@ def thin_evenly(readings: list, positions, per_vehicle: int) -> tuple[list, np.n
     spread over its readings in time order (the first kept, and the last when ``per_vehicle`` > 1);
     every reading when it has that many or fewer.
 
-    For the ``ste`` seeker (:data:`mission.flight.seek.STE_READINGS_PER_VEHICLE`): its CPU grows with
+    For the ``ste`` seeker (:data:`mission.flight.phases.seek.STE_READINGS_PER_VEHICLE`): its CPU grows with
     the readings of an update, and its tempering is calibrated for one reading per vehicle per
     update; with more, its posterior is overconfident (docs/seekers.md, "ste in missions").
     """
@@ -230,11 +230,11 @@ def moving_sampling(clock: Clock, store, events: Events, sk) -> MovingSampling |
     """
     from estimator.seekers import MOVING_SEEKERS
 
-    if getattr(sk, "sampling", "stop_and_go") != "moving":
+    if sk.sampling != "moving":
         return None
     if sk.seeker not in MOVING_SEEKERS:
         events.event(f'sampling = "moving" needs the newton, model or ste seeker; the {sk.seeker} seeker samples '
                  "stop and go", level="warning")
         return None
     since_s = -np.inf if sk.seeker == "ste" else None  # ste: every reading since takeoff, once
-    return MovingSampling(clock, store, events, sk.replan_fraction, getattr(sk, "sensor_lag_s", 0.0), since_s=since_s)
+    return MovingSampling(clock, store, events, sk.replan_fraction, sk.sensor_lag_s, since_s=since_s)

@@ -19,7 +19,7 @@ One iteration (design choice: *move, settle, then estimate*):
 Stop and go is the default because Theorem 2 needs the formation's shape: estimating while the
 vehicles fly uses a formation distorted by tracking lag (``cond(M)`` and the noise grow). The
 ``newton`` and ``model`` seekers fit readings taken anywhere: with ``[seeking] sampling =
-"moving"`` steps 1-2 are replaced by :mod:`mission.flight.seek_moving` (re-plan once the move is
+"moving"`` steps 1-2 are replaced by :mod:`mission.flight.phases.seek_moving` (re-plan once the move is
 partly covered; the seeker gets every reading since the last estimate, where it was taken).
 """
 from __future__ import annotations
@@ -29,14 +29,13 @@ from typing import Awaitable, Callable
 
 import numpy as np
 
-from estimator.estimate import reported_estimate
-from estimator.seek_confirm import seeker_estimate
+from estimator.estimate import SourceEstimate
 from mission.core.plan_types import Plan
 from mission.flight.control import OperatorStop
 from mission.flight.fence_reach import source_in_reach
 from mission.flight.motion import paced
 from mission.flight.result import estimate_fields, geodetic_point, region_text
-from mission.flight.seek_moving import moving_sampling, thin_evenly
+from mission.flight.phases.seek_moving import moving_sampling, thin_evenly
 from mission.flight.sensor_check import make_check
 from mission.flight.services import Clock, Fleet, PhaseEvents, SeekFormation, Waiter
 from mission.flight.state import MissionError, MissionState
@@ -44,10 +43,10 @@ from mission.safety.gate import SafetyGate
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.readings import ReadingStore
 
-__all__ = ["Seek", "make_estimator", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
+__all__ = ["GradientEstimate", "Seek", "make_seeker", "ste_options", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
 
 #: With moving sampling the ``ste`` seeker gets at most this many of each vehicle's readings per update
-#: (:func:`mission.flight.seek_moving.thin_evenly`); None: every reading, each with its time and vehicle,
+#: (:func:`mission.flight.phases.seek_moving.thin_evenly`); None: every reading, each with its time and vehicle,
 #: weighed by the independent evidence it carries (:mod:`estimator.ste_tempering`; docs/seekers.md,
 #: "ste in missions"). The thinning (1 before the filter took reading times) stays as an option.
 STE_READINGS_PER_VEHICLE = None
@@ -160,29 +159,40 @@ class _MissionSeeker:
         self.formation_radius_m = None if radius is None else float(radius[0])
 
 
-def make_estimator(kind: str, n: int):
-    """``f(positions (N,3), values (N,), centre (3,)) -> gradient (3,)`` for the plan's estimator."""
-    import estimator
+class GradientEstimate:
+    """The seek's gradient estimate, ``estimate(positions (N,3), values (N,), centre (3,)) -> gradient (3,)``,
+    with the plan's estimator.
 
-    if kind == "robust":
+    Attributes
+    ----------
+    robust : RobustGradientEstimator or None
+        The robust estimator (``estimator = "robust"``), shared with the faulty-sensor detector
+        (:func:`mission.flight.sensor_check.make_check`); None for the others.
+    needs_all : bool
+        The estimate needs every sensor's reading (the robust estimator tracks each by its index).
+    sysids : None
+        Its sensors are the iteration's ``used`` vehicles, in order (a :class:`SensorCheck` names its own).
+    """
+
+    sysids = None
+
+    def __init__(self, kind: str, n: int) -> None:
         from estimator.robust import RobustGradientEstimator
 
-        robust = RobustGradientEstimator(n)
+        self.kind = kind
+        self.robust = RobustGradientEstimator(n) if kind == "robust" else None
+        self.needs_all = self.robust is not None
 
-        def _robust(positions, values, centre):
-            return np.asarray(robust.update(np.asarray(positions) - centre, np.asarray(values)), dtype=float)
+    def __call__(self, positions, values, centre) -> np.ndarray:
+        import estimator
 
-        _robust.robust = robust  # the faulty-sensor detector shares it (mission.flight.sensor_check)
-        _robust.suspects = lambda: list(robust.suspects)
-        _robust.suspect_codes = lambda: robust.suspect_codes
-        _robust.noise_std = lambda: robust.noise_std_estimates
-        _robust.needs_all = True
-        return _robust
+        if self.robust is not None:
+            return np.asarray(self.robust.update(np.asarray(positions) - centre, np.asarray(values)), dtype=float)
+        return estimator.gradient(positions, values, centre, method=self.kind)
 
-    def _plain(positions, values, centre):
-        return estimator.gradient(positions, values, centre, method=kind)
-
-    return _plain
+    def suspects(self) -> list | None:
+        """The robust estimator's suspects (:class:`estimator.robust.Suspect`); None for the others."""
+        return None if self.robust is None else list(self.robust.suspects)
 
 
 class Seek:
@@ -219,7 +229,7 @@ class Seek:
         """Run the seek loop; returns ``(outcome, message)``.
 
         ``start_iteration`` and ``history`` (the last centres, oldest first) resume a stopped seek
-        (:mod:`mission.flight.resume`): iterations are numbered on, the convergence monitor is prefilled.
+        (:mod:`mission.flight.phases.resume`): iterations are numbered on, the convergence monitor is prefilled.
 
         Outcomes: ``converged`` (also with the centre held at the fence shrunk by the radius when the
         source is inside the formation, :mod:`mission.flight.fence_reach`), ``max_iterations``,
@@ -263,7 +273,7 @@ class Seek:
         if len(flying) < 4:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
         self.est_kind = sk.estimator
-        self.estimate = make_estimator(self.est_kind, len(self.sysids))
+        self.estimate = GradientEstimate(self.est_kind, len(self.sysids))
         ste = ste_options(sk) if sk.seeker == "ste" else {}
         wind_from_deg = sk.wind_from_deg
         if sk.seeker == "ste":
@@ -293,7 +303,7 @@ class Seek:
         """A fresh estimator (and retirement watch) for the current members."""
         if symmetric_to_cvt and self.state.formation_kind == "cvt" and self.est_kind == "symmetric":
             self.est_kind = "cvt"
-        self.estimate = make_estimator(self.est_kind, len(self.sysids))
+        self.estimate = GradientEstimate(self.est_kind, len(self.sysids))
         self.check = make_check(self.plan.faults, self.estimate, self.sysids)
         self.watch = self.formation.make_watch(self.check, self.sysids)
 
@@ -331,7 +341,7 @@ class Seek:
 
     async def _move(self, k: int) -> float:
         """Fly the formation to its slots about the centre and settle; the arrival time (moving
-        sampling: set the goals and return once the move is covered enough, :mod:`mission.flight.seek_moving`)."""
+        sampling: set the goals and return once the move is covered enough, :mod:`mission.flight.phases.seek_moving`)."""
         if self.moving is not None:
             return await self.moving.move(self, k)
         sk = self.sk
@@ -432,7 +442,7 @@ class Seek:
                                    f"(rejections: {self.store.counts()['rejected']})")
             await self.clock.sleep(1.0)
             return False
-        if getattr(self.estimate, "needs_all", False) and len(aligned) < len(self.sysids):
+        if self.estimate.needs_all and len(aligned) < len(self.sysids):
             # the robust estimator tracks each sensor by its index: estimate only with all of them
             self.events.event(f"iteration {k + 1}: {len(aligned)} of {len(self.sysids)} readings aligned; the robust "
                      "estimator needs all; waiting", level="warning")
@@ -453,17 +463,22 @@ class Seek:
             self.events.event(clamp.message, level="warning")
         return np.asarray(clamp.centre_enu, dtype=float)
 
-    def _in_reach(self, requested, held) -> bool:
+    def _own_estimate(self) -> SourceEstimate | None:
+        """The seeker's own estimate of the source (``source_estimate(0)``; for ``ste`` a summary of
+        its whole posterior), None without a seeker or without an estimate of its own. Asked once
+        per iteration: the estimate reported is the one the fence's reach check judges."""
+        return None if self.seeker is None else self.seeker.seeker.source_estimate(0)
+
+    def _in_reach(self, requested, held, own: SourceEstimate | None) -> bool:
         """Whether the source is within reach of the formation held at ``held`` though the seeker
-        asked for ``requested`` (:func:`mission.flight.fence_reach.source_in_reach`)."""
-        own = getattr(getattr(self.seeker, "seeker", None), "source_estimate", None)
-        own = None if own is None else own(0)
+        asked for ``requested``, ``own`` the seeker's own estimate of this iteration
+        (:meth:`_own_estimate`; :func:`mission.flight.fence_reach.source_in_reach`)."""
         return source_in_reach(held, requested, None if own is None else own.enu, self.envelope.formation_radius_m,
                                self.sk.convergence_tol_m, self.envelope.fence)
 
     def _seeker_inputs(self, aligned: dict, used: list[int]) -> tuple[list, list]:
         """This iteration's readings (logged) and where the seeker takes them to be: each vehicle's aligned
-        one, or every one since the last estimate (:meth:`~mission.flight.seek_moving.MovingSampling.collect`)."""
+        one, or every one since the last estimate (:meth:`~mission.flight.phases.seek_moving.MovingSampling.collect`)."""
         if self.samples is None:
             return [aligned[s] for s in used], [aligned[s].position_enu_m for s in used]
         return self.samples, self.moving.positions_enu
@@ -484,16 +499,18 @@ class Seek:
                                            [r.sysid for r in kept])
         new_centre = self._clamped(proposed)
         step_m = float(np.linalg.norm(new_centre - self.centre))
-        own = None if self.seeker is None else self.seeker.arrival
+        arrival = None if self.seeker is None else self.seeker.arrival
         dropped = set() if self.check is None else self.check.dropped
         signal = self.arrival.signal([aligned[s].value for s in used if s not in dropped])
-        converged = self.monitor.update(new_centre, signal if own is None else own,  # estimator.seek_confirm
-                                        seeker_estimate(getattr(self.seeker, "seeker", None)), centroid)
+        own = self._own_estimate()  # asked once: the confirmation, the report and the reach check share it
+        converged = self.monitor.update(new_centre, signal if arrival is None else arrival,  # estimator.seek_confirm
+                                        own, centroid)
         if self.seeker is not None and self.seeker.converges_itself:  # ste: its posterior's region
-            converged = bool(own)
-        # the source estimate with its 95 % region: the seeker's own, else the monitor's mean of the centres
-        source = reported_estimate(getattr(self.seeker, "seeker", None), self.monitor)
-        held = self.at_fence and not self._in_reach(proposed, new_centre)
+            converged = bool(arrival)
+        # the source estimate with its 95 % region: the seeker's own, else the monitor's mean of the
+        # centres (the rule of :func:`estimator.estimate.reported_estimate`)
+        source = own if own is not None else self.monitor.source_estimate()
+        held = self.at_fence and not self._in_reach(proposed, new_centre, own)
         self.beyond_reach = self.beyond_reach + 1 if held else 0
         self.state.record_iteration(k + 1, grad, step_m, source, self.monitor.spread_m)
         if self.log is not None:
@@ -590,14 +607,17 @@ def scaled_slots(offsets: dict, radius_m: float, min_separation_m: float, max_ra
     return {s: off[i] * scale for i, s in enumerate(keys)}
 
 
-def _suspects(estimate, used: list[int]) -> list[dict] | None:
-    """The faulty-sensor detector's (or the robust estimator's) suspect sensors as ``{sysid, reason, excluded, noise_std}`` (None otherwise)."""
-    get = getattr(estimate, "suspects", None)
-    if get is None:
-        return None
-    order = getattr(estimate, "sysids", used)  # the detector's sensors are its sysids
+def _suspects(source, used: list[int]) -> list[dict] | None:
+    """The suspect sensors of ``source``, the faulty-sensor detector (a
+    :class:`~mission.flight.sensor_check.SensorCheck`, its sensors its ``sysids``) or the seek's
+    :class:`GradientEstimate` (its sensors the ``used`` vehicles), as ``{sysid, reason, excluded,
+    noise_std}``; None when it has none (not the robust estimator)."""
+    order = used if source.sysids is None else source.sysids
     try:
+        found = source.suspects()
+        if found is None:
+            return None
         return [{"sysid": order[s.index], "reason": s.reason, "excluded": bool(s.excluded),
-                 "noise_std": float(s.noise_std)} for s in get()]
+                 "noise_std": float(s.noise_std)} for s in found]
     except (AttributeError, IndexError, ValueError):
         return None
