@@ -76,6 +76,7 @@ def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", ex
     from mission.cli.cmd_run import configure, run_embedded
     from mission.telemetry.display import Display
 
+    from mission.flight import seeking
     from mission.flight.phases import seek
 
     ap = argparse.ArgumentParser()
@@ -85,7 +86,7 @@ def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", ex
                           "--log-dir", str(log_dir), *extra])
     seen: list = []  # the mission's seeker adapter, for its last 95 % region (ste; None for the others)
     cpu_s: list = []  # thread CPU time of each seeker update (lock-step: its executor runs inline)
-    step = seek._MissionSeeker.step
+    step = seeking.MissionSeeker.step
 
     def _step(self, *a, **kw):
         seen[:] = [self]
@@ -98,13 +99,13 @@ def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", ex
             cpu_s.append(time.thread_time() - t0)
 
     options, thin = seek.ste_options, seek.STE_READINGS_PER_VEHICLE
-    seek._MissionSeeker.step = _step
-    seek.ste_options = lambda sk: {**options(sk), **(ste_args or {})}
+    seeking.MissionSeeker.step = _step
+    seek.ste_options = lambda sk: {**options(sk), **(ste_args or {})}  # the name the seek phase calls
     seek.STE_READINGS_PER_VEHICLE = ste_readings
     try:
         result = run_embedded(args, display=Display(quiet=True))
     finally:
-        seek._MissionSeeker.step = step
+        seeking.MissionSeeker.step = step
         seek.ste_options, seek.STE_READINGS_PER_VEHICLE = options, thin
     row = mission_measures(Path(result.log_path))
     if sampling != "stop_and_go":

@@ -143,7 +143,7 @@ class SensorCheck:
 def make_check(faults, estimate, sysids: list[int]) -> SensorCheck | None:
     """The seek's :class:`SensorCheck`, or None with ``faulty_sensor = "off"`` or fewer than 4 vehicles.
 
-    ``estimate`` is the seek's estimate (:class:`mission.flight.phases.seek.GradientEstimate`):
+    ``estimate`` is the seek's estimate (:class:`mission.flight.seeking.GradientEstimate`):
     when it is the robust estimator, the detector is that estimator (``estimate.robust``).
     """
     if faults.faulty_sensor == "off" or len(sysids) < 4:

@@ -168,7 +168,7 @@ def test_plan_keys_and_cli_flags(tmp_path):
 
 
 def test_mission_hook_gives_the_plume_seekers_signal():
-    from mission.flight.phases.seek import make_seeker as mission_seeker
+    from mission.flight.seeking import make_seeker as mission_seeker
 
     hook = mission_seeker("plume", 270.0)
     field = make_field("plume", (0.0, 0.0, 15.0))
@@ -225,7 +225,7 @@ def test_plume_mode_follows_the_field_and_reaches_the_seeker(argv, mode):
     from estimator.seek_hits import HitEdgeSeeker
     from estimator.seek_plume import PlumeSeeker
     from mission.cli.cmd_run import _seeking_options, configure
-    from mission.flight.phases.seek import make_seeker as mission_seeker
+    from mission.flight.seeking import make_seeker as mission_seeker
 
     parser = argparse.ArgumentParser()
     configure(parser)

@@ -134,7 +134,7 @@ def test_watch_never_leaves_fewer_than_four_sensors():
     ("robust", FaultsPlan(), (6,), False),           # one parking place: the centre
 ])
 def test_watch_for_retire_and_a_free_centre_whatever_the_estimator(kind, faults, retired, made):
-    from mission.flight.phases.seek import GradientEstimate
+    from mission.flight.seeking import GradientEstimate
     from mission.flight.sensor_check import make_check
 
     co = _co(faults, retired)

@@ -53,7 +53,8 @@ def _seek_at_the_fence(inner: _CountingSeeker) -> Seek:
         clamp_centre=lambda centre, new: SimpleNamespace(at_boundary=True, centre_enu=held, message="held"),
         formation_radius_m=4.0, fence=SimpleNamespace(contains=lambda p: True))
     run.arrival = SimpleNamespace(signal=lambda values: None)
-    run.monitor = SimpleNamespace(update=lambda centre, signal: False, spread_m=None)
+    run.monitor = SimpleNamespace(update=lambda centre, signal, estimate=None, centroid=None: False,
+                                  spread_m=None, declared_by=None)
 
     async def _propose(k, positions, values, times_s=None, sysids=None):
         return held + np.array([2.0, 0.0, 0.0])

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mission.cli import main as cli_main
-from mission.flight.phases.seek import make_seeker
+from mission.flight.seeking import make_seeker
 from mission.safety.audit import audit_mission
 from mission.telemetry.mission_log import read_mission_log
 

@@ -20,7 +20,7 @@ from mission.cli import cmd_run
 from mission.cli import main as cli_main
 from mission.core.plan_types import FaultsPlan
 from mission.flight.sensor_check import SensorCheck, make_check
-from mission.flight.phases.seek import GradientEstimate
+from mission.flight.seeking import GradientEstimate
 from mission.telemetry.mission_log import read_mission_log
 
 GRAD = np.array([0.3, -0.2, 0.1])

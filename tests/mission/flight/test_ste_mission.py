@@ -19,7 +19,8 @@ from mission.cli import main as cli_main
 from mission.core.plan_types import PlanError
 from mission.core.plan import parse_plan
 from mission.flight.phases import seek
-from mission.flight.phases.seek import _MissionSeeker, make_seeker, scaled_slots, ste_options
+from mission.flight.phases.seek import scaled_slots
+from mission.flight.seeking import MissionSeeker, make_seeker, ste_options
 from mission.flight.phases.seek_moving import MovingSampling, thin_evenly
 from mission.telemetry.mission_log import read_mission_log
 from mission.telemetry.reading_format import Reading
@@ -253,7 +254,7 @@ def _seek_with(seeker):
 def test_a_collapse_is_an_event_and_the_mission_goes_on():
     """Readings no particle can explain (1000 where the prior's plumes give at most ~20): the
     posterior collapses, is re-seeded, and the mission log gets a warning naming it."""
-    run = _seek_with(_MissionSeeker("ste", particles=300, info_particles=64))
+    run = _seek_with(MissionSeeker("ste", particles=300, info_particles=64))
     rng = np.random.default_rng(0)
     pos = np.array([0.0, 0.0, 10.0]) + rng.normal(size=(8, 3)) * 3.0
     centre = asyncio.run(run._propose(0, pos, np.full(8, 1000.0)))
@@ -268,7 +269,7 @@ def test_every_reading_goes_to_ste_with_its_time_and_vehicle():
     every one, reach the filter with their times and vehicles, which weigh them
     (estimator.ste_tempering: 3 s of 10 Hz readings per vehicle about 1.6 units each, not 30)."""
     assert seek.STE_READINGS_PER_VEHICLE is None
-    run = _seek_with(_MissionSeeker("ste", 270.0, "intermittent", particles=300, info_particles=64))
+    run = _seek_with(MissionSeeker("ste", 270.0, "intermittent", particles=300, info_particles=64))
     rng = np.random.default_rng(1)
     sysids = np.repeat([11, 12, 13, 14], 30)
     times = 1767225600.0 + np.tile(np.arange(30) * 0.1, 4)
@@ -283,7 +284,7 @@ def test_every_reading_goes_to_ste_with_its_time_and_vehicle():
 
 
 def test_a_seeker_error_holds_and_is_logged():
-    run = _seek_with(_MissionSeeker("ste", particles=300, info_particles=64))
+    run = _seek_with(MissionSeeker("ste", particles=300, info_particles=64))
     held = asyncio.run(run._propose(3, np.zeros((8, 3)), np.full(8, np.nan)))
     np.testing.assert_array_equal(held, run.centre)
     assert run.seeker.estimate_enu is None
@@ -291,7 +292,7 @@ def test_a_seeker_error_holds_and_is_logged():
 
 
 def test_the_adapter_reports_the_posterior():
-    ms = _MissionSeeker("ste", particles=500, info_particles=64, wind_from_deg=270.0)
+    ms = MissionSeeker("ste", particles=500, info_particles=64, wind_from_deg=270.0)
     rng = np.random.default_rng(1)
     pos = np.array([10.0, 0.0, 10.0]) + rng.normal(size=(8, 3)) * 3.0
     ms.step(np.array([10.0, 0.0, 10.0]), pos, np.zeros(8), 20.0)
@@ -329,7 +330,7 @@ def test_ste_wind_prior_comes_from_the_plan_else_the_autopilots_else_none():
     prior; with neither the seeker estimates the direction (None), and each case says so."""
     from types import SimpleNamespace
 
-    from mission.flight.phases.seek import ste_wind
+    from mission.flight.seeking import ste_wind
     from mission.vehicle.state import VehicleState
     from mission.vehicle.wind import WindEstimate
 
