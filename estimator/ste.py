@@ -197,6 +197,11 @@ class SteSeeker:
     toward_mean_along : bool
         No information-seeking candidate steps along the wind away from the posterior mean's place
         (the formation then never drifts down the wind of an estimate up the wind of it).
+    prior_at_first_hit : bool
+        At a trial's first hit, its particles are re-seeded from the prior's sector
+        (``prior_upwind_deg``) up the wind of where the hit was read, instead of the first centre
+        (a release is up the wind of where it is detected, wherever the formation started), and
+        the last ``memory`` updates' readings are applied again; needs ``prior_upwind_deg``.
     seed : int
         Seed of the filter's random numbers (reset re-seeds).
     """
@@ -217,7 +222,8 @@ class SteSeeker:
                  corr_path_m: float | None = None, time_temper: float = 1.0, same_time_s: float = 0.25,
                  timed: bool | None = None, prior_upwind_deg: float | None = None, approach_m: float | None = None,
                  surge_m: float = 6.0, standoff_m: float = 0.0, cast_m: float = 4.0, cast_after: int = 2,
-                 axis_steps: bool = False, toward_mean_along: bool = False, seed: int = 0):
+                 axis_steps: bool = False, toward_mean_along: bool = False, prior_at_first_hit: bool = False,
+                 seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -274,6 +280,9 @@ class SteSeeker:
             raise ValueError(f"min_radius_m {min_radius_m!r} must be at most max_radius_m {max_radius_m!r}")
         self.casting, self.misfit_z = bool(casting), _positive("misfit_z", misfit_z)
         self.axis_steps, self.toward_mean_along = bool(axis_steps), bool(toward_mean_along)
+        self.prior_at_first_hit = bool(prior_at_first_hit)
+        if self.prior_at_first_hit and self.prior_upwind_deg is None:
+            raise ValueError("prior_at_first_hit needs prior_upwind_deg (the sector's half-angle)")
         self.approach_m = None if approach_m is None else _positive("approach_m", approach_m)
         if isinstance(cast_after, bool) or int(cast_after) != cast_after or cast_after < 1:
             raise ValueError(f"cast_after must be an integer >= 1, got {cast_after!r}")
@@ -308,7 +317,7 @@ class SteSeeker:
         self.iterations = 0
         self._buf: list = []  # the last ``memory`` updates: (positions, values, applied weights, unit weights)
         self._last: list = [{} for _ in range(k)]  # per trial: sensor -> its newest (time_s, position)
-        self._seed_prior(np.arange(k), c, upwind=True)
+        self._seed_prior(np.arange(k), c, upwind=not self.prior_at_first_hit)  # the disk until a first hit
 
     def _seed_prior(self, idx: np.ndarray, c: np.ndarray, upwind: bool = False) -> None:
         """Particles of trials ``idx`` drawn from the prior about centres ``c[idx]``, equal weights;
@@ -564,8 +573,10 @@ class SteSeeker:
         if self._k != c.shape[0]:
             self._init_state(c)
         self.iterations += 1
-        self._note_hits(p, v)
+        first = self._note_hits(p, v)
         self._update(c, p, v, None if t is None else self._timed_weights(p, v, t, ids))
+        if self.prior_at_first_hit and first.any():
+            self._reseed_up_of(np.flatnonzero(first), self.hit_enu)
         self._summarise()
         sub = self._subsample()
         self._check_fit(sub)
@@ -573,15 +584,27 @@ class SteSeeker:
         self._resample()
         return nxt
 
-    def _note_hits(self, p: np.ndarray, v: np.ndarray) -> None:
+    def _note_hits(self, p: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Count the hits (:attr:`hits`), the iterations since the last (:attr:`dry`) and where
-        the last were read (:attr:`hit_enu`, their mean position)."""
+        the last were read (:attr:`hit_enu`, their mean position); ``(K,)`` the trials whose
+        first hit this is."""
         is_hit = v - self.background > self.threshold
         n = is_hit.sum(axis=1)
+        first = (n > 0) & np.isnan(self.hit_enu[:, 0])
         self.hits += n
         self.dry = np.where(n > 0, 0, self.dry + 1)
         where = np.einsum("km,kmi->ki", is_hit, p) / np.maximum(n, 1)[:, None]
         self.hit_enu = np.where((n > 0)[:, None], where, self.hit_enu)
+        return first
+
+    def _reseed_up_of(self, idx: np.ndarray, where: np.ndarray) -> None:
+        """``prior_at_first_hit``: trials ``idx`` re-seeded from the prior's sector up the wind of
+        ``where`` (K, 3) and the buffered readings (the last ``memory`` updates) applied again."""
+        self._seed_prior(idx, where, upwind=True)
+        for bp, bv, bw, _ in self._buf:
+            self.logw[idx] += np.einsum("kpm,km->kp", self._loglik(self.parts[idx], bp[idx], bv[idx]), bw[idx])
+        self.logw -= self.logw.max(axis=1, keepdims=True)
+        self.logw -= np.log(np.exp(self.logw).sum(axis=1, keepdims=True))
 
     @staticmethod
     def _times(times_s, sensor_ids, shape) -> tuple:

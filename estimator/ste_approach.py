@@ -7,15 +7,17 @@ steps half the region at most and, with a prior half downwind, drifts downwind a
 believes in, the way a moth does in an intermittent plume, in wind coordinates about the centre
 (``a`` the posterior mean's distance up the wind, ``y`` across it, ``dz`` above):
 
-* **Surge** (a vehicle read a hit in the iteration, or did within ``cast_after`` iterations):
-  up the wind to the mean's along-wind place less ``standoff_m`` (never down the wind: a hit
-  says the release is up the wind of it), across to the mean's line, each at most ``surge_m``.
+* **Surge** (a vehicle read a hit within the last ``cast_after`` iterations): up the wind toward
+  the mean's along-wind place less ``standoff_m``, but at most ``surge_m`` past where the last hit
+  was read and never down the wind (a hit says the release is up the wind of it); across to the
+  mean's line.
 * **Cast** (no hit for ``cast_after`` iterations or more): across the wind about the mean's line,
   alternating sides, the sweep growing by ``cast_m`` every other iteration (at most
-  ``surge_m``), and back down the wind only where the mean now lies behind the centre (an
-  overshoot: the misses put the release behind).
+  ``surge_m``), and back down the wind to the last hit (or the mean) if the centre is past it.
 
-The vertical move goes to the mean's height, at most ``vertical_m`` per iteration.
+The vertical move goes to the mean's height, at most ``vertical_m`` per iteration. The seeker
+uses it only after a first hit (before it, infotaxis). Measured in docs/seekers.md ("Round 5"):
+slower than infotaxis and less often successful; kept opt-in for the record.
 """
 from __future__ import annotations
 

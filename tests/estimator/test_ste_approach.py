@@ -124,3 +124,23 @@ def test_dry_counts_iterations_since_a_hit_and_arguments_are_checked():
                      (dict(standoff_m=float("nan")), "standoff_m")):
         with pytest.raises(ValueError, match=name):
             SteSeeker(**kw)
+
+
+def test_prior_at_first_hit_reseeds_up_the_wind_of_the_first_hit_only(monkeypatch):
+    """The prior is the disk about the first centre until a first hit, then the sector up the wind
+    of where that hit was read; later hits do not re-seed."""
+    s = SteSeeker(wind_from_deg=270.0, wind_std_deg=0.0, patchy=True, prior_upwind_deg=30.0,
+                  prior_at_first_hit=True, seed=6)
+    s.propose(C, _ring(C), np.zeros((1, 4)))
+    rel = s.parts[0, :, :2] - C[0, :2]
+    assert np.mean(rel[:, 0] > 0) > 0.3  # the disk: much of it down the wind (east) of the first centre
+    s.propose(C, _ring(C), np.array([[5.0, 0.0, 0.0, 0.0]]))  # the first hit, read at (34, 0, 15)
+    rel = s.parts[0, :, :2] - np.array([34.0, 0.0])
+    bearing = np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) % 360.0
+    assert np.mean(np.abs(bearing - 180.0) <= 30.0 + 1e-6) > 0.9  # up the wind (west) of the hit
+    calls = []
+    monkeypatch.setattr(s, "_reseed_up_of", lambda idx, where: calls.append(idx))
+    s.propose(C, _ring(C), np.array([[0.0, 5.0, 0.0, 0.0]]))
+    assert calls == []
+    with pytest.raises(ValueError, match="prior_at_first_hit"):
+        SteSeeker(prior_at_first_hit=True)
