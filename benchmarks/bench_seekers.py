@@ -17,7 +17,10 @@ Per seeker, field and noise:
 * distance flown by the centre until then (each vehicle flies the same path: rigid formation,
   perfect tracking) and the number of readings (N per iteration);
 * the final distance to the source (median over successes, and median over all trials: where
-  nothing succeeds, which seeker gets closer).
+  nothing succeeds, which seeker gets closer);
+* success within 4x and 10x the straight line: the fraction of all trials that succeed within that
+  time (the issue's speed target, counted over every trial, so that a policy whose few successes
+  are fast does not look better than one whose many are).
 
 Noise levels: 0 and "realistic" = 1 % of the field's peak (0.01 for sigma_2, the default
 ``swarmseek run --noise``; 1.0 for sigma_1; 0.01 for the plumes, whose peak is about 1). Fields
@@ -114,7 +117,8 @@ def measure(run, start_dist_m: np.ndarray, n: int, time_model, tol_m: float = 1.
             "ratio_median": q(ratio, 50), "ratio_p90": q(ratio, 90),
             "flown_m_median": q(flown, 50), "straight_m_median": q(start_dist_m, 50),
             "readings_median": q(entered * n, 50), "final_error_m_median": q(d[-1], 50),
-            "final_distance_m_median_all": float(np.median(d[-1]))}
+            "final_distance_m_median_all": float(np.median(d[-1])),
+            "within_4x": float(np.mean(ok & (ratio <= 4.0))), "within_10x": float(np.mean(ok & (ratio <= 10.0)))}
 
 
 def _wind_from_deg(field):
@@ -304,6 +308,8 @@ def _fmt(row: dict) -> str:
                 f"converged {row['converged']:.2f}, reported converged {row['reported_converged']:.2f}, "
                 f"misfit {row['misfit']:.2f} (fit z {row['fit_z_median']:.1f}), collapses {row['collapses']}, "
                 f"wall {row['wall_s']:.0f} s |")
+    if "within_4x" in row:
+        post += f" success within 4x / 10x the straight line {row['within_4x']:.2f} / {row['within_10x']:.2f} |"
     return (f"| {row['seeker']} | {row['field']} | {row['noise']:g} | {row['success']:.2f} ({lo:.2f}-{hi:.2f}) "
             f"| {row['time_s_median']:.1f} / {row['time_s_p90']:.1f} | {row['ratio_median']:.2f} / {row['ratio_p90']:.2f} "
             f"| {row['flown_m_median']:.1f} ({row['straight_m_median']:.1f}) | {row['readings_median']:.0f} "
