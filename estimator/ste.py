@@ -36,9 +36,7 @@ likelihoods are :mod:`estimator.ste_model`. Per iteration:
    summed over vehicles, on a resampled subset of the particles: myopic infotaxis, Vergassola et
    al. 2007); ``step`` is half the region, within ``[min_step_m, max_step_m]``. Once the region is
    below ``exploit_m``: the posterior mean. With ``casting``, two steps across the wind both ways
-   and the two up-wind diagonals are candidates too. With ``approach_m``, while the region is
-   above it the move is instead the approach (:mod:`estimator.ste_approach`: surge up the wind
-   toward the posterior mean after a hit, cast across it after misses), infotaxis below it.
+   and the two up-wind diagonals are candidates too.
 6. **Formation**: :attr:`formation_radius_m` ``= radius_gain * region95_m`` within
    ``[min_radius_m, max_radius_m]`` (wide to find the plume, tight about the release at the end,
    where the plume is ~1 m across); the move's information is computed for the formation at that
@@ -52,7 +50,6 @@ import numpy as np
 
 from estimator.estimate import PlanPosterior, SourceEstimate
 from estimator.seek_inputs import seeker_inputs
-from estimator.ste_approach import approach_centres, upwind_unit
 from estimator.ste_tempering import shared_counts, time_weights
 from estimator.ste_model import (BRIGGS_RURAL, deviance_patchy, deviance_steady, hit_probability, loglik_patchy,
                                  loglik_steady, plume_mean)
@@ -181,14 +178,6 @@ class SteSeeker:
         A candidate's information is computed for the formation at ``path_samples`` points evenly
         along the way to it (the last at the candidate): with sampling while moving the readings
         taken on the way count too; 1: at the candidate only.
-    approach_m : float or None
-        While the 95 % region is larger than this, the move is the approach
-        (:func:`estimator.ste_approach.approach_centres`) instead of infotaxis; None: infotaxis
-        throughout.
-    surge_m, standoff_m, cast_m, cast_after :
-        The approach's largest along- and cross-wind move, the distance its surge stops short of
-        the posterior mean, the cast's sweep increment and the hit-less iterations before it casts
-        (0: never; :mod:`estimator.ste_approach`).
     axis_steps : bool
         The move's candidate steps up, across the wind and vertically each sized by the posterior's
         spread along that axis (``1.4`` deviations, within ``[min_step_m, max_step_m]``) instead of
@@ -197,11 +186,6 @@ class SteSeeker:
     toward_mean_along : bool
         No information-seeking candidate steps along the wind away from the posterior mean's place
         (the formation then never drifts down the wind of an estimate up the wind of it).
-    prior_at_first_hit : bool
-        At a trial's first hit, its particles are re-seeded from the prior's sector
-        (``prior_upwind_deg``) up the wind of where the hit was read, instead of the first centre
-        (a release is up the wind of where it is detected, wherever the formation started), and
-        the last ``memory`` updates' readings are applied again; needs ``prior_upwind_deg``.
     seed : int
         Seed of the filter's random numbers (reset re-seeds).
     """
@@ -220,10 +204,8 @@ class SteSeeker:
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
                  corr_iterations: int = 0, path_samples: int = 1, corr_time_s: float = 5.0,
                  corr_path_m: float | None = None, time_temper: float = 1.0, same_time_s: float = 0.25,
-                 timed: bool | None = None, prior_upwind_deg: float | None = None, approach_m: float | None = None,
-                 surge_m: float = 6.0, standoff_m: float = 0.0, cast_m: float = 4.0, cast_after: int = 2,
-                 axis_steps: bool = False, toward_mean_along: bool = False, prior_at_first_hit: bool = False,
-                 seed: int = 0):
+                 timed: bool | None = None, prior_upwind_deg: float | None = None,
+                 axis_steps: bool = False, toward_mean_along: bool = False, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -280,15 +262,6 @@ class SteSeeker:
             raise ValueError(f"min_radius_m {min_radius_m!r} must be at most max_radius_m {max_radius_m!r}")
         self.casting, self.misfit_z = bool(casting), _positive("misfit_z", misfit_z)
         self.axis_steps, self.toward_mean_along = bool(axis_steps), bool(toward_mean_along)
-        self.prior_at_first_hit = bool(prior_at_first_hit)
-        if self.prior_at_first_hit and self.prior_upwind_deg is None:
-            raise ValueError("prior_at_first_hit needs prior_upwind_deg (the sector's half-angle)")
-        self.approach_m = None if approach_m is None else _positive("approach_m", approach_m)
-        if isinstance(cast_after, bool) or int(cast_after) != cast_after or cast_after < 1:
-            raise ValueError(f"cast_after must be an integer >= 1, got {cast_after!r}")
-        self.approach_kw = dict(surge_m=_positive("surge_m", surge_m),
-                                standoff_m=_positive("standoff_m", standoff_m, allow_zero=True),
-                                cast_m=_positive("cast_m", cast_m), cast_after=int(cast_after))
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -311,13 +284,11 @@ class SteSeeker:
         self.collapses = np.zeros(k, dtype=int)
         self.collapsed = np.zeros(k, dtype=bool)
         self.hits = np.zeros(k, dtype=int)
-        self.dry = np.zeros(k, dtype=int)  # iterations since a vehicle last read a hit (the approach's casts)
-        self.hit_enu = np.full((k, 3), np.nan)  # where the last hits were read (their mean)
         self.since_collapse = np.full(k, self.memory + 1)
         self.iterations = 0
         self._buf: list = []  # the last ``memory`` updates: (positions, values, applied weights, unit weights)
         self._last: list = [{} for _ in range(k)]  # per trial: sensor -> its newest (time_s, position)
-        self._seed_prior(np.arange(k), c, upwind=not self.prior_at_first_hit)  # the disk until a first hit
+        self._seed_prior(np.arange(k), c, upwind=True)
 
     def _seed_prior(self, idx: np.ndarray, c: np.ndarray, upwind: bool = False) -> None:
         """Particles of trials ``idx`` drawn from the prior about centres ``c[idx]``, equal weights;
@@ -486,7 +457,7 @@ class SteSeeker:
         w = np.exp(self.logw)
         th = np.arctan2(np.einsum("kp,kp->k", w, np.sin(self.parts[..., 4])),
                         np.einsum("kp,kp->k", w, np.cos(self.parts[..., 4])))
-        return upwind_unit(th)
+        return np.stack([-np.cos(th), -np.sin(th), np.zeros_like(th)], axis=1)
 
     def _candidates(self, c: np.ndarray) -> np.ndarray:
         """Candidate centres ``(K, C, 3)``: 8, or 12 with ``casting`` (module docstring, step 5);
@@ -531,16 +502,8 @@ class SteSeeker:
         return np.take_along_axis(self.parts, pick[..., None], axis=1)
 
     def _next_centre(self, c: np.ndarray, off: np.ndarray, sub: np.ndarray) -> np.ndarray:
-        """The approach move while the region is above ``approach_m`` (:mod:`estimator.ste_approach`),
-        else the candidate with the most expected information for a formation of offsets ``off``,
+        """The candidate with the most expected information for a formation of offsets ``off``,
         or the posterior mean (step 5)."""
-        far = None
-        if self.approach_m is not None:  # after a first hit, while the region is wide
-            far = approach_centres(c, self.estimate_enu, self._upwind(), np.nan_to_num(self.hit_enu), self.dry,
-                                   **self.approach_kw)
-            wide = (self.region95_m > self.approach_m) & np.isfinite(self.hit_enu[:, 0])
-            if wide.all():  # every trial approaching: no information to compute
-                return far
         k = c.shape[0]
         cand = self._candidates(c)
         frac = np.arange(1, self.path_samples + 1) / self.path_samples  # points along the way (path_samples)
@@ -551,8 +514,7 @@ class SteSeeker:
         if self.toward_mean_along:
             info = np.where(self._away_along(c, cand), -np.inf, info)
         best = np.take_along_axis(cand, np.argmax(info, axis=1)[:, None, None], axis=1)[:, 0]
-        best = np.where((self.region95_m < self.exploit_m)[:, None], self.estimate_enu, best)
-        return best if far is None else np.where(wide[:, None], far, best)
+        return np.where((self.region95_m < self.exploit_m)[:, None], self.estimate_enu, best)
 
     #: :meth:`propose` takes the readings' times and sensors (:func:`estimator.seekers.propose_readings`)
     takes_times = True
@@ -573,38 +535,14 @@ class SteSeeker:
         if self._k != c.shape[0]:
             self._init_state(c)
         self.iterations += 1
-        first = self._note_hits(p, v)
+        self.hits += np.sum(v - self.background > self.threshold, axis=1)
         self._update(c, p, v, None if t is None else self._timed_weights(p, v, t, ids))
-        if self.prior_at_first_hit and first.any():
-            self._reseed_up_of(np.flatnonzero(first), self.hit_enu)
         self._summarise()
         sub = self._subsample()
         self._check_fit(sub)
         nxt = self._next_centre(c, self._size_formation(self._formation_points(p, t, ids), c), sub)
         self._resample()
         return nxt
-
-    def _note_hits(self, p: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Count the hits (:attr:`hits`), the iterations since the last (:attr:`dry`) and where
-        the last were read (:attr:`hit_enu`, their mean position); ``(K,)`` the trials whose
-        first hit this is."""
-        is_hit = v - self.background > self.threshold
-        n = is_hit.sum(axis=1)
-        first = (n > 0) & np.isnan(self.hit_enu[:, 0])
-        self.hits += n
-        self.dry = np.where(n > 0, 0, self.dry + 1)
-        where = np.einsum("km,kmi->ki", is_hit, p) / np.maximum(n, 1)[:, None]
-        self.hit_enu = np.where((n > 0)[:, None], where, self.hit_enu)
-        return first
-
-    def _reseed_up_of(self, idx: np.ndarray, where: np.ndarray) -> None:
-        """``prior_at_first_hit``: trials ``idx`` re-seeded from the prior's sector up the wind of
-        ``where`` (K, 3) and the buffered readings (the last ``memory`` updates) applied again."""
-        self._seed_prior(idx, where, upwind=True)
-        for bp, bv, bw, _ in self._buf:
-            self.logw[idx] += np.einsum("kpm,km->kp", self._loglik(self.parts[idx], bp[idx], bv[idx]), bw[idx])
-        self.logw -= self.logw.max(axis=1, keepdims=True)
-        self.logw -= np.log(np.exp(self.logw).sum(axis=1, keepdims=True))
 
     @staticmethod
     def _times(times_s, sensor_ids, shape) -> tuple:
