@@ -117,6 +117,12 @@ class SafetyGate:
         self._goal.pop(sysid, None)
         self.streamer.remove(sysid)
 
+    def stream_gap_s(self, sysid: int, since_s: float) -> float | None:
+        """The longest pause of the setpoints sent to ``sysid`` since ``since_s`` (mission clock),
+        the current one included; None when the streamer cannot tell (or nothing was sent)."""
+        longest = getattr(self.streamer, "longest_gap_s", None)
+        return None if longest is None or sysid not in self._cmd else longest(sysid, since_s)
+
     def set_goal(self, sysid: int, goal_enu_m) -> None:
         """New goal of one vehicle (reached at ``max_speed_m_s``)."""
         if sysid not in self._cmd:
