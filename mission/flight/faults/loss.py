@@ -9,8 +9,9 @@ Rules (see ``docs/faults.md``):
   part in the mission: RTL or LAND (PX4 ``AUTO.RTL`` / ``AUTO.LAND``, ArduPilot ``RTL``,
   ``SMART_RTL``, ``LAND``): a failsafe (low battery, geofence, GCS loss) or a pilot; or to any
   other mode with its heartbeat saying it is in a failsafe of its own (``system_status``
-  CRITICAL/EMERGENCY) while the ground station's setpoints to it never paused
-  (:func:`autopilot_failsafe`: PX4's hold before its geofence action). The coordinator does not
+  CRITICAL/EMERGENCY), a mode its offboard loss would not give or while the ground station's
+  setpoints to it never paused (:func:`autopilot_failsafe`: PX4's hold before its battery or
+  geofence action). The coordinator does not
   fight it. Any *other* mode change (PX4 offboard loss -> hold after a pause of the setpoints,
   ArduPilot GUIDED -> LOITER/BRAKE without a failsafe) is re-engaged by the watchdog
   (:mod:`mission.flight.faults.watchdog`). A vehicle
@@ -48,7 +49,7 @@ from mission.flight.state import MissionState, VehicleLoss
 from mission.safety.gate import SafetyGate
 
 __all__ = ["CORROBORATING_HEARTBEATS", "FAILSAFE_STATES", "OWN_PAUSE_S", "LossMonitor", "Reformation",
-           "autopilot_failsafe", "classify_loss", "own_stream_gap_s", "reformed_offsets"]
+           "autopilot_failsafe", "classify_loss", "offboard_loss_mode", "own_stream_gap_s", "reformed_offsets"]
 
 #: heartbeats in a row that must report a mode change or a disarm before the vehicle "left"
 CORROBORATING_HEARTBEATS = 2
@@ -73,6 +74,19 @@ OWN_PAUSE_S = 0.5
 _PAUSE_LOOKBACK_S = 3.0
 
 
+#: the mode real PX4 shows after its offboard loss, by ``COM_OBL_RC_ACT`` (0: position mode, measured
+#: on PX4 v1.16 SIH without RC; 5: Hold); 6 (terminate) has none
+_PX4_OFFBOARD_LOSS_MODES = {0: "POSCTL", 1: "ALTCTL", 2: "MANUAL", 3: "AUTO.RTL", 4: "AUTO.LAND", 5: "AUTO.LOITER"}
+
+
+def offboard_loss_mode(state: MissionState, sysid: int, flavour: str) -> str | None:
+    """The mode ``sysid``'s autopilot takes on losing the mission's setpoints, from the failsafe
+    parameters the preflight read (PX4 ``COM_OBL_RC_ACT``); None when unknown (not read, or not PX4)."""
+    r = state.readiness.get(sysid)
+    value = None if r is None or flavour != "px4" else r.failsafe_params.get("COM_OBL_RC_ACT")
+    return None if value is None else _PX4_OFFBOARD_LOSS_MODES.get(int(value))
+
+
 def own_stream_gap_s(gate, sysid: int, vehicle) -> float | None:
     """The longest pause of the setpoints sent to ``sysid`` from :data:`_PAUSE_LOOKBACK_S` before its
     current mode was first reported until now (None: unknown, e.g. not under the gate)."""
@@ -83,14 +97,16 @@ def own_stream_gap_s(gate, sysid: int, vehicle) -> float | None:
     return stream_gap(sysid, float(since) - _PAUSE_LOOKBACK_S)
 
 
-def autopilot_failsafe(vehicle, stream_gap_s: float | None) -> str | None:
+def autopilot_failsafe(vehicle, stream_gap_s: float | None, loss_mode: str | None = None) -> str | None:
     """Why ``vehicle`` is under its autopilot's own failsafe, one the ground station did not cause;
     None if it is not (or that cannot be told).
 
     Armed, out of the mission's mode (and not RTL/LAND, which "left" anyway), with a HEARTBEAT
-    ``system_status`` in :data:`FAILSAFE_STATES`, while the setpoints to it never paused for
-    :data:`OWN_PAUSE_S` (``stream_gap_s``, :func:`own_stream_gap_s`): e.g. real PX4 holding
-    (AUTO.LOITER) for ``COM_FAIL_ACT_T`` before its geofence action. Such a vehicle is handed to its
+    ``system_status`` in :data:`FAILSAFE_STATES`, and either in another mode than its offboard loss
+    would give (``loss_mode``, :func:`offboard_loss_mode`: e.g. AUTO.LOITER, PX4's hold for
+    ``COM_FAIL_ACT_T`` before its battery or geofence action, while ``COM_OBL_RC_ACT`` 0 gives
+    POSCTL), or, when that mode is unknown or the same, while the setpoints to it never paused for
+    :data:`OWN_PAUSE_S` (``stream_gap_s``, :func:`own_stream_gap_s`). Such a vehicle is handed to its
     autopilot: never re-engaged (:mod:`mission.flight.faults.watchdog`), declared "left".
     """
     want = GUIDED_MODES.get(vehicle.flavour)
@@ -98,15 +114,19 @@ def autopilot_failsafe(vehicle, stream_gap_s: float | None) -> str | None:
     if want is None or mode == want or mode in LEFT_MODES.get(vehicle.flavour, ()) or not vehicle.state.armed:
         return None
     status = getattr(vehicle.state, "system_status", None)
-    if status not in FAILSAFE_STATES or stream_gap_s is None or stream_gap_s >= OWN_PAUSE_S:
+    if status not in FAILSAFE_STATES:
         return None
-    return (f"switched to {mode} in its own failsafe (system status {_STATE_NAMES[status]}; "
-            f"setpoints steady, longest pause {stream_gap_s:.2f} s)")
+    why = f"switched to {mode} in its own failsafe (system status {_STATE_NAMES[status]}; "
+    if loss_mode is not None and mode != loss_mode:
+        return why + f"not {loss_mode}, its offboard-loss mode)"
+    if stream_gap_s is None or stream_gap_s >= OWN_PAUSE_S:
+        return None
+    return why + f"setpoints steady, longest pause {stream_gap_s:.2f} s)"
 
 
 def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
                   seen_armed: bool = True, engaged_s: float | None = None,
-                  stream_gap_s: float | None = None) -> tuple[str, str] | None:
+                  stream_gap_s: float | None = None, loss_mode: str | None = None) -> tuple[str, str] | None:
     """``(reason, detail)`` if ``vehicle`` is lost, else None.
 
     Parameters
@@ -133,6 +153,8 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
         The longest pause of the ground station's setpoints to it around its mode change
         (:func:`own_stream_gap_s`): with it, a vehicle under its autopilot's own failsafe in another
         mode (:func:`autopilot_failsafe`, e.g. PX4's geofence hold) also "left".
+    loss_mode : str, optional
+        The mode its offboard loss would give (:func:`offboard_loss_mode`), for the same rule.
 
     Returns
     -------
@@ -158,7 +180,7 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
             detail = f"switched to {mode} by itself (failsafe)"
     elif seen_armed and not vehicle.state.armed:
         detail = "disarmed in the air"
-    elif (own := autopilot_failsafe(vehicle, stream_gap_s)) is not None:
+    elif (own := autopilot_failsafe(vehicle, stream_gap_s, loss_mode)) is not None:
         detail = own
     else:
         return None
@@ -292,16 +314,16 @@ class LossMonitor:
         """The loss of ``v`` found now, or None (an unconfirmed "left" asks the vehicle to confirm)."""
         timeout_s = self.faults.link_timeout_s
         now = self.clock.time()
-        gap = own_stream_gap_s(self.gate(), sysid, v)
+        gap, loss_mode = own_stream_gap_s(self.gate(), sysid, v), offboard_loss_mode(self.state, sysid, v.flavour)
         found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s,
-                              stream_gap_s=gap)
+                              stream_gap_s=gap, loss_mode=loss_mode)
         if found is not None and found[0] == "link":
             # let the event loop read whatever is pending before concluding
             await asyncio.sleep(0)
             await asyncio.sleep(0)
             now = self.clock.time()
             found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s,
-                                  stream_gap_s=gap)
+                                  stream_gap_s=gap, loss_mode=loss_mode)
         if found is None:
             return None
         reason, detail = found

@@ -18,7 +18,8 @@ from tests.mission.flight.faults_fakes import FakeClock, FakeGate, FakeVehicle, 
 from tests.mission.flight.test_faults_objects import _monitor, _Status, _until, _watch
 
 from mission.core.plan_types import FaultsPlan
-from mission.flight.faults.loss import OWN_PAUSE_S, autopilot_failsafe, classify_loss
+from mission.flight.faults.loss import OWN_PAUSE_S, autopilot_failsafe, classify_loss, offboard_loss_mode
+from mission.flight.state import VehicleReadiness
 from mission.flight.faults.watchdog import Watchdog
 
 _CRITICAL, _ACTIVE = 5, 4
@@ -29,22 +30,43 @@ def _hold(v: FakeVehicle, status: int, since_s: float = 0.0) -> FakeVehicle:
     return v
 
 
-@pytest.mark.parametrize("mode, status, gap_s, armed, expected", [
-    ("AUTO.LOITER", _CRITICAL, 0.1, True, True),          # PX4's geofence hold, our stream steady
-    ("AUTO.LOITER", _CRITICAL, OWN_PAUSE_S, True, False),  # our own pause may have caused it
-    ("AUTO.LOITER", _CRITICAL, None, True, False),        # cannot tell: as before
-    ("AUTO.LOITER", _ACTIVE, 0.1, True, False),           # no failsafe announced
-    ("POSCTL", 6, 0.0, True, True),                       # EMERGENCY too
-    ("OFFBOARD", _CRITICAL, 0.1, True, False),            # still in the mission's mode
-    ("AUTO.RTL", _CRITICAL, 0.1, True, False),            # RTL/LAND: "left" by the mode rule already
-    ("AUTO.LOITER", _CRITICAL, 0.1, False, False),        # disarmed: another rule
+@pytest.mark.parametrize("mode, status, gap_s, loss_mode, armed, expected", [
+    ("AUTO.LOITER", _CRITICAL, 0.1, None, True, True),           # PX4's geofence hold, our stream steady
+    ("AUTO.LOITER", _CRITICAL, OWN_PAUSE_S, None, True, False),  # our own pause may have caused it
+    ("AUTO.LOITER", _CRITICAL, None, None, True, False),         # cannot tell: as before
+    # its offboard loss gives POSCTL (COM_OBL_RC_ACT 0): a hold is its own failsafe, pause or not
+    # (real PX4 SIH at load 18: battery critical, "Failsafe activated: entering Hold for 5 seconds",
+    # while our stream had just paused 1.4 s; the watchdog re-engaged it and PX4 took OFFBOARD back)
+    ("AUTO.LOITER", _CRITICAL, 1.4, "POSCTL", True, True),
+    ("POSCTL", _CRITICAL, 1.4, "POSCTL", True, False),           # that is its offboard loss: ours
+    ("POSCTL", _CRITICAL, 0.1, "POSCTL", True, True),            # ... unless our stream never paused
+    ("AUTO.LOITER", _CRITICAL, 1.4, "AUTO.LOITER", True, False),  # COM_OBL_RC_ACT 5: the pause decides
+    ("AUTO.LOITER", _ACTIVE, 0.1, "POSCTL", True, False),        # no failsafe announced
+    ("POSCTL", 6, 0.0, None, True, True),                        # EMERGENCY too
+    ("OFFBOARD", _CRITICAL, 0.1, None, True, False),             # still in the mission's mode
+    ("AUTO.RTL", _CRITICAL, 0.1, None, True, False),             # RTL/LAND: "left" by the mode rule already
+    ("AUTO.LOITER", _CRITICAL, 0.1, None, False, False),         # disarmed: another rule
 ])
-def test_autopilot_failsafe_rule(mode, status, gap_s, armed, expected):
+def test_autopilot_failsafe_rule(mode, status, gap_s, loss_mode, armed, expected):
     v = SimpleNamespace(flavour="px4", state=SimpleNamespace(mode=mode, armed=armed, system_status=status))
-    found = autopilot_failsafe(v, gap_s)
+    found = autopilot_failsafe(v, gap_s, loss_mode)
     assert (found is not None) == expected, found
     if expected:
         assert f"switched to {mode} in its own failsafe" in found
+
+
+@pytest.mark.parametrize("flavour, params, expected", [
+    ("px4", {"COM_OBL_RC_ACT": 0, "NAV_DLL_ACT": 3}, "POSCTL"),
+    ("px4", {"COM_OBL_RC_ACT": 5.0}, "AUTO.LOITER"),
+    ("px4", {"COM_OBL_RC_ACT": 6}, None),            # terminate: no mode
+    ("px4", {}, None),                               # not read
+    ("ardupilot", {"FS_GCS_ENABLE": 5}, None),
+])
+def test_offboard_loss_mode_comes_from_the_preflight_parameters(flavour, params, expected):
+    state = flying_state(2, FakeClock())
+    state.set_readiness(VehicleReadiness(1, "v1", "udpin:x", failsafe_params=params), "ready")
+    assert offboard_loss_mode(state, 1, flavour) == expected
+    assert offboard_loss_mode(state, 2, flavour) is None     # no preflight record
 
 
 def test_classify_loss_calls_an_autopilot_failsafe_hold_left_once_corroborated():
@@ -63,8 +85,10 @@ def test_the_watchdog_leaves_an_autopilot_failsafe_hold_alone_and_reengages_its_
     _hold(vehicles[0], _CRITICAL)            # PX4's geofence hold (COM_FAIL_ACT_T): its own failsafe
     _hold(vehicles[1], _CRITICAL)            # offboard loss after a 1.2 s pause of our stream: ours
     _hold(vehicles[2], _ACTIVE)              # hold without a failsafe (e.g. a pilot's switch): as before
+    _hold(vehicles[3], _CRITICAL)            # a hold after a 1.4 s pause, but its offboard loss gives POSCTL
     gate = FakeGate({s: ring(4)[s] for s in range(1, 5)})
-    gate.pauses_s[2] = 1.2
+    gate.pauses_s[2] = gate.pauses_s[4] = 1.4
+    state.set_readiness(VehicleReadiness(4, "v4", "udpin:x", failsafe_params={"COM_OBL_RC_ACT": 0}), "ready")
     rec, status = Recorder(), _Status()
     dog = Watchdog(state, fleet_of(vehicles), lambda: gate, clock, FaultsPlan(), status, None, 1.0, rec, rec.report)
 
@@ -81,7 +105,7 @@ def test_the_watchdog_leaves_an_autopilot_failsafe_hold_alone_and_reengages_its_
     asyncio.run(main())
     assert vehicles[0].commands == [] and 1 not in state.reengaged
     assert vehicles[1].commands == ["mode OFFBOARD"] and vehicles[2].commands == ["mode OFFBOARD"]
-    assert vehicles[3].commands == []
+    assert vehicles[3].commands == [] and 4 not in state.reengaged
 
 
 def test_the_loss_monitor_declares_an_autopilot_failsafe_hold_left_and_commands_nothing():
