@@ -175,3 +175,23 @@ def test_mock_px4_geofence_hold_is_not_fought(tmp_path):
     assert after_hold[-1] == ("AUTO.LAND", False), modes                                  # landed by itself
     assert any(m.startswith("re-forming for 4 vehicles") for m in messages)
     assert result.outcome == "converged", (result.message, messages[-10:])
+
+
+def test_the_streamer_measures_its_own_pauses():
+    from mission.vehicle.streamer import SetpointStreamer
+
+    clock = FakeClock(100.0)
+    sent = []
+    v = SimpleNamespace(sysid=1, send_position_enu=lambda p, yaw=None: sent.append(p))
+    streamer = SetpointStreamer([v], rate_hz=10.0, clock=clock)
+    streamer.set_target(1, np.zeros(3))
+    for dt_s in [0.1] * 10 + [1.3] + [0.1] * 10:      # a 1.3 s pause in the middle
+        clock.t += dt_s
+        streamer.tick()
+    now = clock.time()
+    assert streamer.longest_gap_s(1, now - 0.5) == pytest.approx(0.1)    # steady since then
+    assert streamer.longest_gap_s(1, now - 1.5) == pytest.approx(1.3)    # the pause is in the window
+    assert streamer.longest_gap_s(1, 90.0) == float("inf")                # before the stream began
+    assert streamer.longest_gap_s(2, now) is None                         # not streamed
+    clock.t += 0.8
+    assert streamer.longest_gap_s(1, now - 0.5) == pytest.approx(0.8)    # the pause going on now
