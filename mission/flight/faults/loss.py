@@ -9,10 +9,10 @@ Rules (see ``docs/faults.md``):
   part in the mission: RTL or LAND (PX4 ``AUTO.RTL`` / ``AUTO.LAND``, ArduPilot ``RTL``,
   ``SMART_RTL``, ``LAND``): a failsafe (low battery, geofence, GCS loss) or a pilot; or to any
   other mode with its heartbeat saying it is in a failsafe of its own (``system_status``
-  CRITICAL/EMERGENCY), a mode its offboard loss would not give or while the ground station's
-  setpoints to it never paused (:func:`autopilot_failsafe`: PX4's hold before its battery or
-  geofence action). The coordinator does not
-  fight it. Any *other* mode change (PX4 offboard loss -> hold after a pause of the setpoints,
+  CRITICAL/EMERGENCY), a mode its offboard loss would not give (or, that mode unknown, while the
+  ground station's setpoints to it never paused) (:func:`autopilot_failsafe`: PX4's hold before
+  its battery or geofence action). The coordinator does not
+  fight it. Any *other* mode change (PX4 offboard loss -> its offboard-loss mode,
   ArduPilot GUIDED -> LOITER/BRAKE without a failsafe) is re-engaged by the watchdog
   (:mod:`mission.flight.faults.watchdog`). A vehicle
   that disarms in the air (not commanded) also left. Without signing a heartbeat proves nothing,
@@ -103,11 +103,14 @@ def autopilot_failsafe(vehicle, stream_gap_s: float | None, loss_mode: str | Non
 
     Armed, out of the mission's mode (and not RTL/LAND, which "left" anyway), with a HEARTBEAT
     ``system_status`` in :data:`FAILSAFE_STATES`, and either in another mode than its offboard loss
-    would give (``loss_mode``, :func:`offboard_loss_mode`: e.g. AUTO.LOITER, PX4's hold for
+    gives (``loss_mode``, :func:`offboard_loss_mode`: e.g. AUTO.LOITER, PX4's hold for
     ``COM_FAIL_ACT_T`` before its battery or geofence action, while ``COM_OBL_RC_ACT`` 0 gives
-    POSCTL), or, when that mode is unknown or the same, while the setpoints to it never paused for
+    POSCTL), or, when that mode is unknown, while the setpoints to it never paused for
     :data:`OWN_PAUSE_S` (``stream_gap_s``, :func:`own_stream_gap_s`). Such a vehicle is handed to its
-    autopilot: never re-engaged (:mod:`mission.flight.faults.watchdog`), declared "left".
+    autopilot: never re-engaged (:mod:`mission.flight.faults.watchdog`), declared "left". In its
+    offboard-loss mode it is taken for an offboard loss (its cause, missing setpoints, is gone
+    once they arrive again: re-engaged), whatever the stream did: an uplink lost for a while
+    (our sends steady) is one too.
     """
     want = GUIDED_MODES.get(vehicle.flavour)
     mode = vehicle.state.mode
@@ -117,8 +120,8 @@ def autopilot_failsafe(vehicle, stream_gap_s: float | None, loss_mode: str | Non
     if status not in FAILSAFE_STATES:
         return None
     why = f"switched to {mode} in its own failsafe (system status {_STATE_NAMES[status]}; "
-    if loss_mode is not None and mode != loss_mode:
-        return why + f"not {loss_mode}, its offboard-loss mode)"
+    if loss_mode is not None:
+        return why + f"not {loss_mode}, its offboard-loss mode)" if mode != loss_mode else None
     if stream_gap_s is None or stream_gap_s >= OWN_PAUSE_S:
         return None
     return why + f"setpoints steady, longest pause {stream_gap_s:.2f} s)"

@@ -38,9 +38,9 @@ def _hold(v: FakeVehicle, status: int, since_s: float = 0.0) -> FakeVehicle:
     # (real PX4 SIH at load 18: battery critical, "Failsafe activated: entering Hold for 5 seconds",
     # while our stream had just paused 1.4 s; the watchdog re-engaged it and PX4 took OFFBOARD back)
     ("AUTO.LOITER", _CRITICAL, 1.4, "POSCTL", True, True),
-    ("POSCTL", _CRITICAL, 1.4, "POSCTL", True, False),           # that is its offboard loss: ours
-    ("POSCTL", _CRITICAL, 0.1, "POSCTL", True, True),            # ... unless our stream never paused
-    ("AUTO.LOITER", _CRITICAL, 1.4, "AUTO.LOITER", True, False),  # COM_OBL_RC_ACT 5: the pause decides
+    ("POSCTL", _CRITICAL, 1.4, "POSCTL", True, False),           # that is its offboard loss: re-engaged
+    ("POSCTL", _CRITICAL, 0.1, "POSCTL", True, False),           # ... also after an uplink loss (sends steady)
+    ("AUTO.LOITER", _CRITICAL, 0.1, "AUTO.LOITER", True, False),  # COM_OBL_RC_ACT 5: a hold is its offboard loss
     ("AUTO.LOITER", _ACTIVE, 0.1, "POSCTL", True, False),        # no failsafe announced
     ("POSCTL", 6, 0.0, None, True, True),                        # EMERGENCY too
     ("OFFBOARD", _CRITICAL, 0.1, None, True, False),             # still in the mission's mode
