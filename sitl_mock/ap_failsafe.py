@@ -17,7 +17,10 @@ parameters ask for:
   ``BATT_FS_CRT_ACT``; PX4 ``BAT_CRIT_THR`` / ``BAT_EMERGEN_THR`` -> ``COM_LOW_BAT_ACT``;
 * geofence: ArduPilot ``FENCE_ENABLE`` / ``FENCE_TYPE`` (altitude and circle bits) / ``FENCE_RADIUS`` /
   ``FENCE_ALT_MAX`` ->
-  ``FENCE_ACTION``; PX4 ``GF_MAX_HOR_DIST`` / ``GF_MAX_VER_DIST`` -> ``GF_ACTION``.
+  ``FENCE_ACTION`` at once; PX4 ``GF_MAX_HOR_DIST`` / ``GF_MAX_VER_DIST`` -> Hold (AUTO.LOITER, in
+  failsafe) for ``COM_FAIL_ACT_T`` s (5 by default), then ``GF_ACTION`` (as real PX4 v1.16 SIH:
+  AUTO.LOITER 1.0 s after the ceiling was lowered, LAND 2.6 s later at speed-up 2, docs/faults.md);
+  the action is dropped if the breach is over by then.
 """
 from __future__ import annotations
 
@@ -40,6 +43,19 @@ def check_failsafes(ap, t_s: float) -> None:
     _check_gcs_loss(ap, t_s)
     _check_battery(ap, t_s)
     _check_fence(ap, t_s)
+    _delayed_action(ap, t_s)
+
+
+def _delayed_action(ap, t_s: float) -> None:
+    """PX4: the failsafe action held back by ``COM_FAIL_ACT_T`` is taken when due, if its cause
+    (the fence breach) is still there."""
+    fs = ap.flight
+    if fs.pending_failsafe is None or t_s < fs.pending_failsafe[1]:
+        return
+    action, _ = fs.pending_failsafe
+    fs.pending_failsafe = None
+    if ap.failsafe == "fence" and fs.fence_breached:
+        _failsafe(ap, t_s, "fence", action, "Failsafe: geofence action")
 
 
 def _failsafe(ap, t_s: float, reason: str, action: str, text: str) -> None:
@@ -170,5 +186,9 @@ def _check_fence(ap, t_s: float) -> None:
     if fs.fence_breached or ap.behaviour in ("rtl", "land"):
         return
     fs.fence_breached = True
+    delay_s = 0.0 if ap_flight_state.is_ardupilot(ap) else float(p["COM_FAIL_ACT_T"])
+    if delay_s > 0.0 and action in ("rtl", "land", "terminate"):
+        fs.pending_failsafe = (action, t_s + delay_s)
+        action = "hold"
     _failsafe(ap, t_s, "fence", action, "Failsafe: geofence breached")
 

@@ -189,6 +189,8 @@ def enter_mode(ap, mode_name: str, t_s: float) -> None:
         if airborne(ap) and fs.takeoff_alt_m is None:
             mc.command_hold()
     elif b == "offboard":
+        if ap.failsafe == "offboard":  # the setpoints are back and OFFBOARD taken again: PX4 clears it
+            ap.failsafe = None
         if fs.setpoint is not None:
             apply_setpoint(ap, fs.setpoint)
     elif b == "takeoff":

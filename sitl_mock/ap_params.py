@@ -215,6 +215,7 @@ def px4_param_specs(sysid: int, dyn) -> list[ParamSpec]:
         ParamSpec("NAV_ACC_RAD", 2.0, _REAL32, 0.05, 200.0),
         ParamSpec("RTL_RETURN_ALT", 60.0, _REAL32, 0.0, 150.0),
         ParamSpec("GF_ACTION", 1, _INT32, 0, 5),
+        ParamSpec("COM_FAIL_ACT_T", 5.0, _REAL32, 0.0, 25.0),
         ParamSpec("GF_MAX_HOR_DIST", 0.0, _REAL32, 0.0, 10000.0),
         ParamSpec("GF_MAX_VER_DIST", 0.0, _REAL32, 0.0, 10000.0),
         ParamSpec("COM_LOW_BAT_ACT", 3, _INT32, 0, 3),

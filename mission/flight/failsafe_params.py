@@ -137,6 +137,7 @@ async def check_failsafe_params(state: MissionState, vehicles: dict, preflight: 
         r = state.readiness.get(s)
         if r is None:
             continue
+        r.failsafe_params = {k: v for k, v in a.values.items() if v is not None}
         if require:
             r.checks["gcs_failsafe"] = not bad
             if bad:

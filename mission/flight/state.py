@@ -35,6 +35,8 @@ class VehicleReadiness:
     flavour: str | None = None
     #: findings that do not make the vehicle unready (e.g. a failsafe that would only hover)
     warnings: list = field(default_factory=list)
+    #: the autopilot's failsafe parameters as the preflight read them (name -> value; empty: not read)
+    failsafe_params: dict = field(default_factory=dict)
 
     @property
     def ready(self) -> bool:

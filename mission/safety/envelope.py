@@ -43,6 +43,10 @@ __all__ = ["SafetyEnvelope", "pairwise_path_separation"]
 _TOL_M = 1e-7
 
 
+def _mask(mask, n: int) -> np.ndarray:
+    return np.zeros(n, dtype=bool) if mask is None else mask
+
+
 def pairwise_path_separation(prev_positions, new_positions) -> np.ndarray:
     """``(N, N)`` minimum distance of each pair flying straight ``prev -> new`` simultaneously
     (diagonal = +inf)."""
@@ -192,7 +196,10 @@ class SafetyEnvelope:
         and again for the pairs those holds create, until none is left
         (:func:`mission.safety.separation.hold_for_separation`: if the previous batch was
         separated, the result is; a pair that already started closer may not come closer).
-        Holding is inside the fence and within the speed limit, so the fence still holds.
+        Holding is inside the fence and within the speed limit, so the fence still holds. Then
+        each held vehicle is moved aside where a shorter or sideways step keeps every pair
+        separated and stays inside the fence (checked here), so that a pair that wants to cross
+        is not frozen for good.
 
         Returns
         -------
@@ -211,13 +218,26 @@ class SafetyEnvelope:
         inside0 = horiz_in0 & fence.band_contains(p0[:, 2], _TOL_M)  # fence.contains(p0)
         out, fence_clamped, speed_limited = self._clamp_fence_speed(p0, p1, dt_s, horiz_in0, inside0)
         pairs = _close_pairs(p0, out, self.min_separation_m) if len(p0) >= 2 else None
-        hold = hold_for_separation(p0, out, self.min_separation_m, inside0, pairs)
+        hold = hold_for_separation(p0, out, self.min_separation_m, inside0, pairs, allowed=self._move_allowed)
         out = hold.positions_enu
         horiz_in = fence.horizontal_contains(out, _TOL_M)
         self._assert_safe(p0, out, dt_s, inside0, horiz_in & fence.band_contains(out[:, 2], _TOL_M))
         report = self._check(p0, out, dt_s, pairs if not hold.conflicts else None, horiz_in0, horiz_in)
         return ClampedSetpoints(out, fence_clamped, speed_limited, report, hold.held,
-                                hold.describe(self.min_separation_m), hold.conflicts)
+                                hold.describe(self.min_separation_m), hold.conflicts,
+                                _mask(hold.moved_aside, len(p0)))
+
+    def _move_allowed(self, start, end) -> np.ndarray:
+        """Whether each straight move ``start -> end`` (``(K, 3)``, starts inside) stays inside the
+        fence and band: a vehicle moved aside for separation (the speed is the caller's)."""
+        fence = self.fence
+        ok = np.atleast_1d(fence.contains(end, _TOL_M))
+        if not fence.convex and ok.any():
+            n = len(start)
+            flat0 = np.c_[start[:, :2], np.full(n, fence.min_alt_m)]
+            flat1 = np.c_[end[:, :2], np.full(n, fence.min_alt_m)]
+            ok &= np.atleast_1d(fence.segment_inside(flat0, flat1))
+        return ok
 
     def _clamp_fence_speed(self, p0, p1, dt_s, inside0_h, inside0):
         """Steps (1) to (3) of :meth:`clamp_setpoints`: ``(out, fence_clamped, speed_limited)``;

@@ -59,7 +59,8 @@ class SafetyGate:
     Attributes
     ----------
     separation_interventions : int
-        Vehicle-batches held at their previous setpoints by the envelope to keep separation.
+        Vehicle-batches held at their previous setpoints, or moved aside, by the envelope to keep
+        separation.
     separation_held_by_vehicle : dict
         The same, per sysid.
 
@@ -115,6 +116,12 @@ class SafetyGate:
         self._cmd.pop(sysid, None)
         self._goal.pop(sysid, None)
         self.streamer.remove(sysid)
+
+    def stream_gap_s(self, sysid: int, since_s: float) -> float | None:
+        """The longest pause of the setpoints sent to ``sysid`` since ``since_s`` (mission clock),
+        the current one included; None when the streamer cannot tell (or nothing was sent)."""
+        longest = getattr(self.streamer, "longest_gap_s", None)
+        return None if longest is None or sysid not in self._cmd else longest(sysid, since_s)
 
     def set_goal(self, sysid: int, goal_enu_m) -> None:
         """New goal of one vehicle (reached at ``max_speed_m_s``)."""
@@ -186,7 +193,10 @@ class SafetyGate:
             return prev
         held = np.asarray(getattr(res, "separation_held", ()), dtype=bool)
         held = held if held.shape == (len(sysids),) else np.zeros(len(sysids), dtype=bool)
-        self._separation(sysids, held, getattr(res, "separation_conflicts", ()))
+        aside = np.asarray(getattr(res, "separation_aside", ()), dtype=bool)
+        aside = aside if aside.shape == (len(sysids),) else np.zeros(len(sysids), dtype=bool)
+        self._separation(sysids, held, getattr(res, "separation_conflicts", ()), aside)
+        held = held | aside
         report = getattr(res, "report", None)
         if report is not None and not report.ok:
             self.reported_batches += 1
@@ -201,18 +211,19 @@ class SafetyGate:
                                   f"({self.clamped_batches} batches so far)")
         return safe
 
-    def _separation(self, sysids, held, conflicts) -> None:
-        """Count the vehicles held for separation; one event when an episode starts, one when it ends."""
+    def _separation(self, sysids, held, conflicts, aside) -> None:
+        """Count the vehicles held or moved aside for separation; one event when an episode starts,
+        one when it ends."""
         now = self.clock.time()
-        if held.any():
-            who = [sysids[k] for k in np.flatnonzero(held)]
+        if held.any() or aside.any():
+            who = [sysids[k] for k in np.flatnonzero(held | aside)]
             for s in who:
                 self.separation_held_by_vehicle[s] = self.separation_held_by_vehicle.get(s, 0) + 1
             self.separation_interventions += len(who)
             if self._episode is None:
                 self._episode = {"t0": now, "counts": {}}
                 if self.on_violation is not None:
-                    note = describe_conflicts(conflicts, held, self.envelope.min_separation_m, sysids)
+                    note = describe_conflicts(conflicts, held, self.envelope.min_separation_m, sysids, aside=aside)
                     self.on_violation(f"separation enforced: {note}")
             counts = self._episode["counts"]
             for s in who:

@@ -103,6 +103,9 @@ class ClampedSetpoints:
         Which pairs would have come too close, and who was held, by index ("" when none).
     separation_conflicts : tuple of (int, int, float)
         Those pairs ``(i, j, closest approach m)`` as asked for, closest first.
+    separation_aside : numpy.ndarray of bool, shape (N,)
+        Vehicles moved aside for separation (a shorter or sideways step than asked for, not
+        held; one intervention each).
     """
 
     positions_enu: np.ndarray
@@ -112,8 +115,9 @@ class ClampedSetpoints:
     separation_held: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     separation_note: str = ""
     separation_conflicts: tuple = ()
+    separation_aside: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @property
     def separation_interventions(self) -> int:
-        """Vehicles held for separation in this batch."""
-        return int(np.count_nonzero(self.separation_held))
+        """Vehicles held or moved aside for separation in this batch."""
+        return int(np.count_nonzero(self.separation_held)) + int(np.count_nonzero(self.separation_aside))

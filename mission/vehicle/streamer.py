@@ -167,6 +167,29 @@ class SetpointStreamer:
                 delay_s = period_s
             await clock.sleep(max(0.0, delay_s))
 
+    def longest_gap_s(self, sysid: int, since_s: float) -> float | None:
+        """The longest time without a setpoint sent to ``sysid`` from ``since_s`` (clock time) to
+        now, the time since the last send included (None: never sent to, or not streamed).
+
+        A gap this long in the stream could have made the autopilot leave its offboard/guided
+        mode by itself (PX4's offboard loss after ``COM_OF_LOSS_T``). A stream that began after
+        ``since_s`` (e.g. a resume taking over vehicles its predecessor left) was a pause until
+        then: ``inf``.
+        """
+        track = self._tracks.get(sysid)
+        if track is None or track.last_s is None:
+            return None
+        if track.first_s is None or track.first_s > since_s:
+            return float("inf")
+        gap = max(self.clock.time() - track.last_s, 0.0)
+        t = track.last_s
+        for interval in reversed(track.intervals):
+            if t <= since_s:
+                break
+            gap = max(gap, interval)
+            t -= interval
+        return gap
+
     def measured_rate_hz(self, sysid: int) -> float | None:
         """Setpoints per second to ``sysid`` over the recent history (None before two sends)."""
         intervals = self._tracks[sysid].intervals

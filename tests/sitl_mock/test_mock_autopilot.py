@@ -460,10 +460,35 @@ def test_geofence_breach_triggers_the_fence_action(personality, params, expected
     else:
         h.setpoint(50.0, 0.0, -10.0)
         h.run(10.0)
+    if personality == "px4":
+        # real PX4 v1.16 first holds, in failsafe, for COM_FAIL_ACT_T (5 s), then takes GF_ACTION
+        assert h.ap.mode_name == "AUTO.LOITER"
+        assert h.ap.heartbeat_fields()[2] == mav.MAV_STATE_CRITICAL
+        h.run(4.5)
+        assert h.ap.mode_name == "AUTO.LOITER"
+        h.run(1.0)
     assert h.ap.mode_name == expected_mode
     texts = [m.text for m in h.received if m.get_type() == "STATUSTEXT"]
     assert "Failsafe: geofence breached" in texts
-    assert h.mc.position_ned_m[0] < 40.0
+    # ArduPilot returns at once; PX4 brakes to its hold from full speed first
+    assert h.mc.position_ned_m[0] < (40.0 if personality == "ardupilot" else 60.0)
+
+
+@pytest.mark.parametrize("delay_s, first_mode", [(0.0, "AUTO.LAND"), (2.0, "AUTO.LOITER")])
+def test_px4_geofence_action_waits_com_fail_act_t(delay_s, first_mode):
+    h = Harness("px4", GF_ACTION=5, COM_FAIL_ACT_T=delay_s)
+    h.airborne(10.0)
+    h.ap.params.set("GF_MAX_VER_DIST", 8.0)            # the ceiling lowered under it: breached
+    h.setpoint(0.0, 0.0, -10.0)
+    assert h.set_mode("OFFBOARD") == mav.MAV_RESULT_ACCEPTED
+    for _ in range(20):
+        h.setpoint(0.0, 0.0, -10.0)
+        h.run(0.1)
+        if h.ap.mode_name != "OFFBOARD":
+            break
+    assert h.ap.mode_name == first_mode
+    h.run(delay_s + 0.5)
+    assert h.ap.mode_name == "AUTO.LAND"
 
 
 @pytest.mark.parametrize("frame,xyz,expected_ned", [

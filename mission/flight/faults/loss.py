@@ -7,9 +7,14 @@ Rules (see ``docs/faults.md``):
   clock, hence detected within 1.1 s of the last frame heard.
 * **left the mission**: the autopilot switched, without being asked, to a mode that ends its
   part in the mission: RTL or LAND (PX4 ``AUTO.RTL`` / ``AUTO.LAND``, ArduPilot ``RTL``,
-  ``SMART_RTL``, ``LAND``): a failsafe (low battery, geofence, GCS loss) or a pilot. The
-  coordinator does not fight it. Any *other* mode change (PX4 offboard loss -> hold, ArduPilot
-  GUIDED -> LOITER/BRAKE) is re-engaged by the watchdog (:mod:`mission.flight.faults.watchdog`). A vehicle
+  ``SMART_RTL``, ``LAND``): a failsafe (low battery, geofence, GCS loss) or a pilot; or to any
+  other mode with its heartbeat saying it is in a failsafe of its own (``system_status``
+  CRITICAL/EMERGENCY), a mode its offboard loss would not give (or, that mode unknown, while the
+  ground station's setpoints to it never paused) (:func:`autopilot_failsafe`: PX4's hold before
+  its battery or geofence action). The coordinator does not
+  fight it. Any *other* mode change (PX4 offboard loss -> its offboard-loss mode,
+  ArduPilot GUIDED -> LOITER/BRAKE without a failsafe) is re-engaged by the watchdog
+  (:mod:`mission.flight.faults.watchdog`). A vehicle
   that disarms in the air (not commanded) also left. Without signing a heartbeat proves nothing,
   so a mode change or a disarm counts only when corroborated by the vehicle's own stream: two
   heartbeats in a row (the endpoint delivers only those from the vehicle's pinned address) say
@@ -43,7 +48,8 @@ from mission.flight.services import Clock, Events, Fleet, Motion
 from mission.flight.state import MissionState, VehicleLoss
 from mission.safety.gate import SafetyGate
 
-__all__ = ["CORROBORATING_HEARTBEATS", "LossMonitor", "Reformation", "classify_loss", "reformed_offsets"]
+__all__ = ["CORROBORATING_HEARTBEATS", "FAILSAFE_STATES", "OWN_PAUSE_S", "LossMonitor", "Reformation",
+           "autopilot_failsafe", "classify_loss", "offboard_loss_mode", "own_stream_gap_s", "reformed_offsets"]
 
 #: heartbeats in a row that must report a mode change or a disarm before the vehicle "left"
 CORROBORATING_HEARTBEATS = 2
@@ -53,8 +59,77 @@ CORROBORATING_HEARTBEATS = 2
 STALE_MODE_GRACE_S = 3.0
 
 
+#: HEARTBEAT ``system_status`` of an armed autopilot acting on a failsafe of its own: MAV_STATE_CRITICAL
+#: (PX4 while ``vehicle_status.failsafe``: offboard loss, geofence, battery, data link; ArduPilot
+#: while a failsafe is on) and MAV_STATE_EMERGENCY
+FAILSAFE_STATES = frozenset({5, 6})
+_STATE_NAMES = {5: "CRITICAL", 6: "EMERGENCY"}
+
+#: a pause of the ground station's own setpoint stream at least this long (mission clock) may have
+#: caused an offboard-loss failsafe itself (PX4 ``COM_OF_LOSS_T``, 1 s by default, counts on the
+#: vehicle, where a pause arrives stretched by the link): such a hold is re-engaged, not "left"
+OWN_PAUSE_S = 0.5
+
+#: how far before the mode change was first heard the stream is searched for such a pause
+_PAUSE_LOOKBACK_S = 3.0
+
+
+#: the mode real PX4 shows after its offboard loss, by ``COM_OBL_RC_ACT`` (0: position mode, measured
+#: on PX4 v1.16 SIH without RC; 5: Hold); 6 (terminate) has none
+_PX4_OFFBOARD_LOSS_MODES = {0: "POSCTL", 1: "ALTCTL", 2: "MANUAL", 3: "AUTO.RTL", 4: "AUTO.LAND", 5: "AUTO.LOITER"}
+
+
+def offboard_loss_mode(state: MissionState, sysid: int, flavour: str) -> str | None:
+    """The mode ``sysid``'s autopilot takes on losing the mission's setpoints, from the failsafe
+    parameters the preflight read (PX4 ``COM_OBL_RC_ACT``); None when unknown (not read, or not PX4)."""
+    r = state.readiness.get(sysid)
+    value = None if r is None or flavour != "px4" else r.failsafe_params.get("COM_OBL_RC_ACT")
+    return None if value is None else _PX4_OFFBOARD_LOSS_MODES.get(int(value))
+
+
+def own_stream_gap_s(gate, sysid: int, vehicle) -> float | None:
+    """The longest pause of the setpoints sent to ``sysid`` from :data:`_PAUSE_LOOKBACK_S` before its
+    current mode was first reported until now (None: unknown, e.g. not under the gate)."""
+    stream_gap = getattr(gate, "stream_gap_s", None)
+    since = getattr(vehicle, "status_since_s", None)
+    if stream_gap is None or since is None:
+        return None
+    return stream_gap(sysid, float(since) - _PAUSE_LOOKBACK_S)
+
+
+def autopilot_failsafe(vehicle, stream_gap_s: float | None, loss_mode: str | None = None) -> str | None:
+    """Why ``vehicle`` is under its autopilot's own failsafe, one the ground station did not cause;
+    None if it is not (or that cannot be told).
+
+    Armed, out of the mission's mode (and not RTL/LAND, which "left" anyway), with a HEARTBEAT
+    ``system_status`` in :data:`FAILSAFE_STATES`, and either in another mode than its offboard loss
+    gives (``loss_mode``, :func:`offboard_loss_mode`: e.g. AUTO.LOITER, PX4's hold for
+    ``COM_FAIL_ACT_T`` before its battery or geofence action, while ``COM_OBL_RC_ACT`` 0 gives
+    POSCTL), or, when that mode is unknown, while the setpoints to it never paused for
+    :data:`OWN_PAUSE_S` (``stream_gap_s``, :func:`own_stream_gap_s`). Such a vehicle is handed to its
+    autopilot: never re-engaged (:mod:`mission.flight.faults.watchdog`), declared "left". In its
+    offboard-loss mode it is taken for an offboard loss (its cause, missing setpoints, is gone
+    once they arrive again: re-engaged), whatever the stream did: an uplink lost for a while
+    (our sends steady) is one too.
+    """
+    want = GUIDED_MODES.get(vehicle.flavour)
+    mode = vehicle.state.mode
+    if want is None or mode == want or mode in LEFT_MODES.get(vehicle.flavour, ()) or not vehicle.state.armed:
+        return None
+    status = getattr(vehicle.state, "system_status", None)
+    if status not in FAILSAFE_STATES:
+        return None
+    why = f"switched to {mode} in its own failsafe (system status {_STATE_NAMES[status]}; "
+    if loss_mode is not None:
+        return why + f"not {loss_mode}, its offboard-loss mode)" if mode != loss_mode else None
+    if stream_gap_s is None or stream_gap_s >= OWN_PAUSE_S:
+        return None
+    return why + f"setpoints steady, longest pause {stream_gap_s:.2f} s)"
+
+
 def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
-                  seen_armed: bool = True, engaged_s: float | None = None) -> tuple[str, str] | None:
+                  seen_armed: bool = True, engaged_s: float | None = None,
+                  stream_gap_s: float | None = None, loss_mode: str | None = None) -> tuple[str, str] | None:
     """``(reason, detail)`` if ``vehicle`` is lost, else None.
 
     Parameters
@@ -77,6 +152,12 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
         vehicle was doing on the ground (ArduPilot stays in RTL after an RTL landing), not a
         mode change: it counts only once it outlasts :data:`STALE_MODE_GRACE_S` after ``engaged_s``
         (the vehicle did not take the mission's mode).
+    stream_gap_s : float, optional
+        The longest pause of the ground station's setpoints to it around its mode change
+        (:func:`own_stream_gap_s`): with it, a vehicle under its autopilot's own failsafe in another
+        mode (:func:`autopilot_failsafe`, e.g. PX4's geofence hold) also "left".
+    loss_mode : str, optional
+        The mode its offboard loss would give (:func:`offboard_loss_mode`), for the same rule.
 
     Returns
     -------
@@ -102,6 +183,8 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
             detail = f"switched to {mode} by itself (failsafe)"
     elif seen_armed and not vehicle.state.armed:
         detail = "disarmed in the air"
+    elif (own := autopilot_failsafe(vehicle, stream_gap_s, loss_mode)) is not None:
+        detail = own
     else:
         return None
     if vehicle.status_heartbeats < CORROBORATING_HEARTBEATS:
@@ -234,13 +317,16 @@ class LossMonitor:
         """The loss of ``v`` found now, or None (an unconfirmed "left" asks the vehicle to confirm)."""
         timeout_s = self.faults.link_timeout_s
         now = self.clock.time()
-        found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s)
+        gap, loss_mode = own_stream_gap_s(self.gate(), sysid, v), offboard_loss_mode(self.state, sysid, v.flavour)
+        found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s,
+                              stream_gap_s=gap, loss_mode=loss_mode)
         if found is not None and found[0] == "link":
             # let the event loop read whatever is pending before concluding
             await asyncio.sleep(0)
             await asyncio.sleep(0)
             now = self.clock.time()
-            found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s)
+            found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s,
+                                  stream_gap_s=gap, loss_mode=loss_mode)
         if found is None:
             return None
         reason, detail = found

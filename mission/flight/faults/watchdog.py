@@ -6,6 +6,7 @@ from typing import Callable, Protocol
 
 from mission.core.plan_types import FaultsPlan
 from mission.core.tasks import spawn
+from mission.flight.faults.loss import autopilot_failsafe, offboard_loss_mode, own_stream_gap_s
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.services import Clock, Events, Fleet
 from mission.flight.state import MissionState
@@ -77,6 +78,9 @@ class Watchdog:
         A vehicle under the mission's setpoints (takeoff done, not returning) found in another
         mode is switched back (PX4 falls back to hold when setpoints pause for COM_OF_LOSS_T;
         the stream resumes at once, so re-engaging is safe); each time is logged and counted.
+        Never one whose autopilot took over for a failsafe of its own (RTL/LAND, or its heartbeat
+        in a failsafe state while the setpoints never paused:
+        :func:`mission.flight.faults.loss.autopilot_failsafe`): it is handed to that failsafe.
         """
         loop = asyncio.get_running_loop()
         next_status_s = self.clock.time()
@@ -111,6 +115,9 @@ class Watchdog:
                 continue  # left the mission or silent: mission.flight.faults.loss decides, never re-engaged
             if not v.state.armed:
                 continue
+            loss_mode = offboard_loss_mode(state, sysid, v.flavour)
+            if autopilot_failsafe(v, own_stream_gap_s(gate, sysid, v), loss_mode) is not None:
+                continue  # its autopilot's own failsafe (not our pause): handed to it; loss declares it left
             state.begin_reengaging(sysid)
             spawn(self._reengage(sysid, v, want), f"re-engaging vehicle {sysid}", self.report)
 

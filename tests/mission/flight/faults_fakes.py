@@ -97,6 +97,10 @@ class FakeGate:
     def __init__(self, setpoints: dict) -> None:
         self.cmd = {s: np.asarray(p, dtype=float) for s, p in setpoints.items()}
         self.goal_batches: list[dict] = []
+        self.pauses_s: dict[int, float] = {}  # the longest pause of each vehicle's stream (default 0.1 s)
+
+    def stream_gap_s(self, sysid: int, since_s: float) -> float | None:
+        return self.pauses_s.get(sysid, 0.1) if sysid in self.cmd else None
 
     @property
     def sysids(self) -> list[int]:

@@ -49,8 +49,11 @@ def test_setpoints_half_a_metre_apart_are_held(prev, new):
     assert _min_path_sep(prev, out) >= SEP * (1 - 1e-9)
     assert res.separation_interventions >= 1 and res.report.ok
     moving = np.any(prev != new, axis=1)
-    assert np.array_equal(res.separation_held, moving)          # the movers were held ...
-    assert np.array_equal(out[moving], prev[moving])            # ... at their previous setpoints
+    held, aside = res.separation_held, res.separation_aside
+    assert not ((held | aside) & ~moving).any() and not (held & aside).any()  # movers were held or moved aside
+    assert np.array_equal(out[~(held | aside)], new[~(held | aside)])         # the others flew as asked
+    assert np.array_equal(out[held], prev[held])                # held: at their previous setpoints
+    assert not np.any(np.all(out[aside] == prev[aside], axis=1) | np.all(out[aside] == new[aside], axis=1))
     assert "would come closer than 1.5 m" in res.separation_note
 
 
@@ -67,7 +70,7 @@ def test_crossing_paths_are_caught(prev, new):
     assert _min_path_sep(prev, new) < SEP
     res = env.clamp_setpoints(prev, new, dt_s=1.0)
     assert _min_path_sep(prev, res.positions_enu) >= SEP * (1 - 1e-9)
-    assert res.separation_interventions == 2 and res.report.ok
+    assert res.separation_interventions >= 1 and res.report.ok
 
 
 @pytest.mark.parametrize("n, step", [(2, 0.2), (8, 0.25), (30, 0.3)])
@@ -88,15 +91,20 @@ def test_holding_cascades_to_a_vehicle_flying_into_a_held_one():
     prev = np.array([[18, 18, 20], [22, 18, 20], [25, 18, 20]], float)
     new = np.array([[22, 22, 20], [18, 22, 20], [23, 18, 20]], float)
     res = env.clamp_setpoints(prev, new, dt_s=1.0)
-    assert res.separation_held.tolist() == [True, True, True]
+    assert res.separation_interventions >= 1
     assert _min_path_sep(prev, res.positions_enu) >= SEP * (1 - 1e-9) and res.report.ok
+    # holding alone (the first stage, before any vehicle is moved aside) cascades to all three
+    hold = hold_for_separation(prev, new, SEP, np.ones(3, dtype=bool), allowed=lambda a, b: np.zeros(len(a), bool))
+    assert _min_path_sep(prev, hold.positions_enu) >= SEP * (1 - 1e-9)
 
 
 def test_a_pair_already_too_close_may_part_but_not_close_in():
     env = _env()
     prev = np.array([[10, 10, 20], [11, 10, 20]], float)        # 1 m: e.g. re-admitted where heard
     closer = env.clamp_setpoints(prev, [[10, 10, 20], [10.6, 10, 20]], 1.0)
-    assert np.array_equal(closer.positions_enu, prev) and closer.separation_interventions == 1
+    assert closer.separation_interventions == 1                 # 1 held or moved aside, never closer in
+    assert _min_path_sep(prev, closer.positions_enu) >= 1.0 * (1 - 1e-9)
+    assert np.array_equal(closer.positions_enu[0], prev[0])
     apart = env.clamp_setpoints(prev, [[9, 10, 20], [12, 10, 20]], 1.0)
     assert apart.separation_interventions == 0
     assert np.linalg.norm(apart.positions_enu[0] - apart.positions_enu[1]) == pytest.approx(3.0)
@@ -142,9 +150,9 @@ def test_clamped_batches_are_always_separated_and_inside(seed, n, step_m, dt_s, 
     assert ends.min() >= SEP * (1 - 1e-9)
     assert np.all(np.linalg.norm(out - prev, axis=1) <= 4.0 * dt_s * (1 + 1e-9))
     assert res.report.ok, res.report
-    held = res.separation_held
+    held, aside = res.separation_held, res.separation_aside
     assert np.array_equal(out[held], prev[held])
-    assert res.separation_interventions == int(held.sum())
+    assert res.separation_interventions == int(held.sum()) + int(aside.sum())
 
 
 @settings(max_examples=60, deadline=None)
@@ -192,7 +200,10 @@ def _tick(ramp, clock, n):
         ramp.step(0.1)
 
 
-def test_ramp_streams_held_setpoints_and_reports_once_per_episode():
+def test_ramp_swap_is_not_frozen_and_reports_once_per_episode():
+    """A head-on swap under the gate: held then moved aside (keep right), never closer than the
+    separation on any pair of sent setpoints, both at their goals; one message when the episode
+    starts, one when it is over. (Before the moves aside both were held for good: a deadlock.)"""
     env = _env(speed=3.0)
     clock, st_, messages = _Clock(), _Streamer(), []
     ramp = SafetyGate(st_, clock, 3.0, rate_hz=10, envelope=env, on_violation=messages.append,
@@ -201,24 +212,23 @@ def test_ramp_streams_held_setpoints_and_reports_once_per_episode():
     ramp.add(2, [16, 10, 20])
     ramp.add(3, [40, 40, 20])
     ramp.set_goals({1: np.array([16.0, 10, 20]), 2: np.array([10.0, 10, 20])})   # a head-on swap
-    _tick(ramp, clock, 30)
-    a, b = ramp.setpoint(1), ramp.setpoint(2)
-    assert np.linalg.norm(a - b) >= SEP
+    _tick(ramp, clock, 60)
+    assert ramp.at_goal(1) and ramp.at_goal(2)
     for s in (1, 2, 3):                              # the ramp's current setpoint is what was sent
         assert np.array_equal(ramp.setpoint(s), st_.targets[s])
     sent = {s: np.array([p for k, p in st_.history if k == s]) for s in (1, 2)}
-    k = min(len(sent[1]), len(sent[2]))
-    assert np.min(np.linalg.norm(sent[1][-k:] - sent[2][-k:], axis=1)) >= SEP
-    assert ramp.separation_interventions > 10
-    assert set(ramp.separation_held_by_vehicle) == {1, 2}
+    assert len(sent[1]) == len(sent[2])
+    d = [float(pairwise_path_separation(np.array([a0, b0]), np.array([a1, b1])).min())
+         for a0, a1, b0, b1 in zip(sent[1][:-1], sent[1][1:], sent[2][:-1], sent[2][1:])]
+    assert min(d) >= SEP * (1 - 1e-9)
+    assert ramp.separation_interventions > 0
+    assert set(ramp.separation_held_by_vehicle) <= {1, 2}
     assert sum(ramp.separation_held_by_vehicle.values()) == ramp.separation_interventions
     started = [m for m in messages if m.startswith("separation enforced")]
-    assert len(started) == 1 and not any("enforcement over" in m for m in messages)
-    # new goals apart: the holding stops; one summary after a quiet second, then nothing more
-    ramp.set_goals({1: a - [3.0, 0, 0], 2: b + [3.0, 0, 0]})
-    _tick(ramp, clock, 30)
     over = [m for m in messages if "separation enforcement over" in m]
-    assert len(over) == 1 and f"{ramp.separation_interventions} in the mission so far" in over[0]
+    assert len(started) == 1 and len(over) == 1, messages
+    assert f"{ramp.separation_interventions} in the mission so far" in over[0]
+    _tick(ramp, clock, 30)                           # settled: nothing more
     assert len([m for m in messages if m.startswith("separation")]) == 2
 
 
@@ -228,13 +238,14 @@ def test_ramp_stop_reports_an_open_episode():
     ramp = SafetyGate(_Streamer(), clock, 3.0, rate_hz=10.0, envelope=env, on_violation=messages.append)
     ramp.add(1, [10, 10, 20])
     ramp.add(2, [12, 10, 20])
-    ramp.set_goal(1, [12.0, 10, 20])
-    _tick(ramp, clock, 5)                    # 2.0 m -> 1.7 m, then held: 4 interventions
-    assert ramp.separation_interventions == 4 and ramp.separation_held_by_vehicle == {1: 4}
+    ramp.set_goal(1, [12.0, 10, 20])         # onto a hovering vehicle: 2.0 m -> 1.7 m, then held or moved aside
+    _tick(ramp, clock, 5)
+    n = ramp.separation_interventions
+    assert n >= 1 and ramp.separation_held_by_vehicle == {1: n}
     asyncio.run(ramp.stop())
     assert messages[0].startswith("separation enforced: pairs 1-2 1.40 m would come closer than 1.5 m: "
-                                  "vehicle(s) [1] held"), messages
-    assert "separation enforcement over: 4 intervention(s) in 0.3 s (by vehicle 1: 4)" in messages[1]
+                                  "vehicle(s) [1] "), messages
+    assert messages[-1].startswith(f"separation enforcement over: {n} intervention(s)"), messages
 
 
 def test_mission_result_carries_the_count():

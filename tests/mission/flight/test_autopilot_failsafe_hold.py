@@ -1,0 +1,197 @@
+"""A vehicle whose autopilot took over for a failsafe of its own is handed to it, never pulled back
+into OFFBOARD/GUIDED (docs/faults.md: real PX4 holds in AUTO.LOITER for ``COM_FAIL_ACT_T`` before
+its geofence action; the watchdog used to take that hold for its own setpoint pause and re-engage).
+
+Unit level with the fakes of ``faults_fakes`` (the watchdog and the loss monitor on their own), then
+a whole mission on the mock PX4 fleet, whose geofence now holds for ``COM_FAIL_ACT_T`` first as
+real PX4 does.
+"""
+from __future__ import annotations
+
+import asyncio
+import threading
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from tests.mission.flight.faults_fakes import FakeClock, FakeGate, FakeVehicle, Recorder, fleet_of, flying_state, ring
+from tests.mission.flight.test_faults_objects import _monitor, _Status, _until, _watch
+
+from mission.core.plan_types import FaultsPlan
+from mission.flight.faults.loss import OWN_PAUSE_S, autopilot_failsafe, classify_loss, offboard_loss_mode
+from mission.flight.state import VehicleReadiness
+from mission.flight.faults.watchdog import Watchdog
+
+_CRITICAL, _ACTIVE = 5, 4
+
+
+def _hold(v: FakeVehicle, status: int, since_s: float = 0.0) -> FakeVehicle:
+    v.state.mode, v.state.system_status, v.status_since_s = "AUTO.LOITER", status, since_s
+    return v
+
+
+@pytest.mark.parametrize("mode, status, gap_s, loss_mode, armed, expected", [
+    ("AUTO.LOITER", _CRITICAL, 0.1, None, True, True),           # PX4's geofence hold, our stream steady
+    ("AUTO.LOITER", _CRITICAL, OWN_PAUSE_S, None, True, False),  # our own pause may have caused it
+    ("AUTO.LOITER", _CRITICAL, None, None, True, False),         # cannot tell: as before
+    # its offboard loss gives POSCTL (COM_OBL_RC_ACT 0): a hold is its own failsafe, pause or not
+    # (real PX4 SIH at load 18: battery critical, "Failsafe activated: entering Hold for 5 seconds",
+    # while our stream had just paused 1.4 s; the watchdog re-engaged it and PX4 took OFFBOARD back)
+    ("AUTO.LOITER", _CRITICAL, 1.4, "POSCTL", True, True),
+    ("POSCTL", _CRITICAL, 1.4, "POSCTL", True, False),           # that is its offboard loss: re-engaged
+    ("POSCTL", _CRITICAL, 0.1, "POSCTL", True, False),           # ... also after an uplink loss (sends steady)
+    ("AUTO.LOITER", _CRITICAL, 0.1, "AUTO.LOITER", True, False),  # COM_OBL_RC_ACT 5: a hold is its offboard loss
+    ("AUTO.LOITER", _ACTIVE, 0.1, "POSCTL", True, False),        # no failsafe announced
+    ("POSCTL", 6, 0.0, None, True, True),                        # EMERGENCY too
+    ("OFFBOARD", _CRITICAL, 0.1, None, True, False),             # still in the mission's mode
+    ("AUTO.RTL", _CRITICAL, 0.1, None, True, False),             # RTL/LAND: "left" by the mode rule already
+    ("AUTO.LOITER", _CRITICAL, 0.1, None, False, False),         # disarmed: another rule
+])
+def test_autopilot_failsafe_rule(mode, status, gap_s, loss_mode, armed, expected):
+    v = SimpleNamespace(flavour="px4", state=SimpleNamespace(mode=mode, armed=armed, system_status=status))
+    found = autopilot_failsafe(v, gap_s, loss_mode)
+    assert (found is not None) == expected, found
+    if expected:
+        assert f"switched to {mode} in its own failsafe" in found
+
+
+@pytest.mark.parametrize("flavour, params, expected", [
+    ("px4", {"COM_OBL_RC_ACT": 0, "NAV_DLL_ACT": 3}, "POSCTL"),
+    ("px4", {"COM_OBL_RC_ACT": 5.0}, "AUTO.LOITER"),
+    ("px4", {"COM_OBL_RC_ACT": 6}, None),            # terminate: no mode
+    ("px4", {}, None),                               # not read
+    ("ardupilot", {"FS_GCS_ENABLE": 5}, None),
+])
+def test_offboard_loss_mode_comes_from_the_preflight_parameters(flavour, params, expected):
+    state = flying_state(2, FakeClock())
+    state.set_readiness(VehicleReadiness(1, "v1", "udpin:x", failsafe_params=params), "ready")
+    assert offboard_loss_mode(state, 1, flavour) == expected
+    assert offboard_loss_mode(state, 2, flavour) is None     # no preflight record
+
+
+def test_classify_loss_calls_an_autopilot_failsafe_hold_left_once_corroborated():
+    v = _hold(FakeVehicle(1, np.zeros(3)), _CRITICAL)
+    assert classify_loss(v, 10.0, 1.0, commanded=False, stream_gap_s=0.1)[0] == "left"
+    assert classify_loss(v, 10.0, 1.0, commanded=False, stream_gap_s=1.5) is None   # ours: re-engaged instead
+    assert classify_loss(v, 10.0, 1.0, commanded=False) is None                     # unknown stream: as before
+    v.status_heartbeats = 1
+    assert classify_loss(v, 10.0, 1.0, commanded=False, stream_gap_s=0.1)[0] == "unconfirmed"
+
+
+def test_the_watchdog_leaves_an_autopilot_failsafe_hold_alone_and_reengages_its_own_pause():
+    clock = FakeClock()
+    state = flying_state(4, clock)
+    vehicles = [FakeVehicle(s, ring(4)[s]) for s in range(1, 5)]
+    _hold(vehicles[0], _CRITICAL)            # PX4's geofence hold (COM_FAIL_ACT_T): its own failsafe
+    _hold(vehicles[1], _CRITICAL)            # offboard loss after a 1.2 s pause of our stream: ours
+    _hold(vehicles[2], _ACTIVE)              # hold without a failsafe (e.g. a pilot's switch): as before
+    _hold(vehicles[3], _CRITICAL)            # a hold after a 1.4 s pause, but its offboard loss gives POSCTL
+    gate = FakeGate({s: ring(4)[s] for s in range(1, 5)})
+    gate.pauses_s[2] = gate.pauses_s[4] = 1.4
+    state.set_readiness(VehicleReadiness(4, "v4", "udpin:x", failsafe_params={"COM_OBL_RC_ACT": 0}), "ready")
+    rec, status = Recorder(), _Status()
+    dog = Watchdog(state, fleet_of(vehicles), lambda: gate, clock, FaultsPlan(), status, None, 1.0, rec, rec.report)
+
+    async def main():
+        task = asyncio.create_task(dog.run(period_s=0.01))
+        try:
+            await _until(lambda: state.reengaged.get(2) and state.reengaged.get(3), "vehicles 2 and 3 re-engaged")
+            for _ in range(20):              # and some more rounds: vehicle 1 is still left alone
+                await asyncio.sleep(0.01)
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+
+    asyncio.run(main())
+    assert vehicles[0].commands == [] and 1 not in state.reengaged
+    assert vehicles[1].commands == ["mode OFFBOARD"] and vehicles[2].commands == ["mode OFFBOARD"]
+    assert vehicles[3].commands == [] and 4 not in state.reengaged
+
+
+def test_the_loss_monitor_declares_an_autopilot_failsafe_hold_left_and_commands_nothing():
+    clock, state, vehicles, gate, rec, motion, monitor = _monitor(5)
+    _hold(vehicles[2], _CRITICAL, since_s=clock.time())
+    _watch(monitor, lambda: 3 in state.lost, "vehicle 3 lost")
+    assert state.lost[3].reason == "left" and "in its own failsafe" in state.lost[3].detail
+    assert 3 not in gate.sysids                              # off the setpoint stream
+    assert [c for c in vehicles[2].commands if c != "heartbeat?"] == []   # no land/RTL/mode: PX4's failsafe flies it
+
+
+# ------------------------------------------------------------------------------- the mock fleet
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_mock_px4_geofence_hold_is_not_fought(tmp_path):
+    """Five mock PX4 vehicles (GF_ACTION 5: land, COM_FAIL_ACT_T 5 s); after seek iteration 3 the
+    fence ceiling of vehicle 3 is lowered under it: PX4 holds (AUTO.LOITER, system status CRITICAL)
+    for 5 s then lands. The ground station calls it "left" in its own failsafe, never re-engages it,
+    re-forms for 4 and goes on; vehicle 3 lands by itself (AUTO.LAND, disarmed)."""
+    from mission.sim.embedded import default_eps, embedded_plan, fleet_ports
+    from mission.telemetry.mission_log import read_mission_log
+    from sitl_mock.fields_gaussian import sigma2
+    from tests.mission.flight.test_resilience import _fleet
+    from tests.support.fly_helpers import fly, run_fleet
+
+    n = 5
+    ports = fleet_ports(n, "px4")
+    source = np.array([6.0, -4.0, 13.0])
+    fleet = _fleet(n, ports, source)
+    for s in range(1, n + 1):
+        fleet.vehicle(s).params.set("GF_ACTION", 5)
+    plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 11.0), eps=default_eps(sigma2(source)), max_iterations=80)
+    log_path = tmp_path / "m.jsonl"
+    modes: list[tuple[float, str, bool]] = []
+    done = threading.Event()
+
+    def lower_the_ceiling():
+        deadline = fleet.clock.time() + 900.0
+        while not done.is_set() and fleet.clock.time() < deadline:
+            if log_path.exists() and log_path.read_text().count('"type":"iteration"') >= 3:
+                fleet.vehicle(3).params.set("GF_MAX_VER_DIST", 5.0)   # it flies 9-13 m above home
+                break
+            fleet.clock.sleep_blocking(0.2)
+        while not done.is_set() and fleet.clock.time() < deadline:   # vehicle 3's modes from then on
+            v = fleet.vehicle(3)
+            if not modes or modes[-1][1:] != (v.mode_name, v.armed):
+                modes.append((fleet.clock.time(), v.mode_name, v.armed))
+            fleet.clock.sleep_blocking(0.1)
+
+    watcher = threading.Thread(target=lower_the_ceiling, daemon=True)
+    watcher.start()
+    try:
+        result = run_fleet(fleet, lambda world: fly(plan, fleet, log_path, world=world))
+    finally:
+        done.set()
+        watcher.join(timeout=30)
+        fleet.stop()
+    events = [r for r in read_mission_log(log_path) if r["type"] == "event"]
+    messages = [e["message"] for e in events]
+    lost = {x["sysid"]: x for x in result.lost}
+    assert 3 in lost and lost[3]["reason"] == "left", (result.lost, messages[-15:])
+    assert "in its own failsafe" in next(m for m in messages if m.startswith("vehicle 3 lost")), messages
+    assert not any(m.startswith("vehicle 3 left OFFBOARD") for m in messages), messages   # never re-engaged
+    assert ("AUTO.LOITER", True) in [m[1:] for m in modes], modes                          # PX4's hold first
+    after_hold = [m[1:] for m in modes[[m[1] for m in modes].index("AUTO.LOITER"):]]
+    assert ("OFFBOARD", True) not in after_hold, modes
+    assert after_hold[-1] == ("AUTO.LAND", False), modes                                  # landed by itself
+    assert any(m.startswith("re-forming for 4 vehicles") for m in messages)
+    assert result.outcome == "converged", (result.message, messages[-10:])
+
+
+def test_the_streamer_measures_its_own_pauses():
+    from mission.vehicle.streamer import SetpointStreamer
+
+    clock = FakeClock(100.0)
+    sent = []
+    v = SimpleNamespace(sysid=1, send_position_enu=lambda p, yaw=None: sent.append(p))
+    streamer = SetpointStreamer([v], rate_hz=10.0, clock=clock)
+    streamer.set_target(1, np.zeros(3))
+    for dt_s in [0.1] * 10 + [1.3] + [0.1] * 10:      # a 1.3 s pause in the middle
+        clock.t += dt_s
+        streamer.tick()
+    now = clock.time()
+    assert streamer.longest_gap_s(1, now - 0.5) == pytest.approx(0.1)    # steady since then
+    assert streamer.longest_gap_s(1, now - 1.5) == pytest.approx(1.3)    # the pause is in the window
+    assert streamer.longest_gap_s(1, 90.0) == float("inf")                # before the stream began
+    assert streamer.longest_gap_s(2, now) is None                         # not streamed
+    clock.t += 0.8
+    assert streamer.longest_gap_s(1, now - 0.5) == pytest.approx(0.8)    # the pause going on now
