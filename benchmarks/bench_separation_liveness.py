@@ -20,7 +20,7 @@ import argparse
 import numpy as np
 
 from mission.flight.faults.loss import reformed_offsets
-from mission.flight.phases import formation_offsets
+from mission.flight.targets import formation_offsets
 from mission.safety.envelope import SafetyEnvelope, pairwise_path_separation
 from mission.safety.fence import Geofence
 from mission.safety.gate import SafetyGate
