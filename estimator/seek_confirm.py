@@ -166,7 +166,7 @@ class SeekConvergenceMonitor(ConvergenceMonitor):
         As :class:`~estimator.seeking.ConvergenceMonitor` (``tol_m`` is the region rule's too;
         criterion 4 applies when ``min_signal_fraction > 0``).
     hold : int
-        The region rule's consecutive iterations.
+        The region rule's consecutive iterations; 0: no region rule (the window test alone).
 
     Attributes
     ----------
@@ -178,7 +178,8 @@ class SeekConvergenceMonitor(ConvergenceMonitor):
                  min_signal_fraction: float = 0.0, hold: int = DEFAULT_HOLD):
         super().__init__(window=window, tol_m=tol_m, drift_factor=drift_factor,
                          min_signal_fraction=min_signal_fraction)
-        self.region = RegionConfirmation(tol_m=tol_m, hold=hold, use_signal=min_signal_fraction > 0)
+        self.region = (None if hold == 0 else
+                       RegionConfirmation(tol_m=tol_m, hold=hold, use_signal=min_signal_fraction > 0))
         self.declared_by: str | None = None
 
     @property
@@ -193,7 +194,8 @@ class SeekConvergenceMonitor(ConvergenceMonitor):
     def reset(self) -> None:
         """Forget every centre and estimate seen."""
         super().reset()
-        self.region.reset()
+        if self.region is not None:
+            self.region.reset()
         self.declared_by = None
 
     def update(self, centre, signal: bool | None = None, estimate: SourceEstimate | None = None,
@@ -201,6 +203,6 @@ class SeekConvergenceMonitor(ConvergenceMonitor):
         """Record the newest centre, signal, the seeker's ``estimate`` (None: none) and the
         centroid of the iteration's readings; whether either test passes."""
         by_window = super().update(centre, signal)
-        by_region = self.region.update(centre, estimate, formation_centre_enu, signal)
+        by_region = self.region is not None and self.region.update(centre, estimate, formation_centre_enu, signal)
         self.declared_by = "window" if by_window else "region" if by_region else None
         return self.declared_by is not None

@@ -177,6 +177,7 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
         max_iterations=c.number(t, "max_iterations", p, d.max_iterations, low=1, integer=True),
         convergence_tol_m=c.number(t, "convergence_tol_m", p, d.convergence_tol_m, low=0, low_open=True),
         convergence_window=c.number(t, "convergence_window", p, d.convergence_window, low=8, integer=True),
+        region_hold=c.number(t, "region_hold", p, d.region_hold, low=0, high=1000, integer=True),
         altitude_m=c.number(t, "altitude_m", p, d.altitude_m),
         arrival_tol_m=c.number(t, "arrival_tol_m", p, d.arrival_tol_m, low=0, low_open=True),
         reading_window_s=c.number(t, "reading_window_s", p, d.reading_window_s, low=0, low_open=True),
@@ -187,6 +188,10 @@ def parse_seeking(c: Checker, doc: dict) -> SeekingPlan | None:
         **_ste_keys(c, t, d),
     )
     start = c.point(t, "start_enu_m", p, 3)
+    if vals["region_hold"] == 1:
+        c.bad(f"{p}.region_hold", "must be 0 (the region rule off) or at least 2 iterations: one tight region "
+              "is not a confirmation")
+        vals["region_hold"] = None
     if vals["sampling"] == "moving" and vals["seeker"] not in MOVING_SEEKERS:
         c.bad(f"{p}.sampling", 'sampling = "moving" needs seeker = "model", "newton" or "ste": the paper\'s '
               "gradient seeker estimates from the formation's shape at rest (Theorem 2) and the plume seeker's "

@@ -147,6 +147,10 @@ class SeekingPlan:
         The mission stops seeking after this many iterations (not converged).
     convergence_tol_m, convergence_window : float, int
         Converged when the centre's spread over the last ``window`` iterations is below tol.
+    region_hold : int
+        With a seeker that reports a 95 % region (``model``), also converged when that region has
+        been ``<= convergence_tol_m`` with the formation on the estimate for this many iterations
+        (:mod:`estimator.seek_confirm`); 0 turns that rule off (the window test alone).
     start_enu_m : tuple of float or None
         Formation centre where seeking starts (mission ENU); ``None``: above the origin at
         ``altitude_m``.
@@ -182,6 +186,7 @@ class SeekingPlan:
     max_iterations: int = 300
     convergence_tol_m: float = 0.5
     convergence_window: int = 12
+    region_hold: int = 3
     start_enu_m: tuple[float, float, float] | None = None
     altitude_m: float = 10.0
     arrival_tol_m: float = 0.5

@@ -129,3 +129,17 @@ def test_offline_simulate_applies_the_region_rule_to_the_seekers_own_estimates(c
     newton = json.loads(capsys.readouterr().out)
     assert newton["converged_by"] == "window" and newton["seeker_estimate_error_m"] is None
     assert newton["converged_at_iteration"] == newton["window_converged_at_iteration"]
+
+
+def test_hold_zero_turns_the_region_rule_off_and_the_window_still_decides():
+    mon = SeekConvergenceMonitor(window=12, tol_m=0.5, hold=0)
+    steady = [mon.update(SOURCE, True, _est(0.1), SOURCE) for _ in range(12)]
+    assert steady[:-1] == [False] * 11 and steady[-1] and mon.declared_by == "window"
+    on = SeekConvergenceMonitor(window=12, tol_m=0.5, hold=3)
+    assert [on.update(SOURCE, True, _est(0.1), SOURCE) for _ in range(3)][-1] and on.declared_by == "region"
+
+
+@pytest.mark.parametrize("hold", [1, -1])
+def test_a_hold_below_two_that_is_not_zero_is_refused(hold):
+    with pytest.raises(ValueError, match="hold must be an integer >= 2"):
+        SeekConvergenceMonitor(window=12, tol_m=0.5, hold=hold)

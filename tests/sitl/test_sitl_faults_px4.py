@@ -184,7 +184,7 @@ def test_px4_link_cut_then_kill_in_one_mission(tmp_path):
     from mission.sim.sitl_plan import seeker_settings, write_plan
 
     # a 30-iteration convergence window: the seek must not end before both faults are in
-    seeking = dict(_SEEKING, convergence_window=30, **seeker_settings("model"))
+    seeking = dict(_SEEKING, convergence_window=30, region_hold=0, **seeker_settings("model"))
     zenoh = f"tcp/127.0.0.1:{_free_tcp_port()}"
     cfg = SitlFleetConfig(flavour="px4", n=6, sitl_dir=sitl_dir, speedup=_SPEEDUP).free()
     log_dir = tmp_path / "logs"
@@ -358,7 +358,7 @@ def test_px4_battery_and_geofence_failsafes_in_one_mission(tmp_path):
 
     # the seek must outlast both failsafes (it converged 24 s in, before PX4's battery failsafe
     # acted): a convergence window longer than the iteration cap; with 3 left it ends anyway
-    seeking = dict(_SEEKING, convergence_window=400, max_iterations=300, **seeker_settings("model"))
+    seeking = dict(_SEEKING, convergence_window=400, region_hold=0, max_iterations=300, **seeker_settings("model"))
     zenoh = f"tcp/127.0.0.1:{_free_tcp_port()}"
     cfg = SitlFleetConfig(flavour="px4", n=5, sitl_dir=sitl_dir, speedup=_FAILSAFE_SPEEDUP,
                           params=_FAILSAFE_PARAMS).free()

@@ -144,7 +144,7 @@ class Seek:
         self.check = make_check(self.plan.faults, self.estimate, self.sysids)
         self.watch = self.formation.make_watch(self.check, self.sysids)
         self.monitor = SeekConvergenceMonitor(window=sk.convergence_window, tol_m=sk.convergence_tol_m,
-                                              min_signal_fraction=sk.min_signal_fraction)
+                                              min_signal_fraction=sk.min_signal_fraction, hold=sk.region_hold)
         self.arrival = ArrivalSignal()  # the convergence test's signal when the seeker has none
         self.centre = np.asarray(state.centre_enu, dtype=float).copy()
         for c in history:

@@ -39,6 +39,9 @@ def test_sample_plan_loads():
     (("seeking", "estimator"), "magic", "seeking.estimator", "must be one of"),
     (("seeking", "max_iterations"), 2.5, "seeking.max_iterations", "expected an integer"),
     (("seeking", "convergence_window"), 3, "seeking.convergence_window", "must be >= 8"),
+    (("seeking", "region_hold"), 1, "seeking.region_hold", "must be 0 (the region rule off) or at least 2"),
+    (("seeking", "region_hold"), -2, "seeking.region_hold", "must be >= 0"),
+    (("seeking", "region_hold"), 2.5, "seeking.region_hold", "expected an integer"),
     (("seeking", "start_enu_m"), [1.0, 2.0], "seeking.start_enu_m", "expected 3 finite numbers"),
     (("geofence", "max_alt_m"), 1.0, "geofence.max_alt_m", "must be greater than min_alt_m"),
     (("geofence", "polygon_enu_m"), [[0, 0], [1, 1]], "geofence.polygon_enu_m", "at least 3"),
@@ -192,3 +195,10 @@ def test_bad_faulty_sensor_keys_are_reported_with_their_key(doc, key, value, why
         parse_plan(doc)
     assert _keys(info.value) == [f"faults.{key}"]
     assert why in info.value.problems[0][1], info.value.problems
+
+
+@pytest.mark.parametrize("given, expected", [(None, 3), (0, 0), (5, 5)])
+def test_region_hold_defaults_to_three_and_zero_turns_the_rule_off(doc, given, expected):
+    if given is not None:
+        doc["seeking"]["region_hold"] = given
+    assert parse_plan(doc).seeking.region_hold == expected
