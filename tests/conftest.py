@@ -13,8 +13,9 @@ that folder's ``conftest.py``.
 """
 from __future__ import annotations
 
-#: ``--cpu-hogs N``: the suite beside N CPU-bound processes (tests/support/cpu_hogs_plugin.py)
-pytest_plugins = ["tests.support.cpu_hogs_plugin"]
+#: ``--cpu-hogs N``: the suite beside N CPU-bound processes (tests/support/cpu_hogs_plugin.py);
+#: ``--cpu-report PATH``: each test's CPU seconds (tests/support/cpu_report_plugin.py)
+pytest_plugins = ["tests.support.cpu_hogs_plugin", "tests.support.cpu_report_plugin"]
 
 from pathlib import Path
 

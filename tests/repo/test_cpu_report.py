@@ -1,0 +1,60 @@
+"""``--cpu-report PATH`` (tests/support/cpu_report_plugin.py): each test's CPU, its children's included."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PLUGIN_DIR = Path(__file__).resolve().parents[1] / "support"
+
+INNER_TEST = '''
+import subprocess
+import sys
+import time
+
+SPIN = "import time\\nt0 = time.process_time()\\nwhile time.process_time() - t0 < 0.6:\\n    pass\\n"
+
+
+def test_spins_in_a_child():
+    subprocess.run([sys.executable, "-c", SPIN], check=True)
+
+
+def test_waits():
+    time.sleep(0.3)
+'''
+
+
+def _run_inner(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    (tmp_path / "pytest.ini").write_text("[pytest]\n")
+    (tmp_path / "test_inner.py").write_text(INNER_TEST)
+    env = dict(os.environ, PYTHONPATH=str(PLUGIN_DIR))
+    return subprocess.run([sys.executable, "-m", "pytest", "-p", "cpu_report_plugin", "-p", "no:cacheprovider",
+                           "-c", str(tmp_path / "pytest.ini"), "--rootdir", str(tmp_path),
+                           str(tmp_path / "test_inner.py"), *args],
+                          capture_output=True, text=True, env=env, timeout=180, cwd=tmp_path)
+
+
+@pytest.mark.parametrize("workers", [[], ["-n", "2"]], ids=["one-process", "xdist"])
+def test_the_report_counts_a_child_process_cpu_and_not_a_wait(tmp_path, workers):
+    report = tmp_path / "out" / "cpu.jsonl"
+    run = _run_inner(tmp_path, "--cpu-report", str(report), *workers)
+    assert run.returncode == 0, run.stdout + run.stderr
+    records = {r["nodeid"].split("::")[-1]: r for r in map(json.loads, report.read_text().splitlines())}
+    assert set(records) == {"test_spins_in_a_child", "test_waits"}
+    # the child spun 0.6 s of its own CPU: counted once waited for
+    assert records["test_spins_in_a_child"]["cpu_s"] >= 0.55
+    # a sleep costs wall, not CPU (loaded or not)
+    assert records["test_waits"]["wall_s"] >= 0.3
+    assert records["test_waits"]["cpu_s"] < 0.25
+    assert "CPU report: 2 tests" in run.stdout
+    assert "test_spins_in_a_child" in run.stdout.split("CPU report:")[1]
+
+
+def test_a_directory_is_refused(tmp_path):
+    run = _run_inner(tmp_path, "--cpu-report", str(tmp_path))
+    assert run.returncode != 0
+    assert "--cpu-report must name a file, not the directory" in run.stdout + run.stderr
