@@ -174,8 +174,8 @@ class SeparationDeadlock(AssertionError):
     separation-hold deadlock, fixed"; raised under its own name should it come back)."""
 
 
-@pytest.mark.unstable_mission  # the model seeker's region rule can end the seek before the fault's iteration (no plan key
-# keeps it going yet), and beside the suite's other SITL fleets the 2-core machine starved (docs/faults.md)
+@pytest.mark.unstable_mission  # passes alone (its plan sets [seeking] region_hold = 0 so the seek reaches the fault);
+# beside the suite's other SITL fleets the 2-core machine starved (docs/faults.md)
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
 def test_px4_link_cut_then_kill_in_one_mission(tmp_path):
@@ -337,8 +337,8 @@ class FoughtPx4Failsafe(AssertionError):
     by handing such a vehicle to its autopilot, docs/faults.md; raised by name should it come back)."""
 
 
-@pytest.mark.unstable_mission  # the model seeker's region rule can end the seek before the fault's iteration (no plan key
-# keeps it going yet), and beside the suite's other SITL fleets the 2-core machine starved (docs/faults.md)
+@pytest.mark.unstable_mission  # passes alone (its plan sets [seeking] region_hold = 0 so the seek reaches the fault);
+# beside the suite's other SITL fleets the 2-core machine starved (docs/faults.md)
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
 def test_px4_battery_and_geofence_failsafes_in_one_mission(tmp_path):

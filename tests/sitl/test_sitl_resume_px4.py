@@ -97,7 +97,7 @@ def _json_out(run: FlyRun) -> dict:
         raise AssertionError(f"resume printed no JSON summary:\n{run.output()}") from None
 
 
-@pytest.mark.unstable_mission  # a resume slower than PX4's data-link-loss timeout (10 s) finds it landed (CI, load)
+@pytest.mark.unstable_mission  # passes alone (COM_DL_LOSS_T raised to 120 s here); a fourth SITL fleet in the whole suite starves the 2-core machine (docs/faults.md)
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
 def test_px4_gcs_killed_and_resumed(tmp_path):
