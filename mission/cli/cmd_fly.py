@@ -131,8 +131,6 @@ def _main(args, terminal) -> int:
             map_thread.stop()
     if result is None:
         return status
-    from mission.flight.operator_stop import exit_status
-
-    status = exit_status(result, report_result(result, display, args.json))
+    status = report_result(result, display, args.json)
     summary_log_line(log_dir / "mission.jsonl", args.json)
     return status

@@ -136,13 +136,9 @@ def _main(args, terminal) -> int:
             map_thread.stop()
     if result is None:
         return status
-    from mission.flight.operator_stop import exit_status
-
     status = report_result(result, display, args.json)
-    if result.outcome == "recovered" and not result.airborne_left and not result.still_armed:
-        status = 0
     summary_log_line(args.log, args.json)
-    return exit_status(result, status)
+    return status
 
 
 def _flown_plan(log_path: Path, plan):

@@ -474,9 +474,7 @@ def _main(args, terminal) -> int:
     finally:
         if map_thread is not None:
             map_thread.stop()
-    from mission.flight.operator_stop import exit_status
-
-    status = exit_status(result, report_result(result, display, args.json))
+    status = report_result(result, display, args.json)
     if result.log_path:
         summary_log_line(Path(result.log_path), args.json)
     return status

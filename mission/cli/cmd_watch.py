@@ -2,8 +2,11 @@
 
 Subscribes to ``swarmseek/<fleet>/mission/state`` (the coordinator's state publication) and draws
 the same table as ``run`` / ``fly`` (:mod:`mission.telemetry.display`); plain lines when piped,
-one JSON snapshot per line with ``--json``. Ends with status 0 when the mission ends (phase
-``done``), 0 on Ctrl-C, 3 when no state arrived within ``--wait-s``, 2 for invalid options.
+one JSON snapshot per line with ``--json``. When the mission ends (phase ``done``) it exits with
+the mission's own exit status (its last snapshot's ``ending``: 0 converged with every vehicle home,
+1 goal not reached, 4 a vehicle lost, 5 a vehicle left airborne or armed, a signal's 129-143;
+docs/mission.md), 0 when a ground station too old to say it ended; 0 on Ctrl-C, 3 when no state
+arrived within ``--wait-s``, 2 for invalid options.
 """
 from __future__ import annotations
 
@@ -94,9 +97,18 @@ def _watch(watcher, display, as_json: bool, wait_s: float | None) -> int:
         else:
             display.update(state)
         if state.get("phase") == "done" or state.get("final"):
-            if not as_json:
-                print(f"swarmseek watch: the mission of fleet {watcher.fleet!r} ended", flush=True)
-            return 0
+            return _ended(watcher.fleet, state, as_json)
+
+
+def _ended(fleet: str, state: dict, as_json: bool) -> int:
+    """The mission's exit status from its last snapshot's ``ending`` (0 without one), said on a terminal."""
+    ending = state.get("ending") if isinstance(state.get("ending"), dict) else {}
+    status = ending.get("exit_status")
+    status = status if isinstance(status, int) and not isinstance(status, bool) and 0 <= status <= 255 else 0
+    if not as_json:
+        how = f": {str(ending.get('outcome'))[:40]}, exit status {status}" if ending.get("outcome") else ""
+        print(f"swarmseek watch: the mission of fleet {fleet!r} ended{how}", flush=True)
+    return status
 
 
 def _security_warnings(fleet: str, state: dict) -> None:

@@ -154,7 +154,7 @@ def _sweep_status(prog: str, rows: list[dict], seeds: list[int], stopped_by: str
     one stopped a mission, with the seeds not flown named; else 1 when a mission failed or left a
     vehicle armed or airborne, 0 otherwise."""
     from experiments.sweep import seeds_text
-    from mission.flight.operator_stop import SIGNAL_EXIT
+    from mission.flight.result import SIGNAL_EXIT
 
     signal_name = stopped_by or next((r["interrupted_by"] for r in rows if r.get("interrupted_by")), None)
     if signal_name is not None:

@@ -16,7 +16,7 @@ before (:mod:`mission.flight.phases.mission_end`): the first brings the vehicles
 ``return``), the second lands them where they are, the third stops waiting for the LAND
 confirmations. The mission log always gets its ``summary`` (when it can still be written); the
 result's outcome is then ``interrupted`` (unless the mission had ended before the first stop)
-and :func:`exit_status` gives the status of :data:`SIGNAL_EXIT`.
+and its exit status is the first stop's (:data:`mission.flight.result.SIGNAL_EXIT`).
 """
 from __future__ import annotations
 
@@ -27,18 +27,12 @@ import sys
 import threading
 from typing import Coroutine
 
+from mission.flight.result import LOG_FAILURE
 from mission.flight.state import MissionState
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.terminal import alert
 
-__all__ = ["run_until_stopped", "exit_status", "SIGNAL_EXIT", "LOG_FAILURE"]
-
-#: what stopped the mission when its log could not be written (in ``interrupted_by``)
-LOG_FAILURE = "LOG_WRITE_FAILED"
-
-#: exit status of a command stopped by a signal (128 + the signal number, as a shell reports it),
-#: or by its mission log failing (74, ``EX_IOERR`` of sysexits.h)
-SIGNAL_EXIT = {"SIGHUP": 129, "SIGINT": 130, "SIGPIPE": 141, "SIGTERM": 143, LOG_FAILURE: 74}
+__all__ = ["run_until_stopped"]
 
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -157,12 +151,3 @@ class _PipeSignals:
 def _self_cancelled() -> bool:
     task = asyncio.current_task()
     return task is not None and task.cancelling() > 0
-
-
-def exit_status(result, status: int) -> int:
-    """The command's exit status: ``status`` unless a stop interrupted the mission (:data:`SIGNAL_EXIT`:
-    the first stop's)."""
-    signals = result.interrupted_by
-    if signals:
-        return SIGNAL_EXIT.get(signals[0], 130)
-    return status

@@ -5,7 +5,60 @@ from dataclasses import asdict, dataclass, field
 
 from mission.telemetry.mission_log import dataclass_json
 
-__all__ = ["MissionResult", "mission_result", "readiness_result", "geodetic_point", "estimate_fields", "region_text"]
+__all__ = ["MissionResult", "mission_result", "readiness_result", "geodetic_point", "estimate_fields", "region_text",
+           "mission_exit_status", "EXIT_OK", "EXIT_NOT_REACHED", "EXIT_USAGE", "EXIT_VEHICLE_LOST", "EXIT_AIRBORNE",
+           "SIGNAL_EXIT", "LOG_FAILURE"]
+
+#: the mission reached its goal (``converged``; a dry run: every vehicle ``ready``), every vehicle it
+#: armed landed and disarmed, none lost
+EXIT_OK = 0
+#: the mission did not reach its goal (not converged, stopped at the fence, aborted, not ready),
+#: every vehicle accounted for (none lost, none left airborne or armed)
+EXIT_NOT_REACHED = 1
+#: invalid options or plan (argparse's status; nothing was contacted)
+EXIT_USAGE = 2
+#: a vehicle was lost during the mission (link, handed to its autopilot's own failsafe, failed to
+#: arm or fly) and not re-admitted, whether or not the mission converged: look at ``lost``
+EXIT_VEHICLE_LOST = 4
+#: a vehicle was left airborne with no landing behaviour, or still armed at the end: go and look
+EXIT_AIRBORNE = 5
+#: the name :mod:`mission.flight.operator_stop` records when the mission log could not be written
+LOG_FAILURE = "LOG_WRITE_FAILED"
+#: the exit status of a mission stopped by a signal (the first one) or by a log that could not be written
+SIGNAL_EXIT = {"SIGHUP": 129, "SIGINT": 130, "SIGPIPE": 141, "SIGTERM": 143, LOG_FAILURE: 74}
+
+
+def mission_exit_status(outcome: str, *, lost=(), airborne_left=(), still_armed=(), interrupted_by=()) -> int:
+    """The exit status of a mission that ended with ``outcome`` (``run``, ``fly``, ``resume``).
+
+    In order of precedence: :data:`EXIT_AIRBORNE` (5) when a vehicle was left airborne or armed
+    (whatever else happened); the first stop's signal status (:data:`SIGNAL_EXIT`: 129, 130, 141,
+    143, or 74 for a mission log that could not be written); :data:`EXIT_VEHICLE_LOST` (4) when a
+    vehicle is still lost at the end; :data:`EXIT_OK` (0) for ``converged`` (a dry run's ``ready``;
+    ``resume``'s ``recovered``: the stopped mission's vehicles brought home); else
+    :data:`EXIT_NOT_REACHED` (1).
+
+    Parameters
+    ----------
+    outcome : str
+        :attr:`MissionResult.outcome`.
+    lost, airborne_left, still_armed : sequence
+        The vehicles lost (not re-admitted, not found disarmed on the ground by ``resume``: ``on_ground``),
+        left airborne, still armed at the end.
+    interrupted_by : sequence of str
+        The signals that stopped the mission, in order.
+
+    Returns
+    -------
+    int
+    """
+    if airborne_left or still_armed:
+        return EXIT_AIRBORNE
+    if interrupted_by:
+        return SIGNAL_EXIT.get(interrupted_by[0], 130)
+    if lost:
+        return EXIT_VEHICLE_LOST
+    return EXIT_OK if outcome in ("converged", "ready", "recovered") else EXIT_NOT_REACHED
 
 
 def region_text(region95_m: float | None) -> str:
@@ -96,7 +149,9 @@ class MissionResult:
         Preflight result per vehicle.
     lost : list
         Vehicles lost during the mission: ``sysid``, ``reason`` (``link`` / ``left``),
-        ``detail``, ``phase``, ``latency_s`` (see :mod:`mission.flight.faults.loss`).
+        ``detail``, ``phase``, ``latency_s``, ``came_back_s``, ``on_ground`` (``resume`` found it
+        disarmed on the ground: accounted for, not counted by the exit status) (see
+        :mod:`mission.flight.faults.loss`).
     link_rejections : dict
         MAVLink frames the ground station's links refused, by kind (non-zero only:
         ``unsigned``, ``bad_signature``, ``replayed``, ``bad_crc``, ``malformed``...; see
@@ -159,14 +214,21 @@ class MissionResult:
 
     @property
     def ok(self) -> bool:
-        """The mission reached its goal (converged) with every vehicle disarmed and none left airborne,
-        or the dry run found every vehicle ready (a script can tell a clean run from one that left a
-        vehicle in the air: exit status 1)."""
-        return self.outcome in ("converged", "ready") and not self.still_armed and not self.airborne_left
+        """The mission reached its goal (converged) with every vehicle disarmed, none lost and none left
+        airborne, or the dry run found every vehicle ready: exit status :data:`EXIT_OK`."""
+        return self.exit_status == EXIT_OK
+
+    @property
+    def exit_status(self) -> int:
+        """The command's exit status for this result (:func:`mission_exit_status`)."""
+        return mission_exit_status(self.outcome, lost=[x for x in self.lost if not x.get("on_ground")],
+                                   airborne_left=self.airborne_left,
+                                   still_armed=self.still_armed, interrupted_by=self.interrupted_by)
 
     def to_json(self) -> dict:
-        """JSON-friendly dict (through :func:`~mission.telemetry.mission_log.dataclass_json`: no secret)."""
-        return dataclass_json(self)
+        """JSON-friendly dict (through :func:`~mission.telemetry.mission_log.dataclass_json`: no secret),
+        with ``exit_status``, the status the command exits with."""
+        return dataclass_json(self) | {"exit_status": self.exit_status}
 
 
 def mission_result(state, outcome: str, message: str, *, now_s: float, readings: dict,
@@ -204,7 +266,7 @@ def mission_result(state, outcome: str, message: str, *, now_s: float, readings:
         readiness=[asdict(r) | {"ready": r.ready} for r in state.readiness.values()],
         log_path=log_path, reengaged=dict(state.reengaged), max_loop_lag_s=round(state.max_loop_lag_s, 4),
         lost=[{"sysid": x.sysid, "reason": x.reason, "detail": x.detail, "phase": x.phase,
-               "latency_s": round(x.latency_s, 3), "came_back_s": x.came_back_s}
+               "latency_s": round(x.latency_s, 3), "came_back_s": x.came_back_s, "on_ground": x.on_ground}
               for x in state.lost.values()], readmitted=list(state.readmitted),
         retired=[dict(asdict(x), ratio=round(x.ratio, 3)) for x in state.retired.values()],
         separation_interventions=int(separation_interventions))

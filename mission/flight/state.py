@@ -68,6 +68,9 @@ class VehicleLoss:
         Its last setpoint when it was lost (a silent vehicle may still fly there).
     readmit_pending : bool
         Heard again and waiting for re-admission at the next seek iteration.
+    on_ground : bool
+        Found disarmed on the ground (``resume``: a vehicle of the stopped mission already down): kept
+        out of the formation but accounted for, so not a loss for the exit status.
     """
 
     sysid: int
@@ -79,6 +82,7 @@ class VehicleLoss:
     came_back_s: float | None = None
     last_setpoint_enu: np.ndarray | None = None
     readmit_pending: bool = False
+    on_ground: bool = False
 
     @property
     def latency_s(self) -> float:
@@ -464,12 +468,13 @@ class MissionState:
 
     @property
     def ending(self) -> dict | None:
-        """How the mission is ending (``outcome``, ``message``) once decided, else None."""
+        """How the mission is ending (``outcome``, ``message``, ``exit_status``) once decided, else None."""
         return None if self._ending is None else dict(self._ending)
 
-    def set_ending(self, outcome: str, message: str) -> None:
-        """The mission is ending with ``outcome`` (told to watchers before its last snapshot)."""
-        self._ending = {"outcome": str(outcome), "message": str(message)}
+    def set_ending(self, outcome: str, message: str, exit_status: int) -> None:
+        """The mission is ending with ``outcome`` and the command will exit with ``exit_status``
+        (:func:`mission.flight.result.mission_exit_status`; told to watchers before its last snapshot)."""
+        self._ending = {"outcome": str(outcome), "message": str(message), "exit_status": int(exit_status)}
 
     def finish(self, result) -> None:
         """The mission ended with ``result`` (:class:`mission.flight.result.MissionResult`)."""

@@ -218,11 +218,11 @@ class Display:
 
 
 def report_result(result, display: "Display", as_json: bool) -> int:
-    """Print a finished mission's summary (JSON with ``as_json``) and return the exit status:
-    0 when the mission succeeded (``result.ok``), else 1."""
+    """Print a finished mission's summary (JSON with ``as_json``) and return its exit status
+    (:attr:`mission.flight.result.MissionResult.exit_status`)."""
     summary = result.to_json()
     if as_json:
         print(json.dumps(summary, indent=2))
     else:
         display.summary(summary)
-    return 0 if result.ok else 1
+    return result.exit_status

@@ -227,7 +227,7 @@ def _check(m: _Mission, out: dict, status: int, kill: dict, battery: dict, fence
         "no re-formation for 4 after the battery failsafe"
     # three left: the seek ends, the three come home; every vehicle down
     assert out["outcome"] == "too_few_vehicles", out["message"]
-    assert status == 1
+    assert status == 4 == out["exit_status"]  # ended with vehicles lost
     assert sorted(x["sysid"] for x in out["lost"]) == sorted(ids), out["lost"]
     assert out.get("airborne_left", []) == [] and out.get("still_armed", []) == [], out
     for sysid, ((_, mode, armed), alt_m) in final.items():

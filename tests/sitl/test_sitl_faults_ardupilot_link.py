@@ -201,7 +201,7 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
     assert sysid in [x["sysid"] for x in out["lost"]] and out["readmitted"] == [], (out["lost"], out["readmitted"])
     assert out["airborne_left"] == [] and out.get("still_armed", []) == [], out
     assert out["outcome"] in ("converged", "max_iterations"), out["message"]
-    assert status == (0 if out["outcome"] == "converged" else 1), (status, out["outcome"])
+    assert status == 4 == out["exit_status"], (status, out["outcome"])  # ended with a vehicle lost
     # the mission went on after the vehicle came back: another seek iteration, or (when the seek had
     # just converged or hit its cap, as the model seeker can by then) the next phase
     assert any(r["t_s"] > back["t_s"] for r in records(run.log) if r["type"] in ("iteration", "phase")), \
@@ -254,7 +254,7 @@ def test_ardupilot_vehicle_that_never_arms(tmp_path):
     assert refused is not None and "arming voltage" in refused["message"], refused
     assert lost is not None and lost["reason"] == "failed" and "arming refused" in lost["message"], lost
     # 3 left before the assembly: the mission ends (aborted) and brings them home
-    assert out["outcome"] == "aborted" and status == 1, (status, out["outcome"], out["message"])
+    assert out["outcome"] == "aborted" and status == 4, (status, out["outcome"], out["message"])  # a vehicle lost
     assert "lost before the formation was assembled: 3 left" in out["message"], out["message"]
     assert [x["sysid"] for x in out["lost"]] == [bad], out["lost"]
     assert out["airborne_left"] == [] and out.get("still_armed", []) == [], out

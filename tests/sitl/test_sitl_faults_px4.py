@@ -14,7 +14,7 @@ with one ``swarmseek sensor`` per vehicle, each a subprocess, and a fault inject
   out first on a slow host: PX4 holds for COM_FAIL_ACT_T, then lands). The relay stays cut until PX4 says it is disarmed on the ground, then forwards
   again. Heard again (judged on a HEARTBEAT from after the loss), disarmed on the ground, the
   vehicle is not re-admitted but kept out, no command sent. At the next iteration another PX4 process is killed with SIGKILL:
-  lost, re-formed for 4, the mission converges with 4. Checked: the outcome and exit status (1:
+  lost, re-formed for 4, the mission converges with 4. Checked: the outcome and exit status (5:
   converged, one vehicle unheard at the end, ``airborne_left``; docs/mission.md), both losses in
   the summary and no re-admission, the detection latencies, what PX4 did after the cut (its modes,
   a descent to the ground, disarmed, never armed again), every living vehicle landed and disarmed
@@ -65,13 +65,15 @@ _SEEKING = {"eps": 50.0, "convergence_window": 10, "convergence_tol_m": 0.5, "ar
 _LINK_TIMEOUT_S = 1.4
 #: the documented exit status of a mission that converged with a vehicle lost and unheard at the end
 #: (its state unknown: reported airborne, ``airborne_left``; docs/mission.md "Exit status")
-_EXIT_VEHICLE_UNACCOUNTED = 1
+_EXIT_VEHICLE_UNACCOUNTED = 5
 #: PX4 modes (``mavutil.mode_string_v10``) in which a vehicle that lost its offboard setpoints
 #: without RC comes down: position mode (COM_OBL_RC_ACT 0, no pilot: PX4 descends) and AUTO.LAND
 #: (its data-link-loss action NAV_DLL_ACT 3 when COM_DL_LOSS_T runs out before the touchdown),
 #: preceded by AUTO.LOITER, PX4's hold for COM_FAIL_ACT_T (5 s) before that action (measured: a run
 #: at load 10-11 descending at 0.49 m/wall s showed POSCTL 2.1 s, LOITER 12.2 s, LAND 17.3 s after the cut)
 _DESCENT_MODES = ("POSCTL", "LOITER", "LAND")
+#: the documented exit status of a mission that ended with vehicles lost, none left airborne (docs/mission.md)
+_EXIT_VEHICLE_LOST = 4
 #: the documented exit status of a preflight that fails: aborted, nothing armed (docs/mission.md)
 _EXIT_ABORTED = 1
 #: ``swarmseek audit``: 3 = incomplete (no setpoint checked; docs/audit.md)
@@ -384,7 +386,7 @@ def test_px4_battery_and_geofence_failsafes_in_one_mission(tmp_path):
                   "modes_after": after[ev["lost"]["sysid"]]} for name, ev in (("battery", battery), ("fence", fence))}
     figures.update(exit=status, outcome=summary and summary["outcome"], iterations=len(_iterations(run.records())))
     print("PX4 SIH battery + geofence:", json.dumps(figures))
-    assert status == 1, (status, output)
+    assert status == _EXIT_VEHICLE_LOST, (status, output)
     assert summary is not None and summary["outcome"] == "too_few_vehicles", (summary, output)
     assert sorted(e["sysid"] for e in summary["lost"]) == sorted([bat_v.sysid, fence_v.sysid]), summary["lost"]
     assert summary.get("airborne_left", []) == [] and summary.get("still_armed", []) == [], summary

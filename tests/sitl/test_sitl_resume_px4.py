@@ -153,6 +153,6 @@ def _check(records: list, out: dict, status: int, kill: dict, modes: dict, final
         assert all(armed for t, m, armed in ms if t < t_resume), (sysid, ms)  # nobody landed meanwhile
     assert out["lost"] == [] and out["airborne_left"] == [] and out.get("still_armed", []) == [], out
     assert out["outcome"] in ("converged", "max_iterations"), out["message"]
-    assert status == (0 if out["outcome"] == "converged" else 1), (status, out["outcome"])
+    assert status == (0 if out["outcome"] == "converged" else 1) == out["exit_status"], (status, out["outcome"])
     for sysid, st in final.items():
         assert st.get("armed") is False and st.get("landed_state") == _ON_GROUND, (sysid, st)

@@ -179,7 +179,7 @@ def _fly_and_operate(tmp_path, fleet: str, zenoh_section: str, endpoint: str):
     try:
         _operate(endpoint, lines, mission, fleet)
         assert mission.wait(timeout=240) == 1                       # ended by the operator: not converged
-        assert watch.wait(timeout=60) == 0                          # the watcher ends with the mission
+        assert watch.wait(timeout=60) == 1                          # the watcher ends with the mission, with its status
     finally:
         _stop(mission, watch, mock)
     assert lines.last().get("final") is True

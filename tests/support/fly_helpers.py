@@ -4,14 +4,14 @@ from __future__ import annotations
 import asyncio
 
 from mission.flight.coordinator import Coordinator
-from mission.flight.result import MissionResult
+from mission.flight.result import MissionResult, mission_exit_status
 from mission.sim.embedded_world import EmbeddedWorld
 from mission.sim.lockstep import VirtualClock, run_lockstep
 from mission.telemetry.mission_log import MissionLog
 
 from tests.support.invariants import check_never_abandoned
 
-__all__ = ["fly", "run_fleet", "run_with_saboteur"]
+__all__ = ["fly", "run_fleet", "run_with_saboteur", "summary_exit_status"]
 
 
 async def fly(plan, fleet, log_path, tlog_dir=None, world=None, coordinators=None):
@@ -85,3 +85,15 @@ def run_with_saboteur(plan, fleet, log_dir, saboteur=None, coordinators=None):
             saboteur.done.set()
             saboteur.join(timeout=30)
         fleet.stop()
+
+
+def summary_exit_status(summary: dict) -> int:
+    """The exit status a command must have given for its ``--json`` summary (or the mission log's
+    ``summary`` record), recomputed from the summary's own fields, and checked against the
+    summary's ``exit_status``."""
+    status = mission_exit_status(summary["outcome"], lost=summary.get("lost", []),
+                                 airborne_left=summary.get("airborne_left", []),
+                                 still_armed=summary.get("still_armed", []),
+                                 interrupted_by=summary.get("interrupted_by", []))
+    assert summary.get("exit_status") == status, (summary.get("exit_status"), status)
+    return status

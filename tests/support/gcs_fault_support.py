@@ -28,6 +28,7 @@ from sitl_mock.dynamics_params import DynamicsParams
 from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
+from tests.support.fly_helpers import summary_exit_status
 from tests.support.invariants import abandoned
 from tests.support.wait_helpers import wait_until
 
@@ -287,7 +288,7 @@ def _closed_stdout(m: _Fly) -> None:
     m.start(stdout=_dead_pipe(), as_json=False)  # the live display writes from the start
     status = m.finish()
     summary = _summary(m.log)
-    assert status == (0 if summary["outcome"] == "converged" else 1), (status, summary["outcome"], m.err.text())
+    assert status == summary_exit_status(summary), (status, summary["outcome"], m.err.text())
     assert summary["outcome"] in ("converged", "max_iterations") and summary["airborne_left"] == []
     lost = [r for r in records(m.log) if r.get("terminal_lost") == "stdout"]
     assert len(lost) == 1 and "BrokenPipeError" in lost[0]["message"]

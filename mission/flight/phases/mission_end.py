@@ -21,7 +21,7 @@ import asyncio
 from typing import Awaitable, Callable
 
 from mission.flight.faults.landing_guard import LandingGuard
-from mission.flight.result import MissionResult
+from mission.flight.result import MissionResult, mission_exit_status
 from mission.flight.services import PhaseEvents
 from mission.flight.state import MissionState
 from mission.telemetry.mission_log import MissionLog
@@ -99,7 +99,10 @@ class MissionEnd:
         why = f"mission {message}" if message.startswith(outcome) else f"mission {outcome}: {message}"
         left, cut_short = await self.landing_guard().secure(why, land=back or not interrupts)
         interrupts += int(cut_short)
-        self.state.set_ending(outcome, message)  # in the last snapshot (a watcher's map shows the outcome)
+        # in the last snapshot (a watcher's map shows the outcome; ``watch`` exits with the status)
+        self.state.set_ending(outcome, message, mission_exit_status(
+            outcome, lost=[x for x in self.state.lost.values() if not x.on_ground], airborne_left=left, still_armed=self.state.still_armed,
+            interrupted_by=self.state.interrupts))
         try:
             await self.stop_background()
         except asyncio.CancelledError:

@@ -57,6 +57,9 @@ from wire.signing import SigningError
 
 __all__ = ["Resume", "ResumeError", "ResumeState", "plan_from_json", "load_resume_state"]
 
+#: why a vehicle of the stopped mission is not re-engaged when it is already down (accounted for)
+ON_GROUND = "on the ground (disarmed)"
+
 
 class ResumeError(ValueError):
     """The log cannot be resumed (not a mission log, finished, or stopped before the takeoff)."""
@@ -345,7 +348,8 @@ class Resume:
         for sysid in sorted(state.slot_offsets):
             reason = await self.why_not_flying(sysid)
             if reason is not None:
-                state.declare_lost(VehicleLoss(sysid, "left", reason, now, now, "resume"), f"lost ({reason})")
+                state.declare_lost(VehicleLoss(sysid, "left", reason, now, now, "resume", on_ground=reason == ON_GROUND),
+                                   f"lost ({reason})")
                 self.events.event(f"vehicle {sysid} lost: {reason}; not re-engaged", level="warning", sysid=sysid)
             else:
                 flying.append(sysid)
@@ -381,7 +385,7 @@ class Resume:
         if home is not None:
             self.state.set_home(sysid, geodetic_to_enu(home[0], home[1], home[2], self.plan.origin))
         if reason is None and not st.armed:
-            reason = "on the ground (disarmed)"
+            reason = ON_GROUND
         elif reason is None and st.mode in LEFT_MODES.get(v.flavour, ()):
             reason = f"in {st.mode} (its autopilot's failsafe while the ground station was away)"
         elif reason is None and (st.relative_alt_m is None or st.relative_alt_m < 1.0):

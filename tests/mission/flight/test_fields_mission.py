@@ -11,6 +11,8 @@ import pytest
 from mission.cli import main as cli_main
 from mission.telemetry.mission_log import read_mission_log
 
+from tests.support.fly_helpers import summary_exit_status
+
 N = 4
 FLOOR = 0.002
 
@@ -23,7 +25,7 @@ def test_run_on_a_plume_finishes_with_every_vehicle_landed(field, tmp_path, caps
     code = cli_main(argv)
     out = json.loads(capsys.readouterr().out)
     assert out["outcome"] in ("converged", "max_iterations"), out["message"]
-    assert code == (0 if out["outcome"] == "converged" else 1)
+    assert code == summary_exit_status(out)
     records = read_mission_log(tmp_path / "mission.jsonl")
     phases = [r["phase"] for r in records if r["type"] == "phase"]
     assert phases[-3:] == ["finish", "return", "done"]

@@ -79,6 +79,7 @@ def test_watch_command_draws_until_the_final_snapshot(tmp_path):
         pub = StatePublisher(session, "demo", lambda: dict(state), rate_hz=5.0)
         pub.start()
         await wait_until_async(lambda: watch.poll() is not None or pub.published > 25, 60.0, "some snapshots")
+        state["ending"] = {"outcome": "converged", "message": "m", "exit_status": 4}  # a vehicle was lost
         await pub.stop()                                   # the final snapshot ends the watcher
 
     try:
@@ -88,8 +89,9 @@ def test_watch_command_draws_until_the_final_snapshot(tmp_path):
         if watch.poll() is None:
             watch.kill()
         session.close()
-    assert watch.returncode == 0, err
-    assert "seek" in out and "[PAUSED by alice]" in out and "the mission of fleet 'demo' ended" in out
+    assert watch.returncode == 4, err                      # the mission's own exit status
+    assert "seek" in out and "[PAUSED by alice]" in out
+    assert "the mission of fleet 'demo' ended: converged, exit status 4" in out
 
 
 def test_watch_without_endpoint_is_a_usage_error():
