@@ -34,7 +34,7 @@ which the offline Monte Carlo uses; a mission uses the default ``()``.
 
 The weighted least squares are in :mod:`estimator.robust_wls`, the choice of the weights in
 :mod:`estimator.robust_weights` and the fault tests in :mod:`estimator.robust_faults`; their
-public names are re-exported here.
+public names are imported from there.
 """
 from __future__ import annotations
 

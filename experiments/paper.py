@@ -3,7 +3,7 @@
 Everything is computed from our own geometry (:mod:`formation`), estimators (:mod:`estimator`)
 and offline simulation (:mod:`experiments.offline`), deterministically (fixed seeds). The paper
 does not give starting points, the radius of Fig. 4 or the number of iterations; our choices are
-the constants of :mod:`experiments.paper_setup` (re-exported here) and are written into
+the constants of :mod:`experiments.paper_setup` and are written into
 ``summary.json``. The faulty-robot study is in :mod:`experiments.paper_robustness`, the physics
 and convergence checks in :mod:`experiments.paper_checks`, the figures in
 :mod:`experiments.paper_figures`.

@@ -13,7 +13,7 @@ what the vehicle does:
 
 The state (:class:`FlightState`, :class:`Setpoint`) is in :mod:`sitl_mock.ap_flight_state` and
 the setpoints (frames, validation, following, echo) in :mod:`sitl_mock.ap_setpoints`; their
-public names are re-exported here.
+public names are imported from there.
 """
 from __future__ import annotations
 

@@ -6,7 +6,7 @@
 physics step. Everything runs on the fleet's simulated clock. Commands are in
 :mod:`sitl_mock.ap_commands`, setpoints and flight behaviours in :mod:`sitl_mock.ap_flight`,
 the dispatch of accepted messages and the parameter protocol in :mod:`sitl_mock.ap_receive`
-(whose ``classify_bad_frame`` is re-exported here).
+(``classify_bad_frame`` is imported from there).
 """
 from __future__ import annotations
 

@@ -20,7 +20,7 @@ The state is kept in plain floats (faster than tiny numpy arrays); the array att
 API (``position_ned_m``, ``velocity_ned_m_s``) are properties returning fresh copies.
 
 The parameters live in :mod:`sitl_mock.dynamics_params` and the control laws in
-:mod:`sitl_mock.dynamics_control`; ``DynamicsParams`` and ``GRAVITY_M_S2`` are re-exported here.
+:mod:`sitl_mock.dynamics_control` (``DynamicsParams`` and ``GRAVITY_M_S2`` are imported from there).
 """
 from __future__ import annotations
 

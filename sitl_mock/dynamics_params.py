@@ -2,7 +2,7 @@
 
 :class:`DynamicsParams` gathers the physical limits, controller gains, wind, GPS noise and
 battery model of one simulated vehicle, and validates them on construction. It is kept apart
-from :mod:`sitl_mock.dynamics` (which re-exports it) so that the parameter table can be
+from :mod:`sitl_mock.dynamics` (import it from here) so that the parameter table can be
 built and checked without the simulation itself.
 """
 from __future__ import annotations

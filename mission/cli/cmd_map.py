@@ -203,7 +203,7 @@ def start_map_thread(args, fleet: str, prog: str, truth_enu=None):
     armed); it reads the state and sends the page's commands through the mission's own zenoh
     session, which the mission hands over once open (:meth:`MapThread.attach`): no endpoint is
     added to the plan and no credential is read (docs/operator.md, "The live map")."""
-    if getattr(args, "map", None) is None:
+    if args.map is None:
         return None, None
     from mission.telemetry.map_live import MapThread
 

@@ -113,6 +113,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_map_option(parser)
     add_endpoint_arguments(
         parser, listen_help="the ground station also listens here, for `swarmseek watch` / `ctl` (repeatable)")
+    # set later, before the mission flies: the simulated sensor's response (_field_setup) and the
+    # ``--out`` hosts resolved before any loop starts (_resolve_outs, run_embedded)
+    parser.set_defaults(sensor_response=None, forward_addresses=None)
 
 
 #: ``--seeker`` when not given, by ``--field``: the best measured in whole missions there
@@ -121,7 +124,7 @@ def _resolve_seeker(args) -> str:
     """``--seeker``, or when not given the best measured for the field (as a plan's default:
     :func:`mission.core.plan_types.best_seeker`)."""
     if args.seeker is None:
-        args.seeker = best_seeker(getattr(args, "field", None))
+        args.seeker = best_seeker(args.field)
     return args.seeker
 
 
@@ -136,11 +139,11 @@ def _check_args(args) -> str | None:
                 f"got {args.n}")
     if args.formation == "symmetric" and args.n % 2:
         return f"--formation symmetric needs an even --n, got {args.n}"
-    if getattr(args, "sampling", None) == "moving" and args.seeker not in MOVING_SEEKERS:
+    if args.sampling == "moving" and args.seeker not in MOVING_SEEKERS:
         return (f"--sampling moving needs --seeker model, newton or ste, got {args.seeker}: the paper's gradient seeker "
                 "estimates from the formation's shape at rest (Theorem 2) and the plume seeker compares readings "
                 "taken at rest; both sample stop and go")
-    if getattr(args, "replan_fraction", None) is not None and not 0 < args.replan_fraction <= 1:
+    if args.replan_fraction is not None and not 0 < args.replan_fraction <= 1:
         return f"--replan-fraction must be in (0, 1], got {args.replan_fraction:g}"
     if args.max_iterations < 1:
         return f"--max-iterations must be >= 1, got {args.max_iterations}"
@@ -158,7 +161,7 @@ def _check_args(args) -> str | None:
 
 def _sampling(args) -> str:
     """``--sampling``, or the seeker's default: moving for newton/model, stop and go otherwise."""
-    if getattr(args, "sampling", None) is not None:
+    if args.sampling is not None:
         return args.sampling
     return "moving" if _resolve_seeker(args) in MOVING_SEEKERS else "stop_and_go"
 
@@ -169,13 +172,13 @@ def _inapplicable_option(args) -> str | None:
     for a behaviour the mission would not have: refused, never ignored."""
     seeker, sampling = _resolve_seeker(args), _sampling(args)
     if seeker not in ("plume", "ste"):
-        for flag, dest in (("--plume-mode", "plume_mode"), ("--seek-wind-from", "seek_wind_from")):
-            if getattr(args, dest, None) is not None:
+        for flag, value in (("--plume-mode", args.plume_mode), ("--seek-wind-from", args.seek_wind_from)):
+            if value is not None:
                 return (f"{flag} applies to the plume and ste seekers only (--seeker plume, or --seeker ste, "
                         f"the default with --field plume/intermittent); this mission's seeker is {seeker}")
     if sampling != "moving":
-        for flag, dest in (("--replan-fraction", "replan_fraction"), ("--sensor-lag", "sensor_lag")):
-            if getattr(args, dest, None) is not None:
+        for flag, value in (("--replan-fraction", args.replan_fraction), ("--sensor-lag", args.sensor_lag)):
+            if value is not None:
                 return (f"{flag} applies to sampling while moving only (--sampling moving, the default of "
                         f"the model, newton and ste seekers); this mission samples {sampling} ({seeker} seeker)")
     return None
@@ -185,7 +188,7 @@ def _warn_ignored_options(args, prog: str = "swarmseek run") -> list[str]:
     """Print (once, on stderr) a warning for each harmless option this mission does not use:
     ``--eps`` is the step gain of the gradient seeker only. Returns the warnings."""
     warnings = []
-    if getattr(args, "eps", None) is not None and _resolve_seeker(args) != "gradient":
+    if args.eps is not None and _resolve_seeker(args) != "gradient":
         warnings.append(f"{prog}: warning: --eps is the gradient seeker's step gain; the {args.seeker} seeker "
                         "does not use it (its step is bounded by --gamma)")
     for line in warnings:
@@ -250,12 +253,12 @@ def _mission_setup(args):
                          radius_m=radius_m, start_enu_m=start, eps=eps, gamma_m=args.gamma,
                          estimator=args.estimator, max_iterations=args.max_iterations,
                          return_behaviour=args.return_behaviour, origin=DEFAULT_ORIGIN)
-    plan = plan_with_outs(plan, getattr(args, "out", None))
-    faulty = getattr(args, "faulty_sensor", None) or plan.faults.faulty_sensor
+    plan = plan_with_outs(plan, args.out)
+    faulty = args.faulty_sensor or plan.faults.faulty_sensor
     plan = dataclasses.replace(plan, faults=dataclasses.replace(
         plan.faults, faulty_sensor=faulty, link_timeout_s=link_timeout_for_speedup(plan.faults.link_timeout_s,
                                                                                    args.speedup)))
-    if getattr(args, "zenoh_listen", None):  # reachable by `swarmseek watch` / `ctl`
+    if args.zenoh_listen:  # reachable by `swarmseek watch` / `ctl`
         plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
     plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, **_seeking_options(args)))
     return plan, ports, field, source, start, eps
@@ -279,15 +282,15 @@ def link_timeout_for_speedup(link_timeout_s: float, speedup: float | None) -> fl
 def _seeking_options(args) -> dict:
     """The ``[seeking]`` keys the ``run`` options set: the seeker, its sampling and re-plan fraction."""
     sampling = _sampling(args)  # moving pays for the seekers that can use it (docs/seekers.md)
-    mode = getattr(args, "plume_mode", None) or ("intermittent" if getattr(args, "field", None) == "intermittent"
+    mode = args.plume_mode or ("intermittent" if args.field == "intermittent"
                                                   else "steady")
-    out = {"seeker": args.seeker, "sampling": sampling, "wind_from_deg": getattr(args, "seek_wind_from", None),
+    out = {"seeker": args.seeker, "sampling": sampling, "wind_from_deg": args.seek_wind_from,
            "plume_mode": mode}
-    if getattr(args, "replan_fraction", None) is not None:
+    if args.replan_fraction is not None:
         out["replan_fraction"] = args.replan_fraction
-    lag_s = getattr(args, "sensor_lag", None)
+    lag_s = args.sensor_lag
     if lag_s is None:  # the operator knows the sensor: the simulated one's time constant
-        lag_s = (getattr(args, "sensor_response", None) or {}).get("time_constant_s", 0.0)
+        lag_s = (args.sensor_response or {}).get("time_constant_s", 0.0)
     out["sensor_lag_s"] = float(lag_s)
     if args.seeker == "ste":
         out.update(_ste_sensor(args))
@@ -298,7 +301,7 @@ def _ste_sensor(args) -> dict:
     """The ``ste`` seeker's sensor keys: what the operator knows of the simulated sensor (its
     datasheet: ``--noise``, ``--detection-floor``); the wind, the stability class and the
     release are not given (the seeker's priors)."""
-    floor = (getattr(args, "sensor_response", None) or {}).get("detection_floor", 0.0)
+    floor = (args.sensor_response or {}).get("detection_floor", 0.0)
     noise = float(args.noise) if args.noise > 0 else SeekingPlan.sensor_noise_std  # no sensor is noise-free
     return {"sensor_noise_std": noise, "sensor_detection_floor": float(floor or 0.0)}
 
@@ -343,7 +346,7 @@ async def _fly(args, plan, fleet, setup, display, world=None, terminal=None, map
             mission = run_until_stopped(co.run(), co.state, co.log)
             work = with_keys(co.command, co.say, display, mission)  # keys on a terminal
             result = await forwarding(work, plan.forward, [v.sysid for v in plan.vehicles], co.event,  # --out
-                                      co.watch_endpoints, getattr(args, "forward_addresses", None))
+                                      co.watch_endpoints, args.forward_addresses)
             result.true_source_enu = [float(x) for x in source]
             result.true_source_geodetic = geodetic_point(plan.origin, source)
             if result.estimate_enu is not None:
@@ -367,7 +370,7 @@ def _state_rate_hz(args, world) -> float:
     mission unchanged, record for record)."""
     if world is not None:
         return 2.0
-    return MAP_RATE_HZ if getattr(args, "map", None) is not None else WALL_CLOCK_RATE_HZ
+    return MAP_RATE_HZ if args.map is not None else WALL_CLOCK_RATE_HZ
 
 
 def run_embedded(args, display=None, terminal=None, map_thread=None):
@@ -389,11 +392,11 @@ def run_embedded(args, display=None, terminal=None, map_thread=None):
     plan, ports, field, source, start, eps = _mission_setup(args)
     if map_thread is not None:
         map_thread.set_truth(source)
-    if getattr(args, "log_dir", None) is None:
+    if args.log_dir is None:
         from mission.cli.paths import DEFAULT_LOG_ROOT, new_log_dir
 
         args.log_dir = new_log_dir(DEFAULT_LOG_ROOT, "run")
-    if plan.forward.out and getattr(args, "forward_addresses", None) is None:
+    if plan.forward.out and args.forward_addresses is None:
         args.forward_addresses = resolve_outs(plan.forward.out)  # once, before the loop (ForwardAddressError)
     realtime = args.realtime or args.speedup is not None
     clock = SimClock(args.speedup or 1.0) if realtime else VirtualClock()
@@ -421,7 +424,7 @@ def _resolve_outs(args) -> str | None:
     """Resolve every ``--out`` host once, before anything starts (``args.forward_addresses``);
     the reason when one is invalid or does not resolve."""
     try:
-        args.forward_addresses = resolve_outs(getattr(args, "out", None) or ())
+        args.forward_addresses = resolve_outs(args.out or ())
     except ForwardAddressError as exc:
         return str(exc)
     return None

@@ -34,9 +34,9 @@ def sweep_problem(args) -> str | None:
     reachable by a MAVLink client (``--out``) or ``watch``/``ctl`` (``--zenoh-listen``)."""
     if args.seeds is None:
         return None
-    if getattr(args, "out", None):
+    if args.out:
         return "--out forwards one mission's MAVLink; a sweep (--seeds) flies many: fly a single --seed to watch it"
-    if getattr(args, "zenoh_listen", None):
+    if args.zenoh_listen:
         return ("--zenoh-listen makes one mission reachable by watch/ctl; a sweep (--seeds) flies many: fly a "
                 "single --seed to watch it")
     return None

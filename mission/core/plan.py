@@ -9,8 +9,8 @@ The file format is documented in ``docs/mission.md`` and illustrated by
 ``mission/examples/sitl_plan.toml``.
 
 The data model is in :mod:`mission.core.plan_types` and the section parsers in
-:mod:`mission.core.plan_sections`; this module reads the file, checks the document as a whole
-and re-exports the model.
+:mod:`mission.core.plan_sections`; this module reads the file and checks the document as a
+whole (the model is imported from :mod:`mission.core.plan_types`).
 """
 from __future__ import annotations
 import tomllib

@@ -1,7 +1,7 @@
 """The mission plan's data model: one frozen dataclass per section, the plan and its error.
 
-What :func:`mission.core.plan.parse_plan` builds once every key is valid. Everything here is
-re-exported by :mod:`mission.core.plan`, where the file format is described.
+What :func:`mission.core.plan.parse_plan` builds once every key is valid (the file format is
+described in :mod:`mission.core.plan`); its names are imported from here.
 """
 from __future__ import annotations
 

@@ -9,7 +9,7 @@
 - ``access_control`` (:func:`acl_config`): default deny; sensor readings accepted only from the
   listed subjects, the coordinator's state sent only to the listed monitors.
 
-Everything here is re-exported by :mod:`mission.core.zenoh_security`.
+Its names are imported from here (not through :mod:`mission.core.zenoh_security`).
 """
 from __future__ import annotations
 

@@ -443,9 +443,10 @@ class Coordinator:
     async def stop_background(self) -> None:
         """Stop what runs beside the phases: watchdog, loss monitor, ramp, streamer, control
         channel, state publisher, reading subscriber, then close vehicles, links and poller."""
-        for name in ("_watchdog_task", "_loss_task"):
-            await stop_watched(getattr(self, name))  # a failure was told when it happened
-            setattr(self, name, None)
+        await stop_watched(self._watchdog_task)  # a failure was told when it happened
+        self._watchdog_task = None
+        await stop_watched(self._loss_task)
+        self._loss_task = None
         if self.gate is not None:
             await self.gate.stop()
         if self.streamer is not None:

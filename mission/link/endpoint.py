@@ -29,8 +29,8 @@ never to a vehicle's ``.tlog``. See ``docs/faults.md`` ("Forged MAVLink without 
 
 The endpoint is split by concern: :mod:`mission.link.endpoint_receive` (parsing, checks,
 demultiplexing), :mod:`mission.link.endpoint_send` (encoding, routing, framing, heartbeat) and
-:mod:`mission.link.endpoint_registry` (:class:`LinkError`, :class:`SysidRegistry`, re-exported
-here); this module holds the endpoint itself: opening, closing and the vehicles' API.
+:mod:`mission.link.endpoint_registry` (:class:`LinkError`, :class:`SysidRegistry`, imported from
+there); this module holds the endpoint itself: opening, closing and the vehicles' API.
 """
 from __future__ import annotations
 
@@ -274,7 +274,7 @@ class MavEndpoint(EndpointReceiving, EndpointSending):
     def check_sysid(self, sysid: int) -> None:
         """Raise the first known :class:`LinkError` about ``sysid``, if any."""
         for err in self.errors:
-            if getattr(err, "sysid", None) == sysid:
+            if err.sysid == sysid:
                 raise err
 
     async def wait_heartbeat(self, sysid: int | None, timeout_s: float):

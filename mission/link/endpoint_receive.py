@@ -240,7 +240,7 @@ class EndpointReceiving:
                 fut.set_result((sysid, msg))
 
     def _report_duplicate(self, sysid: int, detail: str) -> None:
-        if any(getattr(e, "sysid", None) == sysid for e in self.errors):
+        if any(e.sysid == sysid for e in self.errors):
             return
         self._record_error(sysid, LinkError(f"duplicate MAVLink system id {sysid} on {self.uri!r}: {detail}"))
 

@@ -1,8 +1,8 @@
 """Errors of MAVLink links and the registry that catches one system id on two endpoints.
 
 :class:`SysidRegistry` is shared between the :class:`~mission.link.endpoint.MavEndpoint` objects
-of one mission; :class:`LinkError` is what every link problem raises. Both are re-exported by
-:mod:`mission.link.endpoint`.
+of one mission; :class:`LinkError` is what every link problem raises. Both are imported from
+here, not through :mod:`mission.link.endpoint`.
 """
 from __future__ import annotations
 
@@ -22,7 +22,15 @@ class _Endpoint(Protocol):
 
 
 class LinkError(ConnectionError):
-    """A MAVLink link problem; the message names the endpoint (and the other one, if any)."""
+    """A MAVLink link problem; the message names the endpoint (and the other one, if any).
+
+    Attributes
+    ----------
+    sysid : int or None
+        The vehicle the problem is about (a duplicate system id), None when it is the link's.
+    """
+
+    sysid: int | None = None
 
 
 class SysidRegistry:

@@ -66,7 +66,7 @@ def resolve_out(text: str, numeric_only: bool = False) -> tuple[str, int]:
         info = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM, 0, flags)
     except (socket.gaierror, UnicodeError) as exc:
         why = ("a host name: resolve it first (resolve_outs)" if numeric_only
-               else f"the host name does not resolve to an IPv4 address ({getattr(exc, 'strerror', None) or exc})")
+               else f"the host name does not resolve to an IPv4 address ({(exc.strerror if isinstance(exc, OSError) else None) or exc})")
         raise ForwardAddressError(f"forward address {text!r}: {why}") from None
     return info[0][4][0], int(info[0][4][1])
 

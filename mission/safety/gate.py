@@ -24,6 +24,7 @@ import numpy as np
 from mission.core.tasks import spawn
 from mission.core.clock import cancel_and_wait
 from mission.safety.separation import describe_conflicts
+from mission.vehicle.streamer import SetpointStreamer
 
 __all__ = ["SafetyGate"]
 
@@ -37,7 +38,8 @@ class SafetyGate:
     ----------
     streamer : mission.vehicle.streamer.SetpointStreamer
         Receives ``set_target(sysid, position_enu_m)`` and ``remove(sysid)``; its ``tick()`` sends
-        every tick's batch (the gate's task is the stream: do not start the streamer's own).
+        every tick's batch (the gate's task is the stream: do not start the streamer's own); its
+        ``longest_gap_s(sysid, since_s)`` answers :meth:`stream_gap_s`.
     clock
         Mission clock.
     max_speed_m_s : float
@@ -73,7 +75,7 @@ class SafetyGate:
     #: a separation episode is over (and reported) after this long without a hold
     SEPARATION_QUIET_S = 1.0
 
-    def __init__(self, streamer, clock, max_speed_m_s: float, rate_hz: float | None = None, envelope=None,
+    def __init__(self, streamer: SetpointStreamer, clock, max_speed_m_s: float, rate_hz: float | None = None, envelope=None,
                  on_violation: Callable[[str], None] | None = None, max_vertical_speed_m_s: float = 1.0):
         self.streamer = streamer
         self.clock = clock
@@ -120,8 +122,7 @@ class SafetyGate:
     def stream_gap_s(self, sysid: int, since_s: float) -> float | None:
         """The longest pause of the setpoints sent to ``sysid`` since ``since_s`` (mission clock),
         the current one included; None when the streamer cannot tell (or nothing was sent)."""
-        longest = getattr(self.streamer, "longest_gap_s", None)
-        return None if longest is None or sysid not in self._cmd else longest(sysid, since_s)
+        return None if sysid not in self._cmd else self.streamer.longest_gap_s(sysid, since_s)
 
     def set_goal(self, sysid: int, goal_enu_m) -> None:
         """New goal of one vehicle (reached at ``max_speed_m_s``)."""
@@ -188,17 +189,17 @@ class SafetyGate:
             # hold, but never at a point outside the fence prism (e.g. below min_alt_m
             # just after takeoff): the nearest inside point
             return self.envelope.fence.clamp(prev)
-        safe = np.asarray(getattr(res, "positions_enu", res), dtype=float)
+        safe = np.asarray(res.positions_enu, dtype=float)
         if safe.shape != new.shape:
             return prev
-        held = np.asarray(getattr(res, "separation_held", ()), dtype=bool)
+        held = np.asarray(res.separation_held, dtype=bool)
         held = held if held.shape == (len(sysids),) else np.zeros(len(sysids), dtype=bool)
-        aside = np.asarray(getattr(res, "separation_aside", ()), dtype=bool)
+        aside = np.asarray(res.separation_aside, dtype=bool)
         aside = aside if aside.shape == (len(sysids),) else np.zeros(len(sysids), dtype=bool)
-        self._separation(sysids, held, getattr(res, "separation_conflicts", ()), aside)
+        self._separation(sysids, held, res.separation_conflicts, aside)
         held = held | aside
-        report = getattr(res, "report", None)
-        if report is not None and not report.ok:
+        report = res.report
+        if not report.ok:
             self.reported_batches += 1
             if self.on_violation is not None and self.reported_batches in (1, 10, 100, 1000):
                 self.on_violation(f"safety check: {report} ({self.reported_batches} batches so far)")

@@ -44,7 +44,7 @@ def world_errors_line(fleet) -> str | None:
     fleet : sitl_mock.fleet.MockFleet
         Its ``errors`` are formatted tracebacks (at most its cap are kept).
     """
-    errors = list(getattr(fleet, "errors", None) or ())
+    errors = list(fleet.errors)
     if not errors:
         return None
     last = [line for line in errors[0].strip().splitlines() if line.strip()][-1].strip()

@@ -20,13 +20,15 @@ never collide.
 from __future__ import annotations
 
 import fcntl
-import math
 import os
 import random
 import socket
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
+from formation.geodesy import enu_to_geodetic
 from mission.sim.sitl_settings import SitlSetupError
 
 __all__ = ["InstanceSpec", "DEFAULT_HOMES", "DEFAULT_PARAMS", "PX4_API_STREAMS_OFF", "PX4_MAX_INSTANCES", "instance_specs",
@@ -97,10 +99,13 @@ class InstanceSpec:
 
 
 def spread_homes(home: tuple[float, float, float], n: int, spacing_m: float) -> list[tuple[float, float, float]]:
-    """``n`` homes ``spacing_m`` apart along a line toward east, the first at ``home``."""
+    """``n`` homes ``spacing_m`` apart along a line toward east, the first at ``home`` (the same
+    latitude and altitude; the longitudes from :func:`formation.geodesy.enu_to_geodetic`)."""
     lat, lon, alt = home
-    per_m = 1.0 / (111320.0 * math.cos(math.radians(lat)))
-    return [(lat, round(lon + spacing_m * j * per_m, 7), alt) for j in range(n)]
+    east_enu_m = np.zeros((n, 3))
+    east_enu_m[:, 0] = spacing_m * np.arange(n)
+    lons_deg = np.atleast_1d(enu_to_geodetic(east_enu_m, home)[1])
+    return [(lat, round(float(lon_deg), 7), alt) for lon_deg in lons_deg]
 
 
 def px4_instance_free(instance: int) -> bool:

@@ -4,7 +4,7 @@ Readings arrive on ``swarmseek/<fleet>/vehicle/<sysid>/sensor`` as the JSON payl
 ``docs/interfaces.md`` (schema ``swarmseek.sensor.v1``). This module holds what can be checked
 from one sample alone (key shape, JSON types, finiteness, ranges) and the accepted
 :class:`Reading`; :mod:`mission.telemetry.readings` adds the per-fleet checks (vehicle, sequence,
-age, position) and the history. Both are re-exported by :mod:`mission.telemetry.readings`.
+age, position) and the history. Each name is imported from the module that defines it.
 """
 from __future__ import annotations
 

@@ -25,7 +25,7 @@ vehicle's reading nearest ``t`` within ``window_s``, with the position where it 
 mission ENU frame (converted with :class:`formation.geodesy.TangentFrame`, pymap3d's maths).
 
 The wire format (schema, keys, :func:`decode_reading`, :class:`Reading`) lives in
-:mod:`mission.telemetry.reading_format` and is re-exported here.
+:mod:`mission.telemetry.reading_format` (imported from there).
 """
 from __future__ import annotations
 

@@ -135,16 +135,21 @@ def alert(text: str) -> bool:
     Returns False when neither could take it.
     """
     for stream in (sys.stderr, sys.stdout):
-        if stream is None or getattr(stream, "lost", None) is not None:
+        if stream is None or _is_lost(stream):
             continue
         try:
             stream.write(text.rstrip("\n") + "\n")
             stream.flush()
         except (OSError, ValueError):
             continue
-        if getattr(stream, "lost", None) is None:
+        if not _is_lost(stream):
             return True
     return False
+
+
+def _is_lost(stream) -> bool:
+    """Whether ``stream`` is a :class:`TerminalStream` that was lost (a plain stream never is)."""
+    return isinstance(stream, TerminalStream) and stream.lost is not None
 
 
 @contextlib.contextmanager

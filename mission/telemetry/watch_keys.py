@@ -16,6 +16,8 @@ import sys
 import time
 from typing import Callable
 
+from mission.telemetry.display import Display
+
 __all__ = ["KEYS", "CONFIRM_S", "KeyDecoder", "TerminalKeys", "with_keys"]
 
 #: key -> command
@@ -125,7 +127,7 @@ class TerminalKeys:
         self._fd = None
 
 
-async def with_keys(command, say, display, work):
+async def with_keys(command, say, display: Display | None, work):
     """Await ``work`` (a mission's run) with the operator keys read while ``display`` draws its
     table on a terminal (nothing read otherwise).
 
@@ -133,7 +135,7 @@ async def with_keys(command, say, display, work):
     above the display (:class:`TerminalKeys`).
     """
     keys = None
-    if display is not None and getattr(display, "tty", False) and not getattr(display, "quiet", True):
+    if display is not None and display.tty and not display.quiet:
         keys = TerminalKeys(command, say)
         if not keys.start():
             keys = None

@@ -19,7 +19,7 @@ autopilot seconds: within ``REACTION_TOL_S``).
 from __future__ import annotations
 
 from tests.conformance.client import Client, ConformanceError, Observation
-from mission.sim.embedded import free_port_block
+from tests.conformance.targets import on_mock, on_sitl
 
 __all__ = ["REACTION_TOL_S", "differences", "observe", "run_failsafes"]
 
@@ -31,15 +31,8 @@ _SETUP = (("FENCE_ENABLE", 1, _INT8), ("FENCE_TYPE", 3, _INT8), ("FENCE_ALT_MAX"
           ("FENCE_ACTION", 1, _INT8), ("BATT_LOW_VOLT", 10.5, _REAL32), ("BATT_FS_LOW_ACT", 1, _INT8))
 
 
-def _connect(c: Client) -> None:
-    c.step = "connect"
-    c.wait(lambda m: m.get_srcComponent() == 1 and m.autopilot != c.m.MAV_AUTOPILOT_INVALID, 30.0,
-           "the autopilot HEARTBEAT", kind="HEARTBEAT")
-    for name, rate_hz in (("LOCAL_POSITION_NED", 5.0), ("HOME_POSITION", 0.5), ("EXTENDED_SYS_STATE", 1.0)):
-        c.command(f"interval_{name}", c.m.MAV_CMD_SET_MESSAGE_INTERVAL, getattr(c.m, f"MAVLINK_MSG_ID_{name}"),
-                  1e6 / rate_hz)
-    c.wait_state(lambda: "LOCAL_POSITION_NED" in c.last and "HOME_POSITION" in c.last, 60.0,
-                 "a local position and a home")
+#: the telemetry the session reads, Hz
+_RATES_HZ = {"LOCAL_POSITION_NED": 5.0, "HOME_POSITION": 0.5, "EXTENDED_SYS_STATE": 1.0}
 
 
 def _set(c: Client, name: str, value: float, ptype: int) -> None:
@@ -52,12 +45,7 @@ def _takeoff(c: Client, alt_m: float) -> None:
     """GUIDED, arm (retried while pre-arm checks refuse), NAV_TAKEOFF to ``alt_m``."""
     c.set_mode("guided", _GUIDED)
     c.wait_mode("guided", _GUIDED, 10.0)
-    for attempt in range(61):
-        if c.command("arm", c.m.MAV_CMD_COMPONENT_ARM_DISARM, 1) == c.m.MAV_RESULT_ACCEPTED:
-            break
-        if attempt == 60:
-            raise ConformanceError(f"step {c.step}: arming refused: {c.obs.statustexts[-3:]}")
-        c.settle(2.0)
+    c.arm()
     c.command("takeoff", c.m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, alt_m)
     c.wait_state(lambda: c.rel_alt_m() > alt_m - 1.0, 60.0, f"{alt_m - 1.0:g} m above home")
 
@@ -80,7 +68,7 @@ def run_failsafes(uri: str, sysid: int, wall_scale: float = 1.0) -> Observation:
     """The whole sequence against one ArduPilot; ``details["fence"]`` and ``details["battery"]``."""
     c = Client(uri, sysid, "ardupilot", wall_scale)
     try:
-        _connect(c)
+        c.connect(_RATES_HZ, 30.0, 60.0)
         c.step = "configure"
         for name, value, ptype in _SETUP:
             _set(c, name, value, ptype)
@@ -106,23 +94,8 @@ def run_failsafes(uri: str, sysid: int, wall_scale: float = 1.0) -> Observation:
 def observe(target: str, *, mock_speedup: float = 4.0, sitl_speedup: float = 4.0) -> Observation:
     """Run :func:`run_failsafes` against ``"mock"`` (one ArduPilot mock) or ``"sitl"`` (real ArduCopter)."""
     if target == "mock":
-        import sitl_mock.clock as clock_mod
-        import sitl_mock.fleet as fleet_mod
-        base = free_port_block(30, kinds=("udp", "tcp"))
-        fleet = fleet_mod.MockFleet(n=1, personality="ardupilot", clock=clock_mod.SimClock(mock_speedup),
-                                    udp_base_port=base, udp_bind_base_port=base + 10, tcp_base_port=base + 20,
-                                    zenoh=False)
-        fleet.start()
-        try:
-            mv = fleet.vehicles[0]
-            return run_failsafes(f"tcp:127.0.0.1:{mv.tcp_port}", mv.sysid)
-        finally:
-            fleet.stop()
-    from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
-    cfg = SitlFleetConfig(flavour="ardupilot", n=1, speedup=sitl_speedup, ready_timeout_s=180.0).free()
-    with SitlFleet(cfg) as fleet:
-        v = fleet.vehicles[0]
-        return run_failsafes(v.connection, v.sysid, wall_scale=3.0)
+        return on_mock("ardupilot", mock_speedup, run_failsafes)
+    return on_sitl("ardupilot", sitl_speedup, run_failsafes)
 
 
 def differences(mock: Observation, sitl: Observation) -> list[str]:

@@ -272,6 +272,27 @@ class Client:
         self.obs.params[name] = answer
         return answer
 
+    def connect(self, rates_hz: dict[str, float], heartbeat_wall_s: float, position_wall_s: float) -> None:
+        """Step ``connect``: wait for the autopilot's HEARTBEAT, ask for each message of ``rates_hz``
+        (name -> Hz) at its rate, wait for a local position and a home."""
+        self.step = "connect"
+        self.wait(lambda m: m.get_srcComponent() == 1 and m.autopilot != self.m.MAV_AUTOPILOT_INVALID,
+                  heartbeat_wall_s, "the autopilot HEARTBEAT", kind="HEARTBEAT")
+        for name, rate_hz in rates_hz.items():
+            self.command(f"interval_{name}", self.m.MAV_CMD_SET_MESSAGE_INTERVAL,
+                         getattr(self.m, f"MAVLINK_MSG_ID_{name}"), 1e6 / rate_hz)
+        self.wait_state(lambda: "LOCAL_POSITION_NED" in self.last and "HOME_POSITION" in self.last,
+                        position_wall_s, "a local position and a home")
+
+    def arm(self, attempts: int = 61, pause_wall_s: float = 2.0) -> None:
+        """Arm, retried every ``pause_wall_s`` while the pre-arm checks refuse; raise after ``attempts``."""
+        for attempt in range(attempts):
+            if self.command("arm", self.m.MAV_CMD_COMPONENT_ARM_DISARM, 1) == self.m.MAV_RESULT_ACCEPTED:
+                return
+            if attempt == attempts - 1:
+                raise ConformanceError(f"step {self.step}: arming refused: {self.obs.statustexts[-3:]}")
+            self.settle(pause_wall_s)
+
     def rel_alt_m(self) -> float:
         """Height above home (m) from LOCAL_POSITION_NED and HOME_POSITION (-1 before both)."""
         lp, home = self.last.get("LOCAL_POSITION_NED"), self.last.get("HOME_POSITION")

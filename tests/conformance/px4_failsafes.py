@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from tests.conformance.client import Client, ConformanceError, Observation
 from tests.conformance.script import FLAVOUR
-from mission.sim.embedded import free_port_block
+from tests.conformance.targets import on_mock, on_sitl
 
 __all__ = ["DESCENT_TOL_M_S", "REACTION_TOL_S", "TAKEOFF_ALT_M", "differences", "observe", "run_offboard_loss"]
 
@@ -35,15 +35,8 @@ _CUSTOM = FLAVOUR["px4"]["custom"]
 _MODES = FLAVOUR["px4"]["modes"]
 
 
-def _connect(c: Client) -> None:
-    c.step = "connect"
-    c.wait(lambda m: m.get_srcComponent() == 1 and m.autopilot != c.m.MAV_AUTOPILOT_INVALID, 60.0,
-           "the autopilot HEARTBEAT", kind="HEARTBEAT")
-    for name, rate_hz in (("LOCAL_POSITION_NED", 10.0), ("HOME_POSITION", 0.5), ("EXTENDED_SYS_STATE", 2.0)):
-        c.command(f"interval_{name}", c.m.MAV_CMD_SET_MESSAGE_INTERVAL, getattr(c.m, f"MAVLINK_MSG_ID_{name}"),
-                  1e6 / rate_hz)
-    c.wait_state(lambda: "LOCAL_POSITION_NED" in c.last and "HOME_POSITION" in c.last, 90.0,
-                 "a local position and a home")
+#: the telemetry the session reads, Hz
+_RATES_HZ = {"LOCAL_POSITION_NED": 10.0, "HOME_POSITION": 0.5, "EXTENDED_SYS_STATE": 2.0}
 
 
 def _takeoff(c: Client) -> None:
@@ -51,12 +44,7 @@ def _takeoff(c: Client) -> None:
     c.step = "takeoff"
     c.set_mode("hold", *_MODES["hold"])
     c.wait_mode("hold", _CUSTOM["hold"], 10.0)
-    for attempt in range(61):
-        if c.command("arm", c.m.MAV_CMD_COMPONENT_ARM_DISARM, 1) == c.m.MAV_RESULT_ACCEPTED:
-            break
-        if attempt == 60:
-            raise ConformanceError(f"step {c.step}: arming refused: {c.obs.statustexts[-3:]}")
-        c.settle(2.0)
+    c.arm()
     nan = float("nan")
     c.command("takeoff", c.m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan,
               c.last["HOME_POSITION"].altitude / 1000.0 + TAKEOFF_ALT_M)
@@ -108,7 +96,7 @@ def run_offboard_loss(uri: str, sysid: int, wall_scale: float = 1.0) -> Observat
     """The whole sequence against one PX4; ``details["offboard_loss"]``."""
     c = Client(uri, sysid, "px4", wall_scale)
     try:
-        _connect(c)
+        c.connect(_RATES_HZ, 60.0, 90.0)
         _takeoff(c)
         _offboard(c)
         c.step = "offboard_loss"
@@ -136,23 +124,8 @@ def observe(target: str, *, mock_speedup: float = 1.0, sitl_speedup: float = 1.0
     The mock runs at real time too by default: at 4x, on this host at load 40, its steps fell
     behind (descent measured 0.48 m/s, reaction 8.4 s)."""
     if target == "mock":
-        import sitl_mock.clock as clock_mod
-        import sitl_mock.fleet as fleet_mod
-        base = free_port_block(30, kinds=("udp", "tcp"))
-        fleet = fleet_mod.MockFleet(n=1, personality="px4", clock=clock_mod.SimClock(mock_speedup),
-                                    udp_base_port=base, udp_bind_base_port=base + 10, tcp_base_port=base + 20,
-                                    zenoh=False)
-        fleet.start()
-        try:
-            mv = fleet.vehicles[0]
-            return run_offboard_loss(f"udpin:127.0.0.1:{mv.udp_send_port}", mv.sysid)
-        finally:
-            fleet.stop()
-    from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
-    cfg = SitlFleetConfig(flavour="px4", n=1, speedup=sitl_speedup, ready_timeout_s=180.0).free()
-    with SitlFleet(cfg) as fleet:
-        v = fleet.vehicles[0]
-        return run_offboard_loss(v.connection, v.sysid, wall_scale=3.0)
+        return on_mock("px4", mock_speedup, run_offboard_loss)
+    return on_sitl("px4", sitl_speedup, run_offboard_loss)
 
 
 def differences(mock: Observation, sitl: Observation) -> list[str]:

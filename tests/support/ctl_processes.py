@@ -11,7 +11,6 @@ taken for a lost fleet."""
 from __future__ import annotations
 
 import json
-import os
 import socket
 import subprocess
 import sys
@@ -21,6 +20,7 @@ from pathlib import Path
 from mission.sim.embedded import fleet_ports
 from sitl_mock.fleet import DEFAULT_ORIGIN
 from mission.telemetry.mission_log import read_mission_log
+from tests.support.fly_process import gradient_seek_plan, subprocess_env
 from tests.support.wait_helpers import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -38,19 +38,13 @@ def free_port() -> int:
     return port
 
 
-def _env():
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    return env
-
-
 def swarmseek(*args, out: Path | None = None) -> subprocess.Popen:
     """Start `swarmseek ARGS`; its output goes to the file ``out`` (stdout piped when None)."""
     if out is None:
-        return subprocess.Popen([sys.executable, "-m", "mission", *args], env=_env(), cwd=ROOT,
+        return subprocess.Popen([sys.executable, "-m", "mission", *args], env=subprocess_env(), cwd=ROOT,
                                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     with open(out, "w") as fh:
-        return subprocess.Popen([sys.executable, "-m", "mission", *args], env=_env(), cwd=ROOT,
+        return subprocess.Popen([sys.executable, "-m", "mission", *args], env=subprocess_env(), cwd=ROOT,
                                 stdout=fh, stderr=subprocess.STDOUT, text=True)
 
 
@@ -58,7 +52,7 @@ def ctl(endpoint, *args, fleet="swarmseek", sender="tester", wait_s=CTL_WAIT_S):
     """Run `swarmseek ctl` (``--timeout-s wait_s``) to the end: (exit status, stdout + stderr)."""
     p = subprocess.run([sys.executable, "-m", "mission", "ctl", fleet, *args, "--sender", sender,
                         "--zenoh-connect", endpoint, "--timeout-s", str(wait_s)],
-                       env=_env(), cwd=ROOT, capture_output=True, text=True, timeout=2 * wait_s + 60)
+                       env=subprocess_env(), cwd=ROOT, capture_output=True, text=True, timeout=2 * wait_s + 60)
     return p.returncode, p.stdout + p.stderr
 
 
@@ -128,40 +122,11 @@ def _check_log(log_path: Path):
 
 
 def _plan_toml(path: Path, udp_base: int, zenoh_section: str, fleet: str) -> Path:
-    vehicles = "\n".join(f'[[vehicles]]\nid = "v{i + 1}"\nsysid = {i + 1}\nconnection = "udpin:127.0.0.1:{udp_base + i}"\n'
-                         for i in range(4))
-    path.write_text(f'''version = 1
-fleet = "{fleet}"
-max_speed_m_s = 3.0
-min_separation_m = 1.5
-takeoff_alt_m = 8.0
-stagger_s = 0.5
-return = "land"
-[origin]
-lat_deg = {DEFAULT_ORIGIN[0]}
-lon_deg = {DEFAULT_ORIGIN[1]}
-alt_m = {DEFAULT_ORIGIN[2]}
-{vehicles}
-[formation]
-type = "cvt"
-radius_m = 4.0
-[seeking]
-seeker = "gradient"  # the paper's slow ascent: a seek long enough for the faults and commands
-eps = 50.0
-gamma_m = 1.0
-rate_hz = 2.0
-start_enu_m = [0.0, 0.0, 12.0]
-arrival_tol_m = 0.5
-[geofence]
-polygon_enu_m = [[-150.0, -150.0], [150.0, -150.0], [150.0, 150.0], [-150.0, 150.0]]
-min_alt_m = 3.0
-max_alt_m = 60.0
-[faults]
-link_timeout_s = 1.4
-[zenoh]
-{zenoh_section}
-''')
-    return path
+    """The plan of ``swarmseek fly``: four vehicles of ``swarmseek mock`` (its default origin); a
+    loss is detected after the longest link timeout the plan allows (a starved mock process)."""
+    return gradient_seek_plan(path, fleet=fleet, n=4, udp_base=udp_base, origin=DEFAULT_ORIGIN,
+                              zenoh_section=zenoh_section, takeoff_alt_m=8.0, stagger_s=0.5, radius_m=4.0,
+                              start_alt_m=12.0, fence_half_m=150.0, max_alt_m=60.0, link_timeout_s=1.4)
 
 
 def _fly_and_operate(tmp_path, fleet: str, zenoh_section: str, endpoint: str):

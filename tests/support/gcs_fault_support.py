@@ -30,6 +30,7 @@ from sitl_mock.fleet import MockFleet
 
 from tests.support.fly_helpers import summary_exit_status
 from tests.support.invariants import abandoned
+from tests.support.fly_process import gradient_seek_plan, subprocess_env
 from tests.support.wait_helpers import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -47,45 +48,10 @@ NIMBLE = DynamicsParams(kp_pos_per_s=2.0, land_speed_m_s=2.0, takeoff_speed_m_s=
 
 
 def _plan_toml(path: Path, udp_base: int, zenoh_section: str, max_iterations: int = 8) -> Path:
-    vehicles = "\n".join(f'[[vehicles]]\nid = "v{i + 1}"\nsysid = {i + 1}\n'
-                         f'connection = "udpin:127.0.0.1:{udp_base + i}"\n' for i in range(N))
-    path.write_text(f'''version = 1
-fleet = "gcsfaults"
-max_speed_m_s = 3.0
-min_separation_m = 1.5
-takeoff_alt_m = 6.0
-stagger_s = 0.3
-return = "land"
-[origin]
-lat_deg = {DEFAULT_ORIGIN[0]}
-lon_deg = {DEFAULT_ORIGIN[1]}
-alt_m = {DEFAULT_ORIGIN[2]}
-{vehicles}
-[formation]
-type = "cvt"
-radius_m = 3.0
-[seeking]
-seeker = "gradient"  # the paper's slow ascent: a seek long enough for the faults and commands
-eps = 50.0
-gamma_m = 1.0
-rate_hz = 2.0
-max_iterations = {max_iterations}
-start_enu_m = [0.0, 0.0, 10.0]
-arrival_tol_m = 0.5
-[geofence]
-polygon_enu_m = [[-100.0, -100.0], [100.0, -100.0], [100.0, 100.0], [-100.0, 100.0]]
-min_alt_m = 3.0
-max_alt_m = 40.0
-[zenoh]
-{zenoh_section}
-''')
-    return path
-
-
-def _env() -> dict:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    return env
+    """The plan of the ``fly`` process: :data:`N` vehicles of the in-process mock fleet."""
+    return gradient_seek_plan(path, fleet="gcsfaults", n=N, udp_base=udp_base, origin=DEFAULT_ORIGIN,
+                              zenoh_section=zenoh_section, takeoff_alt_m=6.0, stagger_s=0.3, radius_m=3.0,
+                              start_alt_m=10.0, fence_half_m=100.0, max_alt_m=40.0, max_iterations=max_iterations)
 
 
 def records(log: Path) -> list[dict]:
@@ -154,7 +120,7 @@ def _router(endpoint: str) -> subprocess.Popen:
             "print('ready', flush=True)\n"
             "sys.stdin.read()\n")
     proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            text=True, env=_env())
+                            text=True, env=subprocess_env())
     assert proc.stdout.readline().strip() == "ready"
     return proc
 
@@ -194,7 +160,7 @@ class _Fly:
         fds = _output_fds(self, stdout, stderr)
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "mission", "fly", "--plan", str(self.plan), "--log-dir", str(self.log.parent),
-             "--no-tlog", *(["--json"] if as_json else [])], stdout=fds["stdout"], stderr=fds["stderr"], env=_env(), cwd=ROOT,
+             "--no-tlog", *(["--json"] if as_json else [])], stdout=fds["stdout"], stderr=fds["stderr"], env=subprocess_env(), cwd=ROOT,
             preexec_fn=preexec_fn)
         for fd in fds.values():
             os.close(fd)
@@ -246,7 +212,7 @@ class _Run:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "mission", "run", "--n", str(N), "--seed", "1", "--no-tlog",
              "--log-dir", str(self.log.parent), *(["--json"] if as_json else [])],
-            stdout=fds["stdout"], stderr=fds["stderr"], env=_env(), cwd=ROOT, preexec_fn=preexec_fn)
+            stdout=fds["stdout"], stderr=fds["stderr"], env=subprocess_env(), cwd=ROOT, preexec_fn=preexec_fn)
         for fd in fds.values():
             os.close(fd)
 

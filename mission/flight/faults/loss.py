@@ -47,6 +47,7 @@ from mission.flight.obstacles import OBSTACLE_MARGIN_M, clear_offsets, obstacles
 from mission.flight.services import Clock, Events, Fleet, Motion
 from mission.flight.state import MissionState, VehicleLoss
 from mission.safety.gate import SafetyGate
+from mission.vehicle.vehicle_link import VehicleLink
 
 __all__ = ["CORROBORATING_HEARTBEATS", "FAILSAFE_STATES", "OWN_PAUSE_S", "LossMonitor", "Reformation",
            "autopilot_failsafe", "classify_loss", "offboard_loss_mode", "own_stream_gap_s", "reformed_offsets"]
@@ -87,17 +88,16 @@ def offboard_loss_mode(state: MissionState, sysid: int, flavour: str) -> str | N
     return None if value is None else _PX4_OFFBOARD_LOSS_MODES.get(int(value))
 
 
-def own_stream_gap_s(gate, sysid: int, vehicle) -> float | None:
+def own_stream_gap_s(gate: SafetyGate | None, sysid: int, vehicle: VehicleLink) -> float | None:
     """The longest pause of the setpoints sent to ``sysid`` from :data:`_PAUSE_LOOKBACK_S` before its
     current mode was first reported until now (None: unknown, e.g. not under the gate)."""
-    stream_gap = getattr(gate, "stream_gap_s", None)
-    since = getattr(vehicle, "status_since_s", None)
-    if stream_gap is None or since is None:
+    since = vehicle.status_since_s
+    if gate is None or since is None:
         return None
-    return stream_gap(sysid, float(since) - _PAUSE_LOOKBACK_S)
+    return gate.stream_gap_s(sysid, float(since) - _PAUSE_LOOKBACK_S)
 
 
-def autopilot_failsafe(vehicle, stream_gap_s: float | None, loss_mode: str | None = None) -> str | None:
+def autopilot_failsafe(vehicle: VehicleLink, stream_gap_s: float | None, loss_mode: str | None = None) -> str | None:
     """Why ``vehicle`` is under its autopilot's own failsafe, one the ground station did not cause;
     None if it is not (or that cannot be told).
 
@@ -116,7 +116,7 @@ def autopilot_failsafe(vehicle, stream_gap_s: float | None, loss_mode: str | Non
     mode = vehicle.state.mode
     if want is None or mode == want or mode in LEFT_MODES.get(vehicle.flavour, ()) or not vehicle.state.armed:
         return None
-    status = getattr(vehicle.state, "system_status", None)
+    status = vehicle.state.system_status
     if status not in FAILSAFE_STATES:
         return None
     why = f"switched to {mode} in its own failsafe (system status {_STATE_NAMES[status]}; "

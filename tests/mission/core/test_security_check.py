@@ -12,7 +12,6 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import json
-import os
 import socket
 import subprocess
 import sys
@@ -26,6 +25,7 @@ from mission.core.plan import load_plan, parse_plan
 from mission.core.plan_security import PlanSecurityError, check_security, refusals
 from mission.core.plan_types import PlanError
 from mission.telemetry.control_channel import ControlChannel
+from tests.support.fly_process import subprocess_env
 from tests.support.tls_helpers import make_pki, write_private
 from wire.loopback import host_is_loopback, zenoh_endpoint_host, zenoh_endpoint_is_loopback
 from wire.zenoh_flags import plain_network_warning
@@ -264,12 +264,8 @@ def test_forwarding_off_the_machine_is_stated(allow, level, words):
 
 
 # --------------------------------------------------------------------------- the commands
-def _env() -> dict:
-    return dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-
-
 def _swarmseek(*argv, timeout_s: float = 90) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "mission", *argv], env=_env(), cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "mission", *argv], env=subprocess_env(), cwd=ROOT,
                           capture_output=True, text=True, timeout=timeout_s)
 
 
@@ -432,7 +428,7 @@ def test_the_sensor_warns_about_a_plain_network_endpoint(net_host):
     p = subprocess.run([sys.executable, "-m", "mission", "sensor", "--connect", "tcp:127.0.0.1:1",
                         "--field", "sigma1", "--origin", "45.19,5.72,230", "--fleet", "sitl", "--timeout", "1",
                         "--zenoh-connect", f"tcp/{net_host}:{port}"],
-                       env=_env(), cwd=ROOT, capture_output=True, text=True, timeout=60)
+                       env=subprocess_env(), cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert f"swarmseek sensor: warning: tcp/{net_host}:{port} is not loopback and not TLS" in p.stderr, p.stderr
 
 
@@ -452,7 +448,7 @@ def test_watch_warns_about_the_plan_and_the_endpoint(net_host):
     assert [w["key"] for w in snapshot["security_warnings"]] == ["zenoh.allow_unauthenticated_network",
                                                                  "zenoh.access_control"]
     watch = subprocess.Popen([sys.executable, "-m", "mission", "watch", "sitl", "--zenoh-connect", endpoint,
-                              "--json", "--wait-s", "60"], env=_env(), cwd=ROOT, stdout=subprocess.PIPE,
+                              "--json", "--wait-s", "60"], env=subprocess_env(), cwd=ROOT, stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True)
 
     async def publish():

@@ -59,7 +59,8 @@ class FakeVehicle:
     def __init__(self, sysid: int, position_enu, flavour: str = "px4", mode: str = "OFFBOARD", armed: bool = True,
                  alt_m: float = 10.0, age_s: float = 0.0) -> None:
         self.sysid, self.flavour = sysid, flavour
-        self.state = SimpleNamespace(mode=mode, armed=armed, relative_alt_m=alt_m, landed=False, last_heartbeat_s=None)
+        self.state = SimpleNamespace(mode=mode, armed=armed, relative_alt_m=alt_m, landed=False, last_heartbeat_s=None,
+                                     system_status=0)  # VehicleState's: MAV_STATE_UNINIT until a HEARTBEAT says
         self.position = np.asarray(position_enu, dtype=float)
         self.age_s = age_s
         self.commands: list[str] = []

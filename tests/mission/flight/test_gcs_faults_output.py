@@ -12,7 +12,8 @@ import pytest
 
 from tests.support.fly_helpers import summary_exit_status
 from tests.support.wait_helpers import wait_until
-from tests.support.gcs_fault_support import _Fly, _Run, _closed_stderr_then_sigterm, _closed_stdout, _env, _log_size_limit, _seeking
+from tests.support.fly_process import subprocess_env
+from tests.support.gcs_fault_support import _Fly, _Run, _closed_stderr_then_sigterm, _closed_stdout, _log_size_limit, _seeking
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]
 
@@ -46,7 +47,7 @@ def test_under_nohup_a_hangup_changes_nothing(tmp_path):
     log = tmp_path / "log" / "mission.jsonl"
     proc = subprocess.Popen([sys.executable, "-m", "mission", "run", "--n", "4", "--json", "--no-tlog",
                              "--max-iterations", "5", "--log-dir", str(log.parent), "--seed", "1"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=subprocess_env(),
                             preexec_fn=_ignore_sighup)
     try:
         wait_until(lambda: _seeking(log)() or proc.poll() is not None, 150.0, "the seek", poll_s=0.02)

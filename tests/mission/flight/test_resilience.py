@@ -24,6 +24,7 @@ pytestmark = pytest.mark.timeout(400)
 class _State:
     def __init__(self, mode, armed=True):
         self.mode, self.armed = mode, armed
+        self.system_status = 0  # VehicleState's default: no failsafe status heard
 
 
 class _Vehicle:

@@ -25,6 +25,7 @@ from pathlib import Path
 import pytest
 
 from mission.telemetry.mission_log import read_mission_log
+from tests.support.fly_process import subprocess_env
 from tests.support.wait_helpers import wait_until
 
 pytestmark = [pytest.mark.timeout(400), pytest.mark.slow]
@@ -60,12 +61,6 @@ def require_browser():
     return sync_playwright, path
 
 
-def _env():
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    return env
-
-
 class Output(threading.Thread):
     """Collects a process's stderr lines."""
 
@@ -89,7 +84,7 @@ class Output(threading.Thread):
 
 
 def swarmseek(*args) -> tuple[subprocess.Popen, Output]:
-    proc = subprocess.Popen([sys.executable, "-m", "mission", *args], env=_env(), cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "mission", *args], env=subprocess_env(), cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     return proc, Output(proc)
 

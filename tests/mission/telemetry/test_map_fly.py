@@ -20,7 +20,8 @@ import aiohttp
 import numpy as np
 import pytest
 
-from tests.support.gcs_fault_support import N, NIMBLE, _env, _plan_toml
+from tests.support.fly_process import subprocess_env
+from tests.support.gcs_fault_support import N, NIMBLE, _plan_toml
 from tests.support.invariants import abandoned
 from mission.cli import main as cli_main
 from mission.flight.coordinator import _plan_json
@@ -43,7 +44,7 @@ class _Process:
     """``swarmseek ARGS`` in its own process; its standard error collected line by line."""
 
     def __init__(self, *args: str):
-        self.proc = subprocess.Popen([sys.executable, "-m", "mission", *args], env=_env(), cwd=ROOT,
+        self.proc = subprocess.Popen([sys.executable, "-m", "mission", *args], env=subprocess_env(), cwd=ROOT,
                                      stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
