@@ -1,17 +1,18 @@
 """The vehicles already in the air stay watched while another vehicle's arming is retried
 (``[preflight] autopilot_ready_timeout_s``, the takeoff phase): a link loss or an autopilot
 failsafe is a loss as in the seek, an offboard loss is re-engaged, and a takeoff whose losses leave
-fewer than 4 vehicles arms nothing more and ends (docs/faults.md, "A vehicle lost while another
+fewer than 4 vehicles, or an operator's stop, arms nothing more and ends (docs/faults.md, "A vehicle lost while another
 one's arming is retried"). Mock PX4 fleet in lock-step; the last vehicle of the takeoff order
 refuses to arm (the mock's ``arm_refused`` fault) until a saboteur thread clears it."""
 from __future__ import annotations
 
+import asyncio
 import threading
 
 import numpy as np
 import pytest
 
-from tests.support.fly_helpers import run_with_saboteur
+from tests.support.fly_helpers import fly, run_fleet, run_with_saboteur
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.sim.lockstep import VirtualClock
 from mission.telemetry.mission_log import read_mission_log
@@ -63,7 +64,7 @@ class _Saboteur(threading.Thread):
             self.cleared_s = clock.time()
 
 
-def _fly(tmp_path, n, victim, fault, refuse_for_s, restore_after_s=None):
+def _fleet_and_plan(n):
     ports = fleet_ports(n, "px4")
     fleet = MockFleet(n=n, personality="px4", field=sigma2(_SOURCE), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                       seed=3, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
@@ -73,6 +74,11 @@ def _fly(tmp_path, n, victim, fault, refuse_for_s, restore_after_s=None):
     fleet.set_fault(refuser, "arm_refused", True)
     plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 11.0), eps=default_eps(sigma2(_SOURCE)), max_iterations=80,
                          radius_m=2.0)
+    return fleet, plan, refuser
+
+
+def _fly(tmp_path, n, victim, fault, refuse_for_s, restore_after_s=None):
+    fleet, plan, refuser = _fleet_and_plan(n)
     sab = _Saboteur(fleet, tmp_path / "mission.jsonl", refuser, victim, fault, refuse_for_s, restore_after_s)
     result = run_with_saboteur(plan, fleet, tmp_path, sab)
     records = read_mission_log(tmp_path / "mission.jsonl")
@@ -152,3 +158,54 @@ def test_takeoff_with_too_few_left_arms_nothing_more_and_ends(tmp_path):
     landed = sorted(e["sysid"] for e in events if e["message"].endswith("landed"))
     assert landed == [1, 4], messages[-12:]
     assert [a["sysid"] for a in result.airborne_left] == [2] and not result.ok
+
+
+async def _until(predicate, timeout_s, what):
+    """Wait (event-loop time: simulated in lock-step) until ``predicate()``; fail after ``timeout_s``."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout_s
+    while not predicate():
+        assert loop.time() < deadline, f"timed out waiting for {what}"
+        await asyncio.sleep(0.1)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_operator_return_during_an_arming_retry_ends_the_takeoff_at_once(tmp_path):
+    """4 vehicles, the last refuses to arm for good: an operator's ``return`` while its arming is
+    retried ends the takeoff at the next wait (before: only once the retry gave up, 120 s later);
+    the refuser is never armed, the three in the air land."""
+    fleet, plan, refuser = _fleet_and_plan(4)
+    seen = {}
+
+    async def operator(co):
+        await _until(lambda: co.state.phase == "takeoff" and len(co.state.airborne) == 3, 120.0, "three airborne")
+        await asyncio.sleep(3.0)  # simulated: the refuser's arming is being retried
+        assert co.state.phase == "takeoff" and refuser not in co.state.airborne
+        t0 = asyncio.get_running_loop().time()
+        assert co.command("return", "op")["accepted"]
+        await _until(lambda: co.state.phase not in ("takeoff",), 60.0, "the takeoff to end")
+        seen["after_s"] = asyncio.get_running_loop().time() - t0
+
+    async def main(world):
+        coordinators = []
+        mission = asyncio.ensure_future(fly(plan, fleet, tmp_path / "mission.jsonl", world=world,
+                                            coordinators=coordinators))
+        await _until(lambda: coordinators or mission.done(), 30.0, "the coordinator")
+        op = asyncio.ensure_future(operator(coordinators[0]))
+        result = await mission
+        await op
+        return result
+
+    try:
+        result = run_fleet(fleet, main)
+    finally:
+        fleet.stop()
+    assert seen["after_s"] < 2.0, seen
+    assert result.outcome == "aborted" and "operator op" in result.message, result.message
+    assert not fleet.vehicle(refuser).armed
+    events = [r for r in read_mission_log(tmp_path / "mission.jsonl") if r["type"] == "event"]
+    assert _first(events, f"vehicle {refuser} taking off") is None
+    assert not any(e["message"].startswith(f"vehicle {refuser} lost") for e in events)
+    landed = sorted(e["sysid"] for e in events if e["message"].endswith("landed"))
+    assert landed == sorted(s for s in range(1, 5) if s != refuser), [e["message"] for e in events][-10:]
