@@ -49,6 +49,7 @@ def check_failsafes(ap, t_s: float) -> None:
     if ap.behaviour == "offboard" and t_s - ap.flight.last_setpoint_s > ap.params["COM_OF_LOSS_T"]:
         action = {0: "position", 3: "rtl", 4: "land"}.get(int(ap.params["COM_OBL_RC_ACT"]), "hold")
         _failsafe(ap, t_s, "offboard", action, "Failsafe: offboard control lost")
+        _announce(ap, action)
     _check_gcs_loss(ap, t_s)
     _check_battery(ap, t_s)
     _check_fence(ap, t_s)
@@ -67,11 +68,16 @@ def _hold_first(ap, t_s: float, reason: str, action: str) -> str:
     return "hold"
 
 
-def _announce_hold(ap, action: str) -> None:
-    """PX4's words when a failsafe holds first (``mavlink_log_critical`` in its failsafe framework)."""
+def _announce(ap, action: str) -> None:
+    """PX4's STATUSTEXT when a failsafe acts (``FailsafeBase::notifyUser``, ``mavlink_log_critical``):
+    ``Failsafe activated: entering Hold for N seconds`` when it holds before its action, else
+    ``Failsafe activated`` (the offboard loss, an action without delay). ArduPilot: nothing more."""
+    if ap_flight_state.is_ardupilot(ap) or action == "none":
+        return
+    text = "Failsafe activated"
     if action == "hold" and ap.flight.pending_failsafe is not None:
-        delay_s = round(float(ap.params["COM_FAIL_ACT_T"]))
-        ap.statustext(f"Failsafe activated: entering Hold for {delay_s} seconds", mavlink2.MAV_SEVERITY_CRITICAL)
+        text += f": entering Hold for {round(float(ap.params['COM_FAIL_ACT_T']))} seconds"
+    ap.statustext(text, mavlink2.MAV_SEVERITY_CRITICAL)
 
 
 def _delayed_action(ap, t_s: float) -> None:
@@ -87,8 +93,10 @@ def _delayed_action(ap, t_s: float) -> None:
         return  # a mode was commanded during the hold: the user took over, PX4 drops the action
     if reason == "fence" and ap.failsafe == "fence" and fs.fence_breached:
         _failsafe(ap, t_s, "fence", action, "Failsafe: geofence action")
+        _announce(ap, action)
     elif reason == "gcs":
         _failsafe(ap, t_s, "gcs", action, "Failsafe: GCS connection lost action")
+        _announce(ap, action)
 
 
 def _failsafe(ap, t_s: float, reason: str, action: str, text: str) -> None:
@@ -148,7 +156,7 @@ def _check_gcs_loss(ap, t_s: float) -> None:
     fs.gcs_failsafe_done = True
     action = _hold_first(ap, t_s, "gcs", action)
     _failsafe(ap, t_s, "gcs", action, "Failsafe: GCS connection lost")
-    _announce_hold(ap, action)
+    _announce(ap, action)
 
 
 def _voltage_level(ap, t_s: float) -> int:
@@ -190,6 +198,7 @@ def _check_battery(ap, t_s: float) -> None:
             action = "land"
     names = {1: "low", 2: "critical", 3: "emergency"}
     _failsafe(ap, t_s, "battery", action, f"Failsafe: battery {names[level]}")
+    _announce(ap, action)
 
 
 def _check_fence(ap, t_s: float) -> None:
@@ -224,5 +233,5 @@ def _check_fence(ap, t_s: float) -> None:
     fs.fence_breached = True
     action = _hold_first(ap, t_s, "fence", action)
     _failsafe(ap, t_s, "fence", action, "Failsafe: geofence breached")
-    _announce_hold(ap, action)
+    _announce(ap, action)
 

@@ -214,6 +214,9 @@ def test_px4_offboard_loss_failsafe(obl_action, expected_mode):
     h.run(1.0)  # COM_OF_LOSS_T = 1 s without setpoints
     assert h.ap.mode_name == expected_mode
     assert h.ap.failsafe == "offboard"
+    texts = [m.text for m in h.received if m.get_type() == "STATUSTEXT"]
+    assert "Failsafe activated" in texts  # PX4's words for an action without a hold first
+    assert not any(t.startswith("Failsafe activated: entering Hold") for t in texts)
 
 
 def test_px4_position_mode_without_rc_descends_lands_and_shows_offboard_again():
@@ -555,6 +558,9 @@ def test_px4_geofence_action_waits_com_fail_act_t(delay_s, first_mode):
         if h.ap.mode_name != "OFFBOARD":
             break
     assert h.ap.mode_name == first_mode
+    texts = [m.text for m in h.received if m.get_type() == "STATUSTEXT"]
+    held = [t for t in texts if t.startswith("Failsafe activated: entering Hold")]
+    assert held == ([] if delay_s == 0.0 else ["Failsafe activated: entering Hold for 2 seconds"]), texts
     h.run(delay_s + 0.5)
     assert h.ap.mode_name == "AUTO.LAND"
 
