@@ -23,7 +23,8 @@ parameters ask for:
   the action is dropped if the breach is over by then.
 
 PX4's hold before the action (:func:`_hold_first`, PX4 v1.14+ ``commander/failsafe``): a failsafe
-whose action is Return or Land (data-link loss ``NAV_DLL_ACT`` 2/3, geofence ``GF_ACTION`` 3/5)
+whose action is Return or Land (data-link loss ``NAV_DLL_ACT`` 2/3, geofence ``GF_ACTION`` 3/5,
+low battery ``COM_LOW_BAT_ACT``)
 first holds (AUTO.LOITER, in failsafe) for ``COM_FAIL_ACT_T`` s, saying ``Failsafe activated:
 entering Hold for N seconds``, then acts. Terminate acts at once (no user takeover allowed, no
 delay), and so does the offboard loss: PX4 handles it as a mode fallback that allows user
@@ -94,8 +95,8 @@ def _delayed_action(ap, t_s: float) -> None:
     if reason == "fence" and ap.failsafe == "fence" and fs.fence_breached:
         _failsafe(ap, t_s, "fence", action, "Failsafe: geofence action")
         _announce(ap, action)
-    elif reason == "gcs":
-        _failsafe(ap, t_s, "gcs", action, "Failsafe: GCS connection lost action")
+    elif reason in ("gcs", "battery"):  # a data-link loss even if the link came back; a battery never recovers
+        _failsafe(ap, t_s, reason, action, f"Failsafe: {'GCS connection lost' if reason == 'gcs' else 'battery'} action")
         _announce(ap, action)
 
 
@@ -197,6 +198,7 @@ def _check_battery(ap, t_s: float) -> None:
         if (level >= 2 and act == 2) or (level >= 3 and act == 3):
             action = "land"
     names = {1: "low", 2: "critical", 3: "emergency"}
+    action = _hold_first(ap, t_s, "battery", action)
     _failsafe(ap, t_s, "battery", action, f"Failsafe: battery {names[level]}")
     _announce(ap, action)
 

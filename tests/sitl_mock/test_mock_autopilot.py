@@ -340,6 +340,11 @@ def test_low_battery_fault_triggers_the_personalitys_failsafe(personality, expec
     h.airborne(6.0)
     h.ap.faults.set("battery_low", True)
     h.run(0.5)
+    if personality == "px4":  # PX4 holds for COM_FAIL_ACT_T (5 s) first, and says so (real SIH: after "Critical battery")
+        assert h.ap.mode_name == "AUTO.LOITER" and h.ap.failsafe == "battery"
+        texts = [m.text for m in h.received if m.get_type() == "STATUSTEXT"]
+        assert "Failsafe activated: entering Hold for 5 seconds" in texts
+        h.run(5.0)
     assert h.ap.mode_name == expected_mode
     assert h.ap.failsafe == "battery"
 
