@@ -11,7 +11,7 @@ parameters ask for:
   3 Return, 4 Land, otherwise Hold);
 * GCS loss: no GCS heartbeat for ``FS_GCS_TIMEOUT`` (ArduPilot, heartbeats from
   ``MAV_GCS_SYSID``) or ``COM_DL_LOSS_T`` (PX4, any MAV_TYPE_GCS) -> ``FS_GCS_ENABLE`` /
-  ``NAV_DLL_ACT``; only after a GCS has been heard once;
+  ``NAV_DLL_ACT``; only after a GCS has been heard once; PX4 holds first (below);
 * low battery: ArduPilot ``BATT_LOW_MAH`` / ``BATT_CRT_MAH``, or the pack voltage (``SIM_BATT_VOLTAGE``
   when set) below ``BATT_LOW_VOLT`` / ``BATT_CRT_VOLT`` for ``BATT_LOW_TIMER`` s -> ``BATT_FS_LOW_ACT`` /
   ``BATT_FS_CRT_ACT``; PX4 ``BAT_CRIT_THR`` / ``BAT_EMERGEN_THR`` -> ``COM_LOW_BAT_ACT``;
@@ -21,6 +21,16 @@ parameters ask for:
   failsafe) for ``COM_FAIL_ACT_T`` s (5 by default), then ``GF_ACTION`` (as real PX4 v1.16 SIH:
   AUTO.LOITER 1.0 s after the ceiling was lowered, LAND 2.6 s later at speed-up 2, docs/faults.md);
   the action is dropped if the breach is over by then.
+
+PX4's hold before the action (:func:`_hold_first`, PX4 v1.14+ ``commander/failsafe``): a failsafe
+whose action is Return or Land (data-link loss ``NAV_DLL_ACT`` 2/3, geofence ``GF_ACTION`` 3/5,
+low battery ``COM_LOW_BAT_ACT``)
+first holds (AUTO.LOITER, in failsafe) for ``COM_FAIL_ACT_T`` s, saying ``Failsafe activated:
+entering Hold for N seconds``, then acts. Terminate acts at once (no user takeover allowed, no
+delay), and so does the offboard loss: PX4 handles it as a mode fallback that allows user
+takeover at any time, which arms no delay. A mode commanded during the hold (the user taking
+over) drops the action; the link coming back does not (its action clears on a mode change or a
+disarm only), the fence breach being over does.
 """
 from __future__ import annotations
 
@@ -40,22 +50,54 @@ def check_failsafes(ap, t_s: float) -> None:
     if ap.behaviour == "offboard" and t_s - ap.flight.last_setpoint_s > ap.params["COM_OF_LOSS_T"]:
         action = {0: "position", 3: "rtl", 4: "land"}.get(int(ap.params["COM_OBL_RC_ACT"]), "hold")
         _failsafe(ap, t_s, "offboard", action, "Failsafe: offboard control lost")
+        _announce(ap, action)
     _check_gcs_loss(ap, t_s)
     _check_battery(ap, t_s)
     _check_fence(ap, t_s)
     _delayed_action(ap, t_s)
 
 
+def _hold_first(ap, t_s: float, reason: str, action: str) -> str:
+    """The action to take now for PX4's failsafe ``reason``: ``"hold"`` with ``action`` pending for
+    ``COM_FAIL_ACT_T`` s when it is Return or Land (and the delay above 0.1 s, as PX4), else ``action``."""
+    delay_s = 0.0 if ap_flight_state.is_ardupilot(ap) else float(ap.params["COM_FAIL_ACT_T"])
+    if delay_s <= 0.1 or action not in ("rtl", "land") or not ap_flight_state.airborne(ap):
+        return action
+    pending = ap.flight.pending_failsafe
+    if pending is None or pending[2] != reason:  # the same failsafe again keeps its running delay
+        ap.flight.pending_failsafe = (action, t_s + delay_s, reason)
+    return "hold"
+
+
+def _announce(ap, action: str) -> None:
+    """PX4's STATUSTEXT when a failsafe acts (``FailsafeBase::notifyUser``, ``mavlink_log_critical``):
+    ``Failsafe activated: entering Hold for N seconds`` when it holds before its action, else
+    ``Failsafe activated`` (the offboard loss, an action without delay). ArduPilot: nothing more."""
+    if ap_flight_state.is_ardupilot(ap) or action == "none":
+        return
+    text = "Failsafe activated"
+    if action == "hold" and ap.flight.pending_failsafe is not None:
+        text += f": entering Hold for {round(float(ap.params['COM_FAIL_ACT_T']))} seconds"
+    ap.statustext(text, mavlink2.MAV_SEVERITY_CRITICAL)
+
+
 def _delayed_action(ap, t_s: float) -> None:
-    """PX4: the failsafe action held back by ``COM_FAIL_ACT_T`` is taken when due, if its cause
-    (the fence breach) is still there."""
+    """PX4: the failsafe action held back by ``COM_FAIL_ACT_T`` is taken when due, if the vehicle is
+    still in that hold (no mode was commanded meanwhile) and its cause allows: a fence breach still
+    there; a data-link loss even if the link came back."""
     fs = ap.flight
     if fs.pending_failsafe is None or t_s < fs.pending_failsafe[1]:
         return
-    action, _ = fs.pending_failsafe
+    action, _, reason = fs.pending_failsafe
     fs.pending_failsafe = None
-    if ap.failsafe == "fence" and fs.fence_breached:
+    if ap.mode_name != ap.personality.hold_mode:
+        return  # a mode was commanded during the hold: the user took over, PX4 drops the action
+    if reason == "fence" and ap.failsafe == "fence" and fs.fence_breached:
         _failsafe(ap, t_s, "fence", action, "Failsafe: geofence action")
+        _announce(ap, action)
+    elif reason in ("gcs", "battery"):  # a data-link loss even if the link came back; a battery never recovers
+        _failsafe(ap, t_s, reason, action, f"Failsafe: {'GCS connection lost' if reason == 'gcs' else 'battery'} action")
+        _announce(ap, action)
 
 
 def _failsafe(ap, t_s: float, reason: str, action: str, text: str) -> None:
@@ -103,16 +145,19 @@ def _check_gcs_loss(ap, t_s: float) -> None:
         enable, timeout = int(ap.params["NAV_DLL_ACT"]), ap.params["COM_DL_LOSS_T"]
         action = {1: "hold", 2: "rtl", 3: "land", 5: "terminate", 6: "terminate"}.get(enable, "none")
     lost = t_s - last > timeout
+    pending = fs.pending_failsafe is not None and fs.pending_failsafe[2] == "gcs"
     if not lost:
         if fs.gcs_failsafe_done:
             fs.gcs_failsafe_done = False
-            if ap.failsafe == "gcs":
+            if ap.failsafe == "gcs" and not pending:  # a pending action keeps PX4 in failsafe
                 ap.failsafe = None
         return
     if enable == 0 or fs.gcs_failsafe_done:
         return
     fs.gcs_failsafe_done = True
+    action = _hold_first(ap, t_s, "gcs", action)
     _failsafe(ap, t_s, "gcs", action, "Failsafe: GCS connection lost")
+    _announce(ap, action)
 
 
 def _voltage_level(ap, t_s: float) -> int:
@@ -153,7 +198,9 @@ def _check_battery(ap, t_s: float) -> None:
         if (level >= 2 and act == 2) or (level >= 3 and act == 3):
             action = "land"
     names = {1: "low", 2: "critical", 3: "emergency"}
+    action = _hold_first(ap, t_s, "battery", action)
     _failsafe(ap, t_s, "battery", action, f"Failsafe: battery {names[level]}")
+    _announce(ap, action)
 
 
 def _check_fence(ap, t_s: float) -> None:
@@ -186,9 +233,7 @@ def _check_fence(ap, t_s: float) -> None:
     if fs.fence_breached or ap.behaviour in ("rtl", "land"):
         return
     fs.fence_breached = True
-    delay_s = 0.0 if ap_flight_state.is_ardupilot(ap) else float(p["COM_FAIL_ACT_T"])
-    if delay_s > 0.0 and action in ("rtl", "land", "terminate"):
-        fs.pending_failsafe = (action, t_s + delay_s)
-        action = "hold"
+    action = _hold_first(ap, t_s, "fence", action)
     _failsafe(ap, t_s, "fence", action, "Failsafe: geofence breached")
+    _announce(ap, action)
 

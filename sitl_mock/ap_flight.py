@@ -79,6 +79,8 @@ def arming_problem(ap, t_s: float, mode_name: str, check_mode: bool = True) -> s
     """Why arming is refused now (None if it is allowed)."""
     if ap.mc.crashed:
         return "vehicle crashed"
+    if check_mode and ap.faults.arm_refused:
+        return "arming check failed"
     if is_ardupilot(ap) and ap.params["ARMING_CHECK"] == 0:
         return None
     if not ap.position_ready(t_s):

@@ -51,7 +51,7 @@ class FlightState:
     volt_crt_since_s: float | None = None
     gcs_failsafe_done: bool = False
     fence_breached: bool = False
-    #: PX4's failsafe action delayed by COM_FAIL_ACT_T, held meanwhile: ``(action, due_s)`` (None: none)
+    #: PX4's failsafe action delayed by COM_FAIL_ACT_T, held meanwhile: ``(action, due_s, reason)`` (None: none)
     pending_failsafe: tuple | None = None
     mission_target_ned: np.ndarray | None = None
     mission_alt_m: float = 0.0

@@ -41,6 +41,12 @@ class FaultSet:
         Override the vehicle's climb / horizontal speed limit (a weak motor, a position
         controller that does not follow): 0 means it cannot climb / cannot move horizontally.
         It can still descend and land.
+    arm_refused : bool
+        Every ARM command is refused (``Arming denied: arming check failed`` / ``Arm: arming check
+        failed``) until the fault is cleared, while SYS_STATUS still reports the pre-arm checks
+        healthy: a check run only when arming (ArduCopter's mode-dependent ``Need Position
+        Estimate``), so the preflight passes and the takeoff's arming retries meet it. A vehicle
+        already armed is not affected.
     """
 
     sensor_noise_std: float | None = None
@@ -58,6 +64,7 @@ class FaultSet:
     battery_low: bool = False
     max_climb_m_s: float | None = None
     max_speed_h_m_s: float | None = None
+    arm_refused: bool = False
 
     def set(self, name: str, value) -> None:
         """Set one fault by name, converting and checking the value."""

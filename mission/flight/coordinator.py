@@ -363,9 +363,10 @@ class Coordinator:
 
     def takeoff_phase(self) -> Takeoff:
         """The takeoff (:class:`mission.flight.phases.takeoff.Takeoff`) of this mission's vehicles."""
-        def arm(sysid, v, rel_alt_m, before_takeoff):
+        def arm(sysid, v, rel_alt_m, before_takeoff, pause):
             return arm_and_takeoff(sysid, v, rel_alt_m, self.clock, self,
-                                   self.plan.preflight.autopilot_ready_timeout_s, before_takeoff=before_takeoff)
+                                   self.plan.preflight.autopilot_ready_timeout_s, before_takeoff=before_takeoff,
+                                   pause=pause)
 
         return Takeoff(self.plan, self.state, self.fleet, self.clock, self, self, self.open_setpoints,
                               arm, self.takeoff_loss)

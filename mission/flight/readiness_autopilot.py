@@ -121,7 +121,7 @@ async def _ardupilot_takeoff(v, rel_alt_m: float, before_takeoff, events: Events
 
 
 async def arm_and_takeoff(sysid: int, v, rel_alt_m: float, clock: Clock, events: Events, timeout_s: float,
-                          before_takeoff=lambda: None) -> None:
+                          before_takeoff=lambda: None, pause=None) -> None:
     """Arm vehicle ``v`` and command its takeoff to ``rel_alt_m`` above home.
 
     ``clock``: the mission clock; ``events``: each new refusal reason is told there; ``timeout_s``:
@@ -129,6 +129,11 @@ async def arm_and_takeoff(sysid: int, v, rel_alt_m: float, clock: Clock, events:
 
     ``before_takeoff()`` is called right before the takeoff command of each attempt (PX4: right
     before ``v.takeoff``, which starts holding where the vehicle is), with no await in between.
+
+    ``pause(delay_s)`` (a coroutine function; default ``clock.sleep``) is awaited between two
+    attempts: the takeoff phase's raises to give the arming up (an operator's stop, a formation
+    that can no longer be flown: :class:`mission.flight.phases.takeoff.Takeoff`); what it raises
+    goes through unchanged.
 
     Arming refusals are retried (every second) until ``timeout_s`` after the first attempt, each new reason shown (and logged) with the autopilot's own words;
     other failures (no ACK, link errors) are retried :data:`_MAX_OTHER_FAILURES` times.
@@ -164,4 +169,4 @@ async def arm_and_takeoff(sysid: int, v, rel_alt_m: float, clock: Clock, events:
                 events.event(f"vehicle {sysid}: {'arming refused' if refused else 'takeoff failed'}: {reason}; "
                              f"retrying for up to {deadline - now:.0f} s", level="warning", sysid=sysid,
                              autopilot_says=says)
-            await clock.sleep(1.0 if refused else 0.5)
+            await (pause or clock.sleep)(1.0 if refused else 0.5)

@@ -200,7 +200,9 @@ def test_ardupilot_guided_velocity_target_times_out_and_stops():
 
 #: COM_OBL_RC_ACT 0 (PX4's default, position mode): real PX4 v1.16 SIH reports POSCTL and, without
 #: RC, descends at MPC_LAND_SPEED, lands, disarms and shows OFFBOARD again (measured by
-#: tests/sitl/test_sitl_faults_px4.py and tests/conformance/test_conformance_px4_failsafes.py)
+#: tests/sitl/test_sitl_faults_px4.py and tests/conformance/test_conformance_px4_failsafes.py). The
+#: action comes at once, with no COM_FAIL_ACT_T hold: PX4's failsafe framework handles the offboard
+#: loss as a mode fallback that allows user takeover at any time, which arms no delay
 @pytest.mark.parametrize("obl_action,expected_mode", [(0, "POSCTL"), (3, "AUTO.RTL"), (4, "AUTO.LAND")])
 def test_px4_offboard_loss_failsafe(obl_action, expected_mode):
     h = Harness("px4", COM_OBL_RC_ACT=obl_action)
@@ -212,6 +214,9 @@ def test_px4_offboard_loss_failsafe(obl_action, expected_mode):
     h.run(1.0)  # COM_OF_LOSS_T = 1 s without setpoints
     assert h.ap.mode_name == expected_mode
     assert h.ap.failsafe == "offboard"
+    texts = [m.text for m in h.received if m.get_type() == "STATUSTEXT"]
+    assert "Failsafe activated" in texts  # PX4's words for an action without a hold first
+    assert not any(t.startswith("Failsafe activated: entering Hold") for t in texts)
 
 
 def test_px4_position_mode_without_rc_descends_lands_and_shows_offboard_again():
@@ -260,7 +265,73 @@ def test_gcs_loss_failsafe_follows_params(personality, param, value, expected_mo
     mode_before = h.ap.mode_name
     h.run(12.0)  # no more GCS heartbeats: FS_GCS_TIMEOUT 5 s / COM_DL_LOSS_T 10 s
     assert mode_before != expected_mode
+    if personality == "px4":  # PX4 holds for COM_FAIL_ACT_T (5 s) first
+        assert h.ap.mode_name == "AUTO.LOITER" and h.ap.failsafe == "gcs"
+        h.run(3.5)
     assert h.ap.mode_name == expected_mode
+
+
+def _px4_losing_its_gcs(**params):
+    """A mock PX4 hovering in OFFBOARD that heard a GCS once at t and then nothing (COM_DL_LOSS_T 10 s)."""
+    h = Harness("px4", **params)
+    h.airborne(8.0)
+    h.setpoint(0.0, 0.0, -8.0)
+    assert h.set_mode("OFFBOARD") == mav.MAV_RESULT_ACCEPTED
+    h.send(h.gcs.heartbeat_encode(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+    return h, h.t
+
+
+def _stream(h, seconds, gcs_heartbeat=False):
+    """Setpoints at 10 Hz for ``seconds`` (a data-link loss is the GCS heartbeats missing, not the setpoints)."""
+    for _ in range(int(round(seconds * 10))):
+        h.setpoint(0.0, 0.0, -8.0)
+        if gcs_heartbeat:
+            h.send(h.gcs.heartbeat_encode(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+        h.run(0.1)
+
+
+@pytest.mark.parametrize("dll_act, delay_s, expected_mode", [
+    (2, 5.0, "AUTO.RTL"), (3, 5.0, "AUTO.LAND"), (3, 2.0, "AUTO.LAND"), (2, 0.0, "AUTO.RTL")])
+def test_px4_data_link_loss_holds_com_fail_act_t_then_acts(dll_act, delay_s, expected_mode):
+    """Real PX4 (v1.14+ commander/failsafe): NAV_DLL_ACT Return/Land is an action that allows user
+    takeover ("Auto"): Hold (AUTO.LOITER, in failsafe) for COM_FAIL_ACT_T, then the action; 0 acts at once."""
+    h, t0 = _px4_losing_its_gcs(NAV_DLL_ACT=dll_act, COM_FAIL_ACT_T=delay_s)
+    _stream(h, 10.3)  # COM_DL_LOSS_T 10 s after the last GCS heartbeat
+    texts = [m.text for m in h.received if m.get_type() == "STATUSTEXT"]
+    assert "Failsafe: GCS connection lost" in texts
+    if delay_s == 0.0:
+        assert h.ap.mode_name == expected_mode
+        return
+    assert h.ap.mode_name == "AUTO.LOITER" and h.ap.failsafe == "gcs"
+    assert h.ap.heartbeat_fields()[2] == mav.MAV_STATE_CRITICAL
+    assert f"Failsafe activated: entering Hold for {delay_s:.0f} seconds" in texts
+    _stream(h, delay_s - 0.6)
+    assert h.ap.mode_name == "AUTO.LOITER"
+    _stream(h, 0.8)
+    assert h.ap.mode_name == expected_mode and h.ap.failsafe == "gcs"
+
+
+def test_px4_data_link_loss_action_survives_the_link_coming_back():
+    """PX4 clears a data-link-loss action on a mode change or a disarm only: the GCS heard again
+    during the hold does not stop the Return."""
+    h, t0 = _px4_losing_its_gcs(NAV_DLL_ACT=2)
+    _stream(h, 10.3)
+    assert h.ap.mode_name == "AUTO.LOITER"
+    _stream(h, 2.0, gcs_heartbeat=True)  # the link is back
+    assert h.ap.mode_name == "AUTO.LOITER" and h.ap.failsafe == "gcs"
+    _stream(h, 3.5, gcs_heartbeat=True)
+    assert h.ap.mode_name == "AUTO.RTL"
+
+
+def test_px4_data_link_loss_action_dropped_when_a_mode_is_commanded_during_the_hold():
+    """A mode commanded during the hold is the user taking over: PX4 drops the pending action."""
+    h, t0 = _px4_losing_its_gcs(NAV_DLL_ACT=2)
+    _stream(h, 10.3)
+    assert h.ap.mode_name == "AUTO.LOITER"
+    h.send(h.gcs.heartbeat_encode(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+    assert h.set_mode("OFFBOARD") == mav.MAV_RESULT_ACCEPTED
+    _stream(h, 6.0, gcs_heartbeat=True)
+    assert h.ap.mode_name == "OFFBOARD"
 
 
 @pytest.mark.parametrize("personality,expected_mode", [("ardupilot", "LAND"), ("px4", "AUTO.RTL")])
@@ -269,6 +340,11 @@ def test_low_battery_fault_triggers_the_personalitys_failsafe(personality, expec
     h.airborne(6.0)
     h.ap.faults.set("battery_low", True)
     h.run(0.5)
+    if personality == "px4":  # PX4 holds for COM_FAIL_ACT_T (5 s) first, and says so (real SIH: after "Critical battery")
+        assert h.ap.mode_name == "AUTO.LOITER" and h.ap.failsafe == "battery"
+        texts = [m.text for m in h.received if m.get_type() == "STATUSTEXT"]
+        assert "Failsafe activated: entering Hold for 5 seconds" in texts
+        h.run(5.0)
     assert h.ap.mode_name == expected_mode
     assert h.ap.failsafe == "battery"
 
@@ -487,6 +563,9 @@ def test_px4_geofence_action_waits_com_fail_act_t(delay_s, first_mode):
         if h.ap.mode_name != "OFFBOARD":
             break
     assert h.ap.mode_name == first_mode
+    texts = [m.text for m in h.received if m.get_type() == "STATUSTEXT"]
+    held = [t for t in texts if t.startswith("Failsafe activated: entering Hold")]
+    assert held == ([] if delay_s == 0.0 else ["Failsafe activated: entering Hold for 2 seconds"]), texts
     h.run(delay_s + 0.5)
     assert h.ap.mode_name == "AUTO.LAND"
 

@@ -10,8 +10,9 @@ Rules (see ``docs/faults.md``):
   ``SMART_RTL``, ``LAND``): a failsafe (low battery, geofence, GCS loss) or a pilot; or to any
   other mode with its heartbeat saying it is in a failsafe of its own (``system_status``
   CRITICAL/EMERGENCY), a mode its offboard loss would not give (or, that mode unknown, while the
-  ground station's setpoints to it never paused) (:func:`autopilot_failsafe`: PX4's hold before
-  its battery or geofence action). The coordinator does not
+  ground station's setpoints to it never paused), or after its autopilot announced a hold before a
+  failsafe action in a STATUSTEXT (:func:`autopilot_failsafe`, :func:`announced_hold`: PX4's hold
+  before its battery, geofence or data-link action). The coordinator does not
   fight it. Any *other* mode change (PX4 offboard loss -> its offboard-loss mode,
   ArduPilot GUIDED -> LOITER/BRAKE without a failsafe) is re-engaged by the watchdog
   (:mod:`mission.flight.faults.watchdog`). A vehicle
@@ -49,8 +50,9 @@ from mission.flight.state import MissionState, VehicleLoss
 from mission.safety.gate import SafetyGate
 from mission.vehicle.vehicle_link import VehicleLink
 
-__all__ = ["CORROBORATING_HEARTBEATS", "FAILSAFE_STATES", "OWN_PAUSE_S", "LossMonitor", "Reformation",
-           "autopilot_failsafe", "classify_loss", "offboard_loss_mode", "own_stream_gap_s", "reformed_offsets"]
+__all__ = ["CORROBORATING_HEARTBEATS", "FAILSAFE_STATES", "HOLD_BEFORE_ACTION_TEXT", "OWN_PAUSE_S", "LossMonitor",
+           "Reformation", "announced_hold", "autopilot_failsafe", "classify_loss", "offboard_loss_mode",
+           "own_stream_gap_s", "reformed_offsets"]
 
 #: heartbeats in a row that must report a mode change or a disarm before the vehicle "left"
 CORROBORATING_HEARTBEATS = 2
@@ -75,6 +77,12 @@ OWN_PAUSE_S = 0.5
 _PAUSE_LOOKBACK_S = 3.0
 
 
+#: how PX4's STATUSTEXT begins when a failsafe holds before its action (``FailsafeBase::notifyUser``:
+#: "Failsafe activated: entering Hold for %i seconds", seen on real PX4 SIH before a battery action);
+#: its offboard loss never holds first and says only "Failsafe activated"
+HOLD_BEFORE_ACTION_TEXT = "Failsafe activated: entering Hold"
+
+
 #: the mode real PX4 shows after its offboard loss, by ``COM_OBL_RC_ACT`` (0: position mode, measured
 #: on PX4 v1.16 SIH without RC; 5: Hold); 6 (terminate) has none
 _PX4_OFFBOARD_LOSS_MODES = {0: "POSCTL", 1: "ALTCTL", 2: "MANUAL", 3: "AUTO.RTL", 4: "AUTO.LAND", 5: "AUTO.LOITER"}
@@ -97,6 +105,21 @@ def own_stream_gap_s(gate: SafetyGate | None, sysid: int, vehicle: VehicleLink) 
     return gate.stream_gap_s(sysid, float(since) - _PAUSE_LOOKBACK_S)
 
 
+def announced_hold(vehicle: VehicleLink) -> str | None:
+    """The STATUSTEXT by which ``vehicle``'s autopilot announced a hold before a failsafe action
+    (:data:`HOLD_BEFORE_ACTION_TEXT`), heard from :data:`_PAUSE_LOOKBACK_S` before its current mode
+    was first reported until now; None if none."""
+    since = vehicle.status_since_s
+    if since is None:
+        return None
+    for t_s, _severity, text in reversed(vehicle.statustexts):
+        if t_s < float(since) - _PAUSE_LOOKBACK_S:
+            return None  # in arrival order: older ones do not count
+        if text.strip().startswith(HOLD_BEFORE_ACTION_TEXT):
+            return text.strip()
+    return None
+
+
 def autopilot_failsafe(vehicle: VehicleLink, stream_gap_s: float | None, loss_mode: str | None = None) -> str | None:
     """Why ``vehicle`` is under its autopilot's own failsafe, one the ground station did not cause;
     None if it is not (or that cannot be told).
@@ -106,7 +129,10 @@ def autopilot_failsafe(vehicle: VehicleLink, stream_gap_s: float | None, loss_mo
     gives (``loss_mode``, :func:`offboard_loss_mode`: e.g. AUTO.LOITER, PX4's hold for
     ``COM_FAIL_ACT_T`` before its battery or geofence action, while ``COM_OBL_RC_ACT`` 0 gives
     POSCTL), or, when that mode is unknown, while the setpoints to it never paused for
-    :data:`OWN_PAUSE_S` (``stream_gap_s``, :func:`own_stream_gap_s`). Such a vehicle is handed to its
+    :data:`OWN_PAUSE_S` (``stream_gap_s``, :func:`own_stream_gap_s`), or, whatever its mode, after
+    its autopilot said it holds before a failsafe action (:func:`announced_hold`: with
+    ``COM_OBL_RC_ACT`` 5 the offboard loss and the hold before a geofence or battery action are both
+    AUTO.LOITER; only the words tell them apart). Such a vehicle is handed to its
     autopilot: never re-engaged (:mod:`mission.flight.faults.watchdog`), declared "left". In its
     offboard-loss mode it is taken for an offboard loss (its cause, missing setpoints, is gone
     once they arrive again: re-engaged), whatever the stream did: an uplink lost for a while
@@ -120,6 +146,9 @@ def autopilot_failsafe(vehicle: VehicleLink, stream_gap_s: float | None, loss_mo
     if status not in FAILSAFE_STATES:
         return None
     why = f"switched to {mode} in its own failsafe (system status {_STATE_NAMES[status]}; "
+    said = announced_hold(vehicle)
+    if said is not None:
+        return why + f"it said {said!r})"
     if loss_mode is not None:
         return why + f"not {loss_mode}, its offboard-loss mode)" if mode != loss_mode else None
     if stream_gap_s is None or stream_gap_s >= OWN_PAUSE_S:

@@ -14,7 +14,12 @@ from mission.safety.gate import SafetyGate
 from mission.telemetry.link_report import format_rejections, rejection_increase
 from mission.telemetry.mission_log import MissionLog
 
-__all__ = ["LinkHealth", "MissionStatus", "RejectionReport", "Watchdog"]
+__all__ = ["LinkHealth", "MissionStatus", "REENGAGED_PHASES", "RejectionReport", "Watchdog"]
+
+#: the phases in which a vehicle under the mission's setpoints that fell out of its mission mode is
+#: re-engaged; the takeoff too: the vehicles already climbing or holding at their layer while another
+#: one's arming is retried (up to ``[preflight] autopilot_ready_timeout_s``) are watched like later
+REENGAGED_PHASES = ("takeoff", "assemble", "seek", "finish", "return")
 
 
 class LinkHealth(Protocol):
@@ -75,7 +80,8 @@ class Watchdog:
     async def run(self, period_s: float = 0.1) -> None:
         """Every ``period_s`` (event-loop time), until cancelled.
 
-        A vehicle under the mission's setpoints (takeoff done, not returning) found in another
+        A vehicle under the mission's setpoints (from its takeoff, also while another vehicle's
+        arming is still retried, until the return; :data:`REENGAGED_PHASES`) found in another
         mode is switched back (PX4 falls back to hold when setpoints pause for COM_OF_LOSS_T;
         the stream resumes at once, so re-engaging is safe); each time is logged and counted.
         Never one whose autopilot took over for a failsafe of its own (RTL/LAND, or its heartbeat
@@ -98,7 +104,7 @@ class Watchdog:
                                link_rejections=self.status.link_rejections(),
                                unknown_sysids=self.status.unknown_sysids())
             gate = self.gate()
-            if self.state.phase in ("assemble", "seek", "finish", "return") and gate is not None:
+            if self.state.phase in REENGAGED_PHASES and gate is not None:
                 self._reengage_fallen(gate)
 
     def _reengage_fallen(self, gate: SafetyGate) -> None:

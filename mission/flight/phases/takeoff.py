@@ -7,6 +7,13 @@ takeoff, assembly and return comes from altitude layers
 layer, flies horizontally at that layer, then moves vertically, all vehicles finishing a step
 before the next starts; vehicles share a layer when their horizontal paths keep
 ``min_separation_m + LAYER_MARGIN_M`` apart (see ``docs/mission.md``).
+
+While a vehicle's arming is retried (``[preflight] autopilot_ready_timeout_s``) the vehicles
+already in the air stay watched: the loss monitor and the watchdog run in this phase
+(``docs/faults.md``, "A vehicle lost while another one's arming is retried"); the waits between two
+attempts and between two takeoffs end at an operator's stop and, when the losses leave fewer than
+:data:`MIN_FORMATION` vehicles that could still fly the formation, with :class:`TooFewLeft`: no
+further vehicle is armed and the mission ends (those in the air come home).
 """
 from __future__ import annotations
 
@@ -25,7 +32,14 @@ from mission.flight.faults.takeoff_loss import TakeoffLoss
 from mission.flight.targets import assign_slots, solve_formation
 from mission.safety.gate import SafetyGate
 
-__all__ = ["ArmAndTakeoff", "Takeoff", "home_enu"]
+__all__ = ["ArmAndTakeoff", "MIN_FORMATION", "Takeoff", "TooFewLeft", "home_enu"]
+
+#: the fewest vehicles a formation is flown with (:class:`mission.flight.phases.assemble.Assemble`)
+MIN_FORMATION = 4
+
+
+class TooFewLeft(MissionError):
+    """The takeoff's losses leave fewer than :data:`MIN_FORMATION` vehicles: nothing more is armed."""
 
 
 def home_enu(fleet: Fleet, origin, sysid: int) -> np.ndarray:
@@ -36,9 +50,10 @@ def home_enu(fleet: Fleet, origin, sysid: int) -> np.ndarray:
     return np.asarray(geodetic_to_enu(home[0], home[1], home[2], origin), dtype=float)
 
 
-#: ``arm_and_takeoff(sysid, vehicle, rel_alt_m, before_takeoff)``: arm one vehicle and command its
-#: takeoff (:func:`mission.flight.readiness_autopilot.arm_and_takeoff`); MissionError when it fails
-ArmAndTakeoff = Callable[[int, Any, float, Callable[[], None]], Awaitable[None]]
+#: ``arm_and_takeoff(sysid, vehicle, rel_alt_m, before_takeoff, pause)``: arm one vehicle and command
+#: its takeoff (:func:`mission.flight.readiness_autopilot.arm_and_takeoff`), awaiting ``pause(delay_s)``
+#: between two attempts (what it raises goes through); MissionError when it fails
+ArmAndTakeoff = Callable[[int, Any, float, Callable[[], None], Callable[[float], Awaitable[None]]], Awaitable[None]]
 
 
 class Takeoff:
@@ -87,13 +102,41 @@ class Takeoff:
         self.gate.start()  # the safety gate: moves, checks and sends the setpoints
         order = sorted(vehicles, key=lambda s: (self.state.layer_alt_m[s], s))
         waits = []
-        for i, sysid in enumerate(order):
-            if i:
-                await self.clock.sleep(plan.stagger_s)
-            wait = await self._take_off(sysid)
-            if wait is not None:
-                waits.append(asyncio.ensure_future(wait))
-        await asyncio.gather(*waits)
+        try:
+            for i, sysid in enumerate(order):
+                if i:
+                    await self._pause(plan.stagger_s)
+                wait = await self._take_off(sysid)
+                if wait is not None:
+                    waits.append(asyncio.ensure_future(wait))
+            await asyncio.gather(*waits)
+        finally:
+            for w in waits:  # the climbs still waited for when the phase ends early (a stop, too few left)
+                w.cancel()
+
+    def _check_enough(self) -> None:
+        """TooFewLeft when the vehicles not lost (in the air, being armed, still to take off) are fewer
+        than :data:`MIN_FORMATION`."""
+        state = self.state
+        left = [s for s in self.fleet.vehicles if s not in state.lost]
+        if len(left) >= MIN_FORMATION:
+            return
+        waiting = sorted(s for s in left if s not in state.airborne)
+        raise TooFewLeft(f"vehicles {sorted(state.lost)} lost during the takeoff: {len(left)} left, a formation "
+                         f"needs {MIN_FORMATION}" + (f"; vehicles {waiting} not armed" if waiting else ""))
+
+    async def _pause(self, delay_s: float) -> None:
+        """Wait ``delay_s`` (between two takeoffs, two arming attempts) with the vehicles in the air
+        watched: :class:`TooFewLeft` as soon as their losses leave too few, OperatorStop at a stop."""
+        end_s = self.clock.time() + delay_s
+
+        def _over() -> bool:
+            lost = self.state.lost
+            return self.clock.time() >= end_s or sum(s not in lost for s in self.fleet.vehicles) < MIN_FORMATION
+
+        self._check_enough()
+        await self.waiter.wait_until(_over, delay_s + 5.0, "the next takeoff")
+        self._check_enough()
 
     async def _take_off(self, sysid: int):
         """Arm ``sysid`` and command its takeoff; the wait for its climb (a coroutine), or None when it failed."""
@@ -108,9 +151,9 @@ class Takeoff:
             held["xy"] = v.position_enu_m()
 
         try:  # arming refusals retried with the autopilot's words, ArduPilot's mode re-checked
-            await self.arm_and_takeoff(sysid, v, rel_alt, _note_start)
-        except OperatorStop:
-            raise  # the operator ended the mission: nobody failed
+            await self.arm_and_takeoff(sysid, v, rel_alt, _note_start, self._pause)
+        except (OperatorStop, TooFewLeft):
+            raise  # the operator ended the mission, or the takeoff cannot go on: nobody failed
         except MissionError as exc:
             self.losses().lose_failed(sysid, str(exc))
             return None

@@ -18,7 +18,8 @@ from tests.mission.flight.faults_fakes import FakeClock, FakeGate, FakeVehicle, 
 from tests.mission.flight.test_faults_objects import _monitor, _Status, _until, _watch
 
 from mission.core.plan_types import FaultsPlan
-from mission.flight.faults.loss import OWN_PAUSE_S, autopilot_failsafe, classify_loss, offboard_loss_mode
+from mission.flight.faults.loss import (OWN_PAUSE_S, announced_hold, autopilot_failsafe, classify_loss,
+                                       offboard_loss_mode)
 from mission.flight.state import VehicleReadiness
 from mission.flight.faults.watchdog import Watchdog
 
@@ -53,6 +54,31 @@ def test_autopilot_failsafe_rule(mode, status, gap_s, loss_mode, armed, expected
     assert (found is not None) == expected, found
     if expected:
         assert f"switched to {mode} in its own failsafe" in found
+
+
+_HOLD_TEXT = "Failsafe activated: entering Hold for 5 seconds\t"  # PX4's words, its trailing tab too
+
+
+@pytest.mark.parametrize("texts, mode, loss_mode, gap_s, expected", [
+    # COM_OBL_RC_ACT 5: PX4's hold before a geofence / battery / data-link action is AUTO.LOITER like
+    # its offboard loss; its words tell them apart
+    ([(9.5, _HOLD_TEXT)], "AUTO.LOITER", "AUTO.LOITER", 0.1, True),
+    ([(9.5, _HOLD_TEXT)], "AUTO.LOITER", "AUTO.LOITER", 1.4, True),     # even after a pause of ours
+    ([(9.5, _HOLD_TEXT)], "AUTO.LOITER", None, 1.4, True),              # offboard-loss mode unknown
+    ([(9.5, "Failsafe activated\t")], "AUTO.LOITER", "AUTO.LOITER", 0.1, False),  # the offboard loss itself
+    ([(5.0, _HOLD_TEXT)], "AUTO.LOITER", "AUTO.LOITER", 0.1, False),    # said long before this mode began
+    ([(9.5, _HOLD_TEXT), (9.8, "Failsafe activated")], "AUTO.LOITER", "AUTO.LOITER", 0.1, True),
+    ([], "AUTO.LOITER", "AUTO.LOITER", 0.1, False),
+])
+def test_an_announced_hold_before_a_failsafe_action_is_the_autopilots_own(texts, mode, loss_mode, gap_s, expected):
+    """The mode was first reported at t = 10 s; what PX4 said from 3 s before counts."""
+    v = SimpleNamespace(flavour="px4", state=SimpleNamespace(mode=mode, armed=True, system_status=_CRITICAL),
+                        status_since_s=10.0, statustexts=[(t, 2, text) for t, text in texts])
+    found = autopilot_failsafe(v, gap_s, loss_mode)
+    assert (found is not None) == expected, found
+    if expected:
+        assert "it said 'Failsafe activated: entering Hold for 5 seconds'" in found
+        assert announced_hold(v) == "Failsafe activated: entering Hold for 5 seconds"
 
 
 @pytest.mark.parametrize("flavour, params, expected", [
@@ -120,11 +146,15 @@ def test_the_loss_monitor_declares_an_autopilot_failsafe_hold_left_and_commands_
 # ------------------------------------------------------------------------------- the mock fleet
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_mock_px4_geofence_hold_is_not_fought(tmp_path):
+@pytest.mark.parametrize("obl_act", [0, 5])
+def test_mock_px4_geofence_hold_is_not_fought(tmp_path, obl_act):
     """Five mock PX4 vehicles (GF_ACTION 5: land, COM_FAIL_ACT_T 5 s); after seek iteration 3 the
     fence ceiling of vehicle 3 is lowered under it: PX4 holds (AUTO.LOITER, system status CRITICAL)
     for 5 s then lands. The ground station calls it "left" in its own failsafe, never re-engages it,
-    re-forms for 4 and goes on; vehicle 3 lands by itself (AUTO.LAND, disarmed)."""
+    re-forms for 4 and goes on; vehicle 3 lands by itself (AUTO.LAND, disarmed). With
+    ``COM_OBL_RC_ACT`` 5 its offboard loss is AUTO.LOITER too: only PX4's STATUSTEXT ("Failsafe
+    activated: entering Hold for 5 seconds") tells the hold apart (before it was read, the hold was
+    re-engaged, which PX4 takes as the user taking over: the land never came)."""
     from mission.sim.embedded import default_eps, embedded_plan, fleet_ports
     from mission.telemetry.mission_log import read_mission_log
     from sitl_mock.fields_gaussian import sigma2
@@ -137,6 +167,7 @@ def test_mock_px4_geofence_hold_is_not_fought(tmp_path):
     fleet = _fleet(n, ports, source)
     for s in range(1, n + 1):
         fleet.vehicle(s).params.set("GF_ACTION", 5)
+        fleet.vehicle(s).params.set("COM_OBL_RC_ACT", obl_act)
     plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 11.0), eps=default_eps(sigma2(source)), max_iterations=80)
     log_path = tmp_path / "m.jsonl"
     modes: list[tuple[float, str, bool]] = []
@@ -167,7 +198,10 @@ def test_mock_px4_geofence_hold_is_not_fought(tmp_path):
     messages = [e["message"] for e in events]
     lost = {x["sysid"]: x for x in result.lost}
     assert 3 in lost and lost[3]["reason"] == "left", (result.lost, messages[-15:])
-    assert "in its own failsafe" in next(m for m in messages if m.startswith("vehicle 3 lost")), messages
+    lost_message = next(m for m in messages if m.startswith("vehicle 3 lost"))
+    assert "in its own failsafe" in lost_message, messages
+    if obl_act == 5:
+        assert "it said 'Failsafe activated: entering Hold for 5 seconds'" in lost_message
     assert not any(m.startswith("vehicle 3 left OFFBOARD") for m in messages), messages   # never re-engaged
     assert ("AUTO.LOITER", True) in [m[1:] for m in modes], modes                          # PX4's hold first
     after_hold = [m[1:] for m in modes[[m[1] for m in modes].index("AUTO.LOITER"):]]
