@@ -66,6 +66,7 @@ class FakeVehicle:
         self.commands: list[str] = []
         self.status_heartbeats = 2
         self.status_since_s = None
+        self.statustexts: list[tuple] = []  # (t_s, severity, text), as VehicleLink's
 
     def link_age_s(self) -> float:
         return self.age_s

@@ -49,7 +49,8 @@ def _hold(v: FakeVehicle, status: int, since_s: float = 0.0) -> FakeVehicle:
     ("AUTO.LOITER", _CRITICAL, 0.1, None, False, False),         # disarmed: another rule
 ])
 def test_autopilot_failsafe_rule(mode, status, gap_s, loss_mode, armed, expected):
-    v = SimpleNamespace(flavour="px4", state=SimpleNamespace(mode=mode, armed=armed, system_status=status))
+    v = SimpleNamespace(flavour="px4", state=SimpleNamespace(mode=mode, armed=armed, system_status=status),
+                        status_since_s=None, statustexts=[])
     found = autopilot_failsafe(v, gap_s, loss_mode)
     assert (found is not None) == expected, found
     if expected:
