@@ -88,7 +88,7 @@ def record_offsets(buf: np.ndarray) -> np.ndarray | None:
 
 def _gather(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
     """``(K, width)`` bytes from each start (starts + width within ``buf``)."""
-    return buf[starts[:, None] + np.arange(width)]
+    return np.lib.stride_tricks.sliding_window_view(buf, width)[starts]
 
 
 def v2_frames_valid(buf: np.ndarray, frame_at: np.ndarray, crc_extra: int) -> np.ndarray:
@@ -101,12 +101,17 @@ def v2_frames_valid(buf: np.ndarray, frame_at: np.ndarray, crc_extra: int) -> np
     mlen = buf[frame_at + 1].astype(np.int64)
     for length in np.unique(mlen):
         sel = np.flatnonzero(mlen == length)
-        cols = _gather(buf, frame_at[sel] + 1, 9 + int(length) + 2).astype(np.uint32)
-        crc = np.full(len(sel), 0xFFFF, dtype=np.uint32)
-        for c in range(9 + int(length)):
-            crc = (crc >> 8) ^ _CRC_TABLE[(crc ^ cols[:, c]) & 0xFF]
-        crc = (crc >> 8) ^ _CRC_TABLE[(crc ^ crc_extra) & 0xFF]
-        ok[sel] = crc == (cols[:, -2] | cols[:, -1] << 8)
+        raw = _gather(buf, frame_at[sel] + 1, 9 + int(length) + 2)
+        data = np.empty((len(sel), 9 + int(length) + 2), dtype=np.uint8)   # checked bytes, CRC_EXTRA, a pad
+        data[:, :-2], data[:, -2], data[:, -1] = raw[:, :-2], crc_extra, 0
+        n_bytes = 10 + int(length)
+        words = data[:, :n_bytes & ~1].copy().view("<u2")            # two bytes per table step
+        crc = np.full(len(sel), 0xFFFF, dtype=np.uint16)
+        for c in range(words.shape[1]):
+            crc = _CRC_TABLE16[crc ^ words[:, c]]
+        if n_bytes & 1:
+            crc = (crc >> 8) ^ _CRC_TABLE[(crc ^ data[:, n_bytes - 1]) & 0xFF].astype(np.uint16)
+        ok[sel] = crc == (raw[:, -2].astype(np.uint16) | raw[:, -1].astype(np.uint16) << 8)
     return ok
 
 
@@ -119,6 +124,8 @@ def _crc_step(crc: np.ndarray, byte) -> np.ndarray:
 
 #: one byte of CRC-16/MCRF4XX: ``crc = (crc >> 8) ^ _CRC_TABLE[(crc ^ byte) & 0xFF]``
 _CRC_TABLE = _crc_step(np.arange(256, dtype=np.uint32), np.uint32(0)).astype(np.uint32)
+#: two bytes at once (a 16-bit register shifts both out): ``crc = _CRC_TABLE16[crc ^ little_endian_word]``
+_CRC_TABLE16 = _crc_step(_crc_step(np.arange(65536, dtype=np.uint32), np.uint32(0)), np.uint32(0)).astype(np.uint16)
 
 
 def struct_dtype(fmt: str, names) -> np.dtype:

@@ -37,12 +37,13 @@ def _state_at(t_query, t_s, p):
 
 def pair_span(a, b, ra, rb, stale_after_s) -> tuple[float, float]:
     """``(lo, hi)``: when track ``ra`` of ``a`` and ``rb`` of ``b`` are both commanded (hi < lo: never)."""
-    ta_first, ta_last = a.t_s[ra[0]], a.t_s[ra[1] - 1]
-    tb_first, tb_last = b.t_s[rb[0]], b.t_s[rb[1] - 1]
-    lo = max(ta_first, tb_first)
-    # both commanded until then (see VehicleSetpoints.commanded_until)
-    hi = min(a.commanded_until(ta_last, stale_after_s), b.commanded_until(tb_last, stale_after_s))
-    return lo, hi
+    (a_first, a_until), (b_first, b_until) = track_span(a, ra, stale_after_s), track_span(b, rb, stale_after_s)
+    return max(a_first, b_first), min(a_until, b_until)
+
+
+def track_span(sp, r, stale_after_s) -> tuple[float, float]:
+    """A track's first stamp and the end of its commanding (see ``VehicleSetpoints.commanded_until``)."""
+    return sp.t_s[r[0]], sp.commanded_until(sp.t_s[r[1] - 1], stale_after_s)
 
 
 def track_pair(a, b, ra, rb, min_sep_m, tol_m, stale_after_s, burst_s=0.0):
@@ -69,18 +70,31 @@ def track_pair(a, b, ra, rb, min_sep_m, tol_m, stale_after_s, burst_s=0.0):
     d_zoh = np.linalg.norm(za - zb, axis=1)
     d_path = synchronous_distance(la[:-1], la[1:], lb[:-1], lb[1:]) if len(tq) > 1 else d_zoh
     min_m = min(float(d_zoh.min()), float(np.min(d_path)))
-    limit = min_sep_m - tol_m
-    bad_z = np.flatnonzero(d_zoh < limit)
-    bad_p = np.flatnonzero(d_path < limit) if len(tq) > 1 else np.empty(0, dtype=int)
-    found = [AuditViolation("separation", float(tq[i]), (a.sysid, b.sysid), float(d_zoh[i]), min_sep_m,
-                            f"latest setpoints {d_zoh[i]:.3f} m apart (minimum {min_sep_m:g} m)") for i in bad_z]
-    for i in bad_p:
+    every = np.arange(len(tq))
+    segments = every[:-1] if len(tq) > 1 else every[:0]
+    found = _found(a, b, tq, (every, d_zoh), (segments, d_path if len(tq) > 1 else d_path[:0]), min_sep_m - tol_m,
+                   min_sep_m)
+    return len(tq), min_m, found
+
+
+def _found(a, b, tq, zoh, path, limit, min_sep_m) -> list:
+    """The violations of a pair, in the report's order: ``zoh`` and ``path`` are ``(indices, distances)``
+    of the instants and segments evaluated (a segment starting at an instant found too close, or
+    ending at one, is not listed again)."""
+    (z_idx, d_zoh), (p_idx, d_path) = zoh, path
+    bad = np.flatnonzero(d_zoh < limit)
+    found = [AuditViolation("separation", float(tq[i]), (a.sysid, b.sysid), float(d), min_sep_m,
+                            f"latest setpoints {d:.3f} m apart (minimum {min_sep_m:g} m)")
+             for i, d in zip(z_idx[bad], d_zoh[bad])]
+    bad_z = set(z_idx[bad].tolist())
+    for pos in np.flatnonzero(d_path < limit):
+        i, d = int(p_idx[pos]), d_path[pos]
         if i in bad_z or (i + 1) in bad_z:
             continue
-        found.append(AuditViolation("separation", float(tq[i]), (a.sysid, b.sysid), float(d_path[i]), min_sep_m,
-                                    f"paths {tq[i]:.3f}..{tq[i + 1]:.3f} s come {d_path[i]:.3f} m close "
+        found.append(AuditViolation("separation", float(tq[i]), (a.sysid, b.sysid), float(d), min_sep_m,
+                                    f"paths {tq[i]:.3f}..{tq[i + 1]:.3f} s come {d:.3f} m close "
                                     f"(minimum {min_sep_m:g} m)"))
-    return len(tq), min_m, found
+    return found
 
 
 def apply_track_pair(report, result) -> None:
@@ -143,44 +157,91 @@ def _instant_bits(vehicles) -> tuple[np.ndarray, list]:
     return stamps, bits
 
 
-def _count_instants(stamps, bits_a, bits_b, lo: float, hi: float) -> int:
-    """``len(tq)`` of :func:`track_pair`: the distinct stamps of either vehicle in ``[lo, hi]``, and
-    ``hi`` (``lo`` is always one of them)."""
+def _span_bits(stamps, bits_a, bits_b, lo: float, hi: float):
+    """The stamps of either vehicle in ``[lo, hi]`` as bit words: ``(first stamp index of the first
+    word, words, whether hi is one of them)``."""
     g_lo = int(np.searchsorted(stamps, lo, side="left"))
     g_hi = int(np.searchsorted(stamps, hi, side="right")) - 1
     w0, w1 = g_lo >> 6, g_hi >> 6
     both = bits_a[w0:w1 + 1] | bits_b[w0:w1 + 1]
     both[0] &= ~np.uint64((1 << (g_lo & 63)) - 1)
     both[-1] &= np.uint64((1 << ((g_hi & 63) + 1)) - 1) if (g_hi & 63) < 63 else np.uint64(2 ** 64 - 1)
-    count = int(np.bitwise_count(both).sum())
     hi_there = stamps[g_hi] == hi and bool((both[-1] >> np.uint64(g_hi & 63)) & np.uint64(1))
-    return count + (0 if hi_there else 1)
+    return w0 * 64, both, hi_there
+
+
+def _count_instants(stamps, bits_a, bits_b, lo: float, hi: float) -> int:
+    """``len(tq)`` of :func:`track_pair`: the distinct stamps of either vehicle in ``[lo, hi]``, and
+    ``hi`` (``lo`` is always one of them)."""
+    _, both, hi_there = _span_bits(stamps, bits_a, bits_b, lo, hi)
+    return int(np.bitwise_count(both).sum()) + (0 if hi_there else 1)
+
+
+def _instants(stamps, bits_a, bits_b, lo: float, hi: float) -> np.ndarray:
+    """``tq`` of :func:`track_pair` (the same values, sorted) from the bit sets."""
+    base, both, hi_there = _span_bits(stamps, bits_a, bits_b, lo, hi)
+    tq = stamps[base + np.flatnonzero(np.unpackbits(both.view(np.uint8), bitorder="little"))]
+    return tq if hi_there else np.append(tq, hi)
+
+
+def _hot_indices(tq, edges, hot_w, burst_s):
+    """The instants (read ``burst_s`` later) and the segments that overlap a window where the bound
+    is below the threshold: the only ones that can hold a violation or the smallest distance."""
+    last = len(edges) - 2
+    wz = np.clip(np.searchsorted(edges, tq + burst_s, side="right") - 1, 0, last)
+    wt = np.clip(np.searchsorted(edges, tq, side="right") - 1, 0, last)
+    hot_sum = np.concatenate([[0], np.cumsum(hot_w)])
+    return np.flatnonzero(hot_w[wz]), np.flatnonzero(hot_sum[wt[1:] + 1] - hot_sum[wt[:-1]] > 0)
+
+
+def track_pair_hot(a, b, ra, rb, tq, hot, min_sep_m, tol_m, burst_s):
+    """:func:`track_pair` evaluated only at the instants and segments ``hot = (instants, segments)``
+    (:func:`_hot_indices`; ``tq`` its instants, at least two): the same violations; the smallest
+    distance among those evaluated (inf if none)."""
+    ta, pa = a.t_s[ra[0]:ra[1]], a.enu_m[ra[0]:ra[1]]
+    tb, pb = b.t_s[rb[0]:rb[1]], b.enu_m[rb[0]:rb[1]]
+    hot_z, hot_p = hot
+    t_z = tq[hot_z] + burst_s if burst_s > 0 else tq[hot_z]
+    d_zoh = np.linalg.norm(_state_at(t_z, ta, pa)[0] - _state_at(t_z, tb, pb)[0], axis=1)
+    ends = np.concatenate([tq[hot_p], tq[hot_p + 1]])
+    la, lb = _state_at(ends, ta, pa)[1], _state_at(ends, tb, pb)[1]
+    n = len(hot_p)
+    d_path = synchronous_distance(la[:n], la[n:], lb[:n], lb[n:])
+    min_m = min(float(d_zoh.min()) if len(d_zoh) else np.inf, float(d_path.min()) if n else np.inf)
+    return len(tq), min_m, _found(a, b, tq, (hot_z, d_zoh), (hot_p, d_path), min_sep_m - tol_m, min_sep_m)
 
 
 def _pair_items(vehicles, stale_after_s: float, burst_s: float, edges) -> list:
-    """Every pair of tracks in the plain order: ``(i, j, ra, rb, lo, hi, lower_bound_m)``."""
+    """Every pair of tracks in the plain order, ``(i, j, ra, rb, lo, hi, lower_bound_m)``, and each
+    vehicle's track boxes (:func:`_track_boxes`)."""
     boxes = [[_track_boxes(sp.t_s[r[0]:r[1]], sp.enu_m[r[0]:r[1]], edges) for r in tracks] for sp, tracks in vehicles]
+    spans = [[track_span(sp, r, stale_after_s) for r in tracks] for sp, tracks in vehicles]
     items = []
     for i, (a, tracks_a) in enumerate(vehicles):
         later = [(j, rb, boxes[j][n]) for j in range(i + 1, len(vehicles)) for n, rb in enumerate(vehicles[j][1])]
         if not later:
             continue
         others = np.stack([box for _, _, box in later])                 # (M, W, 2, 3)
+        other_spans = np.array([spans[j][vehicles[j][1].index(rb)] for j, rb, _ in later])   # (M, 2)
         for n, ra in enumerate(tracks_a):
-            box = boxes[i][n]
-            gap = np.maximum(0.0, np.maximum(box[None, :, 0] - others[:, :, 1], others[:, :, 0] - box[None, :, 1]))
-            dist = np.sqrt(np.einsum("mwc,mwc->mw", gap, gap))              # (M, W)
-            spans = [pair_span(a, vehicles[j][0], ra, rb, stale_after_s) for j, rb, _ in later]
-            lo = np.array([s[0] for s in spans])
-            hi = np.array([s[1] for s in spans])
+            dist = _box_distance(boxes[i][n][None], others)                 # (M, W)
+            lo = np.maximum(other_spans[:, 0], spans[i][n][0])
+            hi = np.minimum(other_spans[:, 1], spans[i][n][1])
             w_lo = np.clip(np.searchsorted(edges, lo, side="right") - 1, 0, len(edges) - 2)
             w_hi = np.clip(np.searchsorted(edges, hi + burst_s, side="right") - 1, 0, len(edges) - 2)
             w = np.arange(dist.shape[1])
             bound = np.where((w >= w_lo[:, None]) & (w <= w_hi[:, None]), dist, np.inf).min(axis=1)
-            items.extend((i, j, ra, rb, s[0], s[1], float(bnd)) for (j, rb, _), s, bnd in zip(later, spans, bound))
+            items.extend((i, j, ra, rb, float(lo_m), float(hi_m), float(bnd))
+                         for (j, rb, _), lo_m, hi_m, bnd in zip(later, lo, hi, bound))
     # the plain loop's order: pair of vehicles, then track of the first, then track of the second
     items.sort(key=lambda it: (it[0], it[1], vehicles[it[0]][1].index(it[2]), vehicles[it[1]][1].index(it[3])))
-    return items
+    return items, boxes
+
+
+def _box_distance(box_a, box_b) -> np.ndarray:
+    """Per window, the distance between two boxes ``(..., W, 2, 3)`` (0 where they overlap)."""
+    gap = np.maximum(0.0, np.maximum(box_a[..., 0, :] - box_b[..., 1, :], box_b[..., 0, :] - box_a[..., 1, :]))
+    return np.sqrt(np.einsum("...c,...c->...", gap, gap))
 
 
 def _alone_in_span(sp, r, lo: float, hi: float) -> bool:
@@ -206,7 +267,7 @@ def check_pairs_fast(report, vehicles, min_sep_m: float, tol_m: float, stale_aft
     if sum(1 for sp, _ in vehicles if len(sp.t_s)) < 2:
         return 0
     edges = _grid(vehicles, stale_after_s, burst_s, window_s)
-    items = _pair_items(vehicles, stale_after_s, burst_s, edges)
+    items, boxes = _pair_items(vehicles, stale_after_s, burst_s, edges)
     stamps, bits = _instant_bits(vehicles)
     limit = min_sep_m - tol_m
     results, smallest = {}, np.inf
@@ -214,10 +275,19 @@ def check_pairs_fast(report, vehicles, min_sep_m: float, tol_m: float, stale_aft
         i, j, ra, rb, lo, hi, bound = items[k]
         if hi < lo:
             continue
-        exact = (not _alone_in_span(vehicles[i][0], ra, lo, hi)) or not _alone_in_span(vehicles[j][0], rb, lo, hi)
-        if not exact and bound >= max(smallest, limit) + _BOUND_MARGIN_M:
+        (a, tracks_a), (b, tracks_b) = vehicles[i], vehicles[j]
+        threshold = max(smallest, limit) + _BOUND_MARGIN_M
+        alone = ((len(tracks_a) == 1 or _alone_in_span(a, ra, lo, hi))
+                 and (len(tracks_b) == 1 or _alone_in_span(b, rb, lo, hi)))
+        if alone and bound >= threshold:
             continue
-        results[k] = track_pair(vehicles[i][0], vehicles[j][0], ra, rb, min_sep_m, tol_m, stale_after_s, burst_s)
+        tq = _instants(stamps, bits[i], bits[j], lo, hi) if alone else None
+        if tq is None or len(tq) < 2:
+            results[k] = track_pair(a, b, ra, rb, min_sep_m, tol_m, stale_after_s, burst_s)
+        else:
+            hot_w = _box_distance(boxes[i][tracks_a.index(ra)], boxes[j][tracks_b.index(rb)]) < threshold
+            results[k] = track_pair_hot(a, b, ra, rb, tq, _hot_indices(tq, edges, hot_w, burst_s), min_sep_m, tol_m,
+                                        burst_s)
         smallest = min(smallest, results[k][1])
     for k, (i, j, ra, rb, lo, hi, _) in enumerate(items):
         if hi < lo:
