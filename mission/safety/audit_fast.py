@@ -105,10 +105,10 @@ def v2_frames_valid(buf: np.ndarray, frame_at: np.ndarray, crc_extra: int) -> np
         data = np.empty((len(sel), 9 + int(length) + 2), dtype=np.uint8)   # checked bytes, CRC_EXTRA, a pad
         data[:, :-2], data[:, -2], data[:, -1] = raw[:, :-2], crc_extra, 0
         n_bytes = 10 + int(length)
-        words = data[:, :n_bytes & ~1].copy().view("<u2")            # two bytes per table step
+        words = np.ascontiguousarray(data[:, :n_bytes & ~1]).view("<u2").T.copy()   # (steps, K): 2 bytes a step
         crc = np.full(len(sel), 0xFFFF, dtype=np.uint16)
-        for c in range(words.shape[1]):
-            crc = _CRC_TABLE16[crc ^ words[:, c]]
+        for column in words:
+            crc = _CRC_TABLE16[crc ^ column]
         if n_bytes & 1:
             crc = (crc >> 8) ^ _CRC_TABLE[(crc ^ data[:, n_bytes - 1]) & 0xFF].astype(np.uint16)
         ok[sel] = crc == (raw[:, -2].astype(np.uint16) | raw[:, -1].astype(np.uint16) << 8)
@@ -153,10 +153,12 @@ def decode_payloads(buf: np.ndarray, frame_at: np.ndarray, cls) -> np.ndarray:
     if not len(frame_at):
         return np.empty(0, dtype=dtype)
     mlen = buf[frame_at + 1].astype(np.int64)
-    cols = np.arange(size)
-    idx = np.minimum((frame_at + 10)[:, None] + cols, len(buf) - 1)
-    mat = np.where(cols < mlen[:, None], buf[idx], 0).astype(np.uint8)
-    return np.ascontiguousarray(mat).view(dtype).ravel()
+    padded = np.concatenate([buf, np.zeros(size, dtype=np.uint8)])   # a short last payload reads zeros
+    mat = _gather(padded, frame_at + 10, size)                       # a copy, (K, size)
+    short = np.flatnonzero(mlen < size)
+    if len(short):   # MAVLink 2 truncated the payload's trailing zeros: put them back
+        mat[short] = np.where(np.arange(size) < mlen[short, None], mat[short], 0)
+    return mat.view(dtype).ravel()
 
 
 # ------------------------------------------------------------------ one vehicle's setpoints, fast

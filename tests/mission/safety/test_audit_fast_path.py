@@ -200,16 +200,44 @@ def test_record_walk_equals_the_plain_splitter_on_damaged_files(tmp_path_factory
         assert got == want
 
 
-def test_batch_crc_equals_pymavlink():
+def _frames_of(kind, rng, count=60):
+    """Frames of one message with random fields, some zero at the end (MAVLink 2 truncates those)."""
     gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
-    rng = np.random.default_rng(3)
-    frames = [gcs.set_position_target_local_ned_encode(k, 1, 1, 1, int(rng.integers(0, 4096)), *rng.normal(0, 50, 3), 0, 0, 0,
-                                                       0, 0, 0, 0, 0).pack(gcs) for k in range(50)]
-    frames[7] = frames[7][:-1] + bytes([frames[7][-1] ^ 1])
+    frames = []
+    for k in range(count):
+        tail = 0 if k % 3 == 0 else 1
+        if kind == "setpoint":
+            msg = gcs.set_position_target_local_ned_encode(k, tail * 3, tail, tail * 1, int(rng.integers(0, 4096)),
+                                                           *rng.normal(0, 50, 3), 0, 0, 0, 0, 0, 0, 0, 0)
+        elif kind == "home":
+            msg = gcs.home_position_encode(*(int(v) for v in rng.integers(-2 ** 31, 2 ** 31, 3)), *rng.normal(0, 9, 3),
+                                           [1, 0, 0, 0], 0, 0, 0, int(rng.integers(0, 2 ** 40)) * tail)
+        else:
+            msg = gcs.heartbeat_encode(2, 12, int(rng.integers(0, 256)), int(rng.integers(0, 2 ** 32)), 4)
+        frames.append(msg.pack(gcs))
+    return frames
+
+
+@pytest.mark.parametrize("kind, cls", [("setpoint", mavlink.MAVLink_set_position_target_local_ned_message),
+                                       ("home", mavlink.MAVLink_home_position_message),
+                                       ("heartbeat", mavlink.MAVLink_heartbeat_message)])
+def test_batch_crc_and_decode_equal_pymavlink(kind, cls):
+    frames = _frames_of(kind, np.random.default_rng(3))
+    frames[7] = frames[7][:-1] + bytes([frames[7][-1] ^ 1])          # a bad CRC
+    assert len({len(f) for f in frames}) > 1 or kind == "heartbeat"   # truncated payloads among them
     buf = np.frombuffer(b"".join(frames), dtype=np.uint8)
     at = np.cumsum([0] + [len(f) for f in frames[:-1]])
-    ok = audit_fast.v2_frames_valid(buf, at, mavlink.MAVLink_set_position_target_local_ned_message.crc_extra)
-    assert ok.tolist() == [k != 7 for k in range(50)]
+    ok = audit_fast.v2_frames_valid(buf, at, cls.crc_extra)
+    assert ok.tolist() == [k != 7 for k in range(len(frames))]
+    fields = audit_fast.decode_payloads(buf, at, cls)
+    parser = mavlink.MAVLink(None)
+    for k, frame in enumerate(frames):
+        if k == 7:
+            continue
+        msg = parser.decode(bytearray(frame))
+        for name in cls.ordered_fieldnames:
+            got, want = fields[name][k], getattr(msg, name)
+            assert np.asarray(got).tolist() == (list(want) if isinstance(want, (list, tuple)) else want), name
 
 
 def test_pair_pruning_skips_far_pairs_and_keeps_a_planted_break(tmp_path):
