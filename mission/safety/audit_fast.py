@@ -88,6 +88,8 @@ def record_offsets(buf: np.ndarray) -> np.ndarray | None:
 
 def _gather(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
     """``(K, width)`` bytes from each start (starts + width within ``buf``)."""
+    if not len(starts):
+        return np.empty((0, width), dtype=buf.dtype)
     return np.lib.stride_tricks.sliding_window_view(buf, width)[starts]
 
 

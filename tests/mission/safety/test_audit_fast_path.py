@@ -167,6 +167,17 @@ def test_bad_setpoint_crc_is_still_refused_by_the_fast_reader(tmp_path):
         read_vehicle_setpoints_fast([path], 2, ORIGIN)
 
 
+@pytest.mark.parametrize("keep", [0, 9, 10, 30])
+def test_empty_and_short_tlogs_read_as_the_plain_reader_reads_them(tmp_path, keep):
+    log_dir = _write_mission(tmp_path, n=6)
+    path = log_dir / "tlogs" / "vehicle-2.tlog"
+    path.write_bytes(path.read_bytes()[:keep])
+    a, b = read_vehicle_setpoints([path], 2, ORIGIN), read_vehicle_setpoints_fast([path], 2, ORIGIN)
+    assert (a.t_s.tolist(), a.mode_t_s.tolist(), a.homes, a.problems) == (b.t_s.tolist(), b.mode_t_s.tolist(), b.homes,
+                                                                          b.problems)
+    assert audit_mission(log_dir).to_dict() == audit_mission(log_dir, fast=False).to_dict()
+
+
 def _plain_split(data, tmp_path):
     path = tmp_path / "x.tlog"
     path.write_bytes(data)
