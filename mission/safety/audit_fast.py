@@ -26,7 +26,8 @@ import re
 
 import numpy as np
 
-__all__ = ["record_offsets", "v2_frames_valid", "decode_payloads", "struct_dtype"]
+__all__ = ["record_offsets", "v2_frames_valid", "decode_payloads", "struct_dtype", "read_tlog_table", "table_from_events",
+           "merged_columns", "event_order", "following_setpoints_array"]
 
 _V2, _V1 = 0xFD, 0xFE
 _STRUCT_TO_NUMPY = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q": "<i8",
@@ -164,15 +165,17 @@ def decode_payloads(buf: np.ndarray, frame_at: np.ndarray, cls) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ one vehicle's setpoints, fast
-def _header(buf: np.ndarray, offsets: np.ndarray) -> dict:
-    """Per record: stamp (s), magic, message id, source system and component, frame offset."""
+def _header(buf: np.ndarray, offsets: np.ndarray, wanted) -> dict:
+    """Per record of a ``wanted`` message id (in file order): stamp (s), MAVLink 2 or not, incompatibility
+    flags, message id, source system and component, frame offset."""
     at = offsets + 8
-    stamps = _gather(buf, offsets, 8).view(">u8").ravel().astype(np.float64) * 1e-6
-    magic = buf[at]
-    v2 = magic == _V2
+    v2 = buf[at] == _V2
     msgid = np.where(v2, buf[at + 7].astype(np.int64) | buf[at + 8].astype(np.int64) << 8
                      | buf[at + 9].astype(np.int64) << 16, buf[at + 5])
-    return {"t_s": stamps, "at": at, "v2": v2, "flags": np.where(v2, buf[at + 2], 0), "msgid": msgid,
+    keep = np.flatnonzero(np.isin(msgid, list(wanted)))
+    at, v2 = at[keep], v2[keep]
+    stamps = _gather(buf, offsets[keep], 8).view(">u8").ravel().astype(np.float64) * 1e-6
+    return {"t_s": stamps, "at": at, "v2": v2, "flags": np.where(v2, buf[at + 2], 0), "msgid": msgid[keep],
             "src": np.where(v2, buf[at + 5], buf[at + 3]), "comp": np.where(v2, buf[at + 6], buf[at + 4])}
 
 
@@ -185,20 +188,28 @@ def following_setpoints_array(fields: np.ndarray) -> np.ndarray:
 
 
 def read_tlog_table(data: bytes, sysid: int, gcs_sysid: int) -> dict | None:
-    """The audit's events of one tlog as arrays (see :func:`events_table`), or None when the file
-    holds anything the fast path leaves to pymavlink (a MAVLink 1 or otherwise unusual wanted frame,
-    a bad CRC, a record that is not a frame): the caller reads that file with the plain reader."""
+    """The audit's events of one tlog as arrays, or None when the file holds anything the fast path
+    leaves to pymavlink (a MAVLink 1 or otherwise unusual wanted frame, a bad CRC, a record that is
+    not a frame): the caller reads that file with the plain reader.
+
+    Returns
+    -------
+    dict or None
+        ``mode`` (the vehicle's own HEARTBEATs: ``following``), ``home`` (its HOME_POSITIONs:
+        ``latitude`` ... ``z``) and ``sp`` (the setpoints the ground station sent it:
+        :func:`_setpoint_columns`), each a dict of columns with ``seq`` (order in the file) and ``t_s``.
+    """
     from pymavlink.dialects.v20 import common as mavlink
 
     buf = np.frombuffer(data, dtype=np.uint8)
     offsets = record_offsets(buf)
     if offsets is None:
         return None
-    h = _header(buf, offsets)
     classes = {mavlink.MAVLINK_MSG_ID_HEARTBEAT: mavlink.MAVLink_heartbeat_message,
                mavlink.MAVLINK_MSG_ID_HOME_POSITION: mavlink.MAVLink_home_position_message,
                mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED: mavlink.MAVLink_set_position_target_local_ned_message,
                mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT: mavlink.MAVLink_set_position_target_global_int_message}
+    h = _header(buf, offsets, classes)         # the wanted records only, in file order (``seq``: their rank)
     parts = {}
     for msgid, cls in classes.items():
         sel = np.flatnonzero(h["msgid"] == msgid)
@@ -269,7 +280,7 @@ _SP_LOCAL = "SET_POSITION_TARGET_LOCAL_NED"
 _SP_NAMES = {84: _SP_LOCAL, 86: "SET_POSITION_TARGET_GLOBAL_INT"}
 
 
-def _merged(tables: list, kind: str) -> tuple[dict, np.ndarray]:
+def merged_columns(tables: list, kind: str) -> tuple[dict, np.ndarray]:
     """One kind's columns of several files' tables, and each row's (file, seq) order key."""
     cols = {c: np.concatenate([t[kind][c] for t in tables]) for c in tables[0][kind]}
     file_no = np.concatenate([np.full(len(t[kind]["seq"]), i, dtype=np.int64) for i, t in enumerate(tables)])
@@ -280,8 +291,8 @@ def event_order(tables: list) -> tuple[dict, dict, np.ndarray, np.ndarray]:
     """Home and setpoint columns of a vehicle's files, and their events in the plain reader's order
     (stable by stamp, then file, then record): ``kind_sorted`` (1 home, 2 setpoint) and
     ``row_sorted`` (the row of its kind)."""
-    homes, home_file = _merged(tables, "home")
-    sps, sp_file = _merged(tables, "sp")
+    homes, home_file = merged_columns(tables, "home")
+    sps, sp_file = merged_columns(tables, "sp")
     t = np.concatenate([homes["t_s"], sps["t_s"]])
     file_no = np.concatenate([home_file, sp_file])
     seq = np.concatenate([homes["seq"], sps["seq"]])

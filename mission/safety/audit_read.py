@@ -400,7 +400,7 @@ def read_vehicle_setpoints_fast(paths, sysid: int, mission_origin, gcs_sysid: in
         table = audit_fast.read_tlog_table(data, sysid, gcs_sysid)
         tables.append(table if table is not None else audit_fast.table_from_events(_read_tlog(path, sysid, gcs_sysid)))
     out = VehicleSetpoints(sysid, np.empty(0), np.empty((0, 3)))
-    modes, mode_file = audit_fast._merged(tables, "mode")
+    modes, mode_file = audit_fast.merged_columns(tables, "mode")
     mode_order = np.lexsort((modes["seq"], mode_file, modes["t_s"]))
     out.mode_t_s = modes["t_s"][mode_order].astype(float)
     out.following = modes["following"][mode_order].astype(bool)
