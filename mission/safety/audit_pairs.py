@@ -217,25 +217,33 @@ def _pair_items(vehicles, stale_after_s: float, burst_s: float, edges) -> list:
     boxes = [[_track_boxes(sp.t_s[r[0]:r[1]], sp.enu_m[r[0]:r[1]], edges) for r in tracks] for sp, tracks in vehicles]
     spans = [[track_span(sp, r, stale_after_s) for r in tracks] for sp, tracks in vehicles]
     items = []
-    for i, (a, tracks_a) in enumerate(vehicles):
-        later = [(j, rb, boxes[j][n]) for j in range(i + 1, len(vehicles)) for n, rb in enumerate(vehicles[j][1])]
-        if not later:
-            continue
-        others = np.stack([box for _, _, box in later])                 # (M, W, 2, 3)
-        other_spans = np.array([spans[j][vehicles[j][1].index(rb)] for j, rb, _ in later])   # (M, 2)
-        for n, ra in enumerate(tracks_a):
-            dist = _box_distance(boxes[i][n][None], others)                 # (M, W)
-            lo = np.maximum(other_spans[:, 0], spans[i][n][0])
-            hi = np.minimum(other_spans[:, 1], spans[i][n][1])
-            w_lo = np.clip(np.searchsorted(edges, lo, side="right") - 1, 0, len(edges) - 2)
-            w_hi = np.clip(np.searchsorted(edges, hi + burst_s, side="right") - 1, 0, len(edges) - 2)
-            w = np.arange(dist.shape[1])
-            bound = np.where((w >= w_lo[:, None]) & (w <= w_hi[:, None]), dist, np.inf).min(axis=1)
-            items.extend((i, j, ra, rb, float(lo_m), float(hi_m), float(bnd))
-                         for (j, rb, _), lo_m, hi_m, bnd in zip(later, lo, hi, bound))
+    for i, (_, tracks_a) in enumerate(vehicles):
+        later = [(j, rb, boxes[j][n], spans[j][n]) for j in range(i + 1, len(vehicles))
+                 for n, rb in enumerate(vehicles[j][1])]
+        for first in range(0, len(later), _BLOCK):          # a block at a time: memory (block, W) whatever N
+            block = later[first:first + _BLOCK]
+            others = np.stack([box for _, _, box, _ in block])                       # (M, W, 2, 3)
+            other_spans = np.array([span for _, _, _, span in block])                 # (M, 2)
+            for n, ra in enumerate(tracks_a):
+                lo = np.maximum(other_spans[:, 0], spans[i][n][0])
+                hi = np.minimum(other_spans[:, 1], spans[i][n][1])
+                bound = _span_bound(_box_distance(boxes[i][n][None], others), edges, lo, hi + burst_s)
+                items.extend((i, j, ra, rb, float(lo_m), float(hi_m), float(bnd))
+                             for (j, rb, _, _), lo_m, hi_m, bnd in zip(block, lo, hi, bound))
     # the plain loop's order: pair of vehicles, then track of the first, then track of the second
     items.sort(key=lambda it: (it[0], it[1], vehicles[it[0]][1].index(it[2]), vehicles[it[1]][1].index(it[3])))
     return items, boxes
+
+
+_BLOCK = 32          # pairs of tracks whose window bounds are computed together
+
+
+def _span_bound(dist: np.ndarray, edges, lo, hi) -> np.ndarray:
+    """Per row of window distances ``(M, W)``, the smallest over the windows that meet ``[lo, hi]``."""
+    w_lo = np.clip(np.searchsorted(edges, lo, side="right") - 1, 0, len(edges) - 2)
+    w_hi = np.clip(np.searchsorted(edges, hi, side="right") - 1, 0, len(edges) - 2)
+    w = np.arange(dist.shape[1])
+    return np.where((w >= w_lo[:, None]) & (w <= w_hi[:, None]), dist, np.inf).min(axis=1)
 
 
 def _box_distance(box_a, box_b) -> np.ndarray:
