@@ -60,8 +60,10 @@ from mission.safety.audit_read import (
     find_tlogs,
     load_plan_limits,
     read_vehicle_setpoints,
+    read_vehicle_setpoints_fast,
 )
-from mission.safety.geometry import boundary_distance, point_in_polygon, synchronous_distance
+from mission.safety.audit_pairs import apply_track_pair, check_pairs_fast, track_pair
+from mission.safety.geometry import boundary_distance, point_in_polygon
 
 __all__ = ["AuditReport", "audit_mission"]
 
@@ -259,52 +261,18 @@ def _check_speed(report, sp, tracks, max_speed_m_s, jitter_s, window_s):
     return step_max, window_max
 
 
-def _state_at(t_query, t_s, p):
-    """Zero-order hold (latest setpoint at or before) and linear interpolation at ``t_query``."""
-    k = np.clip(np.searchsorted(t_s, t_query, side="right") - 1, 0, len(t_s) - 1)
-    lin = np.stack([np.interp(t_query, t_s, p[:, c]) for c in range(3)], axis=-1)
-    return p[k], lin
-
-
 def _check_pair(report, a, b, tracks_a, tracks_b, min_sep_m, tol_m, stale_after_s, burst_s=0.0):
-    """Separation of one pair (module docstring). ``burst_s``: "latest vs latest" is read ``burst_s``
+    """Separation of one pair (module docstring), every pair of tracks checked exactly
+    (:func:`mission.safety.audit_pairs.track_pair`). ``burst_s``: "latest vs latest" is read ``burst_s``
     after each instant, so that the datagrams of one streamer burst count as sent together (the
     streamer sends a burst in one synchronous loop, microseconds apart: without this, the instant
     between two of its datagrams paired one vehicle's new setpoint with the other's previous one, a
     state no vehicle can be in, and a fast pair passing 1.5 m apart read as up to a step closer)."""
-    for a0, a1 in tracks_a:
-        ta, pa = a.t_s[a0:a1], a.enu_m[a0:a1]
-        for b0, b1 in tracks_b:
-            tb, pb = b.t_s[b0:b1], b.enu_m[b0:b1]
-            lo = max(ta[0], tb[0])
-            # both commanded until then (see VehicleSetpoints.commanded_until)
-            hi = min(a.commanded_until(ta[-1], stale_after_s), b.commanded_until(tb[-1], stale_after_s))
-            if hi < lo:
-                continue
-            tq = np.concatenate([ta, tb, [lo, hi]])
-            tq = np.unique(tq[(tq >= lo) & (tq <= hi)])
-            za, la = _state_at(tq, ta, pa)
-            zb, lb = _state_at(tq, tb, pb)
-            if burst_s > 0:
-                za, zb = _state_at(tq + burst_s, ta, pa)[0], _state_at(tq + burst_s, tb, pb)[0]
-            d_zoh = np.linalg.norm(za - zb, axis=1)
-            d_path = synchronous_distance(la[:-1], la[1:], lb[:-1], lb[1:]) if len(tq) > 1 else d_zoh
-            report.separation_instants_checked += len(tq)
-            report.separation_segments_checked += max(len(tq) - 1, 0)
-            report.min_separation_seen_m = min(report.min_separation_seen_m, float(d_zoh.min()),
-                                               float(np.min(d_path)))
-            limit = min_sep_m - tol_m
-            bad_z = np.flatnonzero(d_zoh < limit)
-            bad_p = np.flatnonzero(d_path < limit) if len(tq) > 1 else np.empty(0, dtype=int)
-            for i in bad_z:
-                report.add(AuditViolation("separation", float(tq[i]), (a.sysid, b.sysid), float(d_zoh[i]), min_sep_m,
-                                          f"latest setpoints {d_zoh[i]:.3f} m apart (minimum {min_sep_m:g} m)"))
-            for i in bad_p:
-                if i in bad_z or (i + 1) in bad_z:
-                    continue
-                report.add(AuditViolation("separation", float(tq[i]), (a.sysid, b.sysid), float(d_path[i]), min_sep_m,
-                                          f"paths {tq[i]:.3f}..{tq[i + 1]:.3f} s come {d_path[i]:.3f} m close "
-                                          f"(minimum {min_sep_m:g} m)"))
+    for ra in tracks_a:
+        for rb in tracks_b:
+            result = track_pair(a, b, ra, rb, min_sep_m, tol_m, stale_after_s, burst_s)
+            if result is not None:
+                apply_track_pair(report, result)
 
 
 def _check_options(gcs_sysid, fence_tol_m, stamp_jitter_s, speed_window_s, separation_tol_m, stale_after_s):
@@ -322,7 +290,7 @@ def _check_options(gcs_sysid, fence_tol_m, stamp_jitter_s, speed_window_s, separ
             raise AuditError(f"{name} must be a finite number {'> 0' if positive else '>= 0'}, got {value!r}")
 
 
-def _completeness(report, plan, by_sysid, ignored, gcs_sysid) -> None:
+def _completeness(report, plan, by_sysid, ignored, gcs_sysid, read=read_vehicle_setpoints) -> None:
     """Add to ``report.incomplete`` every reason the audit cannot vouch for the whole mission
     (after the checks: ``report.setpoints_checked`` is final)."""
     if plan["missions"] > 1:
@@ -339,7 +307,7 @@ def _completeness(report, plan, by_sysid, ignored, gcs_sysid) -> None:
     for sysid, paths in sorted(ignored.items()):
         if sysid == gcs_sysid:  # the ground station's own id is never a vehicle
             continue
-        sent = len(read_vehicle_setpoints(paths, sysid, plan["origin"], gcs_sysid).t_s)
+        sent = len(read(paths, sysid, plan["origin"], gcs_sysid).t_s)
         if sent:
             report.incomplete.append(f"{sent} setpoint(s) were sent to system id {sysid}, which is not in the plan")
     if report.setpoints_checked == 0:
@@ -349,7 +317,7 @@ def _completeness(report, plan, by_sysid, ignored, gcs_sysid) -> None:
 
 def audit_mission(log_dir, *, gcs_sysid: int = 255, fence_tol_m: float = 0.01, stamp_jitter_s: float = 0.01,
                   speed_window_s: float = 1.0, separation_tol_m: float = 0.01,
-                  stale_after_s: float = 1.0) -> AuditReport:
+                  stale_after_s: float = 1.0, fast: bool = True) -> AuditReport:
     """Check every position setpoint sent in a flown mission against the plan's safety limits.
 
     Parameters
@@ -371,6 +339,11 @@ def audit_mission(log_dir, *, gcs_sysid: int = 255, fence_tol_m: float = 0.01, s
         Slack on the minimum separation (1 cm, frame quantisation of both vehicles).
     stale_after_s : float
         A vehicle is commanded until this long after its last setpoint.
+    fast : bool
+        Read the tlogs with numpy (:func:`~mission.safety.audit_read.read_vehicle_setpoints_fast`)
+        and check exactly only the pairs a distance bound cannot clear
+        (:func:`~mission.safety.audit_pairs.check_pairs_fast`); False: the plain reader and every
+        pair checked exactly. The same report either way.
 
     Returns
     -------
@@ -404,9 +377,10 @@ def audit_mission(log_dir, *, gcs_sysid: int = 255, fence_tol_m: float = 0.01, s
         "speed_window_s": speed_window_s, "separation_tol_m": separation_tol_m, "stale_after_s": stale_after_s,
         "clock": "tlog stamps: mission clock (simulated seconds when the mock fleet is embedded)",
     }
+    read = read_vehicle_setpoints_fast if fast else read_vehicle_setpoints
     vehicles = []
     for sysid in sorted(by_sysid):
-        sp = read_vehicle_setpoints(by_sysid[sysid], sysid, plan["origin"], gcs_sysid)
+        sp = read(by_sysid[sysid], sysid, plan["origin"], gcs_sysid)
         for problem in sp.problems:
             report.add(problem)
         tracks = _tracks(sp.t_s, stale_after_s)
@@ -423,11 +397,14 @@ def audit_mission(log_dir, *, gcs_sysid: int = 255, fence_tol_m: float = 0.01, s
                                      "max_step_speed_m_s": round(step_max, 4),
                                      "max_window_speed_m_s": round(window_max, 4), "tracks": len(tracks)}
         vehicles.append((sp, tracks))
-    for i in range(len(vehicles)):
-        for j in range(i + 1, len(vehicles)):
-            (a, ta), (b, tb) = vehicles[i], vehicles[j]
-            _check_pair(report, a, b, ta, tb, plan["min_separation_m"], separation_tol_m, stale_after_s,
-                        stamp_jitter_s)
+    if fast:
+        check_pairs_fast(report, vehicles, plan["min_separation_m"], separation_tol_m, stale_after_s, stamp_jitter_s)
+    else:
+        for i in range(len(vehicles)):
+            for j in range(i + 1, len(vehicles)):
+                (a, ta), (b, tb) = vehicles[i], vehicles[j]
+                _check_pair(report, a, b, ta, tb, plan["min_separation_m"], separation_tol_m, stale_after_s,
+                            stamp_jitter_s)
     report.violations.sort(key=lambda v: (v.t_s, v.kind))
-    _completeness(report, plan, by_sysid, ignored, gcs_sysid)
+    _completeness(report, plan, by_sysid, ignored, gcs_sysid, read)
     return report

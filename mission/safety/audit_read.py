@@ -18,9 +18,10 @@ import numpy as np
 
 from formation.geodesy import enu_to_geodetic, geodetic_to_enu, ned_to_enu
 from mission.link.fast_decode import decode_single_frame
+from mission.safety import audit_fast
 
 __all__ = ["AuditError", "AuditViolation", "VehicleSetpoints", "load_plan_limits", "find_tlogs",
-           "read_vehicle_setpoints"]
+           "read_vehicle_setpoints", "read_vehicle_setpoints_fast"]
 
 #: the ground station's quarantine log (``mission.link.tlog.QUARANTINE_NAME``; spelled out here:
 #: the audit reads the files independently of the code that wrote them)
@@ -333,8 +334,15 @@ def read_vehicle_setpoints(paths, sysid: int, mission_origin, gcs_sysid: int = 2
             rows.append(row)
     if not t_list:
         return out
-    data = np.asarray(rows, dtype=float)
-    enu = np.empty((len(rows), 3))
+    out.t_s = np.asarray(t_list, dtype=float)
+    out.enu_m = _rows_to_enu(np.asarray(rows, dtype=float), origins, mission_origin)
+    return out
+
+
+def _rows_to_enu(data: np.ndarray, origins: dict, mission_origin) -> np.ndarray:
+    """Mission ENU of setpoint rows ``(group, x, y, z)``: LOCAL_NED in the frame of ``origins``'
+    group, or group -1 and geodetic."""
+    enu = np.empty((len(data), 3))
     geo = data[:, 0] < 0
     if np.any(geo):
         enu[geo] = geodetic_to_enu(data[geo, 1], data[geo, 2], data[geo, 3], mission_origin)
@@ -342,9 +350,7 @@ def read_vehicle_setpoints(paths, sysid: int, mission_origin, gcs_sysid: int = 2
         sel = data[:, 0] == g
         if np.any(sel):
             enu[sel] = _local_to_mission(data[sel, 1:], origin, mission_origin)
-    out.t_s = np.asarray(t_list, dtype=float)
-    out.enu_m = enu
-    return out
+    return enu
 
 
 def _setpoint_row(msg, t_s, sysid, home, group, out):
@@ -378,6 +384,108 @@ def _setpoint_row(msg, t_s, sysid, home, group, out):
     out.problems.append(AuditViolation("frame", t_s, (sysid,), float(frame), 0.0,
                                        f"{name} in coordinate frame {frame}, which the audit cannot place"))
     return None
+
+
+def read_vehicle_setpoints_fast(paths, sysid: int, mission_origin, gcs_sysid: int = 255) -> VehicleSetpoints:
+    """:func:`read_vehicle_setpoints` on whole arrays (:mod:`mission.safety.audit_fast`): the same
+    result, each home's LOCAL_NED origin computed once per distinct HOME_POSITION; a file the fast
+    path leaves to pymavlink (see :func:`~mission.safety.audit_fast.read_tlog_table`) is read by
+    the plain reader. Same results: ``tests/mission/safety/test_audit_fast_path.py``."""
+    tables = []
+    for path in paths:
+        try:
+            data = Path(path).read_bytes()
+        except OSError as exc:
+            raise AuditError(f"{path}: cannot be read: {exc}") from None
+        table = audit_fast.read_tlog_table(data, sysid, gcs_sysid)
+        tables.append(table if table is not None else audit_fast.table_from_events(_read_tlog(path, sysid, gcs_sysid)))
+    out = VehicleSetpoints(sysid, np.empty(0), np.empty((0, 3)))
+    modes, mode_file = audit_fast.merged_columns(tables, "mode")
+    mode_order = np.lexsort((modes["seq"], mode_file, modes["t_s"]))
+    out.mode_t_s = modes["t_s"][mode_order].astype(float)
+    out.following = modes["following"][mode_order].astype(bool)
+    homes, sps, kind, row = audit_fast.event_order(tables)
+    out.homes = len(homes["seq"])
+    home_group, origins = _home_groups(homes, kind, row)
+    is_home = kind == 1
+    last = np.maximum.accumulate(np.where(is_home, np.arange(len(kind)), -1)) if len(kind) else kind
+    at_sp = ~is_home
+    sp_row = row[at_sp]
+    home_row = np.where(last[at_sp] >= 0, row[np.maximum(last[at_sp], 0)], -1)
+    cols = {k: v[sp_row] for k, v in sps.items()}
+    data, keep = _setpoint_rows_fast(cols, home_row, home_group, homes, sysid, out)
+    if not len(data):
+        return out
+    out.t_s = cols["t_s"][keep].astype(float)
+    out.enu_m = _rows_to_enu(data, origins, mission_origin)
+    return out
+
+
+def _home_groups(homes: dict, kind: np.ndarray, row: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Each HOME_POSITION row's LOCAL_NED origin group (numbered in the order the plain reader
+    meets them) and ``origin -> group``; :func:`_local_origin` once per distinct frame content."""
+    group = np.full(len(homes["seq"]), -1, dtype=np.int64)
+    origins: dict[tuple, int] = {}
+    if not len(group):
+        return group, origins
+    in_order = row[kind == 1]
+    values = np.column_stack([homes[k].astype(np.float64) for k in ("latitude", "longitude", "altitude",
+                                                                    "x", "y", "z")])[in_order]
+    keys = np.ascontiguousarray(values).view(np.dtype((np.void, values.shape[1] * 8))).ravel()
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    unique_group = np.empty(len(first), dtype=np.int64)
+    for u in np.argsort(first, kind="stable"):
+        r = in_order[first[u]]
+        home = (int(homes["latitude"][r]) * 1e-7, int(homes["longitude"][r]) * 1e-7, int(homes["altitude"][r]) * 1e-3)
+        local = (float(homes["x"][r]), float(homes["y"][r]), float(homes["z"][r]))
+        unique_group[u] = origins.setdefault(_local_origin(home, local), len(origins))
+    group[in_order] = unique_group[inverse.ravel()]
+    return group, origins
+
+
+def _setpoint_rows_fast(cols: dict, home_row: np.ndarray, home_group: np.ndarray, homes: dict, sysid: int,
+                        out: VehicleSetpoints) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_setpoint_row` of every setpoint at once: the ``(group, x, y, z)`` rows and which
+    setpoints they are; skipped ones counted and problems added to ``out`` in the plain order."""
+    mask, frame, msgid = cols["type_mask"], cols["frame"], cols["msgid"]
+    ignored = mask & _POS_IGNORE
+    skipped = ignored == _POS_IGNORE
+    partial = (ignored != 0) & ~skipped
+    placed = ~skipped & ~partial
+    has_home = home_row >= 0
+    local = placed & (msgid == _MSG_LOCAL) & (frame == _FRAME_LOCAL_NED)
+    glob = placed & (msgid == _MSG_GLOBAL) & np.isin(frame, (_FRAME_GLOBAL_INT, _FRAME_GLOBAL_RELATIVE_ALT_INT))
+    rel = glob & (frame == _FRAME_GLOBAL_RELATIVE_ALT_INT)
+    keep = (local & has_home) | (glob & (~rel | has_home))
+    out.skipped += int(skipped.sum())
+    for i in np.flatnonzero((placed & ~keep) | partial):
+        out.problems.append(_fast_problem(cols, i, bool(partial[i]), bool(local[i] or rel[i]), bool(local[i]), sysid))
+    home_alt = np.where(has_home, homes["altitude"][np.maximum(home_row, 0)].astype(np.float64) * 1e-3, 0.0) \
+        if len(homes["altitude"]) else np.zeros(len(mask))
+    group = np.where(local, home_group[np.maximum(home_row, 0)] if len(home_group) else -1, -1)
+    scale = np.where(local, 1.0, 1e-7)
+    alt = np.where(rel, cols["c"] + home_alt, cols["c"])
+    data = np.column_stack([group.astype(np.float64), np.where(local, cols["a"], cols["a"] * scale),
+                            np.where(local, cols["b"], cols["b"] * scale), alt])[keep]
+    return data, keep
+
+
+_MSG_LOCAL, _MSG_GLOBAL = 84, 86      # SET_POSITION_TARGET_LOCAL_NED, SET_POSITION_TARGET_GLOBAL_INT
+
+
+def _fast_problem(cols: dict, i: int, partial: bool, no_home: bool, local: bool, sysid: int) -> AuditViolation:
+    """The violation :func:`_setpoint_row` adds for setpoint ``i`` (one it could not place)."""
+    t_s, mask, frame = float(cols["t_s"][i]), int(cols["type_mask"][i]), int(cols["frame"][i])
+    name = _SP_LOCAL if cols["msgid"][i] == _MSG_LOCAL else _SP_GLOBAL
+    if partial:
+        return AuditViolation("frame", t_s, (sysid,), float(mask), 0.0,
+                              f"{name} ignores only some position axes (type_mask 0x{mask:X})")
+    if no_home:
+        why = ("LOCAL_NED setpoint sent before any HOME_POSITION was received" if local
+               else "relative-altitude setpoint sent before any HOME_POSITION")
+        return AuditViolation("no_home", t_s, (sysid,), math.nan, math.nan, why)
+    return AuditViolation("frame", t_s, (sysid,), float(frame), 0.0,
+                          f"{name} in coordinate frame {frame}, which the audit cannot place")
 
 
 def find_tlogs(log_dir: Path) -> dict[int, list[Path]]:

@@ -181,6 +181,12 @@ def test_no_setpoint_broke_the_fence_or_the_separation(flown):
     assert all(v["homes"] > 0 for v in report.per_vehicle.values())
 
 
+def test_the_fast_audit_reports_what_the_plain_one_does(flown):
+    # the numpy reader and the pair pruning (docs/audit.md, "Log sizes and audit speed") on a flown mission
+    _, log_dir, _, report = flown
+    assert report.to_dict() == audit_mission(log_dir, fast=False).to_dict()
+
+
 def test_separation_interventions_are_reported_as_a_number(flown):
     # the envelope holds vehicles that would come too close; the summary (--json) counts them
     _, log_dir, _, _ = flown

@@ -1,0 +1,309 @@
+"""The audit's separation checks, pair by pair (:mod:`mission.safety.audit`, "Separation").
+
+:func:`track_pair` is the exact check of one pair of tracks (runs of setpoints of two vehicles):
+"latest vs latest" at every setpoint instant of either (read ``burst_s`` after it) and the
+closest approach along the straight paths between consecutive instants. Every pair of a
+mission costs one such check: ``N (N - 1) / 2`` pairs times the mission's length, the audit's
+largest cost for a large swarm (4950 pairs at N = 100).
+
+:func:`check_pairs_fast` gives the same report with fewer exact checks: a *lower bound* on the
+distance of each pair of tracks (the gap between the two vehicles' bounding boxes, per window of
+``window_s``, of every setpoint a track can hold or pass through in that window) orders the
+pairs; they are checked exactly from the closest bound up, until the next bound is at least
+both the smallest distance found so far and the separation limit: every pair left cannot hold a
+violation nor the smallest distance. Their instant and segment counts, which the report gives,
+are counted from bit sets of the setpoint instants. Same report as checking every pair:
+``tests/mission/safety/test_audit_fast_path.py``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mission.safety.audit_read import AuditViolation
+from mission.safety.geometry import synchronous_distance
+
+__all__ = ["track_pair", "apply_track_pair", "check_pairs_fast"]
+
+#: a bound must clear the threshold by this much to skip a pair (float rounding of the exact check)
+_BOUND_MARGIN_M = 1e-6
+
+
+def _state_at(t_query, t_s, p):
+    """Zero-order hold (latest setpoint at or before) and linear interpolation at ``t_query``."""
+    k = np.clip(np.searchsorted(t_s, t_query, side="right") - 1, 0, len(t_s) - 1)
+    lin = np.stack([np.interp(t_query, t_s, p[:, c]) for c in range(3)], axis=-1)
+    return p[k], lin
+
+
+def pair_span(a, b, ra, rb, stale_after_s) -> tuple[float, float]:
+    """``(lo, hi)``: when track ``ra`` of ``a`` and ``rb`` of ``b`` are both commanded (hi < lo: never)."""
+    (a_first, a_until), (b_first, b_until) = track_span(a, ra, stale_after_s), track_span(b, rb, stale_after_s)
+    return max(a_first, b_first), min(a_until, b_until)
+
+
+def track_span(sp, r, stale_after_s) -> tuple[float, float]:
+    """A track's first stamp and the end of its commanding (see ``VehicleSetpoints.commanded_until``)."""
+    return sp.t_s[r[0]], sp.commanded_until(sp.t_s[r[1] - 1], stale_after_s)
+
+
+def track_pair(a, b, ra, rb, min_sep_m, tol_m, stale_after_s, burst_s=0.0):
+    """The exact separation check of track ``ra`` of ``a`` against ``rb`` of ``b``.
+
+    Returns
+    -------
+    tuple or None
+        None when the two are never commanded together; else ``(instants, min_m, violations)``:
+        the instants checked (segments: one fewer), the smallest distance, the violations in the
+        order the report lists them.
+    """
+    lo, hi = pair_span(a, b, ra, rb, stale_after_s)
+    if hi < lo:
+        return None
+    ta, pa = a.t_s[ra[0]:ra[1]], a.enu_m[ra[0]:ra[1]]
+    tb, pb = b.t_s[rb[0]:rb[1]], b.enu_m[rb[0]:rb[1]]
+    tq = np.concatenate([ta, tb, [lo, hi]])
+    tq = np.unique(tq[(tq >= lo) & (tq <= hi)])
+    za, la = _state_at(tq, ta, pa)
+    zb, lb = _state_at(tq, tb, pb)
+    if burst_s > 0:
+        za, zb = _state_at(tq + burst_s, ta, pa)[0], _state_at(tq + burst_s, tb, pb)[0]
+    d_zoh = np.linalg.norm(za - zb, axis=1)
+    d_path = synchronous_distance(la[:-1], la[1:], lb[:-1], lb[1:]) if len(tq) > 1 else d_zoh
+    min_m = min(float(d_zoh.min()), float(np.min(d_path)))
+    every = np.arange(len(tq))
+    segments = every[:-1] if len(tq) > 1 else every[:0]
+    found = _found(a, b, tq, (every, d_zoh), (segments, d_path if len(tq) > 1 else d_path[:0]), min_sep_m - tol_m,
+                   min_sep_m)
+    return len(tq), min_m, found
+
+
+def _found(a, b, tq, zoh, path, limit, min_sep_m) -> list:
+    """The violations of a pair, in the report's order: ``zoh`` and ``path`` are ``(indices, distances)``
+    of the instants and segments evaluated (a segment starting at an instant found too close, or
+    ending at one, is not listed again)."""
+    (z_idx, d_zoh), (p_idx, d_path) = zoh, path
+    bad = np.flatnonzero(d_zoh < limit)
+    found = [AuditViolation("separation", float(tq[i]), (a.sysid, b.sysid), float(d), min_sep_m,
+                            f"latest setpoints {d:.3f} m apart (minimum {min_sep_m:g} m)")
+             for i, d in zip(z_idx[bad], d_zoh[bad])]
+    bad_z = set(z_idx[bad].tolist())
+    for pos in np.flatnonzero(d_path < limit):
+        i, d = int(p_idx[pos]), d_path[pos]
+        if i in bad_z or (i + 1) in bad_z:
+            continue
+        found.append(AuditViolation("separation", float(tq[i]), (a.sysid, b.sysid), float(d), min_sep_m,
+                                    f"paths {tq[i]:.3f}..{tq[i + 1]:.3f} s come {d:.3f} m close "
+                                    f"(minimum {min_sep_m:g} m)"))
+    return found
+
+
+def apply_track_pair(report, result) -> None:
+    """Add one :func:`track_pair` result (not None) to ``report``."""
+    instants, min_m, found = result
+    report.separation_instants_checked += instants
+    report.separation_segments_checked += max(instants - 1, 0)
+    report.min_separation_seen_m = min(report.min_separation_seen_m, min_m)
+    for violation in found:
+        report.add(violation)
+
+
+def _grid(vehicles, stale_after_s: float, burst_s: float, window_s: float) -> np.ndarray:
+    """Window edges covering every setpoint, ``stale_after_s + burst_s`` after the last, and more."""
+    firsts = [sp.t_s[0] for sp, _ in vehicles if len(sp.t_s)]
+    lasts = [sp.t_s[-1] for sp, _ in vehicles if len(sp.t_s)]
+    t0 = min(firsts) - window_s
+    count = int(np.ceil((max(lasts) + stale_after_s + burst_s - t0) / window_s)) + 2
+    return t0 + window_s * np.arange(count + 1)
+
+
+def _track_boxes(t, p, edges) -> np.ndarray:
+    """``(W, 2, 3)``: per window, the low and high corner of the box holding every setpoint of a
+    track (``t``, ``p``) that the track's latest setpoint or interpolated position can be during
+    that window: those inside it, the latest at or before its start and the first at or after its
+    end (clamped to the track's first and last, as the exact check clamps)."""
+    k = len(t)
+    starts, ends = edges[:-1], edges[1:]
+    prev = np.clip(np.searchsorted(t, starts, side="right") - 1, 0, k - 1)
+    nxt = np.clip(np.searchsorted(t, ends, side="left"), 0, k - 1)
+    lo, hi = np.minimum(p[prev], p[nxt]), np.maximum(p[prev], p[nxt])
+    first = np.searchsorted(t, starts, side="left")
+    last = np.searchsorted(t, ends, side="left")
+    busy = np.flatnonzero(last > first)
+    if len(busy):
+        lo[busy] = np.minimum(lo[busy], _reduce_ranges(np.minimum, p, first[busy], last[busy]))
+        hi[busy] = np.maximum(hi[busy], _reduce_ranges(np.maximum, p, first[busy], last[busy]))
+    return np.stack([lo, hi], axis=1)
+
+
+def _reduce_ranges(ufunc, p, first, last) -> np.ndarray:
+    """``ufunc.reduce(p[first[i]:last[i]])`` for disjoint, increasing, non-empty ranges."""
+    idx = np.empty(2 * len(first), dtype=np.int64)
+    idx[0::2], idx[1::2] = first, last
+    if idx[-1] >= len(p):
+        idx = idx[:-1]                         # the last range runs to the end
+    return ufunc.reduceat(p, idx, axis=0)[0::2]
+
+
+def _instant_bits(vehicles) -> tuple[np.ndarray, list]:
+    """The distinct setpoint stamps of all vehicles, and per vehicle a bit set (uint64 words) of
+    the ones it has."""
+    stamps = np.unique(np.concatenate([sp.t_s for sp, _ in vehicles]))
+    words = (len(stamps) + 63) // 64
+    bits = []
+    for sp, _ in vehicles:
+        present = np.zeros(words * 64, dtype=bool)
+        present[np.searchsorted(stamps, sp.t_s)] = True
+        bits.append(np.packbits(present, bitorder="little").view("<u8"))
+    return stamps, bits
+
+
+def _span_bits(stamps, bits_a, bits_b, lo: float, hi: float):
+    """The stamps of either vehicle in ``[lo, hi]`` as bit words: ``(first stamp index of the first
+    word, words, whether hi is one of them)``."""
+    g_lo = int(np.searchsorted(stamps, lo, side="left"))
+    g_hi = int(np.searchsorted(stamps, hi, side="right")) - 1
+    w0, w1 = g_lo >> 6, g_hi >> 6
+    both = bits_a[w0:w1 + 1] | bits_b[w0:w1 + 1]
+    both[0] &= ~np.uint64((1 << (g_lo & 63)) - 1)
+    both[-1] &= np.uint64((1 << ((g_hi & 63) + 1)) - 1) if (g_hi & 63) < 63 else np.uint64(2 ** 64 - 1)
+    hi_there = stamps[g_hi] == hi and bool((both[-1] >> np.uint64(g_hi & 63)) & np.uint64(1))
+    return w0 * 64, both, hi_there
+
+
+def _count_instants(stamps, bits_a, bits_b, lo: float, hi: float) -> int:
+    """``len(tq)`` of :func:`track_pair`: the distinct stamps of either vehicle in ``[lo, hi]``, and
+    ``hi`` (``lo`` is always one of them)."""
+    _, both, hi_there = _span_bits(stamps, bits_a, bits_b, lo, hi)
+    return int(np.bitwise_count(both).sum()) + (0 if hi_there else 1)
+
+
+def _instants(stamps, bits_a, bits_b, lo: float, hi: float) -> np.ndarray:
+    """``tq`` of :func:`track_pair` (the same values, sorted) from the bit sets."""
+    base, both, hi_there = _span_bits(stamps, bits_a, bits_b, lo, hi)
+    tq = stamps[base + np.flatnonzero(np.unpackbits(both.view(np.uint8), bitorder="little"))]
+    return tq if hi_there else np.append(tq, hi)
+
+
+def _hot_indices(tq, edges, hot_w, burst_s):
+    """The instants (read ``burst_s`` later) and the segments that overlap a window where the bound
+    is below the threshold: the only ones that can hold a violation or the smallest distance."""
+    last = len(edges) - 2
+    wz = np.clip(np.searchsorted(edges, tq + burst_s, side="right") - 1, 0, last)
+    wt = np.clip(np.searchsorted(edges, tq, side="right") - 1, 0, last)
+    hot_sum = np.concatenate([[0], np.cumsum(hot_w)])
+    return np.flatnonzero(hot_w[wz]), np.flatnonzero(hot_sum[wt[1:] + 1] - hot_sum[wt[:-1]] > 0)
+
+
+def track_pair_hot(a, b, ra, rb, tq, hot, min_sep_m, tol_m, burst_s):
+    """:func:`track_pair` evaluated only at the instants and segments ``hot = (instants, segments)``
+    (:func:`_hot_indices`; ``tq`` its instants, at least two): the same violations; the smallest
+    distance among those evaluated (inf if none)."""
+    ta, pa = a.t_s[ra[0]:ra[1]], a.enu_m[ra[0]:ra[1]]
+    tb, pb = b.t_s[rb[0]:rb[1]], b.enu_m[rb[0]:rb[1]]
+    hot_z, hot_p = hot
+    t_z = tq[hot_z] + burst_s if burst_s > 0 else tq[hot_z]
+    d_zoh = np.linalg.norm(_state_at(t_z, ta, pa)[0] - _state_at(t_z, tb, pb)[0], axis=1)
+    ends = np.concatenate([tq[hot_p], tq[hot_p + 1]])
+    la, lb = _state_at(ends, ta, pa)[1], _state_at(ends, tb, pb)[1]
+    n = len(hot_p)
+    d_path = synchronous_distance(la[:n], la[n:], lb[:n], lb[n:])
+    min_m = min(float(d_zoh.min()) if len(d_zoh) else np.inf, float(d_path.min()) if n else np.inf)
+    return len(tq), min_m, _found(a, b, tq, (hot_z, d_zoh), (hot_p, d_path), min_sep_m - tol_m, min_sep_m)
+
+
+def _pair_items(vehicles, stale_after_s: float, burst_s: float, edges) -> list:
+    """Every pair of tracks in the plain order, ``(i, j, ra, rb, lo, hi, lower_bound_m)``, and each
+    vehicle's track boxes (:func:`_track_boxes`)."""
+    boxes = [[_track_boxes(sp.t_s[r[0]:r[1]], sp.enu_m[r[0]:r[1]], edges) for r in tracks] for sp, tracks in vehicles]
+    spans = [[track_span(sp, r, stale_after_s) for r in tracks] for sp, tracks in vehicles]
+    items = []
+    for i, (_, tracks_a) in enumerate(vehicles):
+        later = [(j, rb, boxes[j][n], spans[j][n]) for j in range(i + 1, len(vehicles))
+                 for n, rb in enumerate(vehicles[j][1])]
+        for first in range(0, len(later), _BLOCK):          # a block at a time: memory (block, W) whatever N
+            block = later[first:first + _BLOCK]
+            others = np.stack([box for _, _, box, _ in block])                       # (M, W, 2, 3)
+            other_spans = np.array([span for _, _, _, span in block])                 # (M, 2)
+            for n, ra in enumerate(tracks_a):
+                lo = np.maximum(other_spans[:, 0], spans[i][n][0])
+                hi = np.minimum(other_spans[:, 1], spans[i][n][1])
+                bound = _span_bound(_box_distance(boxes[i][n][None], others), edges, lo, hi + burst_s)
+                items.extend((i, j, ra, rb, float(lo_m), float(hi_m), float(bnd))
+                             for (j, rb, _, _), lo_m, hi_m, bnd in zip(block, lo, hi, bound))
+    # the plain loop's order: pair of vehicles, then track of the first, then track of the second
+    items.sort(key=lambda it: (it[0], it[1], vehicles[it[0]][1].index(it[2]), vehicles[it[1]][1].index(it[3])))
+    return items, boxes
+
+
+_BLOCK = 32          # pairs of tracks whose window bounds are computed together
+
+
+def _span_bound(dist: np.ndarray, edges, lo, hi) -> np.ndarray:
+    """Per row of window distances ``(M, W)``, the smallest over the windows that meet ``[lo, hi]``."""
+    w_lo = np.clip(np.searchsorted(edges, lo, side="right") - 1, 0, len(edges) - 2)
+    w_hi = np.clip(np.searchsorted(edges, hi, side="right") - 1, 0, len(edges) - 2)
+    w = np.arange(dist.shape[1])
+    return np.where((w >= w_lo[:, None]) & (w <= w_hi[:, None]), dist, np.inf).min(axis=1)
+
+
+def _box_distance(box_a, box_b) -> np.ndarray:
+    """Per window, the distance between two boxes ``(..., W, 2, 3)`` (0 where they overlap)."""
+    gap = np.maximum(0.0, np.maximum(box_a[..., 0, :] - box_b[..., 1, :], box_b[..., 0, :] - box_a[..., 1, :]))
+    return np.sqrt(np.einsum("...c,...c->...", gap, gap))
+
+
+def _alone_in_span(sp, r, lo: float, hi: float) -> bool:
+    """Whether no setpoint of ``sp`` outside track ``r`` lies in ``[lo, hi]`` (then the vehicle's
+    bit set counts that track's instants exactly)."""
+    inside = np.searchsorted(sp.t_s, hi, side="right") - np.searchsorted(sp.t_s, lo, side="left")
+    in_track = np.searchsorted(sp.t_s[r[0]:r[1]], hi, side="right") - np.searchsorted(sp.t_s[r[0]:r[1]], lo, side="left")
+    return inside == in_track
+
+
+def check_pairs_fast(report, vehicles, min_sep_m: float, tol_m: float, stale_after_s: float, burst_s: float,
+                     window_s: float = 1.0) -> int:
+    """Every pair's separation, as the exact check of every pair of tracks reports it (module
+    docstring); returns how many pairs of tracks were checked exactly.
+
+    Parameters
+    ----------
+    report : AuditReport
+    vehicles : list of (VehicleSetpoints, tracks)
+        In the order of the plain pair loop (by system id).
+    """
+    vehicles = [(sp, tracks) for sp, tracks in vehicles]
+    if sum(1 for sp, _ in vehicles if len(sp.t_s)) < 2:
+        return 0
+    edges = _grid(vehicles, stale_after_s, burst_s, window_s)
+    items, boxes = _pair_items(vehicles, stale_after_s, burst_s, edges)
+    stamps, bits = _instant_bits(vehicles)
+    limit = min_sep_m - tol_m
+    results, smallest = {}, np.inf
+    for k in sorted(range(len(items)), key=lambda k: items[k][6]):
+        i, j, ra, rb, lo, hi, bound = items[k]
+        if hi < lo:
+            continue
+        (a, tracks_a), (b, tracks_b) = vehicles[i], vehicles[j]
+        threshold = max(smallest, limit) + _BOUND_MARGIN_M
+        alone = ((len(tracks_a) == 1 or _alone_in_span(a, ra, lo, hi))
+                 and (len(tracks_b) == 1 or _alone_in_span(b, rb, lo, hi)))
+        if alone and bound >= threshold:
+            continue
+        tq = _instants(stamps, bits[i], bits[j], lo, hi) if alone else None
+        if tq is None or len(tq) < 2:
+            results[k] = track_pair(a, b, ra, rb, min_sep_m, tol_m, stale_after_s, burst_s)
+        else:
+            hot_w = _box_distance(boxes[i][tracks_a.index(ra)], boxes[j][tracks_b.index(rb)]) < threshold
+            results[k] = track_pair_hot(a, b, ra, rb, tq, _hot_indices(tq, edges, hot_w, burst_s), min_sep_m, tol_m,
+                                        burst_s)
+        smallest = min(smallest, results[k][1])
+    for k, (i, j, ra, rb, lo, hi, _) in enumerate(items):
+        if hi < lo:
+            continue
+        if k in results:
+            apply_track_pair(report, results[k])
+        else:
+            n = _count_instants(stamps, bits[i], bits[j], lo, hi)
+            report.separation_instants_checked += n
+            report.separation_segments_checked += max(n - 1, 0)
+    return len(results)
