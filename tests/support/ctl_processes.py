@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 import threading
 from pathlib import Path
 
-from mission.sim.embedded import fleet_ports
+from mission.sim.embedded import fleet_ports, free_port_block
 from sitl_mock.fleet import DEFAULT_ORIGIN
 from mission.telemetry.mission_log import read_mission_log
 from tests.support.wait_helpers import wait_until
@@ -31,11 +30,9 @@ WATCH_WAIT_S = 120.0
 
 
 def free_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
+    """A loopback TCP port leased by :func:`mission.sim.embedded.free_port_block` (a port bound to 0
+    and closed is in the ephemeral range: any process's next outgoing connection can take it)."""
+    return free_port_block(1, kinds=("tcp",))
 
 
 def _env():
@@ -134,7 +131,7 @@ def _plan_toml(path: Path, udp_base: int, zenoh_section: str, fleet: str) -> Pat
 fleet = "{fleet}"
 max_speed_m_s = 3.0
 min_separation_m = 1.5
-takeoff_alt_m = 8.0
+takeoff_alt_m = 4.0
 stagger_s = 0.5
 return = "land"
 [origin]
@@ -144,17 +141,17 @@ alt_m = {DEFAULT_ORIGIN[2]}
 {vehicles}
 [formation]
 type = "cvt"
-radius_m = 4.0
+radius_m = 3.0
 [seeking]
 seeker = "gradient"  # the paper's slow ascent: a seek long enough for the faults and commands
 eps = 50.0
 gamma_m = 1.0
 rate_hz = 2.0
-start_enu_m = [0.0, 0.0, 12.0]
+start_enu_m = [0.0, 0.0, 7.0]
 arrival_tol_m = 0.5
 [geofence]
 polygon_enu_m = [[-150.0, -150.0], [150.0, -150.0], [150.0, 150.0], [-150.0, 150.0]]
-min_alt_m = 3.0
+min_alt_m = 2.0
 max_alt_m = 60.0
 [faults]
 link_timeout_s = 1.4
@@ -169,7 +166,7 @@ def _fly_and_operate(tmp_path, fleet: str, zenoh_section: str, endpoint: str):
     ports = fleet_ports(4, "px4")
     plan = _plan_toml(tmp_path / "plan.toml", ports["udp_base_port"], zenoh_section, fleet)
     mock = swarmseek("mock", "--vehicles", "4", "--personality", "px4", "--field", "sigma2", "--fleet", fleet,
-                     "--source", "10,5,12", "--udp-base-port", str(ports["udp_base_port"]),
+                     "--source", "10,5,7", "--udp-base-port", str(ports["udp_base_port"]),
                      "--udp-bind-base-port", str(ports["udp_bind_base_port"]), "--tcp-base-port", "0",
                      "--zenoh-connect", endpoint, out=tmp_path / "mock.out")
     mission = swarmseek("fly", "--plan", str(plan), "--log-dir", str(tmp_path / "log"), "--no-tlog",

@@ -32,7 +32,7 @@ from tests.support.invariants import abandoned
 from tests.support.wait_helpers import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
-SOURCE = np.array([6.0, 4.0, 10.0])
+SOURCE = np.array([6.0, 4.0, 6.0])
 N = 4
 #: the mission log's size limit of the size-limited case: above what connect, preflight, takeoff
 #: and assembly write, below what the seek has written when it ends (measured with 12 iterations:
@@ -52,7 +52,7 @@ def _plan_toml(path: Path, udp_base: int, zenoh_section: str, max_iterations: in
 fleet = "gcsfaults"
 max_speed_m_s = 3.0
 min_separation_m = 1.5
-takeoff_alt_m = 6.0
+takeoff_alt_m = 3.0
 stagger_s = 0.3
 return = "land"
 [origin]
@@ -69,11 +69,11 @@ eps = 50.0
 gamma_m = 1.0
 rate_hz = 2.0
 max_iterations = {max_iterations}
-start_enu_m = [0.0, 0.0, 10.0]
+start_enu_m = [0.0, 0.0, 6.0]
 arrival_tol_m = 0.5
 [geofence]
 polygon_enu_m = [[-100.0, -100.0], [100.0, -100.0], [100.0, 100.0], [-100.0, 100.0]]
-min_alt_m = 3.0
+min_alt_m = 2.0
 max_alt_m = 40.0
 [zenoh]
 {zenoh_section}
