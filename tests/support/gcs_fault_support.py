@@ -288,7 +288,8 @@ def _closed_stdout(m: _Fly) -> None:
     status = m.finish()
     summary = _summary(m.log)
     assert status == (0 if summary["outcome"] == "converged" else 1), (status, summary["outcome"], m.err.text())
-    assert summary["outcome"] in ("converged", "max_iterations") and summary["airborne_left"] == []
+    assert summary["outcome"] in ("converged", "max_iterations") and summary["airborne_left"] == [], \
+        (summary["outcome"], summary.get("message"), summary["airborne_left"], _events(m.log)[-12:])
     lost = [r for r in records(m.log) if r.get("terminal_lost") == "stdout"]
     assert len(lost) == 1 and "BrokenPipeError" in lost[0]["message"]
     assert "Traceback" not in m.err.text() and "Exception ignored" not in m.err.text()
