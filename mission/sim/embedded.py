@@ -20,8 +20,14 @@ is nothing to climb.
 """
 from __future__ import annotations
 
+import fcntl
+import json
+import os
 import random
 import socket
+import tempfile
+import time
+from pathlib import Path
 
 import numpy as np
 
@@ -29,7 +35,7 @@ from mission.core.plan_types import FormationPlan, GeofencePlan, Plan, SeekingPl
 from mission.core.zenoh_config import ZenohPlan
 
 __all__ = ["DEFAULT_ORIGIN", "FENCE_MIN_ALT_M", "FENCE_MAX_ALT_M", "FENCE_POLYGON_EN_M", "MAX_VEHICLES",
-           "free_port_block", "default_eps", "default_radius_m",
+           "PORT_LEASE_S", "free_port_block", "port_lease_dir", "default_eps", "default_radius_m",
            "default_source_and_start", "downwind_en", "embedded_plan", "fleet_ports"]
 
 DEFAULT_ORIGIN = (45.1885, 5.7245, 212.0)
@@ -38,13 +44,25 @@ MAX_VEHICLES = 254
 #: the embedded plan's geofence floor and ceiling, m
 FENCE_MIN_ALT_M = 2.0
 FENCE_MAX_ALT_M = 80.0
+#: how long a port :func:`free_port_block` handed out stays reserved against its other calls, s
+#: (the caller binds it within seconds; once bound, the bind check keeps others off it)
+PORT_LEASE_S = 120.0
 #: the embedded plan's geofence polygon, (east, north) m about the origin
 FENCE_POLYGON_EN_M = ((-150.0, -150.0), (150.0, -150.0), (150.0, 150.0), (-150.0, 150.0))
 
 
 def free_port_block(count: int, step: int = 1, kinds: tuple[str, ...] = ("udp",), lo: int = 20000,
-                    hi: int = 32000, tries: int = 200) -> int:
-    """A base port such that ``base + step * i`` (i < count) are free for every kind in ``kinds``.
+                    hi: int = 32000, tries: int = 200, lease_dir: str | Path | None = None) -> int:
+    """A base port such that ``base + step * i`` (i < count) are free for every kind in ``kinds``,
+    leased to the caller for :data:`PORT_LEASE_S` seconds.
+
+    Free means: no socket is bound to it (checked by binding and closing), and no other call of
+    this function, in any process of this user, handed it out less than :data:`PORT_LEASE_S` ago.
+    The lease closes the gap between the check and the caller's own bind, in which another
+    process's check would find the port free too (two pytest-xdist workers starting missions at
+    once were handed the same ports: "cannot start the embedded fleet or zenoh"). The leases are
+    one JSON file (``lease_dir``, default :func:`port_lease_dir`) read and written under an
+    exclusive ``flock``, so allocations in every process take turns.
 
     The default range ends below Linux's ephemeral range (32768-60999): a port found free there
     can be taken a moment later by any socket bound to port 0 (a fake vehicle's, a zenoh
@@ -53,25 +71,60 @@ def free_port_block(count: int, step: int = 1, kinds: tuple[str, ...] = ("udp",)
     Raises
     ------
     OSError
-        No free block found.
+        No free block found, or the lease file cannot be opened.
     """
+    directory = Path(lease_dir) if lease_dir is not None else port_lease_dir()
+    directory.mkdir(mode=0o700, parents=True, exist_ok=True)
+    with open(directory / "leases.json", "a+", encoding="utf-8") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)  # released when the file closes
+        now_s = time.time()
+        leases = _read_leases(fh, now_s)
+        base = _unleased_free_block(count, step, kinds, range(lo, hi - step * (count - 1)), tries, leases)
+        leases.update({base + step * i: now_s + PORT_LEASE_S for i in range(count)})
+        fh.seek(0)
+        fh.truncate()
+        json.dump({str(port): until_s for port, until_s in leases.items()}, fh)
+    return base
+
+
+def port_lease_dir() -> Path:
+    """The directory of :func:`free_port_block`'s lease file: one per user, in the temp directory."""
+    return Path(tempfile.gettempdir()) / f"swarmseek-ports-{os.getuid()}"
+
+
+def _read_leases(fh, now_s: float) -> dict[int, float]:
+    """The unexpired leases (port -> until, epoch s) in the open lease file (unreadable: none)."""
+    fh.seek(0)
+    try:
+        raw = json.loads(fh.read() or "{}")
+        return {int(port): float(until_s) for port, until_s in raw.items() if float(until_s) > now_s}
+    except (ValueError, TypeError, AttributeError):  # a file cut short by a killed writer: leases lost
+        return {}
+
+
+def _unleased_free_block(count: int, step: int, kinds: tuple[str, ...], bases: range, tries: int,
+                         leases: dict[int, float]) -> int:
+    """A random base from ``bases`` whose block has no lease and binds for every kind."""
     rng = random.Random()
     for _ in range(tries):
-        base = rng.randrange(lo, hi - step * count)
+        base = rng.choice(bases)
+        ports = [base + step * i for i in range(count)]
+        if any(port in leases for port in ports):
+            continue
         socks = []
         try:
-            for i in range(count):
+            for port in ports:
                 for kind in kinds:
                     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM)
                     socks.append(s)
-                    s.bind(("127.0.0.1", base + step * i))
+                    s.bind(("127.0.0.1", port))
             return base
         except OSError:
             continue
         finally:
             for s in socks:
                 s.close()
-    raise OSError(f"no block of {count} free loopback ports found")
+    raise OSError(f"no block of {count} free loopback ports found in {bases.start}-{bases.stop + step * (count - 1)}")
 
 
 def default_eps(field) -> float:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import queue
-import socket
 import subprocess
 import sys
 import time
@@ -18,6 +17,7 @@ from formation.geodesy import geodetic_to_enu
 from mission.cli import main as swarmseek
 from sitl_mock.fields_config import make_field
 from wire.zenoh_config import zenoh_config
+from mission.sim.embedded import free_port_block
 
 TIMEOUT_S = 60.0
 ORIGIN = (45.19, 5.72, 230.0)
@@ -25,9 +25,7 @@ PLUME = dict(wind_from_deg=270.0, wind_speed_m_s=2.0, stability="D", source_radi
 
 
 def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port_block(1, kinds=("tcp",))
 
 
 def _listen(session_port: int, fleet: str):

@@ -16,12 +16,11 @@ from sitl_mock.clock import LockstepClock
 from sitl_mock.dynamics_params import DynamicsParams
 from sitl_mock.fields_gaussian import sigma1
 from sitl_mock.fleet import MockFleet
+from mission.sim.embedded import free_port_block
 
 
 def _free_port(kind=socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port_block(1, kinds=("udp",) if kind == socket.SOCK_DGRAM else ("tcp",))
 
 
 def _lockstep_run(seed: int):

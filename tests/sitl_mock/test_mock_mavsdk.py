@@ -14,7 +14,6 @@ simulated time, hence its progress, slows down with the host.
 """
 from __future__ import annotations
 
-import socket
 
 import pytest
 from mavsdk import ComponentType, Configuration, ConnectionResult, Mavsdk
@@ -24,6 +23,7 @@ from mavsdk.plugins.telemetry import FlightMode, Telemetry
 
 from sitl_mock.fleet import MockFleet
 from tests.support.wait_helpers import wait_until
+from mission.sim.embedded import free_port_block
 
 #: wall seconds for any one condition (a loaded 2-core host, the simulation at 2x)
 WAIT_S = 90.0
@@ -32,11 +32,7 @@ OFFBOARD_LOSS_T_S = 10.0
 
 
 def _free_udp_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
+    return free_port_block(1, kinds=("udp",))
 
 
 @pytest.mark.slow

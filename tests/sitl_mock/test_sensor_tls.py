@@ -7,7 +7,6 @@ project's mock autopilot) only when the sensor's certificate / password is the r
 from __future__ import annotations
 
 import os
-import socket
 import threading
 import time
 
@@ -23,6 +22,7 @@ from mission.telemetry.readings import ReadingStore, ReadingSubscriber  # noqa: 
 from sitl_mock.fleet import MockFleet  # noqa: E402
 from wire.zenoh_config import zenoh_config  # noqa: E402
 from wire.zenoh_secrets import ZenohSecurityError, read_password_file  # noqa: E402
+from mission.sim.embedded import free_port_block  # noqa: E402
 
 ORIGIN = (45.19, 5.72, 230.0)
 FLEET = "dry"
@@ -39,9 +39,7 @@ def pki(tmp_path_factory) -> dict:
 
 # --------------------------------------------------------------------------- helpers
 def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port_block(1, kinds=("tcp",))
 
 
 def _poll(condition, timeout_s: float, step_s: float = 0.05) -> bool:

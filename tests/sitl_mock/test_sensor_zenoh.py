@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import queue
-import socket
 
 import numpy as np
 import pytest
@@ -15,14 +14,13 @@ from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.sensor import SignalSensor
 from wire.zenoh_config import zenoh_config
 from tests.support.wait_helpers import wait_until
+from mission.sim.embedded import free_port_block
 
 TIMEOUT_S = 30.0
 
 
 def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port_block(1, kinds=("tcp",))
 
 
 @pytest.fixture

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import queue
-import socket
 
 import numpy as np
 import pytest
@@ -15,15 +14,14 @@ from mission.cli import main as swarmseek
 from sitl_mock.fields_config import make_field
 from companion.sensor_wire import sensor_key
 from wire.zenoh_config import zenoh_config
+from mission.sim.embedded import free_port_block
 
 TIMEOUT_S = 60.0
 ORIGIN = (45.19, 5.72, 230.0)
 
 
 def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port_block(1, kinds=("tcp",))
 
 
 @pytest.mark.parametrize("personality", ["ardupilot", "px4"])

@@ -11,13 +11,12 @@ taken for a lost fleet."""
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 import threading
 from pathlib import Path
 
-from mission.sim.embedded import fleet_ports
+from mission.sim.embedded import fleet_ports, free_port_block
 from sitl_mock.fleet import DEFAULT_ORIGIN
 from mission.telemetry.mission_log import read_mission_log
 from tests.support.fly_process import gradient_seek_plan, subprocess_env
@@ -31,11 +30,9 @@ WATCH_WAIT_S = 120.0
 
 
 def free_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
+    """A loopback TCP port leased by :func:`mission.sim.embedded.free_port_block` (a port bound to 0
+    and closed is in the ephemeral range: any process's next outgoing connection can take it)."""
+    return free_port_block(1, kinds=("tcp",))
 
 
 def swarmseek(*args, out: Path | None = None) -> subprocess.Popen:
@@ -122,11 +119,13 @@ def _check_log(log_path: Path):
 
 
 def _plan_toml(path: Path, udp_base: int, zenoh_section: str, fleet: str) -> Path:
-    """The plan of ``swarmseek fly``: four vehicles of ``swarmseek mock`` (its default origin); a
-    loss is detected after the longest link timeout the plan allows (a starved mock process)."""
+    """The plan of ``swarmseek fly``: four vehicles of ``swarmseek mock`` (its default origin), flying
+    low (take-off and landing are most of the test's time); a loss is detected after the longest link
+    timeout the plan allows (a starved mock process)."""
     return gradient_seek_plan(path, fleet=fleet, n=4, udp_base=udp_base, origin=DEFAULT_ORIGIN,
-                              zenoh_section=zenoh_section, takeoff_alt_m=8.0, stagger_s=0.5, radius_m=4.0,
-                              start_alt_m=12.0, fence_half_m=150.0, max_alt_m=60.0, link_timeout_s=1.4)
+                              zenoh_section=zenoh_section, takeoff_alt_m=4.0, stagger_s=0.5, radius_m=3.0,
+                              start_alt_m=7.0, fence_half_m=150.0, min_alt_m=2.0, max_alt_m=60.0,
+                              link_timeout_s=1.4)
 
 
 def _fly_and_operate(tmp_path, fleet: str, zenoh_section: str, endpoint: str):
@@ -134,7 +133,7 @@ def _fly_and_operate(tmp_path, fleet: str, zenoh_section: str, endpoint: str):
     ports = fleet_ports(4, "px4")
     plan = _plan_toml(tmp_path / "plan.toml", ports["udp_base_port"], zenoh_section, fleet)
     mock = swarmseek("mock", "--vehicles", "4", "--personality", "px4", "--field", "sigma2", "--fleet", fleet,
-                     "--source", "10,5,12", "--udp-base-port", str(ports["udp_base_port"]),
+                     "--source", "10,5,7", "--udp-base-port", str(ports["udp_base_port"]),
                      "--udp-bind-base-port", str(ports["udp_bind_base_port"]), "--tcp-base-port", "0",
                      "--zenoh-connect", endpoint, out=tmp_path / "mock.out")
     mission = swarmseek("fly", "--plan", str(plan), "--log-dir", str(tmp_path / "log"), "--no-tlog",

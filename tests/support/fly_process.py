@@ -21,8 +21,8 @@ def subprocess_env() -> dict:
 
 def gradient_seek_plan(path: Path, *, fleet: str, n: int, udp_base: int, origin: tuple, zenoh_section: str,
                        takeoff_alt_m: float, stagger_s: float, radius_m: float, start_alt_m: float,
-                       fence_half_m: float, max_alt_m: float, max_iterations: int | None = None,
-                       link_timeout_s: float | None = None) -> Path:
+                       fence_half_m: float, max_alt_m: float, min_alt_m: float = 3.0,
+                       max_iterations: int | None = None, link_timeout_s: float | None = None) -> Path:
     """Write the plan of ``n`` vehicles on ``udpin:127.0.0.1:udp_base + i`` to ``path``.
 
     Parameters
@@ -44,7 +44,9 @@ def gradient_seek_plan(path: Path, *, fleet: str, n: int, udp_base: int, origin:
     start_alt_m : float
         Altitude of the seek's start ``[0, 0, start_alt_m]``.
     fence_half_m, max_alt_m : float
-        The geofence: a square of side ``2 fence_half_m`` round the origin, 3 m to ``max_alt_m``.
+        The geofence: a square of side ``2 fence_half_m`` round the origin, ``min_alt_m`` to ``max_alt_m``.
+    min_alt_m : float
+        The geofence's floor (default 3 m).
     max_iterations : int, optional
         The seek's iterations (the plan's default when None).
     link_timeout_s : float, optional
@@ -79,7 +81,7 @@ rate_hz = 2.0
 arrival_tol_m = 0.5
 [geofence]
 polygon_enu_m = [[{-h}, {-h}], [{h}, {-h}], [{h}, {h}], [{-h}, {h}]]
-min_alt_m = 3.0
+min_alt_m = {float(min_alt_m)}
 max_alt_m = {float(max_alt_m)}
 {faults}[zenoh]
 {zenoh_section}

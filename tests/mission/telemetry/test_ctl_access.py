@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -17,6 +16,7 @@ import pytest
 
 from mission.core.plan_types import PlanError
 from mission.core.plan import parse_plan
+from mission.sim.embedded import free_port_block
 from mission.telemetry.control_channel import ControlChannel, control_key, parse_request
 from tests.support.tls_helpers import write_private
 from tests.support.wait_helpers import wait_until
@@ -28,9 +28,7 @@ SAMPLE = ROOT / "mission" / "examples" / "sitl_plan.toml"
 
 
 def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port_block(1, kinds=("tcp",))
 
 
 def _plan(tmp_path, port, access_control):

@@ -149,9 +149,9 @@ def _read_only_page(browser, url: str, log: Path) -> None:
 
 def test_the_live_map_in_a_browser(tmp_path):
     sync_playwright, chromium = require_browser()
-    from mission.cli.cmd_map import free_local_port
+    from mission.sim.embedded import free_port_block
 
-    zenoh_ep = f"tcp/127.0.0.1:{free_local_port()}"
+    zenoh_ep = f"tcp/127.0.0.1:{free_port_block(1, kinds=('tcp',))}"
     log = tmp_path / "mission.jsonl"
     # 4 vehicles, the formation starting near their homes and the source 12 m on: the same page,
     # half the flight (a minute of simulated time, 30 s of wall clock at 2x)

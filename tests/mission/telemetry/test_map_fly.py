@@ -36,8 +36,8 @@ pytestmark = pytest.mark.timeout(500)
 ROOT = Path(__file__).resolve().parents[3]
 #: wall seconds for one condition seen on the page (takeoff and assembly of 4 vehicles on a loaded host)
 PAGE_WAIT_S = 180.0
-#: far from the start (0, 0, 10) for 1 m steps: the seek goes on until the page's commands end it
-SOURCE = np.array([40.0, 30.0, 10.0])
+#: far from the start (0, 0, 6) for 1 m steps: the seek goes on until the page's commands end it
+SOURCE = np.array([40.0, 30.0, 6.0])
 
 
 class _Process:
