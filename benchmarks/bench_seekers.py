@@ -44,7 +44,11 @@ recent collapse and the model check passed), the fraction flagged ``misfit`` wit
 ``fit_z``, and the posterior collapses. A seeker that sizes the formation (``formation_radius_m``:
 ``ste``) gets it in the simulation, and the time model counts the vehicles' flights to their new
 slots (:meth:`experiments.offline_seek.SeekRun.iteration_s`). ``--cpu 8,50`` prints each seeker's
-CPU time per ``propose`` (one trial) instead of the table.
+CPU time per ``propose`` (one trial) instead of the table. ``--search-box SIDE_M`` (stop and go):
+the ``ste`` seekers' prior is bounded by a search box per trial (``prior_box_enu``), what a plan's
+fence gives a mission: a square of that side placed at random among the placements holding the
+release and the start 5 m inside (:func:`search_boxes`; never centred on the release), up the
+embedded plan's altitude band (2-80 m); the starts are the same as without it.
 
 Usage::
 
@@ -53,6 +57,8 @@ Usage::
     python benchmarks/bench_seekers.py --trials 50 --iterations 120 --fields plume,intermittent \
         --noise realistic --seekers ste,ste-wind,ste-patchy,ste-patchy-wind
     python benchmarks/bench_seekers.py --cpu 8,50 --fields plume --seekers ste-wind
+    python benchmarks/bench_seekers.py --trials 100 --iterations 120 --fields intermittent --noise realistic \
+        --seekers ste-patchy-wind --ste-args prior_upwind_deg=30 --search-box 60   # the prior inside a 60 m fence
 """
 from __future__ import annotations
 
