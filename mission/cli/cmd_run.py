@@ -113,7 +113,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "cannot; default: the 300 m square)")
     parser.add_argument("--prior-box", choices=("fence", "none"), default=None,
                         help="the ste seeker's [seeking] prior_box: fence bounds its prior by the geofence's box "
-                             "(default: the plan's, docs/seekers.md, Round 6)")
+                             "(default: the plan's default, fence; docs/seekers.md, Round 6)")
     parser.add_argument("--max-iterations", type=int, default=300)
     parser.add_argument("--return", dest="return_behaviour", choices=("land", "rtl"), default="land")
     add_mission_outputs(parser, "run")

@@ -188,7 +188,8 @@ def _check_across_sections(c: Checker, doc: dict, formation, seeking, geofence, 
                   f"radius inside the altitude band [{geofence.min_alt_m}, {geofence.max_alt_m}] m")
         check_start_in_fence(c, formation.radius_m, start, geofence.polygon_en_m)
     if geofence is not None and seeking is not None:
-        check_prior_box(c, seeking.prior_box, seeking.ground_alt_m, geofence.max_alt_m)
+        check_prior_box(c, seeking.prior_box if seeking.seeker == "ste" else "none", seeking.ground_alt_m,
+                        geofence.max_alt_m)
     if geofence is not None and top["takeoff_alt_m"] is not None and ok("takeoff_alt_m") and not (
             geofence.min_alt_m <= top["takeoff_alt_m"] <= geofence.max_alt_m):
         c.bad("takeoff_alt_m", f"{top['takeoff_alt_m']} m is outside the geofence altitude band")

@@ -82,8 +82,8 @@ def test_ste_keys_are_refused_for_another_seeker(doc, key, value):
 
 
 def test_prior_box_fence_bounds_the_ste_prior_by_the_geofence_box(doc):
-    """``prior_box = "fence"``: the seeker's prior box is the fence polygon's bounding box, from
-    the lower of the ground and the fence's floor up to its ceiling; ``none`` (the default): no box."""
+    """``prior_box = "fence"`` (the default): the seeker's prior box is the fence polygon's bounding
+    box, from the lower of the ground and the fence's floor up to its ceiling; ``none``: no box."""
     plan = parse_plan(_with(doc, **_STE, prior_box="fence", ground_alt_m=0.5))
     sk, fence = plan.seeking, plan.geofence
     built = make_seeker(sk.seeker, sk.wind_from_deg, sk.plume_mode, **ste_options(sk, fence)).seeker
@@ -93,8 +93,8 @@ def test_prior_box_fence_bounds_the_ste_prior_by_the_geofence_box(doc):
     start = sk.start_point()
     built.propose(start[None], (start + formation.cvt_sphere(4, 2.0, seed=0))[None], np.zeros((1, 4)))
     assert np.all((built.parts[0, :, :3] >= built.prior_box_enu[0]) & (built.parts[0, :, :3] <= built.prior_box_enu[1]))
-    plain = parse_plan(_with(doc, **_STE)).seeking
-    assert plain.prior_box == "none"
+    assert parse_plan(_with(doc, **_STE)).seeking.prior_box == "fence"
+    plain = parse_plan(_with(doc, **_STE, prior_box="none")).seeking
     assert make_seeker("ste", None, "steady", **ste_options(plain, fence)).seeker.prior_box_enu is None
 
 
