@@ -100,7 +100,7 @@ def fly(seeker: str, seed: int, log_dir: Path, sampling: str = "stop_and_go", ex
 
     options, thin = seek.ste_options, seek.STE_READINGS_PER_VEHICLE
     seeking.MissionSeeker.step = _step
-    seek.ste_options = lambda sk: {**options(sk), **(ste_args or {})}  # the name the seek phase calls
+    seek.ste_options = lambda sk, *fence: {**options(sk, *fence), **(ste_args or {})}  # the name the seek phase calls
     seek.STE_READINGS_PER_VEHICLE = ste_readings
     try:
         result = run_embedded(args, display=Display(quiet=True))

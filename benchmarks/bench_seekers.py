@@ -44,7 +44,11 @@ recent collapse and the model check passed), the fraction flagged ``misfit`` wit
 ``fit_z``, and the posterior collapses. A seeker that sizes the formation (``formation_radius_m``:
 ``ste``) gets it in the simulation, and the time model counts the vehicles' flights to their new
 slots (:meth:`experiments.offline_seek.SeekRun.iteration_s`). ``--cpu 8,50`` prints each seeker's
-CPU time per ``propose`` (one trial) instead of the table.
+CPU time per ``propose`` (one trial) instead of the table. ``--search-box SIDE_M`` (stop and go):
+the ``ste`` seekers' prior is bounded by a search box per trial (``prior_box_enu``), what a plan's
+fence gives a mission: a square of that side placed at random among the placements holding the
+release and the start 5 m inside (:func:`search_boxes`; never centred on the release), up the
+embedded plan's altitude band (2-80 m); the starts are the same as without it.
 
 Usage::
 
@@ -53,6 +57,8 @@ Usage::
     python benchmarks/bench_seekers.py --trials 50 --iterations 120 --fields plume,intermittent \
         --noise realistic --seekers ste,ste-wind,ste-patchy,ste-patchy-wind
     python benchmarks/bench_seekers.py --cpu 8,50 --fields plume --seekers ste-wind
+    python benchmarks/bench_seekers.py --trials 100 --iterations 120 --fields intermittent --noise realistic \
+        --seekers ste-patchy-wind --ste-args prior_upwind_deg=30 --search-box 60   # the prior inside a 60 m fence
 """
 from __future__ import annotations
 
@@ -66,7 +72,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-__all__ = ["main", "wilson", "measure"]
+__all__ = ["main", "wilson", "measure", "search_boxes"]
 
 _MAX_SPEED_M_S = 3.0
 
@@ -143,7 +149,25 @@ def _ste_kwargs(text: str | None) -> dict:
     return out
 
 
-def _seeker(name: str, field, ste_args: str | None = None):
+def search_boxes(source: np.ndarray, starts: np.ndarray, side_m: float, rng, margin_m: float = 5.0,
+                 band_m: tuple = (2.0, 80.0)) -> np.ndarray:
+    """Per trial, the search box a plan's fence would give ``(K, 2, 3)``: a horizontal square of side
+    ``side_m`` placed uniformly at random among the placements holding the release and the start each
+    at least ``margin_m`` inside (along an axis where no placement can, the side grows to the least
+    that does: ``|d| + 2 margin``), up the altitude band ``band_m`` (the embedded plan's fence's).
+    Not centred on the release: where the release sits in its box is as random as the box."""
+    src = np.broadcast_to(source[:2], starts[:, :2].shape)
+    lo_pt, hi_pt = np.minimum(src, starts[:, :2]), np.maximum(src, starts[:, :2])
+    side = np.maximum(float(side_m), hi_pt - lo_pt + 2.0 * margin_m)
+    first, last = hi_pt + margin_m - side, lo_pt - margin_m  # the box's low corner may be anywhere in between
+    low = first + rng.uniform(0.0, 1.0, first.shape) * (last - first)
+    box = np.empty((len(starts), 2, 3))
+    box[:, 0, :2], box[:, 1, :2] = low, low + side
+    box[:, 0, 2], box[:, 1, 2] = band_m
+    return box
+
+
+def _seeker(name: str, field, ste_args: str | None = None, box=None):
     from estimator.seekers import make_seeker
     from mission.sim.embedded import default_eps
 
@@ -156,7 +180,8 @@ def _seeker(name: str, field, ste_args: str | None = None):
         return make_seeker("plume", patchy=True, wind_from_deg=wind), 20.0
     if name.startswith("ste"):  # source-term estimation: ste, ste-wind, ste-patchy, ste-patchy-wind
         wind = _wind_from_deg(field) if name.endswith("wind") else None
-        return make_seeker("ste", patchy="patchy" in name, wind_from_deg=wind, **_ste_kwargs(ste_args)), 20.0
+        box_kw = {} if box is None else {"prior_box_enu": box}
+        return make_seeker("ste", patchy="patchy" in name, wind_from_deg=wind, **_ste_kwargs(ste_args), **box_kw), 20.0
     return make_seeker(name), 20.0
 
 
@@ -256,9 +281,11 @@ class _Stacked:
 
 
 def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, iterations: int, seed: int,
-             ste_args: str | None = None, sampling: str = "stop", start_m=(10.0, 50.0)) -> dict:
+             ste_args: str | None = None, sampling: str = "stop", start_m=(10.0, 50.0),
+             search_box_m: float | None = None) -> dict:
     """One table cell: ``trials`` runs of a seeker on a field at a noise level, stop and go
-    (vectorised) or sampling while moving (trial by trial)."""
+    (vectorised) or sampling while moving (trial by trial); with ``search_box_m`` the ``ste``
+    seekers' prior is bounded by each trial's :func:`search_boxes` (stop and go only)."""
     import formation
     from experiments.offline_moving import simulate_moving
     from experiments.offline_seek import StopAndGo, simulate_seeker
@@ -269,7 +296,10 @@ def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, i
     from mission.sim.embedded import downwind_en
 
     starts, dist = _starts(field.source_enu(), trials, rng, downwind_en(field), start_m)
-    seeker, gamma = _seeker(seeker_name, field, ste_args)
+    box = None
+    if search_box_m is not None and seeker_name.startswith("ste"):
+        box = search_boxes(field.source_enu(), starts, search_box_m, np.random.default_rng(seed + 2))
+    seeker, gamma = _seeker(seeker_name, field, ste_args, box)
     offsets = formation.cvt_sphere(8, 4.0, seed=0)
     t0 = time.perf_counter()
     if sampling == "moving":
@@ -332,6 +362,9 @@ def main(argv=None) -> int:
                     help="stop and go (vectorised), or sampling while moving (experiments.offline_moving, trial by trial)")
     ap.add_argument("--start-m", default="10,50", help="range of the start distances from the source, m (lo,hi); "
                     "the issue's targets are for 20,40")
+    ap.add_argument("--search-box", type=float, default=None, metavar="SIDE_M",
+                    help="ste seekers: bound the prior by a search box (a plan's fence) of this side, m, placed "
+                    "at random about each trial's release and start (search_boxes); stop and go only")
     ap.add_argument("--cpu", default=None, help="vehicle counts (e.g. 8,50): print each seeker's CPU per update "
                     "(K = 1, median ms) on each field instead of the table")
     args = ap.parse_args(argv)
@@ -339,6 +372,9 @@ def main(argv=None) -> int:
         start_m = _start_range(args.start_m)
     except ValueError as exc:
         ap.error(str(exc))
+    if args.search_box is not None and (not np.isfinite(args.search_box) or args.search_box <= 0
+                                        or args.sampling != "stop"):
+        ap.error(f"--search-box must be a side > 0 m, with --sampling stop; got {args.search_box!r}, {args.sampling}")
     if args.cpu:
         for field_name in args.fields.split(","):
             for name in args.seekers.split(","):
@@ -354,7 +390,7 @@ def main(argv=None) -> int:
         for level in args.noise.split(","):
             for name in args.seekers.split(","):
                 row = run_cell(name, field_name, level, args.trials, args.iterations, args.seed, args.ste_args,
-                               args.sampling, start_m)
+                               args.sampling, start_m, args.search_box)
                 rows.append(row)
                 print(_fmt(row), flush=True)
     if args.json is not None:

@@ -50,6 +50,7 @@ import numpy as np
 
 from estimator.estimate import PlanPosterior, SourceEstimate
 from estimator.seek_inputs import seeker_inputs
+from estimator.ste_prior import check_box, draw_prior, trial_boxes
 from estimator.ste_tempering import shared_counts, time_weights
 from estimator.ste_model import (BRIGGS_RURAL, deviance_patchy, deviance_steady, hit_probability, loglik_patchy,
                                  loglik_steady, plume_mean)
@@ -107,6 +108,12 @@ class SteSeeker:
         ``swarmseek run``'s starts): the first prior's release is in the sector of this half-angle
         up each particle's own wind from the first centre (so it holds with the wind not given
         too); None: the whole disk. A re-seed after a collapse uses the whole disk.
+    prior_box_enu : array_like or None
+        A search box ``[[e_min, n_min, u_min], [e_max, n_max, u_max]]`` (ENU m; shape ``(2, 3)``, or
+        ``(K, 2, 3)``: one per trial) the release is known to be in (in missions the plan's geofence:
+        a release outside it cannot be reached): every prior draw and re-seed is inside it too
+        (:mod:`estimator.ste_prior`), and so is every particle after roughening; the first centre
+        must be inside it. None: no box.
     amplitude_range : (float, float)
         The prior of ``A`` (the release-point mean), log-uniform.
     stability, source_radius_m, ground_alt_m :
@@ -205,7 +212,7 @@ class SteSeeker:
                  corr_iterations: int = 0, path_samples: int = 1, corr_time_s: float = 5.0,
                  corr_path_m: float | None = None, time_temper: float = 1.0, same_time_s: float = 0.25,
                  timed: bool | None = None, prior_upwind_deg: float | None = None,
-                 axis_steps: bool = False, toward_mean_along: bool = False, seed: int = 0):
+                 axis_steps: bool = False, toward_mean_along: bool = False, prior_box_enu=None, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -232,6 +239,7 @@ class SteSeeker:
         if prior_upwind_deg is not None and not 0 < float(prior_upwind_deg) <= 180:
             raise ValueError(f"prior_upwind_deg must be in (0, 180] or None, got {prior_upwind_deg!r}")
         self.prior_upwind_deg = None if prior_upwind_deg is None else float(prior_upwind_deg)
+        self.prior_box_enu = check_box(prior_box_enu, ground_alt_m=float(ground_alt_m))
         noise = _positive("noise_std", noise_std)
         self.background = _positive("background", background, allow_zero=True)
         self.threshold = max(3.0 * noise, _positive("detection_floor", detection_floor, allow_zero=True))
@@ -278,6 +286,7 @@ class SteSeeker:
 
     def _init_state(self, c: np.ndarray) -> None:
         k = c.shape[0]
+        self._box = trial_boxes(self.prior_box_enu, c)  # raises before any state changes
         self._k = k
         self.parts = np.empty((k, self.particles, 5))
         self.logw = np.zeros((k, self.particles))
@@ -291,33 +300,16 @@ class SteSeeker:
         self._seed_prior(np.arange(k), c, upwind=True)
 
     def _seed_prior(self, idx: np.ndarray, c: np.ndarray, upwind: bool = False) -> None:
-        """Particles of trials ``idx`` drawn from the prior about centres ``c[idx]``, equal weights;
-        with ``upwind`` and ``prior_upwind_deg``, in the sector up each particle's wind only."""
-        n, p, rng = len(idx), self.particles, self.rng
-        r = self.prior_radius_m * np.sqrt(rng.uniform(0.0, 1.0, (n, p)))
-        sector = upwind and self.prior_upwind_deg is not None
-        theta = self._wind_prior((n, p)) if sector else None
-        if sector:
-            half = np.deg2rad(self.prior_upwind_deg)
-            phi = theta + np.pi + rng.uniform(-half, half, (n, p))
-        else:
-            phi = rng.uniform(0.0, 2.0 * np.pi, (n, p))
-        ground = self.model["ground_alt_m"] + 0.1
-        z_lo = np.maximum(c[idx, 2] - self.prior_height_m, ground)[:, None]
-        z_hi = np.maximum(c[idx, 2] + self.prior_height_m, ground + 1.0)[:, None]
-        z = rng.uniform(0.0, 1.0, (n, p)) * (z_hi - z_lo) + z_lo
-        log_a = rng.uniform(*self.log_amp, (n, p))
-        theta = self._wind_prior((n, p)) if theta is None else theta
-        parts = np.stack([c[idx, 0, None] + r * np.cos(phi), c[idx, 1, None] + r * np.sin(phi), z, log_a, theta],
-                         axis=-1)
-        self.parts[idx] = parts
-        self.logw[idx] = -np.log(p)
-
-    def _wind_prior(self, shape) -> np.ndarray:
-        if self.wind_from_deg is None:
-            return self.rng.uniform(-np.pi, np.pi, shape)
-        toward = np.pi / 2.0 - np.deg2rad(self.wind_from_deg + 180.0)  # met "from", clockwise from N -> ENU angle
-        return toward + self.wind_std_rad * self.rng.standard_normal(shape)
+        """Particles of trials ``idx`` drawn from the prior about centres ``c[idx]``, equal weights
+        (:func:`estimator.ste_prior.draw_prior`); with ``upwind`` and ``prior_upwind_deg``, in the
+        sector up each particle's wind only; with ``prior_box_enu``, inside the box."""
+        half = np.deg2rad(self.prior_upwind_deg) if upwind and self.prior_upwind_deg is not None else None
+        self.parts[idx] = draw_prior(self.rng, c[idx], self.particles, radius_m=self.prior_radius_m,
+                                     height_m=self.prior_height_m, ground_alt_m=self.model["ground_alt_m"],
+                                     log_amp=self.log_amp, wind_from_deg=self.wind_from_deg,
+                                     wind_std_rad=self.wind_std_rad, upwind_half_rad=half,
+                                     box=None if self._box is None else self._box[idx])
+        self.logw[idx] = -np.log(self.particles)
 
     # ------------------------------------------------------------------ the filter
     def _loglik(self, parts: np.ndarray, p: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -402,6 +394,8 @@ class SteSeeker:
         noise = np.einsum("kij,kpj->kpi", chol, self.rng.standard_normal(chosen.shape))
         new = mean[idx, None, :] + a * chosen + h * noise
         new[..., 2] = np.maximum(new[..., 2], self.model["ground_alt_m"] + 0.1)
+        if self._box is not None:
+            new[..., :3] = np.clip(new[..., :3], self._box[idx, None, 0], self._box[idx, None, 1])
         new[..., 3] = np.clip(new[..., 3], *self.log_amp)
         self.parts[idx] = new
         self.logw[idx] = -np.log(self.particles)

@@ -107,6 +107,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "detection leaves a stuck/biased/spiking sensor's readings out of the seeker's input; "
                              "retire (default): a sensor named stuck or noisy for 20 iterations is retired (its "
                              "vehicle parked at the formation centre); keep: detection only; off: none (docs/faults.md)")
+    parser.add_argument("--fence-side", type=positive_float, default=None, metavar="M",
+                        help="the embedded plan's geofence: a square of this side (m), placed at random from the "
+                             "seed to hold the source, the start and the takeoff area (the side grows where it "
+                             "cannot; default: the 300 m square)")
+    parser.add_argument("--prior-box", choices=("fence", "none"), default=None,
+                        help="the ste seeker's [seeking] prior_box: fence bounds its prior by the geofence's box "
+                             "(default: the plan's default, fence; docs/seekers.md, Round 6)")
     parser.add_argument("--max-iterations", type=int, default=300)
     parser.add_argument("--return", dest="return_behaviour", choices=("land", "rtl"), default="land")
     add_mission_outputs(parser, "run")
@@ -176,6 +183,8 @@ def _inapplicable_option(args) -> str | None:
             if value is not None:
                 return (f"{flag} applies to the plume and ste seekers only (--seeker plume, or --seeker ste, "
                         f"the default with --field plume/intermittent); this mission's seeker is {seeker}")
+    if seeker != "ste" and getattr(args, "prior_box", None) is not None:
+        return f"--prior-box applies to the ste seeker only; this mission's seeker is {seeker}"
     if sampling != "moving":
         for flag, value in (("--replan-fraction", args.replan_fraction), ("--sensor-lag", args.sensor_lag)):
             if value is not None:
@@ -240,7 +249,8 @@ def _probe_field(args, field, source, start) -> None:
 
 def _mission_setup(args):
     """The plan, field, source and start of the embedded mission ``args`` describe."""
-    from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, default_radius_m, embedded_plan, fleet_ports
+    from mission.sim.embedded import (DEFAULT_ORIGIN, default_eps, default_radius_m, embedded_plan, fleet_ports,
+                                      search_fence_en_m)
     from mission.core.plan_types import replace_plan
 
     radius_m = args.radius if args.radius is not None else default_radius_m(args.n)
@@ -261,6 +271,9 @@ def _mission_setup(args):
     if args.zenoh_listen:  # reachable by `swarmseek watch` / `ctl`
         plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
     plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, **_seeking_options(args)))
+    if getattr(args, "fence_side", None) is not None:
+        plan = replace_plan(plan, geofence=dataclasses.replace(plan.geofence, polygon_en_m=search_fence_en_m(
+            args.fence_side, [source[:2], start[:2], (0.0, 0.0)], radius_m + 5.0, args.seed)))
     return plan, ports, field, source, start, eps
 
 
@@ -294,6 +307,8 @@ def _seeking_options(args) -> dict:
     out["sensor_lag_s"] = float(lag_s)
     if args.seeker == "ste":
         out.update(_ste_sensor(args))
+        if getattr(args, "prior_box", None) is not None:
+            out["prior_box"] = args.prior_box
     return out
 
 

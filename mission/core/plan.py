@@ -16,7 +16,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from mission.core.plan_checks import check_start_in_fence, Checker, show_value
+from mission.core.plan_checks import check_prior_box, check_start_in_fence, Checker, show_value
 from mission.core.plan_field import parse_field
 from wire.fleet_name import fleet_name_problem
 from mission.core.plan_sections import (
@@ -187,6 +187,9 @@ def _check_across_sections(c: Checker, doc: dict, formation, seeking, geofence, 
             c.bad("seeking.start_enu_m", f"start altitude {start[2]:.1f} m must leave the formation "
                   f"radius inside the altitude band [{geofence.min_alt_m}, {geofence.max_alt_m}] m")
         check_start_in_fence(c, formation.radius_m, start, geofence.polygon_en_m)
+    if geofence is not None and seeking is not None:
+        check_prior_box(c, seeking.prior_box if seeking.seeker == "ste" else "none", seeking.ground_alt_m,
+                        geofence.max_alt_m)
     if geofence is not None and top["takeoff_alt_m"] is not None and ok("takeoff_alt_m") and not (
             geofence.min_alt_m <= top["takeoff_alt_m"] <= geofence.max_alt_m):
         c.bad("takeoff_alt_m", f"{top['takeoff_alt_m']} m is outside the geofence altitude band")

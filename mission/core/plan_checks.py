@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Checker", "check_connection", "check_start_in_fence", "polygon_area", "polygon_margin_m", "join_key",
+__all__ = ["Checker", "check_connection", "check_prior_box", "check_start_in_fence", "polygon_area", "polygon_margin_m", "join_key",
            "show_value"]
 
 
@@ -150,6 +150,14 @@ def polygon_margin_m(point_en, points) -> float:
     t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-12), 0.0, 1.0)
     dist = float(np.min(np.linalg.norm(a + t[:, None] * d - p, axis=1)))
     return dist if inside else -dist
+
+
+def check_prior_box(c: Checker, prior_box: str, ground_alt_m: float, max_alt_m: float) -> None:
+    """``[seeking] prior_box = "fence"`` needs the fence's ceiling above the ground (the box the
+    ``ste`` prior is drawn in runs from the ground up to it)."""
+    if prior_box == "fence" and not ground_alt_m + 0.1 < max_alt_m:
+        c.bad("seeking.prior_box", f'"fence" needs the geofence ceiling ({max_alt_m:g} m) above '
+              f"seeking.ground_alt_m ({ground_alt_m:g} m) + 0.1 m: no release could be inside the fence")
 
 
 def check_start_in_fence(c: Checker, radius_m: float, start_enu, polygon_en_m) -> None:

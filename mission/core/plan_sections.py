@@ -229,6 +229,7 @@ def _ste_keys(c: Checker, t: dict, d: SeekingPlan) -> dict:
         ground_alt_m=c.number(t, "ground_alt_m", p, d.ground_alt_m, low=-500, high=9000),
         stability=c.string(t, "stability", p, d.stability, choices=_STABILITY),
         region_m=c.number(t, "region_m", p, d.region_m, low=0, low_open=True, high=100),
+        prior_box=c.string(t, "prior_box", p, d.prior_box, choices=("fence", "none")),
     )
 
 
@@ -248,6 +249,7 @@ _SEEKING_KEYS_OF = (
     ("ground_alt_m", _STE, lambda seeker, sampling: seeker == "ste"),
     ("stability", _STE, lambda seeker, sampling: seeker == "ste"),
     ("region_m", _STE, lambda seeker, sampling: seeker == "ste"),
+    ("prior_box", _STE, lambda seeker, sampling: seeker == "ste"),
     ("replan_fraction", 'sampling = "moving"', lambda seeker, sampling: sampling == "moving"),
     ("sensor_lag_s", 'sampling = "moving"', lambda seeker, sampling: sampling == "moving"),
 )

@@ -137,6 +137,11 @@ class SeekingPlan:
     region_m : float
         ``ste``: converged when the posterior's 95 % region (its radius about the posterior mean) is
         at most this (and the posterior has not collapsed recently nor misfits the readings).
+    prior_box : str
+        ``ste``: ``fence`` bounds the prior over the release by the geofence's box (the polygon's
+        east/north bounding box, up from the lower of ``ground_alt_m`` and the fence's floor to its
+        ceiling: a release outside the fence cannot be reached; the default); ``none``: the
+        seeker's own prior about the first centre alone (docs/seekers.md, "Round 6").
     min_signal_fraction : float
         Convergence needs a signal in at least this fraction of the window's iterations
         (``estimator.seeking``, criterion 3; 0 turns it off): the ``plume`` seeker's "holding
@@ -181,6 +186,7 @@ class SeekingPlan:
     ground_alt_m: float = 0.0
     stability: str = "C"
     region_m: float = 1.0
+    prior_box: str = "fence"
     min_signal_fraction: float = 1.0
     rate_hz: float = 2.0
     max_iterations: int = 300

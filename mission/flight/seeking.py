@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["GradientEstimate", "MissionSeeker", "make_seeker", "ste_options", "ste_wind"]
+__all__ = ["GradientEstimate", "MissionSeeker", "fence_box_enu", "make_seeker", "ste_options", "ste_wind"]
 
 
 def make_seeker(kind: str, wind_from_deg: float | None = None, plume_mode: str = "steady", **ste):
@@ -17,13 +17,28 @@ def make_seeker(kind: str, wind_from_deg: float | None = None, plume_mode: str =
     return None if kind == "gradient" else MissionSeeker(kind, wind_from_deg, plume_mode, **ste)
 
 
-def ste_options(sk) -> dict:
+def ste_options(sk, geofence=None) -> dict:
     """The ``ste`` seeker's keywords from the plan's ``[seeking]`` (a
     :class:`~mission.core.plan_types.SeekingPlan`): what the operator knows (the sensor's
-    datasheet, the ground, the stability class, a wind prior), never the simulated world's truth."""
-    return dict(wind_std_deg=sk.wind_std_deg, noise_std=sk.sensor_noise_std,
-                detection_floor=sk.sensor_detection_floor, ground_alt_m=sk.ground_alt_m,
-                stability=sk.stability, region_m=sk.region_m)
+    datasheet, the ground, the stability class, a wind prior), never the simulated world's truth;
+    with ``prior_box = "fence"`` and the plan's ``geofence`` (a
+    :class:`~mission.core.plan_types.GeofencePlan`), the prior's box (:func:`fence_box_enu`)."""
+    out = dict(wind_std_deg=sk.wind_std_deg, noise_std=sk.sensor_noise_std,
+               detection_floor=sk.sensor_detection_floor, ground_alt_m=sk.ground_alt_m,
+               stability=sk.stability, region_m=sk.region_m)
+    if sk.prior_box == "fence" and geofence is not None and geofence.polygon_en_m:
+        out["prior_box_enu"] = fence_box_enu(geofence, sk.ground_alt_m)
+    return out
+
+
+def fence_box_enu(geofence, ground_alt_m: float) -> tuple:
+    """The box the release is in when the fence bounds it: ``((e_min, n_min, u_min), (e_max, n_max,
+    u_max))``, the polygon's bounding box, up from the lower of the ground and the fence's floor (a
+    release on the ground under a fence whose floor is 2 m is inside it) to the fence's ceiling."""
+    en = np.asarray(geofence.polygon_en_m, dtype=float)
+    lo, hi = en.min(axis=0), en.max(axis=0)
+    return ((float(lo[0]), float(lo[1]), min(float(ground_alt_m), float(geofence.min_alt_m))),
+            (float(hi[0]), float(hi[1]), float(geofence.max_alt_m)))
 
 
 def ste_wind(sk, snapshots, now_s: float) -> tuple[float | None, float, str]:

@@ -36,7 +36,7 @@ from mission.core.zenoh_config import ZenohPlan
 
 __all__ = ["DEFAULT_ORIGIN", "FENCE_MIN_ALT_M", "FENCE_MAX_ALT_M", "FENCE_POLYGON_EN_M", "MAX_VEHICLES",
            "PORT_LEASE_S", "free_port_block", "port_lease_dir", "default_eps", "default_radius_m",
-           "default_source_and_start", "downwind_en", "embedded_plan", "fleet_ports"]
+           "default_source_and_start", "downwind_en", "embedded_plan", "fleet_ports", "search_fence_en_m"]
 
 DEFAULT_ORIGIN = (45.1885, 5.7245, 212.0)
 #: MAVLink system ids 1..254 (255 is the ground station's own)
@@ -166,6 +166,21 @@ def default_source_and_start(seed: int, distance_m: float = 25.0,
         heading = np.arctan2(downwind[1], downwind[0]) + (heading / (2.0 * np.pi) - 0.5) * np.pi / 9.0
     start = source + np.array([distance_m * np.cos(heading), distance_m * np.sin(heading), -3.0])
     return source, start
+
+
+def search_fence_en_m(side_m: float, points_en, margin_m: float, seed: int) -> tuple:
+    """A square geofence polygon ``((e, n), ...)`` of side ``side_m`` placed at random (from ``seed``)
+    among the placements holding every point of ``points_en`` (the source, the start, the takeoff
+    area) at least ``margin_m`` inside; along an axis where none can, the side grows to the least that
+    does. Where the release sits in its fence is as random as the fence (a plan's search area)."""
+    pts = np.asarray(points_en, dtype=float)[:, :2]
+    lo_pt, hi_pt = pts.min(axis=0), pts.max(axis=0)
+    side = np.maximum(float(side_m), hi_pt - lo_pt + 2.0 * margin_m)
+    first, last = hi_pt + margin_m - side, lo_pt - margin_m
+    low = first + np.random.default_rng([seed, 6]).uniform(0.0, 1.0, 2) * (last - first)
+    e0, n0 = (float(x) for x in low)
+    e1, n1 = (float(x) for x in low + side)
+    return (e0, n0), (e1, n0), (e1, n1), (e0, n1)
 
 
 def fleet_ports(n: int, personality: str) -> dict:

@@ -132,7 +132,7 @@ class Seek:
             raise MissionError(f"seek needs at least 4 vehicles in formation, have {len(flying)}")
         self.est_kind = sk.estimator
         self.estimate = GradientEstimate(self.est_kind, len(self.sysids))
-        ste = ste_options(sk) if sk.seeker == "ste" else {}
+        ste = ste_options(sk, self.plan.geofence) if sk.seeker == "ste" else {}
         wind_from_deg = sk.wind_from_deg
         if sk.seeker == "ste":
             wind_from_deg, ste["wind_std_deg"], said = ste_wind(

@@ -37,6 +37,7 @@ def _run_args(*argv):
      "--replan-fraction applies to sampling while moving only.*samples stop_and_go \\(gradient seeker\\)"),
     (["--seeker", "plume", "--replan-fraction", "0.5"], "--replan-fraction applies to sampling while moving"),
     (["--sampling", "stop_and_go", "--sensor-lag", "1"], "--sensor-lag applies to sampling while moving only"),
+    (["--seeker", "model", "--prior-box", "fence"], "--prior-box applies to the ste seeker only.*seeker is model"),
 ])
 def test_run_refuses_an_option_that_cannot_apply(argv, why, capsys):
     import re
@@ -52,6 +53,7 @@ def test_run_refuses_an_option_that_cannot_apply(argv, why, capsys):
     ["--field", "intermittent", "--plume-mode", "steady"],          # the ste seeker is that field's default
     ["--replan-fraction", "0.3", "--sensor-lag", "0.2"],            # model: moving by default
     ["--seeker", "newton", "--sampling", "moving", "--replan-fraction", "1"],
+    ["--field", "intermittent", "--prior-box", "fence", "--fence-side", "60"],  # ste: that field's default
 ])
 def test_run_accepts_the_same_options_where_they_apply(argv, capsys):
     assert _check_args(_run_args(*argv)) is None

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import formation
 from estimator.seekers import MOVING_SEEKERS, SEEKERS
 from estimator.ste import SteSeeker
 from mission.cli import main as cli_main
@@ -74,10 +75,48 @@ def test_bad_ste_keys_are_refused_with_their_key(doc, changes, key, why):
 
 
 @pytest.mark.parametrize("key, value", [("region_m", 1.0), ("stability", "C"), ("sensor_noise_std", 0.01),
-                                        ("wind_std_deg", 5.0)])
+                                        ("wind_std_deg", 5.0), ("prior_box", "fence")])
 def test_ste_keys_are_refused_for_another_seeker(doc, key, value):
     with pytest.raises(PlanError, match=r'applies only with seeker = "ste"'):
         parse_plan(_with(doc, seeker="model", sampling="moving", gamma_m=20.0, **{key: value}))
+
+
+def test_prior_box_fence_bounds_the_ste_prior_by_the_geofence_box(doc):
+    """``prior_box = "fence"`` (the default): the seeker's prior box is the fence polygon's bounding
+    box, from the lower of the ground and the fence's floor up to its ceiling; ``none``: no box."""
+    plan = parse_plan(_with(doc, **_STE, prior_box="fence", ground_alt_m=0.5))
+    sk, fence = plan.seeking, plan.geofence
+    built = make_seeker(sk.seeker, sk.wind_from_deg, sk.plume_mode, **ste_options(sk, fence)).seeker
+    en = np.asarray(fence.polygon_en_m)
+    want = [[*en.min(axis=0), min(0.5, fence.min_alt_m)], [*en.max(axis=0), fence.max_alt_m]]
+    np.testing.assert_allclose(built.prior_box_enu, want)
+    start = sk.start_point()
+    built.propose(start[None], (start + formation.cvt_sphere(4, 2.0, seed=0))[None], np.zeros((1, 4)))
+    assert np.all((built.parts[0, :, :3] >= built.prior_box_enu[0]) & (built.parts[0, :, :3] <= built.prior_box_enu[1]))
+    assert parse_plan(_with(doc, **_STE)).seeking.prior_box == "fence"
+    plain = parse_plan(_with(doc, **_STE, prior_box="none")).seeking
+    assert make_seeker("ste", None, "steady", **ste_options(plain, fence)).seeker.prior_box_enu is None
+
+
+@pytest.mark.parametrize("changes, why", [
+    ({"prior_box": "fense"}, "must be one of"),
+    ({"prior_box": 1}, "expected a non-empty string"),
+    ({"prior_box": "fence", "ground_alt_m": 500.0}, "above seeking.ground_alt_m"),
+])
+def test_a_bad_prior_box_is_refused_with_its_key(doc, changes, why):
+    with pytest.raises(PlanError, match=re.escape("seeking.prior_box")) as info:
+        parse_plan(_with(doc, **_STE, **changes))
+    assert any(k == "seeking.prior_box" and why in w for k, w in info.value.problems), info.value.problems
+
+
+def test_a_prior_box_out_of_range_exits_2_with_one_line(tmp_path, capsys):
+    text = re.sub(r"^seeker = .*\n", "", SAMPLE.read_text(), count=1, flags=re.M)
+    text = text.replace("[seeking]\n", '[seeking]\nseeker = "ste"\nsampling = "moving"\nprior_box = "geofence"\n', 1)
+    path = tmp_path / "p.toml"
+    path.write_text(text)
+    assert cli_main(["dry-run", "--plan", str(path)]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "prior_box" in line]
+    assert len(err) == 1 and "seeking.prior_box" in err[0] and "fence" in err[0] and "none" in err[0], err
 
 
 def test_a_bad_ste_plan_exits_2_before_connecting(tmp_path, doc, capsys):
