@@ -183,7 +183,7 @@ def _inapplicable_option(args) -> str | None:
             if value is not None:
                 return (f"{flag} applies to the plume and ste seekers only (--seeker plume, or --seeker ste, "
                         f"the default with --field plume/intermittent); this mission's seeker is {seeker}")
-    if seeker != "ste" and getattr(args, "prior_box", None) is not None:
+    if seeker != "ste" and args.prior_box is not None:
         return f"--prior-box applies to the ste seeker only; this mission's seeker is {seeker}"
     if sampling != "moving":
         for flag, value in (("--replan-fraction", args.replan_fraction), ("--sensor-lag", args.sensor_lag)):
@@ -271,7 +271,7 @@ def _mission_setup(args):
     if args.zenoh_listen:  # reachable by `swarmseek watch` / `ctl`
         plan = replace_plan(plan, zenoh=dataclasses.replace(plan.zenoh, listen=tuple(args.zenoh_listen)))
     plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, **_seeking_options(args)))
-    if getattr(args, "fence_side", None) is not None:
+    if args.fence_side is not None:
         plan = replace_plan(plan, geofence=dataclasses.replace(plan.geofence, polygon_en_m=search_fence_en_m(
             args.fence_side, [source[:2], start[:2], (0.0, 0.0)], radius_m + 5.0, args.seed)))
     return plan, ports, field, source, start, eps
@@ -307,7 +307,7 @@ def _seeking_options(args) -> dict:
     out["sensor_lag_s"] = float(lag_s)
     if args.seeker == "ste":
         out.update(_ste_sensor(args))
-        if getattr(args, "prior_box", None) is not None:
+        if args.prior_box is not None:
             out["prior_box"] = args.prior_box
     return out
 
