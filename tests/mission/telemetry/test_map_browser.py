@@ -124,7 +124,9 @@ def _markers_move(page, n: int) -> None:
 
 def _pause_and_continue(page, log: Path) -> None:
     page.click("button[data-command=pause]")
-    wait_until(lambda: "pause accepted" in page.inner_text("#ack"), WAIT_S, "the pause's acknowledgement")
+    ack = wait_until(lambda: a if ("pause accepted" in (a := page.inner_text("#ack")) or "rejected" in a) else None,
+                     WAIT_S, "the pause's acknowledgement")
+    assert "pause accepted" in ack, ack  # rejected: e.g. the seek had already ended (the page came late)
     wait_until(lambda: "Paused by map:" in page.inner_text("#banner"), WAIT_S, "the page to show the pause")
     pause = [c for c in commands(log) if c.get("command") == "pause"]
     assert pause and pause[0]["accepted"] is True and pause[0]["sender"].startswith("map:"), pause
@@ -153,9 +155,10 @@ def test_the_live_map_in_a_browser(tmp_path):
 
     zenoh_ep = f"tcp/127.0.0.1:{free_port_block(1, kinds=('tcp',))}"
     log = tmp_path / "mission.jsonl"
-    # 4 vehicles, the formation starting near their homes and the source 12 m on: the same page,
-    # half the flight (a minute of simulated time, 30 s of wall clock at 2x)
-    mission, out = swarmseek("run", "--speedup", "2", "--seed", "3", "--n", str(N), "--source", "10,6,13",
+    # 4 vehicles, the formation starting near their homes and the source 25 m on: a seek long enough
+    # (about 40 s of wall clock at 2x) for a browser on a loaded host to reach the pause in it (with
+    # the source 12 m on, the seek had converged 9 s before the click in one fresh-clone run)
+    mission, out = swarmseek("run", "--speedup", "2", "--seed", "3", "--n", str(N), "--source", "22,12,13",
                              "--start=0,0,12", "--map", "127.0.0.1:0", "--zenoh-listen", zenoh_ep,
                              "--log-dir", str(tmp_path), "--json")
     viewer = None
@@ -175,7 +178,7 @@ def test_the_live_map_in_a_browser(tmp_path):
             _read_only_page(browser, wait_until(lambda: vout.url("serving"), WAIT_S, "the read-only map"), log)
             wait_until(lambda: "Mission ended" in page.inner_text("#banner"), 2 * WAIT_S, "the mission's outcome")
             browser.close()
-        assert mission.wait(timeout=WAIT_S) in (0, 1)
+        assert mission.wait(timeout=WAIT_S) in (0, 1, 4)  # not 5: nothing left airborne
     finally:
         stop(mission)
         if viewer is not None:
