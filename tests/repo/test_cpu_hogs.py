@@ -3,13 +3,12 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
-PLUGIN_DIR = Path(__file__).resolve().parents[1] / "support"
+from tests.support.inner_session import run_inner_session
 
 INNER_TEST = '''
 import os
@@ -46,15 +45,9 @@ def _alive(pid: int) -> bool:
 
 
 def _run_inner(tmp_path: Path, *args: str, hogs_wanted: int = 2) -> subprocess.CompletedProcess:
-    (tmp_path / "pytest.ini").write_text("[pytest]\n")
-    (tmp_path / "test_inner.py").write_text(INNER_TEST)
-    env = dict(os.environ, PYTHONPATH=str(PLUGIN_DIR), HOG_PID_FILE=str(tmp_path / "pids"),
-               HOGS_WANTED=str(hogs_wanted))
+    env = dict(os.environ, HOG_PID_FILE=str(tmp_path / "pids"), HOGS_WANTED=str(hogs_wanted))
     env.pop("SWARMSEEK_CPU_HOG_PIDS", None)
-    return subprocess.run([sys.executable, "-m", "pytest", "-p", "cpu_hogs_plugin", "-p", "no:cacheprovider",
-                           "-c", str(tmp_path / "pytest.ini"), "--rootdir", str(tmp_path),
-                           str(tmp_path / "test_inner.py"), *args],
-                          capture_output=True, text=True, env=env, timeout=180, cwd=tmp_path)
+    return run_inner_session(tmp_path, "cpu_hogs_plugin", INNER_TEST, *args, env=env)
 
 
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]], ids=["one-process", "xdist"])

@@ -2,14 +2,12 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-PLUGIN_DIR = Path(__file__).resolve().parents[1] / "support"
+from tests.support.inner_session import run_inner_session
 
 INNER_TEST = '''
 import subprocess
@@ -29,13 +27,7 @@ def test_waits():
 
 
 def _run_inner(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
-    (tmp_path / "pytest.ini").write_text("[pytest]\n")
-    (tmp_path / "test_inner.py").write_text(INNER_TEST)
-    env = dict(os.environ, PYTHONPATH=str(PLUGIN_DIR))
-    return subprocess.run([sys.executable, "-m", "pytest", "-p", "cpu_report_plugin", "-p", "no:cacheprovider",
-                           "-c", str(tmp_path / "pytest.ini"), "--rootdir", str(tmp_path),
-                           str(tmp_path / "test_inner.py"), *args],
-                          capture_output=True, text=True, env=env, timeout=180, cwd=tmp_path)
+    return run_inner_session(tmp_path, "cpu_report_plugin", INNER_TEST, *args)
 
 
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]], ids=["one-process", "xdist"])
