@@ -4,7 +4,8 @@ Exactly 4 sensors in the fit (a formation of 4, or of 5 with one excluded) leave
 leave-one-out prediction error undetermined (``1 - h = 0``) and every such sensor's variance at
 0: the spike test then has no error to compare (numpy's "All-NaN slice encountered") and the
 bias test divided by those zero variances (overflow). Both are explicit cases now; these runs
-turn every warning into an error.
+turn every numpy floating-point warning (a ``RuntimeWarning``) into an error; a ResourceWarning the
+garbage collector raises for some earlier test's socket is not theirs to fail on.
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ def _run(n, updates, batch=(), stuck=None, seed=0):
     est = RobustGradientEstimator(n, batch_shape=batch)
     g = None
     with warnings.catch_warnings():
-        warnings.simplefilter("error")
+        warnings.simplefilter("error", RuntimeWarning)
         for _ in range(updates):
             y = off @ GRAD + 0.01 * rng.standard_normal(batch + (n,))
             if stuck is not None:
@@ -35,14 +36,14 @@ def _run(n, updates, batch=(), stuck=None, seed=0):
     return est, g
 
 
-@pytest.mark.filterwarnings("error")
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_four_sensors_no_warning_and_exact_gradient():
     est, g = _run(4, 150)
     assert np.all(est.suspect_codes == 0)
     assert np.allclose(g, GRAD, atol=0.1)
 
 
-@pytest.mark.filterwarnings("error")
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_five_with_one_stuck_excluded_leaves_four_without_warning():
     est, g = _run(5, 150, stuck=(..., 0))
     assert est.suspect_codes[0] == REASONS.index("stuck") + 1
@@ -50,14 +51,14 @@ def test_five_with_one_stuck_excluded_leaves_four_without_warning():
     assert np.allclose(g, GRAD, atol=0.1)
 
 
-@pytest.mark.filterwarnings("error")
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_batch_mixing_a_degenerate_formation_with_a_healthy_one():
     est, g = _run(5, 150, batch=(2,), stuck=(0, 0))
     assert est.excluded[0, 0] and not est.excluded[1].any()
     assert np.allclose(g, GRAD, atol=0.1)
 
 
-@pytest.mark.filterwarnings("error")
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_worst_spike_with_no_determined_error():
     d = np.full((2, 4), np.nan)
     d[1] = [0.0, 0.01, -0.01, 9.0]
@@ -70,7 +71,7 @@ def test_worst_spike_with_no_determined_error():
                            5.0, warm=True).any()
 
 
-@pytest.mark.filterwarnings("error")
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_biased_mask_with_zero_variances():
     n = 5
     var = np.array([5e-4, 0.0, 0.0, 0.0, 0.0])

@@ -263,7 +263,7 @@ def test_an_update_without_readings_changes_nothing_and_warns_nothing():
     s.propose(c, pos, make_field("plume", SOURCE).value(pos))
     before = s.logw.copy()
     with warnings.catch_warnings():
-        warnings.simplefilter("error")
+        warnings.simplefilter("error", RuntimeWarning)
         s.propose(c, np.zeros((1, 0, 3)), np.zeros((1, 0)))
     np.testing.assert_array_equal(s.logw, before)
     assert not s.collapsed[0] and np.isfinite(s.region95_m[0])

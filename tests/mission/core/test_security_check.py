@@ -15,7 +15,6 @@ import json
 import socket
 import subprocess
 import sys
-import threading
 import tomllib
 from pathlib import Path
 
@@ -24,8 +23,8 @@ import pytest
 from mission.core.plan import load_plan, parse_plan
 from mission.core.plan_security import PlanSecurityError, check_security, refusals
 from mission.core.plan_types import PlanError
-from mission.telemetry.control_channel import ControlChannel
 from tests.support.fly_process import subprocess_env
+from tests.support.control_peer import ControlPeer
 from tests.support.tls_helpers import make_pki, write_private
 from wire.loopback import host_is_loopback, zenoh_endpoint_host, zenoh_endpoint_is_loopback
 from wire.zenoh_flags import plain_network_warning
@@ -292,43 +291,6 @@ def test_the_commands_refuse_a_plan_listening_on_every_interface_with_one_line(t
     assert not (tmp_path / "logs").exists()  # nothing started
 
 
-class _Coordinator(threading.Thread):
-    """The coordinator's zenoh side: the plan's session (its TLS, logins and access control) and
-    the control channel, on an event loop; every command it receives is recorded and accepted."""
-
-    def __init__(self, plan):
-        super().__init__(daemon=True)
-        import zenoh
-
-        self.session = zenoh.open(plan.zenoh.to_config())
-        self.commands = []
-        self.channel = ControlChannel(self.session, plan.fleet, self._submit, poll_s=0.02)
-        self.loop = asyncio.new_event_loop()
-        self.started = threading.Event()
-        self.start()
-        assert self.started.wait(20), "control channel did not start"
-
-    def _submit(self, command, sender):
-        self.commands.append((command, sender))
-        return {"command": command, "sender": sender, "accepted": True, "reason": "ok", "phase": "seek"}
-
-    def run(self):
-        asyncio.set_event_loop(self.loop)
-        self.loop.run_until_complete(self._main())
-
-    async def _main(self):
-        self.channel.start()
-        self.stop_event = asyncio.Event()
-        self.started.set()
-        await self.stop_event.wait()
-        await self.channel.stop()
-
-    def close(self):
-        self.loop.call_soon_threadsafe(self.stop_event.set)
-        self.join(timeout=10)
-        self.session.close()
-
-
 def _ctl(endpoint: str, sender: str, *flags: str, command: str = "land", timeout_s: str = "6"):
     p = _swarmseek("ctl", "sitl", command, "--sender", sender, "--zenoh-connect", endpoint,
                    "--timeout-s", timeout_s, *flags)
@@ -348,7 +310,7 @@ def test_an_allowed_open_network_warns_and_an_attacker_can_command_it(tmp_path, 
     assert first[0].startswith(f"security warn   zenoh.allow_unauthenticated_network: true: anyone who reaches "
                                f"{endpoint} can command the fleet"), p.stdout
     assert first[1].startswith("security warn   zenoh.access_control: readings are accepted"), p.stdout
-    coordinator = _Coordinator(load_plan(path))
+    coordinator = ControlPeer(load_plan(path))
     try:
         rc, out, err = _ctl(endpoint, "attacker")
     finally:
@@ -371,7 +333,7 @@ def test_logins_and_a_commander_rule_keep_an_attacker_out(tmp_path):
     plan = parse_plan(_doc(zen), is_loopback=_everything_is_network)
     findings = check_security(plan, is_loopback=_everything_is_network)
     assert [(f.level, f.key) for f in findings if f.key.startswith("zenoh")] == [("info", "zenoh.access_control")]
-    coordinator = _Coordinator(plan)
+    coordinator = ControlPeer(plan)
     try:
         attempts = {"no login": [], "wrong password": ("ops", "guess"), "monitor": ("viewer", "v1ew")}
         results = {}
@@ -396,7 +358,7 @@ def test_tls_client_certificates_keep_an_attacker_out(tmp_path, pki):
     port = _free_port()
     endpoint = f"tls/127.0.0.1:{port}"
     plan = parse_plan(_doc({"listen": [endpoint], "tls": _mtls(pki)}), is_loopback=_everything_is_network)
-    coordinator = _Coordinator(plan)
+    coordinator = ControlPeer(plan)
     try:
         plain = _ctl(f"tcp/127.0.0.1:{port}", "attacker", timeout_s="3")
         rogue = _ctl(endpoint, "attacker", "--zenoh-mtls", "--zenoh-tls-ca", pki["ca"], "--zenoh-tls-cert",

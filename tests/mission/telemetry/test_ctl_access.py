@@ -8,7 +8,6 @@ import json
 import os
 import subprocess
 import sys
-import threading
 import tomllib
 from pathlib import Path
 
@@ -17,7 +16,8 @@ import pytest
 from mission.core.plan_types import PlanError
 from mission.core.plan import parse_plan
 from mission.sim.embedded import free_port_block
-from mission.telemetry.control_channel import ControlChannel, control_key, parse_request
+from mission.telemetry.control_channel import control_key, parse_request
+from tests.support.control_peer import ControlPeer
 from tests.support.tls_helpers import write_private
 from tests.support.wait_helpers import wait_until
 
@@ -39,40 +39,6 @@ def _plan(tmp_path, port, access_control):
     return parse_plan(doc)
 
 
-class _Coordinator(threading.Thread):
-    """The coordinator's side: its zenoh session (the plan's config, ACL included) and a control
-    channel answering on an event loop; commands are recorded and accepted."""
-
-    def __init__(self, plan):
-        super().__init__(daemon=True)
-        import zenoh
-
-        self.session = zenoh.open(plan.zenoh.to_config())
-        self.commands = []
-        self.channel = ControlChannel(self.session, plan.fleet, self._submit, poll_s=0.02)
-        self.loop = asyncio.new_event_loop()
-        self.start()
-
-    def _submit(self, command, sender):
-        self.commands.append((command, sender))
-        return {"command": command, "sender": sender, "accepted": True, "reason": "ok", "phase": "seek"}
-
-    def run(self):
-        asyncio.set_event_loop(self.loop)
-        self.loop.run_until_complete(self._main())
-
-    async def _main(self):
-        self.channel.start()
-        self.stop_event = asyncio.Event()
-        await self.stop_event.wait()
-        await self.channel.stop()
-
-    def close(self):
-        self.loop.call_soon_threadsafe(self.stop_event.set)
-        self.join(timeout=10)
-        self.session.close()
-
-
 def _ctl(tmp_path, port, user, password, command="pause", timeout_s="6"):
     pw = write_private(tmp_path / f"{user}.pw", (password + "\n").encode())
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -89,7 +55,7 @@ def test_a_commander_is_answered_and_a_monitor_is_refused(tmp_path):
                                   "commander_usernames": ["ops"]})
     acl = plan.zenoh.access_control
     assert acl.commander_usernames == ("ops",) and acl.control_key_expr == control_key("sitl")
-    coord = _Coordinator(plan)
+    coord = ControlPeer(plan)
     try:
         rc, out = _ctl(tmp_path, port, "ops", "0ps")
         assert rc == 0 and "pause accepted" in out, out
@@ -126,7 +92,7 @@ def test_the_channel_answers_a_malformed_query_and_counts_it(tmp_path):
     port = _free_port()
     plan = parse_plan({**tomllib.loads(SAMPLE.read_text()),
                        "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"]}})
-    coord = _Coordinator(plan)
+    coord = ControlPeer(plan)
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
