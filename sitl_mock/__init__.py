@@ -1,14 +1,14 @@
 """sitl_mock: the simulated world (fields, vehicles, sensors) and protocol-faithful mock autopilots.
 
 The main entry points are re-exported lazily (importing ``sitl_mock.fields_gaussian`` stays cheap):
-``MockFleet``, ``MockVehicle``, ``MockAutopilot``, ``FaultSet``, ``SimClock``, ``LockstepClock``,
+``MockFleet``, ``MockVehicle``, ``MockAutopilot``, ``FaultSet``, ``SimClock``,
 ``DynamicsParams``.
 """
 from __future__ import annotations
 
 import importlib
 
-__all__ = ["MockFleet", "MockVehicle", "MockAutopilot", "FaultSet", "SimClock", "LockstepClock",
+__all__ = ["MockFleet", "MockVehicle", "MockAutopilot", "FaultSet", "SimClock",
            "DynamicsParams", "PortInUseError"]
 
 _LAZY = {
@@ -17,7 +17,6 @@ _LAZY = {
     "MockAutopilot": "sitl_mock.autopilot",
     "FaultSet": "sitl_mock.faults",
     "SimClock": "sitl_mock.clock",
-    "LockstepClock": "sitl_mock.clock",
     "DynamicsParams": "sitl_mock.dynamics_params",
     "PortInUseError": "sitl_mock.transport",
 }

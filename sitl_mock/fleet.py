@@ -61,7 +61,8 @@ class MockFleet:
     speedup : float
         Simulated seconds per wall second (ignored when ``clock`` is given).
     clock : clock object, optional
-        A :class:`~sitl_mock.clock.SimClock` or :class:`~sitl_mock.clock.LockstepClock`.
+        A :class:`~sitl_mock.clock.SimClock` or, stepped with ``start(thread=False)``, a lock-step
+        ``mission.sim.lockstep.VirtualClock``.
     seed : int
         Seeds dynamics, sensor noise and packet loss.
     udp_base_port, udp_bind_base_port, tcp_base_port : int
@@ -250,7 +251,7 @@ class MockFleet:
     def wait_for_sim_time(self, t_s: float, timeout_s: float = 30.0) -> bool:
         """Block until the physics has reached ``t_s`` (simulated); False on wall timeout.
 
-        With a :class:`~sitl_mock.clock.LockstepClock`, call it after ``clock.advance``.
+        With ``thread=False`` the physics moves only in :meth:`step_until`.
         """
         with self._tick_cond:
             return self._tick_cond.wait_for(lambda: self._sim_time_s >= t_s - 1e-9, timeout_s)

@@ -234,10 +234,10 @@ def test_catching_up_sends_each_steps_frames_before_the_next_step():
     """A fleet behind its clock (a starved host) runs up to 25 steps in one go; the frames of
     each step leave before the next step runs, so a ground station never hears the whole fleet
     fall silent for the length of a catch-up (it declared every vehicle lost under load)."""
-    from sitl_mock.clock import LockstepClock
+    from mission.sim.lockstep import VirtualClock
 
     base = free_port_block(4, kinds=("udp",))
-    clock = LockstepClock()
+    clock = VirtualClock(t0_s=0.0)
     fleet = MockFleet(2, personality="px4", clock=clock, udp_base_port=base, udp_bind_base_port=base + 2,
                       tcp_base_port=0)
     pending_before_tick = []
@@ -250,7 +250,7 @@ def test_catching_up_sends_each_steps_frames_before_the_next_step():
     fleet._tick = recording_tick
     fleet.start(thread=False)
     try:
-        clock.advance(0.5)
+        clock.advance_to(0.5)
         steps = fleet.step_until(clock.time())
         produced = sum(len(v.autopilot._outbox) for v in fleet.vehicles)
     finally:

@@ -12,11 +12,11 @@ import zenoh
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from sitl_mock.clock import LockstepClock
 from sitl_mock.dynamics_params import DynamicsParams
 from sitl_mock.fields_gaussian import sigma1
 from sitl_mock.fleet import MockFleet
 from mission.sim.embedded import free_port_block
+from mission.sim.lockstep import VirtualClock
 
 
 def _free_port(kind=socket.SOCK_DGRAM) -> int:
@@ -24,18 +24,22 @@ def _free_port(kind=socket.SOCK_DGRAM) -> int:
 
 
 def _lockstep_run(seed: int):
-    clock = LockstepClock()
+    clock = VirtualClock(t0_s=0.0)
     fleet = MockFleet(2, personality=["px4", "ardupilot"], clock=clock, seed=seed, udp_base_port=0,
                       tcp_base_port=0, dynamics=DynamicsParams(gps_noise_std_m=0.5))
-    with fleet:
+    fleet.start(thread=False)
+    try:
         t0 = clock.time()
         for v in fleet.vehicles:  # arm and take off through the autopilot API, no sockets
             if v.autopilot.personality.name == "ardupilot":
                 v.autopilot.mode_name = "GUIDED"
-        clock.advance(3.0)
-        assert fleet.wait_for_sim_time(t0 + 3.0)
+        clock.advance_to(3.0)
+        fleet.step_until(clock.time())
+        assert fleet.wait_for_sim_time(t0 + 3.0, timeout_s=0.0)
         out = [v.autopilot.estimate(fleet.sim_time_s)[0].tolist() for v in fleet.vehicles]
         ticks = fleet.stats["ticks"]
+    finally:
+        fleet.stop()
     return out, ticks, fleet.errors
 
 

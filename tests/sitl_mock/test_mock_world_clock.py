@@ -1,4 +1,4 @@
-"""Clocks of the simulated world: SimClock scaling and LockstepClock wake-ups."""
+"""The simulated world's scaled wall clock: SimClock."""
 from __future__ import annotations
 
 import asyncio
@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from sitl_mock.clock import LockstepClock, SimClock
+from sitl_mock.clock import SimClock
 
 
 @pytest.mark.parametrize("speedup", [1.0, 10.0, 50.0])
@@ -55,100 +55,3 @@ def test_simclock_sleeps_simulated_time(speedup):
 def test_simclock_rejects_nonfinite_sleep():
     with pytest.raises(ValueError, match="finite"):
         SimClock().sleep_blocking(math.nan)
-
-
-def test_lockstep_time_moves_only_on_advance():
-    clock = LockstepClock(t0_s=100.0)
-    assert clock.speedup == math.inf
-    assert clock.time() == 100.0
-    assert clock.time() == 100.0
-    clock.advance(0.25)
-    assert clock.time() == pytest.approx(100.25)
-
-
-@pytest.mark.parametrize("dt", [-0.1, math.nan, math.inf])
-def test_lockstep_rejects_bad_advance(dt):
-    with pytest.raises(ValueError, match="advance"):
-        LockstepClock().advance(dt)
-
-
-def test_lockstep_sleep_blocking_wakes_when_advanced_past_deadline():
-    clock = LockstepClock(t0_s=0.0)
-    woke = threading.Event()
-    started = threading.Event()
-
-    def sleeper():
-        started.set()
-        clock.sleep_blocking(1.0)
-        woke.set()
-
-    th = threading.Thread(target=sleeper, daemon=True)
-    th.start()
-    assert started.wait(10.0)
-    clock.advance(0.5)
-    assert not woke.wait(0.2)
-    clock.advance(0.5)
-    assert woke.wait(10.0)
-    th.join(10.0)
-
-
-def test_lockstep_async_sleepers_wake_in_deadline_order():
-    clock = LockstepClock(t0_s=0.0)
-    order: list[float] = []
-
-    async def sleeper(dt):
-        await clock.sleep(dt)
-        order.append(dt)
-
-    async def main():
-        tasks = [asyncio.create_task(sleeper(dt)) for dt in (0.3, 0.1, 0.2)]
-        while clock.pending_sleepers() < 3:
-            await asyncio.sleep(0)
-        assert clock.next_deadline_s() == pytest.approx(0.1)
-        for _ in range(4):
-            clock.advance(0.1)
-            for _ in range(5):
-                await asyncio.sleep(0)
-        await asyncio.wait_for(asyncio.gather(*tasks), 10.0)
-
-    asyncio.run(main())
-    assert order == [0.1, 0.2, 0.3]
-    assert clock.pending_sleepers() == 0
-
-
-def test_lockstep_async_sleep_woken_from_another_thread():
-    clock = LockstepClock(t0_s=0.0)
-
-    async def main():
-        task = asyncio.create_task(clock.sleep(2.0))
-        while clock.pending_sleepers() < 1:
-            await asyncio.sleep(0)
-        th = threading.Thread(target=clock.advance, args=(2.0,))
-        th.start()
-        await asyncio.wait_for(task, 10.0)
-        th.join(10.0)
-        return clock.time()
-
-    assert asyncio.run(main()) == pytest.approx(2.0)
-
-
-def test_lockstep_cancelled_sleeper_is_forgotten():
-    clock = LockstepClock(t0_s=0.0)
-
-    async def main():
-        task = asyncio.create_task(clock.sleep(5.0))
-        while clock.pending_sleepers() < 1:
-            await asyncio.sleep(0)
-        task.cancel()
-        with pytest.raises(asyncio.CancelledError):
-            await task
-        return clock.pending_sleepers()
-
-    assert asyncio.run(main()) == 0
-
-
-def test_lockstep_zero_sleep_returns_without_advance():
-    clock = LockstepClock(t0_s=0.0)
-    clock.sleep_blocking(0.0)
-    asyncio.run(asyncio.wait_for(clock.sleep(0.0), 10.0))
-    assert clock.time() == 0.0
