@@ -7,6 +7,7 @@ import asyncio
 import numpy as np
 import pytest
 
+from tests.support.wait_helpers import wait_until_async
 from tests.support.fly_helpers import fly, run_fleet
 from mission.flight.control import COMMANDS, MissionControl, OperatorStop
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
@@ -90,21 +91,12 @@ def _setup(n=4, return_behaviour="land", max_iterations=80):
     return fleet, plan
 
 
-async def _until(predicate, timeout_s, what):
-    """Wait (event-loop time: simulated in lock-step) until ``predicate()``; fail after ``timeout_s``."""
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout_s
-    while not predicate():
-        assert loop.time() < deadline, f"timed out waiting for {what}"
-        await asyncio.sleep(0.1)
-
-
 def _fly_with_operator(fleet, plan, log_path, operator):
     """Fly ``plan``; ``operator(co)`` runs beside the coordinator on the same loop."""
     async def main(world):
         coordinators = []
         mission = asyncio.ensure_future(fly(plan, fleet, log_path, world=world, coordinators=coordinators))
-        await _until(lambda: coordinators or mission.done(), 30.0, "the coordinator")
+        await wait_until_async(lambda: coordinators or mission.done(), 30.0, "the coordinator", poll_s=0.1)
         op = asyncio.ensure_future(operator(coordinators[0]))
         result = await mission
         seen = await op
@@ -120,10 +112,10 @@ def test_pause_holds_the_formation_then_continue_converges(tmp_path):
     fleet, plan = _setup()
 
     async def operator(co):
-        await _until(lambda: co.state.phase == "seek" and co.state.iteration >= 3, 400.0, "iteration 3")
+        await wait_until_async(lambda: co.state.phase == "seek" and co.state.iteration >= 3, 400.0, "iteration 3", poll_s=0.1)
         ack = co.command("pause", "alice@ops")
         assert ack["accepted"], ack
-        await _until(lambda: co.control.holding, 30.0, "the pause to hold")
+        await wait_until_async(lambda: co.control.holding, 30.0, "the pause to hold", poll_s=0.1)
         k, centre = co.state.iteration, np.array(co.state.centre_enu)
         setpoints = {s: co.gate.setpoint(s).copy() for s in co.gate.sysids}
         t0 = asyncio.get_running_loop().time()
@@ -159,10 +151,10 @@ def test_land_during_the_seek_lands_every_vehicle_where_it_is(tmp_path):
     fleet, plan = _setup()
 
     async def operator(co):
-        await _until(lambda: co.state.phase == "seek" and co.state.iteration >= 2, 400.0, "iteration 2")
+        await wait_until_async(lambda: co.state.phase == "seek" and co.state.iteration >= 2, 400.0, "iteration 2", poll_s=0.1)
         where = {s: fleet.vehicle(s).true_position_ned().copy() for s in co.vehicles}
         assert co.command("land", "carol")["accepted"]
-        await _until(lambda: all(fleet.vehicle(s).mode_name == "AUTO.LAND" for s in where), 30.0, "AUTO.LAND")
+        await wait_until_async(lambda: all(fleet.vehicle(s).mode_name == "AUTO.LAND" for s in where), 30.0, "AUTO.LAND", poll_s=0.1)
         return where
 
     result, where = _fly_with_operator(fleet, plan, tmp_path / "m.jsonl", operator)
@@ -183,7 +175,7 @@ def test_abort_during_the_assembly_brings_every_vehicle_home(tmp_path):
     fleet, plan = _setup()
 
     async def operator(co):
-        await _until(lambda: co.state.phase == "assemble", 300.0, "the assembly")
+        await wait_until_async(lambda: co.state.phase == "assemble", 300.0, "the assembly", poll_s=0.1)
         ack = co.command("abort", "dave")
         late = co.command("pause", "erin")   # the mission is ending: refused
         return ack, late
@@ -204,12 +196,12 @@ def test_rtl_during_the_mission_return_hands_every_vehicle_to_the_autopilot(tmp_
     modes = set()
 
     async def operator(co):
-        await _until(lambda: co.state.phase == "seek" and co.state.iteration >= 2, 400.0, "iteration 2")
+        await wait_until_async(lambda: co.state.phase == "seek" and co.state.iteration >= 2, 400.0, "iteration 2", poll_s=0.1)
         assert co.command("return", "frank")["accepted"]
-        await _until(lambda: co.state.phase == "return", 60.0, "the return")
+        await wait_until_async(lambda: co.state.phase == "return", 60.0, "the return", poll_s=0.1)
         ack = co.command("rtl", "frank")
-        await _until(lambda: all(fleet.vehicle(s).mode_name == "AUTO.RTL" or not fleet.vehicle(s).armed
-                                 for s in range(1, 5)), 60.0, "every vehicle in RTL")
+        await wait_until_async(lambda: all(fleet.vehicle(s).mode_name == "AUTO.RTL" or not fleet.vehicle(s).armed
+                                 for s in range(1, 5)), 60.0, "every vehicle in RTL", poll_s=0.1)
         modes.update(fleet.vehicle(s).mode_name for s in range(1, 5))
         return ack
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 
 import numpy as np
+from tests.support.wait_helpers import wait_until_async
 from tests.mission.flight.faults_fakes import (
     FakeClock,
     FakeGate,
@@ -46,17 +47,6 @@ class _Status:
         return []
 
 
-async def _until(predicate, what: str, timeout_s: float = 10.0) -> None:
-    """Yield to the loop until ``predicate()``; AssertionError after ``timeout_s`` (wall)."""
-    async def _poll():
-        while not predicate():
-            await asyncio.sleep(0.01)
-    try:
-        await asyncio.wait_for(_poll(), timeout_s)
-    except asyncio.TimeoutError:
-        raise AssertionError(f"timed out waiting for {what}") from None
-
-
 def test_the_watchdog_reengages_a_vehicle_in_hold_and_leaves_a_failsafe_alone():
     clock = FakeClock()
     state = flying_state(4, clock)
@@ -72,7 +62,7 @@ def test_the_watchdog_reengages_a_vehicle_in_hold_and_leaves_a_failsafe_alone():
     async def main():
         task = asyncio.create_task(dog.run(period_s=0.01))
         try:
-            await _until(lambda: state.reengaged.get(1), "vehicle 1 re-engaged")
+            await wait_until_async(lambda: state.reengaged.get(1), 10.0, "vehicle 1 re-engaged", poll_s=0.01)
         finally:
             task.cancel()
             await asyncio.gather(task, return_exceptions=True)
@@ -100,7 +90,7 @@ def _watch(monitor, predicate, what: str) -> None:
     async def main():
         task = asyncio.create_task(monitor.run(period_s=0.1))
         try:
-            await _until(predicate, what)
+            await wait_until_async(predicate, 10.0, what, poll_s=0.01)
         finally:
             task.cancel()
             await asyncio.gather(task, return_exceptions=True)
@@ -277,7 +267,7 @@ def test_the_watchdog_writes_status_records_and_reports_a_refused_reengagement()
     async def main():
         task = asyncio.create_task(dog.run(period_s=0.01))
         try:
-            await _until(lambda: len(vehicles[0].commands) >= 2, "a second attempt")
+            await wait_until_async(lambda: len(vehicles[0].commands) >= 2, 10.0, "a second attempt", poll_s=0.01)
         finally:
             task.cancel()
             await asyncio.gather(task, return_exceptions=True)

@@ -12,6 +12,7 @@ import threading
 import numpy as np
 import pytest
 
+from tests.support.wait_helpers import wait_until_async
 from tests.support.fly_helpers import fly, run_fleet, run_with_saboteur
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.sim.lockstep import VirtualClock
@@ -160,15 +161,6 @@ def test_takeoff_with_too_few_left_arms_nothing_more_and_ends(tmp_path):
     assert [a["sysid"] for a in result.airborne_left] == [2] and not result.ok
 
 
-async def _until(predicate, timeout_s, what):
-    """Wait (event-loop time: simulated in lock-step) until ``predicate()``; fail after ``timeout_s``."""
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout_s
-    while not predicate():
-        assert loop.time() < deadline, f"timed out waiting for {what}"
-        await asyncio.sleep(0.1)
-
-
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_operator_return_during_an_arming_retry_ends_the_takeoff_at_once(tmp_path):
@@ -179,19 +171,19 @@ def test_operator_return_during_an_arming_retry_ends_the_takeoff_at_once(tmp_pat
     seen = {}
 
     async def operator(co):
-        await _until(lambda: co.state.phase == "takeoff" and len(co.state.airborne) == 3, 120.0, "three airborne")
+        await wait_until_async(lambda: co.state.phase == "takeoff" and len(co.state.airborne) == 3, 120.0, "three airborne", poll_s=0.1)
         await asyncio.sleep(3.0)  # simulated: the refuser's arming is being retried
         assert co.state.phase == "takeoff" and refuser not in co.state.airborne
         t0 = asyncio.get_running_loop().time()
         assert co.command("return", "op")["accepted"]
-        await _until(lambda: co.state.phase not in ("takeoff",), 60.0, "the takeoff to end")
+        await wait_until_async(lambda: co.state.phase not in ("takeoff",), 60.0, "the takeoff to end", poll_s=0.1)
         seen["after_s"] = asyncio.get_running_loop().time() - t0
 
     async def main(world):
         coordinators = []
         mission = asyncio.ensure_future(fly(plan, fleet, tmp_path / "mission.jsonl", world=world,
                                             coordinators=coordinators))
-        await _until(lambda: coordinators or mission.done(), 30.0, "the coordinator")
+        await wait_until_async(lambda: coordinators or mission.done(), 30.0, "the coordinator", poll_s=0.1)
         op = asyncio.ensure_future(operator(coordinators[0]))
         result = await mission
         await op
