@@ -61,14 +61,20 @@ class SetpointFramer:
             raise ValueError(f"system and component ids must be 0-255, got {ids}")
         fmt = cls.unpacker.format.lstrip("<")
         # payload in wire order: time_boot_ms, x|lat_int, y|lon_int, z|alt, 6 zero floats
-        # (velocities, accelerations), yaw, yaw_rate, type_mask, target sys, target comp, frame
+        # (velocities, accelerations), yaw, yaw_rate, type_mask, then the constant tail:
+        # target system, target component, coordinate frame
         if fmt[:4] not in ("Ifff", "Iiif") or fmt[4:] != "ffffffffHBBB":
             raise ValueError(f"unexpected wire format {cls.unpacker.format!r} for message {msg_id}")
-        self._struct = struct.Struct("<10B" + fmt[:4] + "24x" + "ffH3B")
-        size = cls.unpacker.size
-        self._head = (0xFD, size, 0, 0)
-        self._rest = (src_system, src_component, msg_id & 0xFF, (msg_id >> 8) & 0xFF, msg_id >> 16)
-        self._tail = (target_system, target_component, coordinate_frame)
+        self._body = struct.Struct("<" + fmt[:4] + "24x" + "ffH")
+        self._tail = bytes((target_system, target_component, coordinate_frame))
+        size = self._body.size + len(self._tail)
+        #: the 10-byte header of each sequence number, and the CRC state after it (without the magic)
+        self._heads = tuple(bytes((0xFD, size, 0, 0, seq, src_system, src_component, msg_id & 0xFF,
+                                   (msg_id >> 8) & 0xFF, msg_id >> 16)) for seq in range(256))
+        fast = mavcrc.mcrf4xx
+        self._crc_fast = fast
+        self._head_crcs = tuple(fast(h[1:], 0xFFFF) for h in self._heads) if fast is not None else ()
+        self._tail_extra = self._tail + bytes((cls.crc_extra,))
         self.crc_extra = cls.crc_extra
         self.msg_id = msg_id
 
@@ -79,9 +85,13 @@ class SetpointFramer:
         ``x, y, z`` are the message's own: metres NED for LOCAL_NED, ``lat_int``, ``lon_int``
         (degE7, ints) and ``alt`` (metres) for GLOBAL_INT.
         """
-        frame = self._struct.pack(*self._head, seq, *self._rest, time_boot_ms, x, y, z, yaw, yaw_rate,
-                                  type_mask, *self._tail)
-        return frame + crc16(frame, self.crc_extra).to_bytes(2, "little")
+        body = self._body.pack(time_boot_ms, x, y, z, yaw, yaw_rate, type_mask)
+        fast = self._crc_fast
+        if fast is None:   # no fastcrc: pymavlink's x25 over the whole frame
+            frame = self._heads[seq] + body + self._tail
+            return frame + crc16(frame, self.crc_extra).to_bytes(2, "little")
+        crc = fast(self._tail_extra, fast(body, self._head_crcs[seq]))
+        return self._heads[seq] + body + self._tail + crc.to_bytes(2, "little")
 
 
 #: CRC_EXTRA values as the one-byte strings the CRC takes (not rebuilt for every frame)

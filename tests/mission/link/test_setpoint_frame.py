@@ -82,3 +82,14 @@ def test_signed_setpoints_match_pymavlink_signing():
 def test_bad_framer_arguments_are_refused_by_name(args, match):
     with pytest.raises(ValueError, match=match):
         SetpointFramer(*args)
+
+
+def test_the_whole_frame_crc_branch_gives_the_same_frames():
+    """Without fastcrc (no CRC states kept) the framer takes the CRC of the whole frame: same bytes."""
+    fast = SetpointFramer(_GLOBAL.id, 255, 190, 9, 1, mavlink.MAV_FRAME_GLOBAL_INT)
+    whole = SetpointFramer(_GLOBAL.id, 255, 190, 9, 1, mavlink.MAV_FRAME_GLOBAL_INT)
+    whole._crc_fast = None
+    rng = random.Random(3)
+    for seq in range(256):
+        t_ms, (x, y, z), yaw, mask = _random_fields(rng, _GLOBAL.id)
+        assert whole.frame(seq, t_ms, x, y, z, yaw, mask) == fast.frame(seq, t_ms, x, y, z, yaw, mask)
