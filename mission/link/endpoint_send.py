@@ -12,8 +12,8 @@ from __future__ import annotations
 import struct
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from pymavlink.generator import mavcrc
 
+from mission.link.setpoint_frame import SetpointFramer, crc16
 from mission.link.signing import apply_signing, refresh_timestamp, setup_signing_message, sign_frame
 
 __all__ = ["EndpointSending"]
@@ -21,20 +21,6 @@ __all__ = ["EndpointSending"]
 _V2_HEADER = struct.Struct("<BBBBBBBHB")
 _AUTOPILOT_INVALID = mavlink.MAV_AUTOPILOT_INVALID
 _TYPE_GCS = mavlink.MAV_TYPE_GCS
-
-
-#: CRC_EXTRA values as the one-byte strings the CRC takes (not rebuilt for every frame)
-_EXTRA_BYTES = tuple(bytes((k,)) for k in range(256))
-
-
-def _crc16(frame: bytes, crc_extra: int) -> int:
-    """MAVLink CRC of a frame without its magic byte, then ``crc_extra`` (fastcrc when available)."""
-    fast = mavcrc.mcrf4xx
-    if fast is not None:
-        return fast(_EXTRA_BYTES[crc_extra], fast(memoryview(frame)[1:], 0xFFFF))
-    crc = mavcrc.x25crc(frame[1:])
-    crc.accumulate(bytes((crc_extra,)))
-    return crc.crc
 
 
 class EndpointSending:
@@ -95,23 +81,56 @@ class EndpointSending:
         order, e.g. ``MAVLink_set_position_target_local_ned_message.unpacker.pack(...)``.
         Same routing, counting and logging as :meth:`send`.
         """
+        taken = self._next_seq(sysid)
+        if taken is None:
+            return False
+        peer, seq = taken
+        body = payload.rstrip(b"\x00") or b"\x00"
+        frame = _V2_HEADER.pack(0xFD, len(body), 0, 0, seq, self.gcs_sysid, self.gcs_compid,
+                                msg_id & 0xFFFF, msg_id >> 16) + body
+        frame += crc16(frame, crc_extra).to_bytes(2, "little")
+        if self.signing_state is not None:
+            frame = sign_frame(frame, crc_extra, self.signing_state)
+        return self._send_frame(peer, frame, (sysid,))
+
+    def setpoint_framer(self, msg_id: int, target_system: int, target_component: int,
+                        coordinate_frame: int) -> SetpointFramer:
+        """A :class:`~mission.link.setpoint_frame.SetpointFramer` from this endpoint's system and
+        component ids to a vehicle, for :meth:`send_setpoint`."""
+        return SetpointFramer(msg_id, self.gcs_sysid, self.gcs_compid, target_system, target_component,
+                              coordinate_frame)
+
+    def send_setpoint(self, sysid: int, framer: SetpointFramer, time_boot_ms: int, x, y, z, yaw: float,
+                      type_mask: int) -> bool:
+        """Send one setpoint frame built by ``framer`` (:meth:`setpoint_framer`) to ``sysid``.
+
+        The frame is byte-identical to pymavlink's ``pack`` of the same message (the peer's
+        sequence number, signed when signing is on); same routing, counting and logging as
+        :meth:`send`. ``x, y, z`` are the message's own fields (metres NED, or degE7 and metres).
+        """
+        taken = self._next_seq(sysid)
+        if taken is None:
+            return False
+        peer, seq = taken
+        frame = framer.frame(seq, time_boot_ms, x, y, z, yaw, type_mask)
+        if self.signing_state is not None:
+            frame = sign_frame(frame, framer.crc_extra, self.signing_state)
+        return self._send_frame(peer, frame, (sysid,))
+
+    def _next_seq(self, sysid: int):
+        """``(peer, sequence number)`` for the next frame to ``sysid`` (the peer's number taken),
+        or None when it cannot be routed (counted by :meth:`_route`)."""
         peer = self._peer_of.get(sysid)   # the pinned address (nearly always there): no _route call
         if peer is None:
             peer = self._route(sysid)
             if peer is None:
-                return False
+                return None
         enc = self._encoders.get(peer)
         if enc is None:
             enc = self._encoder(peer)
         seq = enc.seq
         enc.seq = (seq + 1) & 0xFF
-        body = payload.rstrip(b"\x00") or b"\x00"
-        frame = _V2_HEADER.pack(0xFD, len(body), 0, 0, seq, self.gcs_sysid, self.gcs_compid,
-                                msg_id & 0xFFFF, msg_id >> 16) + body
-        frame += _crc16(frame, crc_extra).to_bytes(2, "little")
-        if self.signing_state is not None:
-            frame = sign_frame(frame, crc_extra, self.signing_state)
-        return self._send_frame(peer, frame, (sysid,))
+        return peer, seq
 
     def _send_frame(self, peer, frame: bytes, sysids) -> bool:
         if not self._transport.send(peer, frame):

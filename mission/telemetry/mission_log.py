@@ -69,6 +69,16 @@ def to_jsonable(obj):
     ``<TypeName>``: its ``str()`` could hold anything (a MAVLink SETUP_SIGNING message holds the
     key), so it is never written.
     """
+    t = type(obj)   # the commonest leaves first, by exact type (what the general path gives them)
+    if t is float:
+        return round(obj, 6) if math.isfinite(obj) else None
+    if t is str or t is int or t is bool or obj is None:
+        return obj
+    return _jsonable_any(obj)
+
+
+def _jsonable_any(obj):
+    """:func:`to_jsonable` of any value (the general path; containers recurse through :func:`to_jsonable`)."""
     if isinstance(obj, dict):
         return {str(k): REDACTED if k in SECRET_NAMES else _degrees(v) if str(k).endswith("_deg")
                 else to_jsonable(v) for k, v in obj.items()}

@@ -133,6 +133,7 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
         self._hold_task: asyncio.Task | None = None
         self._hold_target: tuple | None = None
         self._external_send_s = -1e18
+        self._framer: tuple | None = None  # (compid, setpoint_frame, SetpointFramer): see _setpoint_framer
         self._handlers: dict[int, Callable] = {
             _M.MAVLINK_MSG_ID_HEARTBEAT: self._on_heartbeat,
             _M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self._on_global_position,
@@ -263,32 +264,42 @@ class VehicleLink(VehicleCommands, VehicleTelemetry):
         CommandError
             The vehicle's home (hence its frame) is not known yet.
         """
-        self._external_send_s = self.clock.time()
-        self._send_position(position_enu_m, yaw_rad)
+        now_s = self.clock.time()
+        self._external_send_s = now_s
+        self._send_position(position_enu_m, yaw_rad, now_s)
 
-    def _send_position(self, position_enu_m, yaw_rad) -> None:
+    def _send_position(self, position_enu_m, yaw_rad, now_s: float | None = None) -> None:
         east_m, north_m, up_m = position_enu_m
         mask = _MASK_NO_YAW if yaw_rad is None else _MASK_POSITION
         yaw = 0.0 if yaw_rad is None else float(yaw_rad)
-        t_ms = int((self.clock.time() - self._t0_s) * 1000) & 0xFFFFFFFF
+        if now_s is None:
+            now_s = self.clock.time()
+        t_ms = int((now_s - self._t0_s) * 1000) & 0xFFFFFFFF
         if self.setpoint_frame == "local_ned":
             fmap = self.frame_map
             if fmap is None:
                 raise CommandError(f"{self._who()}: no home yet, cannot place a LOCAL_NED setpoint "
                                    f"(call wait_home first)", sysid=self.sysid)
-            n, e, d = fmap.mission_enu_to_local_ned(float(east_m), float(north_m), float(up_m))
-            payload = _SP_LOCAL.unpacker.pack(t_ms, n, e, d, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, yaw, 0.0, mask,
-                                              self.sysid, self.compid, _M.MAV_FRAME_LOCAL_NED)
-            sent = self.endpoint.send_payload(self.sysid, _SP_LOCAL.id, _SP_LOCAL.crc_extra, payload)
+            x, y, z = fmap.mission_enu_to_local_ned(float(east_m), float(north_m), float(up_m))
         else:
             lat, lon, alt = enu_to_geodetic([float(east_m), float(north_m), float(up_m)], self.mission_origin)
-            msg = _M.MAVLink_set_position_target_global_int_message(
-                t_ms, self.sysid, self.compid, _M.MAV_FRAME_GLOBAL_INT, mask,
-                int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)), float(alt),
-                0, 0, 0, 0, 0, 0, yaw, 0)
-            sent = self.endpoint.send(self.sysid, msg)
-        if sent:
+            x, y, z = int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)), float(alt)
+        if self.endpoint.send_setpoint(self.sysid, self._setpoint_framer(), t_ms, x, y, z, yaw, mask):
             self.setpoints_sent += 1
+
+    def _setpoint_framer(self):
+        """The endpoint's frame packer for this vehicle's setpoints (rebuilt if its component id
+        or setpoint frame changed)."""
+        cached = self._framer
+        if cached is not None and cached[0] == self.compid and cached[1] == self.setpoint_frame:
+            return cached[2]
+        if self.setpoint_frame == "local_ned":
+            msg_id, frame = _SP_LOCAL.id, _M.MAV_FRAME_LOCAL_NED
+        else:
+            msg_id, frame = _M.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT, _M.MAV_FRAME_GLOBAL_INT
+        framer = self.endpoint.setpoint_framer(msg_id, self.sysid, self.compid, frame)
+        self._framer = (self.compid, self.setpoint_frame, framer)
+        return framer
 
     async def close(self) -> None:
         """Stop the hold stream and detach from the endpoint (the endpoint stays open)."""

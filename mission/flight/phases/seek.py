@@ -43,6 +43,7 @@ from mission.flight.state import MissionError, MissionState
 from mission.safety.gate import SafetyGate
 from mission.telemetry.mission_log import MissionLog
 from mission.telemetry.readings import ReadingStore
+from mission.telemetry.status_changes import StatusChanges
 
 __all__ = ["Seek", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
 
@@ -72,7 +73,8 @@ class Seek:
     checkpoint : callable
         ``await checkpoint()``: an operator's pause holds there, a stop raises (``MissionControl.checkpoint``).
     vehicle_status : callable
-        ``vehicle_status() -> list[dict]``: every vehicle's status, for the iteration record.
+        ``vehicle_status() -> list[dict]``: every vehicle's status; the iteration record keeps
+        what changed in it (:mod:`mission.telemetry.status_changes`).
     """
 
     def __init__(self, plan: Plan, state: MissionState, fleet: Fleet, gate: SafetyGate, clock: Clock,
@@ -82,6 +84,7 @@ class Seek:
         self.plan, self.state, self.fleet, self.gate, self.clock = plan, state, fleet, gate, clock
         self.events, self.waiter, self.store, self.envelope, self.log = events, waiter, store, envelope, log
         self.formation, self.checkpoint, self.vehicle_status = formation, checkpoint, vehicle_status
+        self._status_changes = StatusChanges()  # the iteration records' status: what changed
 
     async def run(self, start_iteration: int = 0, history=()) -> tuple[str, str]:
         """Run the seek loop; returns ``(outcome, message)``.
@@ -382,7 +385,8 @@ class Seek:
                          readings=readings,
                          positions_enu={s: self.fleet.telemetry_position(s) for s in everyone},
                          setpoints_enu={s: self.gate.setpoint(s) for s in everyone},
-                         suspects=_suspects(self.check or self.estimate, used), status=self.vehicle_status())
+                         suspects=_suspects(self.check or self.estimate, used),
+                         status_changes=self._status_changes.changes(self.vehicle_status()))
         self.centre = new_centre
         self.state.move_centre(new_centre)
         self._resize(k)

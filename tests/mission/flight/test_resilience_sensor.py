@@ -28,6 +28,7 @@ from mission.safety.audit import audit_mission
 from mission.flight.coordinator import _plan_json
 from mission.sim.embedded import DEFAULT_ORIGIN, default_eps, embedded_plan, fleet_ports
 from mission.telemetry.mission_log import MissionLog, read_mission_log
+from mission.telemetry.status_changes import iteration_statuses
 from mission.core.plan_types import FaultsPlan
 from mission.flight.faults.retire import PARKED_STATUS, RetiredSensor, Retirement, SensorWatch, restore_retired
 from mission.flight.motion import GateMotion
@@ -298,15 +299,16 @@ def test_the_noisy_sensor_and_only_it_is_retired_and_the_mission_converges(retir
 def test_the_retired_vehicle_is_parked_at_the_centre_and_its_readings_ignored(retired_mission):
     plan, _, records, _ = retired_mission
     k_retired = _retire_events(records)[0]["iteration"]
-    after = [r for r in records if r["type"] == "iteration" and r["k"] > k_retired]
+    its = [r for r in records if r["type"] == "iteration"]
+    after = [(r, st) for r, st in zip(its, iteration_statuses(records)) if r["k"] > k_retired]
     assert len(after) >= 5
-    for r in after:
+    for r, statuses in after:
         assert _NOISY not in {x["sysid"] for x in r["readings"]}
         assert len(r["readings"]) in (6, 7)
         pos = np.asarray(r["positions_enu"][str(_NOISY)], dtype=float)
         # the estimate waits for the arrival (arrival_tol_m 0.35 m); the centre is the commanded one
         assert np.linalg.norm(pos - np.asarray(r["centre_enu"])) < 0.75, (r["k"], pos, r["centre_enu"])
-        status = next(v for v in r["status"] if v["sysid"] == _NOISY)
+        status = statuses[_NOISY]
         assert status["status"] == PARKED_STATUS and status["sensor_retired"] is True
         pts = np.array([p for p in r["positions_enu"].values()], dtype=float)
         d = np.linalg.norm(pts[:, None] - pts[None], axis=-1) + 1e9 * np.eye(len(pts))

@@ -362,9 +362,9 @@ def test_setpoint_time_boot_ms_is_the_injected_clocks_time_since_the_link_opened
     ep, v, ap = _attached(clock)
     ep.receive_datagram(ap.encode(ap.home_position()), ("127.0.0.1", 9))
     sent = []
-    ep.send_payload = lambda sysid, msg_id, crc_extra, payload: sent.append(payload) or True
+    ep.send_setpoint = lambda sysid, framer, t_ms, *fields: sent.append(framer.frame(0, t_ms, *fields)) or True
     for elapsed_s in (0.0, 2.5, 3600.25):
         clock.t_s = 1_767_225_600.0 + elapsed_s
         v.send_position_enu([0.0, 0.0, 5.0])
-    stamps_ms = [struct.unpack_from("<I", payload)[0] for payload in sent]
+    stamps_ms = [struct.unpack_from("<I", frame, 10)[0] for frame in sent]
     assert stamps_ms == [0, 2500, 3600250]
