@@ -206,9 +206,6 @@ def _check_battery(ap, t_s: float) -> None:
 def _check_fence(ap, t_s: float) -> None:
     p = ap.params
     fs = ap.flight
-    ned = ap.mc.position_ned_m
-    dist = math.hypot(ned[0] - ap.home_ned[0], ned[1] - ap.home_ned[1])
-    alt = -ned[2]
     if ap_flight_state.is_ardupilot(ap):
         if not p["FENCE_ENABLE"]:
             return
@@ -223,6 +220,10 @@ def _check_fence(ap, t_s: float) -> None:
             return
         action = {0: "none", 1: "none", 2: "hold", 3: "rtl", 4: "terminate", 5: "land"}[
             int(p["GF_ACTION"])]
+    north_m, east_m, down_m = ap.mc.position_ned_m_tuple()  # after the checks that end early: no array
+    home_ned = ap.home_ned
+    dist = math.hypot(north_m - home_ned[0], east_m - home_ned[1])
+    alt = -down_m
     breached = dist > radius or alt > alt_max
     if not breached:
         if fs.fence_breached and dist < radius - 2.0 and alt < alt_max - 2.0:

@@ -164,8 +164,8 @@ class MockAutopilot:
 
     def ned_to_geodetic(self, ned) -> tuple[float, float, float]:
         """Convert a LOCAL_NED point of this vehicle to ``(lat_deg, lon_deg, alt_m)``."""
-        n, e, d = (float(v) for v in ned)
-        return self._frame.ned_to_geodetic(n, e, d)
+        n, e, d = ned
+        return self._frame.ned_to_geodetic(float(n), float(e), float(d))
 
     def geodetic_to_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
         """Convert a geodetic point to this vehicle's LOCAL_NED frame."""

@@ -116,6 +116,10 @@ class Multicopter:
         self._n, self._e, self._d = n, e, min(d, 0.0)
         self.landed = self._d >= -_LIFTOFF_M and self._mode == _MODE_IDLE
 
+    def position_ned_m_tuple(self) -> tuple[float, float, float]:
+        """True position ``(north_m, east_m, down_m)`` as floats (no array: for per-step code)."""
+        return self._n, self._e, self._d
+
     @property
     def velocity_ned_m_s(self) -> np.ndarray:
         """True velocity, NED m/s (a copy; assign to set)."""

@@ -392,9 +392,9 @@ class MockFleet:
     def _sample(self, v: MockVehicle, t_s: float) -> None:
         if v.faults.crashed:
             return
-        ned = v.dynamics.position_ned_m
-        enu = v.to_mission_enu(ned)
-        lat, lon, alt = v.autopilot.ned_to_geodetic(ned)
+        north_m, east_m, down_m = v.dynamics.position_ned_m_tuple()
+        enu = v.mission_enu_of(north_m, east_m, down_m)
+        lat, lon, alt = v.autopilot.ned_to_geodetic((north_m, east_m, down_m))
         reading = v.sensor.sample(t_s, enu, lat, lon, alt)
         if self._publisher is not None:
             self._publisher.publish(reading)

@@ -129,7 +129,7 @@ class SignalSensor:
         """
         t = _finite(t_s, "t_s")
         pos = np.asarray(true_position_enu, dtype=float)
-        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+        if pos.shape != (3,) or not np.isfinite(pos).all():
             raise ValueError(f"true_position_enu must be 3 finite numbers, got {true_position_enu!r}")
         lat, lon, alt = _finite(lat_deg, "lat_deg"), _finite(lon_deg, "lon_deg"), _finite(alt_m, "alt_m")
         f = self.faults
