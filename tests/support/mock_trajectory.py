@@ -9,7 +9,7 @@ keeps every telemetry frame the autopilots send and every sensor reading they ta
 
 :func:`summarise` reduces that to what ``tests/sitl_mock/data/mock_trajectory_golden.json`` holds
 (a digest of every position bit, of every frame byte and of every reading; the positions every
-0.5 s in full). The file was written by the mock as it was before its per-step fast paths
+0.5 s in full), once over a Gaussian field and once over the intermittent plume. The file was written by the mock as it was before its per-step fast paths
 (commit 10ec088), so the test comparing against it fails if an optimisation changes one bit of a
 trajectory, frame or reading. A deliberate change of the mock's behaviour rewrites it with
 ``PYTHONPATH=$PWD python -m tests.support.mock_trajectory --write`` (say why in the commit).
@@ -26,7 +26,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from sitl_mock.dynamics_params import DynamicsParams
-from sitl_mock.fields_gaussian import sigma1
+from sitl_mock.fields_config import make_field
 from sitl_mock.fleet import PHYSICS_RATE_HZ, MockFleet
 from sitl_mock.transport import make_parser
 
@@ -122,11 +122,15 @@ def _act(k: int, i: int, gcs: _Gcs, fleet: MockFleet, t_s: float) -> None:
         fleet.set_fault(gcs.ap.sysid, "gps_glitch_m", 4.0 if k == 700 else 0.0)
 
 
-def record_scenario(seed: int = 7) -> dict:
-    """Fly the scenario; return ``positions`` (per step, per vehicle NED m), ``frames`` (per
+#: the fields the scenario is recorded on: a Gaussian and the intermittent (time-dependent) plume
+FIELDS = ("sigma1", "intermittent")
+
+
+def record_scenario(field: str = "sigma1", seed: int = 7) -> dict:
+    """Fly the scenario over the field named ``field`` (:data:`FIELDS`); return ``positions`` (per step, per vehicle NED m), ``frames`` (per
     vehicle, every telemetry frame in order) and ``readings`` (every sensor reading in order)."""
     clock = _Clock(T0_S)
-    fleet = MockFleet(4, personality=["px4", "px4", "ardupilot", "ardupilot"], field=sigma1((20.0, 5.0, 10.0)),
+    fleet = MockFleet(4, personality=["px4", "px4", "ardupilot", "ardupilot"], field=make_field(field, (20.0, 5.0, 10.0)),
                       clock=clock, seed=seed, udp_base_port=0, tcp_base_port=0, zenoh=False,
                       sensor_noise_std=0.05, params=_PARAMS,
                       dynamics=DynamicsParams(gps_noise_std_m=0.3, wind_ned_m_s=(1.0, -0.5, 0.0),
@@ -190,16 +194,18 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--write", action="store_true", help=f"write {GOLDEN_PATH}")
     args = ap.parse_args(argv)
-    run = record_scenario()
-    if run["errors"]:
-        print("fleet errors:", *run["errors"], sep="\n")
-        return 1
-    summary = summarise(run)
+    runs = {name: record_scenario(name) for name in FIELDS}
+    for name, run in runs.items():
+        if run["errors"]:
+            print(f"fleet errors ({name}):", *run["errors"], sep="\n")
+            return 1
+    golden = {name: summarise(run) for name, run in runs.items()}
     if args.write:
         GOLDEN_PATH.parent.mkdir(parents=True, exist_ok=True)
-        GOLDEN_PATH.write_text(json.dumps(summary, indent=None) + "\n")
+        GOLDEN_PATH.write_text(json.dumps(golden, indent=None) + "\n")
         print(f"wrote {GOLDEN_PATH}")
-    print(json.dumps({k: v for k, v in summary.items() if k != "positions_every_0_5_s"}, indent=1))
+    for name, summary in golden.items():
+        print(name, json.dumps({k: v for k, v in summary.items() if k != "positions_every_0_5_s"}, indent=1))
     return 0
 
 
