@@ -42,6 +42,12 @@ from sitl_mock import ap_flight, ap_flight_state
 
 __all__ = ["check_failsafes"]
 
+#: failsafe actions by parameter value (looked up every step: built once)
+_GCS_ACTIONS_ARDUPILOT = {0: "none", 2: "rtl", 5: "land", 7: "land"}      # FS_GCS_ENABLE, else rtl
+_GCS_ACTIONS_PX4 = {1: "hold", 2: "rtl", 3: "land", 5: "terminate", 6: "terminate"}  # NAV_DLL_ACT, else none
+_FENCE_ACTIONS_ARDUPILOT = {0: "none", 2: "land", 4: "hold", 6: "hold"}   # FENCE_ACTION, else rtl
+_FENCE_ACTIONS_PX4 = {0: "none", 1: "none", 2: "hold", 3: "rtl", 4: "terminate", 5: "land"}  # GF_ACTION
+
 
 def check_failsafes(ap, t_s: float) -> None:
     """Run every failsafe check (call each step, before the flight logic)."""
@@ -138,12 +144,12 @@ def _check_gcs_loss(ap, t_s: float) -> None:
         return
     if ap_flight_state.is_ardupilot(ap):
         enable, timeout = int(ap.params["FS_GCS_ENABLE"]), ap.params["FS_GCS_TIMEOUT"]
-        action = {0: "none", 2: "rtl", 5: "land", 7: "land"}.get(enable, "rtl")
+        action = _GCS_ACTIONS_ARDUPILOT.get(enable, "rtl")
         if enable == 2 and ap.behaviour == "mission":
             action = "none"
     else:
         enable, timeout = int(ap.params["NAV_DLL_ACT"]), ap.params["COM_DL_LOSS_T"]
-        action = {1: "hold", 2: "rtl", 3: "land", 5: "terminate", 6: "terminate"}.get(enable, "none")
+        action = _GCS_ACTIONS_PX4.get(enable, "none")
     lost = t_s - last > timeout
     pending = fs.pending_failsafe is not None and fs.pending_failsafe[2] == "gcs"
     if not lost:
@@ -206,23 +212,23 @@ def _check_battery(ap, t_s: float) -> None:
 def _check_fence(ap, t_s: float) -> None:
     p = ap.params
     fs = ap.flight
-    ned = ap.mc.position_ned_m
-    dist = math.hypot(ned[0] - ap.home_ned[0], ned[1] - ap.home_ned[1])
-    alt = -ned[2]
     if ap_flight_state.is_ardupilot(ap):
         if not p["FENCE_ENABLE"]:
             return
         kinds = int(p["FENCE_TYPE"])
         radius = p["FENCE_RADIUS"] if kinds & 2 else math.inf
         alt_max = p["FENCE_ALT_MAX"] if kinds & 1 else math.inf
-        action = {0: "none", 2: "land", 4: "hold", 6: "hold"}.get(int(p["FENCE_ACTION"]), "rtl")
+        action = _FENCE_ACTIONS_ARDUPILOT.get(int(p["FENCE_ACTION"]), "rtl")
     else:
         radius = p["GF_MAX_HOR_DIST"] or math.inf
         alt_max = p["GF_MAX_VER_DIST"] or math.inf
         if math.isinf(radius) and math.isinf(alt_max):
             return
-        action = {0: "none", 1: "none", 2: "hold", 3: "rtl", 4: "terminate", 5: "land"}[
-            int(p["GF_ACTION"])]
+        action = _FENCE_ACTIONS_PX4[int(p["GF_ACTION"])]
+    north_m, east_m, down_m = ap.mc.position_ned_m_tuple()  # after the checks that end early: no array
+    home_ned = ap.home_ned
+    dist = math.hypot(north_m - home_ned[0], east_m - home_ned[1])
+    alt = -down_m
     breached = dist > radius or alt > alt_max
     if not breached:
         if fs.fence_breached and dist < radius - 2.0 and alt < alt_max - 2.0:

@@ -68,7 +68,10 @@ class ParamTable:
         return len(self._order)
 
     def __getitem__(self, name: str) -> float:
-        return self.get(name)
+        try:  # the failsafe checks read several parameters every step: one dict lookup
+            return self._values[name]
+        except KeyError:
+            raise ParamError(f"unknown parameter {name!r}") from None
 
     def names(self) -> list[str]:
         """Parameter names in index order."""
@@ -95,9 +98,11 @@ class ParamTable:
         return self._spec(name).ptype
 
     def get(self, name: str) -> float:
-        """Current value (an int for integer parameters)."""
-        self._spec(name)
-        return self._values[name]
+        """Current value (an int for integer parameters); ParamError for an unknown name."""
+        try:  # _values has exactly the names of _specs (set() only stores known names)
+            return self._values[name]
+        except KeyError:
+            raise ParamError(f"unknown parameter {name!r}") from None
 
     def set(self, name: str, value) -> float:
         """Set a value after checking type and range; returns the stored value."""

@@ -73,6 +73,9 @@ class TelemetrySource(Protocol):
     def estimate(self, t_s: float) -> tuple:
         """``(ned_m, vel_ned_m_s, lat_deg, lon_deg, alt_m)`` as the autopilot estimates it."""
 
+    def estimate_local(self, t_s: float) -> tuple:
+        """``(ned_m, vel_ned_m_s)`` of :meth:`estimate`, without the geodetic conversion."""
+
     def home_geodetic(self) -> tuple | None:
         """Home ``(lat_deg, lon_deg, alt_m)`` or None before the position fix."""
 
@@ -202,13 +205,13 @@ def _global_position_int(ap, t_s):
 
 
 def _local_position_ned(ap, t_s):
-    ned, vel, _lat, _lon, _alt = ap.estimate(t_s)
+    ned, vel = ap.estimate_local(t_s)
     return ap.mav.local_position_ned_encode(ap.time_boot_ms(t_s), ned[0], ned[1], ned[2],
                                             vel[0], vel[1], vel[2])
 
 
 def _attitude(ap, t_s):
-    _ned, vel, *_ = ap.estimate(t_s)
+    _ned, vel = ap.estimate_local(t_s)
     # small tilt in the direction of motion (a point mass has no attitude; this looks plausible)
     yaw = ap.mc.yaw_rad
     fwd = vel[0] * math.cos(yaw) + vel[1] * math.sin(yaw)

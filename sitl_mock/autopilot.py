@@ -24,6 +24,7 @@ from sitl_mock import (
     ap_receive,
     ap_setpoints,
 )
+from sitl_mock.ap_frames import pack_unsigned_v2
 from sitl_mock.ap_signing import VehicleSigning
 from wire.signing import signing_timestamp
 from sitl_mock.ap_mission import MissionItem, MissionServer
@@ -129,6 +130,8 @@ class MockAutopilot:
         self.last_gcs_heartbeat_s: float | None = None
         self._est_key = None
         self._est = None
+        self._local_key = None
+        self._local = None
         self._last_t_s = t_s
 
     @property
@@ -164,19 +167,30 @@ class MockAutopilot:
 
     def ned_to_geodetic(self, ned) -> tuple[float, float, float]:
         """Convert a LOCAL_NED point of this vehicle to ``(lat_deg, lon_deg, alt_m)``."""
-        n, e, d = (float(v) for v in ned)
-        return self._frame.ned_to_geodetic(n, e, d)
+        n, e, d = ned
+        return self._frame.ned_to_geodetic(float(n), float(e), float(d))
 
     def geodetic_to_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
         """Convert a geodetic point to this vehicle's LOCAL_NED frame."""
         return enu_to_ned(geodetic_to_enu(lat_deg, lon_deg, alt_m, self._origin))
 
+    def estimate_local(self, t_s: float) -> tuple:
+        """Reported ``(ned_m, vel_ned_m_s)`` (one draw per step), what :meth:`estimate` converts.
+
+        The messages that need no latitude (LOCAL_POSITION_NED, ATTITUDE) read this: a step
+        that sends only those does no geodetic conversion.
+        """
+        key = self._last_t_s
+        if self._local_key != key or self._local is None:
+            self._local = (self.mc.reported_position_ned_m(), self.mc.velocity_ned_m_s)
+            self._local_key = key
+        return self._local
+
     def estimate(self, t_s: float) -> tuple:
         """Reported state ``(ned_m, vel_ned_m_s, lat_deg, lon_deg, alt_m)`` (one draw per step)."""
         key = self._last_t_s
         if self._est_key != key or self._est is None:
-            ned = self.mc.reported_position_ned_m()
-            vel = self.mc.velocity_ned_m_s
+            ned, vel = self.estimate_local(t_s)
             lat, lon, alt = self.ned_to_geodetic(ned)
             self._est = (ned, vel, lat, lon, alt)
             self._est_key = key
@@ -230,9 +244,17 @@ class MockAutopilot:
 
     # ----------------------------------------------------------------- output
     def emit(self, msg) -> None:
-        """Encode ``msg`` with this vehicle's identity and queue it for every link."""
-        buf = msg.pack(self.mav)
-        self.mav.seq = (self.mav.seq + 1) % 256
+        """Encode ``msg`` with this vehicle's identity and queue it for every link.
+
+        Unsigned frames of messages without arrays are packed by :func:`sitl_mock.ap_frames.pack_unsigned_v2`
+        (the same bytes as pymavlink, cheaper); signed ones and the rest by pymavlink.
+        """
+        mav = self.mav
+        buf = None if mav.signing.sign_outgoing else pack_unsigned_v2(msg, mav.seq, mav.srcSystem,
+                                                                      mav.srcComponent)
+        if buf is None:
+            buf = msg.pack(mav)
+        mav.seq = (mav.seq + 1) % 256
         self._outbox.append(buf)
         self.counters["tx_frames"] += 1
 

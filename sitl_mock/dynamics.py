@@ -116,6 +116,10 @@ class Multicopter:
         self._n, self._e, self._d = n, e, min(d, 0.0)
         self.landed = self._d >= -_LIFTOFF_M and self._mode == _MODE_IDLE
 
+    def position_ned_m_tuple(self) -> tuple[float, float, float]:
+        """True position ``(north_m, east_m, down_m)`` as floats (no array: for per-step code)."""
+        return self._n, self._e, self._d
+
     @property
     def velocity_ned_m_s(self) -> np.ndarray:
         """True velocity, NED m/s (a copy; assign to set)."""
@@ -262,9 +266,12 @@ class Multicopter:
             if dt_s == 0.0:
                 return
             raise ValueError(f"step needs a finite dt_s >= 0, got {dt_s!r}")
-        n = math.ceil(dt_s / _MAX_SUBSTEP_S) if dt_s > _MAX_SUBSTEP_S else 1
-        for _ in range(n):
-            self._step(dt_s / n)
+        if dt_s > _MAX_SUBSTEP_S:
+            n = math.ceil(dt_s / _MAX_SUBSTEP_S)
+            for _ in range(n):
+                self._step(dt_s / n)
+        else:  # the fleet's 20 ms step: one sub-step
+            self._step(dt_s)
         std = self.params.gps_noise_std_m
         if std > 0.0:
             self._gps_err = gauss_markov_step(self._gps_err, dt_s, self.params.gps_noise_tau_s, std,

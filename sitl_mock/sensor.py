@@ -103,7 +103,8 @@ class SignalSensor:
         """Noise-free field value at ``position_enu`` (mission frame, ENU m) and time ``t_s``."""
         return float(self.field.value(np.asarray(position_enu, dtype=float), t_s))
 
-    def sample(self, t_s: float, true_position_enu, lat_deg, lon_deg, alt_m) -> dict:
+    def sample(self, t_s: float, true_position_enu, lat_deg, lon_deg, alt_m,
+               true_value: float | None = None) -> dict:
         """Take one reading.
 
         Parameters
@@ -114,6 +115,9 @@ class SignalSensor:
             Where the sample is taken, mission frame ENU m (the field is evaluated there).
         lat_deg, lon_deg, alt_m : float
             The same position, geodetic (goes into the payload).
+        true_value : float, optional
+            :meth:`true_value` at that position and time when the caller has it already (the
+            fleet evaluates the field once for all its vehicles); None: evaluated here.
 
         Returns
         -------
@@ -129,7 +133,7 @@ class SignalSensor:
         """
         t = _finite(t_s, "t_s")
         pos = np.asarray(true_position_enu, dtype=float)
-        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+        if pos.shape != (3,) or not np.isfinite(pos).all():
             raise ValueError(f"true_position_enu must be 3 finite numbers, got {true_position_enu!r}")
         lat, lon, alt = _finite(lat_deg, "lat_deg"), _finite(lon_deg, "lon_deg"), _finite(alt_m, "alt_m")
         f = self.faults
@@ -137,7 +141,7 @@ class SignalSensor:
             value = self._last_value
         else:
             std = self.noise_std if f.sensor_noise_std is None else float(f.sensor_noise_std)
-            value = self._lag(t, self.true_value(pos, t))
+            value = self._lag(t, self.true_value(pos, t) if true_value is None else float(true_value))
             if std > 0.0:
                 value += std * float(self.rng.standard_normal())
             value += float(f.sensor_bias)

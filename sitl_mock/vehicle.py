@@ -105,6 +105,11 @@ class MockVehicle:
         """Convert a point of this vehicle's LOCAL_NED frame to the mission frame (exact)."""
         return self._to_mission @ ned_to_enu(ned) + self._mission_offset
 
+    def mission_enu_of(self, north_m: float, east_m: float, down_m: float) -> np.ndarray:
+        """:meth:`to_mission_enu` of one point given as floats (the same operations on the same
+        array, without ``ned_to_enu``'s stacking: the fleet calls it for every sensor sample)."""
+        return self._to_mission @ np.array((east_m, north_m, -down_m)) + self._mission_offset
+
     def __repr__(self) -> str:
         return (f"MockVehicle(sysid={self.sysid}, {self.autopilot.personality.name}, "
                 f"mode={self.mode_name}, udp={self.udp_bind_port}->{self.udp_send_port}, "

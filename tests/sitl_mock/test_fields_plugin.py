@@ -257,8 +257,11 @@ def test_a_broken_plugin_stops_run_with_one_line_and_exit_2(case, tmp_path, monk
 
 
 def test_a_plugin_failing_where_the_probe_did_not_look_is_told(tmp_path, monkeypatch, capsys):
-    bad = GOOD_PLUGIN.replace("return out\n", "return out if len(points_enu_m) > 1 else out[:, None]\n")
-    mod = _write_module(tmp_path, "tp_runtime_bad", bad, monkeypatch)  # the sensors read one point at a time
+    # wrong shape on the ground only: the probe looks at the fence's floor (2 m) and above, the
+    # sensors first read before take-off (z = 0; the fleet asks for all its vehicles at once, then,
+    # as that fails, one point at a time)
+    bad = GOOD_PLUGIN.replace("return out\n", "return out[:, None] if (points_enu_m[:, 2] < 1.0).any() else out\n")
+    mod = _write_module(tmp_path, "tp_runtime_bad", bad, monkeypatch)
     log_dir = tmp_path / "log"
     assert cli_main(["run", "--field-python", f"{mod}:make", "--json", "--no-tlog", "--log-dir", str(log_dir)]) == 1
     captured = capsys.readouterr()
