@@ -62,7 +62,7 @@ class _Bench:
                                zenoh=False, sensor_noise_std=0.05,
                                dynamics=DynamicsParams(gps_noise_std_m=0.3))
         self.fleet.start(thread=False)
-        self.fleet._publisher = _Sink()  # readings built, not published (zenoh's put is not the mock's)
+        self.fleet.publish_readings_to(_Sink())  # readings built, not published (zenoh's put is not the mock's)
         self.enc = mav.MAVLink(None, srcSystem=255, srcComponent=190)
         self.parser = make_parser()
 
@@ -108,7 +108,6 @@ class _Bench:
             self.command(v.autopilot, mav.MAV_CMD_DO_SET_MODE, 1, (cm >> 16) & 0xFF, (cm >> 24) & 0xFF)
 
     def close(self):
-        self.fleet._publisher = None
         self.fleet.stop()
 
 

@@ -207,6 +207,22 @@ class MockFleet:
         self._started.wait(10.0)
         return self
 
+    def publish_readings_to(self, sink) -> None:
+        """Hand every sensor reading to ``sink.publish(reading)`` instead of zenoh.
+
+        For a fleet without zenoh (``zenoh=False`` or no endpoints): tests and benchmarks that want
+        the readings without a zenoh session. ``sink.close()`` is called when the fleet stops.
+
+        Raises
+        ------
+        ValueError
+            If the fleet publishes on zenoh.
+        """
+        if self._zenoh_enabled:
+            raise ValueError("publish_readings_to needs a fleet that does not publish on zenoh (zenoh=False "
+                             "or no zenoh endpoints)")
+        self._publisher = sink
+
     def stop(self) -> None:
         """Stop the thread and close every socket and the zenoh session (idempotent)."""
         self._stop.set()

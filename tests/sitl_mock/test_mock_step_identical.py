@@ -105,15 +105,16 @@ class _Readings:
     def publish(self, reading):
         self.readings.append(reading)
 
+    def close(self):
+        """Nothing to release."""
+
 
 def _sampled(field):
     fleet = MockFleet(3, field=field, udp_base_port=0, tcp_base_port=0, zenoh=False)
-    fleet._publisher = sink = _Readings()
-    try:
-        fleet.step_until(fleet.next_step_s)
-        return sink.readings, fleet.errors
-    finally:
-        fleet._publisher = None
+    sink = _Readings()
+    fleet.publish_readings_to(sink)
+    fleet.step_until(fleet.next_step_s)
+    return sink.readings, fleet.errors
 
 
 def test_a_field_that_refuses_batches_is_asked_point_by_point():
@@ -130,3 +131,13 @@ def test_a_failing_field_costs_each_vehicle_its_reading_and_is_kept_as_evidence(
     readings, errors = _sampled(_Broken())
     assert readings == []
     assert len(errors) == 3 and all("field broken" in e for e in errors)
+
+
+def test_readings_go_to_a_sink_only_on_a_fleet_without_zenoh():
+    """``publish_readings_to`` hands readings to the sink, and is refused on a zenoh fleet."""
+    readings, errors = _sampled(sigma1())
+    assert readings and errors == []
+    fleet = MockFleet(1, field=sigma1(), udp_base_port=0, tcp_base_port=0,
+                      zenoh_listen=["tcp/127.0.0.1:7447"])  # not started: nothing listens
+    with pytest.raises(ValueError, match="does not publish on zenoh"):
+        fleet.publish_readings_to(_Readings())

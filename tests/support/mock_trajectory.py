@@ -140,7 +140,7 @@ def record_scenario(field: str = "sigma1", seed: int = 7) -> dict:
     positions: list[list[tuple]] = []
     fleet.start(thread=False)
     try:
-        fleet._publisher = sink  # the readings, without a zenoh session
+        fleet.publish_readings_to(sink)  # the readings, without a zenoh session
         for i, v in enumerate(fleet.vehicles):
             _record_frames(v.autopilot, frames[i])
         gcs = [_Gcs(v) for v in fleet.vehicles]
@@ -153,7 +153,6 @@ def record_scenario(field: str = "sigma1", seed: int = 7) -> dict:
             positions.append([tuple(float(x) for x in v.dynamics.position_ned_m) for v in fleet.vehicles])
         errors = list(fleet.errors)
     finally:
-        fleet._publisher = None
         fleet.stop()
     return {"positions": positions, "frames": frames, "readings": sink.readings, "errors": errors}
 
