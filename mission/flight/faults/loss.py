@@ -430,7 +430,9 @@ class LossMonitor:
         HEARTBEAT came after the loss: its first frames back may be positions while its mode and
         armed state are still the ones from before the loss (ArduCopter SITL, in LAND by itself, was
         first called re-admissible in GUIDED; real PX4 SIH, disarmed on the ground after its
-        offboard-loss descent, was judged "OFFBOARD, armed" and commanded to land)."""
+        offboard-loss descent, was judged "OFFBOARD, armed" and commanded to land). One whose PX4
+        named a failsafe of its own (:func:`announced_failsafe`: e.g. its hold before the data-link
+        loss's Return, said once it heard the ground station again) is not re-admitted."""
         if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
             return
         heartbeat_s = v.state.last_heartbeat_s
@@ -438,7 +440,8 @@ class LossMonitor:
             return
         state = self.state
         alt = v.state.relative_alt_m
-        readmissible = (self.faults.readmit and state.phase == "seek" and v.state.armed
+        said = announced_failsafe(v, data_link_acts(state, loss.sysid, v.flavour))
+        readmissible = (self.faults.readmit and state.phase == "seek" and v.state.armed and said is None
                         and (alt is None or alt >= 1.0) and v.state.mode not in LEFT_MODES.get(v.flavour, ()))
         state.came_back(loss.sysid, now, readmit=readmissible)
         if readmissible:
@@ -448,7 +451,8 @@ class LossMonitor:
         if self.faults.readmit:
             why = (f"faults.readmit = true, but not re-admissible (phase {state.phase}, mode {v.state.mode}, "
                    f"{'armed' if v.state.armed else 'disarmed'}"
-                   f"{'' if alt is None else f', {alt:.1f} m above home'})")
+                   f"{'' if alt is None else f', {alt:.1f} m above home'}"
+                   f"{'' if said is None else f'; in its own failsafe: it said {said!r}'})")
         else:
             why = "faults.readmit = false"
         await self.motion.keep_out(loss.sysid, v, why)

@@ -350,3 +350,24 @@ def test_mock_px4_geofence_hold_and_offboard_loss_told_apart_by_px4s_words(tmp_p
     assert result.outcome == "converged", (result.message, messages[-10:])
     print("\nvehicle 3:", lost_message, "| modes 3:", modes[3], "| modes 1:", modes[1], "| outcome", result.outcome,
           "| still armed", getattr(result, "still_armed", None), "| airborne_left", result.airborne_left)
+
+
+def test_a_vehicle_back_from_a_link_loss_in_its_own_failsafe_is_not_readmitted():
+    """``readmit = true``: vehicle 1, heard again after its link loss, holds in AUTO.LOITER. PX4's
+    words, sent once it hears the ground station again, say its data-link loss holds before its
+    Return: kept out (commanded nothing more than the keep-out), not re-admitted; vehicle 2, heard
+    again in the same hold with only "Failsafe activated" (its offboard loss), is re-admitted."""
+    clock, state, vehicles, gate, rec, motion, monitor = _monitor(5, readmit=True)
+    state.set_phase("seek")
+    vehicles[0].age_s = vehicles[1].age_s = 3.0
+    _watch(monitor, lambda: {1, 2} <= set(state.lost), "vehicles 1 and 2 lost")
+    for v, words in ((vehicles[0], ["Connection to ground station lost", "Failsafe activated: entering Hold for 5 seconds"]),
+                     (vehicles[1], ["Failsafe activated"])):
+        v.age_s = 0.0
+        v.state.mode, v.state.system_status, v.status_since_s = "AUTO.LOITER", _CRITICAL, clock.time()
+        v.state.last_heartbeat_s = clock.time()
+        v.statustexts = [(clock.time(), 2, w) for w in words]
+    _watch(monitor, lambda: all(state.lost[s].came_back_s is not None for s in (1, 2)), "both heard again")
+    assert not state.lost[1].readmit_pending and state.lost[2].readmit_pending
+    assert [c[:2] for c in motion.calls] == [("keep_out", 1)]
+    assert "in its own failsafe: it said 'Failsafe activated: entering Hold for 5 seconds'" in motion.calls[0][2]
