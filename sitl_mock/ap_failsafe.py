@@ -47,6 +47,8 @@ _GCS_ACTIONS_ARDUPILOT = {0: "none", 2: "rtl", 5: "land", 7: "land"}      # FS_G
 _GCS_ACTIONS_PX4 = {1: "hold", 2: "rtl", 3: "land", 5: "terminate", 6: "terminate"}  # NAV_DLL_ACT, else none
 _FENCE_ACTIONS_ARDUPILOT = {0: "none", 2: "land", 4: "hold", 6: "hold"}   # FENCE_ACTION, else rtl
 _FENCE_ACTIONS_PX4 = {0: "none", 1: "none", 2: "hold", 3: "rtl", 4: "terminate", 5: "land"}  # GF_ACTION
+#: PX4's battery check's words by warning level (1 low, 2 critical, 3 emergency)
+_PX4_BATTERY_WORDS = {1: "Low battery", 2: "Critical battery", 3: "Emergency battery level"}
 
 
 def check_failsafes(ap, t_s: float) -> None:
@@ -55,7 +57,7 @@ def check_failsafes(ap, t_s: float) -> None:
         return
     if ap.behaviour == "offboard" and t_s - ap.flight.last_setpoint_s > ap.params["COM_OF_LOSS_T"]:
         action = {0: "position", 3: "rtl", 4: "land"}.get(int(ap.params["COM_OBL_RC_ACT"]), "hold")
-        _failsafe(ap, t_s, "offboard", action, "Failsafe: offboard control lost")
+        _failsafe(ap, t_s, "offboard", action, None)  # real PX4 names no cause: "Failsafe activated" only
         _announce(ap, action)
     _check_gcs_loss(ap, t_s)
     _check_battery(ap, t_s)
@@ -99,16 +101,19 @@ def _delayed_action(ap, t_s: float) -> None:
     if ap.mode_name != ap.personality.hold_mode:
         return  # a mode was commanded during the hold: the user took over, PX4 drops the action
     if reason == "fence" and ap.failsafe == "fence" and fs.fence_breached:
-        _failsafe(ap, t_s, "fence", action, "Failsafe: geofence action")
+        _failsafe(ap, t_s, "fence", action, None)
         _announce(ap, action)
     elif reason in ("gcs", "battery"):  # a data-link loss even if the link came back; a battery never recovers
-        _failsafe(ap, t_s, reason, action, f"Failsafe: {'GCS connection lost' if reason == 'gcs' else 'battery'} action")
+        _failsafe(ap, t_s, reason, action, None)
         _announce(ap, action)
 
 
-def _failsafe(ap, t_s: float, reason: str, action: str, text: str) -> None:
+def _failsafe(ap, t_s: float, reason: str, action: str, text: str | None) -> None:
+    """Enter failsafe ``reason`` with ``action``, saying ``text`` first (None: nothing; PX4 names its
+    causes with its own checks' words, :func:`_px4_says`)."""
     ap.failsafe = reason
-    ap.statustext(text, mavlink2.MAV_SEVERITY_CRITICAL)
+    if text is not None:
+        ap.statustext(text, mavlink2.MAV_SEVERITY_CRITICAL)
     pers = ap.personality
     if action == "none":
         return
@@ -151,6 +156,7 @@ def _check_gcs_loss(ap, t_s: float) -> None:
         enable, timeout = int(ap.params["NAV_DLL_ACT"]), ap.params["COM_DL_LOSS_T"]
         action = _GCS_ACTIONS_PX4.get(enable, "none")
     lost = t_s - last > timeout
+    _px4_data_link_words(ap, lost)
     pending = fs.pending_failsafe is not None and fs.pending_failsafe[2] == "gcs"
     if not lost:
         if fs.gcs_failsafe_done:
@@ -162,8 +168,31 @@ def _check_gcs_loss(ap, t_s: float) -> None:
         return
     fs.gcs_failsafe_done = True
     action = _hold_first(ap, t_s, "gcs", action)
-    _failsafe(ap, t_s, "gcs", action, "Failsafe: GCS connection lost")
+    _failsafe(ap, t_s, "gcs", action, "Failsafe: GCS connection lost" if ap_flight_state.is_ardupilot(ap) else None)
     _announce(ap, action)
+
+
+def _px4_data_link_words(ap, lost: bool) -> None:
+    """PX4's commander says when the data link is lost and regained, whatever ``NAV_DLL_ACT`` (real
+    PX4 v1.16 SIH: "Connection to ground station lost" (INFO), then its health report's "Preflight
+    Fail: No connection to the ground control station" (WARNING); "GCS connection regained" (INFO)).
+    ArduPilot: nothing here."""
+    fs = ap.flight
+    if ap_flight_state.is_ardupilot(ap) or lost == fs.gcs_lost_said:
+        return
+    fs.gcs_lost_said = lost
+    if lost:
+        _px4_says(ap, ("Connection to ground station lost", mavlink2.MAV_SEVERITY_INFO),
+                  ("Preflight Fail: No connection to the ground control station", mavlink2.MAV_SEVERITY_WARNING))
+    else:
+        _px4_says(ap, ("GCS connection regained", mavlink2.MAV_SEVERITY_INFO))
+
+
+def _px4_says(ap, *texts: tuple[str, int]) -> None:
+    """Each ``(text, severity)`` as a STATUSTEXT (the mock's :meth:`statustext` holds them back while PX4
+    would hear no ground station)."""
+    for text, severity in texts:
+        ap.statustext(text, severity)
 
 
 def _voltage_level(ap, t_s: float) -> int:
@@ -203,9 +232,13 @@ def _check_battery(ap, t_s: float) -> None:
             action = "rtl"
         if (level >= 2 and act == 2) or (level >= 3 and act == 3):
             action = "land"
-    names = {1: "low", 2: "critical", 3: "emergency"}
     action = _hold_first(ap, t_s, "battery", action)
-    _failsafe(ap, t_s, "battery", action, f"Failsafe: battery {names[level]}")
+    if ap_flight_state.is_ardupilot(ap):
+        names = {1: "low", 2: "critical", 3: "emergency"}
+        _failsafe(ap, t_s, "battery", action, f"Failsafe: battery {names[level]}")
+    else:  # PX4's battery check ("Critical battery" heard on SIH before its hold; the others are its strings)
+        _px4_says(ap, (_PX4_BATTERY_WORDS[level], mavlink2.MAV_SEVERITY_CRITICAL))
+        _failsafe(ap, t_s, "battery", action, None)
     _announce(ap, action)
 
 
@@ -240,6 +273,13 @@ def _check_fence(ap, t_s: float) -> None:
         return
     fs.fence_breached = True
     action = _hold_first(ap, t_s, "fence", action)
-    _failsafe(ap, t_s, "fence", action, "Failsafe: geofence breached")
+    if ap_flight_state.is_ardupilot(ap):
+        _failsafe(ap, t_s, "fence", action, "Failsafe: geofence breached")
+    else:  # PX4's geofence check, then its failsafe (real PX4 v1.16 SIH, GF_ACTION 2)
+        if dist > radius:
+            _px4_says(ap, ("Geofence: exceeding maximum distance to Home", mavlink2.MAV_SEVERITY_CRITICAL))
+        if alt > alt_max:
+            _px4_says(ap, ("Geofence: exceeding maximum altitude above Home", mavlink2.MAV_SEVERITY_CRITICAL))
+        _failsafe(ap, t_s, "fence", action, None)
     _announce(ap, action)
 

@@ -50,6 +50,8 @@ class FlightState:
     volt_low_since_s: float | None = None
     volt_crt_since_s: float | None = None
     gcs_failsafe_done: bool = False
+    #: PX4 said "Connection to ground station lost" (and has not yet said it was regained)
+    gcs_lost_said: bool = False
     fence_breached: bool = False
     #: PX4's failsafe action delayed by COM_FAIL_ACT_T, held meanwhile: ``(action, due_s, reason)`` (None: none)
     pending_failsafe: tuple | None = None

@@ -63,6 +63,7 @@ def _on_heartbeat(ap, msg, t_s: float) -> None:
         is_gcs = msg.type == _MAV_TYPE_GCS
     if is_gcs:
         ap.last_gcs_heartbeat_s = t_s
+        ap.flush_statustexts(t_s)
 
 
 def handle_param(ap, msg, kind: str) -> None:

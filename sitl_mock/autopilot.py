@@ -35,7 +35,12 @@ from sitl_mock.ap_telemetry import WIND_MSG_IDS, MessageScheduler, build_message
 from sitl_mock.ap_wind import WindEstimateModel
 from sitl_mock.faults import FaultSet
 
-__all__ = ["MockAutopilot"]
+__all__ = ["MockAutopilot", "PX4_GCS_HEARTBEAT_TIMEOUT_S", "PX4_STALE_STATUSTEXT_S"]
+
+#: PX4 hears a ground station while its HEARTBEATs come within this (``telemetry_status.HEARTBEAT_TIMEOUT_US``)
+PX4_GCS_HEARTBEAT_TIMEOUT_S = 2.5
+#: PX4 drops a held STATUSTEXT older than this (``MavlinkStreamStatustext``: "don't send stale messages")
+PX4_STALE_STATUSTEXT_S = 5.0
 
 _TARGETED_AUTOPILOT_COMPONENTS = (0, mavlink2.MAV_COMP_ID_AUTOPILOT1)
 
@@ -128,6 +133,8 @@ class MockAutopilot:
         self.failsafe: str | None = None
         self.flight = ap_flight_state.FlightState()
         self.last_gcs_heartbeat_s: float | None = None
+        #: PX4's STATUSTEXTs held while no ground station is heard: ``(t_s, message)`` (:meth:`statustext`)
+        self._held_statustexts: list = []
         self._est_key = None
         self._est = None
         self._local_key = None
@@ -264,8 +271,28 @@ class MockAutopilot:
         return out
 
     def statustext(self, text: str, severity: int = mavlink2.MAV_SEVERITY_INFO) -> None:
-        """Send a STATUSTEXT (at most 50 characters)."""
-        self.emit(self.mav.statustext_encode(severity, text.encode()[:50]))
+        """Send a STATUSTEXT (at most 50 characters).
+
+        PX4 sends its STATUSTEXTs only while it hears a ground station (``MavlinkStreamStatustext``:
+        a GCS HEARTBEAT within ``telemetry_status`` 2.5 s) and drops those older than 5 s when it
+        hears one again (measured on SIH: the words of a data-link loss came with the first GCS
+        heartbeat back). The PX4 personality holds them the same way once a GCS was heard (before
+        that it sends them at once, unlike PX4); :meth:`flush_statustexts` sends the held ones."""
+        msg = self.mav.statustext_encode(severity, text.encode()[:50])
+        last = self.last_gcs_heartbeat_s
+        if (self.personality.name != "ardupilot" and last is not None
+                and self._last_t_s - last > PX4_GCS_HEARTBEAT_TIMEOUT_S):
+            self._held_statustexts.append((self._last_t_s, msg))
+            return
+        self.emit(msg)
+
+    def flush_statustexts(self, t_s: float) -> None:
+        """A ground station is heard again: send the held STATUSTEXTs not older than
+        :data:`PX4_STALE_STATUSTEXT_S` (PX4 drops the others)."""
+        held, self._held_statustexts = self._held_statustexts, []
+        for held_s, msg in held:
+            if t_s - held_s < PX4_STALE_STATUSTEXT_S:
+                self.emit(msg)
 
     def send_message_now(self, msg_id: int, t_s: float) -> bool:
         """Send one telemetry message immediately; False if unsupported / not available."""

@@ -4,9 +4,12 @@ The format is the one MAVProxy writes and MAVExplorer, QGroundControl and
 ``pymavlink.mavutil.mavlink_connection(path)`` read: a sequence of records, each an 8-byte
 big-endian count of microseconds since the Unix epoch followed by one raw MAVLink frame.
 
-Writes are buffered; the files are flushed at least every ``flush_interval_s`` (on the next
-write after the interval, and by the endpoint's 1 Hz housekeeping via :meth:`TlogSet.flush`),
-so a crash loses at most about a second of frames.
+Writes are buffered and never touch the disk on the caller's thread (the event loop): a record is
+queued in memory and one writer thread per :class:`TlogSet` writes the queue and flushes the files
+every ``flush_interval_s`` (and at :meth:`TlogSet.flush` / :meth:`TlogSet.close`), so a crash loses
+at most about a second of frames and a slow disk (a loaded host's dirty-page throttling) stalls the
+writer thread, not the ground station's heartbeat, setpoints or receive path. Only a vehicle's first
+frame opens its file on the caller's thread.
 
 Frames the ground station cannot attribute to one of its vehicles (system ids not in the plan,
 frames for a vehicle from an address other than the one it is pinned to, frames of unknown
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import os
 import struct
+import threading
 import time
 from pathlib import Path
 from typing import BinaryIO, Callable
@@ -110,9 +114,15 @@ class TlogSet:
         self._buffer_bytes = int(buffer_bytes)
         self._files: dict[int, BinaryIO] = {}
         self._paths: dict[int, Path] = {}
-        self._last_flush = time.monotonic()
         self.records_written = 0
         self.closed = False
+        #: the first write or flush error of the writer thread (then nothing more is written)
+        self.error: OSError | None = None
+        self._pending: list[tuple[BinaryIO, bytes]] = []
+        self._queue_lock = threading.Lock()  # the queue: the callers append, the writer swaps it out
+        self._io_lock = threading.Lock()     # one drain at a time, in order
+        self._wake = threading.Event()
+        self._writer: threading.Thread | None = None
 
     def path(self, sysid: int) -> Path | None:
         """The file of ``sysid``, or None if nothing was logged for it yet."""
@@ -137,7 +147,8 @@ class TlogSet:
             return fh
 
     def write(self, sysid: int, frame: bytes, t_s: float | None = None) -> None:
-        """Append one frame to ``sysid``'s file, stamped ``t_s`` (default: now).
+        """Queue one frame for ``sysid``'s file, stamped ``t_s`` (default: now); the writer thread
+        writes it (:meth:`flush` to have it written now).
 
         Does nothing once closed (frames racing a shutdown are not an error).
         """
@@ -146,27 +157,57 @@ class TlogSet:
         fh = self._files.get(sysid)
         if fh is None:
             fh = self._open(sysid)
-        fh.write(_STAMP.pack(int((self._time_fn() if t_s is None else t_s) * 1e6)))
-        fh.write(frame)
+        record = _STAMP.pack(int((self._time_fn() if t_s is None else t_s) * 1e6)) + bytes(frame)
+        with self._queue_lock:
+            self._pending.append((fh, record))
         self.records_written += 1
-        now = time.monotonic()
-        if now - self._last_flush >= self._flush_interval_s:
-            self._last_flush = now
-            self.flush()
+        if self._writer is None:
+            self._writer = threading.Thread(target=self._run, name=f"tlog writer {self.directory}", daemon=True)
+            self._writer.start()
+
+    def _run(self) -> None:
+        """The writer thread: drain the queue every flush interval (sooner when woken) until closed."""
+        while not self.closed:
+            self._wake.wait(self._flush_interval_s)
+            self._wake.clear()
+            self._drain()
+
+    def _drain(self) -> None:
+        """Write what is queued, in order, and flush the files written to."""
+        with self._io_lock:
+            with self._queue_lock:
+                batch, self._pending = self._pending, []
+            if self.error is not None:
+                return
+            touched = {}
+            try:
+                for fh, record in batch:
+                    fh.write(record)
+                    touched[id(fh)] = fh
+                for fh in touched.values():
+                    fh.flush()
+            except (OSError, ValueError) as exc:  # disk full, file too large, a file closed under it
+                self.error = exc if isinstance(exc, OSError) else OSError(str(exc))
 
     def flush(self) -> None:
-        """Flush every file's buffer to the operating system."""
-        for fh in self._files.values():
-            fh.flush()
-        self._last_flush = time.monotonic()
+        """Write what is queued and flush every file to the operating system, on the caller's
+        thread (tests, tools; the mission's endpoints leave it to the writer thread)."""
+        self._drain()
 
     def close(self) -> None:
-        """Flush and close every file; later writes are ignored."""
+        """Write what is queued, flush and close every file; later writes are ignored."""
         if self.closed:
             return
         self.closed = True
+        self._wake.set()
+        if self._writer is not None:
+            self._writer.join()
+        self._drain()
         for fh in self._files.values():
-            fh.close()
+            try:
+                fh.close()
+            except OSError as exc:
+                self.error = self.error or exc
 
 
 class QuarantineLog:

@@ -104,6 +104,8 @@ class Client:
         self.custom_mode: int | None = None
         self._window: Counter | None = None
         self._next_heartbeat_wall_s = 0.0
+        #: send the GCS HEARTBEAT once a wall second (False: a data-link loss as PX4 sees it)
+        self.heartbeats = True
         self._chunks: dict[int, list[str]] = {}
 
     @property
@@ -193,7 +195,7 @@ class Client:
     def _heartbeat(self) -> None:
         """A GCS HEARTBEAT once a wall second (PX4 refuses to arm without a GCS when NAV_DLL_ACT is set)."""
         now = time.monotonic()
-        if now >= self._next_heartbeat_wall_s:
+        if self.heartbeats and now >= self._next_heartbeat_wall_s:
             self._next_heartbeat_wall_s = now + 1.0
             self.conn.mav.heartbeat_send(self.m.MAV_TYPE_GCS, self.m.MAV_AUTOPILOT_INVALID, 0, 0, 0)
 

@@ -11,8 +11,9 @@ Rules (see ``docs/faults.md``):
   other mode with its heartbeat saying it is in a failsafe of its own (``system_status``
   CRITICAL/EMERGENCY), a mode its offboard loss would not give (or, that mode unknown, while the
   ground station's setpoints to it never paused), or after its autopilot announced a hold before a
-  failsafe action in a STATUSTEXT (:func:`autopilot_failsafe`, :func:`announced_hold`: PX4's hold
-  before its battery, geofence or data-link action). The coordinator does not
+  failsafe action or named the failsafe's cause in a STATUSTEXT (:func:`autopilot_failsafe`,
+  :func:`announced_failsafe`: PX4's hold before its battery, geofence or data-link action, its
+  geofence, battery or data-link words). The coordinator does not
   fight it. Any *other* mode change (PX4 offboard loss -> its offboard-loss mode,
   ArduPilot GUIDED -> LOITER/BRAKE without a failsafe) is re-engaged by the watchdog
   (:mod:`mission.flight.faults.watchdog`). A vehicle
@@ -50,9 +51,9 @@ from mission.flight.state import MissionState, VehicleLoss
 from mission.safety.gate import SafetyGate
 from mission.vehicle.vehicle_link import VehicleLink
 
-__all__ = ["CORROBORATING_HEARTBEATS", "FAILSAFE_STATES", "HOLD_BEFORE_ACTION_TEXT", "OWN_PAUSE_S", "LossMonitor",
-           "Reformation", "announced_hold", "autopilot_failsafe", "classify_loss", "offboard_loss_mode",
-           "own_stream_gap_s", "reformed_offsets"]
+__all__ = ["CORROBORATING_HEARTBEATS", "DATA_LINK_LOST_TEXT", "FAILSAFE_STATES", "OWN_PAUSE_S", "PX4_FAILSAFE_TEXTS",
+           "LossMonitor", "Reformation", "announced_failsafe", "autopilot_failsafe", "classify_loss", "data_link_acts",
+           "offboard_loss_mode", "own_stream_gap_s", "reformed_offsets"]
 
 #: heartbeats in a row that must report a mode change or a disarm before the vehicle "left"
 CORROBORATING_HEARTBEATS = 2
@@ -77,10 +78,20 @@ OWN_PAUSE_S = 0.5
 _PAUSE_LOOKBACK_S = 3.0
 
 
-#: how PX4's STATUSTEXT begins when a failsafe holds before its action (``FailsafeBase::notifyUser``:
-#: "Failsafe activated: entering Hold for %i seconds", seen on real PX4 SIH before a battery action);
-#: its offboard loss never holds first and says only "Failsafe activated"
-HOLD_BEFORE_ACTION_TEXT = "Failsafe activated: entering Hold"
+#: how real PX4 v1.16's STATUSTEXTs begin that announce a failsafe of its own
+#: (strings of the SIH build, heard by ``tests/conformance/test_conformance_px4_hold_failsafes.py``):
+#: ``FailsafeBase::notifyUser``'s hold before a Return / Land action ("Failsafe activated: entering
+#: Hold for %i seconds"); the geofence check ("Geofence: exceeding maximum altitude above Home",
+#: "... distance to Home", "Geofence: approaching or outside geofence", just before "Failsafe
+#: activated" even when the action is Hold itself, ``GF_ACTION`` 2); the battery check at the levels
+#: that act ("Critical battery", "Emergency battery level"; "Low battery" only warns); the commander's
+#: data-link check ("Connection to ground station lost", :data:`DATA_LINK_LOST_TEXT`). The offboard
+#: loss says only "Failsafe activated": none of these.
+PX4_FAILSAFE_TEXTS = ("Failsafe activated: entering Hold", "Geofence: ", "Critical battery", "Emergency battery level",
+                      "Dangerously low battery", "Connection to ground station lost")
+
+#: the data-link check's words: a cause only when its action (``NAV_DLL_ACT``) is not 0 (disabled)
+DATA_LINK_LOST_TEXT = "Connection to ground station lost"
 
 
 #: the mode real PX4 shows after its offboard loss, by ``COM_OBL_RC_ACT`` (0: position mode, measured
@@ -105,22 +116,37 @@ def own_stream_gap_s(gate: SafetyGate | None, sysid: int, vehicle: VehicleLink) 
     return gate.stream_gap_s(sysid, float(since) - _PAUSE_LOOKBACK_S)
 
 
-def announced_hold(vehicle: VehicleLink) -> str | None:
-    """The STATUSTEXT by which ``vehicle``'s autopilot announced a hold before a failsafe action
-    (:data:`HOLD_BEFORE_ACTION_TEXT`), heard from :data:`_PAUSE_LOOKBACK_S` before its current mode
-    was first reported until now; None if none."""
+def data_link_acts(state: MissionState, sysid: int, flavour: str) -> bool:
+    """Whether ``sysid``'s PX4 acts on a data-link loss: False only when the preflight read
+    ``NAV_DLL_ACT`` 0 (disabled); True when unknown (not read, a ``resume``), or not PX4."""
+    r = state.readiness.get(sysid)
+    value = None if r is None or flavour != "px4" else r.failsafe_params.get("NAV_DLL_ACT")
+    return value is None or int(value) != 0
+
+
+def announced_failsafe(vehicle: VehicleLink, data_link_acts: bool = True) -> str | None:
+    """The STATUSTEXT by which ``vehicle``'s PX4 announced a failsafe of its own
+    (:data:`PX4_FAILSAFE_TEXTS`; :data:`DATA_LINK_LOST_TEXT` only if ``data_link_acts``), heard from
+    :data:`_PAUSE_LOOKBACK_S` before its current mode was first reported until now; None if none
+    (or not PX4). PX4 holds its STATUSTEXTs back while it hears no ground station (measured on SIH:
+    the data-link loss's words came only with the first GCS heartbeat back), so they may arrive
+    seconds after the mode they explain."""
     since = vehicle.status_since_s
-    if since is None:
+    if since is None or vehicle.flavour != "px4":
         return None
     for t_s, _severity, text in reversed(vehicle.statustexts):
         if t_s < float(since) - _PAUSE_LOOKBACK_S:
             return None  # in arrival order: older ones do not count
-        if text.strip().startswith(HOLD_BEFORE_ACTION_TEXT):
-            return text.strip()
+        said = text.strip()
+        if said.startswith(DATA_LINK_LOST_TEXT) and not data_link_acts:
+            continue
+        if said.startswith(PX4_FAILSAFE_TEXTS):
+            return said
     return None
 
 
-def autopilot_failsafe(vehicle: VehicleLink, stream_gap_s: float | None, loss_mode: str | None = None) -> str | None:
+def autopilot_failsafe(vehicle: VehicleLink, stream_gap_s: float | None, loss_mode: str | None = None,
+                       data_link_acts: bool = True) -> str | None:
     """Why ``vehicle`` is under its autopilot's own failsafe, one the ground station did not cause;
     None if it is not (or that cannot be told).
 
@@ -130,9 +156,9 @@ def autopilot_failsafe(vehicle: VehicleLink, stream_gap_s: float | None, loss_mo
     ``COM_FAIL_ACT_T`` before its battery or geofence action, while ``COM_OBL_RC_ACT`` 0 gives
     POSCTL), or, when that mode is unknown, while the setpoints to it never paused for
     :data:`OWN_PAUSE_S` (``stream_gap_s``, :func:`own_stream_gap_s`), or, whatever its mode, after
-    its autopilot said it holds before a failsafe action (:func:`announced_hold`: with
-    ``COM_OBL_RC_ACT`` 5 the offboard loss and the hold before a geofence or battery action are both
-    AUTO.LOITER; only the words tell them apart). Such a vehicle is handed to its
+    its PX4 named a failsafe of its own (:func:`announced_failsafe`, ``data_link_acts`` passed on: with
+    ``COM_OBL_RC_ACT`` 5 the offboard loss, a geofence hold (``GF_ACTION`` 2) and the hold before a
+    geofence, battery or data-link action are all AUTO.LOITER; only the words tell them apart). Such a vehicle is handed to its
     autopilot: never re-engaged (:mod:`mission.flight.faults.watchdog`), declared "left". In its
     offboard-loss mode it is taken for an offboard loss (its cause, missing setpoints, is gone
     once they arrive again: re-engaged), whatever the stream did: an uplink lost for a while
@@ -146,7 +172,7 @@ def autopilot_failsafe(vehicle: VehicleLink, stream_gap_s: float | None, loss_mo
     if status not in FAILSAFE_STATES:
         return None
     why = f"switched to {mode} in its own failsafe (system status {_STATE_NAMES[status]}; "
-    said = announced_hold(vehicle)
+    said = announced_failsafe(vehicle, data_link_acts)
     if said is not None:
         return why + f"it said {said!r})"
     if loss_mode is not None:
@@ -158,7 +184,8 @@ def autopilot_failsafe(vehicle: VehicleLink, stream_gap_s: float | None, loss_mo
 
 def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
                   seen_armed: bool = True, engaged_s: float | None = None,
-                  stream_gap_s: float | None = None, loss_mode: str | None = None) -> tuple[str, str] | None:
+                  stream_gap_s: float | None = None, loss_mode: str | None = None,
+                  data_link_acts: bool = True) -> tuple[str, str] | None:
     """``(reason, detail)`` if ``vehicle`` is lost, else None.
 
     Parameters
@@ -187,6 +214,9 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
         mode (:func:`autopilot_failsafe`, e.g. PX4's geofence hold) also "left".
     loss_mode : str, optional
         The mode its offboard loss would give (:func:`offboard_loss_mode`), for the same rule.
+    data_link_acts : bool
+        Its data-link-loss failsafe acts (:func:`data_link_acts`): PX4's words of a data-link loss
+        name a failsafe of its own (:func:`announced_failsafe`).
 
     Returns
     -------
@@ -212,7 +242,7 @@ def classify_loss(vehicle, now_s: float, link_timeout_s: float, commanded: bool,
             detail = f"switched to {mode} by itself (failsafe)"
     elif seen_armed and not vehicle.state.armed:
         detail = "disarmed in the air"
-    elif (own := autopilot_failsafe(vehicle, stream_gap_s, loss_mode)) is not None:
+    elif (own := autopilot_failsafe(vehicle, stream_gap_s, loss_mode, data_link_acts)) is not None:
         detail = own
     else:
         return None
@@ -347,15 +377,16 @@ class LossMonitor:
         timeout_s = self.faults.link_timeout_s
         now = self.clock.time()
         gap, loss_mode = own_stream_gap_s(self.gate(), sysid, v), offboard_loss_mode(self.state, sysid, v.flavour)
+        dll = data_link_acts(self.state, sysid, v.flavour)
         found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s,
-                              stream_gap_s=gap, loss_mode=loss_mode)
+                              stream_gap_s=gap, loss_mode=loss_mode, data_link_acts=dll)
         if found is not None and found[0] == "link":
             # let the event loop read whatever is pending before concluding
             await asyncio.sleep(0)
             await asyncio.sleep(0)
             now = self.clock.time()
             found = classify_loss(v, now, timeout_s, commanded=False, seen_armed=seen_armed, engaged_s=engaged_s,
-                                  stream_gap_s=gap, loss_mode=loss_mode)
+                                  stream_gap_s=gap, loss_mode=loss_mode, data_link_acts=dll)
         if found is None:
             return None
         reason, detail = found
@@ -399,7 +430,9 @@ class LossMonitor:
         HEARTBEAT came after the loss: its first frames back may be positions while its mode and
         armed state are still the ones from before the loss (ArduCopter SITL, in LAND by itself, was
         first called re-admissible in GUIDED; real PX4 SIH, disarmed on the ground after its
-        offboard-loss descent, was judged "OFFBOARD, armed" and commanded to land)."""
+        offboard-loss descent, was judged "OFFBOARD, armed" and commanded to land). One whose PX4
+        named a failsafe of its own (:func:`announced_failsafe`: e.g. its hold before the data-link
+        loss's Return, said once it heard the ground station again) is not re-admitted."""
         if loss.reason != "link" or loss.came_back_s is not None or v.link_age_s() > 0.5:
             return
         heartbeat_s = v.state.last_heartbeat_s
@@ -407,7 +440,8 @@ class LossMonitor:
             return
         state = self.state
         alt = v.state.relative_alt_m
-        readmissible = (self.faults.readmit and state.phase == "seek" and v.state.armed
+        said = announced_failsafe(v, data_link_acts(state, loss.sysid, v.flavour))
+        readmissible = (self.faults.readmit and state.phase == "seek" and v.state.armed and said is None
                         and (alt is None or alt >= 1.0) and v.state.mode not in LEFT_MODES.get(v.flavour, ()))
         state.came_back(loss.sysid, now, readmit=readmissible)
         if readmissible:
@@ -417,7 +451,8 @@ class LossMonitor:
         if self.faults.readmit:
             why = (f"faults.readmit = true, but not re-admissible (phase {state.phase}, mode {v.state.mode}, "
                    f"{'armed' if v.state.armed else 'disarmed'}"
-                   f"{'' if alt is None else f', {alt:.1f} m above home'})")
+                   f"{'' if alt is None else f', {alt:.1f} m above home'}"
+                   f"{'' if said is None else f'; in its own failsafe: it said {said!r}'})")
         else:
             why = "faults.readmit = false"
         await self.motion.keep_out(loss.sysid, v, why)

@@ -6,7 +6,7 @@ from typing import Callable, Protocol
 
 from mission.core.plan_types import FaultsPlan
 from mission.core.tasks import spawn
-from mission.flight.faults.loss import autopilot_failsafe, offboard_loss_mode, own_stream_gap_s
+from mission.flight.faults.loss import autopilot_failsafe, data_link_acts, offboard_loss_mode, own_stream_gap_s
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.services import Clock, Events, Fleet
 from mission.flight.state import MissionState
@@ -122,7 +122,8 @@ class Watchdog:
             if not v.state.armed:
                 continue
             loss_mode = offboard_loss_mode(state, sysid, v.flavour)
-            if autopilot_failsafe(v, own_stream_gap_s(gate, sysid, v), loss_mode) is not None:
+            dll = data_link_acts(state, sysid, v.flavour)
+            if autopilot_failsafe(v, own_stream_gap_s(gate, sysid, v), loss_mode, dll) is not None:
                 continue  # its autopilot's own failsafe (not our pause): handed to it; loss declares it left
             state.begin_reengaging(sysid)
             spawn(self._reengage(sysid, v, want), f"re-engaging vehicle {sysid}", self.report)

@@ -18,8 +18,8 @@ from tests.mission.flight.faults_fakes import FakeClock, FakeGate, FakeVehicle, 
 from tests.mission.flight.test_faults_objects import _monitor, _Status, _until, _watch
 
 from mission.core.plan_types import FaultsPlan
-from mission.flight.faults.loss import (OWN_PAUSE_S, announced_hold, autopilot_failsafe, classify_loss,
-                                       offboard_loss_mode)
+from mission.flight.faults.loss import (OWN_PAUSE_S, announced_failsafe, autopilot_failsafe, classify_loss,
+                                       data_link_acts, offboard_loss_mode)
 from mission.flight.state import VehicleReadiness
 from mission.flight.faults.watchdog import Watchdog
 
@@ -79,7 +79,51 @@ def test_an_announced_hold_before_a_failsafe_action_is_the_autopilots_own(texts,
     assert (found is not None) == expected, found
     if expected:
         assert "it said 'Failsafe activated: entering Hold for 5 seconds'" in found
-        assert announced_hold(v) == "Failsafe activated: entering Hold for 5 seconds"
+        assert announced_failsafe(v) == "Failsafe activated: entering Hold for 5 seconds"
+
+
+#: what real PX4 v1.16 SIH said (tests/conformance/test_conformance_px4_hold_failsafes.py), its tabs too
+_GEOFENCE = ["Geofence: exceeding maximum altitude above Home\t", "Failsafe activated\t"]
+_DATA_LINK = ["Connection to ground station lost\t", "Preflight Fail: No connection to the ground contro",
+              "Failsafe activated\t", "GCS connection regained\t"]
+
+
+@pytest.mark.parametrize("texts, dll_acts, said", [
+    # COM_OBL_RC_ACT 5 and a failsafe whose action is Hold itself (GF_ACTION 2, NAV_DLL_ACT 1): no
+    # "entering Hold" (nothing is delayed), the same AUTO.LOITER and "Failsafe activated" as the
+    # offboard loss; PX4's check names the cause
+    (_GEOFENCE, True, "Geofence: exceeding maximum altitude above Home"),
+    (["Geofence: exceeding maximum distance to Home"], True, "Geofence: exceeding maximum distance to Home"),
+    (["Geofence: approaching or outside geofence"], True, "Geofence: approaching or outside geofence"),
+    (_DATA_LINK, True, "Connection to ground station lost"),
+    (_DATA_LINK, False, None),                                  # NAV_DLL_ACT 0: the data-link loss does nothing
+    (["Critical battery\t", "Failsafe activated\t"], True, "Critical battery"),
+    (["Emergency battery level\t"], True, "Emergency battery level"),
+    (["Low battery\t", "Failsafe activated\t"], True, None),   # only a warning: PX4 takes no action on it
+    (["Failsafe activated\t"], True, None),                     # the offboard loss: re-engaged
+])
+def test_px4s_words_tell_its_own_failsafe_from_an_offboard_loss(texts, dll_acts, said):
+    """With ``COM_OBL_RC_ACT`` 5 every case below is AUTO.LOITER, CRITICAL: only the words differ
+    (heard 0.2 s before the mode was first reported at t = 10 s, or, for the data link, after it: PX4
+    holds its STATUSTEXTs while it hears no ground station)."""
+    t0 = 9.8 if texts is not _DATA_LINK else 14.0
+    v = SimpleNamespace(flavour="px4", state=SimpleNamespace(mode="AUTO.LOITER", armed=True, system_status=_CRITICAL),
+                        status_since_s=10.0, statustexts=[(t0 + 0.05 * k, 2, t) for k, t in enumerate(texts)])
+    assert announced_failsafe(v, dll_acts) == said
+    found = autopilot_failsafe(v, 0.1, "AUTO.LOITER", dll_acts)
+    assert (found is None) == (said is None), found
+    if said is not None:
+        assert f"it said {said!r}" in found
+    v.flavour = "ardupilot"                                     # PX4's words only
+    assert announced_failsafe(v, dll_acts) is None
+
+
+@pytest.mark.parametrize("params, expected", [({"NAV_DLL_ACT": 0}, False), ({"NAV_DLL_ACT": 3}, True), ({}, True)])
+def test_data_link_acts_comes_from_the_preflight_parameters(params, expected):
+    state = flying_state(2, FakeClock())
+    state.set_readiness(VehicleReadiness(1, "v1", "udpin:x", failsafe_params=params), "ready")
+    assert data_link_acts(state, 1, "px4") == expected
+    assert data_link_acts(state, 2, "px4") is True             # not read (e.g. after a resume): it may act
 
 
 @pytest.mark.parametrize("flavour, params, expected", [
@@ -230,3 +274,100 @@ def test_the_streamer_measures_its_own_pauses():
     assert streamer.longest_gap_s(2, now) is None                         # not streamed
     clock.t += 0.8
     assert streamer.longest_gap_s(1, now - 0.5) == pytest.approx(0.8)    # the pause going on now
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_mock_px4_geofence_hold_and_offboard_loss_told_apart_by_px4s_words(tmp_path):
+    """Six mock PX4 vehicles with ``COM_OBL_RC_ACT`` 5 and ``GF_ACTION`` 2: both the offboard loss and
+    the geofence failsafe are Hold itself (AUTO.LOITER, CRITICAL, "Failsafe activated", no hold before
+    an action). After seek iteration 3 the fence ceiling of vehicle 3 is lowered under it, and
+    vehicle 1's uplink is cut until it leaves OFFBOARD (its offboard loss), then restored. PX4's
+    geofence check says "Geofence: exceeding maximum altitude above Home" (real PX4 v1.16 SIH,
+    tests/conformance/test_conformance_px4_hold_failsafes.py): vehicle 3 is "left" in its own
+    failsafe and never re-engaged; vehicle 1, which said only "Failsafe activated", is re-engaged.
+    Before the geofence words were read, both were re-engaged (docs/faults.md)."""
+    from mission.sim.embedded import default_eps, embedded_plan, fleet_ports
+    from mission.telemetry.mission_log import read_mission_log
+    from sitl_mock.fields_gaussian import sigma2
+    from tests.mission.flight.test_resilience import _fleet
+    from tests.support.fly_helpers import fly, run_fleet
+
+    n = 6
+    ports = fleet_ports(n, "px4")
+    source = np.array([6.0, -4.0, 13.0])
+    fleet = _fleet(n, ports, source)
+    for s in range(1, n + 1):
+        fleet.vehicle(s).params.set("GF_ACTION", 2)
+        fleet.vehicle(s).params.set("COM_OBL_RC_ACT", 5)
+    plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 11.0), eps=default_eps(sigma2(source)), max_iterations=80)
+    log_path = tmp_path / "m.jsonl"
+    modes: dict[int, list] = {1: [], 3: []}
+    done = threading.Event()
+
+    def note_modes():
+        for s, seen in modes.items():
+            v = fleet.vehicle(s)
+            if not seen or seen[-1] != (v.mode_name, v.armed):
+                seen.append((v.mode_name, v.armed))
+
+    def faults():
+        deadline = fleet.clock.time() + 900.0
+        while not done.is_set() and fleet.clock.time() < deadline:
+            if log_path.exists() and log_path.read_text().count('"type":"iteration"') >= 3:
+                fleet.vehicle(3).params.set("GF_MAX_VER_DIST", 5.0)   # it flies 9-13 m above home
+                fleet.set_fault(1, "loss_uplink", 1.0)
+                break
+            fleet.clock.sleep_blocking(0.2)
+        cut_until = None
+        while not done.is_set() and fleet.clock.time() < deadline:
+            note_modes()
+            if cut_until is None and fleet.vehicle(1).mode_name != "OFFBOARD":
+                cut_until = fleet.clock.time() + 1.0                   # its offboard loss: one more second
+            if cut_until is not None and fleet.clock.time() >= cut_until:
+                fleet.set_fault(1, "loss_uplink", 0.0)
+            fleet.clock.sleep_blocking(0.1)
+
+    watcher = threading.Thread(target=faults, daemon=True)
+    watcher.start()
+    try:
+        result = run_fleet(fleet, lambda world: fly(plan, fleet, log_path, world=world))
+    finally:
+        done.set()
+        watcher.join(timeout=30)
+        fleet.stop()
+    messages = [r["message"] for r in read_mission_log(log_path) if r["type"] == "event"]
+    lost = {x["sysid"]: x for x in result.lost}
+    assert 3 in lost and lost[3]["reason"] == "left", (result.lost, messages[-15:])
+    lost_message = next(m for m in messages if m.startswith("vehicle 3 lost"))
+    assert "it said 'Geofence: exceeding maximum altitude above Home'" in lost_message, lost_message
+    assert not any(m.startswith("vehicle 3 left OFFBOARD") for m in messages), messages   # never re-engaged
+    held = [m for m in modes[3] if m == ("AUTO.LOITER", True)]
+    assert held and ("OFFBOARD", True) not in modes[3][modes[3].index(held[0]):], modes[3]
+    assert ("AUTO.LOITER", True) in modes[1], modes[1]                                    # its offboard loss
+    assert 1 not in lost and result.reengaged.get(1, 0) >= 1, (result.lost, result.reengaged, messages[-15:])
+    assert any(m.startswith("vehicle 1 left OFFBOARD") for m in messages), messages
+    assert result.outcome == "converged", (result.message, messages[-10:])
+    print("\nvehicle 3:", lost_message, "| modes 3:", modes[3], "| modes 1:", modes[1], "| outcome", result.outcome,
+          "| still armed", getattr(result, "still_armed", None), "| airborne_left", result.airborne_left)
+
+
+def test_a_vehicle_back_from_a_link_loss_in_its_own_failsafe_is_not_readmitted():
+    """``readmit = true``: vehicle 1, heard again after its link loss, holds in AUTO.LOITER. PX4's
+    words, sent once it hears the ground station again, say its data-link loss holds before its
+    Return: kept out (commanded nothing more than the keep-out), not re-admitted; vehicle 2, heard
+    again in the same hold with only "Failsafe activated" (its offboard loss), is re-admitted."""
+    clock, state, vehicles, gate, rec, motion, monitor = _monitor(5, readmit=True)
+    state.set_phase("seek")
+    vehicles[0].age_s = vehicles[1].age_s = 3.0
+    _watch(monitor, lambda: {1, 2} <= set(state.lost), "vehicles 1 and 2 lost")
+    for v, words in ((vehicles[0], ["Connection to ground station lost", "Failsafe activated: entering Hold for 5 seconds"]),
+                     (vehicles[1], ["Failsafe activated"])):
+        v.age_s = 0.0
+        v.state.mode, v.state.system_status, v.status_since_s = "AUTO.LOITER", _CRITICAL, clock.time()
+        v.state.last_heartbeat_s = clock.time()
+        v.statustexts = [(clock.time(), 2, w) for w in words]
+    _watch(monitor, lambda: all(state.lost[s].came_back_s is not None for s in (1, 2)), "both heard again")
+    assert not state.lost[1].readmit_pending and state.lost[2].readmit_pending
+    assert [c[:2] for c in motion.calls] == [("keep_out", 1)]
+    assert "in its own failsafe: it said 'Failsafe activated: entering Hold for 5 seconds'" in motion.calls[0][2]

@@ -102,3 +102,96 @@ def test_read_tlog_records_rejects_damaged_files(tmp_path, content, match):
     path.write_bytes(content)
     with pytest.raises(ValueError, match=match):
         read_tlog_records(path)
+
+
+class _StuckFile:
+    """A tlog file whose writes block until released (a loaded host's disk: dirty-page throttling)."""
+
+    def __init__(self, fh, release):
+        self.fh, self.release, self.entered = fh, release, __import__("threading").Event()
+
+    def write(self, data):
+        self.entered.set()
+        self.release.wait(60)
+        return self.fh.write(data)
+
+    def flush(self):
+        self.fh.flush()
+
+    def close(self):
+        self.fh.close()
+
+
+def _stuck_files(monkeypatch, release):
+    stuck = []
+    real_open = TlogSet._open
+
+    def open_stuck(self, sysid):
+        fh = _StuckFile(real_open(self, sysid), release)
+        self._files[sysid] = fh
+        stuck.append(fh)
+        return fh
+
+    monkeypatch.setattr(TlogSet, "_open", open_stuck)
+    return stuck
+
+
+@pytest.mark.timeout(120)
+def test_a_stuck_tlog_disk_blocks_neither_the_writes_nor_the_heartbeat(tmp_path, monkeypatch):
+    """The disk write stalls (the writer thread inside a write that does not return): frames are
+    still queued at once and the endpoint's GCS heartbeat keeps going (before, its 1 Hz
+    housekeeping flushed every tlog on the event loop, so a stalled disk stalled the heartbeat);
+    once the disk moves again every record is written, in order."""
+    import threading
+
+    release = threading.Event()
+    stuck = _stuck_files(monkeypatch, release)
+    # the disk moves again after 45 s whatever happens (a heartbeat stuck with the disk fails the
+    # test below instead of hanging it)
+    unstick = threading.Timer(45.0, release.set)
+    unstick.start()
+
+    async def scenario():
+        ep = await MavEndpoint.open("udpin:127.0.0.1:0", clock=WallClock(), tlog_dir=tmp_path, heartbeat_hz=20.0)
+        fake = FakeAutopilot(1)
+        vehicle = await FakeUdpVehicle([fake], ep.local_address).start()
+        try:
+            await VehicleLink.create(ep, 1, clock=WallClock(), mission_origin=ORIGIN)
+            # the writer thread takes its first record and stays inside the stuck write
+            await wait_until_async(lambda: bool(stuck) and stuck[0].entered.is_set(), 30.0, "the writer stuck")
+            before = fake.gcs_heartbeats
+            await wait_until_async(lambda: fake.gcs_heartbeats >= before + 10, 60.0,
+                                   "10 more GCS heartbeats")
+            assert not release.is_set(), "the heartbeat waited for the stuck tlog disk"
+            assert ep.tlogs.records_written > 10
+        finally:
+            release.set()
+            unstick.cancel()
+            await vehicle.stop()
+            await ep.close()
+        return ep
+
+    ep = asyncio.run(asyncio.wait_for(scenario(), 90))
+    records = read_tlog_records(ep.tlogs.path(1))
+    assert len(records) == ep.tlogs.records_written and ep.tlogs.error is None
+    stamps = [t for t, _ in records]
+    assert stamps == sorted(stamps)
+
+
+def test_tlog_writes_are_queued_while_the_disk_is_stuck_then_written_in_order(tmp_path, monkeypatch):
+    import threading
+
+    release = threading.Event()
+    stuck = _stuck_files(monkeypatch, release)
+    enc = mavlink.MAVLink(None, srcSystem=4, srcComponent=1)
+    frames = [mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, k % 8, 3).pack(enc) for k in range(200)]
+    tlogs = TlogSet(tmp_path, flush_interval_s=0.01)
+    tlogs.write(4, frames[0], t_s=1.0)
+    assert stuck[0].entered.wait(30), "the writer thread never wrote"
+    for k, frame in enumerate(frames[1:], start=1):   # the writer is stuck: these only queue
+        tlogs.write(4, frame, t_s=1.0 + k)
+    assert tlogs.records_written == 200
+    release.set()
+    tlogs.close()
+    assert [f for _, f in read_tlog_records(tlogs.path(4))] == frames
+    assert [t for t, _ in read_tlog_records(tlogs.path(4))] == [1.0 + k for k in range(200)]
