@@ -15,7 +15,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from tests.mission.flight.faults_fakes import FakeClock, FakeGate, FakeVehicle, Recorder, fleet_of, flying_state, ring
-from tests.mission.flight.test_faults_objects import _monitor, _Status, _until, _watch
+from tests.mission.flight.test_faults_objects import _monitor, _Status, _watch
+from tests.support.wait_helpers import wait_until_async
 
 from mission.core.plan_types import FaultsPlan
 from mission.flight.faults.loss import (OWN_PAUSE_S, announced_failsafe, autopilot_failsafe, classify_loss,
@@ -166,7 +167,8 @@ def test_the_watchdog_leaves_an_autopilot_failsafe_hold_alone_and_reengages_its_
     async def main():
         task = asyncio.create_task(dog.run(period_s=0.01))
         try:
-            await _until(lambda: state.reengaged.get(2) and state.reengaged.get(3), "vehicles 2 and 3 re-engaged")
+            await wait_until_async(lambda: state.reengaged.get(2) and state.reengaged.get(3), 10.0,
+                                   "vehicles 2 and 3 re-engaged", poll_s=0.01)
             for _ in range(20):              # and some more rounds: vehicle 1 is still left alone
                 await asyncio.sleep(0.01)
         finally:
