@@ -281,7 +281,9 @@ def _signal_mid_seek(sig: signal.Signals, status: int):
         m.start()
         m.wait_for(_seeking(m.log), "the seek")
         m.proc.send_signal(sig)
-        assert m.finish() == status, m.err.text()[-2000:]
+        got = m.finish()
+        assert got == status, (f"exit {got}, not {status}; stderr: {m.err.text()[-1500:]}; stdout: "
+                               f"{m.out.text()[-1000:]}; last events: {_events(m.log)[-8:]}")
         summary = _summary(m.log)
         assert summary["outcome"] == "interrupted" and summary["interrupted_by"] == [sig.name]
         assert summary["airborne_left"] == []

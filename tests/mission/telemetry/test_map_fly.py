@@ -237,11 +237,12 @@ def test_the_map_reads_and_commands_through_the_missions_own_session_under_acces
     from mission.telemetry.map_live import MapThread
     from mission.telemetry.map_server import MapAccess
     from mission.telemetry.state_pub import STATE_SCHEMA, state_key
-    from tests.mission.telemetry.test_ctl_access import _Coordinator, _free_port, _plan
+    from tests.mission.telemetry.test_ctl_access import _free_port, _plan
+    from tests.support.control_peer import ControlPeer
 
     plan = _plan(tmp_path, _free_port(), {"sensor_usernames": ["sensor1"], "monitor_usernames": ["viewer", "ops"],
                                           "commander_usernames": ["ops"]})
-    coord = _Coordinator(plan)
+    coord = ControlPeer(plan)
     thread = MapThread(plan.fleet, "127.0.0.1", 0, access=MapAccess("127.0.0.1"), sender="map:tester",
                        config={"tile_url": None, "truth_enu": None, "replay": None})
     try:
