@@ -207,10 +207,13 @@ def loglik_patchy_fast(params: np.ndarray, points: np.ndarray, v: np.ndarray, *,
     out = np.ascontiguousarray(np.broadcast_to(out, shape))
     k_of, m_of = sel // (shape[1] * shape[2]), sel % shape[2]
     is_hit = hit[k_of, m_of]
-    c = np.maximum(excess[k_of, m_of], threshold)
-    shape_f = np.exp(-0.5 * ((np.log(c) - log_m) / log_sd) ** 2)
-    p_hit = eps + (1.0 - eps) * pia
-    val = np.where(is_hit, np.log(eps + (1.0 - eps) * pia * shape_f), np.log(np.maximum(1.0 - p_hit, 1e-300)))
+    val = np.empty(sel.size)
+    miss = ~is_hit
+    val[miss] = np.log(np.maximum(1.0 - (eps + (1.0 - eps) * pia[miss]), 1e-300))
+    on = np.flatnonzero(is_hit)
+    log_c = np.log(np.maximum(excess, threshold))  # per reading, not per pair
+    shape_f = np.exp(-0.5 * ((log_c[k_of[on], m_of[on]] - log_m[on]) / log_sd) ** 2)
+    val[on] = np.log(eps + (1.0 - eps) * pia[on] * shape_f)
     out.ravel()[sel] = val
     return out
 
