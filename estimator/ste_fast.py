@@ -103,9 +103,25 @@ def _log_phi(u: np.ndarray) -> np.ndarray:
     return out
 
 
+def _exact_log_mu_all(geo: dict, upwind: str, s0_m: float) -> np.ndarray:
+    """The plume mean's log at every pair, flat (when most pairs count: no gathers)."""
+    x = geo["x"].ravel()
+    along = _log_phi(x / s0_m) if upwind == "edge" else -0.5 * np.minimum(x, 0.0) ** 2 / geo["s2"]
+    along = along.reshape(geo["x"].shape)
+    along += geo["log_amp"]
+    spread = geo["sy2"] * geo["sz2"]
+    along -= 0.5 * np.log(spread, out=spread)
+    along += np.log(geo["s2"])
+    along += geo["log_g"]
+    along += _log1p_exp(geo["zh"])
+    return along.ravel()
+
+
 def _exact_log_mu(geo: dict, sel: np.ndarray, upwind: str, s0_m: float) -> np.ndarray:
     """The plume mean's log (:func:`estimator.ste_model.steady_plume`) at the flat pair indices ``sel``."""
     k, p, m = geo["x"].shape
+    if sel.size > 0.5 * geo["x"].size:
+        return _exact_log_mu_all(geo, upwind, s0_m)[sel]
     x = geo["x"].ravel()[sel]
     if upwind == "edge":
         along = _log_phi(x / s0_m)
