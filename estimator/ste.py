@@ -52,9 +52,9 @@ from estimator.estimate import PlanPosterior, SourceEstimate
 from estimator.seek_inputs import seeker_inputs
 from estimator.ste_prior import check_box, draw_prior, trial_boxes
 from estimator.ste_tempering import shared_counts, time_weights
-from estimator.ste_model import (BRIGGS_RURAL, deviance_patchy, deviance_steady, hit_probability, loglik_patchy,
-                                 loglik_steady, plume_mean)
-from scipy.special import ndtr
+from estimator.ste_fast import (hit_probability_fast, loglik_patchy_fast, loglik_steady_fast, plume_mean_fast,
+                                steady_hit_probability_fast)
+from estimator.ste_model import BRIGGS_RURAL, deviance_patchy, deviance_steady
 
 __all__ = ["SteSeeker"]
 
@@ -314,10 +314,9 @@ class SteSeeker:
     # ------------------------------------------------------------------ the filter
     def _loglik(self, parts: np.ndarray, p: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Per-reading log-likelihoods ``(K, P, M)`` of readings ``v`` (K, M) at ``p`` (K, M, 3)."""
-        mu, g = plume_mean(parts, p, **self.model)
         if self.patchy:
-            return loglik_patchy(mu, g, v[:, None, :], background=self.background, **self.patchy_kw)
-        return loglik_steady(mu, v[:, None, :], **self.steady_kw)
+            return loglik_patchy_fast(parts, p, v, model=self.model, background=self.background, **self.patchy_kw)
+        return loglik_steady_fast(parts, p, v, model=self.model, **self.steady_kw)
 
     def _tempers(self, p: np.ndarray, recent: bool = False) -> np.ndarray:
         """Each reading's likelihood exponent ``(K, M)`` from the positions ``(K, M, 3)`` of one
@@ -416,11 +415,11 @@ class SteSeeker:
         pos = np.concatenate([b[0] for b in self._buf], axis=1)
         val = np.concatenate([b[1] for b in self._buf], axis=1)
         u = np.concatenate([b[3] for b in self._buf], axis=1)  # a reading's share of independent evidence
-        mu, g = plume_mean(sub, pos, **self.model)
         if self.patchy:
-            d, e, var = deviance_patchy(hit_probability(mu, g, **self.patchy_kw).mean(axis=1),
+            d, e, var = deviance_patchy(hit_probability_fast(sub, pos, model=self.model, **self.patchy_kw).mean(axis=1),
                                         val - self.background > self.threshold)
         else:
+            mu, _ = plume_mean_fast(sub, pos, **self.model)
             spread = self.steady_kw["noise_std"] ** 2 + self.steady_kw["rel_error"] ** 2 * (mu * mu).mean(axis=1)
             d, e, var = deviance_steady(mu.mean(axis=1), spread + mu.var(axis=1), val, background=self.background)
         self.fit_z = np.sum(u * (d - e), axis=1) / np.sqrt(np.maximum(np.sum(u * var, axis=1), 1e-12))
@@ -440,11 +439,10 @@ class SteSeeker:
     # ------------------------------------------------------------------ the move
     def _p_hit(self, parts: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """Each particle's probability of a hit at ``pts`` (K, M, 3): ``(K, P, M)`` (the move's outcome model)."""
-        mu, g = plume_mean(parts, pts, **self.model)
         if self.patchy:
-            return hit_probability(mu, g, **self.patchy_kw)
-        sd = np.sqrt(self.steady_kw["noise_std"] ** 2 + (self.steady_kw["rel_error"] * mu) ** 2)
-        return ndtr((mu - self.threshold) / sd)
+            return hit_probability_fast(parts, pts, model=self.model, **self.patchy_kw)
+        return steady_hit_probability_fast(parts, pts, model=self.model, threshold=self.threshold,
+                                           noise_std=self.steady_kw["noise_std"], rel_error=self.steady_kw["rel_error"])
 
     def _upwind(self) -> np.ndarray:
         """Unit vectors ``(K, 3)`` up the posterior's (circular) mean wind."""
