@@ -137,7 +137,7 @@ def _file_size_limit(limit_b: int):
 class _Fly:
     """The mock fleet (here) and ``swarmseek fly`` (its own process) for one fault."""
 
-    def __init__(self, tmp_path: Path, routed: bool, max_iterations: int | None = None):
+    def __init__(self, tmp_path: Path, routed: bool):
         ports = fleet_ports(N, "px4")
         zport = free_port_block(1, kinds=("tcp",))
         endpoint = f"tcp/127.0.0.1:{zport}"
@@ -146,10 +146,7 @@ class _Fly:
                    else f'mode = "peer"\nlisten = ["{endpoint}"]')
         # without readings an iteration waits 6 s for them: a shorter seek when the router dies (killed
         # once iteration 1 is logged: iterations 2 and 3 go blind)
-        # a case that stops the mission mid-seek gives a long seek (``max_iterations``), so that the
-        # mission cannot have ended by itself before a starved test process sends its signal
-        iterations = max_iterations if max_iterations is not None else (3 if routed else 8)
-        self.plan = _plan_toml(tmp_path / "plan.toml", ports["udp_base_port"], section, iterations)
+        self.plan = _plan_toml(tmp_path / "plan.toml", ports["udp_base_port"], section, 3 if routed else 8)
         self.log = tmp_path / "log" / "mission.jsonl"
         self.fleet = MockFleet(n=N, personality="px4", field=sigma2(SOURCE), origin=DEFAULT_ORIGIN, seed=2,
                                udp_base_port=ports["udp_base_port"],

@@ -3,7 +3,6 @@ mid-seek, and its zenoh router killed mid-seek. Helpers and the cases' checks:
 tests/support/gcs_fault_support.py."""
 from __future__ import annotations
 
-import functools
 import signal
 
 import pytest
@@ -14,7 +13,7 @@ pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]
 
 #: fault -> (case, runner, routed): as tests/mission/flight/test_gcs_faults_output.py (``fly`` or lock-step ``run``)
 CASES = {
-    "sighup": (_signal_mid_seek(signal.SIGHUP, 129), functools.partial(_Fly, max_iterations=60), False),
+    "sighup": (_signal_mid_seek(signal.SIGHUP, 129), _Fly, False),
     "sigpipe": (_signal_mid_seek(signal.SIGPIPE, 141), _Run, False),
     "zenoh-router-gone": (_router_gone, _Fly, True),
 }
