@@ -91,6 +91,20 @@ class _Drain(threading.Thread):
         return self.data.decode(errors="replace")
 
 
+def _as_from_a_terminal(preexec_fn=None):
+    """A ``preexec_fn`` that gives the child SIGHUP's default disposition (then runs ``preexec_fn``).
+
+    The child is an operator's ``fly`` started from a terminal. A test session started under
+    ``nohup`` (or by a runner that ignores SIGHUP) would hand its ignored SIGHUP down, and a
+    ground station keeps an inherited ignored SIGHUP ignored on purpose (docs/faults.md): the
+    SIGHUP case would then test ``nohup`` instead of a closed terminal."""
+    def preexec() -> None:
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
+        if preexec_fn is not None:
+            preexec_fn()
+    return preexec
+
+
 def _output_fds(runner, stdout, stderr) -> dict:
     """The child's ``stdout``/``stderr`` file descriptors: the one given, or the write end of a pipe
     that ``runner.out`` / ``runner.err`` (a :class:`_Drain`) reads."""
@@ -163,7 +177,7 @@ class _Fly:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "mission", "fly", "--plan", str(self.plan), "--log-dir", str(self.log.parent),
              "--no-tlog", *(["--json"] if as_json else [])], stdout=fds["stdout"], stderr=fds["stderr"], env=subprocess_env(), cwd=ROOT,
-            preexec_fn=preexec_fn)
+            preexec_fn=_as_from_a_terminal(preexec_fn))
         for fd in fds.values():
             os.close(fd)
 
@@ -214,7 +228,8 @@ class _Run:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "mission", "run", "--n", str(N), "--seed", "1", "--no-tlog",
              "--log-dir", str(self.log.parent), *(["--json"] if as_json else [])],
-            stdout=fds["stdout"], stderr=fds["stderr"], env=subprocess_env(), cwd=ROOT, preexec_fn=preexec_fn)
+            stdout=fds["stdout"], stderr=fds["stderr"], env=subprocess_env(), cwd=ROOT,
+            preexec_fn=_as_from_a_terminal(preexec_fn))
         for fd in fds.values():
             os.close(fd)
 
