@@ -57,7 +57,7 @@ async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = Tru
 
 
 async def fly_logged(plan, log, *, clock, display=None, tlog_dir=None, forward_addresses=None, terminal=None,
-                     resume_state=None, map_thread=None):
+                     resume_state=None, map_thread=None, world=None):
     """Open the plan's zenoh session, fly the mission into ``log`` (closed at the end) with the
     operator's stop handlers (:func:`mission.flight.operator_stop.run_until_stopped`; from
     ``resume_state`` when resuming), its keys on a terminal and the ``--out`` forwarding; close.
@@ -65,7 +65,12 @@ async def fly_logged(plan, log, *, clock, display=None, tlog_dir=None, forward_a
 
     ``map_thread`` (``--map``, already serving): handed this session once open (the map reads the
     state publication and sends the page's commands through it; the state is published at
-    ``MAP_RATE_HZ`` then), and stopped before the session closes (its pages keep the outcome)."""
+    ``MAP_RATE_HZ`` then), and stopped before the session closes (its pages keep the outcome).
+
+    ``world`` (a lock-step run's :class:`~mission.sim.embedded_world.EmbeddedWorld`, on the mission's
+    :class:`~mission.sim.lockstep.VirtualClock`): given the coordinator's reading store, so that
+    simulated time waits for every reading in flight (without it, time runs ahead of zenoh's
+    delivery on a loaded host and the run depends on the wall clock)."""
     session = None
     try:
         with told_to(terminal, log):
@@ -74,6 +79,8 @@ async def fly_logged(plan, log, *, clock, display=None, tlog_dir=None, forward_a
                 map_thread.attach(session)
             co = Coordinator(plan, clock=clock, zenoh_session=session, log=log, display=display, tlog_dir=tlog_dir,
                              state_rate_hz=WALL_CLOCK_RATE_HZ if map_thread is None else MAP_RATE_HZ)
+            if world is not None:
+                world.store = co.store
             mission = run_until_stopped(co.run(resume_state), co.state, co.log)
             work = with_keys(co.command, co.say, display, mission)  # keys on a terminal
             return await forwarding(work, plan.forward, [v.sysid for v in plan.vehicles], co.event,  # --out

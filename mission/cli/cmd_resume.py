@@ -47,7 +47,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: bool = True,
-                 forward_addresses=None, terminal=None, map_thread=None):
+                 forward_addresses=None, terminal=None, map_thread=None, world=None):
     """Resume the mission of ``log_path``; returns the MissionResult.
 
     Parameters
@@ -68,6 +68,9 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
         Its losses are told to the mission log.
     map_thread : mission.telemetry.map_live.MapThread, optional
         ``--map``'s server, fed through the mission's session (:func:`mission.cli.cmd_fly.fly_logged`).
+    world : mission.sim.embedded_world.EmbeddedWorld, optional
+        A lock-step run's world (``clock`` its VirtualClock): it waits for the resumed mission's
+        readings (:func:`mission.cli.cmd_fly.fly_logged`).
 
     Raises
     ------
@@ -81,7 +84,7 @@ async def resume(log_path: Path, *, plan=None, clock=None, display=None, tlog: b
     return await fly_logged(state.plan, MissionLog(log_path, clock), clock=clock, display=display,
                             tlog_dir=log_path.parent / "tlogs" if tlog else None,
                             forward_addresses=forward_addresses, terminal=terminal, resume_state=state,
-                            map_thread=map_thread)
+                            map_thread=map_thread, world=world)
 
 
 def main(args) -> int:

@@ -54,6 +54,12 @@ __all__ = ["Seek", "scaled_slots", "STE_READINGS_PER_VEHICLE"]
 STE_READINGS_PER_VEHICLE = None
 
 
+def _not_converged(done: int, retried: int) -> str:
+    """The ``max_iterations`` message: ``done`` iterations, ``retried`` tries without an estimate."""
+    said = f"not converged after {done} iterations"
+    return said if not retried else f"{said} ({retried} more tried without an estimate)"
+
+
 class Seek:
     """The seek phase: the formation centre moved up the estimated gradient until it converges.
 
@@ -91,6 +97,9 @@ class Seek:
 
         ``start_iteration`` and ``history`` (the last centres, oldest first) resume a stopped seek
         (:mod:`mission.flight.phases.resume`): iterations are numbered on, the convergence monitor is prefilled.
+        A try that ends without an ``iteration`` record (a vehicle lost during it, too few aligned
+        readings, no gradient) is made again under the same number, so the log's iterations are
+        numbered 1, 2, 3, ... without a gap; every try counts towards ``max_iterations``.
 
         Outcomes: ``converged`` (also with the centre held at the fence shrunk by the radius when the
         source is inside the formation, :mod:`mission.flight.fence_reach`), ``max_iterations``,
@@ -111,13 +120,17 @@ class Seek:
         self._start(history)
         self.state.begin_seek()
         ended = None
-        for k in range(int(start_iteration), self.plan.seeking.max_iterations):
+        k = int(start_iteration)  # iterations done (recorded); the next one is k + 1
+        tries = range(int(start_iteration), self.plan.seeking.max_iterations)
+        for _ in tries:  # every try counts towards max_iterations, as before
             await self.checkpoint()  # an operator's pause holds here, a stop ends the seek
             ended = await self.iteration(k)
             if ended is not None:
                 break
+            if self.state.iteration == k + 1:  # done and recorded: number on; else the same k again
+                k += 1
         self.state.end_seek()  # not on a MissionError: the seek time of an aborted mission runs to its end
-        return ended or ("max_iterations", f"not converged after {self.plan.seeking.max_iterations} iterations")
+        return ended or ("max_iterations", _not_converged(k, len(tries) - (k - int(start_iteration))))
 
     def _start(self, history=()) -> None:
         """The seek loop's own state (formation members, estimator, monitor, centre)."""

@@ -592,6 +592,65 @@ def test_seek_phase_runs_on_narrow_services_and_climbs_the_field():
     np.testing.assert_allclose(state.centre_enu, centre + [3.0, 0.0, 0.0], atol=1e-6)
 
 
+class GappyReadingStore(FakeReadingStore):
+    """Readings as :class:`FakeReadingStore`, but the ``gap``-th estimate gets only 3 aligned readings
+    (one vehicle's reading lost, as a starved zenoh delivery does under load)."""
+
+    def __init__(self, fleet, clock, source, gap):
+        super().__init__(fleet, clock, source)
+        self.gap, self.calls = gap, 0
+
+    def aligned(self, t_s, window_s, sysids):
+        self.calls += 1
+        readings = super().aligned(t_s, window_s, sysids)
+        return dict(list(readings.items())[:3]) if self.calls == self.gap else readings
+
+
+class RecordingLog:
+    """A mission log that keeps what is written, ``(type, fields)``."""
+
+    def __init__(self):
+        self.records = []
+
+    def write(self, kind, **fields):
+        self.records.append((kind, fields))
+
+
+def test_a_seek_try_without_an_estimate_is_made_again_under_the_same_number():
+    """Iteration 2 gets 3 aligned readings (no estimate): it is tried again as iteration 2, so the
+    log's iterations are numbered 1, 2, 3 without a gap (before: 1, 3, iteration 2 never written);
+    the try counts towards ``max_iterations``."""
+    import dataclasses
+
+    from mission.flight.targets import formation_offsets
+    from mission.flight.phases.seek import Seek
+
+    clock, state, fleet, events, waiter = _services(4)
+    plan = _plan(4)
+    plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, seeker="gradient", estimator="cvt",
+                                                                 max_iterations=4, gamma_m=1.0, eps=0.1))
+    offsets = formation_offsets("cvt", 4, plan.formation.radius_m)
+    centre, source = np.array([0.0, 0.0, 12.0]), np.array([10.0, 0.0, 12.0])
+    state.set_formation({s: offsets[s - 1] for s in range(1, 5)})
+    state.move_centre(centre)
+    gate = FakeGate({s: centre + offsets[s - 1] for s in range(1, 5)})
+    formation = FakeSeekFormation(fleet, gate, state)
+    log = RecordingLog()
+
+    async def checkpoint():
+        pass
+
+    seek = Seek(plan, state, fleet, gate, clock, events, waiter, GappyReadingStore(fleet, clock, source, gap=2),
+                None, log, formation, checkpoint, lambda: [])
+    outcome, message = asyncio.run(seek.run())
+    assert [f["k"] for kind, f in log.records if kind == "iteration"] == [1, 2, 3]
+    assert any("iteration 2: only 3 aligned readings" in m for _level, m in events.events), events.events
+    assert (outcome, message) == ("max_iterations", "not converged after 3 iterations (1 more tried without an "
+                                                    "estimate)")
+    assert state.iteration == 3 and formation.moves == 4
+    np.testing.assert_allclose(state.centre_enu, centre + [3.0, 0.0, 0.0], atol=1e-6)
+
+
 def test_the_seek_checkpoint_holds_the_gate_while_paused_on_narrow_services():
     from mission.flight.control import MissionControl
 

@@ -44,7 +44,7 @@ def test_resume_brings_home_what_a_stopped_mission_left_flying(tmp_path, phase, 
         assert flying, "the stop left nothing flying: the test proves nothing"
         state = load_resume_state(log_path)
         assert state.go_on == (phase == "seek")
-        result = run_fleet(fleet, lambda _world: resume(log_path, clock=fleet.clock, tlog=False))
+        result = run_fleet(fleet, lambda world: resume(log_path, clock=fleet.clock, tlog=False, world=world))
         run_fleet(fleet, lambda _world: _settle(fleet, 120.0))
         assert not abandoned(fleet)
         assert not any(v.armed for v in fleet.vehicles), [v.mode_name for v in fleet.vehicles]
@@ -69,7 +69,7 @@ def test_resume_of_a_mission_whose_vehicles_are_all_down_does_nothing(tmp_path):
     try:
         run_fleet(fleet, lambda world: _fly_with(plan, fleet, log_path, nothing, world))
         run_fleet(fleet, lambda _world: _settle(fleet, 30.0))
-        result = run_fleet(fleet, lambda _world: resume(log_path, clock=fleet.clock, tlog=False))
+        result = run_fleet(fleet, lambda world: resume(log_path, clock=fleet.clock, tlog=False, world=world))
     finally:
         fleet.stop()
     assert result.outcome == "recovered" and "nothing to bring home" in result.message

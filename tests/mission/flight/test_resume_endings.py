@@ -219,7 +219,7 @@ def test_resume_of_a_log_aborted_by_an_internal_error_brings_the_hovering_vehicl
         state = load_resume_state(log_path)
         assert (state.ending, state.go_on) == ("aborted", False)
         iterations_before = sum(1 for r in read_mission_log(log_path) if r["type"] == "iteration")
-        result = run_fleet(fleet, lambda _world: resume(log_path, clock=fleet.clock, tlog=False))
+        result = run_fleet(fleet, lambda world: resume(log_path, clock=fleet.clock, tlog=False, world=world))
         run_fleet(fleet, lambda _world: _settle(fleet, 60.0))
         assert not abandoned(fleet)
         assert not any(v.armed for v in fleet.vehicles), [v.mode_name for v in fleet.vehicles]
