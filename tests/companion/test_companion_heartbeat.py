@@ -36,7 +36,7 @@ def _sent_heartbeat():
 
 def _gcs_time(personality: str, msg) -> float | None:
     ap = SimpleNamespace(personality=SimpleNamespace(name=personality), params={"MAV_GCS_SYSID": 255},
-                         last_gcs_heartbeat_s=None)
+                         last_gcs_heartbeat_s=None, flush_statustexts=lambda t_s: None)
     dispatch(ap, msg, 5.0)
     return ap.last_gcs_heartbeat_s
 

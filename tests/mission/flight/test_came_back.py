@@ -33,6 +33,7 @@ class _Vehicle:
     def __init__(self, *, mode: str, armed: bool, alt_m: float, heartbeat_s: float | None):
         self.flavour = "px4"
         self.state = SimpleNamespace(mode=mode, armed=armed, relative_alt_m=alt_m, last_heartbeat_s=heartbeat_s)
+        self.status_since_s, self.statustexts = None, []  # no mode change seen, no STATUSTEXT heard
         self.lands = 0
 
     def link_age_s(self) -> float:

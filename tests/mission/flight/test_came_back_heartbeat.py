@@ -24,7 +24,7 @@ class _Co:
         self.events.append(message)
 
     def monitor(self) -> LossMonitor:
-        state = SimpleNamespace(phase="seek", came_back=self._came_back)
+        state = SimpleNamespace(phase="seek", came_back=self._came_back, readiness={})
         return LossMonitor(state, None, lambda: None, None, FaultsPlan(readmit=True), "land", None, self,
                            self.events.append)
 
@@ -34,7 +34,8 @@ class _Co:
 
 def _vehicle(last_heartbeat_s: float):
     state = SimpleNamespace(armed=True, mode="GUIDED", relative_alt_m=12.0, last_heartbeat_s=last_heartbeat_s)
-    return SimpleNamespace(sysid=3, flavour="ardupilot", state=state, link_age_s=lambda: 0.05)
+    return SimpleNamespace(sysid=3, flavour="ardupilot", state=state, link_age_s=lambda: 0.05,
+                           status_since_s=None, statustexts=[])
 
 
 def _loss():
