@@ -101,6 +101,7 @@ def _json_out(run: FlyRun) -> dict:
 
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
+@pytest.mark.unstable_mission  # passes alone (3 of 3); in the whole suite beside the other SITL fleets one PX4 landed (LAND) after the kill instead of holding (docs/faults.md)
 def test_px4_gcs_killed_and_resumed(tmp_path):
     sitl_dir = require_sitl("px4")
     from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
