@@ -561,22 +561,30 @@ class FakeReadingStore:
         return {"accepted": 0, "rejected": {}}
 
 
-def test_seek_phase_runs_on_narrow_services_and_climbs_the_field():
+def _gradient_seek(max_iterations: int):
+    """Four vehicles in a CVT formation at (0, 0, 12) m, the source 10 m east, the gradient seeker
+    with ``gamma_m`` 1 m: the services, the plan and what a :class:`Seek` is built from."""
     import dataclasses
 
     from mission.flight.targets import formation_offsets
-    from mission.flight.phases.seek import Seek
 
     clock, state, fleet, events, waiter = _services(4)
     plan = _plan(4)
     plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, seeker="gradient", estimator="cvt",
-                                                                 max_iterations=3, gamma_m=1.0, eps=0.1))
+                                                                 max_iterations=max_iterations, gamma_m=1.0, eps=0.1))
     offsets = formation_offsets("cvt", 4, plan.formation.radius_m)
     centre, source = np.array([0.0, 0.0, 12.0]), np.array([10.0, 0.0, 12.0])
     state.set_formation({s: offsets[s - 1] for s in range(1, 5)})
     state.move_centre(centre)
     gate = FakeGate({s: centre + offsets[s - 1] for s in range(1, 5)})
     formation = FakeSeekFormation(fleet, gate, state)
+    return clock, state, fleet, events, waiter, plan, centre, source, gate, formation
+
+
+def test_seek_phase_runs_on_narrow_services_and_climbs_the_field():
+    from mission.flight.phases.seek import Seek
+
+    clock, state, fleet, events, waiter, plan, centre, source, gate, formation = _gradient_seek(3)
     checkpoints = []
 
     async def checkpoint():
@@ -620,21 +628,9 @@ def test_a_seek_try_without_an_estimate_is_made_again_under_the_same_number():
     """Iteration 2 gets 3 aligned readings (no estimate): it is tried again as iteration 2, so the
     log's iterations are numbered 1, 2, 3 without a gap (before: 1, 3, iteration 2 never written);
     the try counts towards ``max_iterations``."""
-    import dataclasses
-
-    from mission.flight.targets import formation_offsets
     from mission.flight.phases.seek import Seek
 
-    clock, state, fleet, events, waiter = _services(4)
-    plan = _plan(4)
-    plan = dataclasses.replace(plan, seeking=dataclasses.replace(plan.seeking, seeker="gradient", estimator="cvt",
-                                                                 max_iterations=4, gamma_m=1.0, eps=0.1))
-    offsets = formation_offsets("cvt", 4, plan.formation.radius_m)
-    centre, source = np.array([0.0, 0.0, 12.0]), np.array([10.0, 0.0, 12.0])
-    state.set_formation({s: offsets[s - 1] for s in range(1, 5)})
-    state.move_centre(centre)
-    gate = FakeGate({s: centre + offsets[s - 1] for s in range(1, 5)})
-    formation = FakeSeekFormation(fleet, gate, state)
+    clock, state, fleet, events, waiter, plan, centre, source, gate, formation = _gradient_seek(4)
     log = RecordingLog()
 
     async def checkpoint():
