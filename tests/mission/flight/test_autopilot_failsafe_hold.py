@@ -190,6 +190,21 @@ def test_the_loss_monitor_declares_an_autopilot_failsafe_hold_left_and_commands_
     assert [c for c in vehicles[2].commands if c != "heartbeat?"] == []   # no land/RTL/mode: PX4's failsafe flies it
 
 
+def _fly_beside(fleet, plan, log_path, watch, done: threading.Event):
+    """Fly ``plan`` in lock-step with ``watch()`` running in a thread beside it (it acts on the fleet
+    until ``done`` is set); then set ``done``, join it and stop the fleet. Returns the result."""
+    from tests.support.fly_helpers import fly, run_fleet
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        return run_fleet(fleet, lambda world: fly(plan, fleet, log_path, world=world))
+    finally:
+        done.set()
+        watcher.join(timeout=30)
+        fleet.stop()
+
+
 # ------------------------------------------------------------------------------- the mock fleet
 @pytest.mark.slow
 @pytest.mark.timeout(600)
@@ -206,7 +221,6 @@ def test_mock_px4_geofence_hold_is_not_fought(tmp_path, obl_act):
     from mission.telemetry.mission_log import read_mission_log
     from sitl_mock.fields_gaussian import sigma2
     from tests.mission.flight.test_resilience import _fleet
-    from tests.support.fly_helpers import fly, run_fleet
 
     n = 5
     ports = fleet_ports(n, "px4")
@@ -233,14 +247,7 @@ def test_mock_px4_geofence_hold_is_not_fought(tmp_path, obl_act):
                 modes.append((fleet.clock.time(), v.mode_name, v.armed))
             fleet.clock.sleep_blocking(0.1)
 
-    watcher = threading.Thread(target=lower_the_ceiling, daemon=True)
-    watcher.start()
-    try:
-        result = run_fleet(fleet, lambda world: fly(plan, fleet, log_path, world=world))
-    finally:
-        done.set()
-        watcher.join(timeout=30)
-        fleet.stop()
+    result = _fly_beside(fleet, plan, log_path, lower_the_ceiling, done)
     events = [r for r in read_mission_log(log_path) if r["type"] == "event"]
     messages = [e["message"] for e in events]
     lost = {x["sysid"]: x for x in result.lost}
@@ -293,7 +300,6 @@ def test_mock_px4_geofence_hold_and_offboard_loss_told_apart_by_px4s_words(tmp_p
     from mission.telemetry.mission_log import read_mission_log
     from sitl_mock.fields_gaussian import sigma2
     from tests.mission.flight.test_resilience import _fleet
-    from tests.support.fly_helpers import fly, run_fleet
 
     n = 6
     ports = fleet_ports(n, "px4")
@@ -330,14 +336,7 @@ def test_mock_px4_geofence_hold_and_offboard_loss_told_apart_by_px4s_words(tmp_p
                 fleet.set_fault(1, "loss_uplink", 0.0)
             fleet.clock.sleep_blocking(0.1)
 
-    watcher = threading.Thread(target=faults, daemon=True)
-    watcher.start()
-    try:
-        result = run_fleet(fleet, lambda world: fly(plan, fleet, log_path, world=world))
-    finally:
-        done.set()
-        watcher.join(timeout=30)
-        fleet.stop()
+    result = _fly_beside(fleet, plan, log_path, faults, done)
     messages = [r["message"] for r in read_mission_log(log_path) if r["type"] == "event"]
     lost = {x["sysid"]: x for x in result.lost}
     assert 3 in lost and lost[3]["reason"] == "left", (result.lost, messages[-15:])
