@@ -6,17 +6,20 @@ picked free; ``SWARMSEEK_ARDUPILOT_SITL``; skipped by name without it, a failure
 speed-up ``AP_SPEEDUP``, one ``swarmseek sensor`` per vehicle, ``swarmseek fly --json`` in its own
 process; each vehicle watched on its own spare port (SERIAL2, :class:`ap_fault_support.VehicleWatch`).
 
-* ``test_ardupilot_link_cut_and_restored`` (5 vehicles, ``[faults] readmit = true``): the ground
+* ``test_ardupilot_link_cut_and_restored`` (6 vehicles, ``[faults] readmit = true``): the ground
   station reaches vehicle 3 through a TCP relay (``tests/sitl/ap_tcp_relay.py``, its own process) that
   drops every byte both ways after seek iteration 2, until ArduCopter has left GUIDED by itself and
-  the ground station has declared the loss; then forwards again. The failsafe parameters are the
+  the ground station has declared the loss; then forwards again. Once vehicle 3 is declared lost,
+  vehicle 5's ArduCopter process is killed (SIGKILL of its process group: an autopilot that dies in
+  the air); it must be declared lost too and reported airborne. The failsafe parameters are the
   ones the preflight checks and reports (``FS_GCS_ENABLE`` 5 (land) and ``FS_GCS_TIMEOUT`` 10 s x
   the speed-up, the SITL fleet's defaults; the other vehicles get 120 s: a loaded host stalls the
   ground station's heartbeats for seconds, and the test is about the cut one). Asserted: lost (``link``) after the cut; ArduCopter
   switched to LAND (never back to GUIDED while armed); heard again: kept out (in LAND: not
-  re-admissible), never re-admitted; the mission goes on with 4 and ends by itself; every vehicle
-  disarmed on the ground, the cut one in LAND; summary consistent with the exit status;
-  ``swarmseek audit`` clean.
+  re-admissible), never re-admitted; the killed one lost (``link``) after the kill and left airborne
+  (``airborne_left``, exit 5: a vehicle unaccounted for); the mission goes on with 4 and ends by
+  itself; every other vehicle disarmed on the ground, the cut one in LAND; summary consistent with
+  the exit status; ``swarmseek audit`` clean.
 * ``test_ardupilot_vehicle_that_never_arms`` (4 vehicles, 3 s between takeoffs): when ``fly``
   enters its takeoff phase, the last vehicle of the takeoff order gets ``BATT_ARM_VOLT`` 13 V
   (the simulated pack gives 12.6 V): ArduCopter refuses to arm it ("below minimum arming
@@ -34,6 +37,7 @@ import contextlib
 import dataclasses
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -122,15 +126,16 @@ class _Run:
         assert self.fly.poll() is None, f"fly exited ({self.fly.returncode}) before {what}:\n{self.output()}"
         return value
 
-    def finish(self, timeout_s: float = 400.0) -> tuple[int, dict]:
-        """``fly``'s exit status and ``--json`` summary; then every vehicle disarmed on the ground."""
+    def finish(self, timeout_s: float = 400.0, dead=()) -> tuple[int, dict]:
+        """``fly``'s exit status and ``--json`` summary; then every vehicle disarmed on the ground,
+        but those in ``dead`` (system ids whose autopilot process the test killed)."""
         status = self.fly.wait(timeout=timeout_s)
         text = self.output()
         try:
             out = json.loads(text[text.rfind("\n{") + 1 if not text.startswith("{") else 0:])
         except ValueError:
             raise AssertionError(f"fly printed no JSON summary:\n{text[-3000:]}") from None
-        wait_until(lambda: all(w.down() for w in self.watches.values()), 180.0,
+        wait_until(lambda: all(w.down() for s, w in self.watches.items() if s not in dead), 180.0,
                    "every vehicle disarmed on the ground", poll_s=0.2)
         return status, out
 
@@ -160,8 +165,8 @@ def _armed_modes_after(watch: VehicleWatch, t0: float) -> list[str]:
 def test_ardupilot_link_cut_and_restored(tmp_path):
     require_sitl("ardupilot")
     t_test = time.monotonic()
-    with _fleet(tmp_path, 5) as fleet, contextlib.ExitStack() as stack:
-        cut_v = fleet.vehicles[2]
+    with _fleet(tmp_path, 6) as fleet, contextlib.ExitStack() as stack:
+        cut_v, kill_v = fleet.vehicles[2], fleet.vehicles[4]
         relay = stack.enter_context(TcpRelay(int(cut_v.connection.rsplit(":", 1)[1])))
         run = _Run(fleet, tmp_path, stack)
         for v in fleet.vehicles:  # the others must not land if a loaded host stalls the ground station
@@ -169,8 +174,7 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
                 run.watches[v.sysid].set_param("FS_GCS_TIMEOUT", _FS_GCS_TIMEOUT_MAX_S)
         vehicles = [dataclasses.replace(v, connection=relay.connection) if v is cut_v else v for v in fleet.vehicles]
         # the SITL plan's radius, 2 m: the 4 others' re-formation around the lost vehicle deadlocked in
-        # the separation hold in 2 of 2 runs before held vehicles were moved aside (docs/faults.md);
-        # flown at 3 m until then
+        # the separation hold in 2 of 2 runs before held vehicles were moved aside (docs/faults.md)
         run.start(vehicles, {"faults": {"readmit": True}, "seeking": {"max_iterations": 15},
                              "preflight": {"autopilot_ready_timeout_s": 180.0}})
         run.wait(lambda: sum(r["type"] == "iteration" for r in run.recs()) >= 2, "two seek iterations",
@@ -179,29 +183,40 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
         t_cut = time.time()
         relay.cut(True)
         lost = run.wait(lambda: next(iter(run.events(f"vehicle {sysid} lost:")), None), "the loss", 120.0)
+        t_kill = time.time()
+        os.killpg(kill_v.pid, signal.SIGKILL)  # the autopilot dies in the air
+        killed = run.wait(lambda: next(iter(run.events(f"vehicle {kill_v.sysid} lost:")), None),
+                          "the killed vehicle's loss", 120.0)
         t_fs = run.wait(lambda: watch.first_mode_after(t_cut, {_LAND, _RTL}), "ArduCopter's own failsafe", 120.0)
         t_restore = time.time()
         relay.cut(False)
         back = run.wait(lambda: next((e for e in run.events(f"vehicle {sysid} is heard again")), None),
                         "the vehicle heard again", 120.0)
-        status, out = run.finish()
-        final = {s: w.snapshot() for s, w in run.watches.items()}
+        status, out = run.finish(dead=(kill_v.sysid,))
+        final = {s: w.snapshot() for s, w in run.watches.items() if s != kill_v.sysid}
+        killed_heard = run.watches[kill_v.sysid].snapshot()[0][-1][0]
         failsafe_events = [e["message"] for e in run.events() if "if the ground station dies" in e["message"]]
         armed_after = _armed_modes_after(watch, t_fs)
     relay_counts = relay.counts
-    print(f"\nArduCopter SITL x5 (speed-up {AP_SPEEDUP:g}) link cut: ArduCopter "
+    print(f"\nArduCopter SITL x6 (speed-up {AP_SPEEDUP:g}) link cut: ArduCopter "
           f"{COPTER_MODES.get(next(md for t, md, _ in final[sysid][0] if t >= t_fs), '?')} {t_fs - t_cut:.2f} s after "
           f"the cut; lost {lost['t_s'] - t_cut:.2f} s after the cut (latency_s {lost['latency_s']}); restored "
           f"{t_restore - t_cut:.2f} s after the cut, heard again {back['t_s'] - t_restore:.2f} s later: "
-          f"{back['message']!r}; outcome {out['outcome']}, exit {status}, iterations {out['iterations']}; "
-          f"failsafe reported: {failsafe_events}; relay {relay_counts}; test {time.monotonic() - t_test:.0f} s wall")
+          f"{back['message']!r}; killed vehicle {kill_v.sysid} lost {killed['t_s'] - t_kill:.2f} s after the kill "
+          f"(latency_s {killed['latency_s']}); outcome {out['outcome']}, exit {status}, iterations "
+          f"{out['iterations']}; failsafe reported: {failsafe_events}; relay {relay_counts}; "
+          f"test {time.monotonic() - t_test:.0f} s wall")
     assert lost["reason"] == "link" and lost["t_s"] >= t_cut, lost
+    assert killed["reason"] == "link" and killed["t_s"] > t_kill, killed
+    assert killed_heard < killed["t_s"], (killed_heard, killed)  # the killed autopilot stayed silent
     assert "kept out" in back["message"], back["message"]  # in LAND: not re-admissible
     assert "GUIDED" not in armed_after, armed_after  # its failsafe never fought
-    assert sysid in [x["sysid"] for x in out["lost"]] and out["readmitted"] == [], (out["lost"], out["readmitted"])
-    assert out["airborne_left"] == [] and out.get("still_armed", []) == [], out
+    assert sorted(x["sysid"] for x in out["lost"]) == sorted([sysid, kill_v.sysid]), out["lost"]
+    assert out["readmitted"] == [], out["readmitted"]
+    # the dead autopilot cannot be landed: reported loudly, and the exit status says so
+    assert [x["sysid"] for x in out["airborne_left"]] == [kill_v.sysid], out["airborne_left"]
     assert out["outcome"] in ("converged", "max_iterations"), out["message"]
-    assert status == 4 == out["exit_status"], (status, out["outcome"])  # ended with a vehicle lost
+    assert status == 5 == out["exit_status"], (status, out["outcome"])  # a vehicle unaccounted for
     # the mission went on after the vehicle came back: another seek iteration, or (when the seek had
     # just converged or hit its cap, as the model seeker can by then) the next phase
     assert any(r["t_s"] > back["t_s"] for r in records(run.log) if r["type"] in ("iteration", "phase")), \

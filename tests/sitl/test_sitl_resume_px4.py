@@ -124,6 +124,8 @@ def test_px4_gcs_killed_and_resumed(tmp_path):
                    "every vehicle disarmed on the ground (PX4's land detector)", poll_s=0.2)
         modes = {v.sysid: gcs.modes(v.sysid, kill["t_kill"]) for v in fleet.vehicles}
         final = {v.sysid: gcs.state(v.sysid) for v in fleet.vehicles}
+        texts = {v.sysid: [(round(t - kill["t_kill"], 2), x) for t, x in gcs.statustexts(v.sysid, kill["t_kill"] - 5.0)]
+                 for v in fleet.vehicles}
     out = _json_out(run)
     t_resumed = kill["resumed"]["t_s"]
     hold_s = {s: next((t - kill["t_kill"] for t, m, _ in ms if m == _HOLD), None) for s, ms in modes.items()}
@@ -138,13 +140,15 @@ def test_px4_gcs_killed_and_resumed(tmp_path):
     assert t_resumed - kill["t_kill"] < dl_loss_wall_s, (
         f"the resume re-engaged {t_resumed - kill['t_kill']:.1f} s after the kill, later than PX4's data-link-loss "
         f"timeout ({_DL_LOSS_T_S} s at speed-up {_SPEEDUP:g}: {dl_loss_wall_s:.0f} wall s): PX4 landed meanwhile")
-    _check(records, out, status, kill, modes, final)
+    _check(records, out, status, kill, modes, final, texts)
     audit = subprocess.run([sys.executable, "-m", "mission", "audit", str(log_dir)], capture_output=True, text=True,
                            timeout=300)
     assert audit.returncode == 0, (audit.stdout[-3000:] + audit.stderr[-2000:] + "\n" + audit_failure_context(log_dir))
 
 
-def _check(records: list, out: dict, status: int, kill: dict, modes: dict, final: dict) -> None:
+def _check(records: list, out: dict, status: int, kill: dict, modes: dict, final: dict, texts: dict) -> None:
+    """The mission's checks; a vehicle's failure names its modes and what PX4 said (``texts``:
+    ``(seconds after the kill, STATUSTEXT)`` from 5 s before the kill on)."""
     assert kill["fly_status"] == -signal.SIGKILL
     assert sorted(kill["resumed"]["vehicles"]) == sorted(modes), kill["resumed"]["message"]
     plans = [r for r in records if r["type"] == "plan"]
@@ -155,8 +159,9 @@ def _check(records: list, out: dict, status: int, kill: dict, modes: dict, final
     for sysid, ms in modes.items():
         names = [m for _, m, _ in ms]
         # PX4 held by itself while no ground station streamed, then the resume re-engaged OFFBOARD
-        assert _HOLD in names and "OFFBOARD" in names[names.index(_HOLD):], (sysid, ms)
-        assert all(armed for t, m, armed in ms if t < t_resume), (sysid, ms)  # nobody landed meanwhile
+        said = f"vehicle {sysid}: modes {ms}; PX4 said {texts.get(sysid)}"
+        assert _HOLD in names and "OFFBOARD" in names[names.index(_HOLD):], said
+        assert all(armed for t, m, armed in ms if t < t_resume), said  # nobody landed meanwhile
     assert out["lost"] == [] and out["airborne_left"] == [] and out.get("still_armed", []) == [], out
     assert out["outcome"] in ("converged", "max_iterations"), out["message"]
     assert status == (0 if out["outcome"] == "converged" else 1) == out["exit_status"], (status, out["outcome"])
