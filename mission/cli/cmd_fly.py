@@ -42,18 +42,20 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 async def fly(plan, *, clock=None, log_dir: Path, display=None, tlog: bool = True, forward_addresses=None,
-              terminal=None, map_thread=None):
+              terminal=None, map_thread=None, world=None):
     """Open the plan's zenoh session, fly the mission, close; returns the MissionResult.
 
     ``forward_addresses``: the plan's ``[forward] out`` resolved before the loop started
     (:func:`mission.link.forward.resolve_outs`; any missing are resolved before connecting).
     ``terminal``: the :class:`~mission.telemetry.terminal.Terminal` whose losses the mission log tells.
     ``map_thread``: ``--map``'s :class:`~mission.telemetry.map_live.MapThread` (see :func:`fly_logged`).
+    ``world``: a lock-step run's world, handed the reading store (see :func:`fly_logged`).
     """
     clock = clock or WallClock()
     return await fly_logged(plan, MissionLog(Path(log_dir) / "mission.jsonl", clock), clock=clock,
                             display=display, tlog_dir=Path(log_dir) / "tlogs" if tlog else None,
-                            forward_addresses=forward_addresses, terminal=terminal, map_thread=map_thread)
+                            forward_addresses=forward_addresses, terminal=terminal, map_thread=map_thread,
+                            world=world)
 
 
 async def fly_logged(plan, log, *, clock, display=None, tlog_dir=None, forward_addresses=None, terminal=None,

@@ -183,7 +183,8 @@ def test_dry_run_then_fly_a_plan_file_against_a_mock_fleet(tmp_path):
         assert not any(v.armed for v in fleet.vehicles)  # the dry run armed nothing
         rogue = _Rogue(ports["coordinator_zenoh_port"], "planned", fleet.clock, plan.origin)
         try:
-            result = run_fleet(fleet, lambda _world: fly(plan, clock=fleet.clock, log_dir=tmp_path, tlog=False))
+            result = run_fleet(fleet, lambda world: fly(plan, clock=fleet.clock, log_dir=tmp_path, tlog=False,
+                                                        world=world))
         finally:
             rogue.stop()
     finally:
