@@ -15,9 +15,12 @@ and 120 s was 40 wall seconds, less than ``resume`` needed at load 38-40 to star
 33-44 s; on a quiet host 4.8 s, docs/faults.md), as the ArduCopter test sets ``FS_GCS_TIMEOUT``.
 The preflight of ``fly`` reads and reports it ("on data-link loss (300 s): land").
 
-Asserted: every vehicle left OFFBOARD for AUTO.LOITER after the kill (heard from PX4), the resume
-re-engaged all 4 in the air (no new takeoff, OFFBOARD again), the seek went on numbering iterations
-on and ended by itself (converged, or at its iteration cap), every vehicle landed and disarmed
+Asserted: PX4 held (AUTO.LOITER, heard from PX4) after the kill, then the resume re-engaged OFFBOARD:
+every vehicle seen holding went back to OFFBOARD, and none showed any other mode or disarmed before
+the resumed mission's return (a PX4 may show no hold at all: on a loaded host the resume's setpoints
+can come before its offboard-loss hold, or the hold can be shorter than a heartbeat of PX4's GCS
+link; at least one must be seen holding); the resume took all 4 in the air (no new takeoff), the
+seek went on numbering iterations on and ended by itself (converged, or at its iteration cap), every vehicle landed and disarmed
 (PX4's land detector), the summary consistent with the exit status, ``swarmseek audit`` of both
 sessions clean. The figures (the resume's delay, PX4's reaction) are printed (``pytest -s``) and
 are in docs/faults.md.
@@ -101,7 +104,6 @@ def _json_out(run: FlyRun) -> dict:
 
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
-@pytest.mark.unstable_mission  # passes alone (3 of 3); in the whole suite beside the other SITL fleets one PX4 landed (LAND) after the kill instead of holding (docs/faults.md)
 def test_px4_gcs_killed_and_resumed(tmp_path):
     sitl_dir = require_sitl("px4")
     from mission.sim.sitl_fleet import SitlFleet, SitlFleetConfig
@@ -156,12 +158,22 @@ def _check(records: list, out: dict, status: int, kill: dict, modes: dict, final
     t_resume = plans[1]["t_s"]
     assert not any(r["type"] == "phase" and r.get("phase") == "takeoff" and r["t_s"] > t_resume for r in records), \
         "the resume took off again"
+    t_return = min((r["t_s"] for r in records if r["type"] == "phase" and r.get("phase") == "return"
+                    and r["t_s"] > t_resume), default=float("inf"))
+    held = []
     for sysid, ms in modes.items():
-        names = [m for _, m, _ in ms]
-        # PX4 held by itself while no ground station streamed, then the resume re-engaged OFFBOARD
+        # until the resumed mission's return (whose LAND is the normal landing): PX4 held by itself
+        # while no ground station streamed, then the resume re-engaged OFFBOARD; or PX4 stayed in
+        # OFFBOARD (the resume's setpoints came before its offboard-loss hold, or the hold was
+        # shorter than a heartbeat of PX4's GCS link on a loaded host: seen in the whole suite)
+        names = [m for t, m, _ in ms if t < t_return]
         said = f"vehicle {sysid}: modes {ms}; PX4 said {texts.get(sysid)}"
-        assert _HOLD in names and "OFFBOARD" in names[names.index(_HOLD):], said
-        assert all(armed for t, m, armed in ms if t < t_resume), said  # nobody landed meanwhile
+        assert set(names) <= {_HOLD, "OFFBOARD"}, said
+        if _HOLD in names:
+            held.append(sysid)
+            assert "OFFBOARD" in names[names.index(_HOLD):], said
+        assert all(armed for t, m, armed in ms if t < t_return), said  # nobody landed meanwhile
+    assert held, f"no PX4 was seen holding after the kill: {modes}"
     assert out["lost"] == [] and out["airborne_left"] == [] and out.get("still_armed", []) == [], out
     assert out["outcome"] in ("converged", "max_iterations"), out["message"]
     assert status == (0 if out["outcome"] == "converged" else 1) == out["exit_status"], (status, out["outcome"])
