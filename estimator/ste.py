@@ -50,7 +50,9 @@ import numpy as np
 
 from estimator.estimate import PlanPosterior, SourceEstimate
 from estimator.seek_inputs import seeker_inputs
+from estimator.ste_bold import across_wind, bold_centres
 from estimator.ste_prior import check_box, draw_prior, trial_boxes
+from estimator.ste_readings import first_per_sensor, formation_points, reading_times
 from estimator.ste_tempering import shared_counts, time_weights
 from estimator.ste_fast import (hit_probability_fast, loglik_patchy_fast, loglik_steady_fast, plume_mean_fast,
                                 steady_hit_probability_fast)
@@ -193,6 +195,9 @@ class SteSeeker:
     toward_mean_along : bool
         No information-seeking candidate steps along the wind away from the posterior mean's place
         (the formation then never drifts down the wind of an estimate up the wind of it).
+    bold_sd_m : float or None
+        Once the posterior's deviations across the wind and vertically are both at most this, the
+        next centre is the posterior mean (:mod:`estimator.ste_bold`); None: off.
     seed : int
         Seed of the filter's random numbers (reset re-seeds).
     """
@@ -212,7 +217,8 @@ class SteSeeker:
                  corr_iterations: int = 0, path_samples: int = 1, corr_time_s: float = 5.0,
                  corr_path_m: float | None = None, time_temper: float = 1.0, same_time_s: float = 0.25,
                  timed: bool | None = None, prior_upwind_deg: float | None = None,
-                 axis_steps: bool = False, toward_mean_along: bool = False, prior_box_enu=None, seed: int = 0):
+                 axis_steps: bool = False, toward_mean_along: bool = False, bold_sd_m: float | None = None,
+                 prior_box_enu=None, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -270,6 +276,7 @@ class SteSeeker:
             raise ValueError(f"min_radius_m {min_radius_m!r} must be at most max_radius_m {max_radius_m!r}")
         self.casting, self.misfit_z = bool(casting), _positive("misfit_z", misfit_z)
         self.axis_steps, self.toward_mean_along = bool(axis_steps), bool(toward_mean_along)
+        self.bold_sd_m = None if bold_sd_m is None else _positive("bold_sd_m", bold_sd_m)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -456,7 +463,7 @@ class SteSeeker:
         with ``axis_steps`` the steps up, across the wind and vertically each from the posterior's
         spread along that axis."""
         up = self._upwind()
-        cross = np.stack([-up[:, 1], up[:, 0], np.zeros(len(up))], axis=1)
+        cross = across_wind(up)
         vert = np.broadcast_to([0.0, 0.0, 1.0], up.shape)
         step = np.clip(0.5 * self.region95_m, self.min_step_m, self.max_step_m)[:, None]
         to_mean = self.estimate_enu - c
@@ -506,6 +513,9 @@ class SteSeeker:
         if self.toward_mean_along:
             info = np.where(self._away_along(c, cand), -np.inf, info)
         best = np.take_along_axis(cand, np.argmax(info, axis=1)[:, None, None], axis=1)[:, 0]
+        if self.bold_sd_m is not None:
+            up = self._upwind()
+            best = bold_centres(best, self.estimate_enu, self._spreads(up, across_wind(up)), self.bold_sd_m)
         return np.where((self.region95_m < self.exploit_m)[:, None], self.estimate_enu, best)
 
     #: :meth:`propose` takes the readings' times and sensors (:func:`estimator.seekers.propose_readings`)
@@ -521,9 +531,9 @@ class SteSeeker:
         ``corr_length_m``), calibrated for one reading per vehicle per update.
         """
         c, p, v = seeker_inputs(centre, positions, values)
-        t, ids = self._times(times_s, sensor_ids, v.shape)
+        t, ids = reading_times(times_s, sensor_ids, v.shape)
         if t is not None and not self.timed:
-            p, v, t, ids = self._first_per_sensor(p, v, t, ids)
+            p, v, t, ids = first_per_sensor(p, v, t, ids)
         if self._k != c.shape[0]:
             self._init_state(c)
         self.iterations += 1
@@ -532,48 +542,9 @@ class SteSeeker:
         self._summarise()
         sub = self._subsample()
         self._check_fit(sub)
-        nxt = self._next_centre(c, self._size_formation(self._formation_points(p, t, ids), c), sub)
+        nxt = self._next_centre(c, self._size_formation(formation_points(p, t, ids), c), sub)
         self._resample()
         return nxt
-
-    @staticmethod
-    def _times(times_s, sensor_ids, shape) -> tuple:
-        """``(times (K, M), sensor ids (K, M))`` checked, or ``(None, None)`` without times."""
-        if times_s is None:
-            return None, None
-        t = np.asarray(times_s, dtype=float).reshape(shape)
-        if not np.all(np.isfinite(t)):
-            raise ValueError("times_s must be finite")
-        ids = np.broadcast_to(np.arange(shape[1]), shape) if sensor_ids is None else np.asarray(sensor_ids)
-        if ids.shape != shape:
-            raise ValueError(f"sensor_ids must have the readings' shape {shape}, got {ids.shape}")
-        return t, ids
-
-    @staticmethod
-    def _first_per_sensor(p: np.ndarray, v: np.ndarray, t: np.ndarray, ids: np.ndarray) -> tuple:
-        """Each sensor's earliest reading of the update (the same sensors in every trial), without
-        times: ``(positions, values, None, None)``; the per-update tempering takes them."""
-        keep = []
-        for k in range(p.shape[0]):
-            order = np.lexsort((t[k], ids[k]))
-            keep.append(order[np.r_[True, ids[k][order][1:] != ids[k][order][:-1]]])
-        if len({len(x) for x in keep}) != 1:
-            raise ValueError("every trial's update needs readings of the same number of sensors")
-        idx = np.sort(np.stack(keep), axis=1)
-        return np.take_along_axis(p, idx[..., None], axis=1), np.take_along_axis(v, idx, axis=1), None, None
-
-    @staticmethod
-    def _formation_points(p: np.ndarray, t, ids) -> np.ndarray:
-        """Where the formation's vehicles are for the move's information: the readings' positions,
-        or with times each sensor's newest reading (the same sensors in every trial, else all readings)."""
-        if t is None:
-            return p
-        last = []
-        for k in range(p.shape[0]):
-            order = np.lexsort((t[k], ids[k]))
-            newest = order[np.r_[ids[k][order][1:] != ids[k][order][:-1], True]]
-            last.append(p[k, newest])
-        return np.stack(last) if len({len(x) for x in last}) == 1 else p
 
     # ------------------------------------------------------------------ the estimate, reported
     def source_estimate(self, k: int = 0, plan_map: bool = True) -> SourceEstimate | None:
