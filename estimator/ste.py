@@ -50,7 +50,6 @@ import numpy as np
 
 from estimator.estimate import PlanPosterior, SourceEstimate
 from estimator.seek_inputs import seeker_inputs
-from estimator.ste_moves import across_wind, bold_centres, information_rate
 from estimator.ste_prior import check_box, draw_prior, trial_boxes
 from estimator.ste_readings import first_per_sensor, formation_points, reading_times
 from estimator.ste_tempering import shared_counts, time_weights
@@ -195,12 +194,6 @@ class SteSeeker:
     toward_mean_along : bool
         No information-seeking candidate steps along the wind away from the posterior mean's place
         (the formation then never drifts down the wind of an estimate up the wind of it).
-    bold_sd_m : float or None
-        Once the posterior's deviations across the wind and vertically are both at most this, the
-        next centre is the posterior mean if that is up the wind (:mod:`estimator.ste_moves`); None: off.
-    move_s_per_m : float or None
-        Infotaxis maximises information per second, a move of ``d`` m costing ``0.5 + move_s_per_m d``
-        s (vertical metres thrice; :mod:`estimator.ste_moves`); None: information per iteration.
     seed : int
         Seed of the filter's random numbers (reset re-seeds).
     """
@@ -220,8 +213,7 @@ class SteSeeker:
                  corr_iterations: int = 0, path_samples: int = 1, corr_time_s: float = 5.0,
                  corr_path_m: float | None = None, time_temper: float = 1.0, same_time_s: float = 0.25,
                  timed: bool | None = None, prior_upwind_deg: float | None = None,
-                 axis_steps: bool = False, toward_mean_along: bool = False, bold_sd_m: float | None = None,
-                 move_s_per_m: float | None = None, prior_box_enu=None, seed: int = 0):
+                 axis_steps: bool = False, toward_mean_along: bool = False, prior_box_enu=None, seed: int = 0):
         if stability not in BRIGGS_RURAL:
             raise ValueError(f"unknown stability class {stability!r}; known: {', '.join(BRIGGS_RURAL)}")
         if wind_from_deg is not None and not np.isfinite(float(wind_from_deg)):
@@ -279,8 +271,6 @@ class SteSeeker:
             raise ValueError(f"min_radius_m {min_radius_m!r} must be at most max_radius_m {max_radius_m!r}")
         self.casting, self.misfit_z = bool(casting), _positive("misfit_z", misfit_z)
         self.axis_steps, self.toward_mean_along = bool(axis_steps), bool(toward_mean_along)
-        self.bold_sd_m = None if bold_sd_m is None else _positive("bold_sd_m", bold_sd_m)
-        self.move_s_per_m = None if move_s_per_m is None else _positive("move_s_per_m", move_s_per_m)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -467,7 +457,7 @@ class SteSeeker:
         with ``axis_steps`` the steps up, across the wind and vertically each from the posterior's
         spread along that axis."""
         up = self._upwind()
-        cross = across_wind(up)
+        cross = np.stack([-up[:, 1], up[:, 0], np.zeros(len(up))], axis=1)
         vert = np.broadcast_to([0.0, 0.0, 1.0], up.shape)
         step = np.clip(0.5 * self.region95_m, self.min_step_m, self.max_step_m)[:, None]
         to_mean = self.estimate_enu - c
@@ -514,13 +504,9 @@ class SteSeeker:
         pts = (way[:, :, :, None, :] + off[:, None, None, :, :]).reshape(k, -1, 3)
         q = self._p_hit(sub, pts)  # (K, S, C * F * N)
         info = (_entropy2(q.mean(axis=1)) - _entropy2(q).mean(axis=1)).reshape(k, cand.shape[1], -1).sum(axis=2)
-        info = information_rate(info, c, cand, self.move_s_per_m)
         if self.toward_mean_along:
             info = np.where(self._away_along(c, cand), -np.inf, info)
         best = np.take_along_axis(cand, np.argmax(info, axis=1)[:, None, None], axis=1)[:, 0]
-        if self.bold_sd_m is not None:
-            up = self._upwind()
-            best = bold_centres(c, best, self.estimate_enu, up, self._spreads(up, across_wind(up)), self.bold_sd_m)
         return np.where((self.region95_m < self.exploit_m)[:, None], self.estimate_enu, best)
 
     #: :meth:`propose` takes the readings' times and sensors (:func:`estimator.seekers.propose_readings`)
