@@ -12,7 +12,22 @@ __all__ = ["reading_times", "first_per_sensor", "formation_points"]
 
 
 def reading_times(times_s, sensor_ids, shape) -> tuple:
-    """``(times (K, M), sensor ids (K, M))`` checked, or ``(None, None)`` without times."""
+    """``(times (K, M), sensor ids (K, M))`` checked, or ``(None, None)`` without times.
+
+    Parameters
+    ----------
+    times_s : array_like or None
+        When each reading was taken, s (reshaped to ``shape``); None: no times.
+    sensor_ids : array_like or None
+        Which sensor took each reading, shape ``shape``; None: column ``m`` is sensor ``m``.
+    shape : tuple of int
+        The readings' shape ``(K, M)``.
+
+    Raises
+    ------
+    ValueError
+        A time that is not finite, or sensor ids of another shape.
+    """
     if times_s is None:
         return None, None
     t = np.asarray(times_s, dtype=float).reshape(shape)
@@ -26,7 +41,22 @@ def reading_times(times_s, sensor_ids, shape) -> tuple:
 
 def first_per_sensor(p: np.ndarray, v: np.ndarray, t: np.ndarray, ids: np.ndarray) -> tuple:
     """Each sensor's earliest reading of the update (the same sensors in every trial), without
-    times: ``(positions, values, None, None)``; the per-update tempering takes them."""
+    times: ``(positions, values, None, None)``; the per-update tempering takes them.
+
+    Parameters
+    ----------
+    p : ndarray, shape (K, M, 3)
+        The readings' positions, ENU m.
+    v : ndarray, shape (K, M)
+        The readings.
+    t, ids : ndarray, shape (K, M)
+        Their times (s) and sensors (:func:`reading_times`).
+
+    Raises
+    ------
+    ValueError
+        The trials' updates hold readings of different numbers of sensors.
+    """
     keep = []
     for k in range(p.shape[0]):
         order = np.lexsort((t[k], ids[k]))
@@ -39,7 +69,19 @@ def first_per_sensor(p: np.ndarray, v: np.ndarray, t: np.ndarray, ids: np.ndarra
 
 def formation_points(p: np.ndarray, t, ids) -> np.ndarray:
     """Where the formation's vehicles are for the move's information: the readings' positions,
-    or with times each sensor's newest reading (the same sensors in every trial, else all readings)."""
+    or with times each sensor's newest reading (the same sensors in every trial, else all readings).
+
+    Parameters
+    ----------
+    p : ndarray, shape (K, M, 3)
+        The readings' positions, ENU m.
+    t, ids : ndarray, shape (K, M), or None
+        Their times (s) and sensors (:func:`reading_times`); None: no times.
+
+    Returns
+    -------
+    ndarray, shape (K, N, 3)
+    """
     if t is None:
         return p
     last = []
