@@ -2,7 +2,9 @@
 
 Runs ``bench_seekers.py``'s cell (same starts, formation, noise, time model) with the seeker
 wrapped so that every iteration's state is recorded, then splits each trial's mission time into
-phases by the first iteration at which: a vehicle reads a hit; the centre is within 3 m of the
+phases by the first iteration at which: a vehicle reads a hit; the vehicles have read 5, 20
+hits in all (sustained contact with the plume, not one stray puff); the region is below 10 m; the
+centre is within 10 m; the centre is within 3 m of the
 release; the 95 % region is below 3 m, 2 m, 1 m (``arrival``); the centre is within 1 m for good
 (the benchmark's success time). Prints the median of each milestone's time over the trials that
 reach it, the fraction that reach it, the median ratio of the success time to the straight line,
@@ -12,7 +14,10 @@ the mean iteration time and step in each phase, and the fraction of the end game
 Usage::
 
     python benchmarks/diag_ste_time.py --trials 30 --iterations 120 --seeker ste-patchy-wind \
-        --field intermittent [--ste-args corr_time_s=3.5] [--start-m 20,40]
+        --field intermittent [--ste-args corr_time_s=3.5] [--start-m 20,40] [--search-box 60]
+
+``--search-box SIDE_M`` bounds the prior by each trial's search box, as ``bench_seekers.py``'s
+option does (the same boxes for the same seed), so its rows and this split are of the same runs.
 """
 from __future__ import annotations
 
@@ -50,10 +55,11 @@ class _Recorder:
 
 
 def trace(seeker_name: str, field_name: str, trials: int, iterations: int, seed: int = 0,
-          ste_args: str | None = None, start_m=(10.0, 50.0)) -> dict:
-    """Run one benchmark cell with the recorder; per-iteration arrays ``(T, K)`` and the run."""
+          ste_args: str | None = None, start_m=(10.0, 50.0), search_box_m: float | None = None) -> dict:
+    """Run one benchmark cell with the recorder; per-iteration arrays ``(T, K)`` and the run
+    (``search_box_m``: the ``ste`` prior bounded by ``bench_seekers.search_boxes``, as its option)."""
     import formation
-    from bench_seekers import _field_and_noise, _seeker, _starts
+    from bench_seekers import _field_and_noise, _seeker, _starts, search_boxes
     from experiments.offline_seek import StopAndGo, simulate_seeker
     from mission.sim.embedded import downwind_en
 
@@ -61,7 +67,10 @@ def trace(seeker_name: str, field_name: str, trials: int, iterations: int, seed:
     source = np.array([0.0, 0.0, 15.0])
     field, noise = _field_and_noise(field_name, source, "realistic")
     starts, dist = _starts(field.source_enu(), trials, rng, downwind_en(field), start_m)
-    seeker, gamma = _seeker(seeker_name, field, ste_args)
+    box = None
+    if search_box_m is not None and seeker_name.startswith("ste"):
+        box = search_boxes(field.source_enu(), starts, search_box_m, np.random.default_rng(seed + 2))
+    seeker, gamma = _seeker(seeker_name, field, ste_args, box)
     rec = _Recorder(seeker)
     run = simulate_seeker(formation.cvt_sphere(8, 4.0, seed=0), field, starts, rec, gamma_m=gamma,
                           iterations=iterations, noise_std=noise, rotate=True, seed=seed + 1)
@@ -82,7 +91,10 @@ def _milestones(tr: dict) -> dict:
     out = d > 1.0
     stay = np.where(out.any(axis=0), out.shape[0] - np.argmax(out[::-1], axis=0), 0)
     stay = np.where(out[-1], -1, stay)
-    return {"first hit": _first(tr["hits"] > 0), "centre within 3 m": _first(d <= 3.0),
+    total = np.cumsum(tr["hits"], axis=0)
+    return {"first hit": _first(tr["hits"] > 0), "5 hits in all": _first(total >= 5),
+            "20 hits in all": _first(total >= 20), "region < 10 m": _first(tr["region"] < 10.0),
+            "centre within 10 m": _first(d <= 10.0), "centre within 3 m": _first(d <= 3.0),
             "region < 3 m": _first(tr["region"] < 3.0), "region < 2 m": _first(tr["region"] < 2.0),
             "region <= 1 m (arrival)": _first(tr["arrival"]), "centre within 1 m for good": stay}
 
@@ -125,14 +137,20 @@ def main(argv=None) -> int:
     ap.add_argument("--field", default="intermittent")
     ap.add_argument("--ste-args", default=None)
     ap.add_argument("--start-m", default="10,50", help="start distance range, m (lo,hi)")
+    ap.add_argument("--search-box", type=float, default=None, metavar="SIDE_M",
+                    help="bound the ste prior by a search box of this side, m (as bench_seekers.py)")
     args = ap.parse_args(argv)
     from bench_seekers import _start_range
+
+    if args.search_box is not None and (not np.isfinite(args.search_box) or args.search_box <= 0):
+        ap.error(f"--search-box must be a side > 0 m, got {args.search_box!r}")
 
     try:
         start_m = _start_range(args.start_m)
     except ValueError as exc:
         ap.error(str(exc))
-    report(trace(args.seeker, args.field, args.trials, args.iterations, args.seed, args.ste_args, start_m))
+    report(trace(args.seeker, args.field, args.trials, args.iterations, args.seed, args.ste_args, start_m,
+                 args.search_box))
     return 0
 
 

@@ -30,7 +30,7 @@ likelihoods are :mod:`estimator.ste_model`. Per iteration:
    a Gaussian predictive; intermittent: ``-2 log P(hit or miss)``), their total deviance minus
    its expectation over its deviation if the model held (:attr:`fit_z`) above ``misfit_z`` says
    the field is not a plume the model can represent (a tight posterior there is tight and wrong).
-5. **Move**: while the region is larger than ``exploit_m`` (default ``region_m``), the candidate (stay; ``step`` up/down
+5. **Move**: while the region is larger than ``exploit_m`` (default 3 m), the candidate (stay; ``step`` up/down
    wind, across it, up/down; toward the posterior mean) whose formation readings carry the most
    expected information about the particles (the mutual information of each vehicle's hit / miss,
    summed over vehicles, on a resampled subset of the particles: myopic infotaxis, Vergassola et
@@ -51,6 +51,7 @@ import numpy as np
 from estimator.estimate import PlanPosterior, SourceEstimate
 from estimator.seek_inputs import seeker_inputs
 from estimator.ste_prior import check_box, draw_prior, trial_boxes
+from estimator.ste_readings import first_per_sensor, formation_points, reading_times
 from estimator.ste_tempering import shared_counts, time_weights
 from estimator.ste_fast import (hit_probability_fast, loglik_patchy_fast, loglik_steady_fast, plume_mean_fast,
                                 steady_hit_probability_fast)
@@ -140,7 +141,7 @@ class SteSeeker:
         Convergence: the 95 % region's radius at most this.
     exploit_m : float or None
         Below this region radius the centre goes to the posterior mean (None: ``region_m``, i.e.
-        infotaxis until converged).
+        infotaxis until converged). Default 3 m, with ``radius_gain`` 0.25 (docs/seekers.md, round 9).
     collapse_nats : float
         Mean deviance per reading of the best particle above which the posterior has collapsed.
     memory : int
@@ -205,9 +206,9 @@ class SteSeeker:
                  ground_alt_m: float = 0.0, noise_std: float = 0.01, background: float = 0.0,
                  detection_floor: float = 0.0, rel_error: float = 0.3, hit_fraction: float = 0.6,
                  hit_shape: float = 0.8, hit_log_sd: float = 1.3, false_hit: float = 0.01, temper: float = 0.35,
-                 corr_length_m: float = 1.0, region_m: float = 1.0, exploit_m: float | None = None,
+                 corr_length_m: float = 1.0, region_m: float = 1.0, exploit_m: float | None = 3.0,
                  min_step_m: float = 1.0, max_step_m: float = 8.0,
-                 collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.5,
+                 collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.25,
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
                  corr_iterations: int = 0, path_samples: int = 1, corr_time_s: float = 5.0,
                  corr_path_m: float | None = None, time_temper: float = 1.0, same_time_s: float = 0.25,
@@ -521,9 +522,9 @@ class SteSeeker:
         ``corr_length_m``), calibrated for one reading per vehicle per update.
         """
         c, p, v = seeker_inputs(centre, positions, values)
-        t, ids = self._times(times_s, sensor_ids, v.shape)
+        t, ids = reading_times(times_s, sensor_ids, v.shape)
         if t is not None and not self.timed:
-            p, v, t, ids = self._first_per_sensor(p, v, t, ids)
+            p, v, t, ids = first_per_sensor(p, v, t, ids)
         if self._k != c.shape[0]:
             self._init_state(c)
         self.iterations += 1
@@ -532,48 +533,9 @@ class SteSeeker:
         self._summarise()
         sub = self._subsample()
         self._check_fit(sub)
-        nxt = self._next_centre(c, self._size_formation(self._formation_points(p, t, ids), c), sub)
+        nxt = self._next_centre(c, self._size_formation(formation_points(p, t, ids), c), sub)
         self._resample()
         return nxt
-
-    @staticmethod
-    def _times(times_s, sensor_ids, shape) -> tuple:
-        """``(times (K, M), sensor ids (K, M))`` checked, or ``(None, None)`` without times."""
-        if times_s is None:
-            return None, None
-        t = np.asarray(times_s, dtype=float).reshape(shape)
-        if not np.all(np.isfinite(t)):
-            raise ValueError("times_s must be finite")
-        ids = np.broadcast_to(np.arange(shape[1]), shape) if sensor_ids is None else np.asarray(sensor_ids)
-        if ids.shape != shape:
-            raise ValueError(f"sensor_ids must have the readings' shape {shape}, got {ids.shape}")
-        return t, ids
-
-    @staticmethod
-    def _first_per_sensor(p: np.ndarray, v: np.ndarray, t: np.ndarray, ids: np.ndarray) -> tuple:
-        """Each sensor's earliest reading of the update (the same sensors in every trial), without
-        times: ``(positions, values, None, None)``; the per-update tempering takes them."""
-        keep = []
-        for k in range(p.shape[0]):
-            order = np.lexsort((t[k], ids[k]))
-            keep.append(order[np.r_[True, ids[k][order][1:] != ids[k][order][:-1]]])
-        if len({len(x) for x in keep}) != 1:
-            raise ValueError("every trial's update needs readings of the same number of sensors")
-        idx = np.sort(np.stack(keep), axis=1)
-        return np.take_along_axis(p, idx[..., None], axis=1), np.take_along_axis(v, idx, axis=1), None, None
-
-    @staticmethod
-    def _formation_points(p: np.ndarray, t, ids) -> np.ndarray:
-        """Where the formation's vehicles are for the move's information: the readings' positions,
-        or with times each sensor's newest reading (the same sensors in every trial, else all readings)."""
-        if t is None:
-            return p
-        last = []
-        for k in range(p.shape[0]):
-            order = np.lexsort((t[k], ids[k]))
-            newest = order[np.r_[ids[k][order][1:] != ids[k][order][:-1], True]]
-            last.append(p[k, newest])
-        return np.stack(last) if len({len(x) for x in last}) == 1 else p
 
     # ------------------------------------------------------------------ the estimate, reported
     def source_estimate(self, k: int = 0, plan_map: bool = True) -> SourceEstimate | None:
