@@ -268,3 +268,57 @@ def test_pair_pruning_skips_far_pairs_and_keeps_a_planted_break(tmp_path):
     assert exact < pairs / 2, (exact, pairs)          # most pairs of a 6 m ring are cleared by the bound
     assert fast.to_dict() == plain.to_dict()
     assert fast.violation_counts.get("separation", 0) > 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), shared=st.booleans(), size=st.integers(1, 300))
+def test_batch_instant_counts_equal_the_exact_checks_instants(seed, shared, size):
+    """The skipped pairs' instants, counted all at once from the bit sets, are ``len(tq)`` of the exact
+    check: the distinct stamps of either vehicle in ``[lo, hi]``, and ``hi``. Stamps shared by all
+    vehicles (the lock-step clock's ticks) or each its own (real time), spans on word edges."""
+    from mission.safety.audit_pairs import _count_instants_many, _instant_bits
+
+    rng = np.random.default_rng(seed)
+    ticks = np.round(np.sort(rng.uniform(0.0, 50.0, size)), 3)
+    vehicles = []
+    for _ in range(4):
+        t_s = np.unique(rng.choice(ticks, size=rng.integers(1, size + 1)) if shared
+                        else np.round(rng.uniform(0.0, 50.0, rng.integers(1, size + 1)), 4))
+        vehicles.append((audit_read.VehicleSetpoints(1, t_s, np.zeros((len(t_s), 3))), None))
+    stamps, bits = _instant_bits(vehicles)
+    spans = []
+    for _ in range(40):
+        i, j = sorted(rng.choice(4, 2, replace=False))
+        a, b = vehicles[i][0].t_s, vehicles[j][0].t_s
+        lo = max(a[0], b[0])
+        edge = stamps[min(len(stamps) - 1, 64 * int(rng.integers(0, len(stamps) // 64 + 1)))]
+        hi = max(lo, rng.choice([edge, lo + rng.uniform(0.0, 50.0), float(rng.choice(np.concatenate([a, b])))]))
+        spans.append((int(i), int(j), float(lo), float(hi)))
+    got = _count_instants_many(stamps, np.stack(bits), spans)
+    for (i, j, lo, hi), n in zip(spans, got):
+        tq = np.concatenate([vehicles[i][0].t_s, vehicles[j][0].t_s, [lo, hi]])
+        assert n == len(np.unique(tq[(tq >= lo) & (tq <= hi)])), (i, j, lo, hi)
+
+
+def test_track_bounds_are_the_window_box_distances(tmp_path):
+    """The pair bounds computed a slice of later tracks at a time equal, per pair of tracks, the
+    smallest box distance (:func:`_box_distance`) over the windows both are commanded in; and no
+    bound exceeds the pair's true smallest distance (a vehicle with two tracks included)."""
+    from mission.safety.audit_pairs import _box_distance, _grid, _pair_items, _span_bound, track_pair
+
+    log_dir = _write_mission(tmp_path, n=12, steps=200)
+    plan = audit_read.load_plan_limits(log_dir)
+    vehicles = []
+    for sysid, paths in sorted(find_tlogs(log_dir).items()):
+        sp = read_vehicle_setpoints_fast(paths, sysid, plan["origin"])
+        vehicles.append((sp, _tracks(sp.t_s, 1.0)))
+    edges = _grid(vehicles, 1.0, 0.01, 1.0)
+    items, boxes = _pair_items(vehicles, 1.0, 0.01, edges)
+    assert len(items) == sum(len(ta) * len(tb) for k, (_, ta) in enumerate(vehicles) for _, tb in vehicles[k + 1:])
+    for i, j, ra, rb, lo, hi, bound in items:
+        box_a, box_b = boxes[i][vehicles[i][1].index(ra)], boxes[j][vehicles[j][1].index(rb)]
+        want = _span_bound(_box_distance(box_a, box_b)[None], edges, np.array([lo]), np.array([hi + 0.01]))[0]
+        assert bound == want
+        exact = track_pair(vehicles[i][0], vehicles[j][0], ra, rb, 1.5, 0.01, 1.0, 0.01)
+        if exact is not None:
+            assert bound <= exact[1] + 1e-9
