@@ -322,3 +322,58 @@ def test_track_bounds_are_the_window_box_distances(tmp_path):
         exact = track_pair(vehicles[i][0], vehicles[j][0], ra, rb, 1.5, 0.01, 1.0, 0.01)
         if exact is not None:
             assert bound <= exact[1] + 1e-9
+
+
+def _fence_reference(sp, plan, tol_m):
+    """The fence check as it was (every point's boundary distance): (smallest margin, outside indices)."""
+    from mission.safety.geometry import boundary_distance, point_in_polygon
+
+    poly, p = plan["polygon_en_m"], sp.enu_m
+    inside = point_in_polygon(p[:, :2], poly, tol_m)
+    margin_h = boundary_distance(p[:, :2], poly)
+    margin_h = np.where(point_in_polygon(p[:, :2], poly, 0.0), margin_h, -margin_h)
+    margin = np.minimum(margin_h, np.minimum(p[:, 2] - plan["min_alt_m"], plan["max_alt_m"] - p[:, 2]))
+    return float(margin.min()), np.flatnonzero(~inside).tolist(), -margin_h[~inside]
+
+
+@pytest.mark.parametrize("tol_m", [0.01, 0.0])
+@pytest.mark.parametrize("low_m", [2.0, 19.0, 29.5])
+def test_fence_margins_computed_near_the_boundary_only_equal_every_points(tol_m, low_m):
+    """The fence check computes the boundary distance only of points outside or near an edge's line
+    (within the smallest vertical margin): the same smallest margin, the same violations and values
+    as every point's distance, on an L-shaped (non-convex) fence with points inside, outside, on
+    and just off its edges, and a band that puts the vertical margin below and above them."""
+    from mission.safety.audit import _check_fence
+
+    rng = np.random.default_rng(7)
+    poly = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 40.0], [40.0, 40.0], [40.0, 100.0], [0.0, 100.0]])
+    plan = {"polygon_en_m": poly, "min_alt_m": low_m, "max_alt_m": 80.0}
+    edge_points = np.concatenate([poly + rng.normal(0.0, s, poly.shape) for s in (0.0, 0.003, 0.02, 0.5)])
+    xy = np.concatenate([rng.uniform(-5.0, 105.0, (3000, 2)), edge_points, [[20.0, 20.0], [70.0, 20.0]]])
+    enu = np.column_stack([xy, rng.uniform(20.0, 40.0, len(xy))])
+    sp = audit_read.VehicleSetpoints(3, np.arange(len(xy), dtype=float), enu)
+    report = AuditReport(log_dir="x", tlogs=[])
+    _check_fence(report, sp, plan, tol_m)
+    want_margin, want_out, want_values = _fence_reference(sp, plan, tol_m)
+    assert report.min_fence_margin_m == want_margin
+    fence = [v for v in report.violations if v.kind == "fence"]          # the first 200 are listed
+    assert report.violation_counts["fence"] == len(want_out) > len(fence) > 100
+    assert [int(v.t_s) for v in fence] == want_out[:len(fence)]
+    assert [v.value for v in fence] == want_values[:len(fence)].tolist()
+
+
+def test_fence_margin_of_an_interior_point_nearer_the_fence_than_the_band():
+    """Every point well inside, the nearest 11 m from an edge and the band 12 m away at the closest:
+    the smallest margin is that point's horizontal one (found although no point is outside)."""
+    from mission.safety.audit import _check_fence
+
+    rng = np.random.default_rng(3)
+    poly = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 40.0], [40.0, 40.0], [40.0, 100.0], [0.0, 100.0]])
+    plan = {"polygon_en_m": poly, "min_alt_m": 2.0, "max_alt_m": 80.0}
+    xy = np.concatenate([rng.uniform(14.0, 26.0, (500, 2)), [[11.0, 30.0]]])
+    enu = np.column_stack([xy, rng.uniform(14.0, 30.0, len(xy))])
+    sp = audit_read.VehicleSetpoints(3, np.arange(len(xy), dtype=float), enu)
+    report = AuditReport(log_dir="x", tlogs=[])
+    _check_fence(report, sp, plan, 0.01)
+    assert report.min_fence_margin_m == _fence_reference(sp, plan, 0.01)[0] == pytest.approx(11.0)
+    assert not report.violations
