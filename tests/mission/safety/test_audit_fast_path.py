@@ -377,3 +377,21 @@ def test_fence_margin_of_an_interior_point_nearer_the_fence_than_the_band():
     _check_fence(report, sp, plan, 0.01)
     assert report.min_fence_margin_m == _fence_reference(sp, plan, 0.01)[0] == pytest.approx(11.0)
     assert not report.violations
+
+
+def test_runs_of_identical_setpoint_rows_are_converted_once_with_the_same_result():
+    """A held target resent at the stream's rate is converted once per run of identical rows: the
+    same mission ENU, to the bit, as converting each row alone (LOCAL_NED in two home frames and
+    geodetic rows; a 0.0 next to a -0.0 is not the same row)."""
+    from mission.safety.audit_read import _local_origin, _rows_to_enu
+
+    rng = np.random.default_rng(5)
+    origins = {_local_origin((45.1886, 5.7246, 212.5), (1.0, -2.0, -0.3)): 0,
+               _local_origin((45.1884, 5.7243, 211.0), (0.0, 0.0, 0.0)): 1}
+    distinct = np.column_stack([rng.integers(-1, 2, 40).astype(float), rng.uniform(-50.0, 50.0, (40, 3))])
+    distinct[distinct[:, 0] < 0, 1:] = [45.1885, 5.7245, 230.0] + rng.uniform(-1e-4, 1e-4, (int((distinct[:, 0] < 0).sum()), 3))
+    distinct[5, 1:], distinct[6, 1:], distinct[6, 0] = (0.0, 1.0, -2.0), (-0.0, 1.0, -2.0), distinct[5, 0]
+    data = np.repeat(distinct, rng.integers(1, 12, len(distinct)), axis=0)
+    got = _rows_to_enu(data, origins, ORIGIN)
+    alone = np.concatenate([_rows_to_enu(data[k:k + 1], origins, ORIGIN) for k in range(len(data))])
+    assert got.tobytes() == alone.tobytes() and len(data) > 2 * len(distinct)
