@@ -31,9 +31,20 @@ _BOUND_MARGIN_M = 1e-6
 
 def _state_at(t_query, t_s, p):
     """Zero-order hold (latest setpoint at or before) and linear interpolation at ``t_query``."""
-    k = np.clip(np.searchsorted(t_s, t_query, side="right") - 1, 0, len(t_s) - 1)
-    lin = np.stack([np.interp(t_query, t_s, p[:, c]) for c in range(3)], axis=-1)
-    return p[k], lin
+    return _hold_at(t_query, t_s, p), _interp_at(t_query, t_s, p)
+
+
+def _hold_at(t_query, t_s, p):
+    """The latest setpoint at or before each of ``t_query`` (the first before the first)."""
+    return p[np.clip(np.searchsorted(t_s, t_query, side="right") - 1, 0, len(t_s) - 1)]
+
+
+def _interp_at(t_query, t_s, p):
+    """The setpoints linearly interpolated at ``t_query`` (held beyond the ends)."""
+    lin = np.empty((len(t_query), 3))
+    for c in range(3):
+        lin[:, c] = np.interp(t_query, t_s, p[:, c])
+    return lin
 
 
 def pair_span(a, b, ra, rb, stale_after_s) -> tuple[float, float]:
@@ -196,9 +207,9 @@ def track_pair_hot(a, b, ra, rb, tq, hot, min_sep_m, tol_m, burst_s):
     tb, pb = b.t_s[rb[0]:rb[1]], b.enu_m[rb[0]:rb[1]]
     hot_z, hot_p = hot
     t_z = tq[hot_z] + burst_s if burst_s > 0 else tq[hot_z]
-    d_zoh = np.linalg.norm(_state_at(t_z, ta, pa)[0] - _state_at(t_z, tb, pb)[0], axis=1)
+    d_zoh = np.linalg.norm(_hold_at(t_z, ta, pa) - _hold_at(t_z, tb, pb), axis=1)
     ends = np.concatenate([tq[hot_p], tq[hot_p + 1]])
-    la, lb = _state_at(ends, ta, pa)[1], _state_at(ends, tb, pb)[1]
+    la, lb = _interp_at(ends, ta, pa), _interp_at(ends, tb, pb)
     n = len(hot_p)
     d_path = synchronous_distance(la[:n], la[n:], lb[:n], lb[n:])
     min_m = min(float(d_zoh.min()) if len(d_zoh) else np.inf, float(d_path.min()) if n else np.inf)
@@ -297,7 +308,8 @@ def check_pairs_fast(report, vehicles, min_sep_m: float, tol_m: float, stale_aft
     stamps, bits = _instant_bits(vehicles)
     limit = min_sep_m - tol_m
     results, smallest = {}, np.inf
-    for k in sorted(range(len(items)), key=lambda k: items[k][6]):
+    one_track_each = all(len(tracks) <= 1 for _, tracks in vehicles)
+    for k in np.argsort(np.array([item[6] for item in items]), kind="stable").tolist():   # closest bound first
         i, j, ra, rb, lo, hi, bound = items[k]
         if hi < lo:
             continue
@@ -306,6 +318,8 @@ def check_pairs_fast(report, vehicles, min_sep_m: float, tol_m: float, stale_aft
         alone = ((len(tracks_a) == 1 or _alone_in_span(a, ra, lo, hi))
                  and (len(tracks_b) == 1 or _alone_in_span(b, rb, lo, hi)))
         if alone and bound >= threshold:
+            if one_track_each:
+                break            # every pair left is alone, its bound at least this one: all skipped
             continue
         tq = _instants(stamps, bits[i], bits[j], lo, hi) if alone else None
         if tq is None or len(tq) < 2:
