@@ -217,12 +217,13 @@ def _tracks(t_s, stale_after_s):
 def _check_fence(report, sp, plan, tol_m):
     poly = plan["polygon_en_m"]
     p = sp.enu_m
-    inside = point_in_polygon(p[:, :2], poly, tol_m)
+    crossing = point_in_polygon(p[:, :2], poly, 0.0)
     below = plan["min_alt_m"] - p[:, 2]
     above = p[:, 2] - plan["max_alt_m"]
-    margin_h = boundary_distance(p[:, :2], poly)
-    margin_h = np.where(point_in_polygon(p[:, :2], poly, 0.0), margin_h, -margin_h)
-    margin = np.minimum(margin_h, np.minimum(-below, -above))
+    margin_v = np.minimum(-below, -above)
+    margin_h = _horizontal_margins(p[:, :2], poly, crossing, float(margin_v.min()))
+    inside = crossing | (np.abs(margin_h) <= tol_m) if tol_m > 0 else crossing   # = point_in_polygon(..., tol_m)
+    margin = np.minimum(margin_h, margin_v)
     report.min_fence_margin_m = min(report.min_fence_margin_m, float(margin.min()))
     for i in np.flatnonzero(~inside):
         report.add(AuditViolation("fence", float(sp.t_s[i]), (sp.sysid,), float(-margin_h[i]), 0.0,
@@ -234,6 +235,28 @@ def _check_fence(report, sp, plan, tol_m):
                                   plan["min_alt_m"] if low else plan["max_alt_m"],
                                   f"setpoint altitude {p[i, 2]:.3f} m is {'below' if low else 'above'} the band "
                                   f"{plan['min_alt_m']:g}..{plan['max_alt_m']:g} m"))
+
+
+def _horizontal_margins(xy, poly, crossing, cap_m: float) -> np.ndarray:
+    """Signed distance of each point to the fence polygon's boundary (negative outside; ``crossing``:
+    inside by the crossing rule), computed exactly (:func:`boundary_distance`) for the points outside
+    and for those whose distance to the nearest edge's *line* (never more than the distance to the
+    edge) is at most ``cap_m``, the smallest vertical margin; inf for the others, whose distance
+    exceeds ``cap_m`` and so can be neither a violation nor the smallest margin."""
+    a = np.asarray(poly, dtype=float)
+    d = np.roll(a, -1, axis=0) - a
+    length = np.hypot(d[:, 0], d[:, 1])
+    rel = xy[:, None, :] - a
+    cross = np.abs(rel[..., 0] * d[:, 1] - rel[..., 1] * d[:, 0])
+    line = np.where(length > 0, cross / np.where(length > 0, length, 1.0), np.hypot(rel[..., 0], rel[..., 1]))
+    near = ~crossing | (line.min(axis=1) <= cap_m + _LINE_SLACK_M)
+    margin = np.full(len(xy), np.inf)
+    margin[near] = boundary_distance(xy[near], poly)
+    return np.where(crossing, margin, -margin)
+
+
+#: rounding slack of the line-distance pre-filter (it only widens the set computed exactly)
+_LINE_SLACK_M = 1e-3
 
 
 def _check_speed(report, sp, tracks, max_speed_m_s, jitter_s, window_s):

@@ -172,7 +172,7 @@ def _header(buf: np.ndarray, offsets: np.ndarray, wanted) -> dict:
     v2 = buf[at] == _V2
     msgid = np.where(v2, buf[at + 7].astype(np.int64) | buf[at + 8].astype(np.int64) << 8
                      | buf[at + 9].astype(np.int64) << 16, buf[at + 5])
-    keep = np.flatnonzero(np.isin(msgid, list(wanted)))
+    keep = np.flatnonzero(np.logical_or.reduce([msgid == m for m in wanted]))
     at, v2 = at[keep], v2[keep]
     stamps = _gather(buf, offsets[keep], 8).view(">u8").ravel().astype(np.float64) * 1e-6
     return {"t_s": stamps, "at": at, "v2": v2, "flags": np.where(v2, buf[at + 2], 0), "msgid": msgid[keep],
@@ -241,7 +241,7 @@ def _setpoint_columns(h: dict, parts: dict, sysid: int, gcs_sysid: int, mavlink)
     for msgid, names in ((mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED, ("x", "y", "z")),
                          (mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT, ("lat_int", "lon_int", "alt"))):
         sel, f = parts[msgid]
-        mine = (h["src"][sel] == gcs_sysid) & np.isin(f["target_system"], (sysid, 0))
+        mine = (h["src"][sel] == gcs_sysid) & ((f["target_system"] == sysid) | (f["target_system"] == 0))
         cols["seq"].append(sel[mine])
         cols["msgid"].append(np.full(int(mine.sum()), msgid))
         cols["type_mask"].append(f["type_mask"][mine].astype(np.int64))

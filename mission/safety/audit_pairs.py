@@ -12,7 +12,8 @@ distance of each pair of tracks (the gap between the two vehicles' bounding boxe
 pairs; they are checked exactly from the closest bound up, until the next bound is at least
 both the smallest distance found so far and the separation limit: every pair left cannot hold a
 violation nor the smallest distance. Their instant and segment counts, which the report gives,
-are counted from bit sets of the setpoint instants. Same report as checking every pair:
+are counted from bit sets of the setpoint instants (all the skipped pairs at once). Same report
+as checking every pair:
 ``tests/mission/safety/test_audit_fast_path.py``.
 """
 from __future__ import annotations
@@ -30,9 +31,20 @@ _BOUND_MARGIN_M = 1e-6
 
 def _state_at(t_query, t_s, p):
     """Zero-order hold (latest setpoint at or before) and linear interpolation at ``t_query``."""
-    k = np.clip(np.searchsorted(t_s, t_query, side="right") - 1, 0, len(t_s) - 1)
-    lin = np.stack([np.interp(t_query, t_s, p[:, c]) for c in range(3)], axis=-1)
-    return p[k], lin
+    return _hold_at(t_query, t_s, p), _interp_at(t_query, t_s, p)
+
+
+def _hold_at(t_query, t_s, p):
+    """The latest setpoint at or before each of ``t_query`` (the first before the first)."""
+    return p[np.clip(np.searchsorted(t_s, t_query, side="right") - 1, 0, len(t_s) - 1)]
+
+
+def _interp_at(t_query, t_s, p):
+    """The setpoints linearly interpolated at ``t_query`` (held beyond the ends)."""
+    lin = np.empty((len(t_query), 3))
+    for c in range(3):
+        lin[:, c] = np.interp(t_query, t_s, p[:, c])
+    return lin
 
 
 def pair_span(a, b, ra, rb, stale_after_s) -> tuple[float, float]:
@@ -170,13 +182,6 @@ def _span_bits(stamps, bits_a, bits_b, lo: float, hi: float):
     return w0 * 64, both, hi_there
 
 
-def _count_instants(stamps, bits_a, bits_b, lo: float, hi: float) -> int:
-    """``len(tq)`` of :func:`track_pair`: the distinct stamps of either vehicle in ``[lo, hi]``, and
-    ``hi`` (``lo`` is always one of them)."""
-    _, both, hi_there = _span_bits(stamps, bits_a, bits_b, lo, hi)
-    return int(np.bitwise_count(both).sum()) + (0 if hi_there else 1)
-
-
 def _instants(stamps, bits_a, bits_b, lo: float, hi: float) -> np.ndarray:
     """``tq`` of :func:`track_pair` (the same values, sorted) from the bit sets."""
     base, both, hi_there = _span_bits(stamps, bits_a, bits_b, lo, hi)
@@ -202,9 +207,9 @@ def track_pair_hot(a, b, ra, rb, tq, hot, min_sep_m, tol_m, burst_s):
     tb, pb = b.t_s[rb[0]:rb[1]], b.enu_m[rb[0]:rb[1]]
     hot_z, hot_p = hot
     t_z = tq[hot_z] + burst_s if burst_s > 0 else tq[hot_z]
-    d_zoh = np.linalg.norm(_state_at(t_z, ta, pa)[0] - _state_at(t_z, tb, pb)[0], axis=1)
+    d_zoh = np.linalg.norm(_hold_at(t_z, ta, pa) - _hold_at(t_z, tb, pb), axis=1)
     ends = np.concatenate([tq[hot_p], tq[hot_p + 1]])
-    la, lb = _state_at(ends, ta, pa)[1], _state_at(ends, tb, pb)[1]
+    la, lb = _interp_at(ends, ta, pa), _interp_at(ends, tb, pb)
     n = len(hot_p)
     d_path = synchronous_distance(la[:n], la[n:], lb[:n], lb[n:])
     min_m = min(float(d_zoh.min()) if len(d_zoh) else np.inf, float(d_path.min()) if n else np.inf)
@@ -216,32 +221,56 @@ def _pair_items(vehicles, stale_after_s: float, burst_s: float, edges) -> list:
     vehicle's track boxes (:func:`_track_boxes`)."""
     boxes = [[_track_boxes(sp.t_s[r[0]:r[1]], sp.enu_m[r[0]:r[1]], edges) for r in tracks] for sp, tracks in vehicles]
     spans = [[track_span(sp, r, stale_after_s) for r in tracks] for sp, tracks in vehicles]
+    flat = [(v, n) for v, (_, tracks) in enumerate(vehicles) for n in range(len(tracks))]   # tracks, vehicle order
+    if not flat:
+        return [], boxes
+    lows = np.stack([boxes[v][n][:, 0] for v, n in flat])                                 # (T, W, 3)
+    highs = np.stack([boxes[v][n][:, 1] for v, n in flat])
+    track_spans = np.array([spans[v][n] for v, n in flat], dtype=float).reshape(-1, 2)     # (T, 2)
+    first = np.cumsum([0] + [len(tracks) for _, tracks in vehicles])   # vehicle v's tracks: first[v]..first[v+1]
+    bound = _track_bounds(lows, highs, track_spans, first, [v for v, _ in flat], edges, burst_s)
+    lo = np.maximum(track_spans[:, None, 0], track_spans[None, :, 0])
+    hi = np.minimum(track_spans[:, None, 1], track_spans[None, :, 1])
     items = []
     for i, (_, tracks_a) in enumerate(vehicles):
-        later = [(j, rb, boxes[j][n], spans[j][n]) for j in range(i + 1, len(vehicles))
-                 for n, rb in enumerate(vehicles[j][1])]
-        for first in range(0, len(later), _BLOCK):          # a block at a time: memory (block, W) whatever N
-            block = later[first:first + _BLOCK]
-            others = np.stack([box for _, _, box, _ in block])                       # (M, W, 2, 3)
-            other_spans = np.array([span for _, _, _, span in block])                 # (M, 2)
+        for j in range(i + 1, len(vehicles)):
             for n, ra in enumerate(tracks_a):
-                lo = np.maximum(other_spans[:, 0], spans[i][n][0])
-                hi = np.minimum(other_spans[:, 1], spans[i][n][1])
-                bound = _span_bound(_box_distance(boxes[i][n][None], others), edges, lo, hi + burst_s)
-                items.extend((i, j, ra, rb, float(lo_m), float(hi_m), float(bnd))
-                             for (j, rb, _, _), lo_m, hi_m, bnd in zip(block, lo, hi, bound))
-    # the plain loop's order: pair of vehicles, then track of the first, then track of the second
-    items.sort(key=lambda it: (it[0], it[1], vehicles[it[0]][1].index(it[2]), vehicles[it[1]][1].index(it[3])))
+                t = first[i] + n
+                items.extend((i, j, ra, rb, float(lo[t, u]), float(hi[t, u]), float(bound[t, u]))
+                             for u, rb in enumerate(vehicles[j][1], start=first[j]))
     return items, boxes
 
 
-_BLOCK = 32          # pairs of tracks whose window bounds are computed together
+#: elements ``(pairs, windows, 3)`` of one block of window bounds (8 MB of float64)
+_BLOCK_ELEMENTS = 1 << 20
+
+
+def _track_bounds(lows, highs, track_spans, first, vehicle_of, edges, burst_s) -> np.ndarray:
+    """``(T, T)``: for tracks ``t`` and ``u`` of vehicles ``v < w``, at ``[t, u]`` the smallest distance
+    between their window boxes over the windows that meet ``[lo, hi + burst_s]`` (both commanded);
+    elsewhere inf. The later tracks of a vehicle are a contiguous slice (no copy), a block at a time."""
+    count, windows = lows.shape[0], lows.shape[1]
+    bound = np.full((count, count), np.inf)
+    rows = max(1, _BLOCK_ELEMENTS // max(1, windows * 3))
+    for t in range(count):
+        for u0 in range(first[vehicle_of[t] + 1], count, rows):
+            u1 = min(count, u0 + rows)
+            gap = lows[u0:u1] - highs[t]                                   # b_lo - a_hi
+            np.maximum(gap, lows[t] - highs[u0:u1], out=gap)               # a_lo - b_hi
+            np.maximum(gap, 0.0, out=gap)
+            dist2 = np.einsum("mwc,mwc->mw", gap, gap)
+            lo = np.maximum(track_spans[u0:u1, 0], track_spans[t, 0])
+            hi = np.minimum(track_spans[u0:u1, 1], track_spans[t, 1])
+            bound[t, u0:u1] = np.sqrt(_span_bound(dist2, edges, lo, hi + burst_s))   # sqrt of the min: the min of sqrt
+    return bound
 
 
 def _span_bound(dist: np.ndarray, edges, lo, hi) -> np.ndarray:
     """Per row of window distances ``(M, W)``, the smallest over the windows that meet ``[lo, hi]``."""
     w_lo = np.clip(np.searchsorted(edges, lo, side="right") - 1, 0, len(edges) - 2)
     w_hi = np.clip(np.searchsorted(edges, hi, side="right") - 1, 0, len(edges) - 2)
+    if np.all(w_lo == 0) and np.all(w_hi == dist.shape[1] - 1):
+        return dist.min(axis=1)
     w = np.arange(dist.shape[1])
     return np.where((w >= w_lo[:, None]) & (w <= w_hi[:, None]), dist, np.inf).min(axis=1)
 
@@ -279,7 +308,8 @@ def check_pairs_fast(report, vehicles, min_sep_m: float, tol_m: float, stale_aft
     stamps, bits = _instant_bits(vehicles)
     limit = min_sep_m - tol_m
     results, smallest = {}, np.inf
-    for k in sorted(range(len(items)), key=lambda k: items[k][6]):
+    one_track_each = all(len(tracks) <= 1 for _, tracks in vehicles)
+    for k in np.argsort(np.array([item[6] for item in items]), kind="stable").tolist():   # closest bound first
         i, j, ra, rb, lo, hi, bound = items[k]
         if hi < lo:
             continue
@@ -288,6 +318,8 @@ def check_pairs_fast(report, vehicles, min_sep_m: float, tol_m: float, stale_aft
         alone = ((len(tracks_a) == 1 or _alone_in_span(a, ra, lo, hi))
                  and (len(tracks_b) == 1 or _alone_in_span(b, rb, lo, hi)))
         if alone and bound >= threshold:
+            if one_track_each:
+                break            # every pair left is alone, its bound at least this one: all skipped
             continue
         tq = _instants(stamps, bits[i], bits[j], lo, hi) if alone else None
         if tq is None or len(tq) < 2:
@@ -297,13 +329,51 @@ def check_pairs_fast(report, vehicles, min_sep_m: float, tol_m: float, stale_aft
             results[k] = track_pair_hot(a, b, ra, rb, tq, _hot_indices(tq, edges, hot_w, burst_s), min_sep_m, tol_m,
                                         burst_s)
         smallest = min(smallest, results[k][1])
+    skipped = []
     for k, (i, j, ra, rb, lo, hi, _) in enumerate(items):
         if hi < lo:
             continue
         if k in results:
             apply_track_pair(report, results[k])
         else:
-            n = _count_instants(stamps, bits[i], bits[j], lo, hi)
-            report.separation_instants_checked += n
-            report.separation_segments_checked += max(n - 1, 0)
+            skipped.append((i, j, lo, hi))
+    counts = _count_instants_many(stamps, np.stack(bits), skipped)
+    report.separation_instants_checked += int(counts.sum())
+    report.separation_segments_checked += int(np.maximum(counts - 1, 0).sum())
     return len(results)
+
+
+_ALL_BITS = np.uint64(2 ** 64 - 1)
+
+
+def _count_instants_many(stamps, bits, spans) -> np.ndarray:
+    """``len(tq)`` of :func:`track_pair` for many pairs of vehicles whose tracks are alone in their
+    span, from the bit sets: per ``(i, j, lo, hi)`` of ``spans``, the distinct stamps of vehicle
+    ``i`` or ``j`` in ``[lo, hi]``, plus one unless ``hi`` is one of them (``lo`` always is).
+    ``bits``: the ``(N, words)`` bit sets of :func:`_instant_bits`. Blocks of pairs, bounded memory."""
+    if not spans:
+        return np.zeros(0, dtype=np.int64)
+    i, j = (np.array([s[c] for s in spans], dtype=np.int64) for c in (0, 1))
+    lo, hi = (np.array([s[c] for s in spans], dtype=float) for c in (2, 3))
+    g_lo = np.searchsorted(stamps, lo, side="left")
+    g_hi = np.searchsorted(stamps, hi, side="right") - 1
+    w0, w1 = g_lo >> 6, g_hi >> 6
+    hi_word = bits[i, w1] | bits[j, w1]
+    hi_there = (stamps[g_hi] == hi) & ((hi_word >> (g_hi & 63).astype(np.uint64)) & np.uint64(1)).astype(bool)
+    counts = np.where(hi_there, 0, 1).astype(np.int64)
+    low_keep = ~((np.uint64(1) << (g_lo & 63).astype(np.uint64)) - np.uint64(1))       # bits >= g_lo in word w0
+    top = (g_hi & 63).astype(np.uint64)
+    shift = np.minimum(top + np.uint64(1), np.uint64(63))                                  # no shift by 64
+    high_keep = np.where(top < 63, (np.uint64(1) << shift) - np.uint64(1), _ALL_BITS)      # bits <= g_hi in word w1
+    rows = max(1, _BLOCK_ELEMENTS // max(1, bits.shape[1]))
+    for r0 in range(0, len(spans), rows):
+        r = slice(r0, r0 + rows)
+        c0, c1 = int(w0[r].min()), int(w1[r].max())
+        both = bits[i[r], c0:c1 + 1] | bits[j[r], c0:c1 + 1]                           # (rows, words)
+        col = np.arange(c0, c1 + 1)
+        keep = np.where((col >= w0[r, None]) & (col <= w1[r, None]), _ALL_BITS, np.uint64(0))
+        at = np.arange(len(keep))
+        keep[at, w0[r] - c0] &= low_keep[r]
+        keep[at, w1[r] - c0] &= high_keep[r]
+        counts[r] += np.bitwise_count(both & keep).sum(axis=1, dtype=np.int64)
+    return counts

@@ -341,7 +341,14 @@ def read_vehicle_setpoints(paths, sysid: int, mission_origin, gcs_sysid: int = 2
 
 def _rows_to_enu(data: np.ndarray, origins: dict, mission_origin) -> np.ndarray:
     """Mission ENU of setpoint rows ``(group, x, y, z)``: LOCAL_NED in the frame of ``origins``'
-    group, or group -1 and geodetic."""
+    group, or group -1 and geodetic. A run of rows identical to the bit (a held target the
+    streamer resends at its rate: about 4 rows in 5) is converted once."""
+    data = np.ascontiguousarray(data, dtype=float)
+    if len(data) > 1:
+        word = data.view(np.uint64)
+        new = np.concatenate([[True], np.any(word[1:] != word[:-1], axis=1)])
+        if not new.all():
+            return _rows_to_enu(data[new], origins, mission_origin)[np.cumsum(new) - 1]
     enu = np.empty((len(data), 3))
     geo = data[:, 0] < 0
     if np.any(geo):

@@ -268,3 +268,130 @@ def test_pair_pruning_skips_far_pairs_and_keeps_a_planted_break(tmp_path):
     assert exact < pairs / 2, (exact, pairs)          # most pairs of a 6 m ring are cleared by the bound
     assert fast.to_dict() == plain.to_dict()
     assert fast.violation_counts.get("separation", 0) > 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), shared=st.booleans(), size=st.integers(1, 300))
+def test_batch_instant_counts_equal_the_exact_checks_instants(seed, shared, size):
+    """The skipped pairs' instants, counted all at once from the bit sets, are ``len(tq)`` of the exact
+    check: the distinct stamps of either vehicle in ``[lo, hi]``, and ``hi``. Stamps shared by all
+    vehicles (the lock-step clock's ticks) or each its own (real time), spans on word edges."""
+    from mission.safety.audit_pairs import _count_instants_many, _instant_bits
+
+    rng = np.random.default_rng(seed)
+    ticks = np.round(np.sort(rng.uniform(0.0, 50.0, size)), 3)
+    vehicles = []
+    for _ in range(4):
+        t_s = np.unique(rng.choice(ticks, size=rng.integers(1, size + 1)) if shared
+                        else np.round(rng.uniform(0.0, 50.0, rng.integers(1, size + 1)), 4))
+        vehicles.append((audit_read.VehicleSetpoints(1, t_s, np.zeros((len(t_s), 3))), None))
+    stamps, bits = _instant_bits(vehicles)
+    spans = []
+    for _ in range(40):
+        i, j = sorted(rng.choice(4, 2, replace=False))
+        a, b = vehicles[i][0].t_s, vehicles[j][0].t_s
+        lo = max(a[0], b[0])
+        edge = stamps[min(len(stamps) - 1, 64 * int(rng.integers(0, len(stamps) // 64 + 1)))]
+        hi = max(lo, rng.choice([edge, lo + rng.uniform(0.0, 50.0), float(rng.choice(np.concatenate([a, b])))]))
+        spans.append((int(i), int(j), float(lo), float(hi)))
+    got = _count_instants_many(stamps, np.stack(bits), spans)
+    for (i, j, lo, hi), n in zip(spans, got):
+        tq = np.concatenate([vehicles[i][0].t_s, vehicles[j][0].t_s, [lo, hi]])
+        assert n == len(np.unique(tq[(tq >= lo) & (tq <= hi)])), (i, j, lo, hi)
+
+
+def test_track_bounds_are_the_window_box_distances(tmp_path):
+    """The pair bounds computed a slice of later tracks at a time equal, per pair of tracks, the
+    smallest box distance (:func:`_box_distance`) over the windows both are commanded in; and no
+    bound exceeds the pair's true smallest distance (a vehicle with two tracks included)."""
+    from mission.safety.audit_pairs import _box_distance, _grid, _pair_items, _span_bound, track_pair
+
+    log_dir = _write_mission(tmp_path, n=12, steps=200)
+    plan = audit_read.load_plan_limits(log_dir)
+    vehicles = []
+    for sysid, paths in sorted(find_tlogs(log_dir).items()):
+        sp = read_vehicle_setpoints_fast(paths, sysid, plan["origin"])
+        vehicles.append((sp, _tracks(sp.t_s, 1.0)))
+    edges = _grid(vehicles, 1.0, 0.01, 1.0)
+    items, boxes = _pair_items(vehicles, 1.0, 0.01, edges)
+    assert len(items) == sum(len(ta) * len(tb) for k, (_, ta) in enumerate(vehicles) for _, tb in vehicles[k + 1:])
+    for i, j, ra, rb, lo, hi, bound in items:
+        box_a, box_b = boxes[i][vehicles[i][1].index(ra)], boxes[j][vehicles[j][1].index(rb)]
+        want = _span_bound(_box_distance(box_a, box_b)[None], edges, np.array([lo]), np.array([hi + 0.01]))[0]
+        assert bound == want
+        exact = track_pair(vehicles[i][0], vehicles[j][0], ra, rb, 1.5, 0.01, 1.0, 0.01)
+        if exact is not None:
+            assert bound <= exact[1] + 1e-9
+
+
+def _fence_reference(sp, plan, tol_m):
+    """The fence check as it was (every point's boundary distance): (smallest margin, outside indices)."""
+    from mission.safety.geometry import boundary_distance, point_in_polygon
+
+    poly, p = plan["polygon_en_m"], sp.enu_m
+    inside = point_in_polygon(p[:, :2], poly, tol_m)
+    margin_h = boundary_distance(p[:, :2], poly)
+    margin_h = np.where(point_in_polygon(p[:, :2], poly, 0.0), margin_h, -margin_h)
+    margin = np.minimum(margin_h, np.minimum(p[:, 2] - plan["min_alt_m"], plan["max_alt_m"] - p[:, 2]))
+    return float(margin.min()), np.flatnonzero(~inside).tolist(), -margin_h[~inside]
+
+
+@pytest.mark.parametrize("tol_m", [0.01, 0.0])
+@pytest.mark.parametrize("low_m", [2.0, 19.0, 29.5])
+def test_fence_margins_computed_near_the_boundary_only_equal_every_points(tol_m, low_m):
+    """The fence check computes the boundary distance only of points outside or near an edge's line
+    (within the smallest vertical margin): the same smallest margin, the same violations and values
+    as every point's distance, on an L-shaped (non-convex) fence with points inside, outside, on
+    and just off its edges, and a band that puts the vertical margin below and above them."""
+    from mission.safety.audit import _check_fence
+
+    rng = np.random.default_rng(7)
+    poly = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 40.0], [40.0, 40.0], [40.0, 100.0], [0.0, 100.0]])
+    plan = {"polygon_en_m": poly, "min_alt_m": low_m, "max_alt_m": 80.0}
+    edge_points = np.concatenate([poly + rng.normal(0.0, s, poly.shape) for s in (0.0, 0.003, 0.02, 0.5)])
+    xy = np.concatenate([rng.uniform(-5.0, 105.0, (3000, 2)), edge_points, [[20.0, 20.0], [70.0, 20.0]]])
+    enu = np.column_stack([xy, rng.uniform(20.0, 40.0, len(xy))])
+    sp = audit_read.VehicleSetpoints(3, np.arange(len(xy), dtype=float), enu)
+    report = AuditReport(log_dir="x", tlogs=[])
+    _check_fence(report, sp, plan, tol_m)
+    want_margin, want_out, want_values = _fence_reference(sp, plan, tol_m)
+    assert report.min_fence_margin_m == want_margin
+    fence = [v for v in report.violations if v.kind == "fence"]          # the first 200 are listed
+    assert report.violation_counts["fence"] == len(want_out) > len(fence) > 100
+    assert [int(v.t_s) for v in fence] == want_out[:len(fence)]
+    assert [v.value for v in fence] == want_values[:len(fence)].tolist()
+
+
+def test_fence_margin_of_an_interior_point_nearer_the_fence_than_the_band():
+    """Every point well inside, the nearest 11 m from an edge and the band 12 m away at the closest:
+    the smallest margin is that point's horizontal one (found although no point is outside)."""
+    from mission.safety.audit import _check_fence
+
+    rng = np.random.default_rng(3)
+    poly = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 40.0], [40.0, 40.0], [40.0, 100.0], [0.0, 100.0]])
+    plan = {"polygon_en_m": poly, "min_alt_m": 2.0, "max_alt_m": 80.0}
+    xy = np.concatenate([rng.uniform(14.0, 26.0, (500, 2)), [[11.0, 30.0]]])
+    enu = np.column_stack([xy, rng.uniform(14.0, 30.0, len(xy))])
+    sp = audit_read.VehicleSetpoints(3, np.arange(len(xy), dtype=float), enu)
+    report = AuditReport(log_dir="x", tlogs=[])
+    _check_fence(report, sp, plan, 0.01)
+    assert report.min_fence_margin_m == _fence_reference(sp, plan, 0.01)[0] == pytest.approx(11.0)
+    assert not report.violations
+
+
+def test_runs_of_identical_setpoint_rows_are_converted_once_with_the_same_result():
+    """A held target resent at the stream's rate is converted once per run of identical rows: the
+    same mission ENU, to the bit, as converting each row alone (LOCAL_NED in two home frames and
+    geodetic rows; a 0.0 next to a -0.0 is not the same row)."""
+    from mission.safety.audit_read import _local_origin, _rows_to_enu
+
+    rng = np.random.default_rng(5)
+    origins = {_local_origin((45.1886, 5.7246, 212.5), (1.0, -2.0, -0.3)): 0,
+               _local_origin((45.1884, 5.7243, 211.0), (0.0, 0.0, 0.0)): 1}
+    distinct = np.column_stack([rng.integers(-1, 2, 40).astype(float), rng.uniform(-50.0, 50.0, (40, 3))])
+    distinct[distinct[:, 0] < 0, 1:] = [45.1885, 5.7245, 230.0] + rng.uniform(-1e-4, 1e-4, (int((distinct[:, 0] < 0).sum()), 3))
+    distinct[5, 1:], distinct[6, 1:], distinct[6, 0] = (0.0, 1.0, -2.0), (-0.0, 1.0, -2.0), distinct[5, 0]
+    data = np.repeat(distinct, rng.integers(1, 12, len(distinct)), axis=0)
+    got = _rows_to_enu(data, origins, ORIGIN)
+    alone = np.concatenate([_rows_to_enu(data[k:k + 1], origins, ORIGIN) for k in range(len(data))])
+    assert got.tobytes() == alone.tobytes() and len(data) > 2 * len(distinct)
