@@ -29,6 +29,10 @@ def watch_connection(sensor_connection: str) -> str:
     return f"{scheme}:{host}:{int(port) + 1}"
 
 
+def _port_closed() -> None:
+    raise ConnectionResetError("the autopilot closed its port")
+
+
 class VehicleWatch:
     """One vehicle seen from its own MAVLink port; a context manager (thread and link closed).
 
@@ -46,6 +50,10 @@ class VehicleWatch:
         self.sysid = sysid
         self.conn = mavutil.mavlink_connection(connection, source_system=252, source_component=190,
                                                autoreconnect=False, retries=3)
+        # pymavlink answers a closed TCP port by printing "EOF on TCP socket" and reconnecting, which
+        # fails at once when the autopilot is dead: millions of lines and a core spinning. A closed port
+        # ends the watch instead (its thread returns on OSError).
+        self.conn.handle_eof = self.conn.handle_disconnect = _port_closed
         self.modes: list[tuple[float, int, bool]] = []
         self.rel_alt_m: float | None = None
         self.params: dict[str, float] = {}

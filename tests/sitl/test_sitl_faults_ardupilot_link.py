@@ -10,8 +10,9 @@ process; each vehicle watched on its own spare port (SERIAL2, :class:`ap_fault_s
   station reaches vehicle 3 through a TCP relay (``tests/sitl/ap_tcp_relay.py``, its own process) that
   drops every byte both ways after seek iteration 2, until ArduCopter has left GUIDED by itself and
   the ground station has declared the loss; then forwards again. Once vehicle 3 is declared lost,
-  vehicle 5's ArduCopter process is killed (SIGKILL of its process group: an autopilot that dies in
-  the air); it must be declared lost too and reported airborne. The failsafe parameters are the
+  the ArduCopter process of the last vehicle still in the formation is killed (SIGKILL of its
+  process group: an autopilot that dies in the air); it must be declared lost too and reported
+  airborne. The failsafe parameters are the
   ones the preflight checks and reports (``FS_GCS_ENABLE`` 5 (land) and ``FS_GCS_TIMEOUT`` 10 s x
   the speed-up, the SITL fleet's defaults; the other vehicles get 120 s: a loaded host stalls the
   ground station's heartbeats for seconds, and the test is about the cut one). Asserted: lost (``link``) after the cut; ArduCopter
@@ -166,7 +167,7 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
     require_sitl("ardupilot")
     t_test = time.monotonic()
     with _fleet(tmp_path, 6) as fleet, contextlib.ExitStack() as stack:
-        cut_v, kill_v = fleet.vehicles[2], fleet.vehicles[4]
+        cut_v = fleet.vehicles[2]
         relay = stack.enter_context(TcpRelay(int(cut_v.connection.rsplit(":", 1)[1])))
         run = _Run(fleet, tmp_path, stack)
         for v in fleet.vehicles:  # the others must not land if a loaded host stalls the ground station
@@ -182,11 +183,16 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
         watch, sysid = run.watches[cut_v.sysid], cut_v.sysid
         t_cut = time.time()
         relay.cut(True)
-        lost = run.wait(lambda: next(iter(run.events(f"vehicle {sysid} lost:")), None), "the loss", 120.0)
+        lost = run.wait(lambda: next(iter(e for e in run.events(f"vehicle {sysid} lost:") if e["t_s"] >= t_cut),
+                                         None), "the loss", 120.0)
+        # the autopilot killed: one in the formation now (on a loaded host one can have been lost and
+        # re-admitted in the takeoff: not that one)
+        kill_v = next(v for v in reversed(fleet.vehicles) if v is not cut_v
+                      and not run.events(f"vehicle {v.sysid} lost:"))
         t_kill = time.time()
         os.killpg(kill_v.pid, signal.SIGKILL)  # the autopilot dies in the air
-        killed = run.wait(lambda: next(iter(run.events(f"vehicle {kill_v.sysid} lost:")), None),
-                          "the killed vehicle's loss", 120.0)
+        killed = run.wait(lambda: next(iter(e for e in run.events(f"vehicle {kill_v.sysid} lost:")
+                                            if e["t_s"] > t_kill), None), "the killed vehicle's loss", 120.0)
         t_fs = run.wait(lambda: watch.first_mode_after(t_cut, {_LAND, _RTL}), "ArduCopter's own failsafe", 120.0)
         t_restore = time.time()
         relay.cut(False)
@@ -211,8 +217,10 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
     assert killed_heard < killed["t_s"], (killed_heard, killed)  # the killed autopilot stayed silent
     assert "kept out" in back["message"], back["message"]  # in LAND: not re-admissible
     assert "GUIDED" not in armed_after, armed_after  # its failsafe never fought
-    assert sorted(x["sysid"] for x in out["lost"]) == sorted([sysid, kill_v.sysid]), out["lost"]
-    assert out["readmitted"] == [], out["readmitted"]
+    lost_ids, readmitted_ids = {x["sysid"] for x in out["lost"]}, {x["sysid"] for x in out["readmitted"]}
+    # any other loss was a loaded host's frame gap, healed by a re-admission
+    assert {sysid, kill_v.sysid} <= lost_ids and lost_ids - {sysid, kill_v.sysid} <= readmitted_ids, out["lost"]
+    assert not readmitted_ids & {sysid, kill_v.sysid}, out["readmitted"]
     # the dead autopilot cannot be landed: reported loudly, and the exit status says so
     assert [x["sysid"] for x in out["airborne_left"]] == [kill_v.sysid], out["airborne_left"]
     assert out["outcome"] in ("converged", "max_iterations"), out["message"]
