@@ -30,7 +30,7 @@ likelihoods are :mod:`estimator.ste_model`. Per iteration:
    a Gaussian predictive; intermittent: ``-2 log P(hit or miss)``), their total deviance minus
    its expectation over its deviation if the model held (:attr:`fit_z`) above ``misfit_z`` says
    the field is not a plume the model can represent (a tight posterior there is tight and wrong).
-5. **Move**: while the region is larger than ``exploit_m`` (default 3 m), the candidate (stay; ``step`` up/down
+5. **Move**: while the region is larger than ``exploit_m`` (default ``region_m``), the candidate (stay; ``step`` up/down
    wind, across it, up/down; toward the posterior mean) whose formation readings carry the most
    expected information about the particles (the mutual information of each vehicle's hit / miss,
    summed over vehicles, on a resampled subset of the particles: myopic infotaxis, Vergassola et
@@ -141,7 +141,7 @@ class SteSeeker:
         Convergence: the 95 % region's radius at most this.
     exploit_m : float or None
         Below this region radius the centre goes to the posterior mean (None: ``region_m``, i.e.
-        infotaxis until converged). Default 3 m, with ``radius_gain`` 0.25 (docs/seekers.md, round 9).
+        infotaxis until converged).
     collapse_nats : float
         Mean deviance per reading of the best particle above which the posterior has collapsed.
     memory : int
@@ -206,9 +206,9 @@ class SteSeeker:
                  ground_alt_m: float = 0.0, noise_std: float = 0.01, background: float = 0.0,
                  detection_floor: float = 0.0, rel_error: float = 0.3, hit_fraction: float = 0.6,
                  hit_shape: float = 0.8, hit_log_sd: float = 1.3, false_hit: float = 0.01, temper: float = 0.35,
-                 corr_length_m: float = 1.0, region_m: float = 1.0, exploit_m: float | None = 3.0,
+                 corr_length_m: float = 1.0, region_m: float = 1.0, exploit_m: float | None = None,
                  min_step_m: float = 1.0, max_step_m: float = 8.0,
-                 collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.25,
+                 collapse_nats: float = 4.0, memory: int = 10, info_particles: int = 256, radius_gain: float = 0.5,
                  min_radius_m: float = 1.5, max_radius_m: float = 6.0, casting: bool = True, misfit_z: float = 4.0,
                  corr_iterations: int = 0, path_samples: int = 1, corr_time_s: float = 5.0,
                  corr_path_m: float | None = None, time_temper: float = 1.0, same_time_s: float = 0.25,
