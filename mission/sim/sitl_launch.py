@@ -14,15 +14,18 @@ One :class:`InstanceSpec` per instance, built by :func:`instance_specs` for a fl
   parameters through an extra defaults file; ``--speedup``.
 
 :func:`pick_layout` chooses a first instance number and a port offset whose ports (and, for
-PX4, host-wide instance lock files ``/tmp/px4_lock-<i>``) are free, so that concurrent fleets
-never collide.
+PX4, host-wide instance lock files ``/tmp/px4_lock-<i>`` and a per-user lease of the numbers
+it handed out) are free, so that concurrent fleets never collide.
 """
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import random
 import socket
+import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,6 +49,9 @@ DEFAULT_PARAMS = {
 }
 #: PX4 instances 10 and above share API port 14549: at most 10 per host
 PX4_MAX_INSTANCES = 10
+#: how long a PX4 instance number handed out by :func:`pick_layout` stays reserved against its other
+#: calls, s (PX4 takes its own lock file within a second of its start)
+PX4_INSTANCE_LEASE_S = 30.0
 #: PX4's API link is an "onboard" mode link: ~400 messages/s at real time (x the speed-up). A
 #: ground station uses none of these; the launcher turns them off once the instance is ready
 #: (``mavlink stream -r 0``), so a sped-up fleet sends no more than a real-time one.
@@ -150,8 +156,15 @@ def _layout_ports(flavour: str, first: int, n: int, offset: int) -> tuple[list[i
     return udp, tcp
 
 
-def pick_layout(flavour: str, n: int, *, tries: int = 200, rng: random.Random | None = None) -> tuple[int, int]:
+def pick_layout(flavour: str, n: int, *, tries: int = 200, rng: random.Random | None = None,
+                lease_dir: str | Path | None = None, lease_s: float = PX4_INSTANCE_LEASE_S) -> tuple[int, int]:
     """A free ``(first_instance, port_offset)`` for ``n`` instances of ``flavour``.
+
+    PX4: the instance numbers handed out are leased for ``lease_s`` seconds in a per-user file
+    (``lease_dir``, default :func:`px4_lease_dir`, read and written under an exclusive ``flock``):
+    PX4 takes its host-wide lock file ``/tmp/px4_lock-<i>`` only once started, and two fleets picked
+    at once (two pytest-xdist workers) were handed the same numbers ("PX4 server already running for
+    instance 1").
 
     Raises
     ------
@@ -161,20 +174,45 @@ def pick_layout(flavour: str, n: int, *, tries: int = 200, rng: random.Random | 
     rng = rng or random.Random()
     if flavour == "px4" and n > PX4_MAX_INSTANCES:
         raise SitlSetupError(f"PX4 SITL runs at most {PX4_MAX_INSTANCES} instances per host, asked for {n}")
+    if flavour == "px4":
+        return _pick_px4_layout(n, tries, rng, Path(lease_dir) if lease_dir is not None else px4_lease_dir(),
+                                lease_s)
     for _ in range(tries):
-        if flavour == "px4":
-            # the lowest free block of instance numbers (fleets pack, leaving room for others)
-            firsts = [f for f in range(PX4_MAX_INSTANCES - n + 1) if all(px4_instance_free(f + j) for j in range(n))]
-            if not firsts:
-                break
-            first = firsts[0]
-            offset = rng.randrange(1000, 45000)
-        else:
-            first = rng.randrange(0, 100)
-            offset = rng.randrange(0, 40000 - 10 * (first + n))
+        first = rng.randrange(0, 100)
+        offset = rng.randrange(0, 40000 - 10 * (first + n))
         if _ports_free(*_layout_ports(flavour, first, n, offset)):
             return first, offset
     raise SitlSetupError(f"no free instance numbers and ports for {n} {flavour} SITL instances")
+
+
+def px4_lease_dir() -> Path:
+    """The directory of :func:`pick_layout`'s PX4 instance leases: one per user, in the temp directory."""
+    return Path(tempfile.gettempdir()) / f"swarmseek-px4-{os.getuid()}"
+
+
+def _pick_px4_layout(n: int, tries: int, rng: random.Random, directory: Path, lease_s: float) -> tuple[int, int]:
+    """The lowest block of ``n`` PX4 instance numbers neither locked by a running PX4 nor leased, and a
+    random port offset whose ports are free; the block leased for ``lease_s`` s (see :func:`pick_layout`)."""
+    directory.mkdir(mode=0o700, parents=True, exist_ok=True)
+    with open(directory / "instances.json", "a+", encoding="utf-8") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)  # released when the file closes
+        now_s = time.time()
+        fh.seek(0)
+        try:
+            leases = {int(i): float(t) for i, t in json.loads(fh.read() or "{}").items() if float(t) > now_s}
+        except (ValueError, TypeError, AttributeError):  # a file cut short by a killed writer: leases lost
+            leases = {}
+        free = [i not in leases and px4_instance_free(i) for i in range(PX4_MAX_INSTANCES)]
+        firsts = [f for f in range(PX4_MAX_INSTANCES - n + 1) if all(free[f:f + n])]
+        for _ in range(tries if firsts else 0):
+            offset = rng.randrange(1000, 45000)  # the lowest block: fleets pack, leaving room for others
+            if _ports_free(*_layout_ports("px4", firsts[0], n, offset)):
+                leases.update({firsts[0] + j: now_s + lease_s for j in range(n)})
+                fh.seek(0)
+                fh.truncate()
+                json.dump({str(i): t for i, t in leases.items()}, fh)
+                return firsts[0], offset
+    raise SitlSetupError(f"no free instance numbers and ports for {n} px4 SITL instances")
 
 
 def _px4_bin_dir(sitl_dir: Path, run_dir: Path) -> Path:

@@ -108,17 +108,32 @@ def test_bad_configuration_is_a_clear_error(kwargs, message):
         SitlFleetConfig(**kwargs)
 
 
-def test_free_layouts_keep_px4_below_ten_instances(monkeypatch):
+def test_free_layouts_keep_px4_below_ten_instances(monkeypatch, tmp_path):
     import mission.sim.sitl_launch as launch
 
     busy = {0, 1, 2, 5}  # held by other fleets: only 6..9 leave room for 4 in a row
     monkeypatch.setattr(launch, "px4_instance_free", lambda i: i not in busy)
-    for _ in range(5):
-        first, offset = pick_layout("px4", 4)
+    for _ in range(5):  # no lease: the same block each time
+        first, offset = pick_layout("px4", 4, lease_dir=tmp_path, lease_s=0.0)
         assert first == 6 and 1000 <= offset < 45000
     busy.add(8)
     with pytest.raises(SitlSetupError, match="no free instance numbers"):
-        pick_layout("px4", 4, tries=50)
+        pick_layout("px4", 4, tries=50, lease_dir=tmp_path)
+
+
+def test_px4_picks_before_any_start_get_disjoint_instances(monkeypatch, tmp_path):
+    """Two fleets picked at once (nothing started, so no PX4 lock file yet) must not share an
+    instance number: the first pick's numbers are leased."""
+    import mission.sim.sitl_launch as launch
+
+    monkeypatch.setattr(launch, "px4_instance_free", lambda i: True)
+    first_a, _ = pick_layout("px4", 4, lease_dir=tmp_path)
+    first_b, _ = pick_layout("px4", 4, lease_dir=tmp_path)
+    assert (first_a, first_b) == (0, 4)
+    with pytest.raises(SitlSetupError, match="no free instance numbers"):
+        pick_layout("px4", 3, tries=20, lease_dir=tmp_path)  # 8 and 9 left: not 3 in a row
+    (tmp_path / "instances.json").write_text("{cut sh")  # a file cut short by a killed writer
+    assert pick_layout("px4", 4, lease_dir=tmp_path)[0] == 0
     with pytest.raises(SitlSetupError, match="at most 10"):
         pick_layout("px4", 11)
 
