@@ -20,19 +20,17 @@ is nothing to climb.
 """
 from __future__ import annotations
 
-import fcntl
-import json
 import os
 import random
 import socket
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 from mission.core.plan_types import FormationPlan, GeofencePlan, Plan, SeekingPlan, VehiclePlan
 from mission.core.zenoh_config import ZenohPlan
+from mission.sim.leases import take_leases
 
 __all__ = ["DEFAULT_ORIGIN", "FENCE_MIN_ALT_M", "FENCE_MAX_ALT_M", "FENCE_POLYGON_EN_M", "MAX_VEHICLES",
            "PORT_LEASE_S", "free_port_block", "port_lease_dir", "default_eps", "default_radius_m",
@@ -74,32 +72,17 @@ def free_port_block(count: int, step: int = 1, kinds: tuple[str, ...] = ("udp",)
         No free block found, or the lease file cannot be opened.
     """
     directory = Path(lease_dir) if lease_dir is not None else port_lease_dir()
-    directory.mkdir(mode=0o700, parents=True, exist_ok=True)
-    with open(directory / "leases.json", "a+", encoding="utf-8") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)  # released when the file closes
-        now_s = time.time()
-        leases = _read_leases(fh, now_s)
+
+    def choose(leases: dict[int, float]) -> tuple[int, list[int]]:
         base = _unleased_free_block(count, step, kinds, range(lo, hi - step * (count - 1)), tries, leases)
-        leases.update({base + step * i: now_s + PORT_LEASE_S for i in range(count)})
-        fh.seek(0)
-        fh.truncate()
-        json.dump({str(port): until_s for port, until_s in leases.items()}, fh)
-    return base
+        return base, [base + step * i for i in range(count)]
+
+    return take_leases(directory / "leases.json", choose, PORT_LEASE_S)
 
 
 def port_lease_dir() -> Path:
     """The directory of :func:`free_port_block`'s lease file: one per user, in the temp directory."""
     return Path(tempfile.gettempdir()) / f"swarmseek-ports-{os.getuid()}"
-
-
-def _read_leases(fh, now_s: float) -> dict[int, float]:
-    """The unexpired leases (port -> until, epoch s) in the open lease file (unreadable: none)."""
-    fh.seek(0)
-    try:
-        raw = json.loads(fh.read() or "{}")
-        return {int(port): float(until_s) for port, until_s in raw.items() if float(until_s) > now_s}
-    except (ValueError, TypeError, AttributeError):  # a file cut short by a killed writer: leases lost
-        return {}
 
 
 def _unleased_free_block(count: int, step: int, kinds: tuple[str, ...], bases: range, tries: int,

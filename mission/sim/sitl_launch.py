@@ -20,18 +20,17 @@ it handed out) are free, so that concurrent fleets never collide.
 from __future__ import annotations
 
 import fcntl
-import json
 import os
 import random
 import socket
 import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from formation.geodesy import enu_to_geodetic
+from mission.sim.leases import take_leases
 from mission.sim.sitl_settings import SitlSetupError
 
 __all__ = ["InstanceSpec", "DEFAULT_HOMES", "DEFAULT_PARAMS", "PX4_API_STREAMS_OFF", "PX4_MAX_INSTANCES", "instance_specs",
@@ -193,26 +192,16 @@ def px4_lease_dir() -> Path:
 def _pick_px4_layout(n: int, tries: int, rng: random.Random, directory: Path, lease_s: float) -> tuple[int, int]:
     """The lowest block of ``n`` PX4 instance numbers neither locked by a running PX4 nor leased, and a
     random port offset whose ports are free; the block leased for ``lease_s`` s (see :func:`pick_layout`)."""
-    directory.mkdir(mode=0o700, parents=True, exist_ok=True)
-    with open(directory / "instances.json", "a+", encoding="utf-8") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)  # released when the file closes
-        now_s = time.time()
-        fh.seek(0)
-        try:
-            leases = {int(i): float(t) for i, t in json.loads(fh.read() or "{}").items() if float(t) > now_s}
-        except (ValueError, TypeError, AttributeError):  # a file cut short by a killed writer: leases lost
-            leases = {}
+    def choose(leases: dict[int, float]) -> tuple[tuple[int, int], list[int]]:
         free = [i not in leases and px4_instance_free(i) for i in range(PX4_MAX_INSTANCES)]
         firsts = [f for f in range(PX4_MAX_INSTANCES - n + 1) if all(free[f:f + n])]
         for _ in range(tries if firsts else 0):
             offset = rng.randrange(1000, 45000)  # the lowest block: fleets pack, leaving room for others
             if _ports_free(*_layout_ports("px4", firsts[0], n, offset)):
-                leases.update({firsts[0] + j: now_s + lease_s for j in range(n)})
-                fh.seek(0)
-                fh.truncate()
-                json.dump({str(i): t for i, t in leases.items()}, fh)
-                return firsts[0], offset
-    raise SitlSetupError(f"no free instance numbers and ports for {n} px4 SITL instances")
+                return (firsts[0], offset), [firsts[0] + j for j in range(n)]
+        raise SitlSetupError(f"no free instance numbers and ports for {n} px4 SITL instances")
+
+    return take_leases(directory / "instances.json", choose, lease_s)
 
 
 def _px4_bin_dir(sitl_dir: Path, run_dir: Path) -> Path:
