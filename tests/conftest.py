@@ -1,10 +1,10 @@
-"""Test ordering for the three pytest-xdist workers (``-n 3 --dist loadfile``, pyproject.toml).
+"""Test ordering for the four pytest-xdist workers (``-n 4 --dist loadfile``, pyproject.toml).
 
 The longest files (real-SITL missions, conformance against real firmware, wall-clock ground-station
 processes: 40-180 s a test) are handed out first, so that the short files fill the other worker
-around them instead of the workers ending on one long file each. Three workers on two cores: the
-real-SITL and wall-clock files mostly wait on real time (the whole suite used about 1.1 cores on
-average with two workers). Order only: every test runs. pytest-xdist hands files out in this order
+around them instead of the workers ending on one long file each. Four workers on two cores: the
+real-SITL conformance and wall-clock files mostly wait on real time (with three workers the whole
+suite used 1.42 of the 2 cores on average: 1109 CPU seconds in 784 s). Order only: every test runs. pytest-xdist hands files out in this order
 only with ``--no-loadscope-reorder`` (pyproject.toml): by default (since 3.5) it sorts them by
 their number of tests, most first, which puts a long file of few tests behind the many short ones.
 
@@ -23,16 +23,21 @@ import pytest
 
 TESTS_DIR = Path(__file__).resolve().parent
 
-#: the files of the longest tests, longest first (``python -m pytest --durations=40``), relative to tests/
-LONG_FIRST = ("sitl/test_sitl_faults_px4.py", "sitl/test_sitl_faults_ardupilot.py",
-              "mission/flight/test_gcs_faults_signals.py", "sitl/test_sitl_ardupilot.py", "sitl/test_sitl_px4.py",
-              "conformance/test_conformance_px4.py", "mission/flight/test_gcs_faults_output.py",
-              "mission/telemetry/test_ctl_processes.py", "mission/telemetry/test_ctl_processes_routed.py",
-              "mission/flight/test_ste_mission.py",
-              "conformance/test_conformance_ap_failsafes.py", "conformance/test_conformance_px4_failsafes.py",
-              "mission/flight/test_layers.py",
-              "conformance/test_conformance_ardupilot.py", "mission/telemetry/test_map_browser.py",
-              "mission/telemetry/test_map_fly.py")
+#: the files of the longest tests, longest first (``python -m pytest --cpu-report PATH``: wall and CPU
+#: seconds of each test), relative to tests/; those that burn CPU (real-SITL missions) alternate with
+#: those that mostly wait (conformance sessions, wall-clock ground-station processes) so that the
+#: first four handed out are not all CPU-bound
+LONG_FIRST = ("sitl/test_sitl_faults_ardupilot_link.py", "conformance/test_conformance_px4_hold_failsafes.py",
+              "sitl/test_sitl_resume_px4.py", "mission/flight/test_gcs_faults_signals.py",
+              "sitl/test_sitl_ardupilot.py", "conformance/test_conformance_px4_failsafes.py",
+              "sitl/test_sitl_px4.py", "conformance/test_conformance_px4.py",
+              "sitl/test_sitl_faults_ardupilot.py", "sitl_mock/test_fields_config.py",
+              "mission/flight/test_sensor_check.py", "mission/telemetry/test_map_browser.py",
+              "mission/telemetry/test_ctl_processes.py", "mission/flight/test_gcs_faults_output.py",
+              "mission/telemetry/test_ctl_processes_routed.py", "mission/sim/test_e2e_mission.py",
+              "conformance/test_conformance_ardupilot.py", "mission/flight/test_abandon.py",
+              "conformance/test_conformance_ap_failsafes.py", "experiments/test_sweep.py",
+              "mission/flight/test_layers.py", "mission/telemetry/test_map_fly.py")
 
 
 def pytest_configure(config):

@@ -12,8 +12,6 @@ without it; a failure under CI=true). Run alone:
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import pytest
 from tests.conformance.px4_failsafes import DESCENT_TOL_M_S, differences, observe
 from tests.conformance.script import FLAVOUR
@@ -35,9 +33,15 @@ def _check_px4_behaviour(figures: dict) -> None:
     assert abs(figures["rel_alt_m"]) <= 1.0, figures
 
 
+@pytest.fixture(scope="module")
+def mock_obs():
+    """The mock's session, run once for both tests of this module."""
+    return observe("mock")
+
+
 @pytest.mark.timeout(300)
-def test_mock_offboard_loss_descends_as_real_px4():
-    mock = observe("mock")
+def test_mock_offboard_loss_descends_as_real_px4(mock_obs):
+    mock = mock_obs
     print("\nmock: offboard loss", mock.details["offboard_loss"])
     _check_px4_behaviour(mock.details["offboard_loss"])
     assert mock.details["offboard_loss"]["reaction_s"] < 2.5  # COM_OF_LOSS_T 1 s + a heartbeat
@@ -45,12 +49,9 @@ def test_mock_offboard_loss_descends_as_real_px4():
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_mock_offboard_loss_behaves_like_real_px4():
+def test_mock_offboard_loss_behaves_like_real_px4(mock_obs):
     require_sitl("px4")
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        mock_future = pool.submit(observe, "mock")
-        sitl = observe("sitl")
-        mock = mock_future.result()
+    sitl, mock = observe("sitl"), mock_obs
     for name, obs in (("mock", mock), ("PX4 SIH", sitl)):
         print(f"\n{name}: offboard loss {obs.details['offboard_loss']}")
     assert differences(mock, sitl) == []

@@ -13,8 +13,6 @@ without it; a failure under CI=true). Run alone:
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import pytest
 from tests.conformance.px4_hold_failsafes import HOLD_STEPS, differences, observe, said
 from tests.conformance.script import FLAVOUR
@@ -38,21 +36,24 @@ def _check_px4_behaviour(obs) -> None:
     assert obs.details["data_link"]["texts_unheard"] == 0, obs.details["data_link"]
 
 
+@pytest.fixture(scope="module")
+def mock_obs():
+    """The mock's session, run once for both tests of this module (a minute of real time)."""
+    return observe("mock")
+
+
 @pytest.mark.timeout(300)
-def test_mock_hold_failsafes_say_what_real_px4_says():
-    mock = observe("mock")
+def test_mock_hold_failsafes_say_what_real_px4_says(mock_obs):
+    mock = mock_obs
     print("\nmock:", {step: mock.details[step] for step in HOLD_STEPS})
     _check_px4_behaviour(mock)
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_mock_hold_failsafes_conform_to_real_px4():
+def test_mock_hold_failsafes_conform_to_real_px4(mock_obs):
     require_sitl("px4")
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        mock_future = pool.submit(observe, "mock")
-        sitl = observe("sitl")
-        mock = mock_future.result()
+    sitl, mock = observe("sitl"), mock_obs
     for name, obs in (("mock", mock), ("PX4 SIH", sitl)):
         print(f"\n{name}:", {step: obs.details[step] for step in HOLD_STEPS})
     assert differences(mock, sitl) == []

@@ -59,6 +59,8 @@ class VehicleWatch:
         self.params: dict[str, float] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        #: set when the autopilot's port closed (its process is gone)
+        self.port_closed = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"watch-{sysid}", daemon=True)
 
     def __enter__(self) -> VehicleWatch:
@@ -81,6 +83,7 @@ class VehicleWatch:
                 msg = self.conn.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT", "PARAM_VALUE"],
                                            blocking=True, timeout=0.5)
             except OSError:
+                self.port_closed.set()
                 return  # the instance is gone (the fleet stopped)
             if msg is None or msg.get_srcSystem() != self.sysid or msg.get_srcComponent() != 1:
                 continue

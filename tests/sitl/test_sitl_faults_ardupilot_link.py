@@ -200,8 +200,11 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
                         "the vehicle heard again", 120.0)
         status, out = run.finish(dead=(kill_v.sysid,))
         final = {s: w.snapshot() for s, w in run.watches.items() if s != kill_v.sysid}
-        killed_heard = run.watches[kill_v.sysid].snapshot()[0][-1][0]
-        failsafe_events = [e["message"] for e in run.events() if "if the ground station dies" in e["message"]]
+        # the killed autopilot's own port closed: its process is gone (the watch's last heartbeat is
+        # stamped when its thread parsed it, seconds late on a loaded host, so not compared with the loss)
+        killed_port_closed = run.watches[kill_v.sysid].port_closed.wait(60.0)
+        events = run.events()
+        failsafe_events = [e["message"] for e in events if "if the ground station dies" in e["message"]]
         armed_after = _armed_modes_after(watch, t_fs)
     relay_counts = relay.counts
     print(f"\nArduCopter SITL x6 (speed-up {AP_SPEEDUP:g}) link cut: ArduCopter "
@@ -214,7 +217,9 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
           f"test {time.monotonic() - t_test:.0f} s wall")
     assert lost["reason"] == "link" and lost["t_s"] >= t_cut, lost
     assert killed["reason"] == "link" and killed["t_s"] > t_kill, killed
-    assert killed_heard < killed["t_s"], (killed_heard, killed)  # the killed autopilot stayed silent
+    assert killed_port_closed, "the killed autopilot's port stayed open"
+    # the ground station never heard the killed autopilot again
+    assert not [e for e in events if f"vehicle {kill_v.sysid} is heard again" in e["message"]], events
     assert "kept out" in back["message"], back["message"]  # in LAND: not re-admissible
     assert "GUIDED" not in armed_after, armed_after  # its failsafe never fought
     lost_ids, readmitted_ids = {x["sysid"] for x in out["lost"]}, {x["sysid"] for x in out["readmitted"]}
