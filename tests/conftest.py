@@ -1,10 +1,12 @@
-"""Test ordering for the four pytest-xdist workers (``-n 4 --dist loadfile``, pyproject.toml).
+"""Test ordering for the three pytest-xdist workers (``-n 3 --dist loadfile``, pyproject.toml).
 
 The longest files (real-SITL missions, conformance against real firmware, wall-clock ground-station
 processes: 40-180 s a test) are handed out first, so that the short files fill the other worker
-around them instead of the workers ending on one long file each. Four workers on two cores: the
-real-SITL conformance and wall-clock files mostly wait on real time (with three workers the whole
-suite used 1.42 of the 2 cores on average: 1109 CPU seconds in 784 s). Order only: every test runs. pytest-xdist hands files out in this order
+around them instead of the workers ending on one long file each. Three workers on two cores: the
+real-SITL conformance and wall-clock files mostly wait on real time (the whole suite used 1.42 of
+the 2 cores on average: 1109 CPU seconds in 784 s). Four workers finished in 724 s, but with four
+real-firmware files at once at the start a PX4 SIH left out a STATUSTEXT of its geofence failsafe
+and an ArduCopter answered a PARAM_SET after more than 20 s: three it is. Order only: every test runs. pytest-xdist hands files out in this order
 only with ``--no-loadscope-reorder`` (pyproject.toml): by default (since 3.5) it sorts them by
 their number of tests, most first, which puts a long file of few tests behind the many short ones.
 
@@ -26,7 +28,7 @@ TESTS_DIR = Path(__file__).resolve().parent
 #: the files of the longest tests, longest first (``python -m pytest --cpu-report PATH``: wall and CPU
 #: seconds of each test), relative to tests/; those that burn CPU (real-SITL missions) alternate with
 #: those that mostly wait (conformance sessions, wall-clock ground-station processes) so that the
-#: first four handed out are not all CPU-bound
+#: first three handed out are not all CPU-bound
 LONG_FIRST = ("sitl/test_sitl_faults_ardupilot_link.py", "conformance/test_conformance_px4_hold_failsafes.py",
               "sitl/test_sitl_resume_px4.py", "mission/flight/test_gcs_faults_signals.py",
               "sitl/test_sitl_ardupilot.py", "conformance/test_conformance_px4_failsafes.py",

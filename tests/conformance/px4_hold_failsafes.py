@@ -117,11 +117,11 @@ def run_hold_failsafes(uri: str, sysid: int, wall_scale: float = 1.0) -> Observa
         c.close()
 
 
-def observe(target: str) -> Observation:
-    """Run :func:`run_hold_failsafes` against ``"mock"`` (one mock PX4, real time) or ``"sitl"``
-    (one real PX4 SIH instance)."""
+def observe(target: str, *, mock_speedup: float = 1.0) -> Observation:
+    """Run :func:`run_hold_failsafes` against ``"mock"`` (one mock PX4, its clock ``mock_speedup``
+    times real time) or ``"sitl"`` (one real PX4 SIH instance, real time)."""
     if target == "mock":
-        return on_mock("px4", 1.0, run_hold_failsafes)
+        return on_mock("px4", mock_speedup, run_hold_failsafes)
     return on_sitl("px4", 1.0, run_hold_failsafes)
 
 

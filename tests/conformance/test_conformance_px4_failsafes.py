@@ -33,10 +33,15 @@ def _check_px4_behaviour(figures: dict) -> None:
     assert abs(figures["rel_alt_m"]) <= 1.0, figures
 
 
+#: the mock's clock runs this much faster than real time (its failsafe timeouts and the session's
+#: figures are in autopilot seconds; the session's 1 Hz GCS heartbeat stays well inside the timeouts)
+MOCK_SPEEDUP_X = 2.0
+
+
 @pytest.fixture(scope="module")
 def mock_obs():
     """The mock's session, run once for both tests of this module."""
-    return observe("mock")
+    return observe("mock", mock_speedup=MOCK_SPEEDUP_X)
 
 
 @pytest.mark.timeout(300)

@@ -172,7 +172,8 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
         run = _Run(fleet, tmp_path, stack)
         for v in fleet.vehicles:  # the others must not land if a loaded host stalls the ground station
             if v is not cut_v:
-                run.watches[v.sysid].set_param("FS_GCS_TIMEOUT", _FS_GCS_TIMEOUT_MAX_S)
+                # (60 s: the echo took over 20 s with four xdist workers on 2 cores)
+                run.watches[v.sysid].set_param("FS_GCS_TIMEOUT", _FS_GCS_TIMEOUT_MAX_S, timeout_s=60.0)
         vehicles = [dataclasses.replace(v, connection=relay.connection) if v is cut_v else v for v in fleet.vehicles]
         # the SITL plan's radius, 2 m: the 4 others' re-formation around the lost vehicle deadlocked in
         # the separation hold in 2 of 2 runs before held vehicles were moved aside (docs/faults.md)
