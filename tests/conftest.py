@@ -1,14 +1,16 @@
 """Test ordering for the three pytest-xdist workers (``-n 3 --dist loadfile``, pyproject.toml).
 
-The longest files (real-SITL missions, conformance against real firmware, wall-clock ground-station
-processes: 40-180 s a test) are handed out first, so that the short files fill the other worker
-around them instead of the workers ending on one long file each. Three workers on two cores: the
-real-SITL conformance and wall-clock files mostly wait on real time (the whole suite used 1.42 of
-the 2 cores on average: 1109 CPU seconds in 784 s). Four workers finished in 724 s, but with four
-real-firmware files at once at the start a PX4 SIH left out a STATUSTEXT of its geofence failsafe
-and an ArduCopter answered a PARAM_SET after more than 20 s: three it is. Order only: every test runs. pytest-xdist hands files out in this order
-only with ``--no-loadscope-reorder`` (pyproject.toml): by default (since 3.5) it sorts them by
-their number of tests, most first, which puts a long file of few tests behind the many short ones.
+The real-SITL files that fly a fleet are one work unit (``pytest_xdist_make_scheduler``): one worker
+flies them one after another, never two fleets at once. The longest files (that unit, conformance
+against real firmware, wall-clock ground-station processes: 40-180 s a test) are handed out first,
+so that the short files fill the other worker around them instead of the workers ending on one long
+file each. Three workers on two cores: the real-SITL conformance and wall-clock files mostly wait on
+real time (the whole suite used 1.42 of the 2 cores on average: 1109 CPU seconds in 784 s). Four
+workers finished in 724 s, but with four real-firmware files at once at the start a PX4 SIH left out
+a STATUSTEXT of its geofence failsafe and an ArduCopter answered a PARAM_SET after more than 20 s:
+three it is. Order only: every test runs. pytest-xdist hands files out in this order only with
+``--no-loadscope-reorder`` (pyproject.toml): by default (since 3.5) it sorts them by their number of
+tests, most first, which puts a long file of few tests behind the many short ones.
 
 The suite is laid out like the code (``tests/__init__.py``); fixtures shared by one folder are in
 that folder's ``conftest.py``.
@@ -25,21 +27,41 @@ import pytest
 
 TESTS_DIR = Path(__file__).resolve().parent
 
-#: the files of the longest tests, longest first (``python -m pytest --cpu-report PATH``: wall and CPU
-#: seconds of each test), relative to tests/; those that burn CPU (real-SITL missions) alternate with
-#: those that mostly wait (conformance sessions, wall-clock ground-station processes) so that the
-#: first three handed out are not all CPU-bound
-LONG_FIRST = ("sitl/test_sitl_faults_ardupilot_link.py", "conformance/test_conformance_px4_hold_failsafes.py",
-              "sitl/test_sitl_resume_px4.py", "mission/flight/test_gcs_faults_signals.py",
-              "sitl/test_sitl_ardupilot.py", "conformance/test_conformance_px4_failsafes.py",
-              "sitl/test_sitl_px4.py", "conformance/test_conformance_px4.py",
-              "sitl/test_sitl_faults_ardupilot.py", "sitl_mock/test_fields_config.py",
-              "mission/flight/test_sensor_check.py", "mission/telemetry/test_map_browser.py",
-              "mission/telemetry/test_ctl_processes.py", "mission/flight/test_gcs_faults_output.py",
-              "mission/telemetry/test_ctl_processes_routed.py", "mission/sim/test_e2e_mission.py",
-              "conformance/test_conformance_ardupilot.py", "mission/flight/test_abandon.py",
-              "conformance/test_conformance_ap_failsafes.py", "experiments/test_sweep.py",
-              "mission/flight/test_layers.py", "mission/telemetry/test_map_fly.py")
+#: the real-SITL files that fly a fleet (2-6 autopilot processes, a core or more between them): one
+#: work unit, so one worker runs them one after another. Two or three of them at once on 2 cores
+#: starved each other (a PARAM_SET unanswered for 20 s, a mission over before its fault was injected).
+ONE_FLEET_AT_A_TIME = ("sitl/test_sitl_faults_ardupilot_link.py", "sitl/test_sitl_resume_px4.py",
+                       "sitl/test_sitl_px4.py", "sitl/test_sitl_faults_ardupilot.py", "sitl/test_sitl_ardupilot.py",
+                       "sitl/test_sitl_faults_px4.py")
+
+#: the files of the longest tests, longest first (``python -m pytest --cpu-report=PATH``: wall and CPU
+#: seconds of each test), relative to tests/; the fleet files first (their unit is the longest)
+LONG_FIRST = ONE_FLEET_AT_A_TIME + (
+    "conformance/test_conformance_px4_hold_failsafes.py", "mission/flight/test_gcs_faults_signals.py",
+    "conformance/test_conformance_px4_failsafes.py", "conformance/test_conformance_px4.py",
+    "sitl_mock/test_fields_config.py", "mission/flight/test_sensor_check.py", "mission/telemetry/test_map_browser.py",
+    "mission/telemetry/test_ctl_processes.py", "mission/flight/test_gcs_faults_output.py",
+    "mission/telemetry/test_ctl_processes_routed.py", "mission/sim/test_e2e_mission.py",
+    "conformance/test_conformance_ardupilot.py", "mission/flight/test_abandon.py",
+    "conformance/test_conformance_ap_failsafes.py", "experiments/test_sweep.py",
+    "mission/flight/test_layers.py", "mission/telemetry/test_map_fly.py")
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadfile`` with the files of :data:`ONE_FLEET_AT_A_TIME` as one work unit."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    fleet_files = {f"tests/{name}" for name in ONE_FLEET_AT_A_TIME}
+    rootdir = config.rootpath
+
+    class _OneFleetAtATime(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            scope = super()._split_scope(nodeid)
+            return "real-SITL fleets" if _relative(rootdir / scope, prefix="tests/") in fleet_files else scope
+
+    return _OneFleetAtATime(config, log)
 
 
 def pytest_configure(config):
@@ -49,10 +71,10 @@ def pytest_configure(config):
         raise pytest.UsageError(f"tests/conftest.py LONG_FIRST names files that do not exist: {', '.join(missing)}")
 
 
-def _relative(path: Path) -> str:
-    """``path`` relative to tests/ (``/``-separated), or its full path when it is outside."""
+def _relative(path: Path, prefix: str = "") -> str:
+    """``path`` relative to tests/ (``/``-separated, after ``prefix``), or its full path when it is outside."""
     try:
-        return path.resolve().relative_to(TESTS_DIR).as_posix()
+        return prefix + path.resolve().relative_to(TESTS_DIR).as_posix()
     except ValueError:
         return str(path)
 

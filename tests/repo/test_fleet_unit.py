@@ -1,0 +1,41 @@
+"""The real-SITL fleet files run on one xdist worker, one after another (tests/conftest.py,
+``pytest_xdist_make_scheduler``).
+
+Runs pytest on those files plus two short mock files, with the SITL variables and ``CI`` removed so
+the fleet tests skip at once, and reads which worker ran each test (``-v``).
+"""
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+from tests.conftest import ONE_FLEET_AT_A_TIME
+
+_ROOT = Path(__file__).resolve().parents[2]
+_OTHERS = ("tests/formation/test_geodesy.py", "tests/estimator/test_retire.py")
+
+
+def _workers_by_file(dist: str) -> dict[str, set[str]]:
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("CI", "SWARMSEEK_PX4_SITL", "SWARMSEEK_ARDUPILOT_SITL", "SWARMSEEK_CPU_HOG_PIDS")}
+    files = [f"tests/{name}" for name in ONE_FLEET_AT_A_TIME] + list(_OTHERS)
+    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-v", "-n", "3",
+                           "--dist", dist, "-m", "not unstable_mission", *files],
+                          cwd=_ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
+    where: dict[str, set[str]] = defaultdict(set)
+    for m in re.finditer(r"\[(gw\d+)\] \[\s*\d+%\] \w+ (tests/[^:\s]+)::", done.stdout):
+        where[m.group(2)].add(m.group(1))
+    return where
+
+
+def test_the_fleet_files_share_one_worker():
+    where = _workers_by_file("loadfile")
+    fleet = [f"tests/{name}" for name in ONE_FLEET_AT_A_TIME]
+    assert set(fleet) <= set(where), sorted(where)
+    assert len(set().union(*(where[f] for f in fleet))) == 1, {f: where[f] for f in fleet}
+    assert set(_OTHERS) <= set(where), sorted(where)  # the others ran too
