@@ -1,7 +1,10 @@
 """formation.geodesy against published reference points and independent closed forms.
 
 Its scalar :class:`~formation.geodesy.TangentFrame` (the readings' and the mock autopilot's hot
-path) is bit-identical to pymap3d's array maths, on random points and on a grid.
+path) agrees with pymap3d's array maths to within :data:`_ULPS` units in the last place, on random
+points and on a grid: it calls ``math.sin``/``math.cos`` where pymap3d calls numpy's, whose
+vectorised float64 routines may round the last bit differently on some CPUs (hypothesis found
+1.1067048847885922e-05 against ...924e-05 degrees).
 """
 import math
 
@@ -104,33 +107,46 @@ def test_enu_round_trip_and_shapes():
     assert geodetic_to_enu(np.zeros((2, 4)) + 45.0, 5.7, 0.0, origin).shape == (2, 4, 3)
 
 
+#: units in the last place allowed between TangentFrame and pymap3d
+_ULPS = 4
+
+
+def _same(got, want) -> bool:
+    """``got`` and ``want`` (sequences of floats) within :data:`_ULPS` units in the last place."""
+    got, want = np.asarray(got, dtype=float), np.asarray(want, dtype=float)
+    return got.shape == want.shape and bool(np.all(np.abs(got - want) <= _ULPS * np.spacing(np.maximum(
+        np.abs(got), np.abs(want)))))
+
+
 _LAT = st.floats(-90, 90)
 _LON = st.floats(-180, 180)
 
 
 @settings(max_examples=1000, deadline=None)
 @given(_LAT, _LON, st.floats(-500, 9000), _LAT, _LON, st.floats(-1000, 1e6), st.booleans())
-def test_tangent_frame_geodetic_to_enu_is_bit_identical_to_pymap3d(lat0, lon0, alt0, lat, lon, alt, near):
+def test_tangent_frame_geodetic_to_enu_agrees_with_pymap3d(lat0, lon0, alt0, lat, lon, alt, near):
     origin = (lat0, lon0, alt0)
     if near:   # the mission's case: within a few km of the origin
         lat, lon = min(90.0, max(-90.0, lat0 + lat * 1e-3)), min(180.0, max(-180.0, lon0 + lon * 1e-3))
     got = TangentFrame(origin).geodetic_to_enu_m(lat, lon, alt)
     assert all(type(v) is float for v in got)
-    assert got == tuple(geodetic_to_enu(lat, lon, alt, origin).tolist())
+    want = tuple(geodetic_to_enu(lat, lon, alt, origin).tolist())
+    assert _same(got, want), (got, want)
 
 
 @settings(max_examples=1000, deadline=None)
 @given(_LAT, _LON, st.floats(-500, 9000), st.floats(-1e4, 1e4), st.floats(-1e4, 1e4), st.floats(-1e4, 1e6),
        st.sampled_from([1e-3, 1.0, 1e3]))
-def test_tangent_frame_enu_to_geodetic_is_bit_identical_to_pymap3d(lat0, lon0, alt0, east_m, north_m, up_m, scale):
+def test_tangent_frame_enu_to_geodetic_agrees_with_pymap3d(lat0, lon0, alt0, east_m, north_m, up_m, scale):
     origin = (lat0, lon0, alt0)
     enu = (east_m * scale, north_m * scale, up_m)
     got = TangentFrame(origin).enu_to_geodetic(*enu)
     assert all(type(v) is float for v in got)
-    assert got == tuple(float(v) for v in enu_to_geodetic(np.array(enu), origin))
+    want = tuple(float(v) for v in enu_to_geodetic(np.array(enu), origin))
+    assert _same(got, want), (got, want)
 
 
-def test_tangent_frame_is_bit_identical_to_pymap3d_on_a_grid():
+def test_tangent_frame_agrees_with_pymap3d_on_a_grid():
     """Origins every 15 degrees (poles included), points up to 20 km out, 0-5 km up and down."""
     checked = 0
     for lat0 in np.arange(-90.0, 90.1, 15.0):
@@ -141,10 +157,10 @@ def test_tangent_frame_is_bit_identical_to_pymap3d_on_a_grid():
                 for north_m in (-20000.0, -7.75, 0.0, 150.5, 20000.0):
                     for up_m in (-5000.0, 0.0, 42.0, 5000.0):
                         lat, lon, alt = (float(v) for v in enu_to_geodetic(np.array([east_m, north_m, up_m]), origin))
-                        assert frame.enu_to_geodetic(east_m, north_m, up_m) == (lat, lon, alt), (origin, east_m)
-                        assert frame.ned_to_geodetic(north_m, east_m, -up_m) == (lat, lon, alt)
+                        assert _same(frame.enu_to_geodetic(east_m, north_m, up_m), (lat, lon, alt)), (origin, east_m)
+                        assert _same(frame.ned_to_geodetic(north_m, east_m, -up_m), (lat, lon, alt))
                         back = tuple(geodetic_to_enu(lat, lon, alt, origin).tolist())
-                        assert frame.geodetic_to_enu_m(lat, lon, alt) == back
+                        assert _same(frame.geodetic_to_enu_m(lat, lon, alt), back)
                         checked += 1
     assert checked == 13 * 9 * 100
 
