@@ -149,6 +149,25 @@ def _read_only_page(browser, url: str, log: Path) -> None:
     page.close()
 
 
+def _open(page, url: str, mission: subprocess.Popen, out: Output) -> None:
+    """``page.goto(url)``, again while the mission runs and its map refuses the connection (once in
+    a fresh-clone suite: ERR_CONNECTION_REFUSED right after the URL was printed); a mission that
+    exited fails the test with its last lines."""
+    from playwright.sync_api import Error as PlaywrightError
+
+    def opened():
+        try:
+            page.goto(url)
+            return True
+        except PlaywrightError as exc:
+            if "ERR_CONNECTION_REFUSED" not in str(exc):
+                raise
+            assert mission.poll() is None, f"the mission exited ({mission.returncode}): {''.join(out.lines[-20:])}"
+            return False
+
+    wait_until(opened, WAIT_S, f"the map at {url} (mission's last lines: {''.join(out.lines[-5:])})", poll_s=0.5)
+
+
 def test_the_live_map_in_a_browser(tmp_path):
     sync_playwright, chromium = require_browser()
     from mission.sim.embedded import free_port_block
@@ -170,7 +189,7 @@ def test_the_live_map_in_a_browser(tmp_path):
             browser = pw.chromium.launch(executable_path=chromium, headless=True, args=["--no-sandbox"])
             page = browser.new_page(bypass_csp=True)
             page.on("dialog", lambda d: d.accept())
-            page.goto(url)
+            _open(page, url, mission, out)
             _markers_move(page, N)
             first = wait_until(lambda: estimate(page), WAIT_S, "an estimate with its region")  # in the seek
             _pause_and_continue(page, log)  # the pause holds the seek until Continue: it has iterations left
