@@ -53,13 +53,12 @@ def pytest_xdist_make_scheduler(config, log):
         return None
     from xdist.scheduler import LoadFileScheduling
 
-    fleet_files = {f"tests/{name}" for name in ONE_FLEET_AT_A_TIME}
     rootdir = config.rootpath
 
     class _OneFleetAtATime(LoadFileScheduling):
         def _split_scope(self, nodeid: str) -> str:
             scope = super()._split_scope(nodeid)
-            return "real-SITL fleets" if _relative(rootdir / scope, prefix="tests/") in fleet_files else scope
+            return "real-SITL fleets" if _relative(rootdir / scope) in ONE_FLEET_AT_A_TIME else scope
 
     return _OneFleetAtATime(config, log)
 
@@ -71,10 +70,10 @@ def pytest_configure(config):
         raise pytest.UsageError(f"tests/conftest.py LONG_FIRST names files that do not exist: {', '.join(missing)}")
 
 
-def _relative(path: Path, prefix: str = "") -> str:
-    """``path`` relative to tests/ (``/``-separated, after ``prefix``), or its full path when it is outside."""
+def _relative(path: Path) -> str:
+    """``path`` relative to tests/ (``/``-separated), or its full path when it is outside."""
     try:
-        return prefix + path.resolve().relative_to(TESTS_DIR).as_posix()
+        return path.resolve().relative_to(TESTS_DIR).as_posix()
     except ValueError:
         return str(path)
 

@@ -19,12 +19,12 @@ _ROOT = Path(__file__).resolve().parents[2]
 _OTHERS = ("tests/formation/test_geodesy.py", "tests/estimator/test_retire.py")
 
 
-def _workers_by_file(dist: str) -> dict[str, set[str]]:
+def _workers_by_file() -> dict[str, set[str]]:
     env = {k: v for k, v in os.environ.items()
            if k not in ("CI", "SWARMSEEK_PX4_SITL", "SWARMSEEK_ARDUPILOT_SITL", "SWARMSEEK_CPU_HOG_PIDS")}
     files = [f"tests/{name}" for name in ONE_FLEET_AT_A_TIME] + list(_OTHERS)
     done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-v", "-n", "3",
-                           "--dist", dist, "-m", "not unstable_mission", *files],
+                           "--dist", "loadfile", "-m", "not unstable_mission", *files],
                           cwd=_ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
     where: dict[str, set[str]] = defaultdict(set)
@@ -34,7 +34,7 @@ def _workers_by_file(dist: str) -> dict[str, set[str]]:
 
 
 def test_the_fleet_files_share_one_worker():
-    where = _workers_by_file("loadfile")
+    where = _workers_by_file()
     fleet = [f"tests/{name}" for name in ONE_FLEET_AT_A_TIME]
     assert set(fleet) <= set(where), sorted(where)
     assert len(set().union(*(where[f] for f in fleet))) == 1, {f: where[f] for f in fleet}
