@@ -60,10 +60,16 @@ def _offboard(c: Client) -> tuple[float, float, float]:
         c.send_local_target(*target)
         c.settle(0.1)
     c.set_mode("offboard", *_MODES["offboard"])
-    start_s = c.boot_s
-    while c.custom_mode != _CUSTOM["offboard"] or c.boot_s - start_s < 3.0:
-        if c.boot_s - start_s > 30.0:
-            raise ConformanceError(f"step {c.step}: not in OFFBOARD (custom_mode {c.custom_mode})")
+    first_s = asked_s = c.boot_s
+    while c.custom_mode != _CUSTOM["offboard"] or c.boot_s - asked_s < 3.0:
+        if c.boot_s - first_s > 30.0:
+            raise ConformanceError(f"step {c.step}: not in OFFBOARD (custom_mode {c.custom_mode}; "
+                                   f"last ACK {c.obs.acks.get('offboard')})")
+        if c.custom_mode != _CUSTOM["offboard"] and c.boot_s - asked_s > 3.0:
+            # asked again: once in a CI run real PX4 stayed in AUTO.LOITER after the first request (its
+            # offboard signal judged absent on a loaded host); the last answer is the one recorded
+            c.set_mode("offboard", *_MODES["offboard"])
+            asked_s = c.boot_s
         c.send_local_target(*target)
         c.settle(0.1)
     return target

@@ -228,7 +228,9 @@ def _check(m: _Mission, out: dict, status: int, kill: dict, battery: dict, fence
     # three left: the seek ends, the three come home; every vehicle down
     assert out["outcome"] == "too_few_vehicles", out["message"]
     assert status == 4 == out["exit_status"]  # ended with vehicles lost
-    assert sorted(x["sysid"] for x in out["lost"]) == sorted(ids), out["lost"]
+    # the two failsafe vehicles, and no other for good: on a loaded host one SITL once went silent for
+    # 1.06 s, was declared lost and came back (``came_back_s``), which the mission handled
+    assert sorted(x["sysid"] for x in out["lost"] if x["came_back_s"] is None) == sorted(ids), out["lost"]
     assert out.get("airborne_left", []) == [] and out.get("still_armed", []) == [], out
     for sysid, ((_, mode, armed), alt_m) in final.items():
         assert not armed and abs(alt_m) < 1.0, (sysid, mode, armed, alt_m)
