@@ -16,12 +16,13 @@ from pathlib import Path
 from tests.conftest import ONE_FLEET_AT_A_TIME
 
 _ROOT = Path(__file__).resolve().parents[2]
-_OTHERS = ("tests/formation/test_geodesy.py", "tests/estimator/test_retire.py")
+_OTHERS = ("tests/wire/test_fleet_names.py", "tests/repo/test_no_issue_numbers.py")  # short, CPU-light
 
 
 def _workers_by_file() -> dict[str, set[str]]:
     env = {k: v for k, v in os.environ.items()
-           if k not in ("CI", "SWARMSEEK_PX4_SITL", "SWARMSEEK_ARDUPILOT_SITL", "SWARMSEEK_CPU_HOG_PIDS")}
+           if k not in ("CI", "SWARMSEEK_PX4_SITL", "SWARMSEEK_ARDUPILOT_SITL", "SWARMSEEK_CPU_HOG_PIDS",
+                        "PYTEST_ADDOPTS")}
     files = [f"tests/{name}" for name in ONE_FLEET_AT_A_TIME] + list(_OTHERS)
     done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-v", "-n", "3",
                            "--dist", "loadfile", "-m", "not unstable_mission", *files],

@@ -33,6 +33,7 @@ def run_inner_session(tmp_path: Path, plugin: str, test_source: str, *args: str,
     (tmp_path / "pytest.ini").write_text("[pytest]\n")
     (tmp_path / "test_inner.py").write_text(test_source)
     env = dict(os.environ if env is None else env, PYTHONPATH=str(PLUGIN_DIR))
+    env.pop("PYTEST_ADDOPTS", None)  # the outer session's options (e.g. --cpu-report) are not the inner one's
     return subprocess.run([sys.executable, "-m", "pytest", "-p", plugin, "-p", "no:cacheprovider",
                            "-c", str(tmp_path / "pytest.ini"), "--rootdir", str(tmp_path),
                            str(tmp_path / "test_inner.py"), *args],
