@@ -34,7 +34,6 @@ meander value: they are independent draws.
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import ndtri
 
 from sitl_mock.fields_plume import GaussianPlume, _positive
 
@@ -66,6 +65,8 @@ def hashed_normals(seed: int, stream: int, index) -> np.ndarray:
     idx = np.asarray(index, dtype=np.int64).view(np.uint64)
     h = _mix(_mix(idx * np.uint64(_GOLDEN) + key) ^ key)
     u = ((h >> np.uint64(11)).astype(np.float64) + 0.5) * 2.0 ** -53
+    from scipy.special import ndtri  # here, not at the top: scipy.special costs a third of a CPU second
+    # at every start of a mock fleet, which needs it only for this plume
     return ndtri(u)
 
 

@@ -12,30 +12,21 @@ import asyncio
 
 import numpy as np
 
+from formation.assignment import assign_slots as _formation_assign_slots
+from formation.cvt import cvt_sphere
+from formation.symmetric import symmetric_cylinder
+
 __all__ = ["assign_slots", "formation_offsets", "layered_altitudes", "layered_transfer", "solve_formation"]
 
 
 def assign_slots(current_positions, slots) -> np.ndarray:
     """Minimum total squared travel assignment: ``perm[i]`` is the slot of vehicle ``i``.
 
-    Uses ``formation.assign_slots`` when available, else ``scipy.optimize.linear_sum_assignment``.
+    Uses :func:`formation.assignment.assign_slots` without rotation.
     """
-    cur = np.asarray(current_positions, dtype=float)
-    sl = np.asarray(slots, dtype=float)
-    try:
-        from formation import assign_slots as _fa  # type: ignore[attr-defined]
-    except ImportError:
-        _fa = None
-    if _fa is not None:
-        perm, _ = _fa(cur, sl, allow_rotation=False)
-        return np.asarray(perm, dtype=int)
-    from scipy.optimize import linear_sum_assignment
-
-    cost = np.sum((cur[:, None, :] - sl[None, :, :]) ** 2, axis=-1)
-    rows, cols = linear_sum_assignment(cost)
-    perm = np.empty(len(cur), dtype=int)
-    perm[rows] = cols
-    return perm
+    perm, _ = _formation_assign_slots(np.asarray(current_positions, dtype=float), np.asarray(slots, dtype=float),
+                                      allow_rotation=False)
+    return np.asarray(perm, dtype=int)
 
 
 def layered_altitudes(n: int, low_m: float, high_m: float, min_separation_m: float) -> np.ndarray:
@@ -80,11 +71,9 @@ def formation_offsets(kind: str, n: int, radius_m: float, seed: int = 0) -> np.n
     A CVT solve takes about 0.2 s of CPU for 8 vehicles: inside the event loop, await
     :func:`solve_formation` instead.
     """
-    import formation
-
     if kind == "symmetric":
-        return np.asarray(formation.symmetric_cylinder(n, radius_m), dtype=float)
-    return np.asarray(formation.cvt_sphere(n, radius_m, seed=seed), dtype=float)
+        return np.asarray(symmetric_cylinder(n, radius_m), dtype=float)
+    return np.asarray(cvt_sphere(n, radius_m, seed=seed), dtype=float)
 
 
 async def solve_formation(kind: str, n: int, radius_m: float, seed: int = 0) -> np.ndarray:

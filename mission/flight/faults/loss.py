@@ -40,6 +40,9 @@ import functools
 
 import numpy as np
 
+from formation.assignment import assign_slots, reconfigure
+from formation.symmetric import symmetric_cylinder
+
 from typing import Callable
 
 from mission.core.plan_types import FaultsPlan, FormationPlan
@@ -280,8 +283,6 @@ def reformed_offsets(kind: str, offsets: dict[int, np.ndarray], lost, radius_m: 
     ValueError
         Fewer than 4 survivors.
     """
-    import formation
-
     sysids = sorted(offsets)
     lost = set(lost)
     survivors = [s for s in sysids if s not in lost]
@@ -289,12 +290,12 @@ def reformed_offsets(kind: str, offsets: dict[int, np.ndarray], lost, radius_m: 
         raise ValueError(f"a formation needs at least 4 vehicles, {len(survivors)} left")
     x = np.array([offsets[s] for s in sysids], dtype=float)
     if kind == "symmetric" and len(survivors) % 2 == 0:
-        slots = np.asarray(formation.symmetric_cylinder(len(survivors), radius_m), dtype=float)
+        slots = np.asarray(symmetric_cylinder(len(survivors), radius_m), dtype=float)
         xs = x[[sysids.index(s) for s in survivors]]
-        perm, _ = formation.assign_slots(xs, slots, allow_rotation=False)
+        perm, _ = assign_slots(xs, slots, allow_rotation=False)
         return {s: slots[perm[k]] for k, s in enumerate(survivors)}, "symmetric"
     mask = np.array([s in lost for s in sysids])
-    rec = formation.reconfigure(x, mask, radius_m)
+    rec = reconfigure(x, mask, radius_m)
     out = {}
     for k, idx in enumerate(rec.survivors):
         out[sysids[int(idx)]] = np.asarray(rec.slots[int(rec.assignment[k])], dtype=float)

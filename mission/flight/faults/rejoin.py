@@ -22,6 +22,10 @@ import functools
 
 import numpy as np
 
+from formation.assignment import assign_slots
+from formation.cvt import cvt_from
+from formation.symmetric import symmetric_cylinder
+
 from mission.core.plan_types import FaultsPlan, FormationPlan
 from mission.flight.modes import GUIDED_MODES, LEFT_MODES
 from mission.flight.obstacles import OBSTACLE_MARGIN_M, clear_offsets, obstacles
@@ -60,8 +64,6 @@ def readmitted_offsets(kind: str, offsets: dict[int, np.ndarray], returning: dic
         number is even, else a CVT warm-started from the current slots and the returning
         positions; minimum-travel assignment (rotation allowed for CVT).
     """
-    import formation
-
     sysids = sorted(offsets) + sorted(returning)
     x = np.array([offsets[s] for s in sorted(offsets)] + [returning[s] for s in sorted(returning)], dtype=float)
     norms = np.linalg.norm(x, axis=1, keepdims=True)
@@ -70,11 +72,11 @@ def readmitted_offsets(kind: str, offsets: dict[int, np.ndarray], returning: dic
         norms = np.linalg.norm(x, axis=1, keepdims=True)
     proj = radius_m * x / norms
     if kind == "symmetric" and len(sysids) % 2 == 0:
-        slots = np.asarray(formation.symmetric_cylinder(len(sysids), radius_m), dtype=float)
-        perm, slots = formation.assign_slots(proj, slots, allow_rotation=False)
+        slots = np.asarray(symmetric_cylinder(len(sysids), radius_m), dtype=float)
+        perm, slots = assign_slots(proj, slots, allow_rotation=False)
         return {s: slots[perm[k]] for k, s in enumerate(sysids)}, "symmetric"
-    unit = formation.cvt_from(proj / radius_m).points
-    perm, slots = formation.assign_slots(proj, radius_m * unit, allow_rotation=True)
+    unit = cvt_from(proj / radius_m).points
+    perm, slots = assign_slots(proj, radius_m * unit, allow_rotation=True)
     return {s: np.asarray(slots[perm[k]], dtype=float) for k, s in enumerate(sysids)}, "cvt"
 
 

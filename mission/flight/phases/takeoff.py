@@ -23,6 +23,7 @@ from typing import Any, Awaitable, Callable
 import numpy as np
 
 from formation.geodesy import geodetic_to_enu
+from formation.metrics import metrics
 from mission.core.plan_types import Plan
 from mission.flight.control import OperatorStop
 from mission.flight.layers import shared_layers
@@ -165,8 +166,6 @@ class Takeoff:
     def _plan_slots(self, offsets: np.ndarray) -> None:
         """Formation slots (``offsets``, one per vehicle: :func:`solve_formation`), the assignment of
         vehicles to them (from their homes) and the layers."""
-        from formation import metrics
-
         plan, state = self.plan, self.state
         sysids = sorted(self.fleet.vehicles)
         start = plan.seeking.start_point()
