@@ -25,7 +25,7 @@ def _workers_by_file() -> dict[str, set[str]]:
                         "PYTEST_ADDOPTS")}
     files = [f"tests/{name}" for name in ONE_FLEET_AT_A_TIME] + list(_OTHERS)
     done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-v", "-n", "3",
-                           "--dist", "loadfile", "-m", "not unstable_mission", *files],
+                           "--dist", "loadfile", "-m", "not unstable_mission and not extra_sitl", *files],
                           cwd=_ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
     where: dict[str, set[str]] = defaultdict(set)

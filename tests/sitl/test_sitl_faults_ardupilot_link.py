@@ -243,6 +243,7 @@ def test_ardupilot_link_cut_and_restored(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.extra_sitl  # arming refused at takeoff: lost, the others go on (on the mock: test_takeoff_loss.py)
 @pytest.mark.timeout(1200)
 def test_ardupilot_vehicle_that_never_arms(tmp_path):
     require_sitl("ardupilot")
