@@ -27,28 +27,41 @@ import pytest
 
 TESTS_DIR = Path(__file__).resolve().parent
 
-#: the real-SITL files that fly a fleet (2-6 autopilot processes, a core or more between them): one
-#: work unit, so one worker runs them one after another. Two or three of them at once on 2 cores
-#: starved each other (a PARAM_SET unanswered for 20 s, a mission over before its fault was injected).
-ONE_FLEET_AT_A_TIME = ("sitl/test_sitl_faults_ardupilot_link.py", "sitl/test_sitl_resume_px4.py",
-                       "sitl/test_sitl_px4.py", "sitl/test_sitl_faults_ardupilot.py", "sitl/test_sitl_ardupilot.py",
-                       "sitl/test_sitl_faults_px4.py")
+#: the real-SITL files that fly a fleet (2-6 autopilot processes, a core or more between them)
+FLEET_FILES = ("sitl/test_sitl_faults_ardupilot_link.py", "sitl/test_sitl_resume_px4.py",
+               "sitl/test_sitl_px4.py", "sitl/test_sitl_faults_ardupilot.py", "sitl/test_sitl_ardupilot.py",
+               "sitl/test_sitl_faults_px4.py")
+#: the conformance files that run one real SITL autopilot beside a mock session in real time
+CONFORMANCE_SITL_FILES = ("conformance/test_conformance_px4_hold_failsafes.py",
+                          "conformance/test_conformance_px4_failsafes.py", "conformance/test_conformance_px4.py",
+                          "conformance/test_conformance_ardupilot.py", "conformance/test_conformance_ap_failsafes.py")
+#: one work unit, so one worker runs them one after another. Two or three fleets at once on 2 cores
+#: starved each other (a PARAM_SET unanswered for 20 s, a mission over before its fault was injected);
+#: a conformance check beside a PX4 fleet (1.7 cores) once saw real PX4 refuse OFFBOARD, and its mock
+#: session, starved, react 7.3 s late and not start its RTL in 60 s
+ONE_SITL_AT_A_TIME = FLEET_FILES + CONFORMANCE_SITL_FILES
+#: the scope of that work unit
+SITL_UNIT = "real-SITL autopilots"
 
 #: the files of the longest tests, longest first (``python -m pytest --cpu-report=PATH``: wall and CPU
-#: seconds of each test), relative to tests/; the fleet files first (their unit is the longest)
-LONG_FIRST = ONE_FLEET_AT_A_TIME + (
-    "conformance/test_conformance_px4_hold_failsafes.py", "mission/flight/test_gcs_faults_signals.py",
-    "conformance/test_conformance_px4_failsafes.py", "conformance/test_conformance_px4.py",
+#: seconds of each test), relative to tests/; the real-SITL unit first (the longest)
+LONG_FIRST = ONE_SITL_AT_A_TIME + (
+    "mission/flight/test_gcs_faults_signals.py",
     "sitl_mock/test_fields_config.py", "mission/flight/test_sensor_check.py", "mission/telemetry/test_map_browser.py",
     "mission/telemetry/test_ctl_processes.py", "mission/flight/test_gcs_faults_output.py",
     "mission/telemetry/test_ctl_processes_routed.py", "mission/sim/test_e2e_mission.py",
-    "conformance/test_conformance_ardupilot.py", "mission/flight/test_abandon.py",
-    "conformance/test_conformance_ap_failsafes.py", "experiments/test_sweep.py",
+    "mission/flight/test_abandon.py", "experiments/test_sweep.py",
     "mission/flight/test_layers.py", "mission/telemetry/test_map_fly.py")
 
 
+def unit_scope(rootdir: Path, scope: str) -> str:
+    """The xdist scope of a ``--dist loadfile`` scope (a file's node id): :data:`SITL_UNIT` for the
+    files of :data:`ONE_SITL_AT_A_TIME`, else the file itself."""
+    return SITL_UNIT if _relative(rootdir / scope) in ONE_SITL_AT_A_TIME else scope
+
+
 def pytest_xdist_make_scheduler(config, log):
-    """``--dist loadfile`` with the files of :data:`ONE_FLEET_AT_A_TIME` as one work unit."""
+    """``--dist loadfile`` with the files of :data:`ONE_SITL_AT_A_TIME` as one work unit."""
     if config.getvalue("dist") != "loadfile":
         return None
     from xdist.scheduler import LoadFileScheduling
@@ -57,8 +70,7 @@ def pytest_xdist_make_scheduler(config, log):
 
     class _OneFleetAtATime(LoadFileScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            scope = super()._split_scope(nodeid)
-            return "real-SITL fleets" if _relative(rootdir / scope) in ONE_FLEET_AT_A_TIME else scope
+            return unit_scope(rootdir, super()._split_scope(nodeid))
 
     return _OneFleetAtATime(config, log)
 
