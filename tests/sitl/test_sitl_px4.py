@@ -105,7 +105,6 @@ def _final_states(gcs_port: int, sysids, timeout_s: float = 20.0) -> dict:
 
 
 @pytest.mark.slow
-@pytest.mark.extra_sitl  # fly on real PX4 from takeoff to landing: the PX4 resume mission flies it too
 @pytest.mark.timeout(420)
 def test_px4_sih_mission_finds_the_source_and_lands(tmp_path):
     sitl_dir = require_sitl("px4")

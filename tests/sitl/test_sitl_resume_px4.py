@@ -103,6 +103,7 @@ def _json_out(run: FlyRun) -> dict:
 
 
 @pytest.mark.slow
+@pytest.mark.extra_sitl  # the ground station killed and resumed: flown on real ArduCopter by default (test_sitl_faults_ardupilot.py)
 @pytest.mark.timeout(1200)
 def test_px4_gcs_killed_and_resumed(tmp_path):
     sitl_dir = require_sitl("px4")
