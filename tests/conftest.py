@@ -25,6 +25,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.priority import raised_priority
+
 TESTS_DIR = Path(__file__).resolve().parent
 
 #: the real-SITL files that fly a fleet (2-6 autopilot processes, a core or more between them)
@@ -58,6 +60,20 @@ def unit_scope(rootdir: Path, scope: str) -> str:
     """The xdist scope of a ``--dist loadfile`` scope (a file's node id): :data:`SITL_UNIT` for the
     files of :data:`ONE_SITL_AT_A_TIME`, else the file itself."""
     return SITL_UNIT if _relative(rootdir / scope) in ONE_SITL_AT_A_TIME else scope
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _real_sitl_priority(request):
+    """The files of :data:`ONE_SITL_AT_A_TIME` run at a higher CPU priority, with every process they
+    start (tests/support/priority.py): module scope, so a module fixture's autopilot gets it too.
+    Where that is not allowed, a warning in the session's summary says so."""
+    if _relative(request.path) not in ONE_SITL_AT_A_TIME:
+        yield
+        return
+    with raised_priority() as refused:
+        if refused:
+            request.node.warn(pytest.PytestWarning(refused))
+        yield
 
 
 def pytest_xdist_make_scheduler(config, log):

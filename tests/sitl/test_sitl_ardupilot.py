@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.support.sitl_support import audit_failure_context, require_sitl
+from tests.support.sitl_support import audit_failure_context, mission_story, require_sitl
 
 _N = 4
 _RADIUS_M = 2.0
@@ -171,8 +171,9 @@ def test_ardupilot_sitl_mission(tmp_path):
           f"{out['mission_time_s']:.0f} s; wall: fly {fly_wall_s:.0f} s, test {wall_s:.0f} s; CPU: "
           f"coordinator {fly_cpu_s:.1f} s ({100 * fly_cpu_s / fly_wall_s:.0f} % of a core), SITL "
           f"{[round(c, 1) for c in sitl_cpu]} s ({100 * max(sitl_cpu) / fly_wall_s:.0f} % max)")
-    assert out["outcome"] == "converged", (out["message"], fly.stderr[-3000:])
-    assert fly.returncode == 0
+    story = mission_story(tmp_path / "logs")
+    assert out["outcome"] == "converged", (story, out["message"], fly.stderr[-3000:])
+    assert fly.returncode == 0, (story, fly.stderr[-3000:])
     assert error_m <= tolerance_m + _FLIGHT_MARGIN_M, (error_m, tolerance_m, offline_estimate)
     assert all(disarmed and abs(alt_m) < 1.0 for disarmed, alt_m in final.values()), final
     assert out["lost"] == [], out["lost"]

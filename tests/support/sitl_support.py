@@ -17,7 +17,7 @@ import pytest
 
 from mission.sim.sitl_settings import SitlSetupError, resolve_sitl_dir
 
-__all__ = ["in_ci", "require_sitl", "audit_failure_context"]
+__all__ = ["in_ci", "require_sitl", "audit_failure_context", "mission_story"]
 
 
 def in_ci() -> bool:
@@ -69,3 +69,34 @@ def audit_failure_context(log_dir: Path) -> str:
         lines.append(f"{v['kind']} at {t_s - start:.2f} s after the first phase, vehicles {v.get('sysids')}: "
                      f"{v.get('detail')} (phase {phase}, iteration {k})")
     return "\n".join(lines) or "(no violation listed)"
+
+
+def mission_story(log_dir: Path, limit_chars: int = 1500) -> str:
+    """The mission's phases and its warning and error events, one short line each, for a failed
+    real-SITL mission's assertion message.
+
+    CI shows only the start and the end of a long assertion message; this goes first, so why a
+    mission ended (a vehicle lost, a failsafe, a takeoff timeout) is in the part that is shown.
+    """
+    path = Path(log_dir) / "mission.jsonl"
+    try:
+        lines_in = path.read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        return f"(no mission log: {exc})"
+    start, story = None, []
+    for line in lines_in:
+        try:
+            r = json.loads(line)
+        except ValueError:
+            continue
+        if not isinstance(r, dict) or "t_s" not in r:
+            continue
+        start = r["t_s"] if start is None else start
+        at = f"{r['t_s'] - start:7.1f} s"
+        if r.get("type") == "phase":
+            story.append(f"{at} phase {r.get('phase')} {r.get('outcome') or ''}".rstrip())
+        elif (r.get("type") == "event" and r.get("level") in ("warning", "error")
+              and not str(r.get("message")).startswith("MAVLink frames rejected")):  # routine on real PX4
+            story.append(f"{at} {r['level']}: {str(r.get('message'))[:160]}")
+    text = "\n".join(story) or "(no phase or warning in the mission log)"
+    return text if len(text) <= limit_chars else text[:limit_chars // 3] + "\n...\n" + text[-2 * limit_chars // 3:]
