@@ -1,16 +1,19 @@
-"""Test ordering for the three pytest-xdist workers (``-n 3 --dist loadfile``, pyproject.toml).
+"""Test ordering for the four pytest-xdist workers (``-n 4 --dist loadfile``, pyproject.toml).
 
-The real-SITL files that fly a fleet are one work unit (``pytest_xdist_make_scheduler``): one worker
-flies them one after another, never two fleets at once. The longest files (that unit, conformance
-against real firmware, wall-clock ground-station processes: 40-180 s a test) are handed out first,
-so that the short files fill the other worker around them instead of the workers ending on one long
-file each. Three workers on two cores: the real-SITL conformance and wall-clock files mostly wait on
-real time (the whole suite used 1.42 of the 2 cores on average: 1109 CPU seconds in 784 s). Four
-workers finished in 724 s, but with four real-firmware files at once at the start a PX4 SIH left out
-a STATUSTEXT of its geofence failsafe and an ArduCopter answered a PARAM_SET after more than 20 s:
-three it is. Order only: every test runs. pytest-xdist hands files out in this order only with
-``--no-loadscope-reorder`` (pyproject.toml): by default (since 3.5) it sorts them by their number of
-tests, most first, which puts a long file of few tests behind the many short ones.
+The real-SITL files (fleets and conformance checks against real firmware) are one work unit
+(``pytest_xdist_make_scheduler``): one worker runs them one after another, never two autopilot
+sets at once, and at a higher CPU priority (``_real_sitl_priority``, tests/support/priority.py):
+the other workers' lock-step missions only take longer when starved, the real firmware misbehaves
+(a PX4 fleet's mission ended at its takeoff on CI's loaded machine). The longest files (that unit,
+wall-clock ground-station processes: 40-180 s a test) are handed out first, so that the short files
+fill the other workers around them. Four workers on two cores: many files wait on real time (the
+map at 1x, ``ctl``/``watch`` processes, the conformance checks), and a fourth worker fills those
+waits; with the unit's priority the autopilots are not starved by it (a fresh clone: 883 s
+against 972 s for three workers, same 1600 CPU s; four workers used to put four real-firmware files
+at once at the start, which the unit now rules out). Order only: every test runs. pytest-xdist
+hands files out in this order only with ``--no-loadscope-reorder`` (pyproject.toml): by default
+(since 3.5) it sorts them by their number of tests, most first, which puts a long file of few tests
+behind the many short ones.
 
 The suite is laid out like the code (``tests/__init__.py``); fixtures shared by one folder are in
 that folder's ``conftest.py``.
