@@ -124,3 +124,18 @@ def test_a_quick_figures_label_is_on_top_of_the_figure(tmp_path, monkeypatch, no
     box = label.get_window_extent(renderer)
     assert box.y1 <= fig.bbox.y1 + 0.5 and box.x0 >= 0 and box.x1 <= fig.bbox.x1
     assert all(box.y0 >= ax.get_tightbbox(renderer).y1 - 0.5 for ax in fig.axes)  # above the axes and their titles
+
+
+@pytest.mark.parametrize("n, radius_m", [(7, 1.0), (7, 4.0), (8, 0.5)])
+def test_the_papers_cvt_is_solved_once_and_is_cvt_sphere_bit_for_bit(n, radius_m):
+    from experiments.paper_setup import CVT_SEED, CVT_STARTS, _unit_cvt, cvt_formation
+
+    first = cvt_formation(n, radius_m)
+    assert np.array_equal(first, formation.cvt_sphere(n, radius_m, seed=CVT_SEED, n_starts=CVT_STARTS))
+    hits = _unit_cvt.cache_info().hits
+    again = cvt_formation(n, radius_m)
+    assert _unit_cvt.cache_info().hits == hits + 1 and np.array_equal(again, first)
+    again[0, 0] = 99.0                                  # a caller's copy: the shared unit CVT is untouched
+    assert np.array_equal(cvt_formation(n, radius_m), first)
+    with pytest.raises(ValueError, match="radius_m must be positive"):
+        cvt_formation(n, 0.0)

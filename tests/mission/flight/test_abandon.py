@@ -155,8 +155,11 @@ async def _settle(fleet, timeout_s):
                                                ("return", 2), ("return", 3)])
 def test_interrupts_return_or_land_and_always_summarise(tmp_path, phase, interrupts):
     """One interrupt: controlled return; another during the return: LAND where they are; a
-    third: stop waiting. The log always ends with the phase ``done`` and a summary."""
-    plan, fleet = _setup("ardupilot", return_behaviour="rtl", max_iterations=40)
+    third: stop waiting. The log always ends with the phase ``done`` and a summary.
+
+    A 40-iteration seek keeps the mission seeking when an interrupt in the takeoff or the seek comes;
+    one interrupted in its return first ends its seek after 3 iterations (sooner there, for CPU)."""
+    plan, fleet = _setup("ardupilot", return_behaviour="rtl", max_iterations=3 if phase == "return" else 40)
     log_path = tmp_path / "m.jsonl"
 
     async def action(co, task):
@@ -216,8 +219,9 @@ def test_a_ground_station_that_just_stops_reports_the_vehicles_it_leaves(tmp_pat
 
 def test_a_vehicle_that_stops_obeying_is_reported_airborne(tmp_path):
     """A vehicle still heard but no longer reachable (uplink dead) cannot be landed by this
-    ground station: it is reported, the others come down."""
-    plan, fleet = _setup("ardupilot", n=5, return_behaviour="land", max_iterations=6)
+    ground station: it is reported, the others come down. (3 iterations: each one after the fault
+    waits out the settle timeout for vehicle 5, 21 s of mission.)"""
+    plan, fleet = _setup("ardupilot", n=5, return_behaviour="land", max_iterations=3)
     log_path = tmp_path / "m.jsonl"
 
     async def action(co, task):

@@ -30,7 +30,9 @@ def test_losses_mid_seek_at_radius_2_reform_and_converge(tmp_path, schedule):
     ports = fleet_ports(n, "px4")
     source = np.array([6.0, 12.0, 13.0])
     fleet = _fleet(n, ports, source)
-    plan = embedded_plan(n, ports, radius_m=2.0, start_enu_m=(0.0, 20.0, 13.0), eps=default_eps(sigma2(source)),
+    # the start 5 m from the source: the losses come in the first 5 iterations and the re-formations settle
+    # around the lost vehicles' last positions, wherever the seek began; a short approach keeps the mission cheap
+    plan = embedded_plan(n, ports, radius_m=2.0, start_enu_m=(3.0, 16.0, 13.0), eps=default_eps(sigma2(source)),
                          max_iterations=120, convergence_window=20)
     log_path = tmp_path / "m.jsonl"
     sab = _Saboteur(fleet, log_path, schedule)

@@ -41,11 +41,12 @@ def _by_vehicle(iterations: list[dict]) -> dict[int, list[dict]]:
 
 @pytest.mark.slow
 def test_moving_mission_converges_and_feeds_every_reading_where_it_was_taken(tmp_path, capsys):
-    """The default mission (8 vehicles, sigma_2, 25 m), noise 0, moving sampling: converged within
-    0.4 m; the seeker got every reading of every vehicle once, in order, none skipped (consecutive
-    seq), each with the position where it was taken (its value is the field's there) and a time
-    before its estimate; readings of one iteration span a stretch of the path."""
-    out, log = _fly(tmp_path, capsys, "moving", "--seed", "0", "--noise", "0", "--sampling", "moving")
+    """The default mission (sigma_2, 25 m) with 4 vehicles (not 8, for CPU: every claim is per reading
+    or per vehicle), noise 0, moving sampling: converged within 0.4 m; the seeker got every reading of
+    every vehicle once, in order, none skipped (consecutive seq), each with the position where it was
+    taken (its value is the field's there) and a time before its estimate; readings of one iteration
+    span a stretch of the path."""
+    out, log = _fly(tmp_path, capsys, "moving", "--seed", "0", "--noise", "0", "--sampling", "moving", "--n", "4")
     assert out["outcome"] == "converged" and out["error_m"] < 0.4, out["message"]
     event = next(r for r in log if r["type"] == "event" and r.get("message") == "embedded mock fleet")
     assert event["sampling"] == "moving"
@@ -71,8 +72,11 @@ def test_moving_mission_converges_and_feeds_every_reading_where_it_was_taken(tmp
 def test_lagged_sensor_is_compensated_when_moving(tmp_path, capsys):
     """A sensor with a 0.5 s time constant: moving readings placed where the vehicle was 0.5 s
     earlier (run's default --sensor-lag) keep the final error within 0.4 m; the log keeps the
-    real positions (a reading's position is its vehicle's telemetry, not the lagged one)."""
-    out, log = _fly(tmp_path, capsys, "lagged", "--seed", "11", "--sensor-tau", "0.5")
+    real positions (a reading's position is its vehicle's telemetry, not the lagged one).
+
+    4 vehicles (not 8, for CPU): 0.18 m measured, as with 8; without the compensation
+    (``--sensor-lag 0``) 0.86 m (1.4 m with 8)."""
+    out, log = _fly(tmp_path, capsys, "lagged", "--seed", "11", "--sensor-tau", "0.5", "--n", "4")
     assert out["outcome"] == "converged" and out["error_m"] < 0.4, out["message"]
     seeking = next(r for r in log if r["type"] == "plan")["plan"]["seeking"]
     assert (seeking["sampling"], seeking["sensor_lag_s"]) == ("moving", 0.5)

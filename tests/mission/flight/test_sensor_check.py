@@ -6,6 +6,9 @@ seeker and the defaults (``faulty_sensor = "retire"``, the formation's estimator
 is named and excluded, its readings kept from the seeker, and the mission converges near the
 source; with ``--faulty-sensor off`` the default model seeker ends metres away; retirement
 happens with the model seeker too (``retire_after = 5``).
+
+The missions fly 6 vehicles (:data:`FLEET`; 7 for the gradient seeker, see :data:`FLEET_BY_SEEKER`)
+rather than run's default 8, for CPU: each claim holds there as with 8 (measured at seed 0).
 """
 from __future__ import annotations
 
@@ -24,6 +27,13 @@ from mission.flight.seeking import GradientEstimate
 from mission.telemetry.mission_log import read_mission_log
 
 GRAD = np.array([0.3, -0.2, 0.1])
+#: the missions' fleet size (``--n``): with vehicle 2 excluded, 5 healthy sensors still fit the
+#: model, newton and plume seekers' estimates (errors 0.05-0.6 m measured) and without detection
+#: the model seeker still ends far away (15 m measured)
+FLEET = "6"
+#: the paper's gradient seeker on the CVT estimator needs one more: with 6 vehicles and vehicle 2
+#: retired it settles 4.2 m off (measured), with 7 within 0.6 m (0.3 m with 8)
+FLEET_BY_SEEKER = {"gradient": "7"}
 
 
 class _R:
@@ -106,7 +116,7 @@ def _named_stuck(records) -> bool:
 
 @pytest.mark.parametrize("seeker", ["gradient", "newton", "model", "plume"])
 def test_every_seeker_converges_with_a_stuck_sensor_by_default(tmp_path, capsys, stuck_fleet, seeker):
-    summary, records = _run(tmp_path, capsys, "--seeker", seeker)
+    summary, records = _run(tmp_path, capsys, "--seeker", seeker, "--n", FLEET_BY_SEEKER.get(seeker, FLEET))
     assert _named_stuck(records)
     assert summary["outcome"] == "converged", summary["message"]
     assert summary["error_m"] < 2.5, summary["error_m"]
@@ -115,9 +125,10 @@ def test_every_seeker_converges_with_a_stuck_sensor_by_default(tmp_path, capsys,
 
 
 def test_without_detection_the_model_seeker_is_misled(tmp_path, capsys, stuck_fleet):
-    summary, records = _run(tmp_path, capsys, "--faulty-sensor", "off")
+    summary, records = _run(tmp_path, capsys, "--faulty-sensor", "off", "--n", FLEET)
     assert not any(r.get("suspects") for r in records if r["type"] == "iteration")
-    assert summary["error_m"] > 4.0  # 8.3 m measured: the stuck readings shrank the trust region
+    # 15 m measured with 6 vehicles (8.3 m with 8): the stuck readings shrank the trust region
+    assert summary["error_m"] > 4.0
 
 
 def test_the_model_seeker_retires_the_stuck_sensor(tmp_path, capsys, stuck_fleet, monkeypatch):
@@ -130,7 +141,7 @@ def test_the_model_seeker_retires_the_stuck_sensor(tmp_path, capsys, stuck_fleet
         return dataclasses.replace(plan, faults=dataclasses.replace(plan.faults, retire_after=5))
 
     monkeypatch.setattr(embedded, "embedded_plan", _plan)
-    summary, records = _run(tmp_path, capsys)
+    summary, records = _run(tmp_path, capsys, "--n", FLEET)
     assert [(x["sysid"], x["reason"]) for x in summary["retired"]] == [(2, "stuck")]
     assert summary["outcome"] == "converged" and summary["error_m"] < 2.5
     parked = [r for r in records if r["type"] == "iteration" and r["k"] > summary["retired"][0]["iteration"]]

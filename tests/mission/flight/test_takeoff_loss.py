@@ -15,16 +15,21 @@ from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
 _SOURCE = np.array([6.0, 4.0, 12.0])
+#: where the formation starts when the others go on: 3 m short of the source (what is checked happens in the
+#: takeoff and the assembly, and the N = 4 bias of the converged estimate does not depend on the approach; a
+#: short seek keeps the mission cheap). Where nothing is flown the start is (0, 0, 11): it sets the takeoff order
+#: (vehicle 2 first with N = 4)
+_START = (4.0, 2.0, 11.0)
 
 
-def _fly(tmp_path, n: int, failing: int):
+def _fly(tmp_path, n: int, failing: int, start=_START):
     ports = fleet_ports(n, "px4")
     fleet = MockFleet(n=n, personality="px4", field=sigma2(_SOURCE), origin=DEFAULT_ORIGIN, clock=VirtualClock(),
                       seed=3, udp_base_port=ports["udp_base_port"], udp_bind_base_port=ports["udp_bind_base_port"],
                       tcp_base_port=0, fleet_name="swarmseek", zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"],
                       sensor_noise_std=0.005)
     fleet.set_fault(failing, "loss_uplink", 1.0)
-    plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 11.0), eps=default_eps(sigma2(_SOURCE)), max_iterations=80,
+    plan = embedded_plan(n, ports, start_enu_m=start, eps=default_eps(sigma2(_SOURCE)), max_iterations=80,
                          radius_m=2.0)
     result = run_with_saboteur(plan, fleet, tmp_path)
     records = read_mission_log(tmp_path / "mission.jsonl")
@@ -60,7 +65,7 @@ def test_too_few_left_after_a_takeoff_failure_ends_the_mission_safely(tmp_path):
     """Vehicle 2, the first of the takeoff order, fails its takeoff: 3 are left, no formation can
     be flown, so nothing more is armed (before, the 3 others took off only to land again after
     the assembly found too few) and the mission ends."""
-    result, events, fleet = _fly(tmp_path, 4, failing=2)
+    result, events, fleet = _fly(tmp_path, 4, failing=2, start=(0.0, 0.0, 11.0))
     messages = [e["message"] for e in events]
     assert result.outcome == "aborted", (result.outcome, result.message)
     assert result.message == "vehicles [2] lost during the takeoff: 3 left, a formation needs 4; vehicles [1, 3, 4] not armed"
@@ -79,7 +84,7 @@ def _fly_with_fault(tmp_path, fault: str, value: float, n: int = 5, failing: int
                       tcp_base_port=0, fleet_name="swarmseek", zenoh_listen=[f"tcp/127.0.0.1:{ports['zenoh_port']}"],
                       sensor_noise_std=0.005)
     fleet.set_fault(failing, fault, value)
-    plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 11.0), eps=default_eps(sigma2(_SOURCE)), max_iterations=80,
+    plan = embedded_plan(n, ports, start_enu_m=_START, eps=default_eps(sigma2(_SOURCE)), max_iterations=80,
                          radius_m=2.0)
     result = run_with_saboteur(plan, fleet, tmp_path)
     records = read_mission_log(tmp_path / "mission.jsonl")

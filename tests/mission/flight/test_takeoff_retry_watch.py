@@ -21,8 +21,15 @@ from sitl_mock.fields_gaussian import sigma2
 from sitl_mock.fleet import MockFleet
 
 _SOURCE = np.array([6.0, 4.0, 12.0])
-#: takeoff order of these fleets (lowest layer first, seed 3): N = 5: 3, 4, 2, 5, 1; N = 4: 2, 4, 1, 3
-_ORDER = {5: [3, 4, 2, 5, 1], 4: [2, 4, 1, 3]}
+#: the formation's start by N: with N = 5 (the missions that go on) 3 m short of the source (what is checked
+#: happens in the takeoff; a short seek keeps the mission cheap), with N = 4 (nothing flown after the takeoff)
+#: (0, 0, 11); the start sets the takeoff order
+_START = {5: (4.0, 2.0, 11.0), 4: (0.0, 0.0, 11.0)}
+#: takeoff order of these fleets from these starts (lowest layer first, seed 3): N = 5: 2, 3, 4, 1, 5;
+#: N = 4: 2, 4, 1, 3
+_ORDER = {5: [2, 3, 4, 1, 5], 4: [2, 4, 1, 3]}
+#: with N = 5 the victim is the first vehicle in the air
+_FIRST = _ORDER[5][0]
 
 
 class _Saboteur(threading.Thread):
@@ -73,7 +80,7 @@ def _fleet_and_plan(n):
                       sensor_noise_std=0.005)
     refuser = _ORDER[n][-1]
     fleet.set_fault(refuser, "arm_refused", True)
-    plan = embedded_plan(n, ports, start_enu_m=(0.0, 0.0, 11.0), eps=default_eps(sigma2(_SOURCE)), max_iterations=80,
+    plan = embedded_plan(n, ports, start_enu_m=_START[n], eps=default_eps(sigma2(_SOURCE)), max_iterations=80,
                          radius_m=2.0)
     return fleet, plan, refuser
 
@@ -103,9 +110,10 @@ def _t(event):
     (("battery_low", True), "left"),    # PX4's battery failsafe (AUTO.RTL): left the mission
 ])
 def test_vehicle_lost_while_another_arming_is_retried_is_declared_at_once(tmp_path, fault, reason):
-    result, events, fleet, sab, refuser = _fly(tmp_path, 5, victim=3, fault=fault, refuse_for_s=15.0)
+    victim = _FIRST
+    result, events, fleet, sab, refuser = _fly(tmp_path, 5, victim=victim, fault=fault, refuse_for_s=15.0)
     messages = [e["message"] for e in events]
-    lost = _first(events, "vehicle 3 lost:")
+    lost = _first(events, f"vehicle {victim} lost:")
     assert lost is not None and lost["reason"] == reason, messages[-15:]
     assert "(phase takeoff)" in lost["message"]
     # declared during the retry, well before the refuser armed (1.1 s: the link timeout and a tick)
@@ -113,25 +121,25 @@ def test_vehicle_lost_while_another_arming_is_retried_is_declared_at_once(tmp_pa
     assert took_off is not None and _t(lost) < _t(took_off), messages[-15:]
     assert _t(lost) - sab.injected_s < 1.5
     assert result.outcome == "converged", (result.message, messages[-12:])
-    assert [(x["sysid"], x["reason"]) for x in result.lost] == [(3, reason)]
+    assert [(x["sysid"], x["reason"]) for x in result.lost] == [(victim, reason)]
     assert any(m.startswith("re-forming for 4 vehicles") for m in messages)  # kept out of the formation
     landed = sorted(e["sysid"] for e in events if e["message"].endswith("landed"))
-    assert landed == sorted(s for s in range(1, 6) if s != 3), messages[-12:]
+    assert landed == sorted(s for s in range(1, 6) if s != victim), messages[-12:]
     if reason == "link":  # silent and last seen armed: told loudly, and a script sees exit status 1
-        assert [a["sysid"] for a in result.airborne_left] == [3] and not result.ok
+        assert [a["sysid"] for a in result.airborne_left] == [victim] and not result.ok
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_offboard_loss_while_another_arming_is_retried_is_reengaged(tmp_path):
-    """Every frame to vehicle 3 (climbing or holding at its layer) lost for 2.5 s: PX4's offboard
-    loss (POSCTL, which descends without RC). Before the fix the watchdog re-engaged only from the
-    assembly on: vehicle 3 descended, landed and disarmed during the retry and was lost."""
-    result, events, fleet, sab, refuser = _fly(tmp_path, 5, victim=3, fault=("loss_uplink", 1.0), refuse_for_s=15.0,
-                                               restore_after_s=2.5)
+    """Every frame to the first vehicle in the air (climbing or holding at its layer) lost for 2.5 s:
+    PX4's offboard loss (POSCTL, which descends without RC). Before the fix the watchdog re-engaged only
+    from the assembly on: that vehicle descended, landed and disarmed during the retry and was lost."""
+    result, events, fleet, sab, refuser = _fly(tmp_path, 5, victim=_FIRST, fault=("loss_uplink", 1.0),
+                                               refuse_for_s=15.0, restore_after_s=2.5)
     messages = [e["message"] for e in events]
     took_off = _first(events, f"vehicle {refuser} taking off")
-    reengaged = _first(events, "vehicle 3 left OFFBOARD")
+    reengaged = _first(events, f"vehicle {_FIRST} left OFFBOARD")
     assert reengaged is not None and took_off is not None and _t(reengaged) < _t(took_off), messages[-15:]
     assert result.outcome == "converged", (result.message, messages[-12:])
     assert result.lost == [], result.lost
