@@ -24,10 +24,12 @@ from __future__ import annotations
 #: ``--cpu-report PATH``: each test's CPU seconds (tests/support/cpu_report_plugin.py)
 pytest_plugins = ["tests.support.cpu_hogs_plugin", "tests.support.cpu_report_plugin"]
 
+import sys
 from pathlib import Path
 
 import pytest
 
+from tests.support.bytecode import compile_sources
 from tests.support.priority import raised_priority
 
 TESTS_DIR = Path(__file__).resolve().parent
@@ -95,10 +97,14 @@ def pytest_xdist_make_scheduler(config, log):
 
 
 def pytest_configure(config):
-    """Refuse to run with a :data:`LONG_FIRST` entry that names no file (a test file moved or renamed)."""
+    """Refuse to run with a :data:`LONG_FIRST` entry that names no file (a test file moved or renamed);
+    in the main process, under ``PYTHONDONTWRITEBYTECODE``, compile the sources once for every worker and
+    subprocess (tests/support/bytecode.py)."""
     missing = [name for name in LONG_FIRST if not (TESTS_DIR / name).is_file()]
     if missing:
         raise pytest.UsageError(f"tests/conftest.py LONG_FIRST names files that do not exist: {', '.join(missing)}")
+    if sys.dont_write_bytecode and not hasattr(config, "workerinput"):
+        compile_sources(TESTS_DIR.parent)
 
 
 def _relative(path: Path) -> str:
