@@ -162,6 +162,8 @@ def _armed_modes_after(watch: VehicleWatch, t0: float) -> list[str]:
 
 
 @pytest.mark.slow
+@pytest.mark.extra_sitl  # 76-84 CPU s: out of the default suite for CI's budget (docs/testing.md); real PX4's
+# link-loss failsafe stays in it (tests/conformance/test_conformance_px4_failsafes.py), the mock's link cut too
 @pytest.mark.timeout(1200)
 def test_ardupilot_link_cut_and_restored(tmp_path):
     require_sitl("ardupilot")
