@@ -2,7 +2,8 @@
 
 The real-SITL files (fleets and conformance checks against real firmware) are one work unit
 (``pytest_xdist_make_scheduler``): one worker runs them one after another, never two autopilot
-sets at once, and at a higher CPU priority (``_real_sitl_priority``, tests/support/priority.py):
+sets at once, and at a higher CPU priority (``_real_time_priority``, tests/support/priority.py), as are the files whose
+mock missions run against the wall clock (``WALL_CLOCK_FILES``):
 the other workers' lock-step missions only take longer when starved, the real firmware misbehaves
 (a PX4 fleet's mission ended at its takeoff on CI's loaded machine). The longest files (that unit,
 wall-clock ground-station processes: 40-180 s a test) are handed out first, so that the short files
@@ -49,6 +50,15 @@ CONFORMANCE_SITL_FILES = ("conformance/test_conformance_px4_hold_failsafes.py",
 ONE_SITL_AT_A_TIME = FLEET_FILES + CONFORMANCE_SITL_FILES
 #: the scope of that work unit
 SITL_UNIT = "real-SITL autopilots"
+#: files whose mock missions run against the wall clock in processes of their own (``fly``, ``run --speedup``,
+#: ``ctl``/``watch``, the map): starved, their vehicles land late (a mock vehicle left airborne at the end,
+#: twice in one fresh-clone run once the real-SITL unit alone had the higher priority)
+WALL_CLOCK_FILES = ("mission/flight/test_gcs_faults_signals.py", "mission/flight/test_gcs_faults_output.py",
+                    "mission/telemetry/test_map_browser.py", "mission/telemetry/test_map_fly.py",
+                    "mission/telemetry/test_ctl_processes.py", "mission/telemetry/test_ctl_processes_routed.py")
+#: the files run at a higher CPU priority (``_real_time_priority``): real autopilots and wall-clock missions;
+#: the lock-step missions of the other files only take longer when they get less
+REAL_TIME_FILES = ONE_SITL_AT_A_TIME + WALL_CLOCK_FILES
 
 #: the files of the longest tests, longest first (``python -m pytest --cpu-report=PATH``: wall and CPU
 #: seconds of each test), relative to tests/; the real-SITL unit first (the longest)
@@ -68,11 +78,11 @@ def unit_scope(rootdir: Path, scope: str) -> str:
 
 
 @pytest.fixture(scope="module", autouse=True)
-def _real_sitl_priority(request):
-    """The files of :data:`ONE_SITL_AT_A_TIME` run at a higher CPU priority, with every process they
+def _real_time_priority(request):
+    """The files of :data:`REAL_TIME_FILES` run at a higher CPU priority, with every process they
     start (tests/support/priority.py): module scope, so a module fixture's autopilot gets it too.
     Where that is not allowed, a warning in the session's summary says so."""
-    if _relative(request.path) not in ONE_SITL_AT_A_TIME:
+    if _relative(request.path) not in REAL_TIME_FILES:
         yield
         return
     with raised_priority() as refused:
