@@ -78,18 +78,15 @@ def mission_story(log_dir: Path, limit_chars: int = 1500) -> str:
     CI shows only the start and the end of a long assertion message; this goes first, so why a
     mission ended (a vehicle lost, a failsafe, a takeoff timeout) is in the part that is shown.
     """
-    path = Path(log_dir) / "mission.jsonl"
+    from mission.telemetry.mission_log import read_mission_log
+
     try:
-        lines_in = path.read_text(encoding="utf-8").splitlines()
-    except OSError as exc:
+        records = read_mission_log(Path(log_dir) / "mission.jsonl")
+    except (OSError, ValueError) as exc:
         return f"(no mission log: {exc})"
     start, story = None, []
-    for line in lines_in:
-        try:
-            r = json.loads(line)
-        except ValueError:
-            continue
-        if not isinstance(r, dict) or "t_s" not in r:
+    for r in records:
+        if "t_s" not in r:
             continue
         start = r["t_s"] if start is None else start
         at = f"{r['t_s'] - start:7.1f} s"
