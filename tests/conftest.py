@@ -1,20 +1,18 @@
 """Test ordering for the four pytest-xdist workers (``-n 4 --dist loadfile``, pyproject.toml).
 
-The real-SITL files (fleets and conformance checks against real firmware) are one work unit
-(``pytest_xdist_make_scheduler``): one worker runs them one after another, never two autopilot
-sets at once, and at a higher CPU priority (``_real_time_priority``, tests/support/priority.py), as are the files whose
-mock missions run against the wall clock (``WALL_CLOCK_FILES``):
-the other workers' lock-step missions only take longer when starved, the real firmware misbehaves
-(a PX4 fleet's mission ended at its takeoff on CI's loaded machine). The longest files (that unit,
-wall-clock ground-station processes: 40-180 s a test) are handed out first, so that the short files
-fill the other workers around them. Four workers on two cores: many files wait on real time (the
-map at 1x, ``ctl``/``watch`` processes, the conformance checks), and a fourth worker fills those
-waits; with the unit's priority the autopilots are not starved by it (a fresh clone: 883 s
-against 972 s for three workers, same 1600 CPU s; four workers used to put four real-firmware files
-at once at the start, which the unit now rules out). Order only: every test runs. pytest-xdist
-hands files out in this order only with ``--no-loadscope-reorder`` (pyproject.toml): by default
-(since 3.5) it sorts them by their number of tests, most first, which puts a long file of few tests
-behind the many short ones.
+Two work units (``pytest_xdist_make_scheduler``), each run by one worker, one file after another,
+at a higher CPU priority (``_real_time_priority``, tests/support/priority.py): the real-SITL files
+(fleets and conformance checks against real firmware, never two autopilot sets at once) and the
+files whose mock missions run against the wall clock in processes of their own
+(``WALL_CLOCK_FILES``). The other two workers run the lock-step missions and the rest, which only
+take longer when starved; real firmware and wall-clock missions misbehave (a PX4 fleet's mission
+ended at its takeoff on CI's loaded machine; when the wall-clock files ran side by side at the start
+of a session, a page load took over 30 s). The files of ``ALONE_FILES`` (a PX4 SIH fleet: 1.4 cores
+of 2) run with no other test beside them (tests/support/quiet_room.py). The longest files (the
+units first) are handed out first, so that the short files fill the other workers around them.
+Order only: every test runs. pytest-xdist hands files out in this order only with
+``--no-loadscope-reorder`` (pyproject.toml): by default (since 3.5) it sorts them by their number
+of tests, most first, which puts a long file of few tests behind the many short ones.
 
 The suite is laid out like the code (``tests/__init__.py``); fixtures shared by one folder are in
 that folder's ``conftest.py``.
@@ -32,13 +30,17 @@ import pytest
 
 from tests.support.bytecode import compile_sources
 from tests.support.priority import raised_priority
+from tests.support.quiet_room import QuietRoom
 
 TESTS_DIR = Path(__file__).resolve().parent
 
+#: the real-SITL files whose fleet runs alone (``_alone``, tests/support/quiet_room.py): four PX4 SIH
+#: autopilots at 3x real time need about 1.4 of CI's 2 cores; beside three workers' mock missions,
+#: their higher priority notwithstanding, a PX4 mission failed in two CI runs in a row
+ALONE_FILES = ("sitl/test_sitl_resume_px4.py", "sitl/test_sitl_px4.py")
 #: the real-SITL files that fly a fleet (2-6 autopilot processes, a core or more between them)
-FLEET_FILES = ("sitl/test_sitl_faults_ardupilot_link.py", "sitl/test_sitl_resume_px4.py",
-               "sitl/test_sitl_px4.py", "sitl/test_sitl_faults_ardupilot.py", "sitl/test_sitl_ardupilot.py",
-               "sitl/test_sitl_faults_px4.py")
+FLEET_FILES = ("sitl/test_sitl_faults_ardupilot_link.py", "sitl/test_sitl_faults_ardupilot.py",
+               "sitl/test_sitl_ardupilot.py", "sitl/test_sitl_faults_px4.py") + ALONE_FILES
 #: the conformance files that run one real SITL autopilot beside a mock session in real time
 CONFORMANCE_SITL_FILES = ("conformance/test_conformance_px4_hold_failsafes.py",
                           "conformance/test_conformance_px4_failsafes.py", "conformance/test_conformance_px4.py",
@@ -47,34 +49,40 @@ CONFORMANCE_SITL_FILES = ("conformance/test_conformance_px4_hold_failsafes.py",
 #: starved each other (a PARAM_SET unanswered for 20 s, a mission over before its fault was injected);
 #: a conformance check beside a PX4 fleet (1.7 cores) once saw real PX4 refuse OFFBOARD, and its mock
 #: session, starved, react 7.3 s late and not start its RTL in 60 s
-ONE_SITL_AT_A_TIME = FLEET_FILES + CONFORMANCE_SITL_FILES
+#: (the files that run alone last: by then the other workers run shorter tests, which end sooner when
+#: the room is to be emptied for them)
+ONE_SITL_AT_A_TIME = tuple(f for f in FLEET_FILES if f not in ALONE_FILES) + CONFORMANCE_SITL_FILES + ALONE_FILES
 #: the scope of that work unit
 SITL_UNIT = "real-SITL autopilots"
 #: files whose mock missions run against the wall clock in processes of their own (``fly``, ``run --speedup``,
 #: ``ctl``/``watch``, the map): starved, their vehicles land late (a mock vehicle left airborne at the end,
 #: twice in one fresh-clone run once the real-SITL unit alone had the higher priority)
-WALL_CLOCK_FILES = ("mission/flight/test_gcs_faults_signals.py", "mission/flight/test_gcs_faults_output.py",
-                    "mission/telemetry/test_map_browser.py", "mission/telemetry/test_map_fly.py",
-                    "mission/telemetry/test_ctl_processes.py", "mission/telemetry/test_ctl_processes_routed.py")
+WALL_CLOCK_FILES = ("mission/telemetry/test_map_browser.py", "mission/flight/test_gcs_faults_signals.py",
+                    "mission/flight/test_gcs_faults_output.py", "mission/telemetry/test_ctl_processes.py",
+                    "mission/telemetry/test_ctl_processes_routed.py", "mission/telemetry/test_map_fly.py")
+#: the scope of their work unit: one worker runs them one after another (at the start of a session the
+#: first of them used to run side by side, with the real-SITL unit: three prioritised workers of four,
+#: and two of them failed in one CI run, a page load over 30 s and a seek over before an operator's land)
+WALL_CLOCK_UNIT = "wall-clock missions"
 #: the files run at a higher CPU priority (``_real_time_priority``): real autopilots and wall-clock missions;
 #: the lock-step missions of the other files only take longer when they get less
 REAL_TIME_FILES = ONE_SITL_AT_A_TIME + WALL_CLOCK_FILES
 
 #: the files of the longest tests, longest first (``python -m pytest --cpu-report=PATH``: wall and CPU
 #: seconds of each test), relative to tests/; the real-SITL unit first (the longest)
-LONG_FIRST = ONE_SITL_AT_A_TIME + (
-    "mission/flight/test_gcs_faults_signals.py",
-    "sitl_mock/test_fields_config.py", "mission/flight/test_sensor_check.py", "mission/telemetry/test_map_browser.py",
-    "mission/telemetry/test_ctl_processes.py", "mission/flight/test_gcs_faults_output.py",
-    "mission/telemetry/test_ctl_processes_routed.py", "mission/sim/test_e2e_mission.py",
-    "mission/flight/test_abandon.py", "experiments/test_sweep.py",
-    "mission/flight/test_layers.py", "mission/telemetry/test_map_fly.py")
+LONG_FIRST = ONE_SITL_AT_A_TIME + WALL_CLOCK_FILES + (
+    "sitl_mock/test_fields_config.py", "mission/flight/test_sensor_check.py", "mission/sim/test_e2e_mission.py",
+    "mission/flight/test_abandon.py", "experiments/test_sweep.py", "mission/flight/test_layers.py")
 
 
 def unit_scope(rootdir: Path, scope: str) -> str:
     """The xdist scope of a ``--dist loadfile`` scope (a file's node id): :data:`SITL_UNIT` for the
-    files of :data:`ONE_SITL_AT_A_TIME`, else the file itself."""
-    return SITL_UNIT if _relative(rootdir / scope) in ONE_SITL_AT_A_TIME else scope
+    files of :data:`ONE_SITL_AT_A_TIME`, :data:`WALL_CLOCK_UNIT` for those of :data:`WALL_CLOCK_FILES`,
+    else the file itself."""
+    relative = _relative(rootdir / scope)
+    if relative in ONE_SITL_AT_A_TIME:
+        return SITL_UNIT
+    return WALL_CLOCK_UNIT if relative in WALL_CLOCK_FILES else scope
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -88,6 +96,37 @@ def _real_time_priority(request):
     with raised_priority() as refused:
         if refused:
             request.node.warn(pytest.PytestWarning(refused))
+        yield
+
+
+@pytest.fixture(scope="session")
+def _quiet_room(request, tmp_path_factory):
+    """The session's :class:`~tests.support.quiet_room.QuietRoom` under pytest-xdist (in the directory
+    every worker's base temporary directory is in); None in a single process, where tests never
+    run side by side."""
+    if not hasattr(request.config, "workerinput"):
+        return None
+    return QuietRoom(tmp_path_factory.getbasetemp().parent / "quiet-room")
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _alone(request, _quiet_room):
+    """The files of :data:`ALONE_FILES` run with no other worker's test beside them (module scope:
+    before the module's fixtures start an autopilot)."""
+    if _quiet_room is None or _relative(request.path) not in ALONE_FILES:
+        yield
+        return
+    with _quiet_room.alone():
+        yield
+
+
+@pytest.fixture(autouse=True)
+def _share_the_room(request, _quiet_room):
+    """Every other test waits while a file of :data:`ALONE_FILES` runs (or waits to)."""
+    if _quiet_room is None or _relative(request.path) in ALONE_FILES:
+        yield
+        return
+    with _quiet_room.shared():
         yield
 
 

@@ -14,7 +14,8 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-from tests.conftest import CONFORMANCE_SITL_FILES, FLEET_FILES, SITL_UNIT, TESTS_DIR, unit_scope
+from tests.conftest import (CONFORMANCE_SITL_FILES, FLEET_FILES, SITL_UNIT, TESTS_DIR, WALL_CLOCK_FILES,
+                            WALL_CLOCK_UNIT, unit_scope)
 
 _ROOT = Path(__file__).resolve().parents[2]
 _OTHERS = ("tests/wire/test_fleet_names.py", "tests/repo/test_no_issue_numbers.py")  # short, CPU-light
@@ -49,3 +50,10 @@ def test_the_conformance_files_join_the_fleets_unit_and_no_other_file_does():
         assert unit_scope(_ROOT, f"tests/{name}") == SITL_UNIT, name
     for name in ("tests/conformance/test_conformance_compare.py", "tests/formation/test_geodesy.py", *_OTHERS):
         assert unit_scope(_ROOT, name) == name
+
+
+def test_the_wall_clock_files_are_one_unit_of_their_own():
+    for name in WALL_CLOCK_FILES:
+        assert (TESTS_DIR / name).is_file(), name
+        assert unit_scope(_ROOT, f"tests/{name}") == WALL_CLOCK_UNIT, name
+    assert not set(WALL_CLOCK_FILES) & set(FLEET_FILES + CONFORMANCE_SITL_FILES)

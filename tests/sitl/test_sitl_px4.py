@@ -122,7 +122,8 @@ def test_px4_sih_mission_finds_the_source_and_lands(tmp_path):
         result = fly_sitl_mission(fleet, plan, tmp_path / "logs", _SOURCE, zenoh=zenoh, noise=_NOISE,
                                   timeout_s=240.0)
         final = _final_states(14550 + cfg.port_offset, [v.sysid for v in fleet.vehicles])
-    assert result.returncode == 0, (mission_story(tmp_path / "logs"), result.stdout[-3000:], result.stderr[-3000:])
+    assert result.returncode == 0, "\n".join([mission_story(tmp_path / "logs"), "stdout:", result.stdout[-2000:],
+                                              "stderr:", result.stderr[-2000:]])
     summary = result.summary
     assert summary is not None and summary["outcome"] == "converged", summary
     estimate = np.asarray(summary["estimate_enu"])

@@ -49,11 +49,12 @@ NIMBLE = DynamicsParams(kp_pos_per_s=2.0, land_speed_m_s=2.0, takeoff_speed_m_s=
 
 def _plan_toml(path: Path, udp_base: int, zenoh_section: str, max_iterations: int = 8) -> Path:
     """The plan of the ``fly`` process: :data:`N` vehicles of the in-process mock fleet, flying low
-    (take-off and landing are most of the test's time)."""
+    (take-off and landing are most of the test's time); a vehicle's loss is detected after the
+    longest link timeout the plan allows (a starved host once cost all four in one CI-like run)."""
     return gradient_seek_plan(path, fleet="gcsfaults", n=N, udp_base=udp_base, origin=DEFAULT_ORIGIN,
                               zenoh_section=zenoh_section, takeoff_alt_m=3.0, stagger_s=0.3, radius_m=3.0,
                               start_alt_m=6.0, fence_half_m=100.0, min_alt_m=2.0, max_alt_m=40.0,
-                              max_iterations=max_iterations)
+                              max_iterations=max_iterations, link_timeout_s=1.4)
 
 
 def records(log: Path) -> list[dict]:

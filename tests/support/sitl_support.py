@@ -76,7 +76,9 @@ def mission_story(log_dir: Path, limit_chars: int = 1500) -> str:
     real-SITL mission's assertion message.
 
     CI shows only the start and the end of a long assertion message; this goes first, so why a
-    mission ended (a vehicle lost, a failsafe, a takeoff timeout) is in the part that is shown.
+    mission ended (a vehicle lost, a failsafe, a takeoff timeout) is in the part that is shown. Join
+    it into a *string* message: pytest shortens the repr of any other message (a tuple) to 240
+    characters (a CI run once showed only a story's first two lines).
     """
     from mission.telemetry.mission_log import read_mission_log
 
