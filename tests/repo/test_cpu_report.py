@@ -42,6 +42,9 @@ def test_the_report_counts_a_child_process_cpu_and_not_a_wait(tmp_path, workers)
     # a sleep costs wall, not CPU (loaded or not)
     assert records["test_waits"]["wall_s"] >= 0.3
     assert records["test_waits"]["cpu_s"] < 0.25
+    # when and where: the sleeping test started no earlier than the session and ran on a named worker
+    assert all(r["start_unix_s"] > 1.7e9 for r in records.values())
+    assert {r["worker"] for r in records.values()} <= ({"main"} if not workers else {"gw0", "gw1"})
     assert "CPU report: 2 tests" in run.stdout
     assert "test_spins_in_a_child" in run.stdout.split("CPU report:")[1]
 

@@ -6,8 +6,8 @@ autopilots' real time; a lock-step mission computes all the time). With ``--cpu-
 every test's setup, call and teardown are measured with :func:`os.times` around them: the test
 process's own user and system time plus that of the child processes it waited for (SITL
 autopilots, ``swarmseek`` subprocesses, sensors), and appended to ``PATH`` as one JSON line per
-test (``nodeid``, ``wall_s``, ``cpu_s``). Under xdist every worker appends to the same file
-(one ``write`` per line, opened in append mode). At the end the session prints the tests that
+test (``nodeid``, ``wall_s``, ``cpu_s``; ``start_unix_s`` and ``worker``: when and where it ran).
+Under xdist every worker appends to the same file (one ``write`` per line, opened in append mode). At the end the session prints the tests that
 cost the most CPU, the CPU total and the share of it in the listed tests.
 
 A child that is still running when its test ends (a module fixture's fleet) is counted by the test
@@ -62,10 +62,11 @@ def pytest_runtest_protocol(item, nextitem):
     if path is None:
         yield
         return
-    wall0, cpu0 = time.monotonic(), _cpu_s()
+    start, wall0, cpu0 = time.time(), time.monotonic(), _cpu_s()
     yield
+    worker = getattr(item.config, "workerinput", {}).get("workerid", "main")
     line = json.dumps({"nodeid": item.nodeid, "wall_s": round(time.monotonic() - wall0, 3),
-                       "cpu_s": round(_cpu_s() - cpu0, 3)})
+                       "cpu_s": round(_cpu_s() - cpu0, 3), "start_unix_s": round(start, 3), "worker": worker})
     with open(path, "a", encoding="utf-8") as out:
         out.write(line + "\n")
 
