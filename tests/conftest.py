@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.bytecode import compile_sources
+from tests.support.bytecode import compile_sources, rewrite_tests
 from tests.support.priority import raised_priority
 from tests.support.quiet_room import QuietRoom
 
@@ -148,12 +148,17 @@ def pytest_xdist_make_scheduler(config, log):
 def pytest_configure(config):
     """Refuse to run with a :data:`LONG_FIRST` entry that names no file (a test file moved or renamed);
     in the main process, under ``PYTHONDONTWRITEBYTECODE``, compile the sources once for every worker and
-    subprocess (tests/support/bytecode.py)."""
+    subprocess, and with workers, the test modules' assertion rewriting once for all of them
+    (tests/support/bytecode.py)."""
     missing = [name for name in LONG_FIRST if not (TESTS_DIR / name).is_file()]
     if missing:
         raise pytest.UsageError(f"tests/conftest.py LONG_FIRST names files that do not exist: {', '.join(missing)}")
     if sys.dont_write_bytecode and not hasattr(config, "workerinput"):
         compile_sources(TESTS_DIR.parent)
+        if getattr(config.option, "numprocesses", None) and config.getoption("assertmode") == "rewrite":
+            if rewrite_tests(TESTS_DIR, config):
+                config.issue_config_time_warning(pytest.PytestWarning(
+                    "the test modules' rewritten bytecode was not all written: each worker rewrites them"), 2)
 
 
 def _relative(path: Path) -> str:

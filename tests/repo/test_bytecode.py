@@ -42,3 +42,25 @@ def test_a_source_that_does_not_compile_is_named(tmp_path):
     (tmp_path / "pkg" / "sub" / "broken.py").write_text("def f(:\n")
     with pytest.raises(RuntimeError, match="these packages do not compile: pkg"):
         compile_sources(tmp_path)
+
+
+def test_the_test_modules_are_rewritten_once_for_the_workers(tmp_path, request):
+    from _pytest.assertion import rewrite
+
+    from tests.support.bytecode import rewrite_tests
+
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "test_one.py").write_text("def test_a():\n    x = 1\n    assert x == 2\n")
+    (tmp_path / "conftest.py").write_text("X = 1\n")
+    (tmp_path / "helper.py").write_text("Y = 2\n")  # not a test module: imported as any module
+    (tmp_path / "test_broken.py").write_text("def f(:\n")  # left to the collection, which reports it
+    assert rewrite_tests(tmp_path, request.config) == 1  # the process that met the broken file
+    cached = {}
+    for fn in (tmp_path / "sub" / "test_one.py", tmp_path / "conftest.py"):
+        pyc = rewrite.get_cache_dir(fn) / (fn.name[:-3] + rewrite.PYC_TAIL)
+        cached[fn.name] = rewrite._read_pyc(fn, pyc)  # what a worker's import reads before it would rewrite
+        assert cached[fn.name] is not None, fn
+    test_a = next(c for c in cached["test_one.py"].co_consts if getattr(c, "co_name", None) == "test_a")
+    assert any(name.startswith("@py_assert") for name in test_a.co_varnames)  # rewritten, not plain
+    assert not (tmp_path / "__pycache__" / ("helper" + rewrite.PYC_TAIL)).exists()
+    assert not list((tmp_path / "__pycache__").glob("test_broken*"))

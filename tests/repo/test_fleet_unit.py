@@ -26,7 +26,7 @@ def _workers_by_file() -> dict[str, set[str]]:
            if k not in ("CI", "SWARMSEEK_PX4_SITL", "SWARMSEEK_ARDUPILOT_SITL", "SWARMSEEK_CPU_HOG_PIDS",
                         "PYTEST_ADDOPTS")}
     files = [f"tests/{name}" for name in FLEET_FILES] + list(_OTHERS)
-    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-v", "-n", "3",
+    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-v", "-n", "2",
                            "--dist", "loadfile", "-m", "not unstable_mission", *files],
                           cwd=_ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]

@@ -58,7 +58,7 @@ def pytest_report_header(config):
     """Say on the first lines that the session runs under load."""
     hogs = config.stash.get(HOGS_KEY, [])
     if hogs:
-        return f"under load: {len(hogs)} CPU-bound processes beside the tests (--cpu-hogs)"
+        return f"under load: {len(hogs)} CPU-bound process{'es' if len(hogs) != 1 else ''} beside the tests (--cpu-hogs)"
     return None
 
 
@@ -66,7 +66,8 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
     """Repeat it in the summary, next to the result."""
     hogs = config.stash.get(HOGS_KEY, [])
     if hogs:
-        terminalreporter.write_line(f"ran beside {len(hogs)} CPU-bound processes (--cpu-hogs {len(hogs)})")
+        terminalreporter.write_line(f"ran beside {len(hogs)} CPU-bound process{'es' if len(hogs) != 1 else ''} "
+                                    f"(--cpu-hogs {len(hogs)})")
 
 
 def pytest_unconfigure(config):
