@@ -118,7 +118,8 @@ def test_px4_sih_mission_finds_the_source_and_lands(tmp_path):
     zenoh = f"tcp/127.0.0.1:{_free_tcp_port()}"
     cfg = SitlFleetConfig(flavour="px4", n=_N, sitl_dir=sitl_dir, speedup=_SPEEDUP).free()
     with SitlFleet(cfg) as fleet:
-        plan = fleet.write_plan(tmp_path / "plan.toml", zenoh_endpoint=zenoh, overrides={"seeking": seeking})
+        plan = fleet.write_plan(tmp_path / "plan.toml", zenoh_endpoint=zenoh,
+                                overrides={"seeking": seeking, "faults": {"link_timeout_s": 1.4}})  # as the AP mission
         result = fly_sitl_mission(fleet, plan, tmp_path / "logs", _SOURCE, zenoh=zenoh, noise=_NOISE,
                                   timeout_s=240.0)
         final = _final_states(14550 + cfg.port_offset, [v.sysid for v in fleet.vehicles])
