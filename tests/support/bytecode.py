@@ -49,16 +49,22 @@ def compile_sources(root: Path) -> list[Path]:
     return packages
 
 
-def _rewritten(fn: Path, config) -> bool:
-    """Write pytest's rewritten ``.pyc`` of the test module ``fn`` unless a valid one is there."""
+def _rewrite_share(files: list[Path], config) -> int:
+    """Write pytest's rewritten ``.pyc`` of each test module of ``files`` that has no valid one;
+    1 if one of them failed (it is left to the worker's collection), else 0."""
     from _pytest.assertion import rewrite  # pytest's own rewriting: tests/repo/test_bytecode.py checks its use
 
-    pyc = rewrite.get_cache_dir(fn) / (fn.name[:-3] + rewrite.PYC_TAIL)
-    if rewrite._read_pyc(fn, pyc) is not None:
-        return False
-    pyc.parent.mkdir(exist_ok=True)
-    source_stat, co = rewrite._rewrite_test(fn, config)
-    return rewrite._write_pyc(config.stash[rewrite.assertstate_key], co, source_stat, pyc)
+    status = 0
+    for fn in files:
+        pyc = rewrite.get_cache_dir(fn) / (fn.name[:-3] + rewrite.PYC_TAIL)
+        try:
+            if rewrite._read_pyc(fn, pyc) is None:
+                pyc.parent.mkdir(exist_ok=True)
+                source_stat, co = rewrite._rewrite_test(fn, config)
+                rewrite._write_pyc(config.stash[rewrite.assertstate_key], co, source_stat, pyc)
+        except (OSError, SyntaxError, ValueError):
+            status = 1
+    return status
 
 
 def rewrite_tests(tests_dir: Path, config, processes: int = 2) -> int:
@@ -84,13 +90,11 @@ def rewrite_tests(tests_dir: Path, config, processes: int = 2) -> int:
     pids = []
     for part in range(processes):
         pid = os.fork()
-        if pid == 0:  # the child: its share, then out without pytest's exit handlers
-            status = 0
-            for fn in files[part::processes]:
-                try:
-                    _rewritten(fn, config)
-                except (OSError, SyntaxError, ValueError):
-                    status = 1
-            os._exit(status)
+        if pid == 0:  # the child: its share, then out without pytest's exit handlers, whatever happens
+            status = 1    # (an exception must never unwind into a second pytest session in the child)
+            try:
+                status = _rewrite_share(files[part::processes], config)
+            finally:
+                os._exit(status)
         pids.append(pid)
     return sum(os.waitpid(pid, 0)[1] != 0 for pid in pids)
