@@ -21,6 +21,7 @@ from mission.core.signing_config import SigningConfig, signing_config_from_table
 from wire.signing import SigningError
 
 __all__ = [
+    "LINK_TIMEOUT_MAX_S",
     "RETURN_BEHAVIOURS",
     "parse_faults",
     "parse_origin",
@@ -41,6 +42,8 @@ _FORMATIONS = ("cvt", "symmetric")
 _ESTIMATORS = ("cvt", "symmetric", "robust")
 #: values of the top-level ``return`` key
 RETURN_BEHAVIOURS = ("land", "rtl")
+#: the longest ``[faults] link_timeout_s`` a plan may give (seconds of silence before a vehicle is lost)
+LINK_TIMEOUT_MAX_S = 1.4
 _FAULTY_SENSOR = ("retire", "keep", "off")
 _STABILITY = tuple(BRIGGS_RURAL)  # the Pasquill-Gifford classes of the dispersion model
 
@@ -54,7 +57,7 @@ def parse_faults(c: Checker, doc: dict) -> FaultsPlan:
     if not isinstance(readmit, bool):
         c.bad("faults.readmit", f"must be true or false, got {show_value(readmit)}")
         readmit = False
-    timeout = c.number(t, "link_timeout_s", "faults", 1.0, low=0.2, high=1.4)
+    timeout = c.number(t, "link_timeout_s", "faults", 1.0, low=0.2, high=LINK_TIMEOUT_MAX_S)
     d = FaultsPlan()
     faulty = c.string(t, "faulty_sensor", "faults", d.faulty_sensor, choices=_FAULTY_SENSOR)
     after = c.number(t, "retire_after", "faults", d.retire_after, low=1, high=10000, integer=True)

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mission.core.plan_sections import LINK_TIMEOUT_MAX_S
 from tests.support.sitl_support import audit_failure_context, mission_story, require_sitl
 
 _N = 4
@@ -148,7 +149,7 @@ def test_ardupilot_sitl_mission(tmp_path):
         # 1.0): in one fresh-clone suite a 1.08 s gap cost a vehicle in the assembly and the mission
         plan = fleet.write_plan(tmp_path / "plan.toml", zenoh_endpoint=f"tcp/127.0.0.1:{zenoh_port}",
                                 overrides={"preflight": {"autopilot_ready_timeout_s": 180.0},
-                                           "faults": {"link_timeout_s": 1.4}})
+                                           "faults": {"link_timeout_s": LINK_TIMEOUT_MAX_S}})
         sitl_cpu0 = [_cpu_s(pid) for pid in fleet.pids]
         sensors = _start_sensors(fleet, zenoh_port, tmp_path)
         try:

@@ -36,6 +36,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
+from mission.core.plan_sections import LINK_TIMEOUT_MAX_S
 from tests.support.sitl_support import audit_failure_context, mission_story, require_sitl
 
 _SPEEDUP = 3.0
@@ -119,7 +120,7 @@ def test_px4_sih_mission_finds_the_source_and_lands(tmp_path):
     cfg = SitlFleetConfig(flavour="px4", n=_N, sitl_dir=sitl_dir, speedup=_SPEEDUP).free()
     with SitlFleet(cfg) as fleet:
         plan = fleet.write_plan(tmp_path / "plan.toml", zenoh_endpoint=zenoh,
-                                overrides={"seeking": seeking, "faults": {"link_timeout_s": 1.4}})  # as the AP mission
+                                overrides={"seeking": seeking, "faults": {"link_timeout_s": LINK_TIMEOUT_MAX_S}})
         result = fly_sitl_mission(fleet, plan, tmp_path / "logs", _SOURCE, zenoh=zenoh, noise=_NOISE,
                                   timeout_s=240.0)
         final = _final_states(14550 + cfg.port_offset, [v.sysid for v in fleet.vehicles])

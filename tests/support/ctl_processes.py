@@ -16,6 +16,7 @@ import sys
 import threading
 from pathlib import Path
 
+from mission.core.plan_sections import LINK_TIMEOUT_MAX_S
 from mission.sim.embedded import fleet_ports, free_port_block
 from sitl_mock.fleet import DEFAULT_ORIGIN
 from mission.telemetry.mission_log import read_mission_log
@@ -126,7 +127,7 @@ def _plan_toml(path: Path, udp_base: int, zenoh_section: str, fleet: str) -> Pat
     return gradient_seek_plan(path, fleet=fleet, n=4, udp_base=udp_base, origin=DEFAULT_ORIGIN,
                               zenoh_section=zenoh_section, takeoff_alt_m=4.0, stagger_s=0.5, radius_m=3.0,
                               start_alt_m=7.0, fence_half_m=150.0, min_alt_m=2.0, max_alt_m=60.0,
-                              link_timeout_s=1.4)
+                              link_timeout_s=LINK_TIMEOUT_MAX_S)
 
 
 def _fly_and_operate(tmp_path, fleet: str, zenoh_section: str, endpoint: str):

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mission.core.plan_sections import LINK_TIMEOUT_MAX_S
 from mission.sim.embedded import DEFAULT_ORIGIN, fleet_ports, free_port_block
 from sitl_mock.dynamics_params import DynamicsParams
 from sitl_mock.fields_gaussian import sigma2
@@ -54,7 +55,7 @@ def _plan_toml(path: Path, udp_base: int, zenoh_section: str, max_iterations: in
     return gradient_seek_plan(path, fleet="gcsfaults", n=N, udp_base=udp_base, origin=DEFAULT_ORIGIN,
                               zenoh_section=zenoh_section, takeoff_alt_m=3.0, stagger_s=0.3, radius_m=3.0,
                               start_alt_m=6.0, fence_half_m=100.0, min_alt_m=2.0, max_alt_m=40.0,
-                              max_iterations=max_iterations, link_timeout_s=1.4)
+                              max_iterations=max_iterations, link_timeout_s=LINK_TIMEOUT_MAX_S)
 
 
 def records(log: Path) -> list[dict]:
