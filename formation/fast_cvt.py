@@ -101,7 +101,10 @@ class _CachedEvaluator(_Evaluator):
 
     def __call__(self, p, with_energy=True):
         self.count += 1
-        _, cint, energy = self.triangulation.cells(p, with_energy)
+        if with_energy:
+            cint, energy = self.triangulation.centroids_and_energy(p)
+        else:
+            _, cint, energy = self.triangulation.cells(p, with_energy=False)
         cent = cint / np.linalg.norm(cint, axis=1)[:, None]
         move = float(np.max(np.linalg.norm(cent - p, axis=1)))
         return energy, cint, cent, move

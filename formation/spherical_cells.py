@@ -308,6 +308,17 @@ class _Triangulation:
         energy = float(np.sum(2.0 * areas - 2.0 * _dot(p, cint)))
         return areas, cint, energy
 
+    def centroids_and_energy(self, p):
+        """Centroid integrals and the CVT energy of unit generators ``p``, without the areas.
+
+        The cells tile the sphere, so their areas sum to ``4 pi`` and the energy
+        ``sum_i (2 A_i - 2 p_i . c_i)`` is ``8 pi - 2 sum_i p_i . c_i``: no spherical triangle
+        is needed (about a third of :meth:`cells`' work at n = 1000). Equal to :meth:`cells`'
+        energy to the rounding of a sum of ``n`` terms of about ``4 pi / n`` each (~1e-13).
+        """
+        _, cint, _ = self.cells(p, with_energy=False)
+        return cint, 8.0 * math.pi - 2.0 * float(np.sum(_dot(p, cint)))
+
 
 def _height(a, b, c, d):
     """Signed distance of ``d`` above the plane of the triangle ``(a, b, c)`` (3-lists)."""

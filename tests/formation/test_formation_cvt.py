@@ -234,6 +234,10 @@ def test_kept_triangulation_matches_convex_hull_cells(n):
         np.testing.assert_allclose(cint, ref.centroid_integrals, rtol=0, atol=1e-13)
         np.testing.assert_allclose(areas, ref.areas, rtol=0, atol=1e-13)
         assert energy == pytest.approx(ref.energy, abs=1e-13)
+        # the fast solver's energy from the tiling identity (areas sum to 4 pi), no areas
+        cint_only, energy_tiled = tri.centroids_and_energy(p)
+        np.testing.assert_array_equal(cint_only, cint)
+        assert energy_tiled == pytest.approx(ref.energy, abs=1e-12)
     assert tri.flips > 0  # the repair path was exercised, not only fresh hulls
 
 
