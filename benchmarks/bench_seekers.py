@@ -167,7 +167,8 @@ def search_boxes(source: np.ndarray, starts: np.ndarray, side_m: float, rng, mar
     return box
 
 
-def _seeker(name: str, field, ste_args: str | None = None, box=None):
+def _seeker(name: str, field, ste_args: str | None = None, box=None, stability: str | None = None):
+    """A seeker by benchmark name; ``stability``: the class a plan would give the ``ste`` seeker."""
     from estimator.seekers import make_seeker
     from mission.sim.embedded import default_eps
 
@@ -181,6 +182,8 @@ def _seeker(name: str, field, ste_args: str | None = None, box=None):
     if name.startswith("ste"):  # source-term estimation: ste, ste-wind, ste-patchy, ste-patchy-wind
         wind = _wind_from_deg(field) if name.endswith("wind") else None
         box_kw = {} if box is None else {"prior_box_enu": box}
+        if stability is not None:
+            box_kw["stability"] = stability
         return make_seeker("ste", patchy="patchy" in name, wind_from_deg=wind, **_ste_kwargs(ste_args), **box_kw), 20.0
     return make_seeker(name), 20.0
 
@@ -235,10 +238,10 @@ def update_ms(seeker_name: str, field_name: str, n: int, iterations: int = 40, s
     return 1e3 * float(np.median(times))
 
 
-def _field_and_noise(name: str, source: np.ndarray, level: str):
+def _field_and_noise(name: str, source: np.ndarray, level: str, field_args: dict | None = None):
     from sitl_mock.fields_config import make_field
 
-    field = make_field(name, source)
+    field = make_field(name, source, **(field_args or {}))
     steady = getattr(field, "steady", field)  # the intermittent plume's ensemble mean
     peak = float(steady.value(field.source_enu()))
     return field, (0.0 if level == "0" else 0.01 * peak)
@@ -282,28 +285,32 @@ class _Stacked:
 
 def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, iterations: int, seed: int,
              ste_args: str | None = None, sampling: str = "stop", start_m=(10.0, 50.0),
-             search_box_m: float | None = None) -> dict:
+             search_box_m: float | None = None, field_args: dict | None = None) -> dict:
     """One table cell: ``trials`` runs of a seeker on a field at a noise level, stop and go
     (vectorised) or sampling while moving (trial by trial); with ``search_box_m`` the ``ste``
-    seekers' prior is bounded by each trial's :func:`search_boxes` (stop and go only)."""
+    seekers' prior is bounded by each trial's :func:`search_boxes` (stop and go only);
+    ``field_args``: the field's parameters (:func:`field_args`; a ``stability`` is also given
+    to the ``ste`` seekers, as a plan's ``[field]`` would)."""
     import formation
     from experiments.offline_moving import simulate_moving
     from experiments.offline_seek import StopAndGo, simulate_seeker
 
     rng = np.random.default_rng(seed)
     source = np.array([0.0, 0.0, 15.0])
-    field, noise = _field_and_noise(field_name, source, noise_level)
+    field, noise = _field_and_noise(field_name, source, noise_level, field_args)
+    stability = (field_args or {}).get("stability")
     from mission.sim.embedded import downwind_en
 
     starts, dist = _starts(field.source_enu(), trials, rng, downwind_en(field), start_m)
     box = None
     if search_box_m is not None and seeker_name.startswith("ste"):
         box = search_boxes(field.source_enu(), starts, search_box_m, np.random.default_rng(seed + 2))
-    seeker, gamma = _seeker(seeker_name, field, ste_args, box)
+    seeker, gamma = _seeker(seeker_name, field, ste_args, box, stability)
     offsets = formation.cvt_sphere(8, 4.0, seed=0)
     t0 = time.perf_counter()
     if sampling == "moving":
-        run = simulate_moving(offsets, field, starts, lambda: _seeker(seeker_name, field, ste_args)[0], gamma_m=gamma,
+        run = simulate_moving(offsets, field, starts, lambda: _seeker(seeker_name, field, ste_args, None, stability)[0],
+                              gamma_m=gamma,
                               iterations=iterations, noise_std=noise, rotate=True, seed=seed + 1)
         row = measure_moving(run, dist)
         seeker = _Stacked(run.seekers)
@@ -312,8 +319,27 @@ def run_cell(seeker_name: str, field_name: str, noise_level: str, trials: int, i
                               noise_std=noise, rotate=True, seed=seed + 1)
         row = measure(run, dist, offsets.shape[0], StopAndGo())
     row.update(_posterior_row(seeker, field.source_enu()))
-    row.update(seeker=seeker_name, field=field_name, noise=noise, sampling=sampling, wall_s=time.perf_counter() - t0)
+    row.update(seeker=seeker_name, field=field_name, noise=noise, sampling=sampling, wall_s=time.perf_counter() - t0,
+               field_args=dict(field_args or {}))
     return row
+
+
+def field_args(text: str) -> dict:
+    """``"wind_speed_m_s=4,stability=D"`` -> the field's keyword parameters (numbers as floats).
+
+    ValueError (one line) for an item without ``=``; the field checks names and ranges
+    (:func:`sitl_mock.fields_config.make_field`).
+    """
+    out = {}
+    for item in filter(None, (p.strip() for p in text.split(","))):
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip() or not value.strip():
+            raise ValueError(f"--field-args: {item!r} is not NAME=VALUE")
+        try:
+            out[key.strip()] = float(value)
+        except ValueError:
+            out[key.strip()] = value.strip()
+    return out
 
 
 def _start_range(text: str) -> tuple[float, float]:
@@ -340,7 +366,9 @@ def _fmt(row: dict) -> str:
                 f"wall {row['wall_s']:.0f} s |")
     if "within_4x" in row:
         post += f" success within 4x / 10x the straight line {row['within_4x']:.2f} / {row['within_10x']:.2f} |"
-    return (f"| {row['seeker']} | {row['field']} | {row['noise']:g} | {row['success']:.2f} ({lo:.2f}-{hi:.2f}) "
+    args = ",".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.get("field_args", {}).items())
+    field = f"{row['field']} ({args})" if args else row["field"]
+    return (f"| {row['seeker']} | {field} | {row['noise']:g} | {row['success']:.2f} ({lo:.2f}-{hi:.2f}) "
             f"| {row['time_s_median']:.1f} / {row['time_s_p90']:.1f} | {row['ratio_median']:.2f} / {row['ratio_p90']:.2f} "
             f"| {row['flown_m_median']:.1f} ({row['straight_m_median']:.1f}) | {row['readings_median']:.0f} "
             f"| {row['final_error_m_median']:.3f} | {row['final_distance_m_median_all']:.2f} |" + post)
@@ -365,11 +393,23 @@ def main(argv=None) -> int:
     ap.add_argument("--search-box", type=float, default=None, metavar="SIDE_M",
                     help="ste seekers: bound the prior by a search box (a plan's fence) of this side, m, placed "
                     "at random about each trial's release and start (search_boxes); stop and go only")
+    ap.add_argument("--field-args", action="append", default=None, metavar="NAME=VALUE,...",
+                    help="the fields' parameters, e.g. wind_speed_m_s=4,stability=D (a stability class is also "
+                    "given to the ste seekers, as a plan would); repeat for more conditions (one table row each)")
     ap.add_argument("--cpu", default=None, help="vehicle counts (e.g. 8,50): print each seeker's CPU per update "
                     "(K = 1, median ms) on each field instead of the table")
     args = ap.parse_args(argv)
     try:
         start_m = _start_range(args.start_m)
+    except ValueError as exc:
+        ap.error(str(exc))
+    try:
+        conditions = [field_args(text) for text in (args.field_args or [""])]
+        from sitl_mock.fields_config import make_field
+
+        for name in args.fields.split(","):
+            for cond in conditions:
+                make_field(name, (0.0, 0.0, 15.0), **cond)
     except ValueError as exc:
         ap.error(str(exc))
     if args.search_box is not None and (not np.isfinite(args.search_box) or args.search_box <= 0
@@ -387,12 +427,13 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for field_name in args.fields.split(","):
-        for level in args.noise.split(","):
-            for name in args.seekers.split(","):
-                row = run_cell(name, field_name, level, args.trials, args.iterations, args.seed, args.ste_args,
-                               args.sampling, start_m, args.search_box)
-                rows.append(row)
-                print(_fmt(row), flush=True)
+        for cond in conditions:
+            for level in args.noise.split(","):
+                for name in args.seekers.split(","):
+                    row = run_cell(name, field_name, level, args.trials, args.iterations, args.seed, args.ste_args,
+                                   args.sampling, start_m, args.search_box, cond)
+                    rows.append(row)
+                    print(_fmt(row), flush=True)
     if args.json is not None:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0

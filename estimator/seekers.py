@@ -59,7 +59,8 @@ from estimator.ste import SteSeeker
 
 __all__ = [
     "SEEKERS", "OFFLINE_SEEKERS", "MOVING_SEEKERS", "Seeker", "GradientSeeker", "NewtonSeeker",
-    "ModelSeeker", "make_seeker", "cap_move", "propose_readings",
+    "ModelSeeker", "make_seeker", "cap_move", "propose_readings", "BEST_SEEKER_BY_FIELD", "DEFAULT_SEEKER",
+    "best_seeker",
 ]
 
 #: Seeker names accepted by :func:`make_seeker` (and by the plan's ``[seeking] seeker``).
@@ -72,6 +73,31 @@ OFFLINE_SEEKERS: tuple[str, ...] = ()
 #: plume seeker compares readings taken at rest. ``ste`` folds each reading in at the position where
 #: it was taken.
 MOVING_SEEKERS = ("newton", "model", "ste")
+
+#: the best measured seeker for a field type (``[field] type``, ``swarmseek run --field``; ``simulate
+#: --field`` on plumes), when the plan or the command line names none: the source-term estimator on
+#: plumes (docs/seekers.md), the log-quadratic ``model`` seeker on every other field (no small-N
+#: bias: docs/mission.md)
+BEST_SEEKER_BY_FIELD = {"plume": "ste", "intermittent": "ste"}
+#: the seeker of a plan or a ``run`` without a field type in :data:`BEST_SEEKER_BY_FIELD`
+DEFAULT_SEEKER = "model"
+
+
+def best_seeker(field_type: str | None) -> str:
+    """The seeker a mission on a field of ``field_type`` uses when none is named.
+
+    Parameters
+    ----------
+    field_type : str or None
+        ``[field] type`` of the plan (``swarmseek run --field``); None: no virtual field (a real
+        sensor, or a field the plan does not name).
+
+    Returns
+    -------
+    str
+        ``ste`` for the plume fields, ``model`` otherwise.
+    """
+    return BEST_SEEKER_BY_FIELD.get(field_type, DEFAULT_SEEKER)
 
 
 class Seeker(Protocol):

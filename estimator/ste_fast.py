@@ -156,10 +156,13 @@ def plume_mean_fast(params: np.ndarray, points: np.ndarray, *, stability: str = 
     np.sqrt(spread, out=spread)
     mu *= geo["s2"]
     mu /= spread
-    image = np.exp(geo["zh"])
-    image += 1.0
-    mu *= g
-    mu *= image
+    if geo["image_le0"]:  # sensors and releases above the ground: zh <= 0, exp(zh) <= 1
+        image = np.exp(geo["zh"])
+        image += 1.0
+        mu *= g
+        mu *= image
+    else:  # one below the ground: g (1 + e^zh) = exp(-(y^2/sy2 + (z + H)^2/sz2) / 2) (1 + e^-zh) <= 2,
+        mu *= np.exp(geo["log_g"] + _log1p_exp(geo["zh"]))  # while e^zh alone can overflow
     return mu, g
 
 

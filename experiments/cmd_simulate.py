@@ -25,10 +25,14 @@ from experiments.sweep import (SIMULATE_COLUMNS, Progress, RowWriter, add_sweep_
                                summary, summary_lines, sweep_flag_problem)
 from wire.cli_args import fail, float_in_range, int_in_range, nonnegative_float, positive_float
 
-__all__ = ["configure", "main", "run", "report_lines", "trial_row", "sweep_trial"]
+__all__ = ["configure", "main", "run", "report_lines", "trial_row", "sweep_trial", "resolve_defaults"]
 
 _PROG = "swarmseek simulate"
 _DEFAULT_STARTS = {"sigma1": "10,50,10", "sigma2": "20,-20,5"}
+#: the plume fields' release (ENU m) and the default start's distance down the wind from it (2 m lower)
+PLUME_SOURCE_ENU, PLUME_START_DOWNWIND_M = (0.0, 0.0, 15.0), 25.0
+#: the paper's step (the gradient seeker's default ``--gamma``) and the other seekers' (``run``'s)
+PAPER_GAMMA_M, SEEKER_GAMMA_M = 0.1, 20.0
 #: the convergence test of the paper's gradient run (gamma 0.1 m: hundreds of small steps)
 PAPER_WINDOW, PAPER_TOL_M = 400, 1.0
 #: a mission plan's convergence test (``[seeking] convergence_window`` and ``convergence_tol_m``'s
@@ -72,24 +76,28 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=("cvt", "symmetric"), default=None,
                         help="estimator: Theorem 2 or eq. (3) (default: the formation's)")
     parser.add_argument("--radius", type=positive_float, default=1.0, help="formation radius D, m")
-    parser.add_argument("--field", choices=("sigma1", "sigma2"), default=None, help="the paper's field (default sigma2)")
+    parser.add_argument("--field", choices=("sigma1", "sigma2", "plume", "intermittent"), default=None,
+                        help="the paper's field (default sigma2), or a plume: plume (steady) or intermittent (puffs), "
+                             "released at 0,0,15 m, wind from 270 deg at 2 m/s (docs/fields.md)")
     parser.add_argument("--field-python", default=None, metavar="PKG.MODULE:FACTORY",
                         help="your own field instead of --field: a factory importable from sys.path, called with "
                              "{'python': SPEC} (docs/fields.md, \"Your own field\")")
     parser.add_argument("--noise", type=nonnegative_float, default=0.0,
                         help="reading noise standard deviation (signal units)")
     parser.add_argument("--start", type=_vector3, default=None, metavar="E,N,U",
-                        help="initial centre, ENU metres (default: sigma1 10,50,10; sigma2 20,-20,5; a plug-in: "
-                             "20 m east and 20 m south of its source)")
+                        help="initial centre, ENU metres (default: sigma1 10,50,10; sigma2 20,-20,5; a plume: 25 m "
+                             "down the wind of the release, 2 m lower; a plug-in: 20 m east and 20 m south of its "
+                             "source)")
     parser.add_argument("--eps", type=positive_float, default=None,
                         help="the gradient seeker's step size (default 1)")
-    parser.add_argument("--gamma", type=positive_float, default=0.1,
-                        help="largest centre move per iteration, m (default 0.1)")
-    parser.add_argument("--seeker", choices=_seekers(), default="gradient",
+    parser.add_argument("--gamma", type=positive_float, default=None,
+                        help=f"largest centre move per iteration, m (default {PAPER_GAMMA_M:g}, the paper's, for the "
+                             f"gradient seeker; {SEEKER_GAMMA_M:g} for the others, as swarmseek run)")
+    parser.add_argument("--seeker", choices=_seekers(), default=None,
                         help="how the centre moves (docs/seekers.md): the paper's gradient ascent "
-                             "(default), Newton trust-region, the log-quadratic model, the plume "
-                             "seeker (surge/cast) or ste (source-term estimation: a particle filter over the "
-                             "release, for plumes); all but gradient take --gamma as their largest step (give e.g. 20)")
+                             "(the default on the paper's fields), Newton trust-region, the log-quadratic model, the "
+                             "plume seeker (surge/cast) or ste (source-term estimation: a particle filter over the "
+                             "release; the default on the plume fields)")
     parser.add_argument("--seek-wind-from", type=float_in_range(0.0, 360.0), default=None,
                         metavar="DEG",
                         help="wind direction the plume or ste seeker is given (where it comes from, degrees from "
@@ -128,6 +136,7 @@ def run(args: argparse.Namespace) -> dict:
     import formation
     from experiments.offline import convergence_report, simulate
 
+    resolve_defaults(args)
     problem = _inapplicable_option(args)
     if problem:
         raise ValueError(problem)
@@ -177,6 +186,18 @@ def run(args: argparse.Namespace) -> dict:
     return out
 
 
+def resolve_defaults(args: argparse.Namespace) -> None:
+    """Fill ``args.seeker`` and ``args.gamma`` when not given: on a plume field the best measured
+    seeker (:func:`estimator.seekers.best_seeker`: ``ste``), else the paper's gradient ascent; its
+    step the paper's 0.1 m, any other seeker's 20 m (``swarmseek run``'s)."""
+    from estimator.seekers import BEST_SEEKER_BY_FIELD
+
+    if getattr(args, "seeker", None) is None:
+        args.seeker = BEST_SEEKER_BY_FIELD.get(getattr(args, "field", None), "gradient")
+    if getattr(args, "gamma", None) is None:
+        args.gamma = PAPER_GAMMA_M if args.seeker == "gradient" else SEEKER_GAMMA_M
+
+
 def _resolve_test(args: argparse.Namespace) -> str:
     """Set ``args.window`` and ``args.tol`` when not given; where they come from: ``paper`` (the
     gradient seeker's defaults), ``plan`` (a mission plan's defaults, the other seekers') or
@@ -200,6 +221,12 @@ def _field_and_start(args: argparse.Namespace):
             raise ValueError(f"give --field or --field-python, not both (--field {args.field})")
         field, name = _plugin_field(args.field_python), f"python:{args.field_python}"
         default_start = field.source_enu() + np.array([20.0, -20.0, 0.0])
+    elif getattr(args, "field", None) in ("plume", "intermittent"):
+        name = args.field
+        field = make_field(name, PLUME_SOURCE_ENU)
+        east, north = getattr(field, "steady", field).downwind_en
+        default_start = np.asarray(PLUME_SOURCE_ENU) + (PLUME_START_DOWNWIND_M * east,
+                                                        PLUME_START_DOWNWIND_M * north, -2.0)
     else:
         name = getattr(args, "field", None) or "sigma2"
         field, default_start = make_field(name), _vector3(_DEFAULT_STARTS[name])
@@ -279,6 +306,8 @@ def _simulate_seeker(args, offsets, field, start) -> _SeekerRun:
     kw = {"wind_from_deg": getattr(args, "seek_wind_from", None)} if args.seeker in ("plume", "ste") else {}
     if args.seeker == "ste" and args.noise > 0:
         kw["noise_std"] = args.noise  # the sensor's (the seeker's default, 0.01, for a noise-free run)
+    if args.seeker in ("plume", "ste") and getattr(args, "field", None) == "intermittent":
+        kw["patchy"] = True  # hits and misses: a plan's plume_mode = "intermittent", the default there
     seeker = make_seeker(args.seeker, **kw)
     run = simulate_seeker(offsets, field, np.asarray(start, dtype=float)[None], seeker,
                           gamma_m=args.gamma, iterations=args.iterations, noise_std=args.noise,
@@ -306,6 +335,7 @@ def main(args: argparse.Namespace) -> int:
     problem = sweep_flag_problem(args)
     if problem:
         return fail(_PROG, f"error: {problem}")
+    resolve_defaults(args)
     for warning in _ignored_option_warnings(args):
         print(f"swarmseek simulate: warning: {warning}", file=sys.stderr)
     if getattr(args, "seeds", None) is not None:
@@ -437,6 +467,21 @@ def _sweep(args: argparse.Namespace) -> int:
     return 1 if any(r["outcome"] == "error" for r in rows) else 0
 
 
+def _own_estimate_line(out: dict) -> str:
+    """The seeker's own estimate where a mission would stop, with its 95 % region, or why it has none."""
+    own = out.get("seeker_estimate_enu")
+    if own is None and out.get("region95_m") is not None:
+        return "  the ste seeker's own estimate is its posterior: its mean and 95 % region at the run's end, below"
+    if own is None:
+        return (f"  the {out['seeker']} seeker keeps no estimate of its own: the window's spread is the "
+                "estimate's uncertainty")
+    region = out.get("seeker_region95_m")
+    region_text = (f"its 95 % region not within {out['tol_m']:g} m there (estimator.seek_confirm computes it only "
+                   "then)" if region is None else f"95 % region {region:.3f} m")
+    return (f"  the seeker's own estimate there {np.round(own, 3).tolist()}, {region_text}: "
+            f"{out['seeker_estimate_error_m']:.3f} m from the true source")
+
+
 def report_lines(out: dict) -> list[str]:
     """The human-readable result of :func:`run`: the stop a mission would make, then the run's end."""
     r3 = lambda v: np.round(v, 3).tolist()  # noqa: E731
@@ -455,6 +500,7 @@ def report_lines(out: dict) -> list[str]:
                       f"{out['estimate_spread_m']:.3f} m): {out['estimate_error_m']:.3f} m from the true source"]
         lines.append(f"  centre there {r3(out['centre_at_convergence_enu'])}: "
                      f"{out['centre_at_convergence_distance_m']:.3f} m from the true source")
+        lines.append(_own_estimate_line(out))
     else:
         lines.append(f"{test} never passed: not converged, no estimated source")
         lines += _why_not_lines(out)

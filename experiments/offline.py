@@ -256,6 +256,8 @@ def convergence_report(result: OfflineResult, *, window: int, tol_m: float, tria
         "estimate_error_m": float(np.linalg.norm(est_k - source)) if converged else None,
         "estimate_spread_m": spread_k if converged else None,
         "seeker_estimate_error_m": _seeker_error(result, trial, k, source) if converged else None,
+        **(_seeker_estimate(result, trial, k) if converged else {"seeker_estimate_enu": None,
+                                                                  "seeker_region95_m": None}),
         "centre_at_convergence_enu": centres[k].tolist() if converged else None,
         "centre_at_convergence_distance_m": float(np.linalg.norm(centres[k] - source)) if converged else None,
         "stopped_at_convergence": bool(converged and stop_at_convergence),
@@ -309,6 +311,19 @@ def _seeker_error(result, trial: int, k: int, source) -> float | None:
     if estimates is None or not np.all(np.isfinite(estimates[k, trial])):
         return None
     return float(np.linalg.norm(estimates[k, trial] - source))
+
+
+def _seeker_estimate(result, trial: int, k: int) -> dict:
+    """The seeker's own estimate after iteration ``k`` and the radius of its 95 % region (what a
+    mission reports; ``seeker_region95_m`` None where it was not computed: larger than the rule's
+    tolerance, or the formation away from the estimate); both None for a seeker
+    without estimates of its own (the paper's gradient: the window's spread is its uncertainty)."""
+    estimates = getattr(result, "estimates_enu", None)
+    if estimates is None or not np.all(np.isfinite(estimates[k, trial])):
+        return {"seeker_estimate_enu": None, "seeker_region95_m": None}
+    region = float(result.regions_m[k, trial])
+    return {"seeker_estimate_enu": np.asarray(estimates[k, trial], dtype=float).tolist(),
+            "seeker_region95_m": region if np.isfinite(region) else None}
 
 
 def _finite_or_none(value) -> float | None:

@@ -24,7 +24,8 @@ from mission.cli.common import add_mission_outputs
 from mission.link.forward import ForwardAddressError, forwarding, plan_with_outs, resolve_outs
 # the mission's modules are imported with the command, before any event loop starts: a first import
 # inside the loop is one callback of 0.3 s (tests/mission/sim/test_loop_debug.py)
-from mission.core.plan_types import SeekingPlan, best_seeker
+from estimator.seekers import best_seeker
+from mission.core.plan_types import SeekingPlan
 from mission.core.zenoh_open import open_session
 from mission.flight.coordinator import Coordinator
 from mission.flight.operator_stop import run_until_stopped
@@ -129,7 +130,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 #: (docs/seekers.md, "ste in missions"; README, "Seeking faster"); ``model`` for the others
 def _resolve_seeker(args) -> str:
     """``--seeker``, or when not given the best measured for the field (as a plan's default:
-    :func:`mission.core.plan_types.best_seeker`)."""
+    :func:`estimator.seekers.best_seeker`)."""
     if args.seeker is None:
         args.seeker = best_seeker(args.field)
     return args.seeker

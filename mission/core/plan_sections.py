@@ -10,12 +10,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from estimator.seekers import MOVING_SEEKERS, SEEKERS as _SEEKERS
+from estimator.seekers import MOVING_SEEKERS, SEEKERS as _SEEKERS, best_seeker
 from estimator.ste_model import BRIGGS_RURAL
 from formation.geodesy import geodetic_to_enu
 from mission.core.fence_file import FenceFile, FenceFileError, fence_in_mission_frame, read_fence_file
 from mission.core.plan_checks import Checker, check_connection, join_key, polygon_area, show_value
-from mission.core.plan_types import (PLUME_MODES, SAMPLINGS, ControlPlan, best_seeker, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
+from mission.core.plan_types import (PLUME_MODES, SAMPLINGS, ControlPlan, FaultsPlan, ForwardPlan, FormationPlan, GeofencePlan,
                                      PreflightPlan, SeekingPlan, VehiclePlan)
 from mission.core.signing_config import SigningConfig, signing_config_from_table
 from wire.signing import SigningError

@@ -14,7 +14,7 @@ from mission.core.signing_config import SigningConfig
 from mission.core.zenoh_config import ZenohPlan
 
 __all__ = [
-    "PLAN_VERSION", "SAMPLINGS", "PLUME_MODES", "BEST_SEEKER_BY_FIELD", "DEFAULT_SEEKER", "best_seeker", "PlanError", "VehiclePlan", "FaultsPlan",
+    "PLAN_VERSION", "SAMPLINGS", "PLUME_MODES", "PlanError", "VehiclePlan", "FaultsPlan",
     "PreflightPlan", "ControlPlan", "ForwardPlan", "FormationPlan", "SeekingPlan", "GeofencePlan",
     "Plan", "replace_plan",
 ]
@@ -24,29 +24,6 @@ PLAN_VERSION = 1
 SAMPLINGS = ("stop_and_go", "moving")
 #: variants of the ``plume`` seeker (``[seeking] plume_mode``)
 PLUME_MODES = ("steady", "intermittent")
-#: the best measured seeker for a field type (``[field] type``, ``swarmseek run --field``), when the
-#: plan or the command line names none: the source-term estimator on plumes (docs/seekers.md), the
-#: log-quadratic ``model`` seeker on every other field (no small-N bias: docs/mission.md)
-BEST_SEEKER_BY_FIELD = {"plume": "ste", "intermittent": "ste"}
-#: the seeker of a plan or a ``run`` without a field type in :data:`BEST_SEEKER_BY_FIELD`
-DEFAULT_SEEKER = "model"
-
-
-def best_seeker(field_type: str | None) -> str:
-    """The seeker a mission on a field of ``field_type`` uses when none is named.
-
-    Parameters
-    ----------
-    field_type : str or None
-        ``[field] type`` of the plan (``swarmseek run --field``); None: no virtual field (a real
-        sensor, or a field the plan does not name).
-
-    Returns
-    -------
-    str
-        ``ste`` for the plume fields, ``model`` otherwise.
-    """
-    return BEST_SEEKER_BY_FIELD.get(field_type, DEFAULT_SEEKER)
 
 
 class PlanError(ValueError):

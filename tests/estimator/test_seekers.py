@@ -180,6 +180,29 @@ def test_bench_start_range_option(capsys):
         assert "--start-m" in capsys.readouterr().err
 
 
+def test_bench_field_args_option(capsys):
+    """``--field-args``: the field's parameters (a stability class also given to ste, as a plan would);
+    bad ones exit 2 with one line before any trial runs."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    import bench_seekers
+
+    assert bench_seekers.field_args("wind_speed_m_s=4,stability=D") == {"wind_speed_m_s": 4.0, "stability": "D"}
+    row = bench_seekers.run_cell("ste-wind", "plume", "realistic", 2, 2, 0, field_args={"wind_speed_m_s": 4.0,
+                                                                                        "stability": "D"})
+    assert row["field_args"] == {"wind_speed_m_s": 4.0, "stability": "D"}
+    assert "| ste-wind | plume (wind_speed_m_s=4,stability=D) |" in bench_seekers._fmt(row)
+    seeker, _ = bench_seekers._seeker("ste", bench_seekers._field_and_noise("plume", np.zeros(3), "0")[0],
+                                      stability="D")
+    assert seeker.model["stability"] == "D"
+    for bad, why in (("stability", "is not NAME=VALUE"), ("stability=Q", "unknown stability class 'Q'"),
+                     ("wind_speed_m_s=-1", "wind_speed_m_s must be a finite number > 0"),
+                     ("wind_speed=3", "has no parameter wind_speed")):
+        with pytest.raises(SystemExit) as exc:
+            bench_seekers.main(["--fields", "plume", "--field-args", bad, "--trials", "1"])
+        assert exc.value.code == 2
+        assert why in capsys.readouterr().err
+
+
 def test_plan_key_and_cli_flags(tmp_path):
     from mission.cli.cmd_run import _resolve_seeker, configure
     from mission.core.plan import load_plan

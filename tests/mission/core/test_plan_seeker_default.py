@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from mission.core.plan import parse_plan
-from mission.core.plan_types import best_seeker
+from estimator.seekers import best_seeker
 
 SAMPLE = Path(__file__).resolve().parents[3] / "mission" / "examples" / "sitl_plan.toml"
 
