@@ -255,9 +255,7 @@ def convergence_report(result: OfflineResult, *, window: int, tol_m: float, tria
         "estimated_source_enu": est_k.tolist() if converged else None,
         "estimate_error_m": float(np.linalg.norm(est_k - source)) if converged else None,
         "estimate_spread_m": spread_k if converged else None,
-        "seeker_estimate_error_m": _seeker_error(result, trial, k, source) if converged else None,
-        **(_seeker_estimate(result, trial, k) if converged else {"seeker_estimate_enu": None,
-                                                                  "seeker_region95_m": None}),
+        **_seeker_estimate(result, trial, k if converged else None, source),
         "centre_at_convergence_enu": centres[k].tolist() if converged else None,
         "centre_at_convergence_distance_m": float(np.linalg.norm(centres[k] - source)) if converged else None,
         "stopped_at_convergence": bool(converged and stop_at_convergence),
@@ -304,25 +302,18 @@ def _declared(result, trial: int, k_window: int, est_window, spread_window: floa
     return None, -1, np.full(3, np.nan), None
 
 
-def _seeker_error(result, trial: int, k: int, source) -> float | None:
-    """The seeker's own estimate's distance to the source after iteration ``k`` (what a mission
-    reports for a seeker with one); None without one."""
+def _seeker_estimate(result, trial: int, k: int | None, source) -> dict:
+    """The seeker's own estimate after iteration ``k`` (None: not converged), its distance to the
+    source and the radius of its 95 % region (what a mission reports; ``seeker_region95_m`` None
+    where it was not computed: larger than the rule's tolerance, or the formation away from the
+    estimate); all None for a seeker without estimates of its own (the paper's gradient: the
+    window's spread is its uncertainty)."""
     estimates = getattr(result, "estimates_enu", None)
-    if estimates is None or not np.all(np.isfinite(estimates[k, trial])):
-        return None
-    return float(np.linalg.norm(estimates[k, trial] - source))
-
-
-def _seeker_estimate(result, trial: int, k: int) -> dict:
-    """The seeker's own estimate after iteration ``k`` and the radius of its 95 % region (what a
-    mission reports; ``seeker_region95_m`` None where it was not computed: larger than the rule's
-    tolerance, or the formation away from the estimate); both None for a seeker
-    without estimates of its own (the paper's gradient: the window's spread is its uncertainty)."""
-    estimates = getattr(result, "estimates_enu", None)
-    if estimates is None or not np.all(np.isfinite(estimates[k, trial])):
-        return {"seeker_estimate_enu": None, "seeker_region95_m": None}
+    if k is None or estimates is None or not np.all(np.isfinite(estimates[k, trial])):
+        return {"seeker_estimate_error_m": None, "seeker_estimate_enu": None, "seeker_region95_m": None}
+    est = np.asarray(estimates[k, trial], dtype=float)
     region = float(result.regions_m[k, trial])
-    return {"seeker_estimate_enu": np.asarray(estimates[k, trial], dtype=float).tolist(),
+    return {"seeker_estimate_error_m": float(np.linalg.norm(est - source)), "seeker_estimate_enu": est.tolist(),
             "seeker_region95_m": region if np.isfinite(region) else None}
 
 
