@@ -29,7 +29,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.bytecode import compile_sources, rewrite_tests
-from tests.support.priority import raised_priority
+from tests.support.priority import BOOST, SITL_BOOST, raised_priority
 from tests.support.quiet_room import QuietRoom
 
 TESTS_DIR = Path(__file__).resolve().parent
@@ -88,12 +88,14 @@ def unit_scope(rootdir: Path, scope: str) -> str:
 @pytest.fixture(scope="module", autouse=True)
 def _real_time_priority(request):
     """The files of :data:`REAL_TIME_FILES` run at a higher CPU priority, with every process they
-    start (tests/support/priority.py): module scope, so a module fixture's autopilot gets it too.
+    start (tests/support/priority.py; the real-SITL files higher than the wall-clock ones): module
+    scope, so a module fixture's autopilot gets it too.
     Where that is not allowed, a warning in the session's summary says so."""
     if _relative(request.path) not in REAL_TIME_FILES:
         yield
         return
-    with raised_priority() as refused:
+    boost = SITL_BOOST if _relative(request.path) in ONE_SITL_AT_A_TIME else BOOST
+    with raised_priority(boost) as refused:
         if refused:
             request.node.warn(pytest.PytestWarning(refused))
         yield

@@ -16,10 +16,14 @@ from __future__ import annotations
 import contextlib
 import os
 
-__all__ = ["BOOST", "raised_priority"]
+__all__ = ["BOOST", "SITL_BOOST", "raised_priority"]
 
 #: nice levels taken off: a thread at nice -5 weighs about 3 times one at nice 0 (Linux CFS)
 BOOST = 5
+#: the real-SITL unit's, above the wall-clock mock unit's :data:`BOOST`: nice -8 weighs about twice
+#: nice -5, so where both units run at once the real firmware is served first (an ArduCopter SITL once
+#: went 1.48 s without a frame, and was lost, while a wall-clock file started its processes at -5)
+SITL_BOOST = 8
 
 
 @contextlib.contextmanager
