@@ -1,10 +1,12 @@
 """MAVLink transports of a mock vehicle: UDP (PX4-SITL style) and TCP (ArduPilot-SITL style).
 
 One :class:`VehicleLinks` per vehicle owns its sockets (non-blocking, registered on the fleet's
-``selectors`` selector), parses incoming bytes with one pymavlink parser per peer
-(robust parsing: garbage and bad CRCs come out as counted BAD_DATA, never an exception; a UDP
-datagram is a whole unit: a partial frame ending it is counted in ``rx_truncated`` and dropped,
-never joined to the next datagram) and injects the link faults of the vehicle's
+``selectors`` selector), parses incoming bytes with one pymavlink parser per peer (robust
+parsing: garbage and bad CRCs come out as counted BAD_DATA, never an exception; a UDP datagram is
+a whole unit: a partial frame ending it is counted in ``rx_truncated`` and dropped, never joined
+to the next datagram; a datagram of exactly one valid frame of a fixed-layout message, nearly
+every setpoint, is decoded by :func:`wire.fast_decode.decode_single_frame` into the same message
+instead) and injects the link faults of the vehicle's
 :class:`~sitl_mock.faults.FaultSet`:
 
 * ``loss_uplink`` / ``loss_downlink``: each frame dropped with that probability;
@@ -24,6 +26,8 @@ import socket
 from collections import OrderedDict
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from wire.fast_decode import decode_single_frame
 
 __all__ = ["VehicleLinks", "PortInUseError", "make_parser", "MAX_UDP_PEERS"]
 
@@ -193,16 +197,21 @@ class VehicleLinks:
         its messages to the autopilot, through the link faults."""
         ap = self.ap
         faults = ap.faults
-        try:
-            msgs = parser.parse_buffer(data) or []
-        except Exception as exc:  # pymavlink should not raise with robust parsing; never crash
-            ap.counters["rx_parser_error"] += 1
-            ap.counters["rx_parser_error:" + type(exc).__name__] += 1
-            _reset_parser(parser)
-            return
-        if not stream and parser.buf_len():
-            ap.counters["rx_truncated"] += 1  # a datagram holds whole frames: drop its partial tail
-            _reset_parser(parser)
+        # one whole valid frame (nearly every datagram): the message pymavlink's parser would return
+        msg = None if stream else decode_single_frame(data)
+        if msg is not None:
+            msgs = (msg,)
+        else:
+            try:
+                msgs = parser.parse_buffer(data) or []
+            except Exception as exc:  # pymavlink should not raise with robust parsing; never crash
+                ap.counters["rx_parser_error"] += 1
+                ap.counters["rx_parser_error:" + type(exc).__name__] += 1
+                _reset_parser(parser)
+                return
+            if not stream and parser.buf_len():
+                ap.counters["rx_truncated"] += 1  # a datagram holds whole frames: drop its partial tail
+                _reset_parser(parser)
         t_s = self.clock.time()
         for msg in msgs:
             if faults.link_cut or faults.crashed:

@@ -8,4 +8,6 @@
 * :mod:`wire.zenoh_flags` - the ``--zenoh-tls-*`` / ``--zenoh-user`` command-line flags;
 * :mod:`wire.loopback` - is an address on this machine only (the security checks' rule);
 * :mod:`wire.cli_args` - argparse argument types (numbers in ranges, coordinates, paths).
+* :mod:`wire.fast_decode` - one whole, valid MAVLink 2 frame decoded into pymavlink's own message
+  without pymavlink's byte-stream parser (the ground station's and the mock autopilots' receive path).
 """

@@ -15,7 +15,7 @@ from __future__ import annotations
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mission.link.endpoint_registry import LinkError
-from mission.link.fast_decode import decode_single_frame
+from wire.fast_decode import decode_single_frame
 
 __all__ = ["EndpointReceiving", "SUSPECT_REASONS"]
 
@@ -60,7 +60,7 @@ class EndpointReceiving:
         """Transport callback: one UDP datagram (whole frames; a partial tail is counted).
 
         A datagram of exactly one valid frame of a fixed-layout message (nearly all telemetry)
-        is decoded by :func:`~mission.link.fast_decode.decode_single_frame` into the message
+        is decoded by :func:`~wire.fast_decode.decode_single_frame` into the message
         pymavlink would return; anything else goes through pymavlink's parser.
         """
         msg = decode_single_frame(data)

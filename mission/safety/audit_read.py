@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from formation.geodesy import enu_to_geodetic, geodetic_to_enu, ned_to_enu
-from mission.link.fast_decode import decode_single_frame
+from wire.fast_decode import decode_single_frame
 from mission.safety import audit_fast
 
 __all__ = ["AuditError", "AuditViolation", "VehicleSetpoints", "load_plan_limits", "find_tlogs",
@@ -247,7 +247,7 @@ def _decode_frame(mav, frame, path, t_s: float, msgid: int):
     """The message of one tlog frame (``mav``: a pymavlink parser of the ``common`` dialect).
 
     A valid MAVLink 2 frame of a fixed-layout message is decoded with ``struct`` by
-    :func:`~mission.link.fast_decode.decode_single_frame` (the same fields as pymavlink's decode:
+    :func:`~wire.fast_decode.decode_single_frame` (the same fields as pymavlink's decode:
     ``tests/mission/safety/test_audit_fast_read.py``); anything else (MAVLink 1, bad CRC, ...) by pymavlink.
 
     Raises

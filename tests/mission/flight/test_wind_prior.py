@@ -16,7 +16,7 @@ import sitl_mock.fleet as fleet_mod
 from mission.flight.wind_prior import WindPrior, fleet_wind_prior
 from mission.link.endpoint import MavEndpoint
 from mission.link.endpoint_registry import SysidRegistry
-from mission.link.fast_decode import FAST_MSG_IDS, decode_single_frame
+from wire.fast_decode import FAST_MSG_IDS, decode_single_frame
 from mission.sim.embedded import free_port_block
 from mission.vehicle.state import VehicleState, VehicleTelemetry
 from mission.vehicle.vehicle_link import VehicleLink

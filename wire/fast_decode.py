@@ -24,9 +24,11 @@ pymavlink's key-less parser does (``_signed`` False, signature not checked): the
 :class:`~mission.link.signing.SignatureVerifier` checks it afterwards on ``_msgbuf``, whichever
 path decoded it.
 
-This module is the ground station's one wrapper around pymavlink's private message fields
-(:func:`_with_frame` sets them); everything else reads a message's frame through pymavlink's
-public getters (``get_header()``, ``get_msgbuf()``, ``get_srcSystem()``...).
+Both ends of a link use it: the ground station's endpoint (``mission.link.endpoint_receive``), its
+``audit`` tlog reader and the mock autopilots' UDP links (``sitl_mock.transport``). This module is
+the project's one wrapper around pymavlink's private message fields (:func:`_with_frame` sets
+them); everything else reads a message's frame through pymavlink's public getters
+(``get_header()``, ``get_msgbuf()``, ``get_srcSystem()``...).
 """
 from __future__ import annotations
 
