@@ -147,21 +147,27 @@ def test_tangent_frame_enu_to_geodetic_agrees_with_pymap3d(lat0, lon0, alt0, eas
 
 
 def test_tangent_frame_agrees_with_pymap3d_on_a_grid():
-    """Origins every 15 degrees (poles included), points up to 20 km out, 0-5 km up and down."""
+    """Origins every 15 degrees (poles included), points up to 20 km out, 0-5 km up and down.
+
+    pymap3d's answers for an origin's 100 points come from one array call each way (elementwise
+    maths: the same floats as 100 scalar calls, a fraction of the CPU); the frame is called per point."""
+    grid = np.array([(east_m, north_m, up_m)
+                     for east_m in (-20000.0, -150.5, 0.0, 3.25, 20000.0)
+                     for north_m in (-20000.0, -7.75, 0.0, 150.5, 20000.0)
+                     for up_m in (-5000.0, 0.0, 42.0, 5000.0)])
     checked = 0
     for lat0 in np.arange(-90.0, 90.1, 15.0):
         for lon0 in np.arange(-180.0, 180.1, 45.0):
             origin = (float(lat0), float(lon0), 212.0)
             frame = TangentFrame(origin)
-            for east_m in (-20000.0, -150.5, 0.0, 3.25, 20000.0):
-                for north_m in (-20000.0, -7.75, 0.0, 150.5, 20000.0):
-                    for up_m in (-5000.0, 0.0, 42.0, 5000.0):
-                        lat, lon, alt = (float(v) for v in enu_to_geodetic(np.array([east_m, north_m, up_m]), origin))
-                        assert _same(frame.enu_to_geodetic(east_m, north_m, up_m), (lat, lon, alt)), (origin, east_m)
-                        assert _same(frame.ned_to_geodetic(north_m, east_m, -up_m), (lat, lon, alt))
-                        back = tuple(geodetic_to_enu(lat, lon, alt, origin).tolist())
-                        assert _same(frame.geodetic_to_enu_m(lat, lon, alt), back)
-                        checked += 1
+            lats, lons, alts = enu_to_geodetic(grid, origin)
+            backs = geodetic_to_enu(lats, lons, alts, origin)
+            for (east_m, north_m, up_m), lat, lon, alt, back in zip(grid.tolist(), lats.tolist(), lons.tolist(),
+                                                                     alts.tolist(), backs.tolist()):
+                assert _same(frame.enu_to_geodetic(east_m, north_m, up_m), (lat, lon, alt)), (origin, east_m)
+                assert _same(frame.ned_to_geodetic(north_m, east_m, -up_m), (lat, lon, alt))
+                assert _same(frame.geodetic_to_enu_m(lat, lon, alt), back)
+                checked += 1
     assert checked == 13 * 9 * 100
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import io
 import os
 import tomllib
@@ -130,10 +131,13 @@ def workdir(tmp_path_factory):
         os.chdir(old)
 
 
-def _actions(command: str) -> list[argparse.Action]:
+@functools.cache
+def _actions(command: str) -> tuple[argparse.Action, ...]:
+    """The command's argparse actions, read from its parser once per command (not at every draw:
+    building the parser was a third of this file's CPU)."""
     parser = build_parser([command])
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    return [a for a in sub.choices[command]._actions if not isinstance(a, argparse._HelpAction)]
+    return tuple(a for a in sub.choices[command]._actions if not isinstance(a, argparse._HelpAction))
 
 
 def _values(action: argparse.Action):
