@@ -206,8 +206,9 @@ def inside_fraction(p0, p1, poly, tol_m: float = 1e-7) -> np.ndarray:
     length = np.linalg.norm(d, axis=-1)
     ok = np.abs(den) > 1e-12 * length * np.linalg.norm(e, axis=-1)
     safe = np.where(ok, den, 1.0)
-    t = _cross2(w, e) / safe
-    u = _cross2(w, d) / safe
+    with np.errstate(over="ignore"):  # a crossing far beyond the segment overflows to inf: no hit, rightly
+        t = _cross2(w, e) / safe
+        u = _cross2(w, d) / safe
     hit = ok & (t > 0.0) & (t < 1.0) & (u >= -1e-12) & (u <= 1.0 + 1e-12)
     ts = np.sort(np.where(hit, t, 1.0), axis=-1)
     ts = np.concatenate([np.zeros(ts.shape[:-1] + (1,)), ts, np.ones(ts.shape[:-1] + (1,))], axis=-1)
