@@ -18,6 +18,7 @@ from sitl_mock.autopilot import MockAutopilot
 from sitl_mock.dynamics import Multicopter
 from sitl_mock.dynamics_params import DynamicsParams
 from sitl_mock.transport import VehicleLinks, make_parser
+from tests.support.decode_spy import spy_on_fast_decoder
 from tests.support.fuzz_helpers import FakeClock, encode
 
 _M = mavlink
@@ -61,15 +62,7 @@ def _received(monkeypatch, fast: bool):
     """What the autopilot was handed for every datagram of :func:`_datagrams`, and its counters."""
     if not fast:
         monkeypatch.setattr(transport, "decode_single_frame", lambda data: None)
-    decoded = []
-    real = transport.decode_single_frame
-
-    def spy(data):
-        msg = real(data)
-        decoded.append(msg is not None)
-        return msg
-
-    monkeypatch.setattr(transport, "decode_single_frame", spy)
+    decoded = spy_on_fast_decoder(monkeypatch, transport)
     ap = MockAutopilot(1, "px4", Multicopter(DynamicsParams(), np.random.default_rng(0)), HOME, 0.0)
     seen = []
     monkeypatch.setattr(ap, "handle_message", lambda msg, t_s: seen.append(msg))

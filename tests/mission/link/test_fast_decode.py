@@ -26,6 +26,7 @@ from tests.support.fuzz_helpers import (ALL_MESSAGE_CLASSES, SIGNED_REGIONS, Fak
 from mission.link.endpoint import MavEndpoint
 from mission.core.uri import parse_connection
 from wire.fast_decode import FAST_MSG_IDS, decode_single_frame
+from tests.support.decode_spy import spy_on_fast_decoder
 from mission.core.signing_config import SigningConfig
 from wire.signing import signing_timestamp
 from mission.link.tlog import read_tlog_records
@@ -247,25 +248,16 @@ def test_endpoint_with_and_without_fast_path_counts_logs_forwards_and_delivers_t
 
 
 @pytest.mark.parametrize("signing", [False, True])
-def test_telemetry_takes_the_fast_path_and_reaches_the_vehicle_tlog_and_forward_byte_for_byte(tmp_path, signing):
+def test_telemetry_takes_the_fast_path_and_reaches_the_vehicle_tlog_and_forward_byte_for_byte(tmp_path, signing,
+                                                                                            monkeypatch):
     ep, forwarded = _endpoint(tmp_path, "tlogs", SigningConfig(KEY, send_setup=False) if signing else None)
     msgs = [_heartbeat(), _M.MAVLink_local_position_ned_message(10, 1.0, 2.0, -3.0, 0.1, 0.2, 0.3),
             _M.MAVLink_global_position_int_message(10, 451900100, 57200200, 233000, 3000, 1, 2, 3, 0),
             _M.MAVLink_sys_status_message(32, 32, 32, 100, 12600, -1, 87, 0, 0, 0, 0, 0, 0)]
     datagrams = [(PEER, _signed_or_not(m, SYSID, signing, STAMP0 + k)) for k, m in enumerate(msgs)]
-    fast_hits = []
-    original = endpoint_receive.decode_single_frame
-
-    def counting(data):
-        msg = original(data)
-        fast_hits.append(msg is not None)
-        return msg
-    endpoint_receive.decode_single_frame = counting
-    try:
-        holder = [None]
-        delivered = _feed(ep, datagrams, holder)
-    finally:
-        endpoint_receive.decode_single_frame = original
+    fast_hits = spy_on_fast_decoder(monkeypatch, endpoint_receive)
+    holder = [None]
+    delivered = _feed(ep, datagrams, holder)
     ep.tlogs.close()
     frames_sent = [d for _, d in datagrams]
     assert fast_hits == [True] * len(msgs)
