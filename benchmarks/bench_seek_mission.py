@@ -164,6 +164,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     from bench_seekers import _ste_kwargs
+    try:
+        ste_kwargs = _ste_kwargs(args.ste_args)
+    except ValueError as exc:
+        ap.error(str(exc))
     print("| seeker | sampling | seed | outcome | time to stay within 1 m, s | straight line, s | ratio | time model, s "
           "| iterations to 1 m | seek time, s | iterations | error, m | region95, m | readings | centre flown, m "
           "| vehicle flown, m (mean / max) | last centroid to source, m | seeker CPU per update, ms (median / p90) |")
@@ -176,7 +180,7 @@ def main(argv=None) -> int:
                     continue
                 for seed in _seeds(args.seeds):
                     row = fly(seeker, seed, Path(tmp) / f"{seeker}-{sampling}-{seed}", sampling, args.run_args.split(),
-                              _ste_kwargs(args.ste_args), args.ste_readings)
+                              ste_kwargs, args.ste_readings)
                     rows.append(row)
                     print(_fmt(row), flush=True)
     if args.json is not None:

@@ -137,16 +137,30 @@ def _wind_from_deg(field):
     return None
 
 
-def _ste_kwargs(text: str | None) -> dict:
-    """``"exploit_m=1,temper=0.5"`` -> keyword arguments of the ``ste`` seeker (numbers)."""
+def name_values(text: str | None, option: str, number=float) -> dict:
+    """``"a=1,b=x"`` -> ``{"a": number("1"), "b": "x"}``: a value ``number`` cannot read stays a string.
+
+    ValueError (one line, naming ``option``) for an item that is not ``NAME=VALUE``.
+    """
     out = {}
-    for item in filter(None, (text or "").split(",")):
-        key, _, value = item.partition("=")
+    for item in filter(None, (p.strip() for p in (text or "").split(","))):
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip() or not value.strip():
+            raise ValueError(f"{option}: {item!r} is not NAME=VALUE")
         try:
-            out[key.strip()] = float(value) if "." in value or "e" in value else int(value)
+            out[key.strip()] = number(value)
         except ValueError:
-            out[key.strip()] = value
+            out[key.strip()] = value.strip()
     return out
+
+
+def _int_or_float(value: str):
+    return float(value) if "." in value or "e" in value else int(value)
+
+
+def _ste_kwargs(text: str | None) -> dict:
+    """``"exploit_m=1,temper=0.5"`` -> keyword arguments of the ``ste`` seeker (integers stay integers)."""
+    return name_values(text, "--ste-args", _int_or_float)
 
 
 def search_boxes(source: np.ndarray, starts: np.ndarray, side_m: float, rng, margin_m: float = 5.0,
@@ -330,16 +344,7 @@ def field_args(text: str) -> dict:
     ValueError (one line) for an item without ``=``; the field checks names and ranges
     (:func:`sitl_mock.fields_config.make_field`).
     """
-    out = {}
-    for item in filter(None, (p.strip() for p in text.split(","))):
-        key, eq, value = item.partition("=")
-        if not eq or not key.strip() or not value.strip():
-            raise ValueError(f"--field-args: {item!r} is not NAME=VALUE")
-        try:
-            out[key.strip()] = float(value)
-        except ValueError:
-            out[key.strip()] = value.strip()
-    return out
+    return name_values(text, "--field-args")
 
 
 def _start_range(text: str) -> tuple[float, float]:
@@ -405,6 +410,7 @@ def main(argv=None) -> int:
         ap.error(str(exc))
     try:
         conditions = [field_args(text) for text in (args.field_args or [""])]
+        _ste_kwargs(args.ste_args)  # a malformed --ste-args: one line now, not a traceback mid-table
         from sitl_mock.fields_config import make_field
 
         for name in args.fields.split(","):

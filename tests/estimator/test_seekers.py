@@ -203,6 +203,21 @@ def test_bench_field_args_option(capsys):
         assert why in capsys.readouterr().err
 
 
+
+def test_bench_ste_args_option(capsys):
+    """``--ste-args``: integers stay integers, other numbers are floats, and a malformed item exits 2
+    with one line before any trial runs (the same parser as ``--field-args``)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    import bench_seekers
+
+    assert bench_seekers._ste_kwargs("exploit_m=3,radius_gain=0.25,mode=x") == {
+        "exploit_m": 3, "radius_gain": 0.25, "mode": "x"}
+    assert bench_seekers._ste_kwargs(None) == {}
+    with pytest.raises(SystemExit) as exc:
+        bench_seekers.main(["--fields", "plume", "--seekers", "ste", "--ste-args", "exploit_m", "--trials", "1"])
+    assert exc.value.code == 2
+    assert "--ste-args: 'exploit_m' is not NAME=VALUE" in capsys.readouterr().err
+
 def test_plan_key_and_cli_flags(tmp_path):
     from mission.cli.cmd_run import _resolve_seeker, configure
     from mission.core.plan import load_plan
